@@ -1,0 +1,37 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "subpix_ros"
+
+NODES = {
+    "telemetry_node": "subpix_ros.nodes.telemetry_node:main",
+    "registration_node": "subpix_ros.nodes.registration_node:main",
+    "shift_node": "subpix_ros.nodes.shift_node:main",
+    "reconstruction_node": "subpix_ros.nodes.reconstruction_node:main",
+    "mosaic_node": "subpix_ros.nodes.mosaic_node:main",
+    "pipeline": "subpix_ros.nodes.pipeline:main",
+}
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*", "benchmarks"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+    ],
+    # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in
+    # a venv, from requirements.txt: never from install_requires.
+    install_requires=["setuptools", "numpy", "opencv-python-headless", "pymavlink", "rosbags", "PyYAML"],
+    zip_safe=True,
+    maintainer="subpix_ros developers",
+    maintainer_email="dev@subpix-ros.org",
+    description="Sub-pixel processing of drone imagery as ROS 2 nodes",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [f"{name} = {target}" for name, target in NODES.items()]
+        + ["subpix = subpix_ros.cli:main"],
+    },
+)

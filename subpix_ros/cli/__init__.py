@@ -1,0 +1,62 @@
+"""The ``subpix`` command-line tool.
+
+Each subcommand lives in its own module under ``subpix_ros.cli`` and exposes
+``register(subparsers)``, which adds its parser(s) and sets ``func`` to a
+callable ``func(args) -> int``. A subcommand reports a user error by raising
+:class:`CliError`; ``main`` prints it as one line and exits non-zero (no
+traceback wall).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Sequence
+
+# Subcommand modules, in the order ``subpix --help`` lists them.
+MODULES = (
+    "demo",
+    "replay",
+    "record",
+    "shift",
+    "interval",
+    "register",
+    "mosaic",
+    "superres",
+    "mtf",
+)
+
+
+class CliError(Exception):
+    """A user-facing error: printed as one line, exit status ``code``."""
+
+    def __init__(self, message: str, code: int = 1) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="subpix", description="Sub-pixel processing of drone imagery (subpix_ros)."
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in MODULES:
+        importlib.import_module(f"{__name__}.{name}").register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except CliError as exc:
+        print(f"subpix {args.command}: error: {exc}", file=sys.stderr)
+        return exc.code
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

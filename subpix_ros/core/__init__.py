@@ -1,0 +1,1 @@
+"""The science: pure numpy/OpenCV, no ROS imports (one module per method)."""

@@ -1,0 +1,1 @@
+"""Message conversion, bags and MAVLink, shared by all nodes and tools."""

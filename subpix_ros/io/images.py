@@ -316,17 +316,15 @@ def _convert(arr: np.ndarray, info: EncodingInfo, desired: str) -> np.ndarray:
     if desired == "bgr8" and info.kind != "plain":
         return _to_8bit(_decode_stored(arr, info)[0])
     if info.order == "generic":
+        if desired != "mono" and info.dtype not in (_U8, _U16):
+            raise ImageConversionError(f"{name} ({info.dtype}) has no defined 8-bit scale; use 'passthrough' or 'mono'")
         want = 3 if desired == "bgr8" else 1
         if info.channels != want:
             raise ImageConversionError(
                 f"{name} has {info.channels} channel(s) and no colour order; cannot convert to {desired} "
                 f"(use desired='passthrough')"
             )
-        if desired == "mono":
-            return arr
-        if info.dtype not in (_U8, _U16):
-            raise ImageConversionError(f"{name} ({info.dtype}) has no defined 8-bit scale; use 'passthrough' or 'mono'")
-        return _to_8bit(arr)
+        return arr if desired == "mono" else _to_8bit(arr)
     order = info.order
     if desired == "bgr8":
         out = _to_8bit(arr)

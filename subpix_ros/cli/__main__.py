@@ -1,0 +1,5 @@
+import sys
+
+from subpix_ros.cli import main
+
+sys.exit(main())

@@ -1,0 +1,91 @@
+"""Telemetry samples <-> ROS messages (CDR bytes through the shared typestore).
+
+One code path for the telemetry node (which publishes these bytes raw) and the
+sample-flight builder (which writes them into bags), so the bag's telemetry is
+exactly what the node publishes.
+
+Topics and types (relative names, under the node's namespace):
+
+========================  ==============================  =========================================
+``telemetry/fix``         sensor_msgs/NavSatFix           lat/lon (deg), altitude (m, MSL as MAVLink
+                                                          GLOBAL_POSITION_INT gives it)
+``telemetry/velocity``    geometry_msgs/TwistStamped      ground velocity, ENU (x east, y north,
+                                                          z up; REP-103), frame_id ``map``
+``telemetry/height``      std_msgs/Float64                height above ground (m)
+``telemetry/imu``         sensor_msgs/Imu                 orientation of base_link (FLU) in ENU;
+                                                          rates/accelerations not provided (cov -1)
+``telemetry/frame_interval``  std_msgs/Float64          recommended frame interval (s), eq. 1
+========================  ==============================  =========================================
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from subpix_ros.core.telemetry import TelemetrySample, attitude_quaternion_enu, ned_to_enu
+from subpix_ros.io.cdr import TYPESTORE, make_header, serialize
+
+T = TYPESTORE.types
+
+FIX = "sensor_msgs/msg/NavSatFix"
+TWIST = "geometry_msgs/msg/TwistStamped"
+FLOAT64 = "std_msgs/msg/Float64"
+IMU = "sensor_msgs/msg/Imu"
+VECTOR3 = "geometry_msgs/msg/Vector3Stamped"
+
+TOPICS = {
+    "fix": FIX,
+    "velocity": TWIST,
+    "height": FLOAT64,
+    "imu": IMU,
+    "frame_interval": FLOAT64,
+}
+
+
+def _unknown_cov() -> np.ndarray:
+    return np.zeros(9, dtype=np.float64)
+
+
+def fix_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "gps") -> bytes:
+    status = T["sensor_msgs/msg/NavSatStatus"](status=0, service=1)
+    msg = T[FIX](header=make_header(stamp_ns, frame_id), status=status, latitude=float(s.lat_deg),
+                 longitude=float(s.lon_deg), altitude=float(s.alt_msl_m), position_covariance=_unknown_cov(),
+                 position_covariance_type=0)
+    return serialize(msg, FIX)
+
+
+def velocity_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "map") -> bytes:
+    e, n, u = (float(x) for x in ned_to_enu(np.asarray(s.vel_ned_mps, dtype=np.float64)))
+    V3 = T["geometry_msgs/msg/Vector3"]
+    twist = T["geometry_msgs/msg/Twist"](linear=V3(x=e, y=n, z=u), angular=V3(x=0.0, y=0.0, z=0.0))
+    return serialize(T[TWIST](header=make_header(stamp_ns, frame_id), twist=twist), TWIST)
+
+
+def float64_cdr(value: float) -> bytes:
+    return serialize(T[FLOAT64](data=float(value)), FLOAT64)
+
+
+def imu_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "base_link") -> bytes:
+    x, y, z, w = attitude_quaternion_enu(s.roll_rad, s.pitch_rad, s.yaw_rad)
+    V3 = T["geometry_msgs/msg/Vector3"]
+    not_given = np.zeros(9, dtype=np.float64)
+    not_given[0] = -1.0
+    msg = T[IMU](header=make_header(stamp_ns, frame_id),
+                 orientation=T["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
+                 orientation_covariance=_unknown_cov(), angular_velocity=V3(x=0.0, y=0.0, z=0.0),
+                 angular_velocity_covariance=not_given.copy(), linear_acceleration=V3(x=0.0, y=0.0, z=0.0),
+                 linear_acceleration_covariance=not_given.copy())
+    return serialize(msg, IMU)
+
+
+def sample_messages(s: TelemetrySample, frame_interval_s: float | None = None) -> list[tuple[str, str, bytes]]:
+    """(relative topic, type, CDR) of every telemetry message for one sample."""
+    stamp = int(round(s.t * 1e9))
+    out = [
+        ("telemetry/fix", FIX, fix_cdr(s, stamp)),
+        ("telemetry/velocity", TWIST, velocity_cdr(s, stamp)),
+        ("telemetry/height", FLOAT64, float64_cdr(s.height_agl_m)),
+        ("telemetry/imu", IMU, imu_cdr(s, stamp)),
+    ]
+    if frame_interval_s is not None:
+        out.append(("telemetry/frame_interval", FLOAT64, float64_cdr(frame_interval_s)))
+    return out

@@ -1,0 +1,408 @@
+"""The small ROS glue shared by every subpix_ros node.
+
+* :class:`Param` / :func:`declare_params`: parameters with descriptors and
+  ranges; bad values at start-up or at run time are rejected with a message and
+  the old value stays.
+* :class:`Diagnostics`: the equivalent of diagnostic_updater (no wheel for it):
+  one DiagnosticStatus per node on ``/diagnostics`` at 1 Hz with rates,
+  latency, queue depth, drops and the last error.
+* :class:`DropOldestWorker`: a bounded drop-oldest queue and a worker thread,
+  so heavy work never runs in a subscription callback.
+* :func:`camera_qos`, :func:`latched_qos`, :func:`qos_event_callbacks`.
+* :func:`run_nodes`: the ``main`` of every console entry point.
+"""
+from __future__ import annotations
+
+import collections
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Sequence
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+__all__ = [
+    "Param",
+    "declare_params",
+    "Diagnostics",
+    "DropOldestWorker",
+    "RateMeter",
+    "camera_qos",
+    "latched_qos",
+    "reliable_qos",
+    "qos_event_callbacks",
+    "stamp_to_ns",
+    "ns_to_stamp",
+    "run_nodes",
+]
+
+
+# --------------------------------------------------------------------------- parameters
+@dataclass
+class Param:
+    """One declared parameter: default, description and (for numbers) a range."""
+
+    name: str
+    default: Any
+    description: str
+    min: float | int | None = None
+    max: float | int | None = None
+    choices: Sequence[str] | None = None
+    read_only: bool = False
+
+    def descriptor(self) -> ParameterDescriptor:
+        d = ParameterDescriptor(name=self.name, description=self.description, read_only=self.read_only)
+        if self.min is not None and self.max is not None:
+            if isinstance(self.default, bool):
+                pass
+            elif isinstance(self.default, int):
+                d.integer_range = [IntegerRange(from_value=int(self.min), to_value=int(self.max), step=0)]
+            elif isinstance(self.default, float):
+                d.floating_point_range = [FloatingPointRange(from_value=float(self.min), to_value=float(self.max), step=0.0)]
+        if self.choices:
+            d.additional_constraints = "one of: " + ", ".join(self.choices)
+        return d
+
+    def check(self, value: Any) -> str | None:
+        """Return why ``value`` is not acceptable, or None."""
+        if type(value) is not type(self.default) and not (
+            isinstance(self.default, float) and isinstance(value, int) and not isinstance(value, bool)
+        ):
+            return f"{self.name}: expected {type(self.default).__name__}, got {type(value).__name__} {value!r}"
+        if self.min is not None and value < self.min:
+            return f"{self.name}: {value!r} is below the minimum {self.min}"
+        if self.max is not None and value > self.max:
+            return f"{self.name}: {value!r} is above the maximum {self.max}"
+        if self.choices and value not in self.choices:
+            return f"{self.name}: {value!r} is not one of {', '.join(self.choices)}"
+        return None
+
+
+def declare_params(node: Node, params: Iterable[Param], on_change: Callable[[str, Any], None] | None = None) -> dict[str, Param]:
+    """Declare ``params`` on ``node`` and guard them at run time.
+
+    A value given at start-up (``--ros-args -p`` or ``--params-file``) that is
+    of the wrong type or out of range is rejected with an error log and the
+    default is kept. Changes at run time are validated by :meth:`Param.check`;
+    a rejected change leaves the old value and returns the reason to the
+    caller of set_parameters. ``on_change(name, value)`` runs after accepted
+    run-time changes.
+    """
+    spec = {p.name: p for p in params}
+    for p in spec.values():
+        try:
+            node.declare_parameter(p.name, p.default, p.descriptor())
+            bad = p.check(node.get_parameter(p.name).value)
+        except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
+            bad = str(exc).splitlines()[0]
+            node.undeclare_parameter(p.name) if node.has_parameter(p.name) else None
+        if bad:
+            node.get_logger().error(f"parameter rejected at start-up, keeping default {p.default!r}: {bad}")
+            if node.has_parameter(p.name):
+                node.undeclare_parameter(p.name)
+            node.declare_parameter(p.name, p.default, p.descriptor(), ignore_override=True)
+
+    def validate(changes: list[Parameter]) -> SetParametersResult:
+        for change in changes:
+            p = spec.get(change.name)
+            if p is None:
+                continue
+            if p.read_only:
+                return SetParametersResult(successful=False, reason=f"{p.name} is read-only")
+            why = p.check(change.value)
+            if why:
+                node.get_logger().warning(f"parameter change rejected: {why}")
+                return SetParametersResult(successful=False, reason=why)
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(validate)
+    if on_change is not None:
+        def after(changes: list[Parameter]) -> None:
+            for change in changes:
+                if change.name in spec:
+                    on_change(change.name, change.value)
+
+        node.add_post_set_parameters_callback(after)
+    return spec
+
+
+# --------------------------------------------------------------------------- QoS
+def camera_qos(reliable: bool, depth: int = 5) -> QoSProfile:
+    """SensorDataQoS (best effort, volatile) by default; reliable on request."""
+    if not reliable:
+        return QoSProfile(
+            history=qos_profile_sensor_data.history, depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT,
+            durability=DurabilityPolicy.VOLATILE,
+        )
+    return reliable_qos(depth)
+
+
+def reliable_qos(depth: int = 10) -> QoSProfile:
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def latched_qos() -> QoSProfile:
+    """Reliable + transient-local, depth 1: a late joiner gets the latest message."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def qos_event_callbacks(node: Node, topic: str, diagnostics: "Diagnostics | None" = None):
+    """Subscription and publisher event callbacks that log QoS incompatibilities."""
+
+    def incompatible(event) -> None:
+        text = f"QoS incompatible on {topic}: policy id {event.last_policy_kind} ({event.total_count} total)"
+        node.get_logger().error(text)
+        if diagnostics is not None:
+            diagnostics.error(text)
+
+    return (
+        SubscriptionEventCallbacks(incompatible_qos=incompatible, use_default_callbacks=False),
+        PublisherEventCallbacks(incompatible_qos=incompatible, use_default_callbacks=False),
+    )
+
+
+# --------------------------------------------------------------------------- time
+def stamp_to_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def ns_to_stamp(ns: int, cls):
+    return cls(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+
+
+# --------------------------------------------------------------------------- rates, queue, diagnostics
+class RateMeter:
+    """Events per second over a sliding window of ``window_s`` seconds."""
+
+    def __init__(self, window_s: float = 5.0) -> None:
+        self.window_s = window_s
+        self._t: collections.deque[float] = collections.deque(maxlen=10_000)
+        self.total = 0
+
+    def tick(self, now: float | None = None) -> None:
+        self._t.append(time.monotonic() if now is None else now)
+        self.total += 1
+
+    def rate(self, now: float | None = None) -> float:
+        now = time.monotonic() if now is None else now
+        while self._t and now - self._t[0] > self.window_s:
+            self._t.popleft()
+        return len(self._t) / self.window_s
+
+
+class DropOldestWorker:
+    """Bounded drop-oldest queue served by one worker thread.
+
+    ``put`` never blocks: when the queue is full the oldest item is dropped
+    and counted. Exceptions in ``handler`` are caught, counted and passed to
+    ``on_error``; the worker keeps running.
+    """
+
+    def __init__(self, handler: Callable[[Any], None], maxsize: int = 4, name: str = "worker",
+                 on_error: Callable[[BaseException], None] | None = None) -> None:
+        self._handler = handler
+        self._on_error = on_error
+        self._q: collections.deque = collections.deque()
+        self._cv = threading.Condition()
+        self.maxsize = max(1, int(maxsize))
+        self.dropped = 0
+        self.processed = 0
+        self.errors = 0
+        self.busy = False
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def put(self, item: Any) -> bool:
+        """Queue ``item``; return False if an older item had to be dropped."""
+        with self._cv:
+            dropped = False
+            while len(self._q) >= self.maxsize:
+                self._q.popleft()
+                self.dropped += 1
+                dropped = True
+            self._q.append(item)
+            self._cv.notify()
+        return not dropped
+
+    def clear(self) -> None:
+        with self._cv:
+            self._q.clear()
+
+    @property
+    def depth(self) -> int:
+        return len(self._q)
+
+    def idle(self) -> bool:
+        return not self._q and not self.busy
+
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                while not self._q and not self._stop:
+                    self._cv.wait(0.5)
+                if self._stop:
+                    return
+                item = self._q.popleft()
+                self.busy = True
+            try:
+                self._handler(item)
+                self.processed += 1
+            except Exception as exc:  # noqa: BLE001 - a worker must survive bad data
+                self.errors += 1
+                if self._on_error is not None:
+                    self._on_error(exc)
+                else:
+                    traceback.print_exc()
+            finally:
+                self.busy = False
+
+    def stop(self, timeout: float = 2.0) -> None:
+        with self._cv:
+            self._stop = True
+            self._cv.notify_all()
+        self._thread.join(timeout)
+
+
+@dataclass
+class _Status:
+    level: int = DiagnosticStatus.OK
+    message: str = "ok"
+    last_error: str = ""
+    last_error_time: float = 0.0
+    values: dict[str, str] = field(default_factory=dict)
+
+
+class Diagnostics:
+    """One node's DiagnosticStatus on /diagnostics (diagnostic_updater equivalent).
+
+    Stages report with :meth:`set` (key/values), :meth:`warn` / :meth:`error`
+    (with a message that stays visible for ``hold_s`` seconds) and
+    :meth:`ok`. Rates, latency, queue depth and drops come from the meters and
+    worker attached with :meth:`attach`.
+    """
+
+    def __init__(self, node: Node, hardware_id: str = "subpix_ros", period_s: float = 1.0, hold_s: float = 5.0) -> None:
+        self.node = node
+        self.name = f"{node.get_name()}"
+        self.hardware_id = hardware_id
+        self.hold_s = hold_s
+        self._status = _Status()
+        self._lock = threading.Lock()
+        self.rates: dict[str, RateMeter] = {}
+        self.worker: DropOldestWorker | None = None
+        self._latencies: collections.deque[float] = collections.deque(maxlen=200)
+        self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.timer = node.create_timer(period_s, self.publish)
+
+    def rate(self, name: str) -> RateMeter:
+        return self.rates.setdefault(name, RateMeter())
+
+    def attach(self, worker: DropOldestWorker) -> None:
+        self.worker = worker
+
+    def latency(self, seconds: float) -> None:
+        self._latencies.append(seconds)
+
+    def set(self, **values: Any) -> None:
+        with self._lock:
+            for k, v in values.items():
+                self._status.values[k] = f"{v:.6g}" if isinstance(v, float) else str(v)
+
+    def ok(self, message: str = "ok") -> None:
+        with self._lock:
+            if time.monotonic() - self._status.last_error_time > self.hold_s:
+                self._status.level = DiagnosticStatus.OK
+                self._status.message = message
+
+    def warn(self, message: str) -> None:
+        self._report(DiagnosticStatus.WARN, message)
+
+    def error(self, message: str) -> None:
+        self._report(DiagnosticStatus.ERROR, message)
+
+    def _report(self, level: int, message: str) -> None:
+        with self._lock:
+            now = time.monotonic()
+            held = now - self._status.last_error_time <= self.hold_s
+            if level >= self._status.level or not held:
+                self._status.level = level
+                self._status.message = message
+            self._status.last_error = message
+            self._status.last_error_time = now
+        log = self.node.get_logger()
+        (log.error if level == DiagnosticStatus.ERROR else log.warning)(message, throttle_duration_sec=2.0)
+
+    @property
+    def level(self) -> int:
+        return int(self._status.level)
+
+    @property
+    def message(self) -> str:
+        return self._status.message
+
+    def snapshot(self) -> DiagnosticStatus:
+        with self._lock:
+            if self._status.level != DiagnosticStatus.OK and time.monotonic() - self._status.last_error_time > self.hold_s:
+                self._status.level = DiagnosticStatus.OK
+                self._status.message = "ok"
+            values = dict(self._status.values)
+            st = DiagnosticStatus(level=bytes([self._status.level]), name=self.name, message=self._status.message,
+                                  hardware_id=self.hardware_id)
+            values["last_error"] = self._status.last_error
+        for name, meter in self.rates.items():
+            values[f"{name}_hz"] = f"{meter.rate():.3f}"
+            values[f"{name}_total"] = str(meter.total)
+        if self._latencies:
+            lat = sorted(self._latencies)
+            values["latency_p50_ms"] = f"{1000 * lat[len(lat) // 2]:.1f}"
+            values["latency_max_ms"] = f"{1000 * lat[-1]:.1f}"
+        if self.worker is not None:
+            values["queue_depth"] = str(self.worker.depth)
+            values["dropped_frames"] = str(self.worker.dropped)
+            values["worker_errors"] = str(self.worker.errors)
+        st.values = [KeyValue(key=k, value=v) for k, v in sorted(values.items())]
+        return st
+
+    def publish(self) -> None:
+        msg = DiagnosticArray()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.status = [self.snapshot()]
+        self.pub.publish(msg)
+
+
+# --------------------------------------------------------------------------- main
+def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None, threads: int | None = None) -> int:
+    """Init rclpy, build the nodes, spin them on a MultiThreadedExecutor, shut down cleanly."""
+    rclpy.init(args=args)
+    nodes: list[Node] = []
+    executor = MultiThreadedExecutor(num_threads=threads)
+    try:
+        for make in factories:
+            nodes.append(make())
+            executor.add_node(nodes[-1])
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        for n in nodes:
+            close = getattr(n, "close", None)
+            if close is not None:
+                close()
+            n.destroy_node()
+        executor.shutdown()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0

@@ -1,0 +1,125 @@
+"""What the nodes hand each other, in memory (pipeline) or as ROS messages.
+
+In the single-process ``pipeline`` these objects pass between stages
+directly; between processes they travel as the documented ROS messages, and
+the ``*_from_cdr`` / ``*_to_cdr`` helpers here convert (fast raw-CDR path).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from subpix_ros.io import cdr
+from subpix_ros.io.images import image_to_numpy
+
+
+@dataclass
+class Frame:
+    """One camera frame: pixels as received (mono HxW or BGR HxWx3)."""
+
+    stamp_ns: int
+    image: np.ndarray
+    frame_id: str = ""
+    received: float = field(default_factory=time.monotonic)
+
+    @property
+    def stamp_s(self) -> float:
+        return self.stamp_ns * 1e-9
+
+
+@dataclass
+class Aligned:
+    """A frame brought onto its reference frame's grid to pixel accuracy.
+
+    ``mask`` is True where the pixel came from the moving frame; ``reference``
+    the frame it is aligned to; ``homography`` maps the original moving
+    frame's pixel coordinates (x = column, y = row) to the reference's;
+    ``prior`` the sub-pixel (u, v) the homography predicts is left in.
+    """
+
+    stamp_ns: int
+    image: np.ndarray
+    mask: np.ndarray
+    reference: Frame
+    homography: np.ndarray
+    prior: tuple[float, float] | None = None
+    frame_id: str = ""
+    received: float = field(default_factory=time.monotonic)
+
+
+@dataclass
+class Shift:
+    """Sub-pixel shift of an aligned frame against its reference (project convention)."""
+
+    stamp_ns: int
+    reference_stamp_ns: int
+    u: float
+    v: float
+    z: float
+    u_std: float
+    v_std: float
+    frame_id: str = ""
+    received: float = field(default_factory=time.monotonic)
+
+
+# ---------------------------------------------------------------- messages -> payloads
+def frame_from_cdr(raw: bytes, received: float | None = None) -> Frame:
+    """Decode a raw sensor_msgs/Image: mono as HxW, colour as BGR (zero-copy for mono8/bgr8)."""
+    msg = cdr.cdr_to_image_msg(raw)
+    enc = msg.encoding.lower()
+    plain = enc in ("mono8", "mono16", "bgr8", "8uc1", "16uc1", "32fc1")
+    image = image_to_numpy(msg, "passthrough" if plain else "bgr8")
+    return Frame(cdr.header_to_ns(msg.header), image, msg.header.frame_id, received or time.monotonic())
+
+
+def frame_from_compressed_cdr(raw: bytes, received: float | None = None) -> Frame:
+    image, header = cdr.cdr_to_compressed(raw, "bgr8")
+    return Frame(cdr.header_to_ns(header), image, header.frame_id, received or time.monotonic())
+
+
+def homography_from_cdr(raw: bytes) -> np.ndarray:
+    data = cdr.cdr_to_float64_array(raw)
+    if data.size != 9 or not np.all(np.isfinite(data)):
+        raise ValueError(f"homography message must hold 9 finite values, got {data.size}")
+    return data.reshape(3, 3)
+
+
+def shift_from_cdr(raw: bytes) -> Shift:
+    vec, header = cdr.cdr_to_vector3_stamped(raw)
+    return Shift(cdr.header_to_ns(header), -1, float(vec[0]), float(vec[1]), float(vec[2]),
+                 float("nan"), float("nan"), header.frame_id)
+
+
+def mask_from_frame(frame: Frame) -> np.ndarray:
+    if frame.image.ndim != 2:
+        raise ValueError("mask image must be mono8")
+    return frame.image > 0
+
+
+# ---------------------------------------------------------------- payloads -> messages
+def image_cdr(image: np.ndarray, stamp_ns: int, frame_id: str = "") -> bytes:
+    if image.dtype == np.uint8:
+        encoding = "mono8" if image.ndim == 2 else "bgr8"
+    elif image.dtype == np.uint16 and image.ndim == 2:
+        encoding = "mono16"
+    elif image.dtype == np.float32 and image.ndim == 2:
+        encoding = "32FC1"
+    else:
+        raise ValueError(f"no image encoding for {image.dtype} with shape {image.shape}")
+    return cdr.image_to_cdr(image, encoding, stamp_ns, frame_id)
+
+
+def mask_cdr(mask: np.ndarray, stamp_ns: int, frame_id: str = "") -> bytes:
+    return cdr.image_to_cdr(np.where(mask, np.uint8(255), np.uint8(0)), "mono8", stamp_ns, frame_id)
+
+
+def homography_cdr(h: np.ndarray) -> bytes:
+    """3x3 homography, row-major, in a Float64MultiArray with dims rows=3, cols=3."""
+    return cdr.float64_array_to_cdr(np.asarray(h, dtype=np.float64).reshape(3, 3), ["rows", "cols"])
+
+
+def shift_cdr(s: Shift) -> bytes:
+    """Vector3Stamped: x = u (rows), y = v (columns), z = intensity offset; header of the moving frame."""
+    return cdr.vector3_stamped_to_cdr((s.u, s.v, s.z), s.stamp_ns, s.frame_id)

@@ -1,0 +1,73 @@
+"""pipeline: every subpix_ros node in one process, stages handing frames in memory.
+
+The camera is subscribed once (``image`` / ``image/compressed``, by the
+registration node) and each frame goes to the registration and mosaic stages
+directly; aligned frames go to the shift stage, shifts with their frames to
+the reconstruction stage, telemetry samples to frame selection: no DDS hop
+inside. Every stage still publishes its public topics (the same names as the
+separate nodes) and its /diagnostics. Runs on a MultiThreadedExecutor.
+
+Parameters are per stage, as for the separate nodes (node names
+``telemetry_node``, ``registration_node``, ``shift_node``,
+``reconstruction_node``, ``mosaic_node``), so one params file serves both
+layouts. ``--no-telemetry`` leaves the telemetry stage out (e.g. when the
+telemetry comes from a bag).
+"""
+from __future__ import annotations
+
+import sys
+from typing import Sequence
+
+from subpix_ros.nodes.common import run_nodes
+
+
+def build(with_telemetry: bool = True):
+    """Create and wire the stages; returns the list of nodes (rclpy must be initialised)."""
+    from subpix_ros.nodes.mosaic_node import MosaicNode
+    from subpix_ros.nodes.reconstruction_node import ReconstructionNode
+    from subpix_ros.nodes.registration_node import RegistrationNode
+    from subpix_ros.nodes.shift_node import ShiftNode
+
+    reg = RegistrationNode()
+    shift = ShiftNode(subscribe_inputs=False)
+    recon = ReconstructionNode(subscribe_inputs=False)
+    mosaic = MosaicNode(subscribe_inputs=False)
+    # camera -> registration (subscribed) and mosaic (in memory)
+    original = reg.handle_frame
+
+    def fan_out(frame):
+        original(frame)
+        mosaic.handle_frame(frame)
+
+    reg.handle_frame = fan_out  # type: ignore[method-assign]
+    reg.listen("aligned", shift.handle_aligned)
+    shift.listen("shift", recon.handle_shift)
+    nodes = [reg, shift, recon, mosaic]
+    if with_telemetry:
+        from subpix_ros.nodes.telemetry_node import TelemetryNode
+
+        tel = TelemetryNode()
+        tel.listen("sample", reg.handle_telemetry)
+        nodes.insert(0, tel)
+    return nodes
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv if args is None else args)
+    with_telemetry = "--no-telemetry" not in argv
+    argv = [a for a in argv if a != "--no-telemetry"]
+    nodes: list = []
+
+    def factory(i):
+        def make():
+            if not nodes:
+                nodes.extend(build(with_telemetry))
+            return nodes[i]
+        return make
+
+    count = 5 if with_telemetry else 4
+    return run_nodes([factory(i) for i in range(count)], argv, threads=max(4, count))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

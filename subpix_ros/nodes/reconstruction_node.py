@@ -1,0 +1,183 @@
+"""reconstruction_node: super-resolution from sets of shifted, aligned frames.
+
+Subscribes ``aligned/reference``, ``aligned`` + ``aligned/mask`` and
+``shift`` (matched to the aligned frames by header stamp within
+``time_tolerance_s``). A set is the reference frame plus the next
+``n_frames - 1`` aligned frames of that reference that have a shift; when a
+set completes the node publishes ``super_resolved`` (sensor_msgs/Image,
+``factor`` x the input size; mono8 for mono input, bgr8 for colour input:
+luminance is super-resolved and the chroma upsampled). Output pixel grid:
+low-resolution pixel i of the reference covers output pixels
+factor*i .. factor*i + factor - 1.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from geometry_msgs.msg import Vector3Stamped
+from sensor_msgs.msg import Image
+
+from subpix_ros.core import superres
+from subpix_ros.nodes import payloads as pl
+from subpix_ros.nodes.base import StageNode
+from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes
+from subpix_ros.nodes.shift_node import ReferenceCache, StampMatcher
+
+
+class ReconstructionNode(StageNode):
+    PARAMS = (
+        Param("factor", 2, "resolution factor", 2, 4),
+        Param("n_frames", 8, "frames per super-resolved image (the reference included)", 2, 64),
+        Param("method", "map", "reconstruction method", choices=("map", "windowed", "pinv", "bicubic")),
+        Param("time_tolerance_s", 0.001, "shift and frame stamps closer than this match", 0.0, 1.0),
+        Param("queue_size", 2, "complete sets waiting for the worker; the oldest is dropped beyond this", 1, 20),
+    )
+
+    def __init__(self, *, subscribe_inputs: bool = True, name: str = "reconstruction_node", **kw) -> None:
+        super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
+        self.pub = self.create_publisher(Image, "super_resolved", latched_qos())
+        self.make_worker(self._process, self.p("queue_size"))
+        self.refs = ReferenceCache()
+        self.matcher = StampMatcher()
+        self._pending_frames: dict[int, pl.Aligned] = {}
+        self._pending_shifts: list[pl.Shift] = []
+        self.sets: dict[int, list[tuple[pl.Shift, pl.Aligned]]] = {}
+        self.published = 0
+        if subscribe_inputs:
+            q = reliable_qos(20)
+            self.create_subscription(Image, "aligned/reference", self._on_reference, latched_qos(), raw=True)
+            self.create_subscription(Image, "aligned", self._on_aligned, q, raw=True)
+            self.create_subscription(Image, "aligned/mask", self._on_mask, q, raw=True)
+            self.create_subscription(Vector3Stamped, "shift", self._on_shift, q, raw=True)
+
+    # ---------------------------------------------------------------- DDS inputs
+    def _on_reference(self, raw: bytes) -> None:
+        try:
+            self.refs.add(pl.frame_from_cdr(raw))
+        except Exception as exc:  # noqa: BLE001
+            self.diag.error(f"bad reference image: {exc}")
+
+    def _on_aligned(self, raw: bytes) -> None:
+        try:
+            f = pl.frame_from_cdr(raw)
+        except Exception as exc:  # noqa: BLE001
+            self.diag.error(f"bad aligned image: {exc}")
+            return
+        pair = self.matcher.add_a(f.stamp_ns, f)
+        if pair:
+            self._frame_ready(*pair)
+
+    def _on_mask(self, raw: bytes) -> None:
+        try:
+            m = pl.frame_from_cdr(raw)
+            mask = pl.mask_from_frame(m)
+        except Exception as exc:  # noqa: BLE001
+            self.diag.error(f"bad mask image: {exc}")
+            return
+        pair = self.matcher.add_b(m.stamp_ns, mask)
+        if pair:
+            self._frame_ready(*pair)
+
+    def _frame_ready(self, frame: pl.Frame, mask: np.ndarray) -> None:
+        ref = self.refs.for_stamp(frame.stamp_ns)
+        if ref is None:
+            self.diag.warn("aligned frame without a reference: skipped")
+            return
+        self._pending_frames[frame.stamp_ns] = pl.Aligned(frame.stamp_ns, frame.image, mask, ref, np.eye(3), None,
+                                                          frame.frame_id, frame.received)
+        self._match()
+
+    def _on_shift(self, raw: bytes) -> None:
+        try:
+            s = pl.shift_from_cdr(raw)
+        except Exception as exc:  # noqa: BLE001
+            self.diag.error(f"bad shift message: {exc}")
+            return
+        if not (np.isfinite(s.u) and np.isfinite(s.v)):
+            self.diag.error("shift message with non-finite u/v ignored")
+            return
+        self._pending_shifts.append(s)
+        self._match()
+
+    def _match(self) -> None:
+        tol = int(self.p("time_tolerance_s") * 1e9)
+        still = []
+        for s in self._pending_shifts:
+            stamp = min(self._pending_frames, key=lambda t: abs(t - s.stamp_ns), default=None)
+            if stamp is not None and abs(stamp - s.stamp_ns) <= tol:
+                a = self._pending_frames.pop(stamp)
+                s.reference_stamp_ns = a.reference.stamp_ns
+                self.handle_shift((s, a))
+            else:
+                still.append(s)
+        self._pending_shifts = still[-64:]
+        if len(self._pending_frames) > 64:
+            for t in sorted(self._pending_frames)[:-64]:
+                del self._pending_frames[t]
+
+    # ---------------------------------------------------------------- sets
+    def handle_shift(self, item: tuple[pl.Shift, pl.Aligned]) -> None:
+        """Add one (shift, aligned frame) to its reference's set; queue the set when complete."""
+        s, a = item
+        self.diag.rate("input").tick()
+        if self.check_time(s.stamp_ns):
+            pass
+        key = a.reference.stamp_ns
+        members = self.sets.setdefault(key, [])
+        members.append((s, a))
+        for old in [k for k in self.sets if k < key]:
+            del self.sets[old]  # a newer reference started: the old set can no longer complete
+        if len(members) + 1 >= self.p("n_frames"):
+            del self.sets[key]
+            self.worker.put((a.reference, members))
+
+    def reset(self) -> None:
+        self.sets.clear()
+        self.refs.clear()
+        self.matcher.clear()
+        self._pending_frames.clear()
+        self._pending_shifts.clear()
+        if self.worker is not None:
+            self.worker.clear()
+
+    def _process(self, item) -> None:
+        ref, members = item
+        t0 = time.monotonic()
+        frames = [ref.image] + [a.image for _, a in members]
+        masks = [np.ones(ref.image.shape[:2], bool)] + [a.mask for _, a in members]
+        shifts = np.array([[0.0, 0.0]] + [[s.u, s.v] for s, _ in members])
+        if any(f.shape != ref.image.shape for f in frames):
+            self.diag.error("frames of one set differ in size: set dropped")
+            return
+        if ref.image.ndim == 3:
+            res = superres.reconstruct_colour(frames, shifts, self.p("factor"), method=self.p("method"), masks=masks)
+        else:
+            res = superres.reconstruct(frames, shifts, self.p("factor"), method=self.p("method"), masks=masks)
+        img = res.image
+        if not np.all(np.isfinite(img)):
+            self.diag.error("reconstruction produced non-finite pixels: not published")
+            return
+        out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        stamp = max(s.stamp_ns for s, _ in members)
+        self.pub.publish(pl.image_cdr(out, stamp, ref.frame_id))
+        self.emit("super_resolved", (out, res, ref, members))
+        self.published += 1
+        self.diag.rate("output").tick()
+        self.latency_since(ref.received)
+        self.diag.set(method=res.method, fell_back=res.fell_back, fallback_reason=res.reason,
+                      noise_sigma=float(res.noise_sigma), frames=len(frames), reconstruction_ms=1000 * (time.monotonic() - t0),
+                      images_published=self.published)
+        if res.fell_back:
+            self.diag.warn(f"super-resolution fell back to {res.method}: {res.reason}")
+        else:
+            self.diag.ok()
+
+
+def main(args=None) -> int:
+    return run_nodes([ReconstructionNode], args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,222 @@
+"""registration_node: frame selection from telemetry and automatic co-registration.
+
+Subscribes ``image`` (sensor_msgs/Image) and ``image/compressed``
+(sensor_msgs/CompressedImage), and the telemetry node's ``telemetry/velocity``,
+``telemetry/height`` and ``telemetry/imu``. Keeps frames so consecutive kept
+frames step by about 1/p pixel (every frame when telemetry is absent or
+stale, with a diagnostic), registers each kept frame to the current
+reference frame and publishes:
+
+* ``aligned`` (sensor_msgs/Image): the frame on the reference grid to pixel
+  accuracy, sub-pixel remainder left in; header stamp = the source frame's;
+* ``aligned/mask`` (sensor_msgs/Image mono8, 255 = pixel from the frame);
+* ``homography`` (std_msgs/Float64MultiArray): 3x3 row-major H mapping the
+  source frame's pixel coordinates (x = column, y = row, homogeneous) to the
+  reference frame's;
+* ``aligned/reference`` (sensor_msgs/Image, reliable + transient local): the
+  reference frame, each time a new one starts. Aligned frames belong to the
+  latest reference whose stamp is not later than theirs.
+
+A new reference starts on the first frame, after ``max_frames_per_reference``
+aligned frames, and when registration fails or its quality drops
+(inliers, residual, overlap).
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from geometry_msgs.msg import TwistStamped
+from sensor_msgs.msg import CompressedImage, Image, Imu
+from std_msgs.msg import Float64, Float64MultiArray
+
+from subpix_ros.core import registration as reg
+from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample
+from subpix_ros.core.timing import FrameSelector, expected_shift_px
+from subpix_ros.nodes import payloads as pl
+from subpix_ros.nodes.base import StageNode
+from subpix_ros.nodes.common import Param, camera_qos, latched_qos, reliable_qos, run_nodes
+
+
+class RegistrationNode(StageNode):
+    PARAMS = (
+        Param("camera_reliable", False, "subscribe to the camera with reliable QoS instead of SensorDataQoS"),
+        Param("queue_size", 2, "frames waiting for the worker; the oldest is dropped beyond this", 1, 100),
+        Param("p", 2.0, "target sub-pixel step between kept frames is 1/p pixel", 2.0, 16.0),
+        Param("selection", "step", "frame selection: step (1/p px steps), phase (sub-pixel phase), all",
+              choices=("step", "phase", "all")),
+        Param("telemetry_timeout_s", 1.0, "telemetry older than this is stale: keep every frame", 0.05, 60.0),
+        Param("telemetry_time_offset_s", 0.0, "telemetry time = image stamp + this offset (s)", -10.0, 10.0),
+        Param("focal_length_mm", 4.3, "camera focal length (mm)", 0.1, 2000.0),
+        Param("pixel_pitch_um", 1.54, "detector pixel pitch of the images as published (um)", 0.1, 100.0),
+        Param("camera_yaw_offset_deg", 0.0, "compass angle of the image top relative to the vehicle heading (deg)",
+              -180.0, 180.0),
+        Param("model", "projective", "registration model", choices=("projective", "affine")),
+        Param("max_frames_per_reference", 8, "aligned frames per reference frame before a new reference", 1, 10000),
+        Param("min_inliers", 30, "fewer inlier tie points start a new reference", 4, 100000),
+        Param("max_rms_px", 1.5, "a larger inlier RMS residual (px) starts a new reference", 0.01, 50.0),
+        Param("min_overlap", 0.3, "a smaller overlap fraction starts a new reference", 0.0, 1.0),
+        Param("warp_threshold_px", 0.1, "rotation/perspective beyond this (px at the corners) is warped out", 0.0, 100.0),
+    )
+
+    def __init__(self, *, subscribe_inputs: bool = True, name: str = "registration_node", **kw) -> None:
+        super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
+        self.selector = FrameSelector(p=self.p("p"), mode="step" if self.p("selection") == "all" else self.p("selection"),
+                                      max_age_s=self.p("telemetry_timeout_s"))
+        self.telemetry = TelemetryBuffer(max_age_s=60.0, stale_after_s=self.p("telemetry_timeout_s"))
+        self._height: float | None = None
+        self._yaw: float | None = None
+        self.reference: pl.Frame | None = None
+        self.since_reference = 0
+        self.kept = 0
+        self.skipped = 0
+        self.failures = 0
+        sub_ev, pub_ev = self.events("image")
+        self.pub_aligned = self.create_publisher(Image, "aligned", reliable_qos(10), event_callbacks=pub_ev)
+        self.pub_mask = self.create_publisher(Image, "aligned/mask", reliable_qos(10))
+        self.pub_h = self.create_publisher(Float64MultiArray, "homography", reliable_qos(10))
+        self.pub_ref = self.create_publisher(Image, "aligned/reference", latched_qos())
+        self.make_worker(self._process, self.p("queue_size"))
+        if subscribe_inputs:
+            qos = camera_qos(self.p("camera_reliable"))
+            self.create_subscription(Image, "image", self._on_image, qos, raw=True, event_callbacks=sub_ev)
+            self.create_subscription(CompressedImage, "image/compressed", self._on_compressed, qos, raw=True)
+            tq = reliable_qos(50)
+            self.create_subscription(TwistStamped, "telemetry/velocity", self._on_velocity, tq)
+            self.create_subscription(Float64, "telemetry/height", self._on_height, tq)
+            self.create_subscription(Imu, "telemetry/imu", self._on_imu, tq)
+
+    # ---------------------------------------------------------------- inputs
+    def _on_image(self, raw: bytes) -> None:
+        self._enqueue(raw, pl.frame_from_cdr)
+
+    def _on_compressed(self, raw: bytes) -> None:
+        self._enqueue(raw, pl.frame_from_compressed_cdr)
+
+    def _enqueue(self, raw: bytes, decode) -> None:
+        self.diag.rate("input").tick()
+        try:
+            frame = decode(raw)
+        except Exception as exc:  # noqa: BLE001 - bad input must not kill the node
+            self.diag.error(f"bad image dropped: {exc}")
+            return
+        self.handle_frame(frame)
+
+    def handle_frame(self, frame: pl.Frame) -> None:
+        """Queue one frame (called by the subscription or, in the pipeline, directly)."""
+        self.worker.put(frame)
+
+    def handle_telemetry(self, sample: TelemetrySample) -> None:
+        self.telemetry.add(sample)
+
+    def _on_velocity(self, msg: TwistStamped) -> None:
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        ve, vn, vu = msg.twist.linear.x, msg.twist.linear.y, msg.twist.linear.z
+        if self._height is None:
+            return
+        speed = math.hypot(ve, vn)
+        course = math.atan2(ve, vn) % (2 * math.pi)
+        yaw = self._yaw if self._yaw is not None else course
+        self.telemetry.add(TelemetrySample(t=t, lat_deg=0.0, lon_deg=0.0, alt_msl_m=0.0, height_agl_m=self._height,
+                                           vel_ned_mps=np.array([vn, ve, -vu]), ground_speed_mps=speed,
+                                           course_rad=course, yaw_rad=yaw))
+
+    def _on_height(self, msg: Float64) -> None:
+        self._height = float(msg.data) if math.isfinite(msg.data) else None
+
+    def _on_imu(self, msg: Imu) -> None:
+        q = msg.orientation
+        # ENU yaw of the body x axis -> compass heading (clockwise from north).
+        yaw_enu = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+        self._yaw = (math.pi / 2 - yaw_enu) % (2 * math.pi)
+
+    # ---------------------------------------------------------------- work
+    def reset(self) -> None:
+        self.reference = None
+        self.since_reference = 0
+        self.selector.reset()
+        self.telemetry = TelemetryBuffer(max_age_s=60.0, stale_after_s=self.p("telemetry_timeout_s"))
+        if self.worker is not None:
+            self.worker.clear()
+
+    def _image_rate(self, stamp_s: float):
+        """Expected image motion (u, v) px/s at the frame's stamp, or (None, reason)."""
+        t = stamp_s + self.p("telemetry_time_offset_s")
+        s = self.telemetry.at(t)
+        if s is None or isinstance(s, tuple):
+            return None, "no telemetry at the frame's stamp"
+        heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(self.p("camera_yaw_offset_deg"))
+        try:
+            rate = expected_shift_px(s.ground_speed_mps, s.course_rad, s.height_agl_m, self.p("focal_length_mm") * 1e-3,
+                                     self.p("pixel_pitch_um") * 1e-6, 1.0, heading)
+        except ValueError as exc:
+            return None, f"telemetry unusable: {exc}"
+        return rate, ""
+
+    def _process(self, frame: pl.Frame) -> None:
+        self.check_time(frame.stamp_ns)
+        if self.p("selection") != "all":
+            rate, why = self._image_rate(frame.stamp_s)
+            decision = self.selector.decide(frame.stamp_s, rate, None)
+            if rate is None:
+                self.diag.warn(f"frame selection: {why}; keeping every frame")
+            if not decision.keep:
+                self.skipped += 1
+                self.diag.set(frames_skipped=self.skipped, last_selection=decision.reason)
+                return
+            self.diag.set(last_selection=decision.reason)
+        self.kept += 1
+        if self.reference is None or self.since_reference >= self.p("max_frames_per_reference"):
+            self._new_reference(frame, "first frame" if self.reference is None else "set complete")
+            return
+        t0 = time.monotonic()
+        result = reg.register(self.reference.image, frame.image, model=self.p("model"))
+        why = self._quality_problem(result)
+        if why:
+            self.failures += 1
+            self.diag.warn(f"registration to reference failed ({why}): new reference")
+            self.diag.set(registration_failures=self.failures)
+            self._new_reference(frame, why)
+            return
+        al = reg.align(self.reference.image, frame.image, result, warp_threshold_px=self.p("warp_threshold_px"))
+        out = pl.Aligned(frame.stamp_ns, al.aligned, al.mask, self.reference, np.asarray(result.homography),
+                         tuple(al.prior_shift) if al.prior_shift is not None else None, frame.frame_id, frame.received)
+        self.since_reference += 1
+        self.pub_aligned.publish(pl.image_cdr(out.image, out.stamp_ns, out.frame_id))
+        self.pub_mask.publish(pl.mask_cdr(out.mask, out.stamp_ns, out.frame_id))
+        self.pub_h.publish(pl.homography_cdr(out.homography))
+        self.emit("aligned", out)
+        self.diag.rate("output").tick()
+        self.latency_since(frame.received)
+        self.diag.set(inliers=result.inliers, rms_px=float(result.rms_px), registration_ms=1000 * (time.monotonic() - t0),
+                      frames_kept=self.kept, warped=bool(al.warped))
+        self.diag.ok()
+
+    def _quality_problem(self, result) -> str:
+        if not result.ok:
+            return result.reason or "registration failed"
+        if result.inliers < self.p("min_inliers"):
+            return f"{result.inliers} inliers < {self.p('min_inliers')}"
+        if not result.rms_px <= self.p("max_rms_px"):
+            return f"residual {result.rms_px:.2f} px > {self.p('max_rms_px')}"
+        overlap = getattr(result, "overlap_fraction", None)
+        if overlap is not None and overlap < self.p("min_overlap"):
+            return f"overlap {overlap:.2f} < {self.p('min_overlap')}"
+        return ""
+
+    def _new_reference(self, frame: pl.Frame, why: str) -> None:
+        self.reference = frame
+        self.since_reference = 0
+        self.pub_ref.publish(pl.image_cdr(frame.image, frame.stamp_ns, frame.frame_id))
+        self.emit("reference", frame)
+        self.diag.set(reference_stamp=f"{frame.stamp_s:.3f}", reference_reason=why)
+
+
+def main(args=None) -> int:
+    return run_nodes([RegistrationNode], args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,182 @@
+"""telemetry_node: MAVLink (or mavros) telemetry in, ROS telemetry and frame timing out.
+
+Source ``mavlink`` (default): a pymavlink connection given by ``connection``
+(``udpin:127.0.0.1:14550``, ``udpout:HOST:PORT``, ``tcp:HOST:PORT``, a serial
+device with ``baud``, or a ``.tlog`` file to replay), read on its own thread
+with heartbeat and link-loss detection. Source ``mavros``: the same inputs
+from mavros' standard-message topics (``mavros_*`` parameters).
+
+Publishes (relative names): ``telemetry/fix`` (NavSatFix), ``telemetry/velocity``
+(TwistStamped, ENU, REP-103), ``telemetry/height`` (Float64, m above ground),
+``telemetry/imu`` (Imu, orientation only), ``telemetry/frame_interval``
+(Float64, s: METHODS.md eq. 1 for the configured camera, published only when
+defined), ``telemetry/detector_angle`` (Float64, rad: eq. 2 for p, latched) and
+``telemetry/expected_shift`` (Vector3Stamped: x = u rows, y = v columns, in
+pixels per camera frame at ``camera_rate_hz``; z = image speed, px/s).
+"""
+from __future__ import annotations
+
+import math
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from geometry_msgs.msg import TwistStamped, Vector3Stamped
+from sensor_msgs.msg import Imu, NavSatFix
+from std_msgs.msg import Float64
+
+from subpix_ros.core.telemetry import TelemetrySample, validate_sample
+from subpix_ros.core.timing import detector_angle, expected_shift_px, frame_interval
+from subpix_ros.io import cdr
+from subpix_ros.io import telemetry_msgs as tm
+from subpix_ros.nodes.base import StageNode
+from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes
+
+
+class TelemetryNode(StageNode):
+    PARAMS = (
+        Param("source", "mavlink", "telemetry source", choices=("mavlink", "mavros")),
+        Param("connection", "udpin:127.0.0.1:14550", "pymavlink connection: udpin:/udpout:/tcp:HOST:PORT, serial device, or .tlog"),
+        Param("baud", 57600, "serial baud rate", 1200, 4000000),
+        Param("system_id", 0, "MAVLink system id to follow (0: the first vehicle seen)", 0, 255),
+        Param("link_timeout_s", 2.0, "no message for this long: link lost", 0.1, 60.0),
+        Param("tlog_rate", 1.0, "tlog replay speed (0: as fast as possible)", 0.0, 1000.0),
+        Param("focal_length_mm", 4.3, "camera focal length (mm)", 0.1, 2000.0),
+        Param("pixel_pitch_um", 1.54, "detector pixel pitch (um)", 0.1, 100.0),
+        Param("p", 2.0, "sub-pixel factor: frames should step by 1/p pixel", 2.0, 16.0),
+        Param("phi_deg", 0.0, "angle between the detector's long axis and the ground track (deg), eq. 1", -89.0, 89.0),
+        Param("camera_rate_hz", 30.0, "camera frame rate, for the expected shift per frame", 0.1, 1000.0),
+        Param("camera_yaw_offset_deg", 0.0, "compass angle of the image top relative to the vehicle heading (deg)",
+              -180.0, 180.0),
+        Param("mavros_fix_topic", "/mavros/global_position/global", "mavros source: NavSatFix topic"),
+        Param("mavros_velocity_topic", "/mavros/local_position/velocity_local", "mavros source: TwistStamped (ENU)"),
+        Param("mavros_height_topic", "/mavros/global_position/rel_alt", "mavros source: Float64 relative altitude"),
+        Param("mavros_imu_topic", "/mavros/imu/data", "mavros source: Imu"),
+    )
+
+    def __init__(self, *, name: str = "telemetry_node", **kw) -> None:
+        super().__init__(name, **kw)
+        q = reliable_qos(20)
+        self.pubs = {key: self.create_publisher(_cls(t), f"telemetry/{key}", q) for key, t in tm.TOPICS.items()}
+        self.pub_shift = self.create_publisher(Vector3Stamped, "telemetry/expected_shift", q)
+        self.pub_angle = self.create_publisher(Float64, "telemetry/detector_angle", latched_qos())
+        self.pub_angle.publish(Float64(data=detector_angle(self.p("p"))))
+        self.samples = 0
+        self.reader = None
+        self._lock = threading.Lock()
+        self._mavros: dict[str, object] = {}
+        if self.p("source") == "mavlink":
+            self._start_mavlink()
+        else:
+            self._start_mavros()
+        self.create_timer(1.0, self._report)
+
+    # ---------------------------------------------------------------- sources
+    def _start_mavlink(self) -> None:
+        from subpix_ros.io.mavlink import MavlinkReader
+
+        url = self.p("connection")
+        if url.endswith(".tlog") and not Path(url).is_file():
+            self.diag.error(f"tlog file not found: {url}")
+            return
+        try:
+            rate = self.p("tlog_rate") if url.endswith(".tlog") else None
+            self.reader = MavlinkReader(url, baud=self.p("baud"), system_id=self.p("system_id") or None,
+                                        link_timeout_s=self.p("link_timeout_s"), on_sample=self.handle_sample,
+                                        on_status=self._on_link, rate=rate or None)
+            self.reader.start()
+        except (ValueError, OSError) as exc:
+            self.diag.error(f"cannot open MAVLink connection {url!r}: {exc}")
+            self.reader = None
+
+    def _start_mavros(self) -> None:
+        q = reliable_qos(20)
+        self.create_subscription(NavSatFix, self.p("mavros_fix_topic"), lambda m: self._mavros.__setitem__("fix", m), q)
+        self.create_subscription(Float64, self.p("mavros_height_topic"), lambda m: self._mavros.__setitem__("h", m.data), q)
+        self.create_subscription(Imu, self.p("mavros_imu_topic"), lambda m: self._mavros.__setitem__("imu", m), q)
+        self.create_subscription(TwistStamped, self.p("mavros_velocity_topic"), self._on_mavros_velocity, q)
+
+    def _on_mavros_velocity(self, msg: TwistStamped) -> None:
+        fix, h = self._mavros.get("fix"), self._mavros.get("h")
+        if fix is None or h is None:
+            self.diag.warn("mavros: waiting for fix and rel_alt before publishing")
+            return
+        ve, vn, vu = msg.twist.linear.x, msg.twist.linear.y, msg.twist.linear.z
+        yaw = None
+        imu = self._mavros.get("imu")
+        if imu is not None:
+            q = imu.orientation
+            yaw_enu = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+            yaw = (math.pi / 2 - yaw_enu) % (2 * math.pi)
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        s = TelemetrySample(t=t, lat_deg=fix.latitude, lon_deg=fix.longitude, alt_msl_m=fix.altitude,
+                            height_agl_m=float(h), vel_ned_mps=np.array([vn, ve, -vu]),
+                            ground_speed_mps=math.hypot(ve, vn), course_rad=math.atan2(ve, vn) % (2 * math.pi),
+                            roll_rad=0.0 if yaw is not None else None, pitch_rad=0.0 if yaw is not None else None,
+                            yaw_rad=yaw)
+        self.handle_sample(s)
+
+    def _on_link(self, event) -> None:
+        text = f"MAVLink link {event.state}: {event.reason}"
+        if event.state in ("lost", "end_of_log"):
+            self.diag.warn(text)
+        else:
+            self.get_logger().info(text)
+        self.diag.set(link=event.state)
+
+    # ---------------------------------------------------------------- output
+    def handle_sample(self, s: TelemetrySample) -> None:
+        """Publish one telemetry sample (reader thread or mavros callback)."""
+        ok, why = validate_sample(s)
+        if not ok:
+            self.diag.warn(f"telemetry sample rejected: {why}")
+            return
+        f_m, a_m, p = self.p("focal_length_mm") * 1e-3, self.p("pixel_pitch_um") * 1e-6, self.p("p")
+        iv = frame_interval(a_m, s.height_agl_m, f_m, s.ground_speed_mps, p, math.radians(self.p("phi_deg")))
+        with self._lock:
+            for topic, msgtype, raw in tm.sample_messages(s, iv.interval_s if iv.ok else None):
+                self.pubs[topic.split("/", 1)[1]].publish(raw)
+            heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(self.p("camera_yaw_offset_deg"))
+            try:
+                u, v = expected_shift_px(s.ground_speed_mps, s.course_rad, s.height_agl_m, f_m, a_m,
+                                         1.0 / self.p("camera_rate_hz"), heading)
+                self.pub_shift.publish(cdr.vector3_stamped_to_cdr(
+                    (u, v, math.hypot(u, v) * self.p("camera_rate_hz")), int(round(s.t * 1e9)), "camera"))
+            except ValueError as exc:
+                self.diag.warn(f"expected shift undefined: {exc}")
+        self.samples += 1
+        self.emit("sample", s)
+        self.diag.rate("output").tick()
+        self.diag.set(samples=self.samples, height_m=float(s.height_agl_m), ground_speed_mps=float(s.ground_speed_mps),
+                      frame_interval_s=iv.interval_s if iv.ok else f"undefined: {iv.reason}")
+        if not iv.ok:
+            self.diag.warn(f"no frame interval: {iv.reason}")
+
+    def _report(self) -> None:
+        if self.reader is None:
+            return
+        st = self.reader.stats
+        self.diag.set(link=self.reader.link_state, packets=st.packets, bad_crc=st.bad_crc, garbage_bytes=st.garbage_bytes,
+                      other_system=st.other_system, rejected=st.rejected, last_reject=st.last_reject)
+        if self.reader.link_state == "lost":
+            self.diag.warn("MAVLink link lost")
+
+    def close(self) -> None:
+        if self.reader is not None:
+            self.reader.stop()
+        super().close()
+
+
+def _cls(msgtype: str):
+    from subpix_ros.io.player import message_class
+
+    return message_class(msgtype)
+
+
+def main(args=None) -> int:
+    return run_nodes([TelemetryNode], args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

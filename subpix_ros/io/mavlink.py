@@ -570,7 +570,9 @@ class MavlinkReader:
     @property
     def local_address(self) -> tuple[str, int] | None:
         """Bound (host, port) of a udpin/tcpin listener (useful with port 0)."""
-        port = getattr(self._conn, "port", None) or getattr(self._conn, "listen_sock", None)
+        if self._conn is None:
+            return None
+        port = self._conn.listen if self.spec.kind == "tcpin" else getattr(self._conn, "port", None)
         try:
             return port.getsockname()[:2] if port is not None else None
         except OSError:
@@ -585,6 +587,7 @@ class MavlinkReader:
 
     # -- thread --------------------------------------------------------------
     def _run(self) -> None:
+        idle = False
         while not self._stop.is_set():
             try:
                 if self.spec.kind == "udpout":
@@ -603,11 +606,18 @@ class MavlinkReader:
                     break
                 self._check_link(now)
                 try:
-                    self._conn.select(self.poll_s)  # type: ignore[union-attr]
+                    waited = time.monotonic()
+                    ready = self._conn.select(self.poll_s)  # type: ignore[union-attr]
+                    if ready and time.monotonic() - waited < 1e-3 and idle:
+                        # Readable yet nothing parsed twice in a row: a closed
+                        # TCP peer or a dead device. Do not spin.
+                        self._stop.wait(self.poll_s)
                 except Exception as exc:  # noqa: BLE001
                     self._error(exc)
                     self._stop.wait(self.poll_s)
+                idle = True
                 continue
+            idle = False
             try:
                 self._handle(msg, now)
             except Exception as exc:  # noqa: BLE001

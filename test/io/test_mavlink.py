@@ -348,3 +348,41 @@ def test_reader_stop_is_prompt_without_traffic():
     reader.stop()
     assert time.monotonic() - start < 1.0 and reader.join(0.0)
     assert reader.link_state == "waiting" and reader.stats.packets == 0
+
+
+def test_tcp_stream_split_at_odd_boundaries_and_peer_close():
+    import socket
+
+    col = Collector()
+    reader = col.reader("tcpin:127.0.0.1:0", link_timeout_s=0.3).start()
+    try:
+        host, port = reader.local_address
+        traj = trajectory_straight(t0=T0, duration_s=1.0, rate_hz=10.0)
+        data = packets(traj, heartbeat_hz=1.0)
+        with socket.create_connection((host, port), timeout=2.0) as sock:
+            for i in range(0, len(data), 7):  # 7-byte pieces: frames split anywhere
+                sock.sendall(data[i : i + 7])
+            assert wait_until(lambda: len(col.samples) == len(traj))
+        assert wait_until(lambda: "lost" in col.states(), timeout=3.0)  # peer gone
+        cpu0 = time.process_time()
+        time.sleep(1.0)
+        assert time.process_time() - cpu0 < 0.1  # the closed socket does not make the thread spin
+        st = reader.stats
+        assert st.samples == len(traj) and st.bad_data == 0 and st.bad_crc == 0 and st.exceptions == 0
+    finally:
+        reader.stop()
+
+
+def test_autopilot_reboot_is_accepted_and_counted(tmp_path):
+    before = trajectory_straight(t0=T0 + 30.0, duration_s=1.0, rate_hz=5.0)
+    after = trajectory_straight(t0=T0 + 32.0, duration_s=1.0, rate_hz=5.0)
+    # time_boot_ms 30000.. then, after a reboot 31.5 s later, 500..
+    pk = encode_samples(before, boot_time=T0) + encode_samples(after, boot_time=T0 + 31.5)
+    path = tmp_path / "reboot.tlog"
+    write_tlog(path, packets=pk)
+    col = Collector()
+    reader = col.reader(str(path)).start()
+    assert reader.join(10.0)
+    assert len(col.samples) == len(before) + len(after)
+    assert [s.time_boot_ms for s in col.samples[len(before):]][:2] == [500, 700]
+    assert reader.stats.reboots == 1 and reader.stats.rejected == 0

@@ -364,7 +364,8 @@ def test_frames_trajectory_speed_461_to_462_matches_hand_haversine():
     t = np.array([s.t for s in traj])
     v = np.array([s.vel_ned_mps for s in traj])
     sel = (t >= traj[0].t - 1e-6) & (t <= traj[0].t + dt + 1e-6)
-    mean_v = np.trapezoid(v[sel], t[sel], axis=0) / dt  # velocity integrates to the displacement
+    vs, ts = v[sel], t[sel]
+    mean_v = (0.5 * (vs[1:] + vs[:-1]) * np.diff(ts)[:, None]).sum(axis=0) / dt  # trapezoid: displacement / dt
     assert math.hypot(mean_v[0], mean_v[1]) == pytest.approx(hand_speed, rel=SPHERE_VS_ELLIPSOID)
     assert course_from_velocity(mean_v[0], mean_v[1]) == pytest.approx(hand_course, abs=SPHERE_BEARING_TOL)
     # Vertical: GPS altitude 288.40 -> 287.14 m, so mean down velocity +0.315 m/s.

@@ -158,12 +158,12 @@ def test_udp_sample_matches_hand_computed_values(udp):
 def test_udp_link_lost_after_timeout_and_restored(udp):
     col, reader, sender = udp(link_timeout_s=0.4)
     traj = trajectory_straight(t0=T0, duration_s=1.0, rate_hz=10.0)
+    before_send = time.time()  # every packet is received after this instant
     sender.send_packets(encode_samples(traj[:5], boot_time=T0), rate=None)
-    assert wait_until(lambda: col.states() == ["connected"])
-    sent_at = time.time()
     assert wait_until(lambda: "lost" in col.states(), timeout=3.0)
+    assert col.states() == ["connected", "lost"]
     lost = col.events[-1]
-    assert lost.state == "lost" and lost.t - sent_at >= 0.4 - 0.05 and "no MAVLink from system 1" in lost.reason
+    assert lost.t - before_send > 0.4 and "no MAVLink from system 1" in lost.reason
     assert reader.link_state == "lost"
     sender.send_packets(encode_samples(traj[5:], boot_time=T0), rate=None)
     assert wait_until(lambda: col.states() == ["connected", "lost", "restored"])
@@ -386,3 +386,23 @@ def test_autopilot_reboot_is_accepted_and_counted(tmp_path):
     assert len(col.samples) == len(before) + len(after)
     assert [s.time_boot_ms for s in col.samples[len(before):]][:2] == [500, 700]
     assert reader.stats.reboots == 1 and reader.stats.rejected == 0
+
+
+def test_reader_survives_internal_errors(udp):
+    col, reader, sender = udp()
+    original = reader._position
+    calls = []
+
+    def broken_once(*args):
+        calls.append(1)
+        if len(calls) == 1:
+            raise KeyError("simulated decoder bug")
+        return original(*args)
+
+    reader._position = broken_once
+    for k in range(3):
+        sender.send(packets([make(0.1 * (k + 1))]))
+    assert wait_until(lambda: len(col.samples) == 2)
+    st = reader.stats
+    assert st.exceptions == 1 and "simulated decoder bug" in st.last_error
+    assert [s.time_boot_ms for s in col.samples] == [200, 300]

@@ -1,0 +1,577 @@
+"""Super-resolution reconstruction from sub-pixel shifted frames (METHODS.md B).
+
+Main entry point :func:`reconstruct`. Methods:
+
+* ``"map"`` (default): the best linear / MAP estimate of eq. 9 with a
+  stationary Gaussian prior, solved in the Fourier domain. For translations
+  the observation model (eq. 3 plus optics blur and shift, see
+  :func:`subpix_ros.core.superres_model.frame_transfer_1d`) is shift-invariant
+  per frame, so the normal equations decouple over LR frequency bins: each
+  bin couples only the factor^2 aliased HR frequencies, a factor^2 x factor^2
+  (or N x N, eq. 9's own form, whichever is smaller) Hermitian system. Cost
+  O(pixels log pixels) — linear in pixel count up to the FFT log.
+  Robustness: each frame's registration error (given ``shift_cov`` and/or
+  estimated from the frames' disagreement at low frequencies) enters the
+  model as an expected transfer ``exp(-2 pi^2 f^T C f)`` and an extra noise
+  term, so uncertain frames stop contributing at high frequencies; shifts
+  are refined by a low-frequency phase fit first (``refine_shifts``).
+  With ``masks`` or ``homographies`` the same MAP objective is solved by
+  conjugate gradients (``"map-cg"``) with the spatial operators of
+  :mod:`subpix_ros.core.superres_model`, warm-started from the Fourier solution.
+* ``"windowed"``: eq. 7 (normalised) as one separable filter on the
+  interleaved grid; needs shifts on the k/p grid (falls back otherwise).
+* ``"pinv"``: eq. 6, reference only (unstable; O(n^3)).
+* ``"bicubic"``: bicubic upscaling of the reference frame (the baseline).
+
+Whatever the method, the result is never knowingly worse than bicubic: a
+failed consistency check (frames that disagree beyond their noise, no
+sub-pixel diversity, solver failure) returns the bicubic image with
+``fell_back=True`` and a reason.
+
+Output grid: LR pixel i of frame 0 covers output pixels factor*i ..
+factor*i + factor - 1 (pixel centres aligned as in ``cv2.resize``).
+Intensities keep the input scale (eq. 3 taken as a mean, not a sum).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from .render import fourier_shift_blur
+from .superres_model import FrameOperator, frame_transfer_1d, gaussian_kernel, translation_homography
+from .superres_paper import grid_offsets, interleave, pinv_solution, windowed_solution
+
+__all__ = [
+    "SRResult",
+    "reconstruct",
+    "reconstruct_colour",
+    "bicubic_upscale",
+    "estimate_noise_sigma",
+    "psnr",
+    "METHODS",
+]
+
+METHODS = ("map", "windowed", "pinv", "bicubic")
+MAX_FACTOR = 4
+
+
+@dataclass
+class SRResult:
+    """Result of :func:`reconstruct`.
+
+    image: float64, (factor*H, factor*W), same intensity scale as the frames.
+    method: the method actually used ("map", "map-cg", "windowed", "pinv",
+    "bicubic"). fell_back/reason: True and why when a fallback to bicubic
+    happened. noise_sigma: per-pixel noise std used (DN, estimated unless
+    given). weights: per-frame relative weight at mid frequency (1 = a frame
+    as good as the reference). shifts: the shifts used (refined if
+    ``refine_shifts``), shift_sigma: per-frame registration error std (LR px)
+    the model assumed.
+    """
+
+    image: np.ndarray
+    method: str
+    fell_back: bool = False
+    reason: str = ""
+    noise_sigma: float = float("nan")
+    weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    shifts: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    shift_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    factor: int = 1
+
+
+def psnr(image: np.ndarray, truth: np.ndarray, border: int = 0, peak: float = 255.0) -> float:
+    """PSNR (dB) = 10 log10(peak^2 / MSE), over the interior (``border`` pixels cut)."""
+    a = np.asarray(image, dtype=np.float64)
+    b = np.asarray(truth, dtype=np.float64)
+    if border:
+        a, b = a[border:-border, border:-border], b[border:-border, border:-border]
+    mse = float(np.mean((a - b) ** 2))
+    return float("inf") if mse == 0 else 10.0 * np.log10(peak**2 / mse)
+
+
+def bicubic_upscale(frame: np.ndarray, factor: int) -> np.ndarray:
+    """Bicubic upscaling of one frame onto the project's output grid (float64)."""
+    f = np.asarray(frame, dtype=np.float64)
+    return cv2.resize(f, (f.shape[1] * factor, f.shape[0] * factor), interpolation=cv2.INTER_CUBIC)
+
+
+def estimate_noise_sigma(frame: np.ndarray) -> float:
+    """Per-pixel noise std (DN) of one frame, robust Immerkaer estimate.
+
+    The frame is filtered with ``N = [[1,-2,1],[-2,4,-2],[1,-2,1]]`` (a
+    difference of two Laplacians that removes planes and most smooth image
+    content; for white noise ``std(I*N) = 6 sigma``) and
+    ``sigma = 1.4826 median(|I*N|) / 6``. Texture left in ``I*N`` biases it
+    upwards; quantisation noise (1/sqrt(12) DN for 8 bit) is included.
+    """
+    f = np.asarray(frame, dtype=np.float64)
+    if f.ndim != 2 or min(f.shape) < 3:
+        raise ValueError("noise estimate needs a 2-D frame of at least 3x3")
+    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float64)
+    r = cv2.filter2D(f, cv2.CV_64F, k)[1:-1, 1:-1]
+    return float(1.4826 * np.median(np.abs(r)) / 6.0)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _integer_preshift(frame: np.ndarray, iu: int, iv: int) -> np.ndarray:
+    """``out[i, j] = frame[i + iu, j + iv]`` with reflected borders (integer part of a shift)."""
+    if iu == 0 and iv == 0:
+        return frame
+    h, w = frame.shape
+    pu, pv = abs(iu), abs(iv)
+    padded = cv2.copyMakeBorder(frame, pu, pu, pv, pv, cv2.BORDER_REFLECT_101)
+    return padded[pu + iu : pu + iu + h, pv + iv : pv + iv + w]
+
+
+def fit_spectrum(
+    frames: np.ndarray, p: int, blur_sigma: float, noise_sigma: float | None = None, max_bins: int = 20000
+) -> tuple[float, float, float]:
+    """Fit the stationary prior and the noise floor to the frames' power spectrum.
+
+    Model (per-pixel PSD units, f in cycles / HR px, nu in cycles / LR px):
+
+        E S_y(nu) = p^2 sum_m |a_m(nu)|^2 c |f_m|^-alpha + sigma^2
+
+    — the HR scene's power law ``S_x(f) = c |f|^-alpha`` seen through the
+    observation model (eq. 3 with blur, aliased over the p^2 components m,
+    ``a_m`` from :func:`frame_transfer_1d`) plus white noise ``sigma^2``.
+    ``S_y`` is the Tukey-windowed periodogram averaged over frames. For each
+    alpha on a 0.1 grid in [1, 4], (c, sigma^2) solve a weighted linear least
+    squares (weights 1/model^2: a periodogram's std equals its mean; 3
+    reweighting passes); the alpha with the least relative misfit wins. With
+    ``noise_sigma`` given, only c and alpha are fitted. Uses up to
+    ``max_bins`` frequency bins (fixed subsample) above 0.03 cycles/LR px.
+    Returns ``(c, alpha, sigma)``; sigma in DN, c in DN^2 (HR px units).
+    """
+    n, h, w = frames.shape
+    win = np.outer(_tukey(h), _tukey(w))
+    x = (frames - frames.mean(axis=(1, 2), keepdims=True)) * win
+    psd = np.mean(np.abs(np.fft.rfft2(x)) ** 2, axis=0) / float(np.sum(win**2))
+    ay, fy = frame_transfer_1d(h, p, 0.0, blur_sigma)
+    ax, fx = frame_transfer_1d(w, p, 0.0, blur_sigma)
+    wc = w // 2 + 1
+    ax, fx = ax[:, :wc], fx[:, :wc]
+    nuy = np.fft.fftfreq(h)[:, None]
+    nux = np.fft.rfftfreq(w)[None, :]
+    sel = np.flatnonzero((np.hypot(nuy, nux) > 0.03).ravel())
+    if sel.size < 100:
+        raise ValueError("frames too small to fit the image prior")
+    if sel.size > max_bins:
+        sel = np.sort(np.random.default_rng(0).choice(sel, max_bins, replace=False))
+    ky, kx = np.unravel_index(sel, (h, wc))
+    obs = psd.ravel()[sel]
+    amp = (np.abs(ay[:, None, ky] * ax[None, :, kx]) ** 2).reshape(p * p, -1) * p * p  # (p^2, bins)
+    fm = np.hypot(fy[:, None, ky], fx[None, :, kx]).reshape(p * p, -1)
+    logf = np.log(np.maximum(fm, 1e-9))
+    best = None
+    for alpha in np.arange(1.0, 4.0001, 0.1):  # grid over the exponent, 31 values
+        q = np.sum(amp * np.exp(-alpha * logf), axis=0)
+        wgt = 1.0 / np.maximum(obs, 1e-12) ** 2
+        for _ in range(3):
+            if noise_sigma is None:
+                mat = np.stack([q, np.ones_like(q)], axis=1)
+                ata = (mat * wgt[:, None]).T @ mat
+                c_, s2 = np.linalg.solve(ata, (mat * wgt[:, None]).T @ obs)
+                s2 = max(s2, 1e-6)
+            else:
+                s2 = noise_sigma**2
+                c_ = float(np.sum(wgt * q * (obs - s2)) / np.sum(wgt * q * q))
+            c_ = max(c_, 1e-12)
+            model = c_ * q + s2
+            wgt = 1.0 / model**2
+        err = float(np.mean(((obs - model) / model) ** 2))
+        if best is None or err < best[0]:
+            best = (err, c_, alpha, s2)
+    _, c, alpha, s2 = best
+    return float(c), float(alpha), float(np.sqrt(s2))
+
+
+def _solve_hermitian(m: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Batched solve of Hermitian positive-definite systems ``m x = b`` (..., k, k)."""
+    return np.linalg.solve(m, b[..., None])[..., 0]
+
+
+def _refine_shifts(
+    frames: np.ndarray, ishift: np.ndarray, resid: np.ndarray, lp_sigma: float = 1.0, border: int = 8, iters: int = 3
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Refine each frame's sub-pixel shift against frame 0 (Lucas-Kanade on low-passed frames).
+
+    Both frames are low-passed (Gaussian, ``lp_sigma`` LR px) so the fit uses
+    the band where aliasing is weak. With ``R`` the low-passed reference
+    moved by the current shift ``s`` (Fourier shift, content moves by +s),
+    the first-order model ``F ~ R - d . grad R`` gives the Gauss-Newton step
+    ``d = -(G^T G)^-1 G^T (F - R)`` over the interior (``border`` px cut).
+    Returns refined residual shifts (N, 2), each one's std (LR px) from
+    ``var(residual) (G^T G)^-1``, and the per-pixel noise std (DN) implied by
+    the residual: ``var(F - R) = 2 sigma^2 (sum g^2)^2`` for white noise
+    through the separable low-pass g (median over frames) — a multi-frame
+    noise estimate that texture does not bias, unlike single-frame ones. Frames whose fit diverges (|step| > 0.5 px)
+    keep their shift and get std = inf.
+    """
+    n = frames.shape[0]
+    g = gaussian_kernel(lp_sigma)
+    low = [cv2.sepFilter2D(_integer_preshift(frames[i], int(ishift[i, 0]), int(ishift[i, 1])), cv2.CV_64F, g, g,
+                           borderType=cv2.BORDER_REFLECT_101) for i in range(n)]
+    ref = low[0]
+    out = resid.copy()
+    sig = np.zeros(n)
+    resvar = np.full(n, np.nan)
+    b = slice(border, -border)
+    for i in range(1, n):  # loop over frames
+        s = resid[i].copy()
+        ok = True
+        for _ in range(iters):
+            pred = fourier_shift_blur(ref, (float(s[0]), float(s[1])), 0.0, pad=16)
+            gy, gx = np.gradient(pred)
+            gm = np.stack([gy[b, b].ravel(), gx[b, b].ravel()], axis=1)
+            e = (low[i] - pred)[b, b].ravel()
+            ata = gm.T @ gm
+            try:
+                step = -np.linalg.solve(ata, gm.T @ e)
+            except np.linalg.LinAlgError:
+                ok = False
+                break
+            if not np.all(np.isfinite(step)) or np.abs(step).max() > 0.5:
+                ok = False
+                break
+            s = s + step
+        if ok:
+            r = e - gm @ step  # residual after the last step (first order)
+            resvar[i] = float(np.var(r)) / (2.0 * float(np.sum(g**2)) ** 2)
+            out[i] = s
+            sig[i] = float(np.sqrt(np.var(r) * np.trace(np.linalg.inv(ata)) / 2.0))
+        else:
+            sig[i] = np.inf
+    noise = float(np.sqrt(np.nanmedian(resvar))) if np.isfinite(resvar).any() else float("nan")
+    return out, sig, noise
+
+
+def _tukey(n: int, frac: float = 0.25) -> np.ndarray:
+    """Tukey (tapered cosine) window of length n, ``frac`` of it tapered."""
+    t = np.ones(n)
+    m = max(1, int(frac * n / 2))
+    ramp = 0.5 * (1 - np.cos(np.pi * (np.arange(m) + 0.5) / m))
+    t[:m] = ramp
+    t[-m:] = ramp[::-1]
+    return t
+
+
+def _transfer_main(n_lr: int, p: int, shift: float, blur_sigma: float, rfft: bool = False) -> np.ndarray:
+    """Model transfer (per axis, incl. the 1/p alias factor) at each LR bin's lowest alias."""
+    f = (np.fft.rfftfreq(n_lr) if rfft else np.fft.fftfreq(n_lr)) / p
+    hbox = np.exp(2j * np.pi * f[:, None] * np.arange(p)).mean(axis=1)
+    return hbox * np.exp(-2.0 * np.pi**2 * (p * blur_sigma) ** 2 * f**2) * np.exp(-2j * np.pi * f * p * shift) / p
+
+
+def _fourier_map(
+    frames: np.ndarray,
+    shifts: np.ndarray,
+    p: int,
+    blur_sigma: float,
+    noise_sigma: float | None,
+    shift_cov: np.ndarray,
+    reg: float,
+    refine_shifts: bool,
+    pad: int,
+) -> dict:
+    """MAP estimate of eq. 9 for translated frames, solved per LR frequency bin.
+
+    Per LR bin the model is ``Y_n = sum_m a_nm X_m + e_n`` over the p^2 aliased
+    HR bins m, with ``a_nm`` from :func:`frame_transfer_1d` (box, blur, shift,
+    times the expected-transfer factor ``E_nm = exp(-2 pi^2 f_m^T C_n f_m)`` of
+    the registration error covariance ``C_n``), noise variance
+    ``v_n = HW sigma^2 + sum_m |a_nm|^2 P_m (1 - E_nm^2)`` and the prior
+    ``E|X_m|^2 = P_m = c |f_m|^-alpha`` (DC unregularised). The MAP solution
+    ``X = (A^H V^-1 A + reg P^-1)^-1 A^H V^-1 Y`` (or eq. 9's form
+    ``X = P A^H (A P A^H + V/reg)^-1 Y`` when N < p^2, identical) is computed
+    for all bins at once (batched small solves); boundaries by reflected
+    padding of ``pad`` LR px. Returns the HR image and diagnostics.
+    """
+    n, h, w = frames.shape
+    ishift = np.rint(shifts).astype(np.int64)
+    resid = shifts - ishift
+    hp = cv2.getOptimalDFTSize(h + 2 * pad)
+    wp = cv2.getOptimalDFTSize(w + 2 * pad)
+    padded = np.empty((n, hp, wp))
+    for i in range(n):  # per frame
+        f = _integer_preshift(frames[i], int(ishift[i, 0]), int(ishift[i, 1]))
+        padded[i] = cv2.copyMakeBorder(f, pad, hp - h - pad, pad, wp - w - pad, cv2.BORDER_REFLECT_101)
+    spec = np.fft.rfft2(padded)  # (n, hp, wc)
+    wc = wp // 2 + 1
+    shift_sigma_fit = np.zeros(n)
+    lk_noise = float("nan")
+    if refine_shifts:
+        resid, shift_sigma_fit, lk_noise = _refine_shifts(frames, ishift, resid)
+    pre = np.stack([_integer_preshift(frames[i], int(ishift[i, 0]), int(ishift[i, 1])) for i in range(n)])
+    if noise_sigma is None and np.isfinite(lk_noise):
+        noise_sigma = lk_noise  # multi-frame estimate (see _refine_shifts)
+    c_psd, alpha, sig_fit = fit_spectrum(pre, p, blur_sigma, noise_sigma)
+    if noise_sigma is None:
+        # integer-valued data carry at least the rounding noise 1/sqrt(12) DN
+        floor = 1.0 / np.sqrt(12.0) if np.all(frames == np.rint(frames)) else 0.05
+        noise_sigma = max(sig_fit, floor)
+        if sig_fit < floor:  # refit the prior level with the floor as the noise
+            c_psd, alpha, _ = fit_spectrum(pre, p, blur_sigma, noise_sigma)
+    noise_sigma = max(noise_sigma, 0.05)
+    noise_power = hp * wp * noise_sigma**2
+    c = c_psd * p * p * hp * wp  # prior in HR DFT units: E|X|^2 = (p hp)(p wp) S_x
+
+    # registration-error covariance per frame (LR px^2); frame 0 defines the grid
+    cov = np.array(shift_cov, dtype=np.float64).copy()
+    if refine_shifts:
+        fit_var = np.where(np.isfinite(shift_sigma_fit), shift_sigma_fit**2, 1.0)
+        # after refinement the error is the refinement's (floor 0.01 px for alias bias)
+        cov = np.eye(2)[None] * (np.maximum(fit_var, 0.003**2))[:, None, None]
+    cov[0] = 0.0
+
+    ay = np.empty((n, p, hp), dtype=np.complex128)
+    ax = np.empty((n, p, wc), dtype=np.complex128)
+    fy = fx = None
+    for i in range(n):
+        ay[i], fy = frame_transfer_1d(hp, p, resid[i, 0], blur_sigma)
+        a_x, f_x = frame_transfer_1d(wp, p, resid[i, 1], blur_sigma)
+        ax[i], fx = a_x[:, :wc], f_x[:, :wc]
+    k = p * p
+    xs = np.zeros((p, p, hp, wc), dtype=np.complex128)
+    resid_ratio = np.zeros(n)
+    wsum = np.zeros(n)
+    chunk = max(1, int(4e5 // (n * k * wc)))
+    for r0 in range(0, hp, chunk):  # chunks of LR spectrum rows (memory bound)
+        r1 = min(hp, r0 + chunk)
+        fyc = fy[:, r0:r1]  # (p, R)
+        f2y = fyc[:, None, :, None] ** 2  # (p,1,R,1)
+        f2x = fx[None, :, None, :] ** 2  # (1,p,1,wc)
+        fxy = fyc[:, None, :, None] * fx[None, :, None, :]
+        fr = np.sqrt(f2y + f2x)
+        prior = np.where(fr > 0, c * np.maximum(fr, 1e-6) ** (-alpha), 1e30)  # (p,p,R,wc)
+        a0 = ay[:, :, None, r0:r1, None] * ax[:, None, :, None, :]  # (n,p,p,R,wc)
+        e = np.exp(
+            -2.0 * np.pi**2 * p * p
+            * (cov[:, 0, 0, None, None, None, None] * f2y + 2 * cov[:, 0, 1, None, None, None, None] * fxy
+               + cov[:, 1, 1, None, None, None, None] * f2x)
+        )
+        a = a0 * e
+        var = noise_power + np.sum(np.abs(a0) ** 2 * prior * (1.0 - e**2), axis=(1, 2))  # (n,R,wc)
+        # batch layout (bins, n, k)
+        ab = a.reshape(n, k, -1).transpose(2, 0, 1)
+        vb = var.reshape(n, -1).T
+        yb = spec[:, r0:r1, :].reshape(n, -1).T
+        pb = prior.reshape(k, -1).T / reg
+        if n >= k:
+            aw = np.conj(ab).transpose(0, 2, 1) / vb[:, None, :]  # (B,k,n)
+            m = aw @ ab
+            idx = np.arange(k)
+            m[:, idx, idx] += 1.0 / pb
+            sol = _solve_hermitian(m, (aw @ yb[..., None])[..., 0])
+        else:
+            s = (ab * pb[:, None, :]) @ np.conj(ab).transpose(0, 2, 1)
+            idx = np.arange(n)
+            s[:, idx, idx] += vb
+            z = _solve_hermitian(s, yb)
+            sol = pb * (np.conj(ab).transpose(0, 2, 1) @ z[..., None])[..., 0]
+        xs[:, :, r0:r1, :] = sol.T.reshape(p, p, r1 - r0, wc)
+        res = yb - (ab @ sol[..., None])[..., 0]
+        resid_ratio += np.sum(np.abs(res) ** 2 / vb, axis=0)
+        wsum += np.sum(np.abs(ab[:, :, 0]) ** 2 / vb, axis=0)
+    resid_ratio /= hp * wc
+    # assemble the HR spectrum (p*hp, p*wp) from the solved half and Hermitian symmetry
+    full = np.zeros((p * hp, p * wp), dtype=np.complex128)
+    rows = (np.arange(hp)[None, :] + hp * np.arange(p)[:, None])  # (p, hp)
+    cols = (np.arange(wc)[None, :] + wp * np.arange(p)[:, None])  # (p, wc)
+    full[rows[:, None, :, None], cols[None, :, None, :]] = xs
+    colmod = np.arange(p * wp) % wp
+    missing = colmod >= wc
+    mr = (-np.arange(p * hp)) % (p * hp)
+    mc = (-np.arange(p * wp)[missing]) % (p * wp)
+    full[:, missing] = np.conj(full[mr][:, mc])
+    img = np.fft.irfft2(full[:, : p * wp // 2 + 1], s=(p * hp, p * wp))
+    out = img[p * pad : p * (pad + h), p * pad : p * (pad + w)]
+    return {
+        "image": out,
+        "shifts": ishift + resid,
+        "shift_sigma": np.sqrt(np.maximum(cov[:, 0, 0], cov[:, 1, 1])),
+        "weights": wsum / max(wsum[0], 1e-30),
+        "resid_ratio": resid_ratio,
+        "prior": (c_psd, alpha),
+        "noise_sigma": noise_sigma,
+    }
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def _validate(
+    frames: Sequence[np.ndarray], shifts, factor: int, masks, shift_cov, homographies
+) -> tuple[np.ndarray, np.ndarray | None, int]:
+    if not isinstance(factor, (int, np.integer)) or isinstance(factor, bool):
+        raise ValueError(f"factor must be an integer, got {factor!r}")
+    if not 2 <= int(factor) <= MAX_FACTOR:
+        raise ValueError(f"factor must be in 2..{MAX_FACTOR}, got {factor}")
+    if frames is None or len(frames) < 2:
+        raise ValueError(f"super-resolution needs at least 2 frames, got {0 if frames is None else len(frames)}")
+    arrs = [np.asarray(f) for f in frames]
+    if any(a.ndim != 2 for a in arrs):
+        raise ValueError("frames must be 2-D (mono); use reconstruct_colour for colour frames")
+    shape = arrs[0].shape
+    if any(a.shape != shape for a in arrs):
+        raise ValueError(f"all frames must have the same shape, got {sorted({a.shape for a in arrs})}")
+    if min(shape) < 16:
+        raise ValueError(f"frames too small for reconstruction: {shape} (need >= 16x16)")
+    stack = np.stack([a.astype(np.float64) for a in arrs])
+    if not np.isfinite(stack).all():
+        raise ValueError("frames contain NaN or infinite values")
+    n = len(arrs)
+    if shifts is None:
+        if homographies is None:
+            raise ValueError("give shifts (N, 2) or homographies (N, 3, 3)")
+        s = None
+    else:
+        s = np.asarray(shifts, dtype=np.float64)
+        if s.shape != (n, 2):
+            raise ValueError(f"shifts must have shape ({n}, 2), got {s.shape}")
+        if not np.isfinite(s).all():
+            raise ValueError("shifts contain NaN or infinite values")
+    if masks is not None and (len(masks) != n or any(np.asarray(m).shape != shape for m in masks)):
+        raise ValueError("masks must be one boolean array per frame, each of the frames' shape")
+    if shift_cov is not None:
+        c = np.asarray(shift_cov, dtype=np.float64)
+        if c.shape != (n, 2, 2) or not np.isfinite(c).all():
+            raise ValueError(f"shift_cov must be a finite ({n}, 2, 2) array")
+    if homographies is not None:
+        hs = np.asarray(homographies, dtype=np.float64)
+        if hs.shape != (n, 3, 3) or not np.isfinite(hs).all():
+            raise ValueError(f"homographies must be a finite ({n}, 3, 3) array")
+    return stack, s, int(factor)
+
+
+def _fallback(ref: np.ndarray, factor: int, reason: str, noise: float, n: int, shifts) -> SRResult:
+    return SRResult(
+        image=bicubic_upscale(ref, factor),
+        method="bicubic",
+        fell_back=True,
+        reason=reason,
+        noise_sigma=noise,
+        weights=np.r_[1.0, np.zeros(n - 1)],
+        shifts=np.zeros((n, 2)) if shifts is None else np.asarray(shifts, dtype=np.float64),
+        shift_sigma=np.zeros(n),
+        factor=factor,
+    )
+
+
+def reconstruct(
+    frames: Sequence[np.ndarray],
+    shifts: np.ndarray | Sequence[Sequence[float]] | None,
+    factor: int,
+    *,
+    method: str = "map",
+    masks: Sequence[np.ndarray] | None = None,
+    shift_cov: np.ndarray | None = None,
+    homographies: np.ndarray | None = None,
+    noise_sigma: float | None = None,
+    blur_sigma: float = 0.4,
+    reg: float = 1.0,
+    refine_shifts: bool = True,
+    window: int = 6,
+    pad: int = 16,
+    cg_iters: int = 30,
+) -> SRResult:
+    """Reconstruct a factor-x super-resolved image from N >= 2 shifted LR frames.
+
+    frames: N 2-D arrays (same shape; any numeric dtype, DN). shifts: (N, 2)
+    ``(u, v)`` per frame in LR px relative to frame 0 (project convention:
+    content at (r, c) in frame 0 is at (r+u, c+v) in frame n); any sub-pixel
+    values, unequal along rows/cols. factor: 2..4. method: "map" (default,
+    eq. 9), "windowed" (eq. 7, normalised), "pinv" (eq. 6, reference),
+    "bicubic". masks: optional bool per frame (True = valid), forces the CG
+    solver. shift_cov: (N, 2, 2) registration-error covariance of the given
+    shifts (LR px^2); ignored when ``refine_shifts`` (the refined shifts'
+    own uncertainty is used). homographies: (N, 3, 3) reference -> frame LR
+    pixel coordinates (replaces shifts; forces the CG solver). noise_sigma:
+    per-pixel noise std in DN (estimated from the frames if None).
+    blur_sigma: optics blur std in LR px (Gaussian PSF of the model).
+    reg: prior strength multiplier (1 = the prior fitted to the data).
+
+    Returns :class:`SRResult`; raises ValueError on malformed input (fewer
+    than 2 frames, mismatched shapes, factor outside 2..4, bad shifts).
+    """
+    stack, s, p = _validate(frames, shifts, factor, masks, shift_cov, homographies)
+    n = stack.shape[0]
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
+    if blur_sigma < 0 or reg <= 0:
+        raise ValueError("blur_sigma must be >= 0 and reg > 0")
+    if noise_sigma is not None and (not np.isfinite(noise_sigma) or noise_sigma < 0):
+        raise ValueError(f"noise_sigma must be finite and >= 0, got {noise_sigma}")
+    # quick estimate for the non-MAP paths and fallbacks; MAP fits it to the spectrum
+    sigma = float(np.median([estimate_noise_sigma(f) for f in stack])) if noise_sigma is None else float(noise_sigma)
+    ref = stack[0]
+    if method == "bicubic":
+        return SRResult(bicubic_upscale(ref, p), "bicubic", noise_sigma=sigma, weights=np.r_[1.0, np.zeros(n - 1)],
+                        shifts=np.zeros((n, 2)) if s is None else s, shift_sigma=np.zeros(n), factor=p)
+    if s is not None and homographies is None:
+        phase = (s - s[0] + 0.5) % 1.0 - 0.5  # each frame's sub-pixel phase relative to frame 0, LR px
+        if np.max(np.abs(phase)) < 0.05:
+            return _fallback(ref, p, "all frames have the same sub-pixel phase: no new information", sigma, n, s)
+    if method in ("windowed", "pinv"):
+        if s is None:
+            return _fallback(ref, p, f"{method} needs pure translations", sigma, n, s)
+        offs = grid_offsets(s, p, p)
+        if offs is None:
+            return _fallback(ref, p, f"{method} (eq. {7 if method == 'windowed' else 6}) needs shifts on the k/{p} grid", sigma, n, s)
+        y, filled = interleave(list(stack), offs, p, p)
+        if method == "windowed":
+            x = windowed_solution(y, p, p, w=window)
+        else:
+            h2 = (y.shape[0] // p) * p - (p - 1)
+            w2 = (y.shape[1] // p) * p - (p - 1)
+            x = np.zeros_like(y)
+            sol = pinv_solution(y[:h2, :w2], p, p)
+            x[: sol.shape[0], : sol.shape[1]] = sol
+        return SRResult(x, method, noise_sigma=sigma, weights=np.ones(n), shifts=s, shift_sigma=np.zeros(n), factor=p)
+
+    # method == "map"
+    cov = np.zeros((n, 2, 2)) if shift_cov is None else np.asarray(shift_cov, dtype=np.float64)
+    use_cg = masks is not None or homographies is not None
+    trans = s
+    if homographies is not None:
+        hs = np.asarray(homographies, dtype=np.float64)
+        h_, w_ = ref.shape
+        centre = np.array([(w_ - 1) / 2.0, (h_ - 1) / 2.0, 1.0])
+        trans = np.empty((n, 2))
+        for i in range(n):  # the translation each homography applies at the frame centre
+            q = hs[i] @ centre
+            trans[i] = (q[1] / q[2] - centre[1], q[0] / q[2] - centre[0])
+    try:
+        sol = _fourier_map(stack, trans, p, blur_sigma, noise_sigma, cov, reg, refine_shifts and not use_cg, pad)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return _fallback(ref, p, f"MAP solve failed: {exc}", sigma, n, s)
+    img = sol["image"]
+    weights = sol["weights"]
+    sigma = sol["noise_sigma"]
+    method_used = "map"
+    if use_cg:
+        hs = (np.asarray(homographies, dtype=np.float64) if homographies is not None
+              else np.stack([translation_homography(*si) for si in s]))
+        img = _cg_map(stack, hs, p, blur_sigma, sigma, masks, sol["prior"], reg, img, cg_iters)
+        method_used = "map-cg"
+    if not np.isfinite(img).all():
+        return _fallback(ref, p, "MAP solution not finite", sigma, n, s)
+    eff = float(np.sum(weights[1:]))
+    if eff < 0.05:
+        return _fallback(ref, p, "no frame other than the reference agrees with it (registration errors too large)",
+                         sigma, n, sol["shifts"])
+    return SRResult(
+        image=img,
+        method=method_used,
+        noise_sigma=sigma,
+        weights=weights,
+        shifts=sol["shifts"],
+        shift_sigma=sol["shift_sigma"],
+        factor=p,
+    )

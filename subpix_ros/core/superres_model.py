@@ -1,0 +1,194 @@
+"""Observation model of super-resolution (METHODS.md B, eq. 3) and its adjoint.
+
+Two views of the same physics:
+
+* The paper's *interleaved* form (eq. 3 / eq. 5): on the high-resolution (HR)
+  sub-pixel grid, ``y[k, l] = sum_{a<p, b<q} x[k+a, l+b]`` — every p x q box of
+  sub-pixels summed ("valid" box sum, ``T1 X T2 = Y``). Frames shifted by
+  whole sub-pixels fill the interleaved ``y``. :func:`box_sum` and
+  :func:`box_sum_adjoint` are ``X -> T1 X T2`` and ``Y -> T1^T Y T2^T``.
+
+* The *frame* form used by the reconstruction: frame ``n`` is
+  ``y_n = D_pq S_n B x`` — optics blur ``B`` (Gaussian, sigma in LR pixels),
+  resampling ``S_n`` of the HR image onto frame n's own sub-pixel grid (any
+  translation or homography, bilinear), and detector integration ``D_pq``
+  (mean of each p x q block = eq. 3 divided by p*q, so intensities keep their
+  scale). :class:`FrameOperator` applies ``A_n`` and its exact adjoint
+  ``A_n^T`` to arrays; it is what the conjugate-gradient solver uses.
+
+Conventions (project-wide): shifts ``(u, v)`` = (rows, cols) in LR pixels;
+content at (r, c) in the reference frame appears at (r+u, c+v) in frame n.
+Homographies map reference-frame LR pixel coordinates ``(x=col, y=row, 1)``
+to frame-n LR pixel coordinates (pixel centres at integers); a translation
+``(u, v)`` is ``[[1, 0, v], [0, 1, u], [0, 0, 1]]``. Output grid: LR pixel i
+of the reference covers HR pixels ``p*i .. p*i+p-1``; HR pixel k has its
+centre at LR coordinate ``(k + 0.5)/p - 0.5``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "box_sum",
+    "box_sum_adjoint",
+    "gaussian_kernel",
+    "blur",
+    "decimate_mean",
+    "decimate_mean_adjoint",
+    "translation_homography",
+    "FrameOperator",
+    "frame_transfer_1d",
+]
+
+
+def box_sum(x: np.ndarray, p: int, q: int) -> np.ndarray:
+    """Eq. 3/5: ``Y = T1 X T2``, ``y[k, l] = sum_{a<p, b<q} x[k+a, l+b]``.
+
+    ``x`` is (n_x+p-1) x (n_y+q-1); the result n_x x n_y ("valid" box sum,
+    sums not means, exactly as in the paper). Vectorised by cumulative sums.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 2 or x.shape[0] < p or x.shape[1] < q:
+        raise ValueError(f"box_sum needs a 2-D array of at least {p}x{q}, got {x.shape}")
+    c = np.zeros((x.shape[0] + 1, x.shape[1] + 1))
+    c[1:, 1:] = x.cumsum(0).cumsum(1)
+    return c[p:, q:] - c[:-p, q:] - c[p:, :-q] + c[:-p, :-q]
+
+
+def box_sum_adjoint(y: np.ndarray, p: int, q: int) -> np.ndarray:
+    """Adjoint of :func:`box_sum`: ``T1^T Y T2^T`` ("full" box sum), (n_x+p-1) x (n_y+q-1)."""
+    y = np.asarray(y, dtype=np.float64)
+    padded = np.pad(y, ((p - 1, p - 1), (q - 1, q - 1)))
+    return box_sum(padded, p, q)
+
+
+def gaussian_kernel(sigma: float, radius: int | None = None) -> np.ndarray:
+    """Normalised 1-D Gaussian ``g[k] ~ exp(-k^2 / (2 sigma^2))``, sigma in samples."""
+    if sigma <= 0:
+        return np.ones(1)
+    r = int(np.ceil(4.0 * sigma)) if radius is None else radius
+    k = np.arange(-r, r + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (k / sigma) ** 2)
+    return g / g.sum()
+
+
+def blur(x: np.ndarray, sigma: float) -> np.ndarray:
+    """Separable Gaussian blur (sigma in pixels of ``x``) with a zero border.
+
+    The kernel is symmetric and the border constant zero, so the operator is
+    self-adjoint (needed by the conjugate-gradient solver).
+    """
+    if sigma <= 0:
+        return np.asarray(x, dtype=np.float64)
+    g = gaussian_kernel(sigma)
+    return cv2.sepFilter2D(np.asarray(x, dtype=np.float64), cv2.CV_64F, g, g, borderType=cv2.BORDER_CONSTANT)
+
+
+def decimate_mean(z: np.ndarray, p: int, q: int) -> np.ndarray:
+    """Detector integration ``D_pq``: mean of each p x q block (eq. 3 / (p q))."""
+    h, w = z.shape[0] // p, z.shape[1] // q
+    return z[: h * p, : w * q].reshape(h, p, w, q).mean(axis=(1, 3))
+
+
+def decimate_mean_adjoint(y: np.ndarray, p: int, q: int) -> np.ndarray:
+    """Adjoint of :func:`decimate_mean`: each LR value spread over its block, divided by p q."""
+    return np.repeat(np.repeat(np.asarray(y, dtype=np.float64), p, axis=0), q, axis=1) / (p * q)
+
+
+def translation_homography(u: float, v: float) -> np.ndarray:
+    """Homography of a pure shift (u rows, v cols) in the project convention."""
+    return np.array([[1.0, 0.0, v], [0.0, 1.0, u], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class FrameOperator:
+    """``A_n = D_pq S_n B``: HR image (reference grid) -> LR frame n, and its adjoint.
+
+    ``homography`` maps reference LR pixel coordinates to frame-n LR pixel
+    coordinates. ``lr_shape`` is frame n's shape, ``hr_shape`` the HR grid.
+    Sub-pixels of frame n whose scene position falls outside the HR grid (or
+    within ``border`` HR pixels of its edge, where the zero-border blur is
+    wrong) are invalid; :attr:`valid` marks the LR pixels all of whose
+    sub-pixels are valid. Resampling is bilinear (4 taps per sub-pixel), its
+    adjoint a weighted scatter (``np.bincount``): both vectorised.
+    """
+
+    homography: np.ndarray
+    lr_shape: tuple[int, int]
+    hr_shape: tuple[int, int]
+    p: int
+    q: int
+    blur_sigma: float = 0.4  # LR pixels
+    _idx: np.ndarray = field(init=False, repr=False)
+    _wts: np.ndarray = field(init=False, repr=False)
+    valid: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        p, q = self.p, self.q
+        h, w = self.lr_shape
+        hh, hw = self.hr_shape
+        sub_r = (np.arange(h * p) + 0.5) / p - 0.5  # frame-n LR coordinates of sub-pixel centres
+        sub_c = (np.arange(w * q) + 0.5) / q - 0.5
+        cc, rr = np.meshgrid(sub_c, sub_r)
+        hinv = np.linalg.inv(np.asarray(self.homography, dtype=np.float64))
+        den = hinv[2, 0] * cc + hinv[2, 1] * rr + hinv[2, 2]
+        x0 = (hinv[0, 0] * cc + hinv[0, 1] * rr + hinv[0, 2]) / den  # reference LR coords
+        y0 = (hinv[1, 0] * cc + hinv[1, 1] * rr + hinv[1, 2]) / den
+        hr_r = p * (y0 + 0.5) - 0.5  # HR index coordinates
+        hr_c = q * (x0 + 0.5) - 0.5
+        border = int(np.ceil(3.0 * self.blur_sigma * max(p, q)))
+        ok = (hr_r >= border) & (hr_r <= hh - 1 - border) & (hr_c >= border) & (hr_c <= hw - 1 - border)
+        r0 = np.clip(np.floor(hr_r), 0, hh - 2).astype(np.int64)
+        c0 = np.clip(np.floor(hr_c), 0, hw - 2).astype(np.int64)
+        fr = np.clip(hr_r - r0, 0.0, 1.0)
+        fc = np.clip(hr_c - c0, 0.0, 1.0)
+        base = r0 * hw + c0
+        self._idx = np.stack([base, base + 1, base + hw, base + hw + 1]).reshape(4, -1)
+        wts = np.stack([(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc]) * ok
+        self._wts = wts.reshape(4, -1)
+        self.valid = decimate_mean(ok.astype(np.float64), p, q) > 1.0 - 1e-9
+
+    def forward(self, x: np.ndarray) -> np.ndarray:
+        """``A_n x``: HR image (hr_shape) -> LR frame (lr_shape), invalid pixels 0."""
+        bx = blur(x, self.blur_sigma * self.p).ravel()
+        sub = (bx[self._idx] * self._wts).sum(axis=0).reshape(self.lr_shape[0] * self.p, self.lr_shape[1] * self.q)
+        return decimate_mean(sub, self.p, self.q) * self.valid
+
+    def adjoint(self, y: np.ndarray) -> np.ndarray:
+        """``A_n^T y``: LR frame -> HR image; exact adjoint of :meth:`forward`."""
+        sub = decimate_mean_adjoint(np.asarray(y, dtype=np.float64) * self.valid, self.p, self.q).ravel()
+        n = self.hr_shape[0] * self.hr_shape[1]
+        acc = np.bincount(self._idx.ravel(), weights=(self._wts * sub[None, :]).ravel(), minlength=n)
+        return blur(acc.reshape(self.hr_shape), self.blur_sigma * self.p)
+
+
+def frame_transfer_1d(
+    n_lr: int, p: int, shift: float, blur_sigma: float, shift_var: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis Fourier transfer of eq. 3 with blur and shift, folded onto LR bins.
+
+    For an LR DFT of length ``n_lr`` and HR DFT of length ``p * n_lr``, LR bin
+    ``k`` receives the p aliased HR bins ``K_m = k + m n_lr`` (m = 0..p-1):
+    ``Y[k] = sum_m a[m, k] X[K_m]`` per axis with
+
+        a[m, k] = (1/p) * Hbox(f) * G(f) * exp(-2 pi i f s) * exp(-2 pi^2 f^2 var_s)
+
+    where ``f`` is the signed HR frequency of ``K_m`` (cycles / HR pixel),
+    ``Hbox(f) = (1/p) sum_{a<p} exp(2 pi i f a)`` (mean over the block that
+    starts at HR pixel p*i), ``G(f) = exp(-2 pi^2 (p sigma)^2 f^2)`` the optics,
+    ``s = p * shift`` HR px and ``var_s = p^2 shift_var`` (expected transfer
+    under a Gaussian shift error, METHODS eq. 9 with registration noise). The
+    leading 1/p is the DFT aliasing factor. Returns ``(a, f)``, both (p, n_lr).
+    """
+    f_all = np.fft.fftfreq(p * n_lr)
+    k = np.arange(n_lr)
+    f = np.stack([f_all[k + m * n_lr] for m in range(p)])
+    hbox = np.exp(2j * np.pi * f[..., None] * np.arange(p)).mean(axis=-1)
+    s = p * shift
+    a = hbox * np.exp(-2.0 * np.pi**2 * (p * blur_sigma) ** 2 * f**2) * np.exp(-2j * np.pi * f * s)
+    if shift_var > 0:
+        a = a * np.exp(-2.0 * np.pi**2 * f**2 * p * p * shift_var)
+    return a / p, f

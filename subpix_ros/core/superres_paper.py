@@ -1,0 +1,189 @@
+"""The paper's own reconstructions (METHODS.md B, eqs. 4, 6, 7), kept as references.
+
+All three work on the *interleaved* observation of eq. 3: frames shifted by
+whole sub-pixels (k/p, l/q of an LR pixel) fill one array ``y`` on the HR
+grid, ``y[k, l] = sum_{a<p, b<q} x[k+a, l+b]`` (sums, as in the paper; see
+:func:`interleave` to build it from frames, which carry means).
+
+Measured weaknesses (why :mod:`subpix_ros.core.superres` does not use them
+by default):
+
+* eq. 4 (recursion) is exact on noise-free data but accumulates every error
+  along each stride-p chain: useless on real frames.
+* eq. 6 (pseudo-inverse) is the least-norm exact solution; it amplifies even
+  8-bit rounding noise to a useless image and costs O(n^3) in the side length.
+* eq. 7 (windowed) is one fixed separable filter per HR pixel; as written it
+  has a DC (brightness) gain error for even factors (1.14 at p = 2, w = 6 in 2-D).
+  :func:`windowed_filter` returns it normalised to unit DC gain by default.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .superres_model import box_sum
+
+__all__ = [
+    "band_matrix",
+    "recursive_solution",
+    "pinv_solution",
+    "windowed_filter",
+    "windowed_solution",
+    "grid_offsets",
+    "interleave",
+]
+
+
+def band_matrix(n: int, p: int) -> np.ndarray:
+    """``T1`` of eq. 5: n x (n+p-1), ones on p diagonals (``T[i, i..i+p-1] = 1``)."""
+    t = np.zeros((n, n + p - 1))
+    idx = np.arange(n)
+    for a in range(p):  # p diagonals, not a loop over pixels
+        t[idx, idx + a] = 1.0
+    return t
+
+
+def _unbox_1d(y: np.ndarray, p: int, head: np.ndarray) -> np.ndarray:
+    """Invert a 1-D valid box sum along axis 0 given the first p-1 unknowns.
+
+    From eq. 4 in 1-D: ``x[i+p-1] = y[i] - sum_{k=i}^{i+p-2} x[k]``, i.e.
+    ``x[i+p-1] = x[i-1] + y[i] - y[i-1]`` — a recursion of stride p, evaluated
+    for all chains at once with a cumulative sum along each residue class.
+    """
+    n = y.shape[0]
+    m = n + p - 1
+    x = np.zeros((m,) + y.shape[1:])
+    x[: p - 1] = head
+    x[p - 1] = y[0] - head.sum(axis=0)
+    if n > 1:
+        d = np.diff(y, axis=0)  # d[i-1] = y[i] - y[i-1], sets x[i+p-1] - x[i-1]
+        for r in range(p):  # residue chains of x indices r, r+p, ...
+            start = r if r < p - 1 else p - 1
+            # x indices in this chain beyond the seed: start + p, start + 2p, ...
+            idx = np.arange(start + p, m, p)
+            if idx.size:
+                x[idx] = x[start] + np.cumsum(d[idx - p], axis=0)
+    return x
+
+
+def recursive_solution(y: np.ndarray, p: int, q: int, boundary: np.ndarray) -> np.ndarray:
+    """Eq. 4: the exact recursive solution of eq. 3 given its boundary.
+
+    ``y`` is the interleaved box-sum observation (n_x x n_y, sums). The
+    recursion needs the first p-1 rows and q-1 columns of ``x`` (the paper's
+    starting values); they are taken from ``boundary`` (shape (n_x+p-1) x
+    (n_y+q-1); its other entries are ignored). Eq. 4 is separable
+    (``Y = T1 (X T2)``), so it is evaluated as a stride-p recursion along rows
+    then a stride-q recursion along columns, each a cumulative sum. Exact on
+    noise-free data; noise accumulates along every chain.
+    """
+    y = np.asarray(y, dtype=np.float64)
+    b = np.asarray(boundary, dtype=np.float64)
+    nx, ny = y.shape
+    if b.shape != (nx + p - 1, ny + q - 1):
+        raise ValueError(f"boundary must be {(nx + p - 1, ny + q - 1)}, got {b.shape}")
+    # Z = X T2 (column-direction box sums); its first p-1 rows come from the boundary rows.
+    z_head = box_sum(b[: p - 1], 1, q) if p > 1 else np.zeros((0, ny))
+    z = _unbox_1d(y, p, z_head) if p > 1 else y.copy()
+    x_head = b[:, : q - 1].T if q > 1 else np.zeros((0, nx + p - 1))
+    return (_unbox_1d(z.T, q, x_head) if q > 1 else z.T.copy()).T
+
+
+def pinv_solution(y: np.ndarray, p: int, q: int) -> np.ndarray:
+    """Eq. 6: ``X = pinv(T1) Y pinv(T2)``, the least-norm solution of eq. 5.
+
+    Requires the paper's divisibility condition: ``n_x + p - 1`` a multiple of
+    p and ``n_y + q - 1`` a multiple of q (ValueError otherwise). Dense
+    pseudo-inverses: O(n^3) in the side length; unstable under noise.
+    """
+    y = np.asarray(y, dtype=np.float64)
+    nx, ny = y.shape
+    if (nx + p - 1) % p or (ny + q - 1) % q:
+        raise ValueError(
+            f"eq. 6 needs n_x+p-1 divisible by p and n_y+q-1 by q (got n_x={nx}, p={p}, n_y={ny}, q={q})"
+        )
+    t1 = band_matrix(nx, p)
+    t2 = band_matrix(ny, q).T
+    return np.linalg.pinv(t1) @ y @ np.linalg.pinv(t2)
+
+
+def windowed_filter(p: int, w: int, normalise: bool = True) -> tuple[np.ndarray, int]:
+    """Eq. 7 in 1-D: the filter that the sliding-window pseudo-inverse applies.
+
+    In a window of ``w`` observations and ``w+p-1`` unknowns (``w+p-1`` odd),
+    the least-norm solution for the central unknown is row ``c = (w+p-2)/2``
+    of ``pinv(T1)``: ``x[k] = sum_j g[j] y[k - c + j]`` (y sums). Returns
+    ``(g, c)``. With ``normalise`` the taps are scaled so a constant image
+    keeps its brightness (``p * sum(g) = 1``); eq. 7 as written has
+    ``p * sum(g) != 1`` for even p.
+    """
+    if (w + p - 1) % 2 == 0:
+        raise ValueError(f"eq. 7 needs w+p-1 odd (w={w}, p={p})")
+    if w < p:
+        raise ValueError(f"window w={w} must be >= p={p}")
+    c = (w + p - 2) // 2
+    g = np.linalg.pinv(band_matrix(w, p))[c].copy()
+    if normalise:
+        g = g / (p * g.sum())
+    return g, c
+
+
+def windowed_solution(y: np.ndarray, p: int, q: int, w: int = 6, u: int | None = None, normalise: bool = True) -> np.ndarray:
+    """Eq. 7 as a convolution: one fixed separable filter on the interleaved ``y``.
+
+    ``y`` (sums) has the HR grid's shape; the result (same shape) is the
+    per-pixel windowed least-norm estimate of the sub-pixels ``x[k, l]``
+    (``x[k]`` is the first sub-pixel of box ``y[k]``), computed for all pixels
+    at once with ``cv2.sepFilter2D`` (reflected border). See
+    :func:`windowed_filter` for the DC normalisation.
+    """
+    u = w if u is None else u
+    gr, cr = windowed_filter(p, w, normalise)
+    gc, cc = windowed_filter(q, u, normalise)
+    return cv2.sepFilter2D(
+        np.asarray(y, dtype=np.float64), cv2.CV_64F, gc, gr, anchor=(cc, cr), borderType=cv2.BORDER_REFLECT_101
+    )
+
+
+def grid_offsets(shifts: np.ndarray, p: int, q: int, tol: float = 0.1) -> np.ndarray | None:
+    """Sub-pixel grid offsets ``(t_r, t_c) = round(p u, q v)`` if every shift lies on
+    the k/p, l/q grid within ``tol`` sub-pixels, else None."""
+    s = np.asarray(shifts, dtype=np.float64) * np.array([p, q])
+    t = np.rint(s)
+    if np.max(np.abs(s - t)) > tol:
+        return None
+    return t.astype(np.int64)
+
+
+def interleave(frames: list[np.ndarray], offsets: np.ndarray, p: int, q: int) -> tuple[np.ndarray, np.ndarray]:
+    """Build the interleaved eq. 3 observation (sums) from grid-shifted frames.
+
+    Frame n with offsets ``(t_r, t_c)`` sub-pixels: its pixel (i, j) is the
+    mean over the HR box starting at ``(p i - t_r, q j - t_c)``, so it fills
+    ``y[p i - t_r, q j - t_c] = p q * frame[i, j]``. Frames sharing a phase are
+    averaged. Returns ``(y, filled)``; unfilled entries (missing phases, or
+    the border strip a shifted frame does not reach) are copied from the
+    nearest filled entry along rows/columns by reflection-free edge fill.
+    """
+    h, w = frames[0].shape
+    acc = np.zeros((h * p, w * q))
+    cnt = np.zeros((h * p, w * q))
+    for f, (tr, tc) in zip(frames, offsets):  # loop over frames, not pixels
+        rows = p * np.arange(h) - tr
+        cols = q * np.arange(w) - tc
+        ri = (rows >= 0) & (rows < h * p)
+        ci = (cols >= 0) & (cols < w * q)
+        acc[np.ix_(rows[ri], cols[ci])] += p * q * np.asarray(f, dtype=np.float64)[np.ix_(ri, ci)]
+        cnt[np.ix_(rows[ri], cols[ci])] += 1
+    filled = cnt > 0
+    y = np.where(filled, acc / np.maximum(cnt, 1), 0.0)
+    if not filled.all():
+        # fill holes from the nearest filled sample (OpenCV inpaint-free: distance transform labels)
+        _, labels = cv2.distanceTransformWithLabels(
+            (~filled).astype(np.uint8), cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_PIXEL
+        )
+        src = np.zeros(labels.max() + 1, dtype=np.int64)
+        fr, fc = np.nonzero(filled)
+        src[labels[fr, fc]] = fr * y.shape[1] + fc
+        y = y.ravel()[src[labels]].reshape(y.shape)
+    return y, filled

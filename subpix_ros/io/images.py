@@ -16,7 +16,9 @@ Supported encodings (ROS ``sensor_msgs/image_encodings`` names):
   the generic ``{8,16,32,64}{U,S,F}C{1..4}`` (``8UC1``, ``16UC1``, ``32FC1`` ...;
   valid depths 8U 8S 16U 16S 32S 32F 64F);
 * Bayer mosaics ``bayer_rggb8 bayer_bggr8 bayer_gbrg8 bayer_grbg8`` (and the
-  ``...16`` variants): demosaiced with OpenCV (bilinear) to BGR;
+  ``...16`` variants): demosaiced with OpenCV (bilinear) to BGR; each pixel
+  keeps its own measured colour sample, except the 1-pixel image border,
+  which OpenCV fills from its neighbours;
 * packed YUV 4:2:2: ``yuv422`` = ``uyvy`` (byte order U Y0 V Y1) and
   ``yuv422_yuy2`` = ``yuyv`` (Y0 U Y1 V), old and new names: decoded with
   OpenCV (BT.601) to BGR8.
@@ -80,6 +82,7 @@ __all__ = [
     "numpy_to_compressed",
     "finite_fraction",
     "require_finite",
+    "FrameFormatTracker",
 ]
 
 DESIRED = ("passthrough", "raw", "bgr8", "mono8", "mono")
@@ -469,6 +472,38 @@ def require_finite(image: np.ndarray, min_fraction: float = 1.0, what: str = "im
     return image
 
 
+class FrameFormatTracker:
+    """Notices when the size or encoding of a stream's frames changes mid-stream.
+
+    ``update(height, width, encoding)`` returns ``None`` for the first frame and
+    for frames in the current format, and a one-line description
+    (``"frame format changed mid-stream: 1920x1080 bgr8 -> 1280x720 bgr8"``)
+    when it changes; the new format then becomes current and ``changes``
+    counts the switches. Callers decide what to do (typically: log it and
+    reset state that depends on the frame size, e.g. the previous frame).
+    """
+
+    def __init__(self) -> None:
+        self.current: tuple[int, int, str] | None = None
+        self.changes = 0
+
+    def update(self, height: int, width: int, encoding: str) -> str | None:
+        fmt = (int(height), int(width), str(encoding))
+        if self.current is None or fmt == self.current:
+            self.current = fmt
+            return None
+        old, self.current = self.current, fmt
+        self.changes += 1
+        return (
+            f"frame format changed mid-stream: {old[1]}x{old[0]} {old[2]} -> {fmt[1]}x{fmt[0]} {fmt[2]} "
+            f"(width x height)"
+        )
+
+    def update_from(self, msg: Any) -> str | None:
+        """:meth:`update` with the fields of an Image message."""
+        return self.update(msg.height, msg.width, msg.encoding)
+
+
 # ---------------------------------------------------------------------------- compressed
 
 _JPEG_MAGIC = b"\xff\xd8\xff"
@@ -500,8 +535,11 @@ def compressed_to_numpy(msg: Any, desired: str = "passthrough") -> np.ndarray:
     detected from the data). ``passthrough`` returns what the codec stores: BGR
     for colour (also when the original encoding was rgb8), ``H x W`` for mono,
     uint16 for 16-bit PNG, BGRA for PNG with alpha. ``bgr8`` / ``mono8`` /
-    ``mono`` convert as :func:`image_to_numpy` does. Empty, truncated,
-    mislabelled or undecodable data raises :class:`ImageConversionError`.
+    ``mono`` convert as :func:`image_to_numpy` does. Empty, truncated (no
+    JPEG end-of-image marker / PNG IEND chunk), mislabelled or undecodable
+    data raises :class:`ImageConversionError`. Limitation: bytes damaged
+    *inside* a JPEG's entropy-coded scan can still decode (libjpeg only warns
+    and OpenCV does not report it); PNG's per-chunk CRC catches that case.
     """
     fmt = getattr(msg, "format", None)
     if not isinstance(fmt, str):

@@ -129,6 +129,27 @@ def test_cdr_to_image_is_zero_copy(bgr):
     assert img_rw[-1, -1, -1] == bgr[-1, -1, -1] ^ 0xFF
 
 
+def test_huge_frame_fast_path_memory():
+    """8000x6000: image_to_cdr allocates the message once; cdr_to_image allocates nothing."""
+    import tracemalloc
+
+    big = np.zeros((6000, 8000), np.uint8)
+    big[::101, ::103] = 9
+    tracemalloc.start()
+    try:
+        raw = image_to_cdr(big, "mono8", STAMP, "cam")
+        _, peak_ser = tracemalloc.get_traced_memory()
+        tracemalloc.reset_peak()
+        base, _ = tracemalloc.get_traced_memory()
+        img, _ = cdr_to_image(raw)
+        current, peak_de = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert big.nbytes <= len(raw) < peak_ser + 1 and peak_ser < big.nbytes + 1_000_000
+    assert peak_de - base < 1_000_000
+    assert img.shape == big.shape and img[101, 103] == 9 and np.shares_memory(img, np.frombuffer(raw, np.uint8))
+
+
 def test_desired_through_cdr(bgr):
     import cv2
 

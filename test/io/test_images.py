@@ -13,6 +13,7 @@ import pytest
 from subpix_ros.data import seneca_frame_paths
 from subpix_ros.io.images import (
     KNOWN_ENCODINGS,
+    FrameFormatTracker,
     ImageConversionError,
     compressed_to_numpy,
     encoding_info,
@@ -351,6 +352,20 @@ def test_degenerate_frames_convert_unchanged(kind):
     for enc in ("bgr8", "rgb8", "bayer_rggb8", "uyvy"):
         out = image_to_numpy(msg_of(img, enc), "bgr8")
         assert np.abs(out.astype(int) - value).max() <= 1, enc
+
+
+def test_frame_size_change_mid_stream_is_reported(gray):
+    tracker = FrameFormatTracker()
+    small = gray[:48, :64]
+    msgs = [msg_of(gray, "mono8"), msg_of(gray, "mono8"), msg_of(small, "mono8"), msg_of(small, "mono8"),
+            msg_of(np.dstack([small] * 3), "bgr8")]
+    notes = [tracker.update_from(m) for m in msgs]
+    assert notes[:2] == [None, None] and notes[3] is None
+    assert notes[2] == "frame format changed mid-stream: 128x96 mono8 -> 64x48 mono8 (width x height)"
+    assert notes[4] == "frame format changed mid-stream: 64x48 mono8 -> 64x48 bgr8 (width x height)"
+    assert tracker.changes == 2 and tracker.current == (48, 64, "bgr8")
+    # Each frame still converts on its own terms.
+    assert image_to_numpy(msgs[2]).shape == (48, 64)
 
 
 def test_huge_frame_no_extra_copies():

@@ -1,6 +1,5 @@
 """MAVLink I/O with real packets: pymavlink over UDP loopback and .tlog files."""
 import math
-import threading
 import time
 
 import numpy as np

@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
     from subpix_ros.cli._ros import ros_node
     from subpix_ros.io.player import Recorder
@@ -50,6 +50,8 @@ def run(args: argparse.Namespace) -> int:
                         break
                     if args.count and rec.count >= args.count:
                         break
+            except (KeyboardInterrupt, ExternalShutdownException):
+                pass  # Ctrl-C / SIGINT: rclpy's handler shut the context down; close the bag cleanly
             finally:
                 rec.close()
                 ex.shutdown()

@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
             player = Player(node, args.bag, topics=args.topics, rate=args.rate, loop=args.loop, clock=args.clock,
                             remap=remap)
             signal.signal(signal.SIGTERM, lambda *_: player.stop())
-            unknown = [t for t in args.wait_for if t not in player.publishers]
+            unknown = [t for t in args.wait_for if t not in player.publishers and not (t == "/clock" and args.clock)]
             if unknown:
                 raise CliError(f"--wait-for topic(s) not replayed: {', '.join(unknown)}")
             if args.wait_for and not player.wait_for_subscribers(args.wait_for, args.wait_timeout):

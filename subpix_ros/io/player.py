@@ -85,7 +85,8 @@ class Player:
         """Block until every topic in ``topics`` has a matched subscriber."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline and not self._stop.is_set():
-            if all(self.publishers[t].get_subscription_count() > 0 for t in topics):
+            pubs = {**self.publishers, "/clock": self._clock_pub}
+            if all(pubs[t] is not None and pubs[t].get_subscription_count() > 0 for t in topics):
                 return True
             time.sleep(0.05)
         return False
@@ -141,10 +142,13 @@ class Recorder:
         self._lock = threading.Lock()
         types = self._discover(topics, discover_timeout_s)
         self.writer = BagWriter(output, storage=storage)
-        # Best effort matches both reliable and best-effort publishers.
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
         self.subs = []
         for topic in topics:
+            # Reliable unless a publisher only offers best effort (as ros2 bag does).
+            offered = [i.qos_profile.reliability for i in node.get_publishers_info_by_topic(topic)]
+            best_effort = any(r == ReliabilityPolicy.BEST_EFFORT for r in offered)
+            qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT if best_effort
+                             else ReliabilityPolicy.RELIABLE)
             msgtype = types[topic]
             cls = message_class(msgtype)
             self.subs.append(node.create_subscription(cls, topic, self._make_cb(topic, msgtype), qos, raw=True))

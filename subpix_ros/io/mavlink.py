@@ -361,6 +361,10 @@ def _open(spec: ConnectionSpec):
     elif spec.kind == "tcpin":
         conn = mavutil.mavtcpin(spec.address)
     elif spec.kind == "serial":
+        try:
+            import serial  # noqa: F401  (pyserial, used by mavutil.mavserial)
+        except ImportError:
+            raise RuntimeError("serial MAVLink links need pyserial: pip install pyserial") from None
         conn = mavutil.mavserial(spec.address, baud=spec.baud or 57600, autoreconnect=True)
     elif spec.kind == "tlog":
         # mavlogfile directly: mavlink_connection() would *execute* some paths.

@@ -214,42 +214,116 @@ def _refine_shifts(
     noise estimate that texture does not bias, unlike single-frame ones. Frames whose fit diverges (|step| > 0.5 px)
     keep their shift and get std = inf.
     """
-    n = frames.shape[0]
+    n, h, w = frames.shape
     g = gaussian_kernel(lp_sigma)
     low = [cv2.sepFilter2D(_integer_preshift(frames[i], int(ishift[i, 0]), int(ishift[i, 1])), cv2.CV_64F, g, g,
                            borderType=cv2.BORDER_REFLECT_101) for i in range(n)]
-    ref = low[0]
     out = resid.copy()
     sig = np.zeros(n)
     resvar = np.full(n, np.nan)
-    b = slice(border, -border)
+    region = (slice(border, h - border), slice(border, w - border))
     for i in range(1, n):  # loop over frames
-        s = resid[i].copy()
-        ok = True
-        for _ in range(iters):
-            pred = fourier_shift_blur(ref, (float(s[0]), float(s[1])), 0.0, pad=16)
-            gy, gx = np.gradient(pred)
-            gm = np.stack([gy[b, b].ravel(), gx[b, b].ravel()], axis=1)
-            e = (low[i] - pred)[b, b].ravel()
-            ata = gm.T @ gm
-            try:
-                step = -np.linalg.solve(ata, gm.T @ e)
-            except np.linalg.LinAlgError:
-                ok = False
-                break
-            if not np.all(np.isfinite(step)) or np.abs(step).max() > 0.5:
-                ok = False
-                break
-            s = s + step
-        if ok:
-            r = e - gm @ step  # residual after the last step (first order)
-            resvar[i] = float(np.var(r)) / (2.0 * float(np.sum(g**2)) ** 2)
-            out[i] = s
-            sig[i] = float(np.sqrt(np.var(r) * np.trace(np.linalg.inv(ata)) / 2.0))
+        s, sg, rv = _lk(low[0], low[i], resid[i], region, g, iters=iters)
+        if np.isfinite(sg) and np.abs(s - resid[i]).max() < 0.5:
+            out[i], sig[i], resvar[i] = s, sg, rv
         else:
             sig[i] = np.inf
     noise = float(np.sqrt(np.nanmedian(resvar))) if np.isfinite(resvar).any() else float("nan")
     return out, sig, noise
+
+
+def detect_geometry(
+    frames: np.ndarray, shifts: np.ndarray, tiles: int = 3, lp_sigma: float = 1.0, tol: float = 0.05
+) -> tuple[np.ndarray | None, np.ndarray, float]:
+    """Check whether frames are related by more than a translation; fit affines if so.
+
+    Each frame is registered to frame 0 in ``tiles x tiles`` tiles (Lucas-
+    Kanade on low-passed frames, started from ``shifts``); the tile shifts
+    ``d(r, c)`` are fitted by ``d = s + J (r - r0, c - c0)`` (least squares,
+    (r0, c0) the frame centre). If the non-translational part ``J`` moves any
+    tile centre by more than ``tol`` LR px, the affine of every frame is
+    returned as a homography (reference -> frame LR pixel coordinates, as
+    :class:`FrameOperator` takes them), else None. Also returns the tile
+    shifts (N, tiles^2, 2) and the multi-frame noise estimate (DN).
+    """
+    n, h, w = frames.shape
+    g = gaussian_kernel(lp_sigma)
+    low = [cv2.sepFilter2D(f, cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101) for f in frames]
+    ty = np.linspace(0, h, tiles + 1).astype(int)
+    tx = np.linspace(0, w, tiles + 1).astype(int)
+    centres = np.array([((ty[a] + ty[a + 1] - 1) / 2.0, (tx[b] + tx[b + 1] - 1) / 2.0)
+                        for a in range(tiles) for b in range(tiles)])
+    r0, c0 = (h - 1) / 2.0, (w - 1) / 2.0
+    rel = centres - np.array([r0, c0])
+    design = np.concatenate([np.ones((len(rel), 1)), rel], axis=1)  # (T, 3)
+    tshift = np.zeros((n, len(rel), 2))
+    resvars = []
+    nonlinear = False
+    affines = np.zeros((n, 3, 3))
+    affines[0] = np.eye(3)
+    for i in range(1, n):  # loop over frames
+        k = 0
+        for a in range(tiles):  # tiles, not pixels
+            for b in range(tiles):
+                sl = (slice(ty[a], ty[a + 1]), slice(tx[b], tx[b + 1]))
+                s, sg, rv = _lk(low[0], low[i], np.asarray(shifts[i], dtype=np.float64), sl, g)
+                tshift[i, k] = s if np.isfinite(sg) else np.nan
+                if np.isfinite(rv):
+                    resvars.append(rv)
+                k += 1
+        ok = np.isfinite(tshift[i, :, 0])
+        if ok.sum() < 4:
+            affines[i] = translation_homography(*shifts[i])
+            continue
+        coef, *_ = np.linalg.lstsq(design[ok], tshift[i, ok], rcond=None)  # (3, 2): s, then J rows
+        s = coef[0]
+        jac = coef[1:].T  # jac[out, in]: d(u, v) / d(r, c)
+        if np.max(np.abs(rel @ jac.T)) > tol:
+            nonlinear = True
+        affines[i] = np.array([
+            [1 + jac[1, 1], jac[1, 0], s[1] - jac[1, 0] * r0 - jac[1, 1] * c0],
+            [jac[0, 1], 1 + jac[0, 0], s[0] - jac[0, 0] * r0 - jac[0, 1] * c0],
+            [0.0, 0.0, 1.0],
+        ])
+    noise = float(np.sqrt(np.median(resvars))) if resvars else float("nan")
+    return (affines if nonlinear else None), tshift, noise
+
+
+def _lk(
+    ref: np.ndarray, mov: np.ndarray, s0: np.ndarray, sl: tuple[slice, slice], g: np.ndarray, iters: int = 3, pad: int = 16
+) -> tuple[np.ndarray, float, float]:
+    """Lucas-Kanade shift of ``mov`` vs ``ref`` (both low-passed by g) over region ``sl``.
+
+    ``mov ~ shift(ref, s)``; Gauss-Newton from ``s0`` on ``F ~ R - d . grad R``.
+    Returns (s, std of s, noise variance per pixel implied by the residual).
+    The region is cut with ``pad`` px of context so the Fourier shift's wrap
+    stays outside it.
+    """
+    h, w = ref.shape
+    ra, rb = max(sl[0].start - pad, 0), min(sl[0].stop + pad, h)
+    ca, cb = max(sl[1].start - pad, 0), min(sl[1].stop + pad, w)
+    inner = (slice(sl[0].start - ra + 4, sl[0].stop - ra - 4), slice(sl[1].start - ca + 4, sl[1].stop - ca - 4))
+    # integer part of s0 handled by the crop of mov; the residual by the Fourier shift of ref
+    s = np.asarray(s0, dtype=np.float64).copy()
+    refc = ref[ra:rb, ca:cb]
+    for _ in range(iters):  # Gauss-Newton iterations
+        iu, iv = int(np.rint(s[0])), int(np.rint(s[1]))
+        movc = _integer_preshift(mov, iu, iv)[ra:rb, ca:cb]
+        pred = fourier_shift_blur(refc, (float(s[0] - iu), float(s[1] - iv)), 0.0, pad=8)
+        gy, gx = np.gradient(pred)
+        gm = np.stack([gy[inner].ravel(), gx[inner].ravel()], axis=1)
+        e = (movc - pred)[inner].ravel()
+        ata = gm.T @ gm
+        try:
+            step = -np.linalg.solve(ata, gm.T @ e)
+        except np.linalg.LinAlgError:
+            return s, float("inf"), float("nan")
+        if not np.all(np.isfinite(step)) or np.abs(step).max() > 0.5:
+            return s, float("inf"), float("nan")
+        s = s + step
+    r = e - gm @ step
+    resvar = float(np.var(r)) / (2.0 * float(np.sum(g**2)) ** 2)
+    return s, float(np.sqrt(np.var(r) * np.trace(np.linalg.inv(ata)) / 2.0)), resvar
 
 
 def _tukey(n: int, frac: float = 0.25) -> np.ndarray:
@@ -403,6 +477,71 @@ def _fourier_map(
     }
 
 
+def _cg_map(
+    frames: np.ndarray,
+    homographies: np.ndarray,
+    p: int,
+    blur_sigma: float,
+    noise_sigma: float,
+    masks: Sequence[np.ndarray] | None,
+    prior: tuple[float, float],
+    reg: float,
+    x0: np.ndarray,
+    iters: int,
+) -> np.ndarray:
+    """MAP estimate of eq. 9 by conjugate gradients with the spatial operators.
+
+    Solves ``(sum_n A_n^T M_n A_n / sigma^2 + reg Q) x = sum_n A_n^T M_n y_n / sigma^2``
+    where ``A_n`` is :class:`FrameOperator` (blur, any homography, box
+    integration; bilinear resampling), ``M_n`` the validity mask (given mask
+    AND footprint inside the HR grid) and ``Q`` the stationary prior
+    precision, applied by FFT: ``Q x = ifft(fft(x) / S_x(f))`` with
+    ``S_x(f) = c |f|^-alpha`` (DC unregularised). Warm-started from ``x0``;
+    ``iters`` CG iterations (each 2 N resamplings + 2 FFTs).
+    """
+    n = frames.shape[0]
+    hh, hw = x0.shape
+    c, alpha = prior
+    fy = np.fft.fftfreq(hh)[:, None]
+    fx = np.fft.rfftfreq(hw)[None, :]
+    fr = np.hypot(fy, fx)
+    prec = np.where(fr > 0, np.maximum(fr, 1e-6) ** alpha / c, 0.0)
+    ops = []
+    for i in range(n):  # one operator per frame
+        op = FrameOperator(homographies[i], frames[i].shape, (hh, hw), p, p, blur_sigma)
+        m = op.valid.astype(np.float64)
+        if masks is not None:
+            m = m * np.asarray(masks[i], dtype=bool)
+        ops.append((op, m))
+    inv_var = 1.0 / noise_sigma**2
+
+    def normal(x: np.ndarray) -> np.ndarray:
+        out = reg * np.fft.irfft2(np.fft.rfft2(x) * prec, s=x.shape)
+        for op, m in ops:
+            out += inv_var * op.adjoint(m * op.forward(x))
+        return out
+
+    b = np.zeros((hh, hw))
+    for (op, m), y in zip(ops, frames):
+        b += inv_var * op.adjoint(m * y)
+    x = x0.copy()
+    r = b - normal(x)
+    d = r.copy()
+    rr = float(np.sum(r * r))
+    r0 = rr
+    for _ in range(iters):  # CG iterations
+        if rr <= 1e-12 * max(r0, 1e-30):
+            break
+        q = normal(d)
+        alpha_k = rr / float(np.sum(d * q))
+        x += alpha_k * d
+        r -= alpha_k * q
+        rr_new = float(np.sum(r * r))
+        d = r + (rr_new / rr) * d
+        rr = rr_new
+    return x
+
+
 # --------------------------------------------------------------------------- public API
 
 
@@ -477,6 +616,7 @@ def reconstruct(
     blur_sigma: float = 0.4,
     reg: float = 1.0,
     refine_shifts: bool = True,
+    geometry: str = "auto",
     window: int = 6,
     pad: int = 16,
     cg_iters: int = 30,
@@ -496,6 +636,10 @@ def reconstruct(
     per-pixel noise std in DN (estimated from the frames if None).
     blur_sigma: optics blur std in LR px (Gaussian PSF of the model).
     reg: prior strength multiplier (1 = the prior fitted to the data).
+    geometry: "auto" checks (tile registration, :func:`detect_geometry`)
+    whether the frames are related by more than a translation and if so puts
+    the fitted affine of each frame into the forward model (CG solver);
+    "translation" skips the check.
 
     Returns :class:`SRResult`; raises ValueError on malformed input (fewer
     than 2 frames, mismatched shapes, factor outside 2..4, bad shifts).
@@ -504,6 +648,8 @@ def reconstruct(
     n = stack.shape[0]
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
+    if geometry not in ("auto", "translation"):
+        raise ValueError(f"geometry must be 'auto' or 'translation', got {geometry!r}")
     if blur_sigma < 0 or reg <= 0:
         raise ValueError("blur_sigma must be >= 0 and reg > 0")
     if noise_sigma is not None and (not np.isfinite(noise_sigma) or noise_sigma < 0):
@@ -537,6 +683,14 @@ def reconstruct(
 
     # method == "map"
     cov = np.zeros((n, 2, 2)) if shift_cov is None else np.asarray(shift_cov, dtype=np.float64)
+    reason = ""
+    if homographies is None and geometry == "auto" and min(ref.shape) >= 96:
+        affines, _, tile_noise = detect_geometry(stack, s)
+        if affines is not None:
+            homographies = affines
+            reason = "frames related by more than a translation: affine geometry fitted per frame, solved by CG"
+            if noise_sigma is None and np.isfinite(tile_noise):
+                noise_sigma = tile_noise
     use_cg = masks is not None or homographies is not None
     trans = s
     if homographies is not None:
@@ -558,7 +712,7 @@ def reconstruct(
     if use_cg:
         hs = (np.asarray(homographies, dtype=np.float64) if homographies is not None
               else np.stack([translation_homography(*si) for si in s]))
-        img = _cg_map(stack, hs, p, blur_sigma, sigma, masks, sol["prior"], reg, img, cg_iters)
+        img = _cg_map(stack, hs, p, blur_sigma, sol["noise_sigma"], masks, sol["prior"], reg, img, cg_iters)
         method_used = "map-cg"
     if not np.isfinite(img).all():
         return _fallback(ref, p, "MAP solution not finite", sigma, n, s)
@@ -574,4 +728,5 @@ def reconstruct(
         shifts=sol["shifts"],
         shift_sigma=sol["shift_sigma"],
         factor=p,
+        reason=reason,
     )

@@ -1,0 +1,881 @@
+"""Sub-pixel shift between two frames (METHODS.md A), at the accuracy limit.
+
+Sign convention (used everywhere in subpix_ros)
+-----------------------------------------------
+``(u, v)`` = (rows, columns) in pixels is how far the scene content moved
+from the ``reference`` frame to the ``moving`` frame: a feature at ``(r, c)``
+in the reference appears at ``(r + u, c + v)`` in the moving frame, i.e.
+``moving(x + s) = reference(x) + z`` with ``s = (u, v)`` and ``z`` an
+intensity offset (moving minus reference, in the input's digital numbers).
+
+Methods
+-------
+``method="seed"``: the published estimator exactly (METHODS.md A): the
+matrices D, E, F on the ``(m-2) x (n-2)`` interior, ``A C = B`` with means
+of Hadamard products, float64 accumulation, one closed-form solve. The paper
+leaves sign and scale open; d and e are two-pixel central differences summed
+over both frames (``d ~ 4 dI/dr``, ``e ~ 4 dI/dc``) and ``f = y - x ~ -s.grad I
++ z``, so the paper's ``C = (c_u, c_v, z)`` relates to our shift by
+``u = -4 c_u``, ``v = -4 c_v`` (checked by tests against known shifts).
+:func:`seed_solve` returns the raw ``C``.
+
+``method="seed-iterated"``: the seed's normal equations re-solved after
+warping the moving frame by the current estimate with OpenCV INTER_CUBIC,
+3 solves (the reference point quoted in the issue; biased by the cubic warp).
+
+``method="default"``: coarse stage + Gauss-Newton refinement:
+
+1. Coarse: phase correlation (``cv2.phaseCorrelate``, Hanning window) on a
+   pyramid level no larger than ``coarse_size`` px, unless a ``prior`` is
+   given; then Gauss-Newton at the intermediate pyramid levels.
+2. Fine: Gauss-Newton on ``(u, v, z)`` with the reference-side Jacobian
+   (inverse compositional): minimise ``sum w (H_t * M)(x + k) - (H_0 * R)(x)
+   - z)^2`` where ``k = floor(s)``, ``t = s - k`` and ``H_t`` is a short
+   separable FIR filter designed by least squares so that its frequency
+   response approximates ``G(w) exp(i w t)`` for ``|w| <= band * pi``: a
+   Gaussian prefilter ``G`` (``prefilter_sigma`` px, applied to both frames)
+   combined with an accurate fractional delay. The prefilter removes most of
+   the aliased near-Nyquist content that biases every translation estimator,
+   and the designed delay has no interpolation bias to speak of (measured:
+   Keys cubic 1.49x scale error for small shifts, linear ~0.015 px bias on
+   real texture; this filter < 0.001 px).
+3. Quality: the covariance of (u, v) is the cluster-robust "sandwich"
+   ``A^-1 (sum_k b_k b_k^T) A^-1`` over 16x16-pixel blocks of the final
+   residuals (valid for the spatially correlated noise the filters create and
+   for model error); local shifts over a 3x3 grid of the frame measure
+   residual misfit (rotation, scale, parallax): ``misfit`` is set when they
+   differ significantly and by more than ``misfit_px``.
+
+Failure: textureless, constant, all-NaN, too small or non-overlapping input
+gives ``ok=False`` with a ``reason`` and ``u = v = z = None`` (never NaN or a
+made-up number). Wrong argument types/shapes raise ``ValueError``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from functools import lru_cache
+from typing import Optional, Sequence, Tuple, Union
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "ShiftResult",
+    "estimate_shift",
+    "seed_system",
+    "seed_solve",
+    "fractional_shift_kernel",
+    "coarse_shift",
+    "METHODS",
+]
+
+METHODS = ("default", "seed", "seed-iterated")
+
+MaskArg = Union[None, np.ndarray, Tuple[Optional[np.ndarray], Optional[np.ndarray]]]
+
+
+@dataclass
+class ShiftResult:
+    """Outcome of :func:`estimate_shift`.
+
+    ``u``, ``v``: shift in pixels (rows, cols), scene content reference ->
+    moving (see module docstring); ``z``: intensity offset moving - reference
+    (input DN). All three are None when ``ok`` is False, and ``reason`` then
+    says why. ``cov``: 2x2 covariance of (u, v) in px^2 (None if unknown),
+    ``u_std``/``v_std`` its square roots. ``cond``: 2-norm condition number
+    of the normal matrix A. ``n_pixels``: pixels in the final sums.
+    ``iterations``: fine Gauss-Newton solves; ``converged``: the last update
+    was below the tolerance. ``residual_rms``: RMS of the final residual (DN).
+    ``misfit``: the translation model does not fit (local shifts across the
+    frame disagree, e.g. rotation); ``misfit_px`` the RMS spread of the local
+    shifts about the global one (px), ``warning`` a human-readable note.
+    """
+
+    ok: bool
+    reason: str = ""
+    u: Optional[float] = None
+    v: Optional[float] = None
+    z: Optional[float] = None
+    cov: Optional[np.ndarray] = None
+    u_std: Optional[float] = None
+    v_std: Optional[float] = None
+    cond: Optional[float] = None
+    n_pixels: int = 0
+    iterations: int = 0
+    converged: bool = False
+    residual_rms: Optional[float] = None
+    misfit: bool = False
+    misfit_px: Optional[float] = None
+    warning: str = ""
+    method: str = "default"
+    coarse: Optional[Tuple[float, float]] = None
+
+    @property
+    def shift(self) -> Optional[Tuple[float, float]]:
+        """``(u, v)`` or None."""
+        return None if self.u is None else (self.u, self.v)
+
+    def as_dict(self) -> dict:
+        """JSON-ready dict (numpy arrays and scalars converted)."""
+        d = asdict(self)
+        d["cov"] = None if self.cov is None else np.asarray(self.cov, dtype=float).tolist()
+        d["coarse"] = None if self.coarse is None else [float(x) for x in self.coarse]
+        for k, val in list(d.items()):
+            if isinstance(val, np.generic):
+                d[k] = val.item()
+        return d
+
+
+def _fail(reason: str, method: str, **kw) -> ShiftResult:
+    return ShiftResult(ok=False, reason=reason, method=method, **kw)
+
+
+# ---------------------------------------------------------------------------
+# input handling
+# ---------------------------------------------------------------------------
+
+
+def _as_working(image: np.ndarray, name: str) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+    """Working array (uint8/uint16 kept as is for OpenCV, else float32) and validity.
+
+    Validity is None when every pixel is valid; otherwise a bool array that is
+    False at NaN/inf and, for uint8/uint16, at the dtype's maximum (saturated:
+    the true value is unknown).
+    """
+    a = np.asarray(image)
+    if a.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D (mono) array, got shape {a.shape}; convert colour with luminance()")
+    if a.dtype == bool or not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+        raise ValueError(f"{name} dtype {a.dtype} is not an integer or float type")
+    if a.size == 0:
+        raise ValueError(f"{name} is empty")
+    if a.dtype in (np.uint8, np.uint16):
+        a = np.ascontiguousarray(a)
+        sat = np.iinfo(a.dtype).max
+        if cv2.minMaxLoc(a)[1] >= sat:
+            return a, a != sat
+        return a, None
+    f = np.ascontiguousarray(a, dtype=np.float32)
+    if np.issubdtype(a.dtype, np.floating) and not cv2.checkRange(f, quiet=True)[0]:
+        valid = np.isfinite(f)
+        return np.where(valid, f, np.float32(0.0)), valid
+    return f, None
+
+
+def _is_constant(a: np.ndarray, valid: Optional[np.ndarray]) -> bool:
+    if valid is None:
+        lo, hi, _, _ = cv2.minMaxLoc(a)
+    else:
+        lo, hi, _, _ = cv2.minMaxLoc(a, mask=valid.astype(np.uint8))
+    return hi <= lo
+
+
+def _masks(mask: MaskArg, shape: Tuple[int, int]) -> Tuple[Optional[np.ndarray], Optional[np.ndarray]]:
+    if mask is None:
+        return None, None
+    if isinstance(mask, (tuple, list)):
+        if len(mask) != 2:
+            raise ValueError("mask must be an array or a (reference_mask, moving_mask) pair")
+        out = []
+        for m in mask:
+            if m is None:
+                out.append(None)
+                continue
+            m = np.asarray(m)
+            if m.shape != shape:
+                raise ValueError(f"mask shape {m.shape} != image shape {shape}")
+            out.append(m.astype(bool))
+        return out[0], out[1]
+    m = np.asarray(mask)
+    if m.shape != shape:
+        raise ValueError(f"mask shape {m.shape} != image shape {shape}")
+    m = m.astype(bool)
+    return m, m
+
+
+# ---------------------------------------------------------------------------
+# the seed (METHODS.md A)
+# ---------------------------------------------------------------------------
+
+
+def seed_system(x: np.ndarray, y: np.ndarray) -> Tuple[np.ndarray, np.ndarray, int]:
+    """The seed's normal equations ``A C = B`` (METHODS.md A), float64.
+
+    ``x`` reference, ``y`` moving, both m x n. With (0-based) ``l = i + 2``,
+    ``k = j + 1``: ``d = x[l,k] + y[l,k] - x[l-2,k] - y[l-2,k]``, ``e =
+    x[l-1,k+1] + y[l-1,k+1] - x[l-1,k-1] - y[l-1,k-1]``, ``f = y[l-1,k] -
+    x[l-1,k]`` on the (m-2) x (n-2) interior; ``A = [[<DD>,<DE>,<D>],
+    [<DE>,<EE>,<E>],[<D>,<E>,1]]``, ``B = [<FD>,<FE>,<F>]`` (means of
+    Hadamard products). Returns (A, B, number of interior pixels).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    s = x + y
+    d = s[2:, 1:-1] - s[:-2, 1:-1]
+    e = s[1:-1, 2:] - s[1:-1, :-2]
+    f = y[1:-1, 1:-1] - x[1:-1, 1:-1]
+    n = d.size
+    dd, de, ee = np.vdot(d, d) / n, np.vdot(d, e) / n, np.vdot(e, e) / n
+    dm, em, fm = d.mean(), e.mean(), f.mean()
+    A = np.array([[dd, de, dm], [de, ee, em], [dm, em, 1.0]])
+    B = np.array([np.vdot(f, d) / n, np.vdot(f, e) / n, fm])
+    return A, B, n
+
+
+def seed_solve(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The paper's raw solution ``C = (c_u, c_v, z)`` of ``A C = B``.
+
+    Our shift convention is ``u = -4 c_u``, ``v = -4 c_v`` (module docstring).
+    Raises ``numpy.linalg.LinAlgError`` if A is singular.
+    """
+    A, B, _ = seed_system(x, y)
+    return np.linalg.solve(A, B)
+
+
+def _seed_result(x: np.ndarray, y: np.ndarray, method: str, iterations: int, converged: bool) -> ShiftResult:
+    A, B, n = seed_system(x, y)
+    cond = float(np.linalg.cond(A))
+    if not np.isfinite(cond) or cond > 1e12:
+        return _fail(f"textureless or degenerate input: condition number of A is {cond:.3g}", method, cond=cond)
+    C = np.linalg.solve(A, B)
+    u, v, z = -4.0 * C[0], -4.0 * C[1], C[2]
+    # residual of f = c_u d + c_v e + z on the interior, for a plain LS covariance
+    xs = np.asarray(x, np.float64)
+    ys = np.asarray(y, np.float64)
+    s = xs + ys
+    d = s[2:, 1:-1] - s[:-2, 1:-1]
+    e = s[1:-1, 2:] - s[1:-1, :-2]
+    f = ys[1:-1, 1:-1] - xs[1:-1, 1:-1]
+    r = f - (C[0] * d + C[1] * e + C[2])
+    s2 = float(np.vdot(r, r) / max(n - 3, 1))
+    covC = s2 * np.linalg.inv(A * n)
+    cov = 16.0 * covC[:2, :2]
+    return ShiftResult(
+        ok=True,
+        u=float(u),
+        v=float(v),
+        z=float(z),
+        cov=cov,
+        u_std=float(math.sqrt(max(cov[0, 0], 0.0))),
+        v_std=float(math.sqrt(max(cov[1, 1], 0.0))),
+        cond=cond,
+        n_pixels=int(n),
+        iterations=iterations,
+        converged=converged,
+        residual_rms=float(math.sqrt(s2)),
+        method=method,
+    )
+
+
+def _warp_translate(img: np.ndarray, u: float, v: float, interp: int = cv2.INTER_CUBIC) -> np.ndarray:
+    """``out(x) = img(x + s)``: moves content by ``-s`` (undoes a shift ``s``)."""
+    h, w = img.shape
+    M = np.float64([[1, 0, v], [0, 1, u]])
+    return cv2.warpAffine(img, M, (w, h), flags=interp | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+
+
+def _seed_iterated(x: np.ndarray, y: np.ndarray, iterations: int = 3) -> ShiftResult:
+    x = np.asarray(x, np.float64)
+    y = np.asarray(y, np.float64)
+    u = v = 0.0
+    res = None
+    b = 0
+    for _ in range(iterations):
+        yw = _warp_translate(y, u, v) if (u or v) else y
+        b = int(math.ceil(max(abs(u), abs(v)))) + 2
+        if 2 * b + 8 > min(x.shape):
+            return _fail("seed-iterated diverged: shift estimate exceeds the frame", "seed-iterated")
+        res = _seed_result(x[b:-b, b:-b], yw[b:-b, b:-b], "seed-iterated", 0, False)
+        if not res.ok:
+            return res
+        u += res.u
+        v += res.v
+    res.u, res.v = float(u), float(v)
+    res.iterations = iterations
+    return res
+
+
+# ---------------------------------------------------------------------------
+# designed fractional-delay + prefilter kernels
+# ---------------------------------------------------------------------------
+
+
+@lru_cache(maxsize=4096)
+def _kernel_cached(t_key: int, taps: int, sigma: float, band: float) -> Tuple[np.ndarray, int]:
+    t = t_key / 2.0**20
+    a = taps // 2
+    j = np.arange(-a + 1, a + 1, dtype=np.float64)
+    w = np.linspace(0.0, np.pi * band, 8 * taps + 1)
+    target = np.exp(-0.5 * (sigma * w) ** 2) * np.exp(1j * w * t)
+    E = np.exp(1j * np.outer(w, j))
+    Ar = np.vstack([E.real, E.imag])
+    br = np.concatenate([target.real, target.imag])
+    h = np.linalg.lstsq(Ar, br, rcond=None)[0]
+    h = h / h.sum()  # exact unit DC gain: z stays an intensity offset
+    h = h.astype(np.float32)
+    h.setflags(write=False)
+    return h, a - 1
+
+
+def fractional_shift_kernel(t: float, taps: int = 8, sigma: float = 0.8, band: float = 0.85) -> Tuple[np.ndarray, int]:
+    """FIR taps ``h_j`` (``j = -taps/2+1 .. taps/2``) and anchor for a delay ``t``.
+
+    Least-squares design over ``|w| <= band*pi`` of ``sum_j h_j exp(i w j) ~=
+    exp(-(sigma w)^2 / 2) exp(i w t)``: filtering a row with it (correlation,
+    ``out[x] = sum_j h_j in[x + j]``) samples the Gaussian-prefiltered signal
+    at ``x + t``. ``t`` in [0, 1) pixels (quantised to 2^-20 px), ``sigma`` in
+    pixels. Returns (float32 taps, anchor index for cv2.sepFilter2D).
+    """
+    if not (0.0 <= t <= 1.0):
+        raise ValueError("t must be in [0, 1]")
+    return _kernel_cached(int(round(t * 2.0**20)), int(taps), float(sigma), float(band))
+
+
+# ---------------------------------------------------------------------------
+# coarse stage
+# ---------------------------------------------------------------------------
+
+
+def _fill_invalid(a: np.ndarray, valid: Optional[np.ndarray]) -> np.ndarray:
+    if valid is None or valid.all():
+        return a
+    if not valid.any():
+        return np.zeros_like(a)
+    out = a.copy()
+    out[~valid] = float(a[valid].mean())
+    return out
+
+
+def coarse_shift(
+    reference: np.ndarray,
+    moving: np.ndarray,
+    max_size: int = 512,
+) -> Tuple[Tuple[float, float], float, int]:
+    """Phase-correlation shift (u, v) on a pyramid level <= ``max_size`` px.
+
+    Both frames are block-averaged (INTER_AREA) by ``2^L`` so the larger side
+    is at most ``max_size``, then ``cv2.phaseCorrelate`` with a Hanning
+    window gives the shift at that level, scaled back by ``2^L``. Returns
+    ((u, v) in full-resolution px, peak response in [0, 1], L).
+    """
+    h, w = reference.shape
+    L = 0
+    while max(h, w) / 2**L > max_size and min(h, w) / 2 ** (L + 1) >= 32:
+        L += 1
+    r, m = reference, moving
+    if L:
+        size = (max(w >> L, 1), max(h >> L, 1))
+        r = cv2.resize(reference, size, interpolation=cv2.INTER_AREA)
+        m = cv2.resize(moving, size, interpolation=cv2.INTER_AREA)
+    r = r.astype(np.float64)
+    m = m.astype(np.float64)
+    win = cv2.createHanningWindow((r.shape[1], r.shape[0]), cv2.CV_64F)
+    (dx, dy), resp = cv2.phaseCorrelate(r, m, win)
+    return (dy * 2**L, dx * 2**L), float(resp), L
+
+
+# ---------------------------------------------------------------------------
+# the default estimator
+# ---------------------------------------------------------------------------
+
+
+_BLOCK = 16  # block size (px) of the sandwich covariance and the misfit grid
+_TILE = 128  # tile size (px) when only the most textured max_pixels are used
+
+
+def _block_sum(a: np.ndarray, bs: int) -> np.ndarray:
+    """Sums over bs x bs blocks of a 2-D float32 array whose sides are multiples of bs."""
+    h, w = a.shape
+    return cv2.resize(a, (w // bs, h // bs), interpolation=cv2.INTER_AREA).astype(np.float64) * (bs * bs)
+
+
+def _dilate_invalid(valid: Optional[np.ndarray], before: int, after: int) -> Optional[np.ndarray]:
+    """Pixels x whose window x-before .. x+after (both axes) is entirely valid."""
+    if valid is None:
+        return None
+    inv = (~valid).astype(np.uint8)
+    n = before + after + 1
+    return cv2.dilate(inv, np.ones((n, n), np.uint8), anchor=(before, before)) == 0
+
+
+class _Level:
+    """One pyramid level: frames, validity, and stacked tiles for Gauss-Newton.
+
+    The working pixels are one rectangle (the whole overlap) or, above
+    ``max_pixels``, the most textured ``_TILE``-sized tiles spread over a 3x3
+    grid of the frame. Tiles are stacked vertically (each with its filter
+    margin) so every filter and product is one OpenCV call.
+    """
+
+    def __init__(self, R, M, vr, vm, taps, sigma, band, max_pixels, score=None):
+        self.R, self.M = R, M
+        self.taps, self.sigma, self.band = taps, sigma, band
+        self.h, self.w = R.shape
+        self.a = a = taps // 2
+        self.m = a + 1  # reference margin: filter (a) + gradient (1)
+        self.max_pixels = max_pixels
+        self.score = score  # callable (r0, r1, c0, c1) -> texture score, or None
+        self.vr = _dilate_invalid(vr, a + 1, a + 1)
+        self.vm = _dilate_invalid(vm, a - 1, a)
+        self._ref_key = None
+
+    # -- geometry ---------------------------------------------------------
+    def rects(self, k0: int, k1: int, border: int):
+        a, bs = self.a, _BLOCK
+        r0 = max(border, self.m, -k0 + a - 1)
+        r1 = min(self.h - border, self.h - self.m, self.h - k0 - a)
+        c0 = max(border, self.m, -k1 + a - 1)
+        c1 = min(self.w - border, self.w - self.m, self.w - k1 - a)
+        nr, nc = (r1 - r0) // bs, (c1 - c0) // bs
+        if nr < 1 or nc < 1:
+            return None
+        r0 += ((r1 - r0) - nr * bs) // 2
+        c0 += ((c1 - c0) - nc * bs) // 2
+        r1, c1 = r0 + nr * bs, c0 + nc * bs
+        if self.max_pixels is None or (r1 - r0) * (c1 - c0) <= self.max_pixels:
+            return ((r0, r1, c0, c1),)
+        T = _TILE
+        rows = np.arange(r0, r1 - T + 1, T)
+        cols = np.arange(c0, c1 - T + 1, T)
+        if rows.size == 0 or cols.size == 0:
+            return ((r0, r1, c0, c1),)
+        # centre the tile lattice
+        rows = rows + ((r1 - r0) - rows.size * T) // 2
+        cols = cols + ((c1 - c0) - cols.size * T) // 2
+        cand = [(int(r), int(r) + T, int(c), int(c) + T) for r in rows for c in cols]
+        ntile = max(1, int(self.max_pixels // (T * T)))
+        if ntile >= len(cand):
+            return tuple(cand)
+        sc = np.array([self.score(*rc) if self.score else 0.0 for rc in cand])
+        cell = np.array([min(int((rc[0] + T / 2) * 3 / self.h), 2) * 3 + min(int((rc[2] + T / 2) * 3 / self.w), 2) for rc in cand])
+        per = int(math.ceil(ntile / 9))
+        chosen = []
+        for c in range(9):
+            idx = np.flatnonzero(cell == c)
+            chosen.extend(idx[np.argsort(-sc[idx])][:per].tolist())
+        chosen = sorted(chosen, key=lambda i: -sc[i])[:ntile]
+        return tuple(cand[i] for i in sorted(chosen))
+
+    # -- reference side (fixed while the tile set is fixed) -----------------
+    def prepare_reference(self, rects):
+        if self._ref_key == rects:
+            return
+        self._ref_key = rects
+        m = self.m
+        h0, anc = fractional_shift_kernel(0.0, self.taps, self.sigma, self.band)
+        wins = [self.R[r0 - m : r1 + m, c0 - m : c1 + m] for r0, r1, c0, c1 in rects]
+        stack = wins[0] if len(wins) == 1 else np.concatenate(wins, axis=0)
+        Rb = cv2.sepFilter2D(stack, cv2.CV_32F, h0, h0, anchor=(anc, anc), borderType=cv2.BORDER_REPLICATE)
+        k = np.float32([-0.5, 0.0, 0.5])
+        one = np.float32([1.0])
+        g0 = cv2.sepFilter2D(Rb, cv2.CV_32F, one, k, borderType=cv2.BORDER_REPLICATE)
+        g1 = cv2.sepFilter2D(Rb, cv2.CV_32F, k, one, borderType=cv2.BORDER_REPLICATE)
+        self.Rb = self._interior(Rb, rects, m, m)
+        self.g0 = self._interior(g0, rects, m, m)
+        self.g1 = self._interior(g1, rects, m, m)
+        if self.vr is not None:
+            self.wr = self._interior_of(self.vr, rects)
+        else:
+            self.wr = None
+        self._ref_sums = None
+
+    @staticmethod
+    def _interior(stack, rects, top, left):
+        """Concatenate the interiors (rect shape) of stacked windows into one 2-D array."""
+        if len(rects) == 1:
+            r0, r1, c0, c1 = rects[0]
+            return np.ascontiguousarray(stack[top : top + r1 - r0, left : left + c1 - c0])
+        r0, r1, c0, c1 = rects[0]
+        th, tw = r1 - r0, c1 - c0
+        wh = stack.shape[0] // len(rects)
+        s3 = stack.reshape(len(rects), wh, stack.shape[1])[:, top : top + th, left : left + tw]
+        return np.ascontiguousarray(s3).reshape(len(rects) * th, tw)
+
+    @staticmethod
+    def _interior_of(full, rects, k0=0, k1=0):
+        parts = [full[r0 + k0 : r1 + k0, c0 + k1 : c1 + k1] for r0, r1, c0, c1 in rects]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=0)
+
+    # -- moving side ---------------------------------------------------------
+    def sample_moving(self, rects, s):
+        """``(H_t * M)(x + k)`` on the rects for ``s = k + t`` (stacked like the reference)."""
+        k = np.floor(s).astype(int)
+        t = s - k
+        hr, anc = fractional_shift_kernel(float(t[0]), self.taps, self.sigma, self.band)
+        hc, _ = fractional_shift_kernel(float(t[1]), self.taps, self.sigma, self.band)
+        a = self.a
+        k0, k1 = int(k[0]), int(k[1])
+        wins = [self.M[r0 + k0 - a + 1 : r1 + k0 + a, c0 + k1 - a + 1 : c1 + k1 + a] for r0, r1, c0, c1 in rects]
+        stack = wins[0] if len(wins) == 1 else np.concatenate(wins, axis=0)
+        out = cv2.sepFilter2D(stack, cv2.CV_32F, hc, hr, anchor=(anc, anc), borderType=cv2.BORDER_REPLICATE)
+        return self._interior(out, rects, a - 1, a - 1)
+
+    def weights(self, rects, s) -> Optional[np.ndarray]:
+        k = np.floor(s).astype(int)
+        w = self.wr
+        if self.vm is not None:
+            wm = self._interior_of(self.vm, rects, int(k[0]), int(k[1]))
+            w = wm if w is None else (w & wm)
+        return w
+
+    def block_centres(self, rects):
+        rr, cc = [], []
+        for r0, r1, c0, c1 in rects:
+            R_, C_ = np.meshgrid(np.arange(r0, r1, _BLOCK) + _BLOCK / 2, np.arange(c0, c1, _BLOCK) + _BLOCK / 2, indexing="ij")
+            rr.append(R_.ravel())
+            cc.append(C_.ravel())
+        return np.concatenate(rr), np.concatenate(cc)
+
+
+def _gn_sums(lv: _Level, rects, s, want_blocks: bool):
+    """Normal equations ``A d = b`` at shift ``s`` (optionally per 16x16 block).
+
+    ``J = [g0, g1, 1]`` (prefiltered reference gradient, eq. of the module
+    docstring), ``e = (H_t*M)(x+k) - (H_0*R)(x)``; ``A = sum w J^T J``,
+    ``b = sum w J^T e``. Returns (A, b, sum w e^2, n, blocks) where blocks is
+    a list of 10 block-sum arrays [g00, g01, g11, g0, g1, ge0, ge1, e, ee, n]
+    (block order as :meth:`_Level.block_centres`) or None.
+    """
+    lv.prepare_reference(rects)
+    Mw = lv.sample_moving(rects, s)
+    e = cv2.subtract(Mw, lv.Rb)
+    w = lv.weights(rects, s)
+    g0, g1 = lv.g0, lv.g1
+    if w is not None:
+        wf = w.astype(np.float32)
+        e = cv2.multiply(e, wf)
+        g0 = cv2.multiply(g0, wf)
+        g1 = cv2.multiply(g1, wf)
+        ref_maps = [cv2.multiply(g0, g0), cv2.multiply(g0, g1), cv2.multiply(g1, g1), g0, g1, wf]
+        ref_sums = None
+    else:
+        ref_sums = lv._ref_sums
+        if ref_sums is None or (want_blocks and ref_sums[1] is None):
+            maps = [cv2.multiply(g0, g0), cv2.multiply(g0, g1), cv2.multiply(g1, g1), g0, g1]
+            if want_blocks:
+                bl = [_block_sum(mp, _BLOCK) for mp in maps]
+                bl.append(np.full(bl[0].shape, float(_BLOCK * _BLOCK)))
+                tot = [float(x.sum()) for x in bl]
+            else:
+                bl = None
+                tot = [float(cv2.sumElems(mp)[0]) for mp in maps] + [float(g0.size)]
+            ref_sums = (tot, bl)
+            lv._ref_sums = ref_sums
+        ref_maps = None
+    ef = e.ravel()
+    see = float(np.dot(ef, ef))
+    blocks = None
+    if want_blocks:
+        ge0 = cv2.multiply(g0, e)
+        ge1 = cv2.multiply(g1, e)
+        rb = [_block_sum(mp, _BLOCK) for mp in ref_maps] if ref_maps is not None else ref_sums[1]
+        eb = [_block_sum(mp, _BLOCK) for mp in (ge0, ge1, e)]
+        blocks = rb[:5] + eb + [None, rb[5]]
+        s00, s01, s11, s0, s1, cnt = (float(x.sum()) for x in rb)
+        se0, se1, se = (float(x.sum()) for x in eb)
+    else:
+        if ref_maps is not None:
+            s00, s01, s11, s0, s1, cnt = (float(cv2.sumElems(mp)[0]) for mp in ref_maps)
+        else:
+            s00, s01, s11, s0, s1, cnt = ref_sums[0]
+        se0 = float(np.dot(np.ascontiguousarray(g0).ravel(), ef))
+        se1 = float(np.dot(np.ascontiguousarray(g1).ravel(), ef))
+        se = float(cv2.sumElems(e)[0])
+    A = np.array([[s00, s01, s0], [s01, s11, s1], [s0, s1, cnt]])
+    b = np.array([se0, se1, se])
+    return A, b, see, int(round(cnt)), blocks
+
+
+def _solve(A: np.ndarray, b: np.ndarray) -> Optional[np.ndarray]:
+    try:
+        d = np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:
+        return None
+    return d if np.all(np.isfinite(d)) else None
+
+
+def _texture_check(A: np.ndarray, n: int) -> str:
+    """Reason string if the gradient normal matrix is too weak / one-directional."""
+    if n < 64:
+        return f"too few valid pixels ({n})"
+    G = A[:2, :2] / n
+    ev = np.linalg.eigvalsh(G)
+    if not np.all(np.isfinite(ev)) or ev[1] <= 1e-6:
+        return "textureless input: no image gradient to measure a shift from"
+    if ev[0] <= 1e-6 * ev[1] or ev[0] <= 1e-6:
+        return f"texture in one direction only (aperture problem): gradient eigenvalues {ev[0]:.3g}, {ev[1]:.3g}"
+    return ""
+
+
+def _gauss_newton(lv: _Level, s0, max_iter: int, tol: float, border: int, blocks: bool = False):
+    """Iterate from s0. Returns a dict: s (after the last step), s_eval and the
+    sums (A, b, ee, n, blocks, d) of the last solve, rects, it, converged, last
+    (size of the last step, px) and reason (non-empty on failure)."""
+    s = np.array(s0, dtype=np.float64)
+    last = float("inf")
+    out = dict(s=s, rects=None, it=0, converged=False, last=last, reason="")
+    for it in range(1, max_iter + 1):
+        k = np.floor(s).astype(int)
+        rects = lv.rects(int(k[0]), int(k[1]), border)
+        out.update(it=it, rects=rects)
+        if rects is None:
+            out["reason"] = "frames do not overlap at the estimated shift"
+            return out
+        A, b, ee, n, bl = _gn_sums(lv, rects, s, blocks and it >= 2)
+        if it == 1:
+            why = _texture_check(A, n)
+            if why:
+                out["reason"] = why
+                return out
+        d = _solve(A, b)
+        if d is None:
+            out["reason"] = "singular normal equations"
+            return out
+        step = -d[:2]
+        nrm = float(np.max(np.abs(step)))
+        if nrm > 1.0:  # a linearised step beyond 1 px is not trusted in one go
+            step = step / nrm
+        out.update(s_eval=s.copy(), A=A, b=b, ee=ee, n=n, blocks=bl, d=d)
+        s = s + step
+        last = nrm
+        out.update(s=s, last=last)
+        if nrm < tol:
+            out["converged"] = True
+            break
+    if blocks and out.get("blocks") is None and "s_eval" in out:
+        A, b, ee, n, bl = _gn_sums(lv, out["rects"], out["s_eval"], True)
+        out.update(A=A, b=b, ee=ee, n=n, blocks=bl, d=_solve(A, b))
+        if out["d"] is None:
+            out["reason"] = "singular normal equations"
+    return out
+
+
+def _texture_scorer(img: np.ndarray, scale: float):
+    """Region gradient energy from a small pyramid level (integral image)."""
+    f = img.astype(np.float32)
+    gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)
+    en = cv2.add(cv2.multiply(gx, gx), cv2.multiply(gy, gy))
+    S = cv2.integral(en, sdepth=cv2.CV_64F)
+    H, W = en.shape
+
+    def score(r0, r1, c0, c1):
+        a0 = min(max(int(r0 * scale), 0), H)
+        a1 = min(max(int(math.ceil(r1 * scale)), a0 + 1), H)
+        b0 = min(max(int(c0 * scale), 0), W)
+        b1 = min(max(int(math.ceil(c1 * scale)), b0 + 1), W)
+        return float(S[a1, b1] - S[a0, b1] - S[a1, b0] + S[a0, b0])
+
+    return score
+
+
+def _pyr(a: np.ndarray) -> np.ndarray:
+    return cv2.resize(a, (a.shape[1] // 2, a.shape[0] // 2), interpolation=cv2.INTER_AREA)
+
+
+def _pyr_mask(v: Optional[np.ndarray]) -> Optional[np.ndarray]:
+    if v is None:
+        return None
+    return _pyr(v.astype(np.float32)) >= 0.999
+
+
+def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pixels, coarse_size, misfit_px) -> ShiftResult:
+    method = "default"
+    h, w = R.shape
+    border = 2
+    # pyramid: level L has 1/2^L the size; the coarsest is used for phase correlation
+    Rp, Mp, VRp, VMp = [R], [M], [vr], [vm]
+    while min(Rp[-1].shape) / 2 >= 64 and max(Rp[-1].shape) > coarse_size:
+        Rp.append(_pyr(Rp[-1]))
+        Mp.append(_pyr(Mp[-1]))
+        VRp.append(_pyr_mask(VRp[-1]))
+        VMp.append(_pyr_mask(VMp[-1]))
+    levels = len(Rp) - 1
+    coarse = None
+    if prior is not None:
+        s = np.asarray(prior, dtype=np.float64).reshape(2) / 2**levels
+    else:
+        (cu, cv), _, _ = coarse_shift(_fill_invalid(Rp[-1], VRp[-1]), _fill_invalid(Mp[-1], VMp[-1]), max_size=1 << 30)
+        coarse = (cu * 2**levels, cv * 2**levels)
+        s = np.array([cu, cv], dtype=np.float64)
+    # Gauss-Newton on the small pyramid levels only (the big ones cost more than they save)
+    small = 1 << 18
+    for L in range(levels, 0, -1):
+        if Rp[L].size > small and L < levels:
+            s = s * 2.0
+            continue
+        sc = _texture_scorer(Rp[-1], 2.0 ** (L - levels)) if L < levels else None
+        lv = _Level(Rp[L].astype(np.float32), Mp[L].astype(np.float32), VRp[L], VMp[L], taps, sigma, band, small, sc)
+        out = _gauss_newton(lv, s, 8, 0.01, border)
+        if not out["reason"]:
+            s = out["s"]
+        s = s * 2.0
+    score = _texture_scorer(Rp[-1], 2.0 ** (-levels)) if levels else None
+    lv = _Level(R, M, vr, vm, taps, sigma, band, max_pixels, score)
+    out = _gauss_newton(lv, s, max_iterations, tol, border, blocks=True)
+    it = out["it"]
+    if out["reason"]:
+        return _fail(out["reason"], method, iterations=it, coarse=coarse)
+    conv, last = out["converged"], out["last"]
+    if not conv and last > 0.05:
+        return _fail(f"Gauss-Newton did not converge (last step {last:.3g} px)", method, iterations=it, coarse=coarse)
+    # statistics of the last solve (at s_eval); the result is s_eval - d
+    A, b, ee, n, bl, d = out["A"], out["b"], out["ee"], out["n"], out["blocks"], out["d"]
+    rects = out["rects"]
+    s = out["s_eval"] - d[:2]
+    z = float(d[2])
+    cond = float(np.linalg.cond(A))
+    Ainv = np.linalg.inv(A)
+    g00, g01, g11, g0, g1, ge0, ge1, e, _, cnt = (None if x is None else x.ravel() for x in bl)
+    # block scores of the residual after the final step: b_k = sum_k J^T (e - J d)
+    r0 = ge0 - (g00 * d[0] + g01 * d[1] + g0 * d[2])
+    r1 = ge1 - (g01 * d[0] + g11 * d[1] + g1 * d[2])
+    r2 = e - (g0 * d[0] + g1 * d[1] + cnt * d[2])
+    Bk = np.stack([r0, r1, r2], 1)
+    nb = Bk.shape[0]
+    cov3 = Ainv @ (Bk.T @ Bk) @ Ainv * (nb / max(nb - 3, 1))
+    cov = cov3[:2, :2].copy()
+    see_final = max(ee - 2.0 * float(d @ b) + float(d @ A @ d), 0.0)
+    resid_rms = math.sqrt(see_final / max(n - 3, 1))
+    # misfit: local shifts on a 3x3 grid of the frame
+    RR, CC = lv.block_centres(rects)
+    gi = np.minimum((RR * 3 / h).astype(int), 2) * 3 + np.minimum((CC * 3 / w).astype(int), 2)
+    local = []
+    for c in range(9):
+        sel = gi == c
+        if sel.sum() < 4:
+            continue
+        s00, s01, s11, s0_, s1_, cn = (x[sel].sum() for x in (g00, g01, g11, g0, g1, cnt))
+        Ak = np.array([[s00, s01, s0_], [s01, s11, s1_], [s0_, s1_, cn]])
+        if not np.isfinite(np.linalg.cond(Ak)) or np.linalg.cond(Ak) > 1e10:
+            continue
+        Aki = np.linalg.inv(Ak)
+        dk = Aki @ Bk[sel].sum(0)
+        ck = Aki @ (Bk[sel].T @ Bk[sel]) @ Aki
+        local.append((-dk[:2], ck[:2, :2]))
+    misfit = False
+    mis_px = None
+    warning = ""
+    if len(local) >= 3:
+        ds = np.array([x[0] for x in local])
+        dev = ds - ds.mean(0)
+        mis_px = float(np.sqrt(np.mean(np.sum(dev**2, 1))))
+        chi2 = 0.0
+        for (dk, ck), dv in zip(local, dev):
+            try:
+                chi2 += float(dv @ np.linalg.solve(ck + 1e-12 * np.eye(2), dv))
+            except np.linalg.LinAlgError:
+                pass
+        dof_m = 2 * (len(local) - 1)
+        significant = chi2 > dof_m + 5.0 * math.sqrt(2.0 * dof_m)
+        if mis_px > misfit_px and significant:
+            misfit = True
+            warning = (
+                f"residual misfit: local shifts across the frame differ by {mis_px:.3g} px RMS "
+                "(rotation, scale or parallax); a pure translation does not describe this pair"
+            )
+            cov = cov + np.cov(ds.T, bias=True)
+    u_std = math.sqrt(max(cov[0, 0], 0.0))
+    v_std = math.sqrt(max(cov[1, 1], 0.0))
+    if max(u_std, v_std) > 0.5:
+        return _fail(
+            f"shift undetermined: standard error {max(u_std, v_std):.3g} px (too little texture for the noise)",
+            method, n_pixels=n, iterations=it, cond=cond, coarse=coarse,
+        )
+    return ShiftResult(
+        ok=True, u=float(s[0]), v=float(s[1]), z=z, cov=cov, u_std=u_std, v_std=v_std, cond=cond,
+        n_pixels=int(n), iterations=int(it), converged=bool(conv), residual_rms=resid_rms,
+        misfit=misfit, misfit_px=mis_px, warning=warning, method=method, coarse=coarse,
+    )
+
+
+def estimate_shift(
+    reference: np.ndarray,
+    moving: np.ndarray,
+    *,
+    mask: MaskArg = None,
+    method: str = "default",
+    prior: Optional[Sequence[float]] = None,
+    max_iterations: int = 10,
+    tol: float = 1e-3,
+    taps: int = 8,
+    prefilter_sigma: float = 0.8,
+    band: float = 0.85,
+    max_pixels: Optional[int] = 1 << 19,
+    coarse_size: int = 256,
+    misfit_px: float = 0.02,
+    seed_iterations: int = 3,
+) -> ShiftResult:
+    """Shift ``(u, v)`` of the scene content from ``reference`` to ``moving``.
+
+    A feature at (r, c) in ``reference`` appears at (r + u, c + v) in
+    ``moving`` (pixels; rows, columns). Both are 2-D arrays of equal shape and
+    any integer or float dtype (use :func:`subpix_ros.core.luminance.luminance`
+    for colour).
+
+    ``mask``: bool array (True = valid in both frames) or a pair
+    ``(reference_mask, moving_mask)``; NaN/inf pixels and integer pixels at
+    the dtype's maximum (saturated) are invalid too. Invalid pixels, and every
+    pixel whose filter support touches one, are left out of all sums.
+
+    ``method``: ``"default"`` (coarse phase correlation + designed-filter
+    Gauss-Newton, module docstring), ``"seed"`` (the paper's single solve,
+    METHODS.md A; ignores mask and prior) or ``"seed-iterated"``.
+    ``prior``: starting (u, v) guess, replaces the coarse stage.
+    ``tol``: convergence threshold on the Gauss-Newton step (px).
+    ``taps``, ``prefilter_sigma`` (px), ``band`` (fraction of Nyquist): the
+    designed filter. ``max_pixels``: above this many pixels only the most
+    textured 128x128 tiles (up to that total) enter the fine stage (None: all).
+    ``misfit_px``: RMS spread of 3x3-grid local shifts above which (and
+    statistically significant) the result is flagged ``misfit``.
+
+    Returns a :class:`ShiftResult`; ``ok=False`` with ``u = v = z = None`` and
+    a reason for textureless, constant, all-invalid, too small or
+    non-overlapping input.
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
+    R, vr = _as_working(reference, "reference")
+    M, vm = _as_working(moving, "moving")
+    if R.shape != M.shape:
+        raise ValueError(f"reference {R.shape} and moving {M.shape} must have the same shape")
+    if taps < 4 or taps % 2:
+        raise ValueError("taps must be an even number >= 4")
+    mr, mm = _masks(mask, R.shape)
+    if mr is not None and not mr.all():
+        vr = mr if vr is None else (vr & mr)
+    if mm is not None and not mm.all():
+        vm = mm if vm is None else (vm & mm)
+    min_side = 8 if method == "seed" else 2 * (taps // 2 + 2) + 2 * _BLOCK
+    if min(R.shape) < min_side:
+        return _fail(f"input too small: {R.shape[0]}x{R.shape[1]} px, need at least {min_side} px per side", method)
+    if (vr is not None and not vr.any()) or (vm is not None and not vm.any()):
+        return _fail("no valid pixels (all NaN, masked or saturated)", method)
+    if prior is not None:
+        pr = np.asarray(prior, dtype=np.float64).reshape(-1)
+        if pr.size != 2 or not np.all(np.isfinite(pr)):
+            raise ValueError("prior must be a finite (u, v) pair")
+    if _is_constant(R, vr) or _is_constant(M, vm):
+        return _fail("textureless input: constant frame", method)
+    if method in ("seed", "seed-iterated"):
+        if vr is not None or vm is not None:
+            return _fail(f"method {method!r} has no validity mask: input contains invalid (NaN/saturated/masked) pixels", method)
+        if method == "seed":
+            return _seed_result(R, M, "seed", 1, False)
+        return _seed_iterated(R, M, seed_iterations)
+    return _default(
+        R,
+        M,
+        vr,
+        vm,
+        prior,
+        int(max_iterations),
+        float(tol),
+        int(taps),
+        float(prefilter_sigma),
+        float(band),
+        max_pixels,
+        int(coarse_size),
+        float(misfit_px),
+    )

@@ -276,9 +276,12 @@ class DropOldestWorker:
         self._thread.join(timeout)
 
 
+OK, WARN, ERROR = 0, 1, 2  # DiagnosticStatus levels (the message field is one octet)
+
+
 @dataclass
 class _Status:
-    level: int = DiagnosticStatus.OK
+    level: int = OK
     message: str = "ok"
     last_error: str = ""
     last_error_time: float = 0.0
@@ -324,14 +327,14 @@ class Diagnostics:
     def ok(self, message: str = "ok") -> None:
         with self._lock:
             if time.monotonic() - self._status.last_error_time > self.hold_s:
-                self._status.level = DiagnosticStatus.OK
+                self._status.level = OK
                 self._status.message = message
 
     def warn(self, message: str) -> None:
-        self._report(DiagnosticStatus.WARN, message)
+        self._report(WARN, message)
 
     def error(self, message: str) -> None:
-        self._report(DiagnosticStatus.ERROR, message)
+        self._report(ERROR, message)
 
     def _report(self, level: int, message: str) -> None:
         with self._lock:
@@ -343,7 +346,7 @@ class Diagnostics:
             self._status.last_error = message
             self._status.last_error_time = now
         log = self.node.get_logger()
-        (log.error if level == DiagnosticStatus.ERROR else log.warning)(message, throttle_duration_sec=2.0)
+        (log.error if level == ERROR else log.warning)(message, throttle_duration_sec=2.0)
 
     @property
     def level(self) -> int:
@@ -355,8 +358,8 @@ class Diagnostics:
 
     def snapshot(self) -> DiagnosticStatus:
         with self._lock:
-            if self._status.level != DiagnosticStatus.OK and time.monotonic() - self._status.last_error_time > self.hold_s:
-                self._status.level = DiagnosticStatus.OK
+            if self._status.level != OK and time.monotonic() - self._status.last_error_time > self.hold_s:
+                self._status.level = OK
                 self._status.message = "ok"
             values = dict(self._status.values)
             st = DiagnosticStatus(level=bytes([self._status.level]), name=self.name, message=self._status.message,

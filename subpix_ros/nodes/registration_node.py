@@ -33,7 +33,7 @@ from sensor_msgs.msg import CompressedImage, Image, Imu
 from std_msgs.msg import Float64, Float64MultiArray
 
 from subpix_ros.core import registration as reg
-from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample
+from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample, timing_usable
 from subpix_ros.core.timing import FrameSelector, expected_shift_px
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode
@@ -144,9 +144,12 @@ class RegistrationNode(StageNode):
     def _image_rate(self, stamp_s: float):
         """Expected image motion (u, v) px/s at the frame's stamp, or (None, reason)."""
         t = stamp_s + self.p("telemetry_time_offset_s")
-        s = self.telemetry.at(t)
-        if s is None or isinstance(s, tuple):
-            return None, "no telemetry at the frame's stamp"
+        s, why = self.telemetry.at(t)
+        if s is None:
+            return None, f"telemetry: {why}"
+        ok, why = timing_usable(s)
+        if not ok:
+            return None, f"telemetry: {why}"
         heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(self.p("camera_yaw_offset_deg"))
         try:
             rate = expected_shift_px(s.ground_speed_mps, s.course_rad, s.height_agl_m, self.p("focal_length_mm") * 1e-3,
@@ -201,9 +204,8 @@ class RegistrationNode(StageNode):
             return f"{result.inliers} inliers < {self.p('min_inliers')}"
         if not result.rms_px <= self.p("max_rms_px"):
             return f"residual {result.rms_px:.2f} px > {self.p('max_rms_px')}"
-        overlap = getattr(result, "overlap_fraction", None)
-        if overlap is not None and overlap < self.p("min_overlap"):
-            return f"overlap {overlap:.2f} < {self.p('min_overlap')}"
+        if result.overlap < self.p("min_overlap"):
+            return f"overlap {result.overlap:.2f} < {self.p('min_overlap')}"
         return ""
 
     def _new_reference(self, frame: pl.Frame, why: str) -> None:

@@ -1,0 +1,46 @@
+"""Scoring reconstructions against rendered ground truth (demo, tests, benchmarks).
+
+Conventions as in :mod:`subpix_ros.core.render`: a frame whose true shift
+against frame 0 is ``(u, v)`` LR px has its own truth equal to frame 0's HR
+truth with content moved by ``factor * (u, v)`` HR px.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from subpix_ros.core.luminance import luminance
+from subpix_ros.core.render import fourier_shift_blur
+from subpix_ros.core.superres import bicubic_upscale, psnr
+
+
+def truth_on_grid(truth0: np.ndarray, shift_lr: tuple[float, float], factor: int) -> np.ndarray:
+    """HR truth on the grid of a frame shifted by ``shift_lr`` (LR px) from frame 0.
+
+    ``T_k(X) = T_0(X - factor * s_k)`` (band-limited Fourier shift; the
+    border of width ``factor * |s_k|`` wraps and must be excluded).
+    """
+    t = luminance(truth0, "bgr") if truth0.ndim == 3 else np.asarray(truth0, dtype=np.float64)
+    return fourier_shift_blur(t, (factor * shift_lr[0], factor * shift_lr[1]), 0.0,
+                              pad=int(np.ceil(factor * max(abs(shift_lr[0]), abs(shift_lr[1])))) + 32)
+
+
+def gain_over_bicubic(sr: np.ndarray, reference_lr: np.ndarray, truth: np.ndarray, factor: int,
+                      border: int) -> tuple[float, float]:
+    """(PSNR of ``sr``, PSNR of bicubic(``reference_lr``)) against ``truth`` (luminance, dB).
+
+    Colour inputs (BGR) are compared on luminance; ``border`` HR pixels are
+    cut from every side.
+    """
+    y_sr = luminance(sr, "bgr") if sr.ndim == 3 else np.asarray(sr, np.float64)
+    y_ref = luminance(reference_lr, "bgr") if reference_lr.ndim == 3 else np.asarray(reference_lr, np.float64)
+    y_t = luminance(truth, "bgr") if truth.ndim == 3 else np.asarray(truth, np.float64)
+    if y_sr.shape != y_t.shape:
+        raise ValueError(f"super-resolved image {y_sr.shape} and truth {y_t.shape} differ in size")
+    return psnr(y_sr, y_t, border), psnr(bicubic_upscale(y_ref, factor), y_t, border)
+
+
+def wrapped_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """``estimate - truth`` folded into [-0.5, 0.5): compares sub-pixel parts
+    when whole pixels were removed by alignment."""
+    d = np.asarray(estimate, np.float64) - np.asarray(truth, np.float64)
+    return (d + 0.5) % 1.0 - 0.5

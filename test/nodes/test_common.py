@@ -1,0 +1,65 @@
+"""The shared node glue: parameter checks, the drop-oldest worker, rates."""
+import threading
+import time
+
+from subpix_ros.nodes.common import DropOldestWorker, Param, RateMeter
+
+
+def test_param_check_type_and_range():
+    p = Param("p", 2.0, "x", 2.0, 16.0)
+    assert p.check(3.0) is None and p.check(3) is None  # an int is a fine float
+    assert "below the minimum" in p.check(1.0)
+    assert "above the maximum" in p.check(17.0)
+    assert "expected float" in p.check("3")
+    q = Param("mode", "a", "x", choices=("a", "b"))
+    assert q.check("b") is None and "not one of" in q.check("c")
+    b = Param("flag", True, "x")
+    assert "expected bool" in b.check(1)
+
+
+def test_worker_drops_oldest_and_counts():
+    gate = threading.Event()
+    seen = []
+
+    def handler(x):
+        gate.wait(5)
+        seen.append(x)
+
+    w = DropOldestWorker(handler, maxsize=2)
+    w.put(0)
+    time.sleep(0.1)  # the worker takes 0 and blocks on the gate
+    for i in range(1, 6):
+        w.put(i)
+    assert w.dropped == 3 and w.depth == 2
+    gate.set()
+    deadline = time.time() + 5
+    while not w.idle() and time.time() < deadline:
+        time.sleep(0.01)
+    assert seen == [0, 4, 5]  # the newest survive, the oldest were dropped
+    w.stop()
+
+
+def test_worker_survives_exceptions():
+    errors = []
+    out = []
+
+    def handler(x):
+        if x == "bad":
+            raise ValueError("bad input")
+        out.append(x)
+
+    w = DropOldestWorker(handler, maxsize=10, on_error=errors.append)
+    for x in ["a", "bad", "b"]:
+        w.put(x)
+    deadline = time.time() + 5
+    while (len(out) < 2) and time.time() < deadline:
+        time.sleep(0.01)
+    assert out == ["a", "b"] and w.errors == 1 and isinstance(errors[0], ValueError)
+    w.stop()
+
+
+def test_rate_meter():
+    r = RateMeter(window_s=1.0)
+    for i in range(10):
+        r.tick(100.0 + i * 0.05)
+    assert r.rate(100.5) == 10.0 and r.rate(102.0) == 0.0 and r.total == 10

@@ -1,0 +1,101 @@
+"""shift_node in this process, fed over DDS: parameters, shifts, failures, diagnostics."""
+import time
+
+import numpy as np
+import pytest
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+
+from subpix_ros.core.render import render_sequence
+from subpix_ros.io import cdr
+from subpix_ros.nodes import payloads as pl
+from subpix_ros.nodes.common import latched_qos, reliable_qos
+
+
+@pytest.fixture
+def ctx():
+    rclpy.init()
+    yield
+    rclpy.shutdown()
+
+
+def _spin(nodes, until, timeout=10.0):
+    ex = SingleThreadedExecutor()
+    for n in nodes:
+        ex.add_node(n)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not until():
+        ex.spin_once(timeout_sec=0.05)
+    for n in nodes:
+        ex.remove_node(n)
+    return until()
+
+
+def _harness(node):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Vector3Stamped
+    from sensor_msgs.msg import Image
+
+    h = rclpy.create_node("harness")
+    got, diags = [], []
+    h.create_subscription(Vector3Stamped, "/shift", lambda raw: got.append(cdr.cdr_to_vector3_stamped(raw)),
+                          reliable_qos(20), raw=True)
+    h.create_subscription(DiagnosticArray, "/diagnostics",
+                          lambda m: diags.extend(s for s in m.status if s.name == node.get_name()), 10)
+    pubs = {t: h.create_publisher(Image, t, latched_qos() if t == "/aligned/reference" else reliable_qos(20))
+            for t in ("/aligned/reference", "/aligned", "/aligned/mask")}
+    _spin([node, h], lambda: all(p.get_subscription_count() for p in pubs.values()), 10)
+    return h, pubs, got, diags
+
+
+def test_parameters_rejected_at_start_and_run_time(ctx):
+    from subpix_ros.nodes.shift_node import ShiftNode
+
+    node = ShiftNode(parameter_overrides=[Parameter("max_std_px", value=-1.0), Parameter("queue_size", value="x")])
+    try:
+        assert node.p("max_std_px") == 0.1 and node.p("queue_size") == 4  # bad start values: defaults kept
+        r = node.set_parameters([Parameter("max_std_px", value=50.0)])[0]
+        assert not r.successful and node.p("max_std_px") == 0.1
+        r = node.set_parameters([Parameter("method", value="magic")])[0]
+        assert not r.successful and "not one of" in r.reason and node.p("method") == "default"
+        r = node.set_parameters([Parameter("max_std_px", value=0.05)])[0]
+        assert r.successful and node.p("max_std_px") == 0.05
+    finally:
+        node.close()
+        node.destroy_node()
+
+
+def test_shift_published_for_aligned_frames(ctx, crops):
+    from subpix_ros.nodes.shift_node import ShiftNode
+
+    node = ShiftNode()
+    seq = render_sequence(crops["crop_trees"][:384, :384], 2, [(0, 0), (0.3, -0.45), (0.0, 0.0)], 0.4, snr_db=40,
+                          seed=3)
+    h, pubs, got, diags = _harness(node)
+    try:
+        t0 = 1_700_000_000_000_000_000
+        pubs["/aligned/reference"].publish(pl.image_cdr(seq.frames[0], t0))
+        _spin([node, h], lambda: len(node.refs.refs) == 1, 5)
+        full = np.ones(seq.frames[0].shape, bool)
+        for k in (1,):
+            pubs["/aligned"].publish(pl.image_cdr(seq.frames[k], t0 + k * 10**8))
+            pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + k * 10**8))
+        # a textureless frame: nothing published, the reason in diagnostics
+        flat = np.full_like(seq.frames[0], 128)
+        pubs["/aligned/reference"].publish(pl.image_cdr(flat, t0 + 2 * 10**8))
+        _spin([node, h], lambda: len(node.refs.refs) == 2, 5)
+        pubs["/aligned"].publish(pl.image_cdr(flat, t0 + 3 * 10**8))
+        pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + 3 * 10**8))
+        assert _spin([node, h], lambda: len(got) >= 1 and node.failed >= 1, 20)
+        _spin([node, h], lambda: any("shift not" in s.message for s in diags), 3)
+    finally:
+        node.close()
+        node.destroy_node()
+        h.destroy_node()
+    assert len(got) == 1
+    vec, header = got[0]
+    assert cdr.header_to_ns(header) == t0 + 10**8  # header = the moving frame's
+    assert abs(vec[0] - 0.3) < 0.01 and abs(vec[1] + 0.45) < 0.01
+    assert any("shift not" in s.message for s in diags)

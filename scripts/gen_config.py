@@ -42,9 +42,32 @@ def render(name: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def readme_tables() -> str:
+    """Markdown tables of every node's parameters (for README.md)."""
+    import importlib
+
+    out = []
+    for name, target in NODES.items():
+        module, cls = target.split(":")
+        params = getattr(importlib.import_module(module), cls).PARAMS
+        out.append(f"`{name}`\n\n| parameter | default | range | description |\n|---|---|---|---|")
+        for p in params:
+            rng = f"{p.min} .. {p.max}" if p.min is not None else (", ".join(p.choices) if p.choices else "")
+            out.append(f"| `{p.name}` | `{_value(p.default)}` | {rng} | {p.description} |")
+        out.append("")
+    return "\n".join(out)
+
+
 def main() -> None:
     for name in NODES:
         (ROOT / "config" / f"{name}.yaml").write_text(render(name))
+    readme = ROOT / "README.md"
+    text = readme.read_text()
+    start, end = "<!-- params:begin -->", "<!-- params:end -->"
+    if start in text and end in text:
+        head, rest = text.split(start, 1)
+        _, tail = rest.split(end, 1)
+        readme.write_text(head + start + "\n" + readme_tables() + end + tail)
 
 
 if __name__ == "__main__":

@@ -206,7 +206,7 @@ def _solve_hermitian(m: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _refine_shifts(
     frames: np.ndarray, ishift: np.ndarray, resid: np.ndarray, lp_sigma: float = 1.0, border: int = 8, iters: int = 3,
     max_region: int = 256,
-) -> tuple[np.ndarray, np.ndarray, float]:
+) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """Refine each frame's sub-pixel shift against frame 0 (Lucas-Kanade on low-passed frames).
 
     Both frames are low-passed (Gaussian, ``lp_sigma`` LR px) so the fit uses
@@ -219,7 +219,8 @@ def _refine_shifts(
     ``var(residual) (G^T G)^-1``, and the per-pixel noise std (DN) implied by
     the residual: ``var(F - R) = 2 sigma^2 (sum g^2)^2`` for white noise
     through the separable low-pass g (median over frames) — a multi-frame
-    noise estimate that texture does not bias, unlike single-frame ones. Frames whose fit diverges (|step| > 0.5 px)
+    noise estimate that texture does not bias, unlike single-frame ones —
+    and the per-frame noise variances themselves (NaN for frame 0). Frames whose fit diverges (|step| > 0.5 px)
     keep their shift and get std = inf.
     """
     n, h, w = frames.shape
@@ -238,7 +239,7 @@ def _refine_shifts(
         else:
             sig[i] = np.inf
     noise = float(np.sqrt(np.nanmedian(resvar))) if np.isfinite(resvar).any() else float("nan")
-    return out, sig, noise
+    return out, sig, noise, resvar
 
 
 def detect_geometry(
@@ -511,8 +512,22 @@ def _fourier_map(
     wc = wp // 2 + 1
     shift_sigma_fit = np.zeros(n)
     lk_noise = float("nan")
+    keep = np.ones(n, dtype=bool)
     if refine_shifts:
-        resid, shift_sigma_fit, lk_noise = _refine_shifts(frames, ishift, resid)
+        resid, shift_sigma_fit, lk_noise, resvar = _refine_shifts(frames, ishift, resid)
+        # frames whose registration failed, or that disagree with the reference far beyond the
+        # others (residual variance > 9x the median: moving objects, wrong frame), are left out
+        keep = np.isfinite(shift_sigma_fit)
+        if np.isfinite(resvar[1:]).any():
+            keep[1:] &= np.isfinite(resvar[1:]) & (resvar[1:] <= 9.0 * np.nanmedian(resvar[1:]) + 1e-12)
+        keep[0] = True
+        if keep.sum() < 2:
+            raise ValueError("no frame other than the reference could be registered to it")
+        if not keep.all():
+            full_n = n
+            frames, ishift, resid, shift_sigma_fit = frames[keep], ishift[keep], resid[keep], shift_sigma_fit[keep]
+            shift_cov = np.asarray(shift_cov)[keep]
+            n = int(keep.sum())
     padded = _consistent_padding(frames, ishift, resid, pad, hp, wp)
     spec = np.stack([_rfft2_32(f) for f in padded])  # (n, hp, wc) complex64
     pre = np.stack([_integer_preshift(frames[i], int(ishift[i, 0]), int(ishift[i, 1])) for i in range(n)])
@@ -597,7 +612,17 @@ def _fourier_map(
         resid_ratio /= hp * wc
     img = _assemble_hr(xs, hp, wp)
     out = img[p * pad : p * (pad + h), p * pad : p * (pad + w)].astype(np.float64)
+    if not keep.all():  # report per input frame; dropped frames: weight 0, shift as given, std inf
+        w_full = np.zeros(full_n)
+        w_full[keep] = wsum / max(wsum[0], 1e-30)
+        sh_full = shifts.astype(np.float64).copy()
+        sh_full[keep] = ishift + resid
+        sg_full = np.full(full_n, np.inf)
+        sg_full[keep] = np.sqrt(np.maximum(cov[:, 0, 0], cov[:, 1, 1]))
+        return {"image": out, "shifts": sh_full, "shift_sigma": sg_full, "weights": w_full,
+                "resid_ratio": None, "prior": (c_psd, alpha), "noise_sigma": noise_sigma, "kept": keep}
     return {
+        "kept": keep,
         "image": out,
         "shifts": ishift + resid,
         "shift_sigma": np.sqrt(np.maximum(cov[:, 0, 0], cov[:, 1, 1])),
@@ -866,6 +891,10 @@ def reconstruct(
     if not np.isfinite(img).all():
         return _fallback(ref, p, "MAP solution not finite", sigma, n, s)
     img = _bicubic_rim(img, ref, p)
+    kept = sol.get("kept")
+    if kept is not None and not kept.all():
+        dropped = ", ".join(str(i) for i in np.flatnonzero(~kept))
+        reason = (reason + "; " if reason else "") + f"frames {dropped} left out (registration failed or they disagree with the reference)"
     eff = float(np.sum(weights[1:]))
     if eff < 0.05:
         return _fallback(ref, p, "no frame other than the reference agrees with it (registration errors too large)",

@@ -513,8 +513,14 @@ def _fourier_map(
     shift_sigma_fit = np.zeros(n)
     lk_noise = float("nan")
     keep = np.ones(n, dtype=bool)
-    if refine_shifts:
-        resid, shift_sigma_fit, lk_noise, resvar = _refine_shifts(frames, ishift, resid)
+    if refine_shifts or noise_sigma is None:
+        # registration against frame 0: refined shifts (used if refine_shifts), their std, and the
+        # multi-frame noise estimate (used if noise_sigma is None)
+        refined, shift_sigma_fit, lk_noise, resvar = _refine_shifts(frames, ishift, resid)
+        if refine_shifts:
+            resid = refined
+        else:
+            shift_sigma_fit = np.where(np.isfinite(shift_sigma_fit), 0.0, np.inf)
         # frames whose registration failed, or that disagree with the reference far beyond the
         # others (residual variance > 9x the median: moving objects, wrong frame), are left out
         keep = np.isfinite(shift_sigma_fit)

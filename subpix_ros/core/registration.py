@@ -1,0 +1,501 @@
+"""Automatic co-registration of two overlapping frames (METHODS.md C, and A's pre-registration).
+
+Pipeline (all stages vectorised over pixels / points):
+
+1. Coarse overlap on the top of a Gaussian pyramid (METHODS C, stage 1;
+   :mod:`registration_coarse`): gradient-magnitude fragment search with the
+   reverse-search consistency check, under rotation hypotheses from the
+   gradient-orientation histograms.
+2. Pyramid refinement: at every level down to the detection level, Harris
+   tie points (METHODS C, stage 2, with a grid quota over the overlap) are
+   matched by NCC around the current prediction and a homography is fitted
+   robustly (OpenCV USAC/MAGSAC).
+3. Full resolution: the detection-level points are matched by NCC, refined to
+   sub-pixel by Gauss-Newton on patch translation, outliers rejected by
+   MAGSAC, the projective model (METHODS C, eq. P) fitted by
+   Levenberg-Marquardt from the identity (the paper), then refined on the
+   inliers, optionally jointly with one radial-distortion term (division
+   model, shared by both frames).
+
+Conventions
+-----------
+* Pixel coordinates are ``(x, y) = (column, row)``, pixel centres at integers.
+* ``homography`` (3x3 float64) maps MOVING pixel coordinates to REFERENCE
+  pixel coordinates: ``[x_r, y_r, 1]^T ~ H [x_m, y_m, 1]^T``. It is the best
+  pure projective fit (no distortion term). When a distortion term is
+  estimated, :meth:`RegistrationResult.transfer` applies the full model
+  ``D(H_u(U(x)))`` and ``rms_px`` is its residual; ``rms_px_projective`` is
+  the residual of ``homography`` alone.
+* Shifts handed to the shift estimator are ``(u, v)`` = (rows, cols) in px:
+  content at (r, c) in the reference appears at (r + u, c + v) in the other
+  frame.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .registration_coarse import coarse_orb, coarse_overlap, gradient_magnitude, orientation_hypotheses
+from .registration_fit import (
+    Normaliser,
+    check_homography,
+    distort_points,
+    fit_homography_distortion_lm,
+    fit_homography_lm,
+    undistort_points,
+)
+from .registration_points import apply_h, harris_points, ncc_match, refine_gauss_newton
+
+__all__ = ["RegistrationResult", "AlignResult", "register", "align", "to_gray32", "overlap_fraction"]
+
+#: Seed luminance weights (METHODS A) in OpenCV B, G, R order.
+_LUMA_BGR = np.array([[0.1141, 0.587, 0.2989]], dtype=np.float32)
+
+
+def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
+    """Validate a frame and return its luminance as float32 HxW (digital numbers).
+
+    Mono HxW passes through; HxWx3 is OpenCV BGR and reduced with the seed
+    weights ``gray = 0.2989 R + 0.587 G + 0.1141 B`` (METHODS A). Raises
+    ``ValueError`` for other shapes, non-numeric dtypes or non-finite values.
+    """
+    img = np.asarray(image)
+    if img.dtype == bool or not (np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)):
+        raise ValueError(f"{name}: dtype {img.dtype} is not an integer or float image")
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim == 3 and img.shape[2] == 3:
+        g = cv2.transform(img.astype(np.float32, copy=False), _LUMA_BGR).reshape(img.shape[:2])
+    elif img.ndim == 2:
+        g = img.astype(np.float32)
+    else:
+        raise ValueError(f"{name}: expected HxW or HxWx3 (BGR), got shape {img.shape}")
+    if min(g.shape) < 32:
+        raise ValueError(f"{name}: frame {g.shape} is too small (need at least 32x32)")
+    if not np.isfinite(g).all():
+        raise ValueError(f"{name}: contains non-finite values")
+    return np.ascontiguousarray(g)
+
+
+def overlap_fraction(h_mr: np.ndarray, shape_ref: tuple[int, ...], shape_mov: tuple[int, ...]) -> float:
+    """Fraction of the reference frame's area covered by the moving frame mapped through ``h_mr``."""
+    hm, wm = shape_mov[:2]
+    hr, wr = shape_ref[:2]
+    q = apply_h(h_mr, np.array([[0, 0], [wm - 1, 0], [wm - 1, hm - 1], [0, hm - 1]], float)).astype(np.float32)
+    rr = np.array([[0, 0], [wr - 1, 0], [wr - 1, hr - 1], [0, hr - 1]], np.float32)
+    if not np.isfinite(q).all():
+        return 0.0
+    if cv2.contourArea(q, oriented=True) < 0:
+        q = q[::-1].copy()
+    area, _ = cv2.intersectConvexConvex(q, rr)
+    return float(max(area, 0.0) / ((wr - 1) * (hr - 1)))
+
+
+@dataclass
+class RegistrationResult:
+    """Outcome of :func:`register`. On failure ``ok`` is False, ``reason`` says why and
+    ``homography`` is None (never a guessed matrix)."""
+
+    ok: bool
+    reason: str = ""
+    homography: np.ndarray | None = None  # 3x3 float64, MOVING (x, y) -> REFERENCE (x, y), pixels
+    inliers: int = 0
+    rms_px: float | None = None  # RMS transfer residual of the full model over the inliers (reference px)
+    overlap: float = 0.0  # fraction of the reference area covered by the moving frame
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # inliers: x_ref, y_ref, x_mov, y_mov
+    model: str = "projective"
+    distortion: float = 0.0  # division-model lambda (dimensionless, radius in half-diagonals)
+    homography_undistorted: np.ndarray | None = None  # H_u between undistorted pixel coordinates
+    rms_px_projective: float | None = None  # RMS residual of ``homography`` alone over the inliers
+    median_px: float | None = None  # median transfer residual of the full model
+    spread: float = 0.0  # fraction of 6x6 overlap cells holding an inlier
+    ref_shape: tuple[int, int] = (0, 0)
+    mov_shape: tuple[int, int] = (0, 0)
+    time_s: float = 0.0
+
+    def _norm(self) -> Normaliser:
+        return Normaliser.for_shape(self.ref_shape)
+
+    def transfer(self, pts_mov: np.ndarray) -> np.ndarray:
+        """Map (N, 2) moving pixel coordinates (x, y) to reference pixel coordinates (full model)."""
+        self._require_ok()
+        pts = np.asarray(pts_mov, dtype=np.float64).reshape(-1, 2)
+        if self.distortion == 0.0 or self.homography_undistorted is None:
+            return apply_h(self.homography, pts)
+        n = self._norm()
+        return distort_points(apply_h(self.homography_undistorted, undistort_points(pts, self.distortion, n)), self.distortion, n)
+
+    def inverse_transfer(self, pts_ref: np.ndarray) -> np.ndarray:
+        """Map (N, 2) reference pixel coordinates (x, y) to moving pixel coordinates (full model)."""
+        self._require_ok()
+        pts = np.asarray(pts_ref, dtype=np.float64).reshape(-1, 2)
+        if self.distortion == 0.0 or self.homography_undistorted is None:
+            return apply_h(np.linalg.inv(self.homography), pts)
+        n = self._norm()
+        hi = np.linalg.inv(self.homography_undistorted)
+        return distort_points(apply_h(hi, undistort_points(pts, self.distortion, n)), self.distortion, n)
+
+    def _require_ok(self) -> None:
+        if not self.ok:
+            raise ValueError(f"registration failed: {self.reason}")
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-friendly summary (homography as a nested 3x3 list, moving -> reference px)."""
+        return {
+            "ok": self.ok,
+            "reason": self.reason,
+            "homography": None if self.homography is None else self.homography.tolist(),
+            "homography_convention": "maps MOVING pixel (x=col, y=row, 1) to REFERENCE pixel coordinates",
+            "inliers": int(self.inliers),
+            "rms_px": self.rms_px,
+            "rms_px_projective": self.rms_px_projective,
+            "median_px": self.median_px,
+            "overlap": self.overlap,
+            "spread": self.spread,
+            "model": self.model,
+            "distortion_lambda": self.distortion,
+            "homography_undistorted": None if self.homography_undistorted is None else self.homography_undistorted.tolist(),
+            "ref_shape": list(self.ref_shape),
+            "mov_shape": list(self.mov_shape),
+            "time_s": self.time_s,
+        }
+
+
+def _pyramid(g: np.ndarray, levels: int) -> list[np.ndarray]:
+    out = [g]
+    for _ in range(levels):
+        out.append(cv2.pyrDown(out[-1]))
+    return out
+
+
+def _scale_h(h: np.ndarray, factor: float) -> np.ndarray:
+    """Homography between coordinates scaled by ``factor`` (x' = factor x)."""
+    s = np.diag([factor, factor, 1.0])
+    out = s @ h @ np.linalg.inv(s)
+    return out / out[2, 2]
+
+
+def _valid_ref_points(shape_ref, shape_mov, h_mr, margin_ref: int, margin_mov: float, step: int = 4) -> np.ndarray:
+    """Bool mask (reference shape) of pixels whose prediction in the moving frame is inside it.
+
+    Evaluated on a grid every ``step`` px and expanded (nearest), with
+    ``margin_ref`` / ``margin_mov`` px kept clear of either frame's border.
+    """
+    hr, wr = shape_ref
+    hm, wm = shape_mov
+    ys, xs = np.mgrid[0:hr:step, 0:wr:step]
+    pm = apply_h(np.linalg.inv(h_mr), np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64))
+    m = margin_mov + step
+    small = ((pm[:, 0] >= m) & (pm[:, 0] <= wm - 1 - m) & (pm[:, 1] >= m) & (pm[:, 1] <= hm - 1 - m)).reshape(xs.shape)
+    inside = np.repeat(np.repeat(small, step, axis=0), step, axis=1)[:hr, :wr].copy()
+    inside[:margin_ref] = False
+    inside[hr - margin_ref:] = False
+    inside[:, :margin_ref] = False
+    inside[:, wr - margin_ref:] = False
+    return inside
+
+
+def _robust(pm: np.ndarray, pr: np.ndarray, thresh: float, affine: bool) -> tuple[np.ndarray | None, np.ndarray]:
+    """USAC/MAGSAC outlier rejection; returns (H or None, inlier mask)."""
+    n = len(pm)
+    if n < (3 if affine else 4) + 2:
+        return None, np.zeros(n, bool)
+    if affine:
+        a, mask = cv2.estimateAffine2D(pm, pr, method=cv2.USAC_MAGSAC, ransacReprojThreshold=thresh,
+                                       maxIters=2000, confidence=0.999)
+        h = None if a is None else np.vstack([a, [0, 0, 1]])
+    else:
+        h, mask = cv2.findHomography(pm, pr, cv2.USAC_MAGSAC, thresh, maxIters=2000, confidence=0.999)
+    if h is None or mask is None:
+        return None, np.zeros(n, bool)
+    return h.astype(np.float64), mask.ravel().astype(bool)
+
+
+def _residuals(h: np.ndarray, pm: np.ndarray, pr: np.ndarray) -> np.ndarray:
+    return np.hypot(*(apply_h(h, pm) - pr).T)
+
+
+def _spread(pr: np.ndarray, h_mr: np.ndarray, shape_ref, shape_mov, cells: int = 6) -> float:
+    """Fraction of the overlap's grid cells holding at least one inlier.
+
+    The bounding box of the overlap (in the reference) is cut into
+    ``cells x cells``; only cells whose centre lies in the overlap count.
+    """
+    step = 8
+    valid = _valid_ref_points(shape_ref, shape_mov, h_mr, 0, 0, step=step)[::step, ::step]
+    ys, xs = np.nonzero(valid)
+    if xs.size == 0:
+        return 0.0
+    x0, x1, y0, y1 = xs.min() * step, (xs.max() + 1) * step, ys.min() * step, (ys.max() + 1) * step
+    cx = np.clip(((pr[:, 0] - x0) * cells // max(x1 - x0, 1)).astype(int), 0, cells - 1)
+    cy = np.clip(((pr[:, 1] - y0) * cells // max(y1 - y0, 1)).astype(int), 0, cells - 1)
+    occ = np.zeros((cells, cells), bool)
+    occ[cy, cx] = True
+    gy = ((np.arange(cells) + 0.5) * (y1 - y0) / cells + y0) / step
+    gx = ((np.arange(cells) + 0.5) * (x1 - x0) / cells + x0) / step
+    iy = np.clip(gy.astype(int), 0, valid.shape[0] - 1)
+    ix = np.clip(gx.astype(int), 0, valid.shape[1] - 1)
+    in_overlap = valid[iy[:, None], ix[None, :]]
+    n_in = int(in_overlap.sum())
+    return float((occ & in_overlap).sum() / max(n_in, 1))
+
+
+def _fail(reason: str, t0: float, shapes, model: str) -> RegistrationResult:
+    return RegistrationResult(False, reason, model=model, ref_shape=shapes[0], mov_shape=shapes[1], time_s=time.perf_counter() - t0)
+
+
+def register(
+    reference: np.ndarray,
+    moving: np.ndarray,
+    *,
+    model: str = "projective",
+    distortion: bool = True,
+    n_points: int = 700,
+    coarse_size: int = 128,
+    detect_size: int = 1000,
+    template_half: int = 7,
+    inlier_px: float = 1.5,
+    min_inliers: int = 16,
+    min_spread: float = 0.25,
+    coarse_method: str = "orb",
+    angles: list[float] | None = None,
+) -> RegistrationResult:
+    """Register ``moving`` to ``reference``; see the module docstring for the pipeline and conventions.
+
+    ``model``: ``"projective"`` (METHODS C, eq. P) or ``"affine"`` (the shift
+    paper's choice). ``distortion``: also estimate the shared radial term (needs
+    >= 40 inliers; kept only if it lowers the RMS residual). ``inlier_px``:
+    inlier threshold on the transfer residual (reference px, at input
+    resolution). ``angles``: rotation hypotheses (radians) to use instead of
+    the orientation-histogram ones. Failure (``ok=False`` with a reason) for:
+    blank / textureless frames, no confirmed overlap, too few or badly spread
+    tie points, a degenerate or insane fit.
+    """
+    t0 = time.perf_counter()
+    if model not in ("projective", "affine"):
+        raise ValueError(f"model must be 'projective' or 'affine', got {model!r}")
+    affine = model == "affine"
+    gr = to_gray32(reference, "reference")
+    gm = to_gray32(moving, "moving")
+    shapes = (gr.shape, gm.shape)
+    for g, nm in ((gr, "reference"), (gm, "moving")):
+        if float(g.std()) < 1.0:
+            return _fail(f"no texture: the {nm} frame is blank (std < 1 DN)", t0, shapes, model)
+    n_lev = max(0, int(np.ceil(np.log2(max(max(gr.shape), max(gm.shape)) / coarse_size))))
+    pr_, pm_ = _pyramid(gr, n_lev), _pyramid(gm, n_lev)
+    det_lev = min(n_lev, max(0, int(np.ceil(np.log2(max(gr.shape) / detect_size)))))
+    mid_lev = min(n_lev, max(0, int(np.ceil(np.log2(max(gr.shape) / 480)))))
+
+    # Stage 1: coarse overlap.
+    if coarse_method == "orb":
+        coarse = coarse_orb(pr_[mid_lev], pm_[mid_lev])
+        h_lev = mid_lev
+    elif coarse_method == "fragments":  # METHODS C stage 1, under rotation hypotheses
+        gc_r = gradient_magnitude(cv2.GaussianBlur(pr_[n_lev], (3, 3), 0))
+        gc_m = gradient_magnitude(cv2.GaussianBlur(pm_[n_lev], (3, 3), 0))
+        if angles is not None:
+            hyps = [float(a) for a in angles]
+        else:  # histogram peaks, plus "no rotation" (the usual case between consecutive frames)
+            hyps = orientation_hypotheses(pr_[mid_lev], pm_[mid_lev])
+            if min(abs(((a + np.pi) % (2 * np.pi)) - np.pi) for a in hyps) > np.deg2rad(7):
+                hyps.append(0.0)
+        coarse = coarse_overlap(gc_r, gc_m, hyps)
+        h_lev = n_lev
+    else:
+        raise ValueError(f"coarse_method must be 'orb' or 'fragments', got {coarse_method!r}")
+    if not coarse.ok:
+        return _fail(coarse.reason, t0, shapes, model)
+    h = coarse.transform
+    if not np.isfinite(h).all():
+        return _fail("degenerate coarse fit", t0, shapes, model)
+
+    # Stage 2: pyramid refinement down to the detection level.
+    half = template_half
+    pts_det = None
+    first = True
+    for lev in range(min(h_lev, max(mid_lev, det_lev)) if coarse_method == "orb" else h_lev - 1, det_lev - 1, -1):
+        h = _scale_h(h, 2.0 ** (h_lev - lev))
+        h_lev = lev
+        ref_l, mov_l = pr_[lev], pm_[lev]
+        radius = 6 if first else 4
+        first = False
+        margin = half + radius + 2
+        valid = _valid_ref_points(ref_l.shape, mov_l.shape, h, margin, margin)
+        if valid.sum() < 64:
+            return _fail("no overlap: the predicted overlap is empty", t0, shapes, model)
+        n_t = n_points if lev == det_lev else 150
+        pts = harris_points(ref_l, valid, n_target=n_t)
+        p_r, p_m, _ = ncc_match(ref_l, mov_l, pts, h, half=half, radius=radius)
+        hn, inl = _robust(p_m, p_r, 1.0 if lev > det_lev else 1.5, affine)
+        if hn is None or inl.sum() < max(8, min_inliers // 2):
+            return _fail(f"too few tie points at pyramid level {lev} ({int(inl.sum())} consistent matches)", t0, shapes, model)
+        reason = check_homography(hn, mov_l.shape)
+        if reason:
+            return _fail(reason, t0, shapes, model)
+        h = hn
+        pts_det = pts
+    if pts_det is None:  # no refinement level (tiny input): detect at the input level directly
+        valid = _valid_ref_points(gr.shape, gm.shape, h, half + 6, half + 6)
+        pts_det = harris_points(gr, valid, n_target=n_points)
+    # Stage 3: input resolution.
+    f = 2.0 ** h_lev
+    h = _scale_h(h, f)
+    radius = 1 + int(f)
+    margin = half + radius + 3
+    pts0 = np.rint(pts_det * f)
+    ok_in = ((pts0[:, 0] >= margin) & (pts0[:, 0] <= gr.shape[1] - 1 - margin)
+             & (pts0[:, 1] >= margin) & (pts0[:, 1] <= gr.shape[0] - 1 - margin))
+    pts0 = pts0[ok_in]
+    pm_pred = apply_h(np.linalg.inv(h), pts0)
+    ok_in = ((pm_pred[:, 0] >= margin) & (pm_pred[:, 0] <= gm.shape[1] - 1 - margin)
+             & (pm_pred[:, 1] >= margin) & (pm_pred[:, 1] <= gm.shape[0] - 1 - margin))
+    pts0 = pts0[ok_in]
+    p_r, p_m, _ = ncc_match(gr, gm, pts0, h, half=half, radius=radius)
+    hn, inl = _robust(p_m, p_r, 2.0, affine)
+    if hn is None or inl.sum() < min_inliers:
+        return _fail(f"too few tie points: {int(inl.sum())} consistent matches (need {min_inliers})", t0, shapes, model)
+    p_r, p_m = p_r[inl], p_m[inl]
+    norm = Normaliser.for_shape(gr.shape)
+    # LM from the identity (METHODS C), guarded by the robust estimate.
+    h_id = fit_homography_lm(p_m, p_r, norm, affine)
+    h_rb = fit_homography_lm(p_m, p_r, norm, affine, h0=hn)
+    h = h_id if np.sqrt(np.mean(_residuals(h_id, p_m, p_r) ** 2)) <= np.sqrt(np.mean(_residuals(h_rb, p_m, p_r) ** 2)) + 1e-9 else h_rb
+    # Sub-pixel refinement of the tie points, then the final fit on the inliers.
+    p_m2, conv = refine_gauss_newton(gr, gm, p_r, p_m, h, half=half)
+    p_r, p_m = p_r[conv], p_m2[conv]
+    if len(p_r) < min_inliers:
+        return _fail(f"too few tie points after sub-pixel refinement ({len(p_r)})", t0, shapes, model)
+    h = fit_homography_lm(p_m, p_r, norm, affine, h0=h)
+    inl = _residuals(h, p_m, p_r) <= 2 * inlier_px
+    h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
+    lam, hu = 0.0, None
+    res = _residuals(h, p_m, p_r)
+    if distortion and inl.sum() >= 40:
+        hu_c, lam_c = fit_homography_distortion_lm(p_m[inl], p_r[inl], norm, h, affine)
+        if np.isfinite(lam_c) and abs(lam_c) < 0.3:
+            res_c = np.hypot(*(distort_points(apply_h(hu_c, undistort_points(p_m, lam_c, norm)), lam_c, norm) - p_r).T)
+            res_c = np.where(np.isfinite(res_c), res_c, np.inf)
+            if np.sqrt(np.mean(res_c[inl] ** 2)) < np.sqrt(np.mean(res[inl] ** 2)):
+                lam, hu, res = lam_c, hu_c, res_c
+    inl = res <= inlier_px
+    if lam != 0.0 and inl.sum() >= 40:
+        hu, lam = fit_homography_distortion_lm(p_m[inl], p_r[inl], norm, hu, affine)
+        res = np.hypot(*(distort_points(apply_h(hu, undistort_points(p_m, lam, norm)), lam, norm) - p_r).T)
+        res = np.where(np.isfinite(res), res, np.inf)
+        inl = res <= inlier_px
+    h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h) if inl.sum() >= 8 else h
+    n_in = int(inl.sum())
+    if n_in < min_inliers:
+        return _fail(f"too few inliers: {n_in} (need {min_inliers})", t0, shapes, model)
+    reason = check_homography(h, gm.shape)
+    if reason:
+        return _fail(reason, t0, shapes, model)
+    spread = _spread(p_r[inl], h, gr.shape, gm.shape)
+    if spread < min_spread:
+        return _fail(f"tie points badly spread: {spread:.2f} of the overlap cells (need {min_spread})", t0, shapes, model)
+    rms_full = float(np.sqrt(np.mean(res[inl] ** 2)))
+    rms_proj = float(np.sqrt(np.mean(_residuals(h, p_m[inl], p_r[inl]) ** 2)))
+    return RegistrationResult(
+        ok=True,
+        homography=h,
+        inliers=n_in,
+        rms_px=rms_full,
+        overlap=overlap_fraction(h, gr.shape, gm.shape),
+        points=np.hstack([p_r[inl], p_m[inl]]),
+        model=model,
+        distortion=float(lam),
+        homography_undistorted=hu,
+        rms_px_projective=rms_proj,
+        median_px=float(np.median(res[inl])),
+        spread=spread,
+        ref_shape=gr.shape,
+        mov_shape=gm.shape,
+        time_s=time.perf_counter() - t0,
+    )
+
+
+@dataclass
+class AlignResult:
+    """The moving frame on the reference grid, to pixel accuracy (see :func:`align`)."""
+
+    aligned: np.ndarray  # same shape (and dtype) as the reference
+    mask: np.ndarray  # bool, True where the pixel really came from the moving frame
+    prior_shift: tuple[float, float]  # (u, v) rows, cols px: content moved from reference to aligned
+    integer_offset: tuple[int, int]  # (rows, cols) integer translation removed
+    warped: bool  # True if rotation/perspective exceeded the threshold and the frame was resampled
+    deviation_px: float  # max deviation of the model from a pure translation over the overlap
+
+
+def align(
+    reference: np.ndarray,
+    moving: np.ndarray,
+    registration: RegistrationResult,
+    *,
+    warp_threshold_px: float = 0.5,
+) -> AlignResult:
+    """Bring ``moving`` onto the reference grid to pixel accuracy, keeping the sub-pixel remainder.
+
+    Let ``s(x) = M^-1(x) - x`` (reference px, x/y) be where the model puts
+    reference point ``x`` in the moving frame, ``s0`` its mean over the
+    overlap, ``n = round(s0)`` and ``f = s0 - n`` (each component in
+    [-0.5, 0.5]).
+
+    * If ``max |s(x) - s0|`` over the overlap is at most ``warp_threshold_px``
+      (the motion is a translation to that tolerance), ``aligned[r, c] =
+      moving[r + n_y, c + n_x]``: an integer crop, no resampling.
+    * Otherwise ``aligned(x) = moving(M^-1(x - f))`` (bicubic): rotation,
+      scale and perspective are removed but the content stays displaced by
+      exactly ``f`` everywhere.
+
+    ``prior_shift = (f_y, f_x)`` is the sub-pixel translation left in
+    ``aligned`` (content at (r, c) in the reference is at (r + f_y, c + f_x)
+    in ``aligned``), the prior for the shift estimator; ``integer_offset =
+    (n_y, n_x)``. ``mask`` marks pixels that came from the moving frame (for
+    the warp: whose bicubic support lies inside it).
+    """
+    registration._require_ok()
+    ref = np.asarray(reference)
+    mov = np.asarray(moving)
+    if ref.shape[:2] != tuple(registration.ref_shape) or mov.shape[:2] != tuple(registration.mov_shape):
+        raise ValueError(f"frame shapes {ref.shape[:2]}, {mov.shape[:2]} differ from the registration's "
+                         f"{tuple(registration.ref_shape)}, {tuple(registration.mov_shape)}")
+    hr, wr = ref.shape[:2]
+    hm, wm = mov.shape[:2]
+    step = max(1, min(hr, wr) // 64)
+    ys, xs = np.mgrid[0:hr:step, 0:wr:step]
+    grid = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
+    pm = registration.inverse_transfer(grid)
+    inside = (pm[:, 0] >= 0) & (pm[:, 0] <= wm - 1) & (pm[:, 1] >= 0) & (pm[:, 1] <= hm - 1) & np.isfinite(pm).all(axis=1)
+    if not inside.any():
+        raise ValueError("the registration puts no part of the moving frame on the reference")
+    s = pm[inside] - grid[inside]
+    s0 = s.mean(axis=0)
+    dev = float(np.max(np.hypot(*(s - s0).T)))
+    n = np.rint(s0).astype(int)
+    fr = s0 - n
+    out = np.zeros(ref.shape[:2] + mov.shape[2:], dtype=mov.dtype)
+    if dev <= warp_threshold_px:
+        ny, nx = int(n[1]), int(n[0])
+        r0, r1 = max(0, -ny), min(hr, hm - ny)
+        c0, c1 = max(0, -nx), min(wr, wm - nx)
+        mask = np.zeros((hr, wr), bool)
+        if r1 > r0 and c1 > c0:
+            out[r0:r1, c0:c1] = mov[r0 + ny: r1 + ny, c0 + nx: c1 + nx]
+            mask[r0:r1, c0:c1] = True
+        return AlignResult(out, mask, (float(fr[1]), float(fr[0])), (ny, nx), False, dev)
+    yy, xx = np.mgrid[0:hr, 0:wr]
+    src = np.stack([xx.ravel() - fr[0], yy.ravel() - fr[1]], axis=1)
+    mp = registration.inverse_transfer(src)
+    mx = mp[:, 0].reshape(hr, wr).astype(np.float32)
+    my = mp[:, 1].reshape(hr, wr).astype(np.float32)
+    finite = np.isfinite(mx) & np.isfinite(my)
+    mx = np.where(finite, mx, -10).astype(np.float32)
+    my = np.where(finite, my, -10).astype(np.float32)
+    warped = cv2.remap(mov, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    mask = finite & (mx >= 1) & (mx <= wm - 2) & (my >= 1) & (my <= hm - 2)
+    warped[~mask] = 0
+    return AlignResult(warped.astype(mov.dtype, copy=False), mask, (float(fr[1]), float(fr[0])), (int(n[1]), int(n[0])), True, dev)

@@ -1,0 +1,241 @@
+"""Projective / affine model fitting for co-registration (METHODS.md C, stage 3).
+
+The frame-to-frame model is the projective transform of METHODS C:
+
+    u = (a1 x + a2 y + a0) / (c0 x + c1 y + 1)
+    v = (d1 x + d2 y + d0) / (c0 x + c1 y + 1)                  (METHODS C, eq. P)
+
+held as a 3x3 matrix ``H = [[a1, a2, a0], [d1, d2, d0], [c0, c1, 1]]``
+mapping MOVING pixel coordinates (x=col, y=row) to REFERENCE pixel
+coordinates. The affine option fixes ``c0 = c1 = 0``.
+
+Fitting is Levenberg-Marquardt on the squared transfer residuals
+``sum |H(x_m) - x_r|^2`` (px^2), started from the identity as in the paper,
+in coordinates normalised by the image centre and half-diagonal (the same
+normalisation for both frames, so the identity stays the identity).
+
+Lens distortion (optional): one radial term shared by both frames (same
+camera), Fitzgibbon's division model about the image centre ``c``,
+
+    x_u = c + (x_d - c) / (1 + lam r_d^2),  r_d = |x_d - c| / s     (radial, division model)
+
+with ``s`` the half-diagonal (so ``lam`` is dimensionless). The full model
+maps a moving pixel ``x_d`` to the reference as ``D(H_u(U(x_d)))``; the
+residual is measured in reference pixels.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .registration_points import apply_h
+
+__all__ = [
+    "Normaliser",
+    "levenberg_marquardt",
+    "fit_homography_lm",
+    "fit_homography_distortion_lm",
+    "undistort_points",
+    "distort_points",
+    "check_homography",
+]
+
+
+@dataclass(frozen=True)
+class Normaliser:
+    """Pixel <-> normalised coordinates: ``n = (x - c) / s``, s = half-diagonal (px)."""
+
+    cx: float
+    cy: float
+    s: float
+
+    @classmethod
+    def for_shape(cls, shape: tuple[int, ...]) -> "Normaliser":
+        h, w = shape[:2]
+        return cls((w - 1) / 2.0, (h - 1) / 2.0, 0.5 * float(np.hypot(w, h)))
+
+    @property
+    def t(self) -> np.ndarray:
+        return np.array([[1 / self.s, 0, -self.cx / self.s], [0, 1 / self.s, -self.cy / self.s], [0, 0, 1.0]])
+
+    def to_pixel_h(self, hn: np.ndarray) -> np.ndarray:
+        """``H_px = T^-1 H_n T`` (normalised-coordinate homography to pixel coordinates)."""
+        t = self.t
+        h = np.linalg.inv(t) @ hn @ t
+        return h / h[2, 2]
+
+    def to_norm_h(self, h: np.ndarray) -> np.ndarray:
+        t = self.t
+        hn = t @ h @ np.linalg.inv(t)
+        return hn / hn[2, 2]
+
+
+def levenberg_marquardt(
+    fun: Callable[[np.ndarray], np.ndarray], p0: np.ndarray, iterations: int = 50, tol: float = 1e-12
+) -> np.ndarray:
+    """Minimise ``|fun(p)|^2`` by Levenberg-Marquardt (forward-difference Jacobian).
+
+    Damped normal equations ``(J^T J + mu diag(J^T J)) dp = -J^T r``; ``mu``
+    is divided by 3 after an accepted step and multiplied by 4 after a rejected
+    one. Stops when the relative cost decrease falls below ``tol``.
+    """
+    p = np.asarray(p0, dtype=np.float64).copy()
+    r = fun(p)
+    cost = float(r @ r)
+    mu = 1e-3
+    eps = 1e-7
+    for _ in range(iterations):
+        jac = np.empty((r.size, p.size))
+        for i in range(p.size):  # one column per parameter (<= 9), each vectorised over points
+            dp = np.zeros_like(p)
+            dp[i] = eps
+            jac[:, i] = (fun(p + dp) - r) / eps
+        jtj = jac.T @ jac
+        g = jac.T @ r
+        improved = False
+        for _ in range(10):
+            a = jtj + mu * np.diag(np.maximum(np.diag(jtj), 1e-12))
+            try:
+                step = np.linalg.solve(a, -g)
+            except np.linalg.LinAlgError:
+                mu *= 4
+                continue
+            pn = p + step
+            rn = fun(pn)
+            cn = float(rn @ rn)
+            if np.isfinite(cn) and cn < cost:
+                rel = (cost - cn) / max(cost, 1e-300)
+                p, r, cost = pn, rn, cn
+                mu = max(mu / 3, 1e-12)
+                improved = True
+                break
+            mu *= 4
+        if not improved or rel < tol:
+            break
+    return p
+
+
+def _h_from_params(q: np.ndarray, affine: bool) -> np.ndarray:
+    if affine:
+        return np.array([[q[0], q[1], q[2]], [q[3], q[4], q[5]], [0.0, 0.0, 1.0]])
+    return np.array([[q[0], q[1], q[2]], [q[3], q[4], q[5]], [q[6], q[7], 1.0]])
+
+
+def _params_from_h(h: np.ndarray, affine: bool) -> np.ndarray:
+    h = h / h[2, 2]
+    q = [h[0, 0], h[0, 1], h[0, 2], h[1, 0], h[1, 1], h[1, 2]]
+    if not affine:
+        q += [h[2, 0], h[2, 1]]
+    return np.array(q)
+
+
+def fit_homography_lm(
+    pts_mov: np.ndarray, pts_ref: np.ndarray, norm: Normaliser, affine: bool = False, h0: np.ndarray | None = None
+) -> np.ndarray:
+    """LM fit of eq. P (or its affine case) to tie points; returns the pixel 3x3 H (moving -> reference).
+
+    Starts from the identity (METHODS C) unless ``h0`` (pixel H) is given.
+    Residual: ``H(x_m) - x_r`` in normalised units (= px / s).
+    """
+    t = norm.t
+    m = apply_h(t, pts_mov)
+    r = apply_h(t, pts_ref)
+    start = np.eye(3) if h0 is None else norm.to_norm_h(h0)
+
+    def res(q: np.ndarray) -> np.ndarray:
+        return (apply_h(_h_from_params(q, affine), m) - r).ravel()
+
+    q = levenberg_marquardt(res, _params_from_h(start, affine))
+    return norm.to_pixel_h(_h_from_params(q, affine))
+
+
+def undistort_points(pts: np.ndarray, lam: float, norm: Normaliser) -> np.ndarray:
+    """Division model ``x_u = c + (x_d - c) / (1 + lam r_d^2)`` (px in, px out)."""
+    c = np.array([norm.cx, norm.cy])
+    d = (pts - c) / norm.s
+    r2 = (d * d).sum(axis=1, keepdims=True)
+    return c + norm.s * d / (1.0 + lam * r2)
+
+
+def distort_points(pts: np.ndarray, lam: float, norm: Normaliser) -> np.ndarray:
+    """Inverse of :func:`undistort_points` (closed form of the division model).
+
+    With ``r_u = r_d / (1 + lam r_d^2)``: ``r_d = (1 - sqrt(1 - 4 lam r_u^2)) / (2 lam r_u)``.
+    Points beyond the model's validity (negative discriminant) become inf.
+    """
+    c = np.array([norm.cx, norm.cy])
+    u = (pts - c) / norm.s
+    ru = np.sqrt((u * u).sum(axis=1))
+    if abs(lam) < 1e-15:
+        return pts.astype(np.float64).copy()
+    disc = 1.0 - 4.0 * lam * ru * ru
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rd = np.where(ru > 1e-12, (1.0 - np.sqrt(np.where(disc >= 0, disc, np.nan))) / (2.0 * lam * np.maximum(ru, 1e-12)), 0.0)
+        scale = np.where(ru > 1e-12, rd / np.maximum(ru, 1e-12), 1.0)
+    out = c + norm.s * u * scale[:, None]
+    out[~np.isfinite(out).all(axis=1)] = np.inf
+    return out
+
+
+def fit_homography_distortion_lm(
+    pts_mov: np.ndarray, pts_ref: np.ndarray, norm: Normaliser, h0: np.ndarray, affine: bool = False
+) -> tuple[np.ndarray, float]:
+    """Joint LM fit of ``H_u`` (eq. P on undistorted points) and the division-model ``lam``.
+
+    Residual ``D(H_u(U(x_m))) - x_r`` in normalised units. Returns
+    ``(H_u pixel 3x3, lam)``; ``H_u`` maps UNDISTORTED moving pixel
+    coordinates to UNDISTORTED reference pixel coordinates.
+    """
+    t = norm.t
+    r = apply_h(t, pts_ref)
+
+    def res(q: np.ndarray) -> np.ndarray:
+        lam = q[-1]
+        hu = norm.to_pixel_h(_h_from_params(q[:-1], affine))
+        pr = distort_points(apply_h(hu, undistort_points(pts_mov, lam, norm)), lam, norm)
+        out = (apply_h(t, pr) - r).ravel()
+        return np.where(np.isfinite(out), out, 1e3)
+
+    q0 = np.concatenate([_params_from_h(norm.to_norm_h(h0), affine), [0.0]])
+    q = levenberg_marquardt(res, q0)
+    return norm.to_pixel_h(_h_from_params(q[:-1], affine)), float(q[-1])
+
+
+def check_homography(h: np.ndarray, shape_mov: tuple[int, ...], max_scale: float = 3.0, max_aniso: float = 2.0) -> str:
+    """Sanity check of a moving->reference homography; returns '' if sane, else the reason.
+
+    Checks: finite; the moving frame's corners map to a convex, same-orientation
+    quadrilateral (no fold, the perspective horizon stays outside the frame);
+    the local linear part at every corner has ``|det|`` in
+    ``[1/max_scale^2, max_scale^2]`` and singular-value ratio (shear /
+    anisotropy) at most ``max_aniso``.
+    """
+    if h is None or not np.isfinite(h).all():
+        return "homography is not finite"
+    hh, ww = shape_mov[:2]
+    corners = np.array([[0, 0], [ww - 1, 0], [ww - 1, hh - 1], [0, hh - 1]], float)
+    wden = h[2, 0] * corners[:, 0] + h[2, 1] * corners[:, 1] + h[2, 2]
+    if np.any(wden <= 0) or np.ptp(np.sign(wden)) != 0:
+        return "degenerate fit: the frame crosses the perspective horizon"
+    q = apply_h(h, corners)
+    e = np.roll(q, -1, axis=0) - q
+    cross = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
+    if not (np.all(cross > 0) or np.all(cross < 0)):
+        return "degenerate fit: the mapped frame is folded or not convex"
+    if np.all(cross < 0):
+        return "degenerate fit: the mapping mirrors the frame"
+    for (x, y), wv in zip(corners, wden):
+        # Jacobian of eq. P at (x, y).
+        u = (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / wv
+        v = (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / wv
+        j = np.array([[h[0, 0] - u * h[2, 0], h[0, 1] - u * h[2, 1]],
+                      [h[1, 0] - v * h[2, 0], h[1, 1] - v * h[2, 1]]]) / wv
+        sv = np.linalg.svd(j, compute_uv=False)
+        det = sv[0] * sv[1]
+        if not (1 / max_scale**2 <= det <= max_scale**2):
+            return f"degenerate fit: local scale {np.sqrt(det):.2f} outside [1/{max_scale}, {max_scale}]"
+        if sv[0] > max_aniso * sv[1]:
+            return f"degenerate fit: shear/anisotropy {sv[0] / sv[1]:.2f} > {max_aniso}"
+    return ""

@@ -1,0 +1,313 @@
+"""Tie points for co-registration: Harris corners, NCC matching, sub-pixel refinement.
+
+METHODS.md C, stage 2 (tie points), vectorised over all points at once:
+
+* Harris response (METHODS C, stage 2): 3x3 Gaussian, Sobel derivatives
+  ``Vx, Vy``, an ``w x w`` Gaussian window (11x11 by default) over
+  ``Vx^2, Vy^2, Vx Vy`` giving the structure tensor ``I``, and
+  ``R = det(I) - k trace(I)^2`` with ``k = 0.04``; local maxima by
+  non-maximum suppression and a grid quota so the points spread over the
+  whole overlap instead of clustering in the most textured field.
+* Matching by normalised cross-correlation (NCC) "around the coarse
+  prediction": the moving frame is resampled onto the reference grid around
+  each point through the current transform, so rotation, scale and
+  perspective between the frames do not spoil the correlation; the integer
+  NCC peak is refined by a parabola through its neighbours.
+* Sub-pixel refinement: Gauss-Newton on the translation of each patch
+  (``delta = (G^T G)^-1 G^T (T - S)``, the gradient model of METHODS A
+  applied to one small window), with the moving patch resampled exactly
+  (Keys bicubic, a=-0.5, evaluated in float64) at the updated position each
+  iteration; this converges to the unbiased position, without the
+  pixel-locking bias of a parabolic peak.
+
+Coordinates are pixel coordinates ``(x, y) = (column, row)`` with pixel
+centres at integers. Transforms are 3x3 homographies mapping MOVING (x, y)
+to REFERENCE (x, y).
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "harris_response",
+    "harris_points",
+    "apply_h",
+    "sample_bicubic",
+    "sample_linear_cv",
+    "ncc_match",
+    "refine_gauss_newton",
+]
+
+
+def harris_response(gray: np.ndarray, window: int = 11, k: float = 0.04) -> np.ndarray:
+    """Harris corner response ``R = det(I) - k trace(I)^2`` (METHODS C, stage 2).
+
+    ``I = G_w * [[Vx^2, Vx Vy], [Vx Vy, Vy^2]]`` where ``Vx, Vy`` are Sobel
+    derivatives of the 3x3-Gaussian-smoothed image and ``G_w`` a
+    ``window x window`` Gaussian. Input float32 HxW (any intensity scale),
+    output float32 HxW in (intensity/px)^4.
+    """
+    g = cv2.GaussianBlur(gray, (3, 3), 0)
+    vx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
+    vy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
+    ksz = (window, window)
+    a = cv2.GaussianBlur(vx * vx, ksz, 0)
+    b = cv2.GaussianBlur(vx * vy, ksz, 0)
+    c = cv2.GaussianBlur(vy * vy, ksz, 0)
+    return a * c - b * b - np.float32(k) * (a + c) ** 2
+
+
+def harris_points(
+    gray: np.ndarray,
+    valid: np.ndarray,
+    n_target: int = 600,
+    grid: tuple[int, int] = (12, 16),
+    window: int = 11,
+    nms_radius: int = 4,
+) -> np.ndarray:
+    """Harris maxima spread over ``valid`` by a grid quota; returns (N, 2) float64 (x, y).
+
+    Non-maximum suppression keeps pixels equal to the maximum of their
+    ``(2 nms_radius + 1)^2`` neighbourhood with a positive response. The
+    bounding box of ``valid`` is cut into ``grid`` (rows, cols) cells and each
+    cell keeps at most ``ceil(n_target / cells)`` of its strongest maxima, so
+    no single textured field takes all the points.
+    """
+    resp = harris_response(gray, window)
+    k = 2 * nms_radius + 1
+    dil = cv2.dilate(resp, np.ones((k, k), np.uint8))
+    peak = (resp >= dil) & (resp > 0) & valid
+    ys, xs = np.nonzero(peak)
+    if xs.size == 0:
+        return np.zeros((0, 2))
+    r = resp[ys, xs]
+    # Weak maxima (flat noise) are not corners: relative floor.
+    keep = r > 1e-4 * float(r.max())
+    ys, xs, r = ys[keep], xs[keep], r[keep]
+    vy, vx = np.nonzero(valid)
+    y0, y1, x0, x1 = vy.min(), vy.max() + 1, vx.min(), vx.max() + 1
+    gr, gc = grid
+    cell = (np.minimum((ys - y0) * gr // max(y1 - y0, 1), gr - 1) * gc
+            + np.minimum((xs - x0) * gc // max(x1 - x0, 1), gc - 1))
+    quota = int(np.ceil(n_target / (gr * gc)))
+    order = np.lexsort((-r, cell))
+    cs = cell[order]
+    start = np.searchsorted(cs, cs, side="left")
+    rank = np.arange(cs.size) - start
+    sel = order[rank < quota]
+    return np.stack([xs[sel], ys[sel]], axis=1).astype(np.float64)
+
+
+def apply_h(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Apply a 3x3 homography to (N, 2) points (x, y): ``p' = (H [x, y, 1]^T)`` dehomogenised."""
+    p = np.asarray(pts, dtype=np.float64)
+    w = h[2, 0] * p[:, 0] + h[2, 1] * p[:, 1] + h[2, 2]
+    x = (h[0, 0] * p[:, 0] + h[0, 1] * p[:, 1] + h[0, 2]) / w
+    y = (h[1, 0] * p[:, 0] + h[1, 1] * p[:, 1] + h[1, 2]) / w
+    return np.stack([x, y], axis=-1)
+
+
+def _keys(t: np.ndarray) -> np.ndarray:
+    """Keys cubic convolution kernel (a = -0.5) at distances ``t``."""
+    t = np.abs(t)
+    t2, t3 = t * t, t * t * t
+    return np.where(t <= 1, 1.5 * t3 - 2.5 * t2 + 1, np.where(t < 2, -0.5 * t3 + 2.5 * t2 - 4 * t + 2, 0.0))
+
+
+def sample_bicubic(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Keys bicubic interpolation of ``img`` at float coordinates (x=col, y=row), float64.
+
+    Exact positions (no fixed-point quantisation of the fraction, unlike
+    ``cv2.remap``). Coordinates are clamped to the image (callers only sample
+    inside it).
+    """
+    h, w = img.shape
+    x = np.clip(x, 0, w - 1)
+    y = np.clip(y, 0, h - 1)
+    x0 = np.floor(x).astype(np.intp)
+    y0 = np.floor(y).astype(np.intp)
+    fx, fy = x - x0, y - y0
+    out = np.zeros(x.shape, dtype=np.float64)
+    wy = [_keys(fy - j) for j in (-1, 0, 1, 2)]
+    wx = [_keys(fx - i) for i in (-1, 0, 1, 2)]
+    for j in range(4):  # 16 taps, each vectorised over all samples
+        yy = np.clip(y0 + j - 1, 0, h - 1)
+        row = np.zeros(x.shape, dtype=np.float64)
+        for i in range(4):
+            xx = np.clip(x0 + i - 1, 0, w - 1)
+            row += wx[i] * img[yy, xx]
+        out += wy[j] * row
+    return out
+
+
+def sample_linear_cv(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear sampling with ``cv2.remap`` (fast; fraction quantised to 1/32 px). float32."""
+    shp = x.shape
+    mx = x.reshape(-1, shp[-1]).astype(np.float32)
+    my = y.reshape(-1, shp[-1]).astype(np.float32)
+    out = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(shp)
+
+
+def sample_cubic_cv(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bicubic sampling with ``cv2.remap`` (fraction quantised to 1/32 px; the error is
+    random across points and averages out in the model fit). float32."""
+    shp = x.shape
+    mx = x.reshape(-1, shp[-1]).astype(np.float32)
+    my = y.reshape(-1, shp[-1]).astype(np.float32)
+    out = cv2.remap(img, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(shp)
+
+
+def _patch_grid(half: int) -> tuple[np.ndarray, np.ndarray]:
+    o = np.arange(-half, half + 1, dtype=np.float64)
+    return np.meshgrid(o, o)  # (qx, qy), each (P, P)
+
+
+def _ref_patches(ref: np.ndarray, pts: np.ndarray, half: int) -> np.ndarray:
+    """Integer-position patches (N, P, P) of ``ref`` centred at rounded ``pts``."""
+    qx, qy = _patch_grid(half)
+    xi = np.rint(pts[:, 0]).astype(np.intp)[:, None, None] + qx.astype(np.intp)
+    yi = np.rint(pts[:, 1]).astype(np.intp)[:, None, None] + qy.astype(np.intp)
+    return ref[yi, xi].astype(np.float64)
+
+
+def ncc_match(
+    ref: np.ndarray,
+    mov: np.ndarray,
+    pts_ref: np.ndarray,
+    h_mr: np.ndarray,
+    half: int = 7,
+    radius: int = 3,
+    min_ncc: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Match reference points in ``mov`` by NCC around the prediction of ``h_mr``.
+
+    For each reference point ``p`` (integer position), the moving frame is
+    resampled onto reference coordinates ``p + q`` (``W(q) = mov(H^-1 (p+q))``,
+    bilinear) over a ``(2 half + 1 + 2 radius)^2`` window; the NCC of the
+    reference template with every ``(2 radius + 1)^2`` offset ``d`` is
+    ``sum(T0 W_d) / (|T0| |W_d - mean W_d|)``. The peak is refined by a
+    parabola per axis. A match means ``ref(p) ~ mov(H^-1 (p + d))``.
+
+    Returns ``(pts_ref, pts_mov, score)`` for the accepted points: peak NCC
+    ``>= min_ncc``, peak not on the border of the search window (the true
+    match could lie outside), finite.
+    """
+    n = pts_ref.shape[0]
+    if n == 0:
+        z = np.zeros((0, 2))
+        return z, z, np.zeros(0)
+    p = np.rint(pts_ref)
+    t = _ref_patches(ref, p, half)
+    t0 = (t - t.mean(axis=(1, 2), keepdims=True)).astype(np.float32)
+    tn = np.sqrt((t0.astype(np.float64) ** 2).sum(axis=(1, 2)))
+    big = half + radius
+    qx, qy = _patch_grid(big)
+    gx = p[:, 0, None, None] + qx
+    gy = p[:, 1, None, None] + qy
+    hinv = np.linalg.inv(h_mr)
+    mp = apply_h(hinv, np.stack([gx.ravel(), gy.ravel()], axis=1))
+    win32 = sample_linear_cv(mov, mp[:, 0].reshape(gx.shape), mp[:, 1].reshape(gx.shape))
+    win = win32.astype(np.float64)
+    pp = 2 * half + 1
+    k = 2 * radius + 1
+    num = np.empty((n, k, k), dtype=np.float64)
+    for a in range(k):  # (2r+1)^2 offsets, each a product-sum vectorised over all points and pixels
+        for b in range(k):
+            num[:, a, b] = np.einsum("nij,nij->n", t0, win32[:, a: a + pp, b: b + pp])
+    # Local sums of W and W^2 over each offset window (integral image).
+    ii = np.pad(win, ((0, 0), (1, 0), (1, 0))).cumsum(1).cumsum(2)
+    ii2 = np.pad(win * win, ((0, 0), (1, 0), (1, 0))).cumsum(1).cumsum(2)
+    s1 = ii[:, pp:, pp:] - ii[:, :-pp, pp:] - ii[:, pp:, :-pp] + ii[:, :-pp, :-pp]
+    s2 = ii2[:, pp:, pp:] - ii2[:, :-pp, pp:] - ii2[:, pp:, :-pp] + ii2[:, :-pp, :-pp]
+    var = np.maximum(s2 - s1 * s1 / (pp * pp), 0.0)
+    den = tn[:, None, None] * np.sqrt(var)
+    ncc = np.where(den > 1e-9, num / np.maximum(den, 1e-12), -1.0)
+    flat = ncc.reshape(n, -1)
+    idx = flat.argmax(axis=1)
+    iy, ix = np.divmod(idx, k)
+    best = flat[np.arange(n), idx]
+    inner = (iy > 0) & (iy < k - 1) & (ix > 0) & (ix < k - 1)
+    iyc, ixc = np.clip(iy, 1, k - 2), np.clip(ix, 1, k - 2)
+    ar = np.arange(n)
+    c0 = ncc[ar, iyc, ixc]
+    def _para(m, pl):
+        d = m - 2 * c0 + pl
+        return np.where(d < 0, 0.5 * (m - pl) / np.where(d < 0, d, -1.0), 0.0)
+    sx = _para(ncc[ar, iyc, ixc - 1], ncc[ar, iyc, ixc + 1])
+    sy = _para(ncc[ar, iyc - 1, ixc], ncc[ar, iyc + 1, ixc])
+    dx = ixc - radius + np.clip(sx, -0.5, 0.5)
+    dy = iyc - radius + np.clip(sy, -0.5, 0.5)
+    ok = inner & (best >= min_ncc) & (tn > 1e-6)
+    q = np.stack([p[:, 0] + dx, p[:, 1] + dy], axis=1)
+    pm = apply_h(hinv, q)
+    ok &= np.isfinite(pm).all(axis=1)
+    return p[ok], pm[ok], best[ok]
+
+
+def refine_gauss_newton(
+    ref: np.ndarray,
+    mov: np.ndarray,
+    pts_ref: np.ndarray,
+    pts_mov: np.ndarray,
+    h_mr: np.ndarray,
+    half: int = 7,
+    iterations: int = 3,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel refinement of tie points by Gauss-Newton on patch translation.
+
+    The moving frame warped to the reference grid, ``W(x) = mov(H^-1 x)``
+    (bicubic, ``cv2.remap``), is sampled at ``p + d + q`` for the reference
+    template grid ``q``; both patches are normalised to zero mean and unit
+    norm (gain/offset invariance) and ``d`` is updated by
+    ``delta = (G^T G)^-1 G^T (T - S_d)`` with ``G`` the central-difference
+    gradient of ``S_d`` (px^-1). The local displacement ``d0`` from the
+    current match seeds the iteration. Returns the refined moving points
+    ``H^-1 (p + d)`` and a bool mask of points that converged (finite,
+    well-conditioned, ``|delta| < 0.01 px`` in the last step, ``|d - d0|``
+    below 1 px).
+    """
+    n = pts_ref.shape[0]
+    if n == 0:
+        return pts_mov.copy(), np.zeros(0, bool)
+    p = np.rint(pts_ref)
+    t = _ref_patches(ref, p, half)
+    t = t - t.mean(axis=(1, 2), keepdims=True)
+    t /= np.maximum(np.sqrt((t * t).sum(axis=(1, 2), keepdims=True)), 1e-12)
+    d = apply_h(h_mr, pts_mov) - p  # current displacement in reference px
+    d0 = d.copy()
+    qx, qy = _patch_grid(half + 1)
+    hinv = np.linalg.inv(h_mr)
+    good = np.ones(n, bool)
+    step = np.full(n, np.inf)
+    for _ in range(iterations):
+        gx = p[:, 0, None, None] + d[:, 0, None, None] + qx
+        gy = p[:, 1, None, None] + d[:, 1, None, None] + qy
+        mp = apply_h(hinv, np.stack([gx.ravel(), gy.ravel()], axis=1))
+        s = sample_cubic_cv(mov, mp[:, 0].reshape(gx.shape), mp[:, 1].reshape(gx.shape)).astype(np.float64)
+        inner = s[:, 1:-1, 1:-1]
+        mu = inner.mean(axis=(1, 2), keepdims=True)
+        nrm = np.maximum(np.sqrt(((inner - mu) ** 2).sum(axis=(1, 2), keepdims=True)), 1e-12)
+        si = (inner - mu) / nrm
+        g_x = (s[:, 1:-1, 2:] - s[:, 1:-1, :-2]) / (2 * nrm)
+        g_y = (s[:, 2:, 1:-1] - s[:, :-2, 1:-1]) / (2 * nrm)
+        a11 = (g_x * g_x).sum(axis=(1, 2))
+        a12 = (g_x * g_y).sum(axis=(1, 2))
+        a22 = (g_y * g_y).sum(axis=(1, 2))
+        e = t - si
+        b1 = (g_x * e).sum(axis=(1, 2))
+        b2 = (g_y * e).sum(axis=(1, 2))
+        det = a11 * a22 - a12 * a12
+        good &= det > 1e-12 * np.maximum(a11 + a22, 1e-30) ** 2
+        dets = np.where(good, det, 1.0)
+        dx = (a22 * b1 - a12 * b2) / dets
+        dy = (a11 * b2 - a12 * b1) / dets
+        dx = np.clip(np.where(good, dx, 0.0), -0.5, 0.5)
+        dy = np.clip(np.where(good, dy, 0.0), -0.5, 0.5)
+        d += np.stack([dx, dy], axis=1)
+        step = np.hypot(dx, dy)
+    good &= (step < 0.01) & (np.hypot(*(d - d0).T) < 1.0) & np.isfinite(d).all(axis=1)
+    pm = apply_h(hinv, p + d)
+    return pm, good

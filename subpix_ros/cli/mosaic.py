@@ -1,0 +1,43 @@
+"""``subpix mosaic FRAME... -o mosaic.png``: incremental overview mosaic with per-frame seam residuals."""
+from __future__ import annotations
+
+import argparse
+
+import cv2
+
+from . import CliError
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..core.mosaic import Mosaic
+
+    if len(args.frames) < 2:
+        raise CliError("need at least two frames")
+    m = Mosaic(max_size_px=args.max_size)
+    n_ok = 0
+    print("frame  ok  inliers  rms_px  seam_px  time_ms  file")
+    for i, path in enumerate(args.frames):
+        img = cv2.imread(path, cv2.IMREAD_COLOR)
+        if img is None:
+            raise CliError(f"cannot read image {path!r}")
+        u = m.add(img)
+        n_ok += u.ok
+        rms = "-" if u.rms_px is None else f"{u.rms_px:.3f}"
+        seam = "-" if u.seam_residual_px is None else f"{u.seam_residual_px:.3f}"
+        print(f"{i:5d}  {'yes' if u.ok else 'NO ':3s} {u.inliers:7d}  {rms:>6s}  {seam:>7s}  {u.time_s * 1000:7.0f}  {path}"
+              + ("" if u.ok else f"  ({u.reason})"))
+    if not cv2.imwrite(args.output, m.image()):
+        raise CliError(f"cannot write {args.output!r}")
+    print(f"{n_ok}/{len(args.frames)} frames in the mosaic -> {args.output} ({m.image().shape[1]}x{m.image().shape[0]}, "
+          f"scale {m.scale:.3f} canvas px per frame px)")
+    if n_ok < 2:
+        raise CliError("no frame could be registered to its predecessor")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("mosaic", help="build an overview mosaic from consecutive overlapping frames")
+    p.add_argument("frames", nargs="+", help="frames in flight order")
+    p.add_argument("-o", "--output", required=True, help="mosaic image to write (PNG)")
+    p.add_argument("--max-size", type=int, default=2048, help="maximum canvas side, px (bounded memory)")
+    p.set_defaults(func=run)

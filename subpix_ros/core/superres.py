@@ -881,6 +881,11 @@ def reconstruct(
         for i in range(n):  # the translation each homography applies at the frame centre
             q = hs[i] @ centre
             trans[i] = (q[1] / q[2] - centre[1], q[0] / q[2] - centre[0])
+        if noise_sigma is None and min(ref.shape) >= 96:
+            # multi-frame noise estimate from local (tile) registrations, where a translation fits
+            _, _, tile_noise = detect_geometry(stack, trans)
+            if np.isfinite(tile_noise):
+                noise_sigma = tile_noise
     try:
         sol = _fourier_map(stack, trans, p, blur_sigma, noise_sigma, cov, reg, refine_shifts and not use_cg, pad)
     except (ValueError, np.linalg.LinAlgError) as exc:

@@ -1,0 +1,199 @@
+"""Co-registration (METHODS C stages 1-3) and align(): synthetic pairs with known geometry,
+real Seneca pairs, failure cases."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from subpix_ros.core.registration import align, register
+from subpix_ros.core.registration_points import apply_h
+from subpix_ros.core.render import render_sequence
+from subpix_ros.data import seneca_frame_paths
+
+CORNERS = np.array([[0, 0], [383, 0], [383, 383], [0, 383]], float)
+
+
+def _synthetic_pair(hr: np.ndarray, h384: np.ndarray, noise: float = 1.0, seed: int = 0):
+    """Reference and moving 384x384 frames with moving(x) = reference(H x), H = moving -> reference.
+
+    The 768x768 crop is warped with Lanczos-4 (inverse map), then both frames are
+    box-integrated 2x (LR pixel i covers HR pixels 2i, 2i+1: x_hr = 2 x_lr + 0.5), so the
+    resampler's error is averaged down; 8-bit with Gaussian noise.
+    """
+    s = np.array([[2, 0, 0.5], [0, 2, 0.5], [0, 0, 1.0]])
+    h = s @ h384 @ np.linalg.inv(s)
+    mov = cv2.warpPerspective(hr.astype(np.float32), h, (768, 768),
+                              flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
+    rng = np.random.default_rng(seed)
+
+    def lr(x):
+        y = x.astype(np.float64).reshape(384, 2, 384, 2).mean(axis=(1, 3))
+        return np.clip(np.rint(y + rng.normal(0, noise, y.shape)), 0, 255).astype(np.uint8)
+
+    return lr(hr), lr(mov)
+
+
+def _known_h(deg: float, tx: float, ty: float, p: tuple[float, float] = (2e-5, -1e-5)) -> np.ndarray:
+    th = np.deg2rad(deg)
+    c = 191.5
+    t = np.array([[1, 0, c], [0, 1, c], [0, 0, 1.0]])
+    r = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1.0]])
+    h = t @ r @ np.linalg.inv(t)
+    h[0, 2] += tx
+    h[1, 2] += ty
+    h[2, :2] = p
+    return h
+
+
+@pytest.mark.parametrize("name", ["crop_field_edge", "crop_rows", "crop_trees", "crop_road"])
+def test_synthetic_known_homography_corner_error(crops, name):
+    h_true = _known_h(3.0, 10.3, -7.6)
+    ref, mov = _synthetic_pair(crops[name], h_true)
+    res = register(ref, mov)
+    assert res.ok, res.reason
+    err_full = np.hypot(*(res.transfer(CORNERS) - apply_h(h_true, CORNERS)).T).mean()
+    err_h = np.hypot(*(apply_h(res.homography, CORNERS) - apply_h(h_true, CORNERS)).T).mean()
+    assert err_h <= 0.03, err_h
+    assert err_full <= 0.03, err_full
+    assert res.inliers >= 100
+    assert res.rms_px < 0.1
+
+
+def test_affine_model_option(crops):
+    h_true = _known_h(-2.0, -6.4, 4.2, p=(0.0, 0.0))
+    ref, mov = _synthetic_pair(crops["crop_trees"], h_true, seed=3)
+    res = register(ref, mov, model="affine", distortion=False)
+    assert res.ok, res.reason
+    assert res.model == "affine"
+    np.testing.assert_array_equal(res.homography[2, :2], [0.0, 0.0])
+    assert np.hypot(*(apply_h(res.homography, CORNERS) - apply_h(h_true, CORNERS)).T).mean() <= 0.03
+
+
+def test_large_rotation_and_colour_input(crops):
+    h_true = _known_h(25.0, 3.0, 5.0, p=(0.0, 0.0))
+    ref, mov = _synthetic_pair(crops["crop_trees"], h_true, seed=5)
+    res = register(cv2.cvtColor(ref, cv2.COLOR_GRAY2BGR), cv2.cvtColor(mov, cv2.COLOR_GRAY2BGR))
+    assert res.ok, res.reason
+    assert np.hypot(*(apply_h(res.homography, CORNERS) - apply_h(h_true, CORNERS)).T).mean() <= 0.05
+
+
+@pytest.fixture(scope="module")
+def seneca():
+    return [cv2.imread(str(p)) for p in seneca_frame_paths()]
+
+
+def test_real_seneca_pairs_all_register(seneca):
+    """All 8 consecutive half-resolution pairs register, with well-spread inliers and a sub-pixel residual."""
+    for i in range(8):
+        res = register(seneca[i], seneca[i + 1])
+        assert res.ok, (i, res.reason)
+        assert res.inliers >= 50, (i, res.inliers)
+        assert res.spread >= 0.4, (i, res.spread)
+        assert res.rms_px <= 1.0, (i, res.rms_px)
+        assert res.rms_px <= res.rms_px_projective + 1e-9
+        d = res.as_dict()
+        assert np.asarray(d["homography"]).shape == (3, 3)
+
+
+@pytest.mark.parametrize("i", [1, 4])
+def test_real_pair_forward_backward_consistent(seneca, i):
+    """Registering (A, B) and (B, A) independently gives mutually inverse models over the overlap."""
+    ab = register(seneca[i], seneca[i + 1])
+    ba = register(seneca[i + 1], seneca[i])
+    assert ab.ok and ba.ok, (ab.reason, ba.reason)
+    pm = ab.points[:, 2:]  # points of B inside the overlap
+    round_trip = ba.transfer(ab.transfer(pm)) - pm
+    err = np.hypot(*round_trip.T)
+    assert np.sqrt(np.mean(err**2)) < 0.5, np.sqrt(np.mean(err**2))
+
+
+def test_blank_frame_fails_with_reason(crops):
+    res = register(np.full((300, 400), 128, np.uint8), crops["crop_rows"][:300, :400])
+    assert not res.ok and res.homography is None
+    assert "blank" in res.reason
+    with pytest.raises(ValueError):
+        res.transfer(CORNERS)
+
+
+def test_no_overlap_fails(crops):
+    # two different parts of the strip: nothing in common
+    res = register(crops["crop_road"][:384, :384], crops["crop_rows"][:384, :384])
+    assert not res.ok, "two unrelated crops must not register"
+    assert res.homography is None and res.reason
+
+
+def test_repeated_texture_is_not_silently_wrong():
+    """A strictly periodic grating shifted by 1.3 periods is ambiguous: either a failure, or a
+    homography that maps the grating onto itself (any period multiple), never a made-up geometry."""
+    y, x = np.mgrid[0:384, 0:384].astype(np.float64)
+    period = 12.0
+
+    def grating(dx):
+        return np.clip(128 + 60 * np.sin(2 * np.pi * (x - dx) / period) + 40 * np.sin(2 * np.pi * y / 17.0), 0, 255).astype(np.uint8)
+
+    res = register(grating(0.0), grating(1.3 * period))
+    if res.ok:
+        c = np.array([[192.0, 192.0]])
+        d = res.transfer(c) - c  # content moved by +15.6 px in x: moving -> reference is -15.6 px + k * period
+        frac = ((d[0, 0] + 1.3 * period) / period + 0.5) % 1.0 - 0.5
+        assert abs(frac) * period < 0.2
+        assert abs(d[0, 1]) < 0.2
+    else:
+        assert res.reason
+
+
+def test_bad_input_raises():
+    with pytest.raises(ValueError):
+        register(np.zeros((10, 10, 2)), np.zeros((100, 100)))
+    with pytest.raises(ValueError):
+        register(np.zeros((100, 100)), np.zeros((100, 100)), model="similarity")
+    img = np.random.default_rng(0).integers(0, 255, (100, 100)).astype(np.float64)
+    img[5, 5] = np.nan
+    with pytest.raises(ValueError):
+        register(img, img)
+
+
+@pytest.mark.parametrize("shift", [(3.3, -5.6), (-2.7, 1.2), (0.45, 7.55)])
+def test_align_translation_prior_matches_known_subpixel_shift(crops, shift):
+    """Rendered pair with a known (u, v): align() crops by the integer part and its prior is the
+    sub-pixel remainder in the project convention (content at (r, c) in the reference is at
+    (r + u, c + v) in the moving frame)."""
+    seq = render_sequence(crops["crop_field_edge"], 2, [(0.0, 0.0), shift], blur_sigma=0.4, noise_sigma=0.5, seed=1)
+    ref, mov = seq.frames
+    res = register(ref, mov)
+    assert res.ok, res.reason
+    al = align(ref, mov, res)
+    assert not al.warped
+    n = (int(np.rint(shift[0])), int(np.rint(shift[1])))
+    assert al.integer_offset == n
+    assert al.prior_shift[0] == pytest.approx(shift[0] - n[0], abs=0.05)
+    assert al.prior_shift[1] == pytest.approx(shift[1] - n[1], abs=0.05)
+    # an integer crop, no resampling: the pixels are the moving frame's own
+    r, c = np.nonzero(al.mask)
+    np.testing.assert_array_equal(al.aligned[r, c], mov[r + n[0], c + n[1]])
+    assert not al.aligned[~al.mask].any()
+    h, w = ref.shape
+    assert al.mask.sum() == (h - abs(n[0])) * (w - abs(n[1]))
+
+
+def test_align_warps_rotation_but_keeps_subpixel_translation(crops):
+    h_true = _known_h(4.0, -3.35, 2.2, p=(0.0, 0.0))
+    ref, mov = _synthetic_pair(crops["crop_rows"], h_true, noise=0.5, seed=7)
+    res = register(ref, mov)
+    assert res.ok, res.reason
+    al = align(ref, mov, res)
+    assert al.warped and al.aligned.shape == ref.shape
+    # Where the moving frame covers the reference, aligned is the reference displaced by the prior:
+    # measure that displacement by a global NCC-free check: shift the reference by the prior (Fourier)
+    # and compare on the valid mask.
+    from subpix_ros.core.render import fourier_shift_blur
+
+    shifted = fourier_shift_blur(ref.astype(np.float64), al.prior_shift, 0.0)
+    m = al.mask.copy()
+    m[:20] = m[-20:] = False
+    m[:, :20] = m[:, -20:] = False
+    err_prior = np.abs(al.aligned[m] - shifted[m]).mean()
+    err_zero = np.abs(al.aligned[m] - ref[m].astype(np.float64)).mean()
+    assert max(abs(al.prior_shift[0]), abs(al.prior_shift[1])) <= 0.5
+    assert err_prior < 0.7 * err_zero

@@ -1,0 +1,145 @@
+"""``subpix superres`` and ``subpix mtf`` command lines."""
+import argparse
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from subpix_ros.cli import CliError
+from subpix_ros.cli import mtf as mtf_cli
+from subpix_ros.cli import superres as superres_cli
+from subpix_ros.core.render import render_sequence
+from subpix_ros.core.superres import bicubic_upscale, psnr
+
+
+def run(module, argv):
+    parser = argparse.ArgumentParser(prog="subpix")
+    sub = parser.add_subparsers(dest="command")
+    module.register(sub)
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory, crops):
+    d = tmp_path_factory.mktemp("sr")
+    seq = render_sequence(crops["crop_road"][: 2 * 112, : 2 * 112], 2,
+                          [(0, 0), (0, 0.5), (0.5, 0), (0.5, 0.5), (0.3, 0.8)], 0.4, snr_db=40, seed=1)
+    paths = []
+    for i, f in enumerate(seq.frames):
+        p = d / f"f{i}.png"
+        cv2.imwrite(str(p), f)
+        paths.append(str(p))
+    shifts = d / "shifts.json"
+    shifts.write_text(json.dumps(seq.shifts.tolist()))
+    return d, paths, str(shifts), seq
+
+
+def gain(seq, img):
+    return psnr(img, seq.truth, 8) - psnr(bicubic_upscale(seq.frames[0], 2), seq.truth, 8)
+
+
+def test_superres_with_shift_file_npy(frames, capsys):
+    d, paths, shifts, seq = frames
+    out = d / "out.npy"
+    assert run(superres_cli, ["superres", *paths, "--factor", "2", "--shifts", shifts, "-o", str(out)]) == 0
+    img = np.load(out)
+    assert img.shape == seq.truth.shape and img.dtype == np.float64
+    assert gain(seq, img) > 4.0
+    assert "method=map" in capsys.readouterr().out
+
+
+def test_superres_auto_shifts_png_and_tiff(frames):
+    d, paths, _, seq = frames
+    png, tif = d / "auto.png", d / "auto.tiff"
+    assert run(superres_cli, ["superres", *paths, "-o", str(png)]) == 0
+    img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+    assert img.dtype == np.uint8 and img.shape == seq.truth.shape
+    assert gain(seq, img.astype(float)) > 4.0
+    assert run(superres_cli, ["superres", *paths[:4], "--method", "windowed", "-o", str(tif)]) == 0
+    t = cv2.imread(str(tif), cv2.IMREAD_UNCHANGED)
+    assert t.dtype == np.float32 and t.shape == seq.truth.shape
+
+
+def test_superres_colour_frames(frames, tmp_path):
+    _, paths, shifts, seq = frames
+    colour = []
+    for i, p in enumerate(paths):
+        g = cv2.imread(p, cv2.IMREAD_GRAYSCALE)
+        c = tmp_path / f"c{i}.png"
+        cv2.imwrite(str(c), np.dstack([g, g, g]))
+        colour.append(str(c))
+    out = tmp_path / "c.png"
+    assert run(superres_cli, ["superres", *colour, "--shifts", shifts, "-o", str(out)]) == 0
+    img = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
+    assert img.shape == seq.truth.shape + (3,)
+
+
+@pytest.mark.parametrize(
+    "argv,match",
+    [
+        (["--factor", "5"], "factor"),
+        (["--factor", "1"], "factor"),
+        (["-o", "x.jpg"], "unsupported output"),
+    ],
+)
+def test_superres_user_errors(frames, argv, match):
+    d, paths, _, _ = frames
+    full = ["superres", *paths, *argv]
+    if "-o" not in argv:
+        full += ["-o", str(d / "x.png")]
+    with pytest.raises(CliError, match=match):
+        run(superres_cli, full)
+
+
+def test_superres_one_frame_mismatch_and_bad_shift_file(frames, tmp_path):
+    d, paths, _, _ = frames
+    with pytest.raises(CliError, match="at least 2"):
+        run(superres_cli, ["superres", paths[0], "-o", str(tmp_path / "o.png")])
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((50, 60), np.uint8))
+    with pytest.raises(CliError, match="differ in size"):
+        run(superres_cli, ["superres", paths[0], str(small), "-o", str(tmp_path / "o.png")])
+    bad = tmp_path / "bad.json"
+    bad.write_text("[[0, 0], [0.5]]")
+    with pytest.raises(CliError, match="shift file"):
+        run(superres_cli, ["superres", *paths[:2], "--shifts", str(bad), "-o", str(tmp_path / "o.png")])
+    with pytest.raises(CliError, match="no such file"):
+        run(superres_cli, ["superres", paths[0], str(tmp_path / "missing.png"), "-o", str(tmp_path / "o.png")])
+
+
+def test_superres_equal_shifts_reports_fallback(frames, tmp_path, capsys):
+    _, paths, _, _ = frames
+    same = tmp_path / "same.json"
+    same.write_text(json.dumps([[0, 0], [0, 0]]))
+    assert run(superres_cli, ["superres", paths[0], paths[0], "--shifts", str(same), "-o", str(tmp_path / "o.png")]) == 0
+    assert "fell back" in capsys.readouterr().out
+
+
+def test_mtf_cli(tmp_path, capsys):
+    # a blurred straight edge tilted 5 degrees, drawn 8x larger and box-averaged down
+    n, ss = 96, 8
+    r, c = np.mgrid[0 : n * ss, 0 : n * ss] / ss
+    big = np.where((c - n / 2) * np.cos(0.087) - (r - n / 2) * np.sin(0.087) > 0, 200.0, 50.0)
+    big = cv2.GaussianBlur(big, (0, 0), 0.6 * ss)
+    img = np.rint(big.reshape(n, ss, n, ss).mean(axis=(1, 3))).astype(np.uint8)
+    path = tmp_path / "edge.png"
+    cv2.imwrite(str(path), img)
+    plot = tmp_path / "mtf.png"
+    assert run(mtf_cli, ["mtf", str(path), "--roi", "5,5,80,86", "--pixel-um", "4", "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out
+    assert "MTF50" in out and "MTF30" in out and "lp/mm" in out
+    assert cv2.imread(str(plot)) is not None
+    with pytest.raises(CliError, match="roi"):
+        run(mtf_cli, ["mtf", str(path), "--roi", "1,2,3"])
+    flat = tmp_path / "flat.png"
+    cv2.imwrite(str(flat), np.full((64, 64), 90, np.uint8))
+    with pytest.raises(CliError, match="contrast"):
+        run(mtf_cli, ["mtf", str(flat)])
+
+
+def test_registered_in_the_subpix_tool():
+    from subpix_ros.cli import MODULES
+
+    assert "superres" in MODULES and "mtf" in MODULES

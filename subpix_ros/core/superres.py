@@ -393,11 +393,16 @@ def _solve_separable(
     b = [[np.zeros((hp, wc), np.complex64) for _ in range(p)] for _ in range(p)]
     for m1 in range(p):  # alias indices, not pixels
         for m2 in range(p):
-            b[m1][m2] = np.einsum("nyx,nx->yx", t[:, m1], np.conj(ax32[:, m2])) / np.float32(noise_power)
+            acc = t[0, m1] * np.conj(ax32[0, m2])
+            for q in range(1, n):  # frames
+                acc += t[q, m1] * np.conj(ax32[q, m2])
+            b[m1][m2] = acc / np.float32(noise_power)
     idx = [(m1, m2) for m1 in range(p) for m2 in range(p)]
-    lf = [np.log(np.maximum(fy[m1][:, None] ** 2 + fx[m2][None, :] ** 2, 1e-30)) for m1, m2 in idx]
     # prior precision reg / P(f) = reg |f|^alpha / c; DC (f = 0) unregularised
-    lam = [np.exp(0.5 * alpha * l + np.log(reg / c)).astype(np.float32) for l in lf]
+    fy2 = (fy**2).astype(np.float32)
+    fx2 = (fx**2).astype(np.float32)
+    lam = [np.power(np.maximum(fy2[m1][:, None] + fx2[m2][None, :], np.float32(1e-30)), np.float32(alpha / 2))
+           * np.float32(reg / c) for m1, m2 in idx]
     lam[0][0, 0] = 0.0  # alias (0, 0) at bin (0, 0) is the HR DC term
 
     def entry(i: int, j: int) -> np.ndarray:
@@ -456,6 +461,24 @@ def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
     return np.fft.irfft2(half, s=(nh, nw))
 
 
+def _fractional_shift(img: np.ndarray, du: float, dv: float, taps: int = 8) -> np.ndarray:
+    """Move image content by (du, dv) px (|d| <= 1) with separable Lanczos-4 fractional delays.
+
+    ``out[x] = sum_k h[k] img[x + k]`` with ``h[k] = sinc(k + d) L(k + d)``, k = -3..4,
+    normalised to unit DC gain (content moves by +d: ``out[x] ~ img[x - d]``).
+    """
+    a = taps // 2
+    k = np.arange(-a + 1, a + 1, dtype=np.float64)
+
+    def kern(d: float) -> np.ndarray:
+        t = k + d
+        h = np.sinc(t) * np.sinc(t / a) * (np.abs(t) < a)
+        return (h / h.sum()).astype(np.float32)  # sepFilter2D correlates: tap j -> offset j - (a - 1) = k
+
+    return cv2.sepFilter2D(np.asarray(img, np.float32), cv2.CV_32F, kern(dv), kern(du), anchor=(a - 1, a - 1),
+                           borderType=cv2.BORDER_REFLECT_101)
+
+
 def _consistent_padding(
     frames: np.ndarray, ishift: np.ndarray, resid: np.ndarray, pad: int, hp: int, wp: int
 ) -> np.ndarray:
@@ -464,7 +487,8 @@ def _consistent_padding(
     The reference is reflect-padded; every other frame's padding (and the
     strip its integer shift leaves empty) is that padded reference moved by the
     frame's sub-pixel shift (band-limited Fourier shift), so all frames see
-    the same scene outside the image, as the periodic model assumes. Frame n's
+    the same scene outside the image, as the periodic model assumes (the
+    shift is an 8-tap Lanczos fractional delay: only the padding uses it). Frame n's
     own pixels overwrite the area they cover. float32, (n, hp, wp).
     """
     n, h, w = frames.shape
@@ -473,7 +497,7 @@ def _consistent_padding(
     for i in range(n):  # per frame
         iu, iv = int(ishift[i, 0] - ishift[0, 0]), int(ishift[i, 1] - ishift[0, 1])
         du, dv = float(resid[i, 0] - resid[0, 0]), float(resid[i, 1] - resid[0, 1])
-        out[i] = ref if (i == 0 or (du == 0 and dv == 0)) else fourier_shift_blur(ref, (du, dv), 0.0, pad=8)
+        out[i] = ref if (i == 0 or (du == 0 and dv == 0)) else _fractional_shift(ref, du, dv)
         # frame i's pixel (r, c) sits at preshifted position (r - iu, c - iv)
         r0, r1 = max(0, -iu), min(h, h - iu)
         c0, c1 = max(0, -iv), min(w, w - iv)
@@ -837,7 +861,7 @@ def reconstruct(
     # single-frame estimate for the non-MAP paths and fallbacks (MAP estimates it from the frames jointly)
     sigma = float("nan") if noise_sigma is None else float(noise_sigma)
     if noise_sigma is None and method != "map":
-        sigma = float(np.median([estimate_noise_sigma(f) for f in stack]))
+        sigma = estimate_noise_sigma(stack[0])
     ref = stack[0]
     if method == "bicubic":
         return SRResult(bicubic_upscale(ref, p), "bicubic", noise_sigma=sigma, weights=np.r_[1.0, np.zeros(n - 1)],

@@ -163,27 +163,39 @@ def interleave(frames: list[np.ndarray], offsets: np.ndarray, p: int, q: int) ->
     ``y[p i - t_r, q j - t_c] = p q * frame[i, j]``. Frames sharing a phase are
     averaged. Returns ``(y, filled)``; unfilled entries (missing phases, or
     the border strip a shifted frame does not reach) are copied from the
-    nearest filled entry along rows/columns by reflection-free edge fill.
+    nearest filled entry along rows, then columns (strided slices and a few
+    whole-array passes; no per-pixel loop).
     """
     h, w = frames[0].shape
     acc = np.zeros((h * p, w * q))
     cnt = np.zeros((h * p, w * q))
-    for f, (tr, tc) in zip(frames, offsets):  # loop over frames, not pixels
-        rows = p * np.arange(h) - tr
-        cols = q * np.arange(w) - tc
-        ri = (rows >= 0) & (rows < h * p)
-        ci = (cols >= 0) & (cols < w * q)
-        acc[np.ix_(rows[ri], cols[ci])] += p * q * np.asarray(f, dtype=np.float64)[np.ix_(ri, ci)]
-        cnt[np.ix_(rows[ri], cols[ci])] += 1
+
+    def span(t: int, n: int, f: int) -> tuple[slice, slice]:
+        # LR indices i with 0 <= f*i - t < n*f, and the matching strided HR slice
+        i0 = max(0, -(-t // f))
+        i1 = min(n, (n * f - 1 + t) // f + 1)
+        k0 = f * i0 - t
+        return slice(i0, max(i0, i1)), slice(k0, k0 + f * max(0, i1 - i0), f)
+
+    for fr, (tr, tc) in zip(frames, offsets):  # loop over frames, not pixels
+        (ri, rk), (ci, ck) = span(int(tr), h, p), span(int(tc), w, q)
+        acc[rk, ck] += p * q * np.asarray(fr, dtype=np.float64)[ri, ci]
+        cnt[rk, ck] += 1
     filled = cnt > 0
     y = np.where(filled, acc / np.maximum(cnt, 1), 0.0)
     if not filled.all():
-        # fill holes from the nearest filled sample (OpenCV inpaint-free: distance transform labels)
-        _, labels = cv2.distanceTransformWithLabels(
-            (~filled).astype(np.uint8), cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_PIXEL
-        )
-        src = np.zeros(labels.max() + 1, dtype=np.int64)
-        fr, fc = np.nonzero(filled)
-        src[labels[fr, fc]] = fr * y.shape[1] + fc
-        y = y.ravel()[src[labels]].reshape(y.shape)
+        # holes (missing phases, border strips): nearest filled sample along rows, then columns
+        have = filled.copy()
+        for axis, f in ((0, p), (1, q), (0, p), (1, q)):  # a few passes over offsets, not pixels
+            for d in range(1, f + 1):
+                for sgn in (1, -1):
+                    src_h = np.roll(have, sgn * d, axis=axis)
+                    take = ~have & src_h
+                    if take.any():
+                        y[take] = np.roll(y, sgn * d, axis=axis)[take]
+                        have |= take
+                if have.all():
+                    break
+            if have.all():
+                break
     return y, filled

@@ -111,3 +111,14 @@ def test_paper_evaluation_reconstruction_reaches_optics_limit(crops, p):
     assert m_rec >= 0.95 * m_ceiling, (m_rec, m_ceiling)
     assert m_rec > 1.2 * m_in, (m_rec, m_in)  # resolution gain over one input frame
     assert m_bicubic < m_in  # bicubic interpolation only loses resolution
+
+
+@pytest.mark.parametrize("angle", [5.0, 15.0, 30.0])
+def test_noisy_8bit_edge_within_001(angle):
+    # 1 DN noise and 8-bit rounding: edge positions stay local, error still <= 0.01 cycles/pixel
+    img = np.clip(np.rint(edge_image(100, 80, angle, 0.6, noise=1.0, seed=3)), 0, 255)
+    r = slanted_edge_mtf(img)
+    f = np.linspace(0, 1, 4001)
+    ref = analytic(f, 0.6, angle)
+    assert abs(r.mtf50 - mtf_crossing(f, ref, 0.5)) <= 0.01
+    assert abs(r.mtf30 - mtf_crossing(f, ref, 0.3)) <= 0.01

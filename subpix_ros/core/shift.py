@@ -368,8 +368,9 @@ def coarse_shift(
         size = (max(w >> L, 1), max(h >> L, 1))
         r = cv2.resize(reference, size, interpolation=cv2.INTER_AREA)
         m = cv2.resize(moving, size, interpolation=cv2.INTER_AREA)
-    r = r.astype(np.float64)
-    m = m.astype(np.float64)
+    # a light blur keeps noise-dominated high frequencies out of the whitened spectrum
+    r = cv2.GaussianBlur(r.astype(np.float64), (0, 0), 1.0)
+    m = cv2.GaussianBlur(m.astype(np.float64), (0, 0), 1.0)
     win = cv2.createHanningWindow((r.shape[1], r.shape[0]), cv2.CV_64F)
     (dx, dy), resp = cv2.phaseCorrelate(r, m, win)
     return (dy * 2**L, dx * 2**L), float(resp), L
@@ -382,6 +383,26 @@ def coarse_shift(
 
 _BLOCK = 16  # block size (px) of the sandwich covariance and the misfit grid
 _TILE = 128  # tile size (px) when only the most textured max_pixels are used
+
+
+_MEAT_GROUP = 1
+
+
+def _group_blocks(Bk: np.ndarray, rects, f: int) -> np.ndarray:
+    """Sum per-block rows of ``Bk`` (ordered as :meth:`_Level.block_centres`) over f x f groups."""
+    if f <= 1:
+        return Bk
+    out = []
+    i = 0
+    for r0, r1, c0, c1 in rects:
+        nr, nc = (r1 - r0) // _BLOCK, (c1 - c0) // _BLOCK
+        blk = Bk[i : i + nr * nc].reshape(nr, nc, -1)
+        i += nr * nc
+        gr, gc = -(-nr // f), -(-nc // f)
+        pad = np.zeros((gr * f, gc * f, blk.shape[2]))
+        pad[:nr, :nc] = blk
+        out.append(pad.reshape(gr, f, gc, f, -1).sum(axis=(1, 3)).reshape(gr * gc, -1))
+    return np.concatenate(out, axis=0)
 
 
 def _block_sum(a: np.ndarray, bs: int) -> np.ndarray:
@@ -595,6 +616,34 @@ def _solve(A: np.ndarray, b: np.ndarray) -> Optional[np.ndarray]:
     return d if np.all(np.isfinite(d)) else None
 
 
+def _signal_matrix(A: np.ndarray, b: np.ndarray, ee: float, n: int, taps: int, sigma: float, band: float, t) -> np.ndarray:
+    """Normal matrix with the reference-noise energy removed from the gradient terms.
+
+    The slope of the estimating equation ``sum g e = 0`` with respect to the
+    shift is ``sum grad(R_signal) grad(M)^T``; ``A = sum g g^T`` also holds the
+    energy of the reference noise in ``g``. With white noise of variance
+    ``sig2`` per frame, ``var(e) = sig2 (|h_t|^2 |h_t|^2 + |h_0|^2 |h_0|^2)``
+    (separable 2-D norms) and ``var(g_i) = sig2 |k * h_0|^2 |h_0|^2`` (k the
+    central difference), so ``sig2`` follows from the least-squares residual
+    and ``n sig2 |k*h_0|^2 |h_0|^2`` is taken off the diagonal (at most 80 %
+    of it). Only used near the solution, where the residual is mostly noise.
+    """
+    d = _solve(A, b)
+    if d is None:
+        return A
+    h0, _ = fractional_shift_kernel(0.0, taps, sigma, band)
+    htr, _ = fractional_shift_kernel(float(t[0]), taps, sigma, band)
+    htc, _ = fractional_shift_kernel(float(t[1]), taps, sigma, band)
+    n0 = float(np.dot(h0, h0))
+    nk = float(np.sum(np.convolve(h0.astype(np.float64), [0.5, 0.0, -0.5]) ** 2))
+    fit = max(ee - float(d @ b), 0.0) / max(n - 3, 1)
+    sig2 = fit / (float(np.dot(htr, htr)) * float(np.dot(htc, htc)) + n0 * n0)
+    out = A.copy()
+    for i in (0, 1):
+        out[i, i] = max(A[i, i] - n * sig2 * nk * n0, 0.2 * A[i, i])
+    return out
+
+
 def _texture_check(A: np.ndarray, n: int) -> str:
     """Reason string if the gradient normal matrix is too weak / one-directional."""
     if n < 64:
@@ -615,6 +664,7 @@ def _gauss_newton(lv: _Level, s0, max_iter: int, tol: float, border: int, blocks
     s = np.array(s0, dtype=np.float64)
     last = float("inf")
     out = dict(s=s, rects=None, it=0, converged=False, last=last, reason="")
+    prev = None
     for it in range(1, max_iter + 1):
         k = np.floor(s).astype(int)
         rects = lv.rects(int(k[0]), int(k[1]), border)
@@ -629,6 +679,10 @@ def _gauss_newton(lv: _Level, s0, max_iter: int, tol: float, border: int, blocks
                 out["reason"] = why
                 return out
         d = _solve(A, b)
+        As = A
+        if d is not None and np.max(np.abs(d[:2])) < 0.3:
+            As = _signal_matrix(A, b, ee, n, lv.taps, lv.sigma, lv.band, s - np.floor(s))
+            d = _solve(As, b)
         if d is None:
             out["reason"] = "singular normal equations"
             return out
@@ -636,7 +690,10 @@ def _gauss_newton(lv: _Level, s0, max_iter: int, tol: float, border: int, blocks
         nrm = float(np.max(np.abs(step)))
         if nrm > 1.0:  # a linearised step beyond 1 px is not trusted in one go
             step = step / nrm
-        out.update(s_eval=s.copy(), A=A, b=b, ee=ee, n=n, blocks=bl, d=d)
+        if prev is not None and float(step @ prev) < 0 and nrm > 10 * tol:
+            step = 0.5 * step  # oscillation (over-corrected slope in heavy noise): damp
+        prev = step
+        out.update(s_eval=s.copy(), A=A, As=As, b=b, ee=ee, n=n, blocks=bl, d=d)
         s = s + step
         last = nrm
         out.update(s=s, last=last)
@@ -645,7 +702,8 @@ def _gauss_newton(lv: _Level, s0, max_iter: int, tol: float, border: int, blocks
             break
     if blocks and out.get("blocks") is None and "s_eval" in out:
         A, b, ee, n, bl = _gn_sums(lv, out["rects"], out["s_eval"], True)
-        out.update(A=A, b=b, ee=ee, n=n, blocks=bl, d=_solve(A, b))
+        As = _signal_matrix(A, b, ee, n, lv.taps, lv.sigma, lv.band, out["s_eval"] - np.floor(out["s_eval"]))
+        out.update(A=A, As=As, b=b, ee=ee, n=n, blocks=bl, d=_solve(As, b))
         if out["d"] is None:
             out["reason"] = "singular normal equations"
     return out
@@ -714,6 +772,12 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
     score = _texture_scorer(Rp[-1], 2.0 ** (-levels)) if levels else None
     lv = _Level(R, M, vr, vm, taps, sigma, band, max_pixels, score)
     out = _gauss_newton(lv, s, max_iterations, tol, border, blocks=True)
+    if (out["reason"] or (not out["converged"] and out["last"] > 0.05)) and np.max(np.abs(s)) > 0.5:
+        # the coarse start was wrong (e.g. a noise peak in the phase correlation):
+        # try the co-registered start (0, 0) and keep it if that converges
+        out0 = _gauss_newton(lv, np.zeros(2), max_iterations, tol, border, blocks=True)
+        if out0["converged"]:
+            out = out0
     it = out["it"]
     if out["reason"]:
         return _fail(out["reason"], method, iterations=it, coarse=coarse)
@@ -726,34 +790,53 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
     s = out["s_eval"] - d[:2]
     z = float(d[2])
     cond = float(np.linalg.cond(A))
-    Ainv = np.linalg.inv(A)
+    see_final = max(ee - 2.0 * float(d @ b) + float(d @ A @ d), 0.0)
+    resid_rms = math.sqrt(see_final / max(n - 3, 1))
+    # bread of the sandwich: the slope of the estimating equation (see _signal_matrix)
+    try:
+        Ainv = np.linalg.inv(out["As"])
+    except np.linalg.LinAlgError:
+        Ainv = np.linalg.inv(A)
     g00, g01, g11, g0, g1, ge0, ge1, e, _, cnt = (None if x is None else x.ravel() for x in bl)
     # block scores of the residual after the final step: b_k = sum_k J^T (e - J d)
     r0 = ge0 - (g00 * d[0] + g01 * d[1] + g0 * d[2])
     r1 = ge1 - (g01 * d[0] + g11 * d[1] + g1 * d[2])
     r2 = e - (g0 * d[0] + g1 * d[1] + cnt * d[2])
     Bk = np.stack([r0, r1, r2], 1)
-    nb = Bk.shape[0]
-    cov3 = Ainv @ (Bk.T @ Bk) @ Ainv * (nb / max(nb - 3, 1))
+    # The meat uses blocks of MEAT_GROUP x MEAT_GROUP 16-px blocks: block sums of
+    # the noise-noise products grad(n_R) n_R do not telescope to zero within
+    # small blocks as they do over the frame, which would overstate the variance.
+    Bm = _group_blocks(Bk, rects, _MEAT_GROUP)
+    nb = Bm.shape[0]
+    cov3 = Ainv @ (Bm.T @ Bm) @ Ainv * (nb / max(nb - 3, 1))
     cov = cov3[:2, :2].copy()
-    see_final = max(ee - 2.0 * float(d @ b) + float(d @ A @ d), 0.0)
-    resid_rms = math.sqrt(see_final / max(n - 3, 1))
     # misfit: local shifts on a 3x3 grid of the frame
     RR, CC = lv.block_centres(rects)
     gi = np.minimum((RR * 3 / h).astype(int), 2) * 3 + np.minimum((CC * 3 / w).astype(int), 2)
     local = []
+    within = np.zeros((3, 3))
+    nwb = 0
+    ncell = 0
     for c in range(9):
         sel = gi == c
+        if sel.sum() < 2:
+            continue
+        Bc = Bk[sel]
+        dev_c = Bc - Bc.mean(0)
+        within += dev_c.T @ dev_c
+        nwb += Bc.shape[0]
+        ncell += 1
         if sel.sum() < 4:
             continue
         s00, s01, s11, s0_, s1_, cn = (x[sel].sum() for x in (g00, g01, g11, g0, g1, cnt))
         Ak = np.array([[s00, s01, s0_], [s01, s11, s1_], [s0_, s1_, cn]])
         if not np.isfinite(np.linalg.cond(Ak)) or np.linalg.cond(Ak) > 1e10:
             continue
-        Aki = np.linalg.inv(Ak)
-        dk = Aki @ Bk[sel].sum(0)
-        ck = Aki @ (Bk[sel].T @ Bk[sel]) @ Aki
-        local.append((-dk[:2], ck[:2, :2]))
+        dk = np.linalg.solve(Ak, Bc.sum(0))
+        local.append((-dk[:2], n / max(cn, 1.0)))
+    # noise-only covariance: the sandwich over the block scores demeaned within each
+    # grid cell (a misfit shifts whole cells and would otherwise count as noise)
+    cov_noise = (Ainv @ within @ Ainv)[:2, :2] * (nwb / max(nwb - ncell - 3, 1))
     misfit = False
     mis_px = None
     warning = ""
@@ -761,12 +844,11 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
         ds = np.array([x[0] for x in local])
         dev = ds - ds.mean(0)
         mis_px = float(np.sqrt(np.mean(np.sum(dev**2, 1))))
+        # significance against the global covariance scaled to each cell's share of pixels
         chi2 = 0.0
-        for (dk, ck), dv in zip(local, dev):
-            try:
-                chi2 += float(dv @ np.linalg.solve(ck + 1e-12 * np.eye(2), dv))
-            except np.linalg.LinAlgError:
-                pass
+        cinv = np.linalg.pinv(cov_noise)
+        for (dk, scale), dv in zip(local, dev):
+            chi2 += float(dv @ cinv @ dv) / scale
         dof_m = 2 * (len(local) - 1)
         significant = chi2 > dof_m + 5.0 * math.sqrt(2.0 * dof_m)
         if mis_px > misfit_px and significant:
@@ -775,6 +857,7 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
                 f"residual misfit: local shifts across the frame differ by {mis_px:.3g} px RMS "
                 "(rotation, scale or parallax); a pure translation does not describe this pair"
             )
+            # no confident answer: the spread of the local shifts is the honest error
             cov = cov + np.cov(ds.T, bias=True)
     u_std = math.sqrt(max(cov[0, 0], 0.0))
     v_std = math.sqrt(max(cov[1, 1], 0.0))
@@ -804,7 +887,7 @@ def estimate_shift(
     band: float = 0.85,
     max_pixels: Optional[int] = 1 << 19,
     coarse_size: int = 256,
-    misfit_px: float = 0.02,
+    misfit_px: float = 0.05,
     seed_iterations: int = 3,
 ) -> ShiftResult:
     """Shift ``(u, v)`` of the scene content from ``reference`` to ``moving``.
@@ -859,11 +942,15 @@ def estimate_shift(
     if _is_constant(R, vr) or _is_constant(M, vm):
         return _fail("textureless input: constant frame", method)
     if method in ("seed", "seed-iterated"):
-        if vr is not None or vm is not None:
-            return _fail(f"method {method!r} has no validity mask: input contains invalid (NaN/saturated/masked) pixels", method)
+        # the published method has no mask: saturated pixels enter as they are,
+        # but NaN/inf or a user mask cannot be honoured
+        x = np.asarray(reference, dtype=np.float64)  # full precision: float64 accumulation
+        y = np.asarray(moving, dtype=np.float64)
+        if mask is not None or not (np.isfinite(x).all() and np.isfinite(y).all()):
+            return _fail(f"method {method!r} has no validity mask: input has NaN/inf or a mask was given", method)
         if method == "seed":
-            return _seed_result(R, M, "seed", 1, False)
-        return _seed_iterated(R, M, seed_iterations)
+            return _seed_result(x, y, "seed", 1, False)
+        return _seed_iterated(x, y, seed_iterations)
     return _default(
         R,
         M,

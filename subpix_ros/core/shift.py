@@ -199,6 +199,22 @@ def _masks(mask: MaskArg, shape: Tuple[int, int]) -> Tuple[Optional[np.ndarray],
 # ---------------------------------------------------------------------------
 
 
+def _seed_sums(x: np.ndarray, y: np.ndarray):
+    """Means of the seed's products (float64) plus <F F>, in one pass over D, E, F."""
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    s = x + y
+    d = (s[2:, 1:-1] - s[:-2, 1:-1]).ravel()
+    e = (s[1:-1, 2:] - s[1:-1, :-2]).ravel()
+    f = (y[1:-1, 1:-1] - x[1:-1, 1:-1]).ravel()
+    n = d.size
+    dd, de, ee = np.dot(d, d) / n, np.dot(d, e) / n, np.dot(e, e) / n
+    dm, em, fm = d.sum() / n, e.sum() / n, f.sum() / n
+    A = np.array([[dd, de, dm], [de, ee, em], [dm, em, 1.0]])
+    B = np.array([np.dot(f, d) / n, np.dot(f, e) / n, fm])
+    return A, B, float(np.dot(f, f) / n), n
+
+
 def seed_system(x: np.ndarray, y: np.ndarray) -> Tuple[np.ndarray, np.ndarray, int]:
     """The seed's normal equations ``A C = B`` (METHODS.md A), float64.
 
@@ -209,17 +225,7 @@ def seed_system(x: np.ndarray, y: np.ndarray) -> Tuple[np.ndarray, np.ndarray, i
     [<DE>,<EE>,<E>],[<D>,<E>,1]]``, ``B = [<FD>,<FE>,<F>]`` (means of
     Hadamard products). Returns (A, B, number of interior pixels).
     """
-    x = np.asarray(x, dtype=np.float64)
-    y = np.asarray(y, dtype=np.float64)
-    s = x + y
-    d = s[2:, 1:-1] - s[:-2, 1:-1]
-    e = s[1:-1, 2:] - s[1:-1, :-2]
-    f = y[1:-1, 1:-1] - x[1:-1, 1:-1]
-    n = d.size
-    dd, de, ee = np.vdot(d, d) / n, np.vdot(d, e) / n, np.vdot(e, e) / n
-    dm, em, fm = d.mean(), e.mean(), f.mean()
-    A = np.array([[dd, de, dm], [de, ee, em], [dm, em, 1.0]])
-    B = np.array([np.vdot(f, d) / n, np.vdot(f, e) / n, fm])
+    A, B, _, n = _seed_sums(x, y)
     return A, B, n
 
 
@@ -234,21 +240,14 @@ def seed_solve(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def _seed_result(x: np.ndarray, y: np.ndarray, method: str, iterations: int, converged: bool) -> ShiftResult:
-    A, B, n = seed_system(x, y)
+    A, B, ff, n = _seed_sums(x, y)
     cond = float(np.linalg.cond(A))
     if not np.isfinite(cond) or cond > 1e12:
         return _fail(f"textureless or degenerate input: condition number of A is {cond:.3g}", method, cond=cond)
     C = np.linalg.solve(A, B)
     u, v, z = -4.0 * C[0], -4.0 * C[1], C[2]
-    # residual of f = c_u d + c_v e + z on the interior, for a plain LS covariance
-    xs = np.asarray(x, np.float64)
-    ys = np.asarray(y, np.float64)
-    s = xs + ys
-    d = s[2:, 1:-1] - s[:-2, 1:-1]
-    e = s[1:-1, 2:] - s[1:-1, :-2]
-    f = ys[1:-1, 1:-1] - xs[1:-1, 1:-1]
-    r = f - (C[0] * d + C[1] * e + C[2])
-    s2 = float(np.vdot(r, r) / max(n - 3, 1))
+    # residual of f = c_u d + c_v e + z: <r^2> = <FF> - 2 C.B + C^T A C (no second pass)
+    s2 = max(ff - 2.0 * float(C @ B) + float(C @ A @ C), 0.0) * n / max(n - 3, 1)
     covC = s2 * np.linalg.inv(A * n)
     cov = 16.0 * covC[:2, :2]
     return ShiftResult(

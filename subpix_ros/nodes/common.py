@@ -286,6 +286,9 @@ class _Status:
     last_error: str = ""
     last_error_time: float = 0.0
     values: dict[str, str] = field(default_factory=dict)
+    recent: collections.deque = field(default_factory=lambda: collections.deque(maxlen=5))
+    warnings: int = 0
+    errors: int = 0
 
 
 class Diagnostics:
@@ -345,8 +348,18 @@ class Diagnostics:
                 self._status.message = message
             self._status.last_error = message
             self._status.last_error_time = now
+            if message not in self._status.recent:
+                self._status.recent.append(message)
+            if level == ERROR:
+                self._status.errors += 1
+            else:
+                self._status.warnings += 1
         log = self.node.get_logger()
-        (log.error if level == ERROR else log.warning)(message, throttle_duration_sec=2.0)
+        # rclpy keys throttling by call site, and one call site may not change severity
+        if level == ERROR:
+            log.error(message, throttle_duration_sec=2.0)
+        else:
+            log.warning(message, throttle_duration_sec=2.0)
 
     @property
     def level(self) -> int:
@@ -365,6 +378,9 @@ class Diagnostics:
             st = DiagnosticStatus(level=bytes([self._status.level]), name=self.name, message=self._status.message,
                                   hardware_id=self.hardware_id)
             values["last_error"] = self._status.last_error
+            values["recent_problems"] = " | ".join(self._status.recent)
+            values["errors_total"] = str(self._status.errors)
+            values["warnings_total"] = str(self._status.warnings)
         for name, meter in self.rates.items():
             values[f"{name}_hz"] = f"{meter.rate():.3f}"
             values[f"{name}_total"] = str(meter.total)

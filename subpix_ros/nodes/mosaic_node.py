@@ -44,7 +44,7 @@ class MosaicNode(StageNode):
         self.make_worker(self._process, self.p("queue_size"))
         self.timer = self.create_timer(1.0 / self.p("publish_rate_hz"), self._publish)
         if subscribe_inputs:
-            q = camera_qos(self.p("camera_reliable"))
+            q = camera_qos(self.p("camera_reliable"), depth=30 if self.p("camera_reliable") else 5)
             self.create_subscription(Image, "image", self._on_image, q, raw=True)
             self.create_subscription(CompressedImage, "image/compressed", self._on_compressed, q, raw=True)
 

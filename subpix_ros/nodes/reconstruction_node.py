@@ -6,7 +6,8 @@ Subscribes ``aligned/reference``, ``aligned`` + ``aligned/mask`` and
 ``n_frames - 1`` aligned frames of that reference that have a shift; when a
 set completes the node publishes ``super_resolved`` (sensor_msgs/Image,
 ``factor`` x the input size; mono8 for mono input, bgr8 for colour input:
-luminance is super-resolved and the chroma upsampled). Output pixel grid:
+luminance is super-resolved and the chroma upsampled; header = the reference
+frame's, since the image lies on its grid). Output pixel grid:
 low-resolution pixel i of the reference covers output pixels
 factor*i .. factor*i + factor - 1.
 """
@@ -160,8 +161,8 @@ class ReconstructionNode(StageNode):
             self.diag.error("reconstruction produced non-finite pixels: not published")
             return
         out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-        stamp = max(s.stamp_ns for s, _ in members)
-        self.pub.publish(pl.image_cdr(out, stamp, ref.frame_id))
+        # the image is on the reference frame's grid: it carries the reference's stamp
+        self.pub.publish(pl.image_cdr(out, ref.stamp_ns, ref.frame_id))
         self.emit("super_resolved", (out, res, ref, members))
         self.published += 1
         self.diag.rate("output").tick()

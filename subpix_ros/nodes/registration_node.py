@@ -33,7 +33,7 @@ from sensor_msgs.msg import CompressedImage, Image, Imu
 from std_msgs.msg import Float64, Float64MultiArray
 
 from subpix_ros.core import registration as reg
-from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample, timing_usable
+from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample, validate_sample
 from subpix_ros.core.timing import FrameSelector, expected_shift_px
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode
@@ -48,6 +48,7 @@ class RegistrationNode(StageNode):
         Param("selection", "step", "frame selection: step (1/p px steps), phase (sub-pixel phase), all",
               choices=("step", "phase", "all")),
         Param("telemetry_timeout_s", 1.0, "telemetry older than this is stale: keep every frame", 0.05, 60.0),
+        Param("min_speed_mps", 0.02, "below this ground speed (hover) frame selection keeps every frame", 0.0, 10.0),
         Param("telemetry_time_offset_s", 0.0, "telemetry time = image stamp + this offset (s)", -10.0, 10.0),
         Param("focal_length_mm", 4.3, "camera focal length (mm)", 0.1, 2000.0),
         Param("pixel_pitch_um", 1.54, "detector pixel pitch of the images as published (um)", 0.1, 100.0),
@@ -80,7 +81,7 @@ class RegistrationNode(StageNode):
         self.pub_ref = self.create_publisher(Image, "aligned/reference", latched_qos())
         self.make_worker(self._process, self.p("queue_size"))
         if subscribe_inputs:
-            qos = camera_qos(self.p("camera_reliable"))
+            qos = camera_qos(self.p("camera_reliable"), depth=30 if self.p("camera_reliable") else 5)
             self.create_subscription(Image, "image", self._on_image, qos, raw=True, event_callbacks=sub_ev)
             self.create_subscription(CompressedImage, "image/compressed", self._on_compressed, qos, raw=True)
             tq = reliable_qos(50)
@@ -147,9 +148,11 @@ class RegistrationNode(StageNode):
         s, why = self.telemetry.at(t)
         if s is None:
             return None, f"telemetry: {why}"
-        ok, why = timing_usable(s)
+        ok, why = validate_sample(s)
         if not ok:
             return None, f"telemetry: {why}"
+        if s.ground_speed_mps < self.p("min_speed_mps"):
+            return None, f"hovering ({s.ground_speed_mps:.3f} m/s < min_speed_mps)"
         heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(self.p("camera_yaw_offset_deg"))
         try:
             rate = expected_shift_px(s.ground_speed_mps, s.course_rad, s.height_agl_m, self.p("focal_length_mm") * 1e-3,

@@ -64,6 +64,8 @@ from .superres_paper import grid_offsets, interleave, pinv_solution, windowed_so
 __all__ = [
     "SRResult",
     "reconstruct",
+    "detect_geometry",
+    "fit_spectrum",
     "reconstruct_colour",
     "bicubic_upscale",
     "estimate_noise_sigma",
@@ -116,7 +118,7 @@ def bicubic_upscale(frame: np.ndarray, factor: int) -> np.ndarray:
     return cv2.resize(f, (f.shape[1] * factor, f.shape[0] * factor), interpolation=cv2.INTER_CUBIC)
 
 
-def estimate_noise_sigma(frame: np.ndarray) -> float:
+def estimate_noise_sigma(frame: np.ndarray, max_size: int | None = None) -> float:
     """Per-pixel noise std (DN) of one frame, robust Immerkaer estimate.
 
     The frame is filtered with ``N = [[1,-2,1],[-2,4,-2],[1,-2,1]]`` (a
@@ -124,10 +126,14 @@ def estimate_noise_sigma(frame: np.ndarray) -> float:
     content; for white noise ``std(I*N) = 6 sigma``) and
     ``sigma = 1.4826 median(|I*N|) / 6``. Texture left in ``I*N`` biases it
     upwards; quantisation noise (1/sqrt(12) DN for 8 bit) is included.
+    ``max_size``: use only the central max_size x max_size region.
     """
     f = np.asarray(frame, dtype=np.float64)
     if f.ndim != 2 or min(f.shape) < 3:
         raise ValueError("noise estimate needs a 2-D frame of at least 3x3")
+    if max_size is not None and max(f.shape) > max_size:  # central crop: bounded cost
+        r0, c0 = max(0, (f.shape[0] - max_size) // 2), max(0, (f.shape[1] - max_size) // 2)
+        f = f[r0 : r0 + max_size, c0 : c0 + max_size]
     k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float64)
     r = cv2.filter2D(f, cv2.CV_64F, k)[1:-1, 1:-1]
     return float(1.4826 * np.median(np.abs(r)) / 6.0)
@@ -808,7 +814,7 @@ def _validate(
 
 def _fallback(ref: np.ndarray, factor: int, reason: str, noise: float, n: int, shifts) -> SRResult:
     if not np.isfinite(noise):
-        noise = estimate_noise_sigma(ref)
+        noise = estimate_noise_sigma(ref, max_size=256)
     return SRResult(
         image=bicubic_upscale(ref, factor),
         method="bicubic",
@@ -876,7 +882,7 @@ def reconstruct(
     # single-frame estimate for the non-MAP paths and fallbacks (MAP estimates it from the frames jointly)
     sigma = float("nan") if noise_sigma is None else float(noise_sigma)
     if noise_sigma is None and method != "map":
-        sigma = estimate_noise_sigma(stack[0])
+        sigma = estimate_noise_sigma(stack[0], max_size=256)
     ref = stack[0]
     if method == "bicubic":
         return SRResult(bicubic_upscale(ref, p), "bicubic", noise_sigma=sigma, weights=np.r_[1.0, np.zeros(n - 1)],

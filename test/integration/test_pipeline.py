@@ -1,0 +1,169 @@
+"""The sample flights replayed through the nodes in separate processes, and through `pipeline`.
+
+Real rclpy and Fast DDS: every node is its own process, `subpix replay` is
+another, and this test process listens to the public topics.
+"""
+import json
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+import pytest
+import rclpy
+from geometry_msgs.msg import Vector3Stamped
+from sensor_msgs.msg import CompressedImage, Image
+
+from conftest import ROOT, subpix_cmd
+from subpix_ros.core.evaluate import gain_over_bicubic, truth_on_grid, wrapped_error
+from subpix_ros.io import cdr
+from subpix_ros.io.bags import read_messages
+from subpix_ros.nodes.common import latched_qos, reliable_qos
+
+PARAMS = str(ROOT / "config" / "demo.yaml")
+
+
+def _node(name, *extra):
+    cmd = [sys.executable, "-m", f"subpix_ros.nodes.{name}", "--ros-args", "--params-file", PARAMS, *extra]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+class Outputs:
+    def __init__(self, node):
+        self.shifts, self.sr, self.mosaic, self.mosaic_c, self.refs = [], [], [], [], []
+        node.create_subscription(Image, "/aligned/reference", lambda r: self.refs.append(cdr.header_to_ns(
+            cdr.cdr_to_image_msg(r).header)), latched_qos(), raw=True)
+        node.create_subscription(Vector3Stamped, "/shift", lambda r: self.shifts.append(cdr.cdr_to_vector3_stamped(r)),
+                                 reliable_qos(100), raw=True)
+        node.create_subscription(Image, "/super_resolved", lambda r: self.sr.append(cdr.cdr_to_image(r)),
+                                 reliable_qos(10), raw=True)
+        node.create_subscription(Image, "/mosaic", lambda r: self.mosaic.append(cdr.cdr_to_image(r)), latched_qos(),
+                                 raw=True)
+        node.create_subscription(CompressedImage, "/mosaic/compressed",
+                                 lambda r: self.mosaic_c.append(cdr.cdr_to_compressed(r)), latched_qos(), raw=True)
+
+
+def _spin(node, until, timeout, procs=()):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not until():
+        rclpy.spin_once(node, timeout_sec=0.05)
+        for p in procs:
+            assert p.poll() is None, f"{p.args[2]} died:\n{p.stdout.read()}"
+    return until()
+
+
+def _stop(procs):
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(2)
+    for p in procs:
+        try:
+            p.wait(10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+
+
+def _replay_subpixel(node, out, bags, procs, rate="0.5"):
+    replay = subprocess.Popen(subpix_cmd("replay", str(bags / "subpixel"), "--rate", rate, "--topics",
+                                         "/camera/image_raw", "--wait-for", "/camera/image_raw", "--wait-timeout", "60"))
+    assert _spin(node, lambda: replay.poll() is not None, 120, procs)
+    assert replay.returncode == 0
+    _spin(node, lambda: len(out.sr) >= 3, 60, procs)
+
+
+def _check_subpixel(out, bags):
+    truth = json.loads((bags / "subpixel" / "truth.json").read_text())
+    true = {f["stamp_ns"]: (f["u"], f["v"]) for f in truth["frames"]}
+    frames = {m.timestamp_ns: cdr.cdr_to_image(m.raw)[0] for m in read_messages(bags / "subpixel", ["/camera/image_raw"])}
+    est = {cdr.header_to_ns(h): v[:2] for v, h in out.shifts}
+    assert len(est) >= 18, f"only {len(est)} shifts of the 21 aligned frames"
+    assert len(out.refs) == 3  # frames 0, 8 and 16 start the three 8-frame sets
+
+    def relative_truth(stamp):  # against the reference the frame was aligned to
+        ref = max(r for r in out.refs if r <= stamp)
+        return np.asarray(true[stamp]) - np.asarray(true[ref])
+
+    err = np.array([wrapped_error(np.asarray(v), relative_truth(s)) for s, v in est.items()])
+    rmse = float(np.sqrt(np.mean(err ** 2)))
+    assert rmse <= 0.02, f"shift RMSE {rmse:.4f} px against the bag's ground truth"
+    assert len(out.sr) >= 2
+    truth_hr = cv2.imread(str(bags / "subpixel" / "truth_hr.png"), cv2.IMREAD_COLOR)
+    gains = []
+    for img, header in out.sr:
+        ref = cdr.header_to_ns(header)  # the reference frame's stamp: the image is on its grid
+        assert img.shape == (2 * frames[ref].shape[0], 2 * frames[ref].shape[1], 3)
+        assert img.dtype == np.uint8
+        t = truth_on_grid(truth_hr, true[ref], 2)
+        p_sr, p_bic = gain_over_bicubic(img, frames[ref], t, 2, border=24)
+        gains.append(p_sr - p_bic)
+    assert min(gains) >= 2.0, f"PSNR gains over bicubic {gains}"
+    return est, out.sr
+
+
+@pytest.fixture
+def ros(rclpy_node):
+    return rclpy_node
+
+
+def test_separate_processes_shift_and_superres(ros, sample_bags):
+    procs = [_node("registration_node", "-r", "image:=/camera/image_raw"), _node("shift_node"),
+             _node("reconstruction_node")]
+    try:
+        out = Outputs(ros)
+        _replay_subpixel(ros, out, sample_bags, procs)
+    finally:
+        _stop(procs)
+    _check_subpixel(out, sample_bags)
+
+
+def test_single_process_pipeline_gives_the_same_outputs(ros, sample_bags):
+    procs = [subprocess.Popen([sys.executable, "-m", "subpix_ros.nodes.pipeline", "--no-telemetry", "--ros-args",
+                               "--params-file", PARAMS, "-r", "image:=/camera/image_raw"],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
+    try:
+        out = Outputs(ros)
+        _replay_subpixel(ros, out, sample_bags, procs)
+    finally:
+        _stop(procs)
+    est, sr = _check_subpixel(out, sample_bags)
+    # and the separate-process layout, run again here, agrees exactly
+    procs = [_node("registration_node", "-r", "image:=/camera/image_raw"), _node("shift_node"),
+             _node("reconstruction_node")]
+    try:
+        out2 = Outputs(ros)
+        _replay_subpixel(ros, out2, sample_bags, procs)
+    finally:
+        _stop(procs)
+    est2 = {cdr.header_to_ns(h): v[:2] for v, h in out2.shifts}
+    common = sorted(set(est) & set(est2))
+    assert len(common) >= 18
+    assert max(float(np.max(np.abs(np.asarray(est[s]) - np.asarray(est2[s])))) for s in common) < 1e-9
+    by_stamp = {cdr.header_to_ns(h): img for img, h in out2.sr}
+    for img, h in sr:
+        s = cdr.header_to_ns(h)
+        if s in by_stamp:
+            assert np.array_equal(img, by_stamp[s])
+
+
+def test_seneca_bag_produces_a_mosaic(ros, sample_bags):
+    procs = [_node("mosaic_node", "-r", "image:=/camera/image_raw")]
+    try:
+        out = Outputs(ros)
+        r = subprocess.run(subpix_cmd("replay", str(sample_bags / "seneca"), "--rate", "5", "--topics",
+                                      "/camera/image_raw", "--wait-for", "/camera/image_raw"), timeout=120)
+        assert r.returncode == 0
+        _spin(ros, lambda: False, 8.0, procs)  # the last frames are added and published
+        # a late joiner (transient local) still gets the latest mosaic at once
+        late = rclpy.create_node("late_operator")
+        got = []
+        late.create_subscription(Image, "/mosaic", lambda raw: got.append(cdr.cdr_to_image(raw)[0]), latched_qos(),
+                                 raw=True)
+        _spin(late, lambda: bool(got), 10.0, procs)
+        late.destroy_node()
+    finally:
+        _stop(procs)
+    assert out.mosaic and out.mosaic_c and got
+    mosaic = out.mosaic[-1][0]
+    assert mosaic.ndim == 3 and mosaic.shape[1] > 1800 and np.array_equal(got[-1], mosaic)
+    assert np.count_nonzero(mosaic.max(axis=2)) > 1.5 * 1800 * 1350  # more ground than one frame

@@ -1,0 +1,74 @@
+"""Overview mosaic benchmark: ours vs OpenCV Stitcher (SCANS) on the Seneca strip, and time per
+added frame as the mosaic grows (9 and, by reusing frames back and forth, 200 additions).
+
+    python benchmarks/bench_mosaic.py [--additions 200] [--out /tmp/mosaic.png]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from subpix_ros.core.mosaic import Mosaic  # noqa: E402
+from subpix_ros.data import seneca_frame_paths  # noqa: E402
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--additions", type=int, default=200)
+    ap.add_argument("--out", default="/tmp/bench_mosaic.png")
+    a = ap.parse_args()
+    frames = [cv2.imread(str(p)) for p in seneca_frame_paths()]
+    print(f"cv2 {cv2.__version__}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
+
+    m = Mosaic(max_size_px=2048)
+    t = time.perf_counter()
+    ups = [m.add(f) for f in frames]
+    ours_t = time.perf_counter() - t
+    cv2.imwrite(a.out, m.image())
+    print("\nOurs, 9-frame strip at 1800x1350 (seam residual = RMS tie-point disagreement across the seam, px)")
+    print(f"{'frame':>5s} {'ok':>3s} {'inliers':>7s} {'rms_px':>7s} {'seam_px':>7s} {'ms':>6s}")
+    for u in ups:
+        print(f"{u.index:5d} {'y' if u.ok else 'N':>3s} {u.inliers:7d} {u.rms_px or 0:7.3f} {u.seam_residual_px or 0:7.3f} {u.time_s * 1000:6.0f}")
+    seams = [u.seam_residual_px for u in ups[1:] if u.ok]
+    print(f"kept {sum(u.ok for u in ups)}/9, max seam {max(seams):.3f} px, total {ours_t:.2f} s, canvas {m.image().shape[1]}x{m.image().shape[0]} -> {a.out}")
+
+    # Growth: reuse frames back and forth (0..8..0..), each addition overlaps the previous one.
+    order = list(range(9)) + list(range(7, 0, -1))
+    seq = [order[i % len(order)] for i in range(a.additions)]
+    g = Mosaic(max_size_px=2048)
+    times, fails = [], 0
+    for k in seq:
+        u = g.add(frames[k])
+        times.append(u.time_s)
+        fails += not u.ok
+    times = np.array(times[1:]) * 1000
+    print(f"\nTime per added frame as the mosaic grows ({a.additions} additions, frames reused back and forth; {fails} rejected)")
+    print(f"{'additions':>12s} {'median ms':>10s} {'p90 ms':>8s}")
+    for lo, hi in ((1, 10), (10, 50), (50, 100), (100, 150), (150, a.additions)):
+        if hi <= len(times) + 1 and lo < hi:
+            seg = times[lo - 1: hi - 1]
+            print(f"{lo:5d}-{hi:<6d} {np.median(seg):10.0f} {np.percentile(seg, 90):8.0f}")
+    print(f"canvas {g.image().shape[1]}x{g.image().shape[0]} (max 2048), scale {g.scale:.3f}, canvas bytes {g.image().nbytes}")
+
+    print("\nOpenCV Stitcher (SCANS) on the same 9 frames")
+    st = cv2.Stitcher_create(cv2.Stitcher_SCANS)
+    t = time.perf_counter()
+    status, pano = st.stitch(frames)
+    dt = time.perf_counter() - t
+    kept = len(st.component()) if status == cv2.Stitcher_OK else 0
+    print(f"status {status} ({'OK' if status == cv2.Stitcher_OK else 'FAILED'}), frames kept {kept}/9, time {dt:.2f} s"
+          + (f", panorama {pano.shape[1]}x{pano.shape[0]}" if status == cv2.Stitcher_OK else ""))
+    print(f"ours: kept {sum(u.ok for u in ups)}/9, time {ours_t:.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -345,6 +345,9 @@ def register(
     f = 2.0 ** h_lev
     h = _scale_h(h, f)
     radius = 1 + int(f)
+    # Above the detection size the texture per pixel is finer and blurrier: keep the template's
+    # footprint on the ground the same as at the detection level's double.
+    half = int(round(template_half * max(1.0, f / 2)))
     margin = half + radius + 3
     pts0 = np.rint(pts_det * f)
     ok_in = ((pts0[:, 0] >= margin) & (pts0[:, 0] <= gr.shape[1] - 1 - margin)

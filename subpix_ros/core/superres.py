@@ -390,71 +390,94 @@ def _solve_separable(
     spec: np.ndarray, ay: np.ndarray, ax: np.ndarray, fy: np.ndarray, fx: np.ndarray,
     c: float, alpha: float, reg: float, noise_power: float,
 ) -> np.ndarray:
-    """Per-bin MAP solve when every frame's noise variance is frequency-independent.
+    """Per-bin MAP solve (eq. 9, normal-equation form) when every frame's noise variance is frequency-independent.
 
     Normal equations per LR bin (k = p^2 aliases m = (m1, m2)):
-    ``(A^H A / v + reg diag(1/P)) X = A^H Y / v`` with ``a_nm = ay[n, m1] ax[n, m2]``.
-    The Gram entries are separable sums over frames,
-    ``G[m, m'] = sum_n conj(ay[n,m1]) ay[n,m1'] conj(ax[n,m2]) ax[n,m2']``, so all of
-    them for all bins come from one matrix product over n (BLAS); the small
-    Hermitian systems are then solved by a Cholesky factorisation vectorised
-    over bins (loops over the k x k matrix indices only). complex64 inside.
-    Returns X (p, p, hp, wc).
+    ``(A^H A / v + reg diag(|f_m|^alpha / c)) X = A^H Y / v`` with
+    ``a_nm = ay[n, m1] ax[n, m2]`` (DC, alias (0, 0) at bin (0, 0), unregularised).
+    Because ``a`` is separable, each Gram entry is a sum over frames of outer
+    products of a row factor and a column factor,
+    ``G[m, m'](ky, kx) = sum_n (conj(ay[n,m1]) ay[n,m1'])(ky) (conj(ax[n,m2]) ax[n,m2'])(kx)``;
+    only the k (k+1) / 2 lower-triangle entries are formed (the diagonal in
+    float32), each as n broadcast multiply-adds over all bins. The k x k
+    Hermitian systems are solved by a Cholesky factorisation ``L L^H``
+    vectorised over bins (loops over the k x k matrix indices only, in-place
+    updates), the right-hand side ``A^H Y / v`` by the same separable factors.
+    complex64 / float32 throughout. Returns X (p, p, hp, wc) complex64.
     """
     n, p, hp = ay.shape
     wc = ax.shape[2]
     k = p * p
+    idx = [(m1, m2) for m1 in range(p) for m2 in range(p)]
     ay32 = ay.astype(np.complex64)
     ax32 = ax.astype(np.complex64)
-    gy = (np.conj(ay32)[:, :, None, :] * ay32[:, None, :, :]).reshape(n, -1)  # (n, p*p*hp)
-    gx = (np.conj(ax32)[:, :, None, :] * ax32[:, None, :, :]).reshape(n, -1)  # (n, p*p*wc)
-    gram = (gy.T @ gx).reshape(p, p, hp, p, p, wc) / np.float32(noise_power)  # [m1, m1', ky, m2, m2', kx]
-    y32 = spec.astype(np.complex64)
-    t = np.conj(ay32)[:, :, :, None] * y32[:, None, :, :]  # (n, p, hp, wc)
-    b = [[np.zeros((hp, wc), np.complex64) for _ in range(p)] for _ in range(p)]
-    for m1 in range(p):  # alias indices, not pixels
-        for m2 in range(p):
-            acc = t[0, m1] * np.conj(ax32[0, m2])
-            for q in range(1, n):  # frames
-                acc += t[q, m1] * np.conj(ax32[q, m2])
-            b[m1][m2] = acc / np.float32(noise_power)
-    idx = [(m1, m2) for m1 in range(p) for m2 in range(p)]
-    # prior precision reg / P(f) = reg |f|^alpha / c; DC (f = 0) unregularised
+    cay = np.conj(ay32)
+    cax = np.conj(ax32)
+    inv_v = np.float32(1.0 / noise_power)
+    tmp_c = np.empty((hp, wc), np.complex64)
+    tmp_r = np.empty((hp, wc), np.float32)
+
+    def outer_sum(u: np.ndarray, w: np.ndarray, tmp: np.ndarray) -> np.ndarray:
+        # sum_n u[n][:, None] * w[n][None, :]  (u: (n, hp), w: (n, wc))
+        acc = np.multiply(u[0][:, None], w[0][None, :])
+        for q in range(1, n):  # frames
+            np.multiply(u[q][:, None], w[q][None, :], out=tmp)
+            acc += tmp
+        return acc
+
+    # prior precision reg / P(f) = reg |f|^alpha / c per alias; |f|^alpha = (fy^2 + fx^2)^(alpha/2) by cv2.pow
     fy2 = (fy**2).astype(np.float32)
     fx2 = (fx**2).astype(np.float32)
-    lam = [np.power(np.maximum(fy2[m1][:, None] + fx2[m2][None, :], np.float32(1e-30)), np.float32(alpha / 2))
-           * np.float32(reg / c) for m1, m2 in idx]
-    lam[0][0, 0] = 0.0  # alias (0, 0) at bin (0, 0) is the HR DC term
-
-    def entry(i: int, j: int) -> np.ndarray:
-        (a1, a2), (b1, b2) = idx[i], idx[j]
-        return gram[a1, b1, :, a2, b2, :]
-
-    low = [[None] * k for _ in range(k)]
+    lam_scale = np.float32(reg / c)
+    low: dict[tuple[int, int], np.ndarray] = {}
+    dinv: list[np.ndarray] = []
     for j in range(k):  # Cholesky over the k x k index, vectorised over bins
-        d = entry(j, j).real + lam[j]
+        m1, m2 = idx[j]
+        np.add(fy2[m1][:, None], fx2[m2][None, :], out=tmp_r)
+        d = cv2.pow(tmp_r, alpha / 2.0)
+        d *= lam_scale
+        if j == 0:
+            d[0, 0] = 0.0  # alias (0, 0) at bin (0, 0) is the HR DC term
+        gy_d = (np.abs(ay32[:, m1]) ** 2) * inv_v  # (n, hp) float32
+        gx_d = np.abs(ax32[:, m2]) ** 2
+        d += outer_sum(gy_d, gx_d, tmp_r)
         for q in range(j):
-            d = d - (low[j][q] * np.conj(low[j][q])).real
-        d = np.sqrt(np.maximum(d, 1e-30)).astype(np.float32)
-        low[j][j] = d
+            lq = low[j, q]
+            d -= lq.real**2
+            d -= lq.imag**2
+        np.maximum(d, np.float32(1e-30), out=d)
+        np.sqrt(d, out=d)
+        np.divide(np.float32(1.0), d, out=d)
+        dinv.append(d)
         for i in range(j + 1, k):
-            v = entry(i, j).copy()
+            a1, a2 = idx[i]
+            # G[i, j] = sum_n conj(a_ni) a_nj
+            v = outer_sum(cay[:, a1] * ay32[:, m1] * inv_v, cax[:, a2] * ax32[:, m2], tmp_c)
             for q in range(j):
-                v -= low[i][q] * np.conj(low[j][q])
-            low[i][j] = v / d
-    z = []
-    for i in range(k):  # forward substitution
-        v = b[idx[i][0]][idx[i][1]].copy()
+                np.multiply(low[i, q], np.conj(low[j, q]), out=tmp_c)
+                v -= tmp_c
+            v *= d
+            low[i, j] = v
+    xs = np.empty((p, p, hp, wc), np.complex64)
+    z: list[np.ndarray] = []
+    for i in range(k):  # right-hand side A^H Y / v and forward substitution
+        m1, m2 = idx[i]
+        v = np.multiply(spec[0], cay[0, m1][:, None] * (cax[0, m2] * inv_v)[None, :])
+        for q in range(1, n):  # frames
+            np.multiply(spec[q], cay[q, m1][:, None] * (cax[q, m2] * inv_v)[None, :], out=tmp_c)
+            v += tmp_c
         for q in range(i):
-            v -= low[i][q] * z[q]
-        z.append(v / low[i][i])
-    x = [None] * k
-    for i in reversed(range(k)):  # back substitution with L^H
-        v = z[i].copy()
+            np.multiply(low[i, q], z[q], out=tmp_c)
+            v -= tmp_c
+        v *= dinv[i]
+        z.append(v)
+    for i in reversed(range(k)):  # back substitution with L^H, written into the result
+        v = z[i]
         for q in range(i + 1, k):
-            v -= np.conj(low[q][i]) * x[q]
-        x[i] = v / low[i][i]
-    return np.stack(x).reshape(p, p, hp, wc)
+            np.multiply(np.conj(low[q, i]), xs[idx[q]], out=tmp_c)
+            v -= tmp_c
+        np.multiply(v, dinv[i], out=xs[idx[i]])
+    return xs
 
 
 def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
@@ -462,23 +485,25 @@ def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
 
     HR bin (m1 hp + ky, m2 wp + kx) holds ``xs[m1, m2, ky, kx]``; HR rfft columns whose
     LR bin lies outside the rfft half come from Hermitian symmetry
-    ``X[-K] = conj(X[K])``. Inverse real FFT of size (p hp, p wp).
+    ``X[-K] = conj(X[K])``. Inverse real FFT of size (p hp, p wp), single precision
+    (float32 result).
     """
     p = xs.shape[0]
     wc = xs.shape[3]
     nh, nw = p * hp, p * wp
-    rows = xs.transpose(0, 2, 1, 3).reshape(nh, p, wc)  # rows in HR order
-    mirror = np.roll(rows[::-1], 1, axis=0)  # mirror[K] = rows[-K mod nh]
-    half = np.zeros((nh, nw // 2 + 1), dtype=xs.dtype)
+    half = np.empty((nh, nw // 2 + 1), dtype=np.complex64)
+    # HR row index -K mod nh for every HR row K (the mirror rows of the Hermitian half)
+    neg = (-np.arange(nh)) % nh
     for m2 in range(p):  # alias columns, not pixels
         c0 = m2 * wp
         n_direct = min(wc, nw // 2 + 1 - c0)
         if n_direct > 0:
-            half[:, c0 : c0 + n_direct] = rows[:, m2, :n_direct]
+            half[:, c0 : c0 + n_direct] = xs[:, m2, :, :n_direct].reshape(nh, n_direct)
         lo, hi = c0 + wc, min(c0 + wp, nw // 2 + 1)
-        if hi > lo:  # kx in [wc, wp): conj of alias p-1-m2 at column wp - kx
-            kx = np.arange(lo - c0, hi - c0)
-            half[:, lo:hi] = np.conj(mirror[:, p - 1 - m2, wp - kx])
+        if hi > lo:  # kx in [wc, wp): conj of alias p-1-m2 at column wp - kx, HR row -K
+            src = xs[:, p - 1 - m2].reshape(nh, wc)
+            cols = wp - np.arange(lo - c0, hi - c0)
+            half[:, lo:hi] = np.conj(src[neg[:, None], cols[None, :]])
     return np.fft.irfft2(half, s=(nh, nw))
 
 

@@ -51,13 +51,13 @@ Intensities keep the input scale (eq. 3 taken as a mean, not a sum).
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Sequence
 
 import cv2
 import numpy as np
 
-from .render import fourier_shift_blur
 from .superres_model import FrameOperator, frame_transfer_1d, gaussian_kernel, translation_homography
 from .superres_paper import grid_offsets, interleave, pinv_solution, windowed_solution
 
@@ -152,9 +152,24 @@ def _integer_preshift(frame: np.ndarray, iu: int, iv: int) -> np.ndarray:
     return padded[pu + iu : pu + iu + h, pv + iv : pv + iv + w]
 
 
+_SPECTRUM_CROP = 384  # fit_spectrum's default crop (LR px)
+
+
+def _preshift_window(frame: np.ndarray, iu: int, iv: int, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+    """``_integer_preshift(frame, iu, iv)[r0:r1, c0:c1]`` without shifting the whole frame.
+
+    A plain slice when the window's source ``[r0+iu, r1+iu) x [c0+iv, c1+iv)``
+    lies inside the frame; otherwise the reflected full preshift is cut.
+    """
+    h, w = frame.shape
+    if 0 <= r0 + iu and r1 + iu <= h and 0 <= c0 + iv and c1 + iv <= w:
+        return frame[r0 + iu : r1 + iu, c0 + iv : c1 + iv]
+    return _integer_preshift(frame, iu, iv)[r0:r1, c0:c1]
+
+
 def fit_spectrum(
     frames: np.ndarray, p: int, blur_sigma: float, noise_sigma: float | None = None, max_bins: int = 8000,
-    crop: int = 384,
+    crop: int = _SPECTRUM_CROP,
 ) -> tuple[float, float, float]:
     """Fit the stationary prior and the noise floor to the frames' power spectrum.
 
@@ -184,6 +199,58 @@ def fit_spectrum(
     ax, fx = frame_transfer_1d(w, p, 0.0, blur_sigma)
     wc = w // 2 + 1
     ax, fx = ax[:, :wc], fx[:, :wc]
+    sel = _spectrum_bins(h, w, max_bins)
+    ky, kx = np.unravel_index(sel, (h, wc))
+    obs = psd.ravel()[sel]
+    amp = (np.abs(ay[:, None, ky] * ax[None, :, kx]) ** 2).reshape(p * p, -1) * p * p  # (p^2, bins)
+    fm = np.hypot(fy[:, None, ky], fx[None, :, kx]).reshape(p * p, -1)
+    logf = np.log(np.maximum(fm, 1e-9))
+    # all 31 exponents at once: q[a] = sum_m amp_m |f_m|^-alpha_a, alpha_a = 1 + 0.1 a, by the recurrence
+    # |f|^-(alpha + 0.1) = |f|^-alpha |f|^-0.1 (no loop over bins)
+    alphas = np.arange(1.0, 4.0001, 0.1)
+    step = np.exp(-0.1 * logf)
+    term = amp * np.exp(-alphas[0] * logf)
+    q = np.empty((alphas.size, obs.size))
+    for a in range(alphas.size):  # exponents, not bins
+        q[a] = term.sum(axis=0)
+        term *= step
+    w0 = 1.0 / np.maximum(obs, 1e-12) ** 2
+    wgt = None  # first pass: the same weights 1/obs^2 for every exponent
+    model = np.empty_like(q)
+    for _ in range(3):  # reweighting passes, all exponents at once
+        wq = q * (w0 if wgt is None else wgt)
+        s_qq = np.einsum("ab,ab->a", wq, q)
+        s_q = wq.sum(axis=1)
+        if noise_sigma is None:
+            ata = np.empty((alphas.size, 2, 2))
+            ata[:, 0, 0] = s_qq
+            ata[:, 0, 1] = ata[:, 1, 0] = s_q
+            ata[:, 1, 1] = w0.sum() if wgt is None else wgt.sum(axis=1)
+            rhs = np.stack([wq @ obs, np.full(alphas.size, w0 @ obs) if wgt is None else wgt @ obs], axis=1)
+            sol = np.linalg.solve(ata, rhs[..., None])[..., 0]
+            c_, s2 = sol[:, 0], np.maximum(sol[:, 1], 1e-6)
+        else:
+            s2 = np.full(alphas.size, noise_sigma**2)
+            c_ = (wq @ obs - s2 * s_q) / s_qq
+        c_ = np.maximum(c_, 1e-12)
+        np.multiply(q, c_[:, None], out=model)
+        model += s2[:, None]
+        wgt = np.square(model, out=wgt)
+        np.divide(1.0, wgt, out=wgt)
+    rel = (obs - model) / model
+    err = np.einsum("ab,ab->a", rel, rel) / obs.size
+    best = int(np.argmin(err))
+    c, alpha, s2 = c_[best], alphas[best], s2[best]
+    return float(c), float(alpha), float(np.sqrt(s2))
+
+
+@functools.lru_cache(maxsize=16)
+def _spectrum_bins(h: int, w: int, max_bins: int) -> np.ndarray:
+    """Flat indices (into the h x (w//2+1) rfft half) of the bins :func:`fit_spectrum` uses.
+
+    Bins above 0.03 cycles / LR px; a fixed random subsample (seed 0) of
+    ``max_bins`` of them if there are more. Cached per shape (read-only).
+    """
     nuy = np.fft.fftfreq(h)[:, None]
     nux = np.fft.rfftfreq(w)[None, :]
     sel = np.flatnonzero((np.hypot(nuy, nux) > 0.03).ravel())
@@ -191,37 +258,73 @@ def fit_spectrum(
         raise ValueError("frames too small to fit the image prior")
     if sel.size > max_bins:
         sel = np.sort(np.random.default_rng(0).choice(sel, max_bins, replace=False))
-    ky, kx = np.unravel_index(sel, (h, wc))
-    obs = psd.ravel()[sel]
-    amp = (np.abs(ay[:, None, ky] * ax[None, :, kx]) ** 2).reshape(p * p, -1) * p * p  # (p^2, bins)
-    fm = np.hypot(fy[:, None, ky], fx[None, :, kx]).reshape(p * p, -1)
-    logf = np.log(np.maximum(fm, 1e-9))
-    best = None
-    for alpha in np.arange(1.0, 4.0001, 0.1):  # grid over the exponent, 31 values
-        q = np.sum(amp * np.exp(-alpha * logf), axis=0)
-        wgt = 1.0 / np.maximum(obs, 1e-12) ** 2
-        for _ in range(3):
-            if noise_sigma is None:
-                mat = np.stack([q, np.ones_like(q)], axis=1)
-                ata = (mat * wgt[:, None]).T @ mat
-                c_, s2 = np.linalg.solve(ata, (mat * wgt[:, None]).T @ obs)
-                s2 = max(s2, 1e-6)
-            else:
-                s2 = noise_sigma**2
-                c_ = float(np.sum(wgt * q * (obs - s2)) / np.sum(wgt * q * q))
-            c_ = max(c_, 1e-12)
-            model = c_ * q + s2
-            wgt = 1.0 / model**2
-        err = float(np.mean(((obs - model) / model) ** 2))
-        if best is None or err < best[0]:
-            best = (err, c_, alpha, s2)
-    _, c, alpha, s2 = best
-    return float(c), float(alpha), float(np.sqrt(s2))
+    sel.flags.writeable = False
+    return sel
 
 
 def _solve_hermitian(m: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Batched solve of Hermitian positive-definite systems ``m x = b`` (..., k, k)."""
     return np.linalg.solve(m, b[..., None])[..., 0]
+
+
+def _lowpass_window(
+    frame: np.ndarray, g: np.ndarray, pre: tuple[int, int], post: tuple[int, int], rows: slice, cols: slice
+) -> np.ndarray:
+    """``_integer_preshift(L, *post)[rows, cols]`` with ``L = lowpass(_integer_preshift(frame, *pre))``.
+
+    The low-pass is ``cv2.sepFilter2D`` with the symmetric kernel ``g`` on
+    both axes (reflected border). Only the window plus the kernel's radius
+    is filtered whenever the window's source lies inside the frame (then the
+    values equal those of filtering the whole frame exactly: the margin holds
+    real pixels, or the frame's own edge where the window touches it);
+    otherwise the whole frame is filtered. float64.
+    """
+    h, w = frame.shape
+    r = (len(g) - 1) // 2
+    r0, r1 = rows.start + post[0], rows.stop + post[0]  # window in L
+    c0, c1 = cols.start + post[1], cols.stop + post[1]
+    if 0 <= r0 and r1 <= h and 0 <= c0 and c1 <= w:  # the post-shift is a plain index
+        if pre == (0, 0):  # margin clipped at the frame's edges: same reflection as the whole frame
+            a0, a1, b0, b1 = max(r0 - r, 0), min(r1 + r, h), max(c0 - r, 0), min(c1 + r, w)
+            sub = cv2.sepFilter2D(frame[a0:a1, b0:b1], cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101)
+            return sub[r0 - a0 : r1 - a0, c0 - b0 : c1 - b0]
+        a0, a1, b0, b1 = r0 + pre[0] - r, r1 + pre[0] + r, c0 + pre[1] - r, c1 + pre[1] + r
+        if 0 <= a0 and a1 <= h and 0 <= b0 and b1 <= w:  # pre-shift and margin inside: interior values only
+            sub = cv2.sepFilter2D(frame[a0:a1, b0:b1], cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101)
+            return sub[r : r + r1 - r0, r : r + c1 - c0]
+    low = cv2.sepFilter2D(_integer_preshift(frame, *pre), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101)
+    return _integer_preshift(low, *post)[rows, cols]
+
+
+class _FourierShifter:
+    """``render.fourier_shift_blur(image, shift, 0, pad)`` for many shifts of one image.
+
+    The reflect-padded image's spectrum is computed once; each call applies
+    the shift's phase ramp ``exp(-2 pi i k.shift)`` (real ``cos(pi d)`` at
+    Nyquist) and one inverse FFT — the same operations, in the same order,
+    as ``fourier_shift_blur`` (content moves by +shift).
+    """
+
+    def __init__(self, image: np.ndarray, pad: int = 8) -> None:
+        self.pad = pad
+        padded = np.pad(np.asarray(image, dtype=np.float64), pad, mode="reflect")
+        self.shape = padded.shape
+        self.spec = np.fft.rfft2(padded)
+        self.ky = np.fft.fftfreq(self.shape[0])
+        self.kx = np.fft.rfftfreq(self.shape[1])
+
+    def __call__(self, shift: tuple[float, float]) -> np.ndarray:
+        if abs(shift[0]) >= self.pad or abs(shift[1]) >= self.pad:
+            raise ValueError(f"pad={self.pad} too small for shift={shift}")
+        h, w = self.shape
+        ty = np.exp(-2j * np.pi * self.ky * shift[0])
+        tx = np.exp(-2j * np.pi * self.kx * shift[1])
+        if h % 2 == 0:
+            ty[h // 2] = np.cos(np.pi * shift[0])
+        if w % 2 == 0:
+            tx[-1] = np.cos(np.pi * shift[1])
+        out = np.fft.irfft2(self.spec * (ty[:, None] * tx[None, :]), s=(h, w))
+        return out[self.pad : -self.pad, self.pad : -self.pad]
 
 
 def _refine_shifts(
@@ -235,7 +338,8 @@ def _refine_shifts(
     moved by the current shift ``s`` (Fourier shift, content moves by +s),
     the first-order model ``F ~ R - d . grad R`` gives the Gauss-Newton step
     ``d = -(G^T G)^-1 G^T (F - R)`` over the central region (at most
-    ``max_region`` px square, ``border`` px from the edges: cost bounded).
+    ``max_region`` px square, ``border`` px from the edges: cost bounded; only
+    that region, with its context, is low-passed and Fourier-shifted).
     Returns refined residual shifts (N, 2), each one's std (LR px) from
     ``var(residual) (G^T G)^-1``, and the per-pixel noise std (DN) implied by
     the residual: ``var(F - R) = 2 sigma^2 (sum g^2)^2`` for white noise
@@ -246,15 +350,21 @@ def _refine_shifts(
     """
     n, h, w = frames.shape
     g = gaussian_kernel(lp_sigma)
-    low = [cv2.sepFilter2D(_integer_preshift(frames[i], int(ishift[i, 0]), int(ishift[i, 1])), cv2.CV_64F, g, g,
-                           borderType=cv2.BORDER_REFLECT_101) for i in range(n)]
     out = resid.copy()
     sig = np.zeros(n)
     resvar = np.full(n, np.nan)
     rh, rw = min(h - 2 * border, max_region), min(w - 2 * border, max_region)
     region = (slice((h - rh) // 2, (h - rh) // 2 + rh), slice((w - rw) // 2, (w - rw) // 2 + rw))
+    ctx = _lk_context(region, h, w)
+    i0 = (int(ishift[0, 0]), int(ishift[0, 1]))
+    shifter = _FourierShifter(_lowpass_window(frames[0], g, i0, (0, 0), *ctx))
     for i in range(1, n):  # loop over frames
-        s, sg, rv = _lk(low[0], low[i], resid[i], region, g, iters=iters)
+        pre = (int(ishift[i, 0]), int(ishift[i, 1]))
+
+        def mov_window(iu: int, iv: int, i: int = i, pre: tuple[int, int] = pre) -> np.ndarray:
+            return _lowpass_window(frames[i], g, pre, (iu, iv), *ctx)
+
+        s, sg, rv = _lk(shifter, mov_window, resid[i], region, ctx, g, iters=iters)
         if np.isfinite(sg) and np.abs(s - resid[i]).max() < 0.5:
             out[i], sig[i], resvar[i] = s, sg, rv
         else:
@@ -271,7 +381,9 @@ def detect_geometry(
 
     Each frame is registered to frame 0 in ``tiles x tiles`` tiles (Lucas-
     Kanade on low-passed frames, started from ``shifts``, over at most
-    ``tile_max`` px square at each tile's centre); the tile shifts
+    ``tile_max`` px square at each tile's centre; only those windows are
+    low-passed, and each reference tile is Fourier-transformed once for all
+    frames); the tile shifts
     ``d(r, c)`` are fitted by ``d = s + J (r - r0, c - c0)`` (least squares,
     (r0, c0) the frame centre). If the non-translational part ``J`` moves any
     tile centre by more than ``tol`` LR px, the affine of every frame is
@@ -283,7 +395,6 @@ def detect_geometry(
     """
     n, h, w = frames.shape
     g = gaussian_kernel(lp_sigma)
-    low = [cv2.sepFilter2D(f, cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101) for f in frames]
     ty = np.linspace(0, h, tiles + 1).astype(int)
     tx = np.linspace(0, w, tiles + 1).astype(int)
     centres = np.array([((ty[a] + ty[a + 1] - 1) / 2.0, (tx[b] + tx[b + 1] - 1) / 2.0)
@@ -292,22 +403,30 @@ def detect_geometry(
     rel = centres - np.array([r0, c0])
     design = np.concatenate([np.ones((len(rel), 1)), rel], axis=1)  # (T, 3)
     tshift = np.zeros((n, len(rel), 2))
-    resvars = []
+    resvar_t = np.full((n, len(rel)), np.nan)
+    k = 0
+    for a in range(tiles):  # tiles, not pixels
+        for b in range(tiles):
+            ha, wa = min(ty[a + 1] - ty[a], tile_max), min(tx[b + 1] - tx[b], tile_max)
+            ra, ca = (ty[a] + ty[a + 1] - ha) // 2, (tx[b] + tx[b + 1] - wa) // 2
+            sl = (slice(ra, ra + ha), slice(ca, ca + wa))
+            ctx = _lk_context(sl, h, w)
+            shifter = _FourierShifter(_lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx))
+            for i in range(1, n):  # frames
+
+                def mov_window(iu: int, iv: int, i: int = i, ctx: tuple[slice, slice] = ctx) -> np.ndarray:
+                    return _lowpass_window(frames[i], g, (0, 0), (iu, iv), *ctx)
+
+                s, sg, rv = _lk(shifter, mov_window, np.asarray(shifts[i], dtype=np.float64), sl, ctx, g)
+                tshift[i, k] = s if np.isfinite(sg) else np.nan
+                resvar_t[i, k] = rv
+            k += 1
+    # residual variances in the order the frames and tiles were visited before (frame-major)
+    resvars = [v for v in resvar_t[1:].ravel() if np.isfinite(v)]
     nonlinear = False
     affines = np.zeros((n, 3, 3))
     affines[0] = np.eye(3)
     for i in range(1, n):  # loop over frames
-        k = 0
-        for a in range(tiles):  # tiles, not pixels
-            for b in range(tiles):
-                ha, wa = min(ty[a + 1] - ty[a], tile_max), min(tx[b + 1] - tx[b], tile_max)
-                ra, ca = (ty[a] + ty[a + 1] - ha) // 2, (tx[b] + tx[b + 1] - wa) // 2
-                sl = (slice(ra, ra + ha), slice(ca, ca + wa))
-                s, sg, rv = _lk(low[0], low[i], np.asarray(shifts[i], dtype=np.float64), sl, g)
-                tshift[i, k] = s if np.isfinite(sg) else np.nan
-                if np.isfinite(rv):
-                    resvars.append(rv)
-                k += 1
         ok = np.isfinite(tshift[i, :, 0])
         if ok.sum() < 4:
             affines[i] = translation_homography(*shifts[i])
@@ -326,27 +445,37 @@ def detect_geometry(
     return (affines if nonlinear else None), tshift, noise
 
 
+def _lk_context(sl: tuple[slice, slice], h: int, w: int, pad: int = 16) -> tuple[slice, slice]:
+    """Region ``sl`` widened by ``pad`` px of context (clipped to the frame), as :func:`_lk` works on it."""
+    return (slice(max(sl[0].start - pad, 0), min(sl[0].stop + pad, h)),
+            slice(max(sl[1].start - pad, 0), min(sl[1].stop + pad, w)))
+
+
 def _lk(
-    ref: np.ndarray, mov: np.ndarray, s0: np.ndarray, sl: tuple[slice, slice], g: np.ndarray, iters: int = 3, pad: int = 16
+    ref_shift: _FourierShifter, mov_window, s0: np.ndarray, sl: tuple[slice, slice], ctx: tuple[slice, slice],
+    g: np.ndarray, iters: int = 3,
 ) -> tuple[np.ndarray, float, float]:
     """Lucas-Kanade shift of ``mov`` vs ``ref`` (both low-passed by g) over region ``sl``.
 
     ``mov ~ shift(ref, s)``; Gauss-Newton from ``s0`` on ``F ~ R - d . grad R``.
-    Returns (s, std of s, noise variance per pixel implied by the residual).
-    The region is cut with ``pad`` px of context so the Fourier shift's wrap
-    stays outside it.
+    ``ref_shift`` moves the low-passed reference over the context window
+    ``ctx`` (``sl`` plus 16 px, see :func:`_lk_context`, so the Fourier
+    shift's wrap stays outside ``sl``); ``mov_window(iu, iv)`` returns the
+    low-passed moving frame over ``ctx``, preshifted by the integer part of
+    the current shift. Returns (s, std of s, noise variance per pixel implied
+    by the residual).
     """
-    h, w = ref.shape
-    ra, rb = max(sl[0].start - pad, 0), min(sl[0].stop + pad, h)
-    ca, cb = max(sl[1].start - pad, 0), min(sl[1].stop + pad, w)
+    ra, ca = ctx[0].start, ctx[1].start
     inner = (slice(sl[0].start - ra + 4, sl[0].stop - ra - 4), slice(sl[1].start - ca + 4, sl[1].stop - ca - 4))
     # integer part of s0 handled by the crop of mov; the residual by the Fourier shift of ref
     s = np.asarray(s0, dtype=np.float64).copy()
-    refc = ref[ra:rb, ca:cb]
+    cache: dict[tuple[int, int], np.ndarray] = {}
     for _ in range(iters):  # Gauss-Newton iterations
         iu, iv = int(np.rint(s[0])), int(np.rint(s[1]))
-        movc = _integer_preshift(mov, iu, iv)[ra:rb, ca:cb]
-        pred = fourier_shift_blur(refc, (float(s[0] - iu), float(s[1] - iv)), 0.0, pad=8)
+        if (iu, iv) not in cache:
+            cache[iu, iv] = mov_window(iu, iv)
+        movc = cache[iu, iv]
+        pred = ref_shift((float(s[0] - iu), float(s[1] - iv)))
         gy, gx = np.gradient(pred)
         gm = np.stack([gy[inner].ravel(), gx[inner].ravel()], axis=1)
         e = (movc - pred)[inner].ravel()
@@ -608,7 +737,11 @@ def _fourier_map(
             n = int(keep.sum())
     padded = _consistent_padding(frames, ishift, resid, pad, hp, wp)
     spec = np.stack([_rfft2_32(f) for f in padded])  # (n, hp, wc) complex64
-    pre = np.stack([_integer_preshift(frames[i], int(ishift[i, 0]), int(ishift[i, 1])) for i in range(n)])
+    # fit_spectrum reads only the central crop of the first two (integer-preshifted) frames: cut just that
+    ch, cw = min(h, _SPECTRUM_CROP), min(w, _SPECTRUM_CROP)
+    rc, cc = (h - ch) // 2, (w - cw) // 2
+    pre = np.stack([_preshift_window(frames[i], int(ishift[i, 0]), int(ishift[i, 1]), rc, rc + ch, cc, cc + cw)
+                    for i in range(min(n, 2))])
     if noise_sigma is None and np.isfinite(lk_noise):
         noise_sigma = lk_noise  # multi-frame estimate (see _refine_shifts)
     c_psd, alpha, sig_fit = fit_spectrum(pre, p, blur_sigma, noise_sigma)

@@ -86,7 +86,8 @@ class ShiftNode(StageNode):
         Param("method", "default", "estimator: default (iterative, at the accuracy limit) or seed (the paper's single solve)",
               choices=("default", "seed")),
         Param("max_std_px", 0.1, "estimates with a larger standard error are not published", 0.0001, 10.0),
-        Param("use_prior", True, "start from the registration's predicted sub-pixel shift (pipeline only)"),
+        Param("use_prior", False, "start from the registration's predicted sub-pixel shift (single-process pipeline "
+              "only; off by default so both layouts give identical shifts)"),
     )
 
     def __init__(self, *, subscribe_inputs: bool = True, name: str = "shift_node", **kw) -> None:

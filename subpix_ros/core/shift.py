@@ -452,6 +452,7 @@ class _Level:
         self._ref_key = None
         self._rects_cache = {}
         self.kmax = int(kmax)  # the tile lattice stays valid for |k| <= kmax
+        self.blocks = False  # True on the level whose final sums need 16x16 block statistics
         self._tiles = None
 
     # -- geometry ---------------------------------------------------------
@@ -606,7 +607,7 @@ def _gn_sums(lv: _Level, rects, s, want_blocks: bool):
         ref_sums = lv._ref_sums
         if ref_sums is None or (want_blocks and ref_sums[1] is None):
             maps = [cv2.multiply(g0, g0), cv2.multiply(g0, g1), cv2.multiply(g1, g1), g0, g1]
-            if want_blocks:
+            if want_blocks or lv.blocks:  # a level that will need blocks computes them once
                 bl = [_block_sum(mp, _BLOCK) for mp in maps]
                 bl.append(np.full(bl[0].shape, float(_BLOCK * _BLOCK)))
                 tot = [float(x.sum()) for x in bl]
@@ -808,6 +809,7 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
         s = s * 2.0
     score = _texture_scorer(Rp[-1], 2.0 ** (-levels)) if levels else None
     lv = _Level(R, M, vr, vm, taps, sigma, band, max_pixels, score, kmax=int(np.max(np.abs(s))) + 3)
+    lv.blocks = True
     out = _gauss_newton(lv, s, max_iterations, tol, border, blocks=True)
     if (out["reason"] or (not out["converged"] and out["last"] > 0.05)) and np.max(np.abs(s)) > 0.5:
         # the coarse start was wrong (e.g. a noise peak in the phase correlation):
@@ -922,7 +924,7 @@ def estimate_shift(
     taps: int = 8,
     prefilter_sigma: float = 0.8,
     band: float = 0.85,
-    max_pixels: Optional[int] = 1 << 19,
+    max_pixels: Optional[int] = 1 << 18,
     coarse_size: int = 256,
     misfit_px: float = 0.05,
     seed_iterations: int = 3,

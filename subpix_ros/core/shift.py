@@ -64,7 +64,7 @@ made-up number). Wrong argument types/shapes raise ``ValueError``.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from functools import lru_cache
 from typing import Optional, Sequence, Tuple, Union
 
@@ -393,26 +393,6 @@ def coarse_shift(
 
 _BLOCK = 16  # block size (px) of the sandwich covariance and the misfit grid
 _TILE = 128  # tile size (px) when only the most textured max_pixels are used
-
-
-_MEAT_GROUP = 1
-
-
-def _group_blocks(Bk: np.ndarray, rects, f: int) -> np.ndarray:
-    """Sum per-block rows of ``Bk`` (ordered as :meth:`_Level.block_centres`) over f x f groups."""
-    if f <= 1:
-        return Bk
-    out = []
-    i = 0
-    for r0, r1, c0, c1 in rects:
-        nr, nc = (r1 - r0) // _BLOCK, (c1 - c0) // _BLOCK
-        blk = Bk[i : i + nr * nc].reshape(nr, nc, -1)
-        i += nr * nc
-        gr, gc = -(-nr // f), -(-nc // f)
-        pad = np.zeros((gr * f, gc * f, blk.shape[2]))
-        pad[:nr, :nc] = blk
-        out.append(pad.reshape(gr, f, gc, f, -1).sum(axis=(1, 3)).reshape(gr * gc, -1))
-    return np.concatenate(out, axis=0)
 
 
 def _block_sum(a: np.ndarray, bs: int) -> np.ndarray:
@@ -842,10 +822,7 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
     r1 = ge1 - (g01 * d[0] + g11 * d[1] + g1 * d[2])
     r2 = e - (g0 * d[0] + g1 * d[1] + cnt * d[2])
     Bk = np.stack([r0, r1, r2], 1)
-    # The meat uses blocks of MEAT_GROUP x MEAT_GROUP 16-px blocks: block sums of
-    # the noise-noise products grad(n_R) n_R do not telescope to zero within
-    # small blocks as they do over the frame, which would overstate the variance.
-    Bm = _group_blocks(Bk, rects, _MEAT_GROUP)
+    Bm = Bk
     nb = Bm.shape[0]
     cov3 = Ainv @ (Bm.T @ Bm) @ Ainv * (nb / max(nb - 3, 1))
     cov = cov3[:2, :2].copy()

@@ -50,7 +50,7 @@ from .registration_fit import (
 )
 from .registration_points import apply_h, harris_points, ncc_match, refine_gauss_newton
 
-__all__ = ["RegistrationResult", "AlignResult", "register", "align", "to_gray32", "overlap_fraction"]
+__all__ = ["RegistrationResult", "AlignResult", "register", "align", "calibrate_distortion", "to_gray32", "overlap_fraction"]
 
 #: Seed luminance weights (METHODS A) in OpenCV B, G, R order.
 _LUMA_BGR = np.array([[0.1141, 0.587, 0.2989]], dtype=np.float32)
@@ -244,6 +244,62 @@ def _spread(pr: np.ndarray, h_mr: np.ndarray, shape_ref, shape_mov, cells: int =
     return float((occ & in_overlap).sum() / max(n_in, 1))
 
 
+def _full_residuals(hu: np.ndarray, lam: float, norm: Normaliser, pm: np.ndarray, pr: np.ndarray) -> np.ndarray:
+    """Transfer residuals ``|D(H_u(U(x_m))) - x_r|`` (reference px); inf where the model is invalid."""
+    res = np.hypot(*(distort_points(apply_h(hu, undistort_points(pm, lam, norm)), lam, norm) - pr).T)
+    return np.where(np.isfinite(res), res, np.inf)
+
+
+def _fit_fixed_lambda(pm: np.ndarray, pr: np.ndarray, lam: float, norm: Normaliser, affine: bool,
+                      h0: np.ndarray) -> np.ndarray:
+    """``H_u`` for a known division-model ``lam``: eq. P fitted by LM between the undistorted points.
+
+    The residual is measured between undistorted coordinates; with |lam| << 1
+    it differs from the distorted-space residual by a factor ``1 + O(lam)``.
+    """
+    return fit_homography_lm(undistort_points(pm, lam, norm), undistort_points(pr, lam, norm), norm, affine, h0=h0)
+
+
+def calibrate_distortion(results: list[RegistrationResult], lam_range: float = 0.1) -> float:
+    """One division-model lambda for a camera, from the tie points of several registrations.
+
+    Minimises the pooled sum of squared transfer residuals
+    ``sum_pairs sum_i |D(H_u,p(U(x_m,i))) - x_r,i|^2`` over ``lam`` in
+    ``[-lam_range, lam_range]`` (golden-section search; each pair's ``H_u``
+    refitted for each ``lam``). lambda is dimensionless (radius in
+    half-diagonals), so a value from half-resolution frames holds at full
+    resolution. Raises ``ValueError`` without at least one successful result.
+    """
+    use = [r for r in results if r.ok and len(r.points) >= 8]
+    if not use:
+        raise ValueError("calibrate_distortion needs at least one successful registration")
+    affine = [r.model == "affine" for r in use]
+
+    def cost(lam: float) -> float:
+        tot = 0.0
+        for r, aff in zip(use, affine):
+            norm = Normaliser.for_shape(r.ref_shape)
+            pr, pm = r.points[:, :2], r.points[:, 2:]
+            hu = _fit_fixed_lambda(pm, pr, lam, norm, aff, r.homography)
+            tot += float(np.sum(np.minimum(_full_residuals(hu, lam, norm, pm, pr), 10.0) ** 2))
+        return tot
+
+    g = (np.sqrt(5) - 1) / 2
+    a, b = -lam_range, lam_range
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = cost(c), cost(d)
+    for _ in range(30):  # bracket shrinks by 0.618 per step: 2e-7 of the range after 30
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = cost(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = cost(d)
+    return float((a + b) / 2)
+
+
 def _fail(reason: str, t0: float, shapes, model: str) -> RegistrationResult:
     return RegistrationResult(False, reason, model=model, ref_shape=shapes[0], mov_shape=shapes[1], time_s=time.perf_counter() - t0)
 
@@ -253,7 +309,7 @@ def register(
     moving: np.ndarray,
     *,
     model: str = "projective",
-    distortion: bool = True,
+    distortion: bool | float = True,
     n_points: int = 700,
     coarse_size: int = 128,
     detect_size: int = 1000,
@@ -267,8 +323,12 @@ def register(
     """Register ``moving`` to ``reference``; see the module docstring for the pipeline and conventions.
 
     ``model``: ``"projective"`` (METHODS C, eq. P) or ``"affine"`` (the shift
-    paper's choice). ``distortion``: also estimate the shared radial term (needs
-    >= 40 inliers; kept only if it lowers the RMS residual). ``inlier_px``:
+    paper's choice). ``distortion``: ``True`` estimates the radial term (division
+    model, one lambda for both frames) from this pair's tie points (needs >= 40
+    inliers; kept only if it lowers the RMS residual); a float is a fixed
+    camera calibration lambda (e.g. from :func:`calibrate_distortion` over a
+    strip; the same camera for every frame), only ``H_u`` is fitted; ``False``
+    (or 0.0) fits the projective model alone. ``inlier_px``:
     inlier threshold on the transfer residual (reference px, at input
     resolution). ``angles``: rotation hypotheses (radians) to use instead of
     the orientation-histogram ones. Failure (``ok=False`` with a reason) for:
@@ -276,6 +336,12 @@ def register(
     tie points, a degenerate or insane fit.
     """
     t0 = time.perf_counter()
+    if isinstance(distortion, (bool, np.bool_)):
+        fixed_lam = None if distortion else 0.0
+    else:
+        fixed_lam = float(distortion)
+        if not (np.isfinite(fixed_lam) and abs(fixed_lam) < 0.3):
+            raise ValueError(f"distortion lambda must be finite and |lambda| < 0.3, got {distortion!r}")
     if model not in ("projective", "affine"):
         raise ValueError(f"model must be 'projective' or 'affine', got {model!r}")
     affine = model == "affine"
@@ -377,18 +443,23 @@ def register(
     h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
     lam, hu = 0.0, None
     res = _residuals(h, p_m, p_r)
-    if distortion and inl.sum() >= 40:
+    if fixed_lam is not None and fixed_lam != 0.0:  # shared calibration: lambda known, only H_u fitted
+        lam = fixed_lam
+        hu = _fit_fixed_lambda(p_m[inl], p_r[inl], lam, norm, affine, h)
+        res = _full_residuals(hu, lam, norm, p_m, p_r)
+    elif fixed_lam is None and distortion and inl.sum() >= 40:
         hu_c, lam_c = fit_homography_distortion_lm(p_m[inl], p_r[inl], norm, h, affine)
         if np.isfinite(lam_c) and abs(lam_c) < 0.3:
-            res_c = np.hypot(*(distort_points(apply_h(hu_c, undistort_points(p_m, lam_c, norm)), lam_c, norm) - p_r).T)
-            res_c = np.where(np.isfinite(res_c), res_c, np.inf)
+            res_c = _full_residuals(hu_c, lam_c, norm, p_m, p_r)
             if np.sqrt(np.mean(res_c[inl] ** 2)) < np.sqrt(np.mean(res[inl] ** 2)):
                 lam, hu, res = lam_c, hu_c, res_c
     inl = res <= inlier_px
-    if lam != 0.0 and inl.sum() >= 40:
-        hu, lam = fit_homography_distortion_lm(p_m[inl], p_r[inl], norm, hu, affine)
-        res = np.hypot(*(distort_points(apply_h(hu, undistort_points(p_m, lam, norm)), lam, norm) - p_r).T)
-        res = np.where(np.isfinite(res), res, np.inf)
+    if lam != 0.0 and inl.sum() >= (8 if fixed_lam is not None else 40):
+        if fixed_lam is not None:
+            hu = _fit_fixed_lambda(p_m[inl], p_r[inl], lam, norm, affine, hu)
+        else:
+            hu, lam = fit_homography_distortion_lm(p_m[inl], p_r[inl], norm, hu, affine)
+        res = _full_residuals(hu, lam, norm, p_m, p_r)
         inl = res <= inlier_px
     h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h) if inl.sum() >= 8 else h
     n_in = int(inl.sum())

@@ -73,9 +73,13 @@ class Normaliser:
 
 
 def levenberg_marquardt(
-    fun: Callable[[np.ndarray], np.ndarray], p0: np.ndarray, iterations: int = 50, tol: float = 1e-12
+    fun: Callable[[np.ndarray], np.ndarray],
+    p0: np.ndarray,
+    iterations: int = 50,
+    tol: float = 1e-12,
+    jac: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Minimise ``|fun(p)|^2`` by Levenberg-Marquardt (forward-difference Jacobian).
+    """Minimise ``|fun(p)|^2`` by Levenberg-Marquardt (``jac(p)`` if given, else forward differences).
 
     Damped normal equations ``(J^T J + mu diag(J^T J)) dp = -J^T r``; ``mu``
     is divided by 3 after an accepted step and multiplied by 4 after a rejected
@@ -87,13 +91,16 @@ def levenberg_marquardt(
     mu = 1e-3
     eps = 1e-7
     for _ in range(iterations):
-        jac = np.empty((r.size, p.size))
-        for i in range(p.size):  # one column per parameter (<= 9), each vectorised over points
-            dp = np.zeros_like(p)
-            dp[i] = eps
-            jac[:, i] = (fun(p + dp) - r) / eps
-        jtj = jac.T @ jac
-        g = jac.T @ r
+        if jac is not None:
+            jm = jac(p)
+        else:
+            jm = np.empty((r.size, p.size))
+            for i in range(p.size):  # one column per parameter (<= 9), each vectorised over points
+                dp = np.zeros_like(p)
+                dp[i] = eps
+                jm[:, i] = (fun(p + dp) - r) / eps
+        jtj = jm.T @ jm
+        g = jm.T @ r
         improved = False
         for _ in range(10):
             a = jtj + mu * np.diag(np.maximum(np.diag(jtj), 1e-12))
@@ -131,6 +138,27 @@ def _params_from_h(h: np.ndarray, affine: bool) -> np.ndarray:
     return np.array(q)
 
 
+def _jacobian_eq_p(q: np.ndarray, m: np.ndarray, affine: bool) -> np.ndarray:
+    """Analytic Jacobian of the eq. P residuals (rows ``u0, v0, u1, v1, ...``) w.r.t. the parameters.
+
+    With ``w = c0 x + c1 y + 1``: ``du/da_i = (x, y, 1) / w``, ``dv/dd_i = (x, y, 1) / w``,
+    ``du/dc = -u (x, y) / w``, ``dv/dc = -v (x, y) / w``.
+    """
+    x, y = m[:, 0], m[:, 1]
+    n = len(m)
+    w = np.ones(n) if affine else q[6] * x + q[7] * y + 1.0
+    iw = 1.0 / w
+    j = np.zeros((n, 2, 6 if affine else 8))
+    j[:, 0, 0], j[:, 0, 1], j[:, 0, 2] = x * iw, y * iw, iw
+    j[:, 1, 3], j[:, 1, 4], j[:, 1, 5] = x * iw, y * iw, iw
+    if not affine:
+        u = (q[0] * x + q[1] * y + q[2]) * iw
+        v = (q[3] * x + q[4] * y + q[5]) * iw
+        j[:, 0, 6], j[:, 0, 7] = -u * x * iw, -u * y * iw
+        j[:, 1, 6], j[:, 1, 7] = -v * x * iw, -v * y * iw
+    return j.reshape(2 * n, -1)
+
+
 def fit_homography_lm(
     pts_mov: np.ndarray, pts_ref: np.ndarray, norm: Normaliser, affine: bool = False, h0: np.ndarray | None = None
 ) -> np.ndarray:
@@ -147,7 +175,10 @@ def fit_homography_lm(
     def res(q: np.ndarray) -> np.ndarray:
         return (apply_h(_h_from_params(q, affine), m) - r).ravel()
 
-    q = levenberg_marquardt(res, _params_from_h(start, affine))
+    def jac(q: np.ndarray) -> np.ndarray:
+        return _jacobian_eq_p(q, m, affine)
+
+    q = levenberg_marquardt(res, _params_from_h(start, affine), jac=jac)
     return norm.to_pixel_h(_h_from_params(q, affine))
 
 

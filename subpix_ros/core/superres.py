@@ -128,12 +128,13 @@ def estimate_noise_sigma(frame: np.ndarray, max_size: int | None = None) -> floa
     upwards; quantisation noise (1/sqrt(12) DN for 8 bit) is included.
     ``max_size``: use only the central max_size x max_size region.
     """
-    f = np.asarray(frame, dtype=np.float64)
+    f = np.asarray(frame)
     if f.ndim != 2 or min(f.shape) < 3:
         raise ValueError("noise estimate needs a 2-D frame of at least 3x3")
     if max_size is not None and max(f.shape) > max_size:  # central crop: bounded cost
         r0, c0 = max(0, (f.shape[0] - max_size) // 2), max(0, (f.shape[1] - max_size) // 2)
         f = f[r0 : r0 + max_size, c0 : c0 + max_size]
+    f = np.asarray(f, dtype=np.float64)
     k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float64)
     r = cv2.filter2D(f, cv2.CV_64F, k)[1:-1, 1:-1]
     return float(1.4826 * np.median(np.abs(r)) / 6.0)
@@ -524,14 +525,17 @@ def _solve_separable(
     Normal equations per LR bin (k = p^2 aliases m = (m1, m2)):
     ``(A^H A / v + reg diag(|f_m|^alpha / c)) X = A^H Y / v`` with
     ``a_nm = ay[n, m1] ax[n, m2]`` (DC, alias (0, 0) at bin (0, 0), unregularised).
-    Because ``a`` is separable, each Gram entry is a sum over frames of outer
-    products of a row factor and a column factor,
-    ``G[m, m'](ky, kx) = sum_n (conj(ay[n,m1]) ay[n,m1'])(ky) (conj(ax[n,m2]) ax[n,m2'])(kx)``;
-    only the k (k+1) / 2 lower-triangle entries are formed (the diagonal in
-    float32), each as n broadcast multiply-adds over all bins. The k x k
-    Hermitian systems are solved by a Cholesky factorisation ``L L^H``
-    vectorised over bins (loops over the k x k matrix indices only, in-place
-    updates), the right-hand side ``A^H Y / v`` by the same separable factors.
+    Because ``a`` is separable, each Gram entry is a rank-N product of a row
+    factor and a column factor,
+    ``G[m, m'](ky, kx) = sum_n (conj(ay[n,m1]) ay[n,m1'])(ky) (conj(ax[n,m2]) ax[n,m2'])(kx)``,
+    i.e. a (hp x N) @ (N x wc) matrix product: only the k (k+1) / 2
+    lower-triangle entries are formed, one ``cv2.gemm`` (complex, single
+    precision) per row-factor pair (m1, m1'). The right-hand side
+    ``A^H Y / v`` is ``sum_n conj(ay[n,m1]) (conj(ax[n,m2]) Y_n)``: the column
+    factor applied elementwise, the row factor and the sum over frames as a
+    batched (p x N) @ (N x p wc) product per spectrum row. The k x k Hermitian
+    systems are solved by a Cholesky factorisation ``L L^H`` vectorised over
+    bins (loops over the k x k matrix indices only, in-place updates).
     complex64 / float32 throughout. Returns X (p, p, hp, wc) complex64.
     """
     n, p, hp = ay.shape
@@ -540,36 +544,44 @@ def _solve_separable(
     idx = [(m1, m2) for m1 in range(p) for m2 in range(p)]
     ay32 = ay.astype(np.complex64)
     ax32 = ax.astype(np.complex64)
-    cay = np.conj(ay32)
+    cay = np.conj(ay32) * np.float32(1.0 / noise_power)  # 1/v folded into the row factors
     cax = np.conj(ax32)
-    inv_v = np.float32(1.0 / noise_power)
-    tmp_c = np.empty((hp, wc), np.complex64)
-    tmp_r = np.empty((hp, wc), np.float32)
 
-    def outer_sum(u: np.ndarray, w: np.ndarray, tmp: np.ndarray) -> np.ndarray:
-        # sum_n u[n][:, None] * w[n][None, :]  (u: (n, hp), w: (n, wc))
-        acc = np.multiply(u[0][:, None], w[0][None, :])
-        for q in range(1, n):  # frames
-            np.multiply(u[q][:, None], w[q][None, :], out=tmp)
-            acc += tmp
-        return acc
+    def as_c2(z: np.ndarray) -> np.ndarray:  # complex64 -> 2-channel float32 (cv2's complex matrices)
+        z = np.ascontiguousarray(z)
+        return z.view(np.float32).reshape(z.shape + (2,))
 
-    # prior precision reg / P(f) = reg |f|^alpha / c per alias; |f|^alpha = (fy^2 + fx^2)^(alpha/2) by cv2.pow
+    # Gram, lower triangle i >= j (i = (a1, a2), j = (b1, b2)): group by the row-factor pair (a1, b1)
+    gram: dict[tuple[int, int], np.ndarray] = {}
+    for a1 in range(p):
+        for b1 in range(a1 + 1):
+            cols = [(a2, b2) for a2 in range(p) for b2 in range(p) if a1 * p + a2 >= b1 * p + b2]
+            u = (cay[:, a1] * ay32[:, b1]).T  # (hp, n)
+            w = np.concatenate([cax[:, a2] * ax32[:, b2] for a2, b2 in cols], axis=1)  # (n, len(cols) wc)
+            prod = cv2.gemm(as_c2(u), as_c2(w), 1.0, None, 0.0).view(np.complex64)[..., 0]
+            for q, (a2, b2) in enumerate(cols):
+                gram[a1 * p + a2, b1 * p + b2] = prod[:, q * wc : (q + 1) * wc]
+    # right-hand side b[m1, m2] = sum_n cay[n, m1] (cax[n, m2] Y_n)
+    t = spec.transpose(1, 0, 2)[:, :, None, :] * cax[None, :, :, :]  # (hp, n, p, wc)
+    rhs = np.matmul(cay.transpose(2, 1, 0), t.reshape(hp, n, p * wc))  # (hp, p, p wc)
+    del t
+
     fy2 = (fy**2).astype(np.float32)
     fx2 = (fx**2).astype(np.float32)
     lam_scale = np.float32(reg / c)
+    tmp_r = np.empty((hp, wc), np.float32)
+    tmp_c = np.empty((hp, wc), np.complex64)
     low: dict[tuple[int, int], np.ndarray] = {}
     dinv: list[np.ndarray] = []
     for j in range(k):  # Cholesky over the k x k index, vectorised over bins
         m1, m2 = idx[j]
+        # prior precision reg / P(f) = reg |f|^alpha / c, |f|^alpha = (fy^2 + fx^2)^(alpha/2)
         np.add(fy2[m1][:, None], fx2[m2][None, :], out=tmp_r)
         d = cv2.pow(tmp_r, alpha / 2.0)
         d *= lam_scale
         if j == 0:
             d[0, 0] = 0.0  # alias (0, 0) at bin (0, 0) is the HR DC term
-        gy_d = (np.abs(ay32[:, m1]) ** 2) * inv_v  # (n, hp) float32
-        gx_d = np.abs(ax32[:, m2]) ** 2
-        d += outer_sum(gy_d, gx_d, tmp_r)
+        d += gram[j, j].real
         for q in range(j):
             lq = low[j, q]
             d -= lq.real**2
@@ -579,9 +591,7 @@ def _solve_separable(
         np.divide(np.float32(1.0), d, out=d)
         dinv.append(d)
         for i in range(j + 1, k):
-            a1, a2 = idx[i]
-            # G[i, j] = sum_n conj(a_ni) a_nj
-            v = outer_sum(cay[:, a1] * ay32[:, m1] * inv_v, cax[:, a2] * ax32[:, m2], tmp_c)
+            v = gram[i, j].copy()
             for q in range(j):
                 np.multiply(low[i, q], np.conj(low[j, q]), out=tmp_c)
                 v -= tmp_c
@@ -589,12 +599,9 @@ def _solve_separable(
             low[i, j] = v
     xs = np.empty((p, p, hp, wc), np.complex64)
     z: list[np.ndarray] = []
-    for i in range(k):  # right-hand side A^H Y / v and forward substitution
+    for i in range(k):  # forward substitution
         m1, m2 = idx[i]
-        v = np.multiply(spec[0], cay[0, m1][:, None] * (cax[0, m2] * inv_v)[None, :])
-        for q in range(1, n):  # frames
-            np.multiply(spec[q], cay[q, m1][:, None] * (cax[q, m2] * inv_v)[None, :], out=tmp_c)
-            v += tmp_c
+        v = rhs[:, m1, m2 * wc : (m2 + 1) * wc].copy()
         for q in range(i):
             np.multiply(low[i, q], z[q], out=tmp_c)
             v -= tmp_c
@@ -636,22 +643,35 @@ def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
     return np.fft.irfft2(half, s=(nh, nw))
 
 
-def _fractional_shift(img: np.ndarray, du: float, dv: float, taps: int = 8) -> np.ndarray:
+def _lanczos_delay(d: float, taps: int = 8) -> np.ndarray:
+    """Taps ``h[j] = sinc(k + d) L(k + d)``, ``k = j - (taps/2 - 1)``, normalised to unit DC gain (float32)."""
+    a = taps // 2
+    t = np.arange(-a + 1, a + 1, dtype=np.float64) + d
+    h = np.sinc(t) * np.sinc(t / a) * (np.abs(t) < a)
+    return (h / h.sum()).astype(np.float32)  # sepFilter2D correlates: tap j -> offset j - (a - 1) = k
+
+
+def _fractional_shift(
+    img: np.ndarray, du: float, dv: float, taps: int = 8, window: tuple[slice, slice] | None = None
+) -> np.ndarray:
     """Move image content by (du, dv) px (|d| <= 1) with separable Lanczos-4 fractional delays.
 
     ``out[x] = sum_k h[k] img[x + k]`` with ``h[k] = sinc(k + d) L(k + d)``, k = -3..4,
-    normalised to unit DC gain (content moves by +d: ``out[x] ~ img[x - d]``).
+    normalised to unit DC gain (content moves by +d: ``out[x] ~ img[x - d]``);
+    reflected border. With ``window`` (rows, cols) only ``out[window]`` is
+    computed, from the window plus the taps' reach (the same values).
     """
     a = taps // 2
-    k = np.arange(-a + 1, a + 1, dtype=np.float64)
-
-    def kern(d: float) -> np.ndarray:
-        t = k + d
-        h = np.sinc(t) * np.sinc(t / a) * (np.abs(t) < a)
-        return (h / h.sum()).astype(np.float32)  # sepFilter2D correlates: tap j -> offset j - (a - 1) = k
-
-    return cv2.sepFilter2D(np.asarray(img, np.float32), cv2.CV_32F, kern(dv), kern(du), anchor=(a - 1, a - 1),
-                           borderType=cv2.BORDER_REFLECT_101)
+    src = np.asarray(img, np.float32)
+    if window is not None:
+        h, w = src.shape
+        rows, cols = window
+        r0, r1 = max(rows.start - (a - 1), 0), min(rows.stop + a, h)
+        c0, c1 = max(cols.start - (a - 1), 0), min(cols.stop + a, w)
+        out = _fractional_shift(src[r0:r1, c0:c1], du, dv, taps)
+        return out[rows.start - r0 : rows.stop - r0, cols.start - c0 : cols.stop - c0]
+    return cv2.sepFilter2D(src, cv2.CV_32F, _lanczos_delay(dv, taps), _lanczos_delay(du, taps),
+                           anchor=(a - 1, a - 1), borderType=cv2.BORDER_REFLECT_101)
 
 
 def _consistent_padding(
@@ -663,21 +683,34 @@ def _consistent_padding(
     strip its integer shift leaves empty) is that padded reference moved by the
     frame's sub-pixel shift (band-limited Fourier shift), so all frames see
     the same scene outside the image, as the periodic model assumes (the
-    shift is an 8-tap Lanczos fractional delay: only the padding uses it). Frame n's
-    own pixels overwrite the area they cover. float32, (n, hp, wp).
+    shift is an 8-tap Lanczos fractional delay: only the padding uses it, so
+    it is computed on the padding strips only). Frame n's
+    own pixels fill the area they cover. float32, (n, hp, wp).
     """
     n, h, w = frames.shape
     out = np.empty((n, hp, wp), dtype=np.float32)
-    ref = cv2.copyMakeBorder(frames[0], pad, hp - h - pad, pad, wp - w - pad, cv2.BORDER_REFLECT_101)
+    ref = cv2.copyMakeBorder(frames[0].astype(np.float32), pad, hp - h - pad, pad, wp - w - pad,
+                             cv2.BORDER_REFLECT_101)
     for i in range(n):  # per frame
         iu, iv = int(ishift[i, 0] - ishift[0, 0]), int(ishift[i, 1] - ishift[0, 1])
         du, dv = float(resid[i, 0] - resid[0, 0]), float(resid[i, 1] - resid[0, 1])
-        out[i] = ref if (i == 0 or (du == 0 and dv == 0)) else _fractional_shift(ref, du, dv)
         # frame i's pixel (r, c) sits at preshifted position (r - iu, c - iv)
         r0, r1 = max(0, -iu), min(h, h - iu)
         c0, c1 = max(0, -iv), min(w, w - iv)
         if r1 > r0 and c1 > c0:
-            out[i, pad + r0 : pad + r1, pad + c0 : pad + c1] = frames[i, r0 + iu : r1 + iu, c0 + iv : c1 + iv]
+            inner = (slice(pad + r0, pad + r1), slice(pad + c0, pad + c1))
+            out[i][inner] = frames[i, r0 + iu : r1 + iu, c0 + iv : c1 + iv]
+            rest = [(slice(0, inner[0].start), slice(0, wp)), (slice(inner[0].stop, hp), slice(0, wp)),
+                    (inner[0], slice(0, inner[1].start)), (inner[0], slice(inner[1].stop, wp))]
+        else:
+            rest = [(slice(0, hp), slice(0, wp))]
+        for win in rest:  # the padding strips (4 at most)
+            if win[0].stop <= win[0].start or win[1].stop <= win[1].start:
+                continue
+            if i == 0 or (du == 0 and dv == 0):
+                out[i][win] = ref[win]
+            else:
+                out[i][win] = _fractional_shift(ref, du, dv, window=win)
     return out
 
 
@@ -910,16 +943,25 @@ def _cg_map(
 
 
 def _bicubic_rim(img: np.ndarray, ref: np.ndarray, p: int) -> np.ndarray:
-    """Replace the outermost LR-pixel ring (p output px) by bicubic upscaling of the reference.
+    """Replace the outermost LR-pixel ring (p output px) by bicubic upscaling of the reference (in place).
 
     Frames shifted towards the inside leave that ring observed by the
     reference alone (the rest is padding); measured on the rendered crops the
     MAP estimate there is worse than bicubic, one ring further in it is better.
+    Only 4-LR-pixel strips of the reference are upscaled: the ring's bicubic
+    taps reach 2 LR px inwards, so the values equal those of upscaling the
+    whole frame.
     """
-    out = img.copy()
-    bic = bicubic_upscale(ref, p)
-    out[:p], out[-p:], out[:, :p], out[:, -p:] = bic[:p], bic[-p:], bic[:, :p], bic[:, -p:]
-    return out
+    h, w = ref.shape
+    if min(h, w) < 8:
+        bic = bicubic_upscale(ref, p)
+        img[:p], img[-p:], img[:, :p], img[:, -p:] = bic[:p], bic[-p:], bic[:, :p], bic[:, -p:]
+        return img
+    img[:p] = bicubic_upscale(ref[:4], p)[:p]
+    img[-p:] = bicubic_upscale(ref[-4:], p)[-p:]
+    img[:, :p] = bicubic_upscale(ref[:, :4], p)[:, :p]
+    img[:, -p:] = bicubic_upscale(ref[:, -4:], p)[:, -p:]
+    return img
 
 
 # --------------------------------------------------------------------------- public API
@@ -927,7 +969,8 @@ def _bicubic_rim(img: np.ndarray, ref: np.ndarray, p: int) -> np.ndarray:
 
 def _validate(
     frames: Sequence[np.ndarray], shifts, factor: int, masks, shift_cov, homographies
-) -> tuple[np.ndarray, np.ndarray | None, int]:
+) -> tuple[list[np.ndarray], np.ndarray | None, int]:
+    """Check the inputs; return the frames as arrays (not copied), shifts relative to frame 0, factor."""
     if not isinstance(factor, (int, np.integer)) or isinstance(factor, bool):
         raise ValueError(f"factor must be an integer, got {factor!r}")
     if not 2 <= int(factor) <= MAX_FACTOR:
@@ -942,9 +985,8 @@ def _validate(
         raise ValueError(f"all frames must have the same shape, got {sorted({a.shape for a in arrs})}")
     if min(shape) < 16:
         raise ValueError(f"frames too small for reconstruction: {shape} (need >= 16x16)")
-    stack = np.stack([a.astype(np.float64) for a in arrs])
-    if not np.isfinite(stack).all():
-        raise ValueError("frames contain NaN or infinite values")
+    if any(not (np.issubdtype(a.dtype, np.integer) or a.dtype == bool) and not np.isfinite(a).all() for a in arrs):
+        raise ValueError("frames contain NaN or infinite values")  # integer frames are always finite
     n = len(arrs)
     if shifts is None:
         if homographies is None:
@@ -967,7 +1009,20 @@ def _validate(
         hs = np.asarray(homographies, dtype=np.float64)
         if hs.shape != (n, 3, 3) or not np.isfinite(hs).all():
             raise ValueError(f"homographies must be a finite ({n}, 3, 3) array")
-    return stack, s, int(factor)
+    return arrs, s, int(factor)
+
+
+def _small_ints(arrs: list[np.ndarray]) -> bool:
+    """True if every frame has an integer dtype of at most 16 bits (values and p q sums exact in float32)."""
+    return all((np.issubdtype(a.dtype, np.integer) and a.dtype.itemsize <= 2) or a.dtype == bool for a in arrs)
+
+
+def _stack64(arrs: list[np.ndarray]) -> np.ndarray:
+    """The frames as one float64 (N, H, W) array (one pass per frame)."""
+    out = np.empty((len(arrs),) + arrs[0].shape)
+    for i, a in enumerate(arrs):  # frames
+        out[i] = a
+    return out
 
 
 def _fallback(ref: np.ndarray, factor: int, reason: str, noise: float, n: int, shifts) -> SRResult:
@@ -1027,8 +1082,8 @@ def reconstruct(
     Returns :class:`SRResult`; raises ValueError on malformed input (fewer
     than 2 frames, mismatched shapes, factor outside 2..4, bad shifts).
     """
-    stack, s, p = _validate(frames, shifts, factor, masks, shift_cov, homographies)
-    n = stack.shape[0]
+    arrs, s, p = _validate(frames, shifts, factor, masks, shift_cov, homographies)
+    n = len(arrs)
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
     if geometry not in ("auto", "translation"):
@@ -1040,8 +1095,8 @@ def reconstruct(
     # single-frame estimate for the non-MAP paths and fallbacks (MAP estimates it from the frames jointly)
     sigma = float("nan") if noise_sigma is None else float(noise_sigma)
     if noise_sigma is None and method != "map":
-        sigma = estimate_noise_sigma(stack[0], max_size=256)
-    ref = stack[0]
+        sigma = estimate_noise_sigma(arrs[0], max_size=256)
+    ref = np.asarray(arrs[0], dtype=np.float64)
     if method == "bicubic":
         return SRResult(bicubic_upscale(ref, p), "bicubic", noise_sigma=sigma, weights=np.r_[1.0, np.zeros(n - 1)],
                         shifts=np.zeros((n, 2)) if s is None else s, shift_sigma=np.zeros(n), factor=p)
@@ -1055,18 +1110,20 @@ def reconstruct(
         offs = grid_offsets(s, p, p)
         if offs is None:
             return _fallback(ref, p, f"{method} (eq. {7 if method == 'windowed' else 6}) needs shifts on the k/{p} grid", sigma, n, s)
-        y, filled = interleave(list(stack), offs, p, p)
+        # 8/16-bit frames: the sums are exact in float32 (half the memory traffic; the filter runs in float64)
+        y, filled = interleave(arrs, offs, p, p, dtype=np.float32 if _small_ints(arrs) else np.float64)
         if method == "windowed":
             x = windowed_solution(y, p, p, w=p + 2 if window is None else window)
         else:
             h2 = (y.shape[0] // p) * p - (p - 1)
             w2 = (y.shape[1] // p) * p - (p - 1)
-            x = np.zeros_like(y)
+            x = np.zeros(y.shape)
             sol = pinv_solution(y[:h2, :w2], p, p)
             x[: sol.shape[0], : sol.shape[1]] = sol
         return SRResult(x, method, noise_sigma=sigma, weights=np.ones(n), shifts=s, shift_sigma=np.zeros(n), factor=p)
 
     # method == "map"
+    stack = _stack64(arrs)
     cov = np.zeros((n, 2, 2)) if shift_cov is None else np.asarray(shift_cov, dtype=np.float64)
     reason = ""
     if homographies is None and geometry == "auto" and min(ref.shape) >= 96:

@@ -134,15 +134,17 @@ def windowed_solution(y: np.ndarray, p: int, q: int, w: int = 6, u: int | None =
     ``y`` (sums) has the HR grid's shape; the result (same shape) is the
     per-pixel windowed least-norm estimate of the sub-pixels ``x[k, l]``
     (``x[k]`` is the first sub-pixel of box ``y[k]``), computed for all pixels
-    at once with ``cv2.sepFilter2D`` (reflected border). See
+    at once with ``cv2.sepFilter2D`` (reflected border; float64 taps,
+    arithmetic and result; a float32 ``y`` is read as is). See
     :func:`windowed_filter` for the DC normalisation.
     """
     u = w if u is None else u
     gr, cr = windowed_filter(p, w, normalise)
     gc, cc = windowed_filter(q, u, normalise)
-    return cv2.sepFilter2D(
-        np.asarray(y, dtype=np.float64), cv2.CV_64F, gc, gr, anchor=(cc, cr), borderType=cv2.BORDER_REFLECT_101
-    )
+    src = np.asarray(y)
+    if src.dtype not in (np.float32, np.float64):
+        src = src.astype(np.float64)
+    return cv2.sepFilter2D(src, cv2.CV_64F, gc, gr, anchor=(cc, cr), borderType=cv2.BORDER_REFLECT_101)
 
 
 def grid_offsets(shifts: np.ndarray, p: int, q: int, tol: float = 0.1) -> np.ndarray | None:
@@ -155,20 +157,27 @@ def grid_offsets(shifts: np.ndarray, p: int, q: int, tol: float = 0.1) -> np.nda
     return t.astype(np.int64)
 
 
-def interleave(frames: list[np.ndarray], offsets: np.ndarray, p: int, q: int) -> tuple[np.ndarray, np.ndarray]:
+def interleave(
+    frames: list[np.ndarray], offsets: np.ndarray, p: int, q: int, dtype: type = np.float64
+) -> tuple[np.ndarray, np.ndarray]:
     """Build the interleaved eq. 3 observation (sums) from grid-shifted frames.
 
     Frame n with offsets ``(t_r, t_c)`` sub-pixels: its pixel (i, j) is the
     mean over the HR box starting at ``(p i - t_r, q j - t_c)``, so it fills
     ``y[p i - t_r, q j - t_c] = p q * frame[i, j]``. Frames sharing a phase are
-    averaged. Returns ``(y, filled)``; unfilled entries (missing phases, or
-    the border strip a shifted frame does not reach) are copied from the
-    nearest filled entry along rows, then columns (strided slices and a few
-    whole-array passes; no per-pixel loop).
+    averaged. Returns ``(y, filled)`` (``dtype``, default float64; bool);
+    unfilled entries (missing phases, or the border strip a shifted frame
+    does not reach) are copied from the nearest filled entry along rows, then
+    columns: passes over offsets d = 1..p (rows) and 1..q (columns), each
+    taking from d entries before, then after (cyclically), twice over; 0 if
+    none is within reach. Strided slice writes per frame; the unfilled
+    entries are listed per phase from the frames' rectangles, and the hole
+    filling touches only them (no per-pixel loop).
     """
     h, w = frames[0].shape
-    acc = np.zeros((h * p, w * q))
-    cnt = np.zeros((h * p, w * q))
+    hh, ww = h * p, w * q
+    y = np.empty((hh, ww), dtype=dtype)  # every entry is written below: by a frame, by hole filling, or 0
+    filled = np.zeros((hh, ww), dtype=bool)
 
     def span(t: int, n: int, f: int) -> tuple[slice, slice]:
         # LR indices i with 0 <= f*i - t < n*f, and the matching strided HR slice
@@ -177,25 +186,61 @@ def interleave(frames: list[np.ndarray], offsets: np.ndarray, p: int, q: int) ->
         k0 = f * i0 - t
         return slice(i0, max(i0, i1)), slice(k0, k0 + f * max(0, i1 - i0), f)
 
-    for fr, (tr, tc) in zip(frames, offsets):  # loop over frames, not pixels
-        (ri, rk), (ci, ck) = span(int(tr), h, p), span(int(tc), w, q)
-        acc[rk, ck] += p * q * np.asarray(fr, dtype=np.float64)[ri, ci]
-        cnt[rk, ck] += 1
-    filled = cnt > 0
-    y = np.where(filled, acc / np.maximum(cnt, 1), 0.0)
-    if not filled.all():
-        # holes (missing phases, border strips): nearest filled sample along rows, then columns
+    offsets = np.asarray(offsets, dtype=np.int64)
+    phases: dict[tuple[int, int], list[int]] = {(a, b): [] for a in range(p) for b in range(q)}  # first HR row/col
+    for n_, (tr, tc) in enumerate(offsets):  # group frames by sub-pixel phase
+        phases[(-int(tr)) % p, (-int(tc)) % q].append(n_)
+    holes_r, holes_c = [], []
+    for (first_r, first_c), members in phases.items():  # loop over phases / frames, not pixels
+        plane = (slice(first_r, None, p), slice(first_c, None, q))
+        hp_, wp_ = len(range(first_r, hh, p)), len(range(first_c, ww, q))
+        if len(members) == 1:  # one frame: write its samples straight into y; holes = outside its rectangle
+            n_ = members[0]
+            (ri, rk), (ci, ck) = span(int(offsets[n_, 0]), h, p), span(int(offsets[n_, 1]), w, q)
+            np.multiply(np.asarray(frames[n_])[ri, ci], float(p * q), out=y[rk, ck], casting="unsafe")
+            filled[rk, ck] = True
+            a0, a1 = (rk.start - first_r) // p, (rk.start - first_r) // p + (ri.stop - ri.start)
+            b0, b1 = (ck.start - first_c) // q, (ck.start - first_c) // q + (ci.stop - ci.start)
+            if a1 <= a0 or b1 <= b0:
+                a0 = a1 = b0 = b1 = 0
+            out_rows = np.r_[0:a0, a1:hp_]
+            out_cols = np.r_[0:b0, b1:wp_]
+            rr = np.concatenate([np.repeat(out_rows, wp_), np.repeat(np.arange(a0, a1), out_cols.size)])
+            cc = np.concatenate([np.tile(np.arange(wp_), out_rows.size), np.tile(out_cols, a1 - a0)])
+        else:  # no frame, or several frames on one phase: average them on that phase's sub-grid
+            acc = np.zeros((hp_, wp_))
+            cnt = np.zeros((hp_, wp_))
+            for n_ in members:
+                (ri, rk), (ci, ck) = span(int(offsets[n_, 0]), h, p), span(int(offsets[n_, 1]), w, q)
+                rs = slice((rk.start - first_r) // p, (rk.start - first_r) // p + (ri.stop - ri.start))
+                cs = slice((ck.start - first_c) // q, (ck.start - first_c) // q + (ci.stop - ci.start))
+                acc[rs, cs] += p * q * np.asarray(frames[n_], dtype=np.float64)[ri, ci]
+                cnt[rs, cs] += 1
+            y[plane] = np.where(cnt > 0, acc / np.maximum(cnt, 1), 0.0)
+            filled[plane] = cnt > 0
+            rr, cc = np.nonzero(cnt == 0)
+        holes_r.append(first_r + p * rr)
+        holes_c.append(first_c + q * cc)
+    hr, hc = np.concatenate(holes_r).astype(np.intp), np.concatenate(holes_c).astype(np.intp)
+    if hr.size:
+        # holes (missing phases, border strips): nearest filled sample along rows, then columns;
+        # each step reads the values as they were before it (as a cyclic roll of the array would)
         have = filled.copy()
         for axis, f in ((0, p), (1, q), (0, p), (1, q)):  # a few passes over offsets, not pixels
             for d in range(1, f + 1):
                 for sgn in (1, -1):
-                    src_h = np.roll(have, sgn * d, axis=axis)
-                    take = ~have & src_h
+                    if axis == 0:
+                        sr, sc = (hr - sgn * d) % hh, hc
+                    else:
+                        sr, sc = hr, (hc - sgn * d) % ww
+                    take = have[sr, sc]
                     if take.any():
-                        y[take] = np.roll(y, sgn * d, axis=axis)[take]
-                        have |= take
-                if have.all():
+                        y[hr[take], hc[take]] = y[sr[take], sc[take]]
+                        have[hr[take], hc[take]] = True
+                        hr, hc = hr[~take], hc[~take]
+                if hr.size == 0:
                     break
-            if have.all():
+            if hr.size == 0:
                 break
+        y[hr, hc] = 0.0  # no filled sample within reach
     return y, filled

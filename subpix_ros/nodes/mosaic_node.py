@@ -79,6 +79,7 @@ class MosaicNode(StageNode):
         with self._lock:
             self.mosaic = Mosaic(max_size_px=self.p("max_size_px"))
             self._last_added_ns = None
+            self.added = 0
 
     def _process(self, frame: pl.Frame) -> None:
         self.check_time(frame.stamp_ns)

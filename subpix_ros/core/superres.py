@@ -297,37 +297,6 @@ def _lowpass_window(
     return _integer_preshift(low, *post)[rows, cols]
 
 
-class _FourierShifter:
-    """``render.fourier_shift_blur(image, shift, 0, pad)`` for many shifts of one image.
-
-    The reflect-padded image's spectrum is computed once; each call applies
-    the shift's phase ramp ``exp(-2 pi i k.shift)`` (real ``cos(pi d)`` at
-    Nyquist) and one inverse FFT — the same operations, in the same order,
-    as ``fourier_shift_blur`` (content moves by +shift).
-    """
-
-    def __init__(self, image: np.ndarray, pad: int = 8) -> None:
-        self.pad = pad
-        padded = np.pad(np.asarray(image, dtype=np.float64), pad, mode="reflect")
-        self.shape = padded.shape
-        self.spec = np.fft.rfft2(padded)
-        self.ky = np.fft.fftfreq(self.shape[0])
-        self.kx = np.fft.rfftfreq(self.shape[1])
-
-    def __call__(self, shift: tuple[float, float]) -> np.ndarray:
-        if abs(shift[0]) >= self.pad or abs(shift[1]) >= self.pad:
-            raise ValueError(f"pad={self.pad} too small for shift={shift}")
-        h, w = self.shape
-        ty = np.exp(-2j * np.pi * self.ky * shift[0])
-        tx = np.exp(-2j * np.pi * self.kx * shift[1])
-        if h % 2 == 0:
-            ty[h // 2] = np.cos(np.pi * shift[0])
-        if w % 2 == 0:
-            tx[-1] = np.cos(np.pi * shift[1])
-        out = np.fft.irfft2(self.spec * (ty[:, None] * tx[None, :]), s=(h, w))
-        return out[self.pad : -self.pad, self.pad : -self.pad]
-
-
 def _refine_shifts(
     frames: np.ndarray, ishift: np.ndarray, resid: np.ndarray, lp_sigma: float = 1.0, border: int = 8, iters: int = 3,
     max_region: int = 256,
@@ -358,18 +327,20 @@ def _refine_shifts(
     region = (slice((h - rh) // 2, (h - rh) // 2 + rh), slice((w - rw) // 2, (w - rw) // 2 + rw))
     ctx = _lk_context(region, h, w)
     i0 = (int(ishift[0, 0]), int(ishift[0, 1]))
-    shifter = _FourierShifter(_lowpass_window(frames[0], g, i0, (0, 0), *ctx))
-    for i in range(1, n):  # loop over frames
-        pre = (int(ishift[i, 0]), int(ishift[i, 1]))
+    ref = _lowpass_window(frames[0], g, i0, (0, 0), *ctx)
 
-        def mov_window(iu: int, iv: int, i: int = i, pre: tuple[int, int] = pre) -> np.ndarray:
-            return _lowpass_window(frames[i], g, pre, (iu, iv), *ctx)
+    def mov_window(i: int, iu: int, iv: int) -> np.ndarray:
+        return _lowpass_window(frames[i], g, (int(ishift[i, 0]), int(ishift[i, 1])), (iu, iv), *ctx)
 
-        s, sg, rv = _lk(shifter, mov_window, resid[i], region, ctx, g, iters=iters)
-        if np.isfinite(sg) and np.abs(s - resid[i]).max() < 0.5:
-            out[i], sig[i], resvar[i] = s, sg, rv
-        else:
-            sig[i] = np.inf
+    if n > 1:  # all frames against the reference at once
+        s_all, sg_all, rv_all = _lk_batch([ref], np.zeros(n - 1, dtype=int), mov_window, np.arange(1, n),
+                                          resid[1:], _lk_inner(region, ctx), g, iters=iters)
+        for i in range(1, n):  # per frame: accept or flag
+            s, sg, rv = s_all[i - 1], sg_all[i - 1], rv_all[i - 1]
+            if np.isfinite(sg) and np.abs(s - resid[i]).max() < 0.5:
+                out[i], sig[i], resvar[i] = s, sg, rv
+            else:
+                sig[i] = np.inf
     noise = float(np.sqrt(np.nanmedian(resvar))) if np.isfinite(resvar).any() else float("nan")
     return out, sig, noise, resvar
 
@@ -405,6 +376,7 @@ def detect_geometry(
     design = np.concatenate([np.ones((len(rel), 1)), rel], axis=1)  # (T, 3)
     tshift = np.zeros((n, len(rel), 2))
     resvar_t = np.full((n, len(rel)), np.nan)
+    groups: dict[tuple, list[tuple[int, tuple[slice, slice]]]] = {}
     k = 0
     for a in range(tiles):  # tiles, not pixels
         for b in range(tiles):
@@ -412,16 +384,27 @@ def detect_geometry(
             ra, ca = (ty[a] + ty[a + 1] - ha) // 2, (tx[b] + tx[b + 1] - wa) // 2
             sl = (slice(ra, ra + ha), slice(ca, ca + wa))
             ctx = _lk_context(sl, h, w)
-            shifter = _FourierShifter(_lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx))
-            for i in range(1, n):  # frames
-
-                def mov_window(iu: int, iv: int, i: int = i, ctx: tuple[slice, slice] = ctx) -> np.ndarray:
-                    return _lowpass_window(frames[i], g, (0, 0), (iu, iv), *ctx)
-
-                s, sg, rv = _lk(shifter, mov_window, np.asarray(shifts[i], dtype=np.float64), sl, ctx, g)
-                tshift[i, k] = s if np.isfinite(sg) else np.nan
-                resvar_t[i, k] = rv
+            inner = _lk_inner(sl, ctx)
+            key = (ctx[0].stop - ctx[0].start, ctx[1].stop - ctx[1].start, inner[0].start, inner[0].stop,
+                   inner[1].start, inner[1].stop)
+            groups.setdefault(key, []).append((k, ctx))
             k += 1
+    for key, members in groups.items():  # tiles whose windows have one shape: all tiles x frames at once
+        refs = [_lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx) for _, ctx in members]
+        pair_tile = np.repeat(np.arange(len(members)), n - 1)
+        pair_frame = np.tile(np.arange(1, n), len(members))
+        ctxs = [ctx for _, ctx in members]
+
+        def mov_window(m: int, iu: int, iv: int) -> np.ndarray:
+            return _lowpass_window(frames[pair_frame[m]], g, (0, 0), (iu, iv), *ctxs[pair_tile[m]])
+
+        s0 = np.asarray(shifts, dtype=np.float64)[pair_frame]
+        inner = (slice(key[2], key[3]), slice(key[4], key[5]))
+        s_all, sg_all, rv_all = _lk_batch(refs, pair_tile, mov_window, np.arange(pair_tile.size), s0, inner, g)
+        for m in range(pair_tile.size):  # tile x frame pairs
+            kk, i = members[pair_tile[m]][0], pair_frame[m]
+            tshift[i, kk] = s_all[m] if np.isfinite(sg_all[m]) else np.nan
+            resvar_t[i, kk] = rv_all[m]
     # residual variances in the order the frames and tiles were visited before (frame-major)
     resvars = [v for v in resvar_t[1:].ravel() if np.isfinite(v)]
     nonlinear = False
@@ -452,45 +435,92 @@ def _lk_context(sl: tuple[slice, slice], h: int, w: int, pad: int = 16) -> tuple
             slice(max(sl[1].start - pad, 0), min(sl[1].stop + pad, w)))
 
 
-def _lk(
-    ref_shift: _FourierShifter, mov_window, s0: np.ndarray, sl: tuple[slice, slice], ctx: tuple[slice, slice],
-    g: np.ndarray, iters: int = 3,
-) -> tuple[np.ndarray, float, float]:
-    """Lucas-Kanade shift of ``mov`` vs ``ref`` (both low-passed by g) over region ``sl``.
-
-    ``mov ~ shift(ref, s)``; Gauss-Newton from ``s0`` on ``F ~ R - d . grad R``.
-    ``ref_shift`` moves the low-passed reference over the context window
-    ``ctx`` (``sl`` plus 16 px, see :func:`_lk_context`, so the Fourier
-    shift's wrap stays outside ``sl``); ``mov_window(iu, iv)`` returns the
-    low-passed moving frame over ``ctx``, preshifted by the integer part of
-    the current shift. Returns (s, std of s, noise variance per pixel implied
-    by the residual).
-    """
+def _lk_inner(sl: tuple[slice, slice], ctx: tuple[slice, slice]) -> tuple[slice, slice]:
+    """The part of region ``sl`` (4 px in from its edges) that the fit uses, relative to its context window."""
     ra, ca = ctx[0].start, ctx[1].start
-    inner = (slice(sl[0].start - ra + 4, sl[0].stop - ra - 4), slice(sl[1].start - ca + 4, sl[1].stop - ca - 4))
-    # integer part of s0 handled by the crop of mov; the residual by the Fourier shift of ref
+    return (slice(sl[0].start - ra + 4, sl[0].stop - ra - 4), slice(sl[1].start - ca + 4, sl[1].stop - ca - 4))
+
+
+def _lk_batch(
+    refs: list[np.ndarray], ref_of: np.ndarray, mov_window, keys: np.ndarray, s0: np.ndarray,
+    inner: tuple[slice, slice], g: np.ndarray, iters: int = 3, pad: int = 8,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lucas-Kanade shifts of M (reference, moving) window pairs at once (all windows one shape).
+
+    Pair m: ``mov ~ shift(ref, s)`` with ``ref = refs[ref_of[m]]`` (a low-passed
+    reference window) and the moving window ``mov_window(keys[m], iu, iv)``
+    (low-passed, preshifted by the integer part (iu, iv) of the current s).
+    Gauss-Newton from ``s0[m]`` on ``F ~ R - d . grad R`` over ``inner``:
+    ``R`` is the reference moved by the fractional part of s in the Fourier
+    domain (reflect-padded by ``pad`` px, phase ``exp(-2 pi i k.s)``, real
+    ``cos(pi s)`` at Nyquist; each reference transformed once), ``grad R`` by
+    central differences ``(R[i+1] - R[i-1]) / 2``, step ``d = -(G^T G)^-1 G^T (F - R)``. All pairs'
+    transforms, gradients and 2x2 solves are batched. A pair whose step is
+    not finite or exceeds 0.5 px (or whose G^T G is singular) stops with its
+    current s, std inf and NaN variance. Returns s (M, 2), the std of s
+    ``sqrt(var(r) tr((G^T G)^-1) / 2)`` and the noise variance per pixel
+    ``var(r) / (2 (sum g^2)^2)`` implied by the final residual r (M each).
+    """
+    m_all = len(ref_of)
+    padded = np.pad(np.stack(refs).astype(np.float64), ((0, 0), (pad, pad), (pad, pad)), mode="reflect")
+    hh, ww = padded.shape[1:]
+    spec = np.fft.rfft2(padded)  # (T, hh, ww//2+1), once per reference
+    wy = -2j * np.pi * np.fft.fftfreq(hh)
+    wx = -2j * np.pi * np.fft.rfftfreq(ww)
     s = np.asarray(s0, dtype=np.float64).copy()
-    cache: dict[tuple[int, int], np.ndarray] = {}
-    for _ in range(iters):  # Gauss-Newton iterations
-        iu, iv = int(np.rint(s[0])), int(np.rint(s[1]))
-        if (iu, iv) not in cache:
-            cache[iu, iv] = mov_window(iu, iv)
-        movc = cache[iu, iv]
-        pred = ref_shift((float(s[0] - iu), float(s[1] - iv)))
-        gy, gx = np.gradient(pred)
-        gm = np.stack([gy[inner].ravel(), gx[inner].ravel()], axis=1)
-        e = (movc - pred)[inner].ravel()
-        ata = gm.T @ gm
-        try:
-            step = -np.linalg.solve(ata, gm.T @ e)
-        except np.linalg.LinAlgError:
-            return s, float("inf"), float("nan")
-        if not np.all(np.isfinite(step)) or np.abs(step).max() > 0.5:
-            return s, float("inf"), float("nan")
-        s = s + step
-    r = e - gm @ step
-    resvar = float(np.var(r)) / (2.0 * float(np.sum(g**2)) ** 2)
-    return s, float(np.sqrt(np.var(r) * np.trace(np.linalg.inv(ata)) / 2.0)), resvar
+    sig = np.full(m_all, np.inf)
+    resvar = np.full(m_all, np.nan)
+    active = np.ones(m_all, dtype=bool)
+    cache: dict[tuple[int, int, int], np.ndarray] = {}
+    last = None
+    for _ in range(iters):  # Gauss-Newton iterations, all pairs at once
+        act = np.flatnonzero(active)
+        if act.size == 0:
+            break
+        ii = np.rint(s[act]).astype(np.int64)
+        frac = s[act] - ii
+        movc = []
+        for m, (iu, iv) in zip(act, ii):  # pairs (windows), not pixels
+            key = (int(keys[m]), int(iu), int(iv))
+            if key not in cache:
+                cache[key] = mov_window(*key)
+            movc.append(cache[key])
+        ty = np.exp(wy[None, :] * frac[:, 0, None])
+        tx = np.exp(wx[None, :] * frac[:, 1, None])
+        if hh % 2 == 0:
+            ty[:, hh // 2] = np.cos(np.pi * frac[:, 0])
+        if ww % 2 == 0:
+            tx[:, -1] = np.cos(np.pi * frac[:, 1])
+        pred = np.fft.irfft2(spec[ref_of[act]] * (ty[:, :, None] * tx[:, None, :]), s=(hh, ww))
+        pred = pred[:, pad:-pad, pad:-pad]
+        # central differences (as np.gradient in the interior; ``inner`` is >= 4 px from the window's edge)
+        r0, r1, c0, c1 = inner[0].start, inner[0].stop, inner[1].start, inner[1].stop
+        gy = ((pred[:, r0 + 1 : r1 + 1, c0:c1] - pred[:, r0 - 1 : r1 - 1, c0:c1]) / 2.0).reshape(act.size, -1)
+        gx = ((pred[:, r0:r1, c0 + 1 : c1 + 1] - pred[:, r0:r1, c0 - 1 : c1 - 1]) / 2.0).reshape(act.size, -1)
+        e = (np.stack([mv[r0:r1, c0:c1] for mv in movc]) - pred[:, r0:r1, c0:c1]).reshape(act.size, -1)
+        ata = np.empty((act.size, 2, 2))
+        ata[:, 0, 0] = np.einsum("ap,ap->a", gy, gy)
+        ata[:, 0, 1] = ata[:, 1, 0] = np.einsum("ap,ap->a", gy, gx)
+        ata[:, 1, 1] = np.einsum("ap,ap->a", gx, gx)
+        rhs = np.stack([np.einsum("ap,ap->a", gy, e), np.einsum("ap,ap->a", gx, e)], axis=1)
+        ok = np.abs(np.linalg.det(ata)) > 0
+        step = np.full((act.size, 2), np.nan)
+        if ok.any():
+            step[ok] = -np.linalg.solve(ata[ok], rhs[ok][..., None])[..., 0]
+        good = np.isfinite(step).all(axis=1) & (np.abs(step).max(axis=1) <= 0.5)
+        active[act[~good]] = False
+        s[act[good]] += step[good]
+        last = (act[good], gy[good], gx[good], e[good], ata[good], step[good])
+    if last is not None and iters > 0:
+        idx, gy, gx, e, ata, step = last
+        keep = active[idx]
+        idx, gy, gx, e, ata, step = idx[keep], gy[keep], gx[keep], e[keep], ata[keep], step[keep]
+        if idx.size:
+            r = e - (gy * step[:, 0, None] + gx * step[:, 1, None])
+            vr = np.var(r, axis=1)
+            resvar[idx] = vr / (2.0 * float(np.sum(g**2)) ** 2)
+            sig[idx] = np.sqrt(vr * np.trace(np.linalg.inv(ata), axis1=1, axis2=2) / 2.0)
+    return s, sig, resvar
 
 
 def _rfft2_32(img: np.ndarray) -> np.ndarray:

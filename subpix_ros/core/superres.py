@@ -10,11 +10,15 @@ Main entry point :func:`reconstruct`. Methods:
   bin couples only the factor^2 aliased HR frequencies, a factor^2 x factor^2
   (or N x N, eq. 9's own form, whichever is smaller) Hermitian system. Cost
   O(pixels log pixels) — linear in pixel count up to the FFT log. With
-  per-frame constant noise (the normal case) the Gram matrices of all bins
-  come from one BLAS product over frames and a Cholesky vectorised over bins
-  (:func:`_solve_separable`).
+  per-frame constant noise (the normal case) each Gram entry of all bins is
+  one small-inner-dimension matrix product over frames (the transfer is
+  separable in rows and columns), and the systems are solved by a Cholesky
+  factorisation vectorised over bins, in single precision
+  (:func:`_solve_separable`); the spectra are single-precision FFTs of
+  ``cv2.getOptimalDFTSize`` sizes.
   Data-driven settings: shifts are refined against frame 0 by Lucas-Kanade
-  on low-passed frames (``refine_shifts``; ~0.003 px on the rendered crops);
+  on low-passed frames (``refine_shifts``; ~0.003 px on the rendered crops;
+  central region only, all frames batched);
   the noise std comes from the residual of that registration (a multi-frame
   estimate texture does not bias); the prior ``S_x(f) = c |f|^-alpha`` is
   fitted to the frames' spectrum through the observation model
@@ -32,8 +36,9 @@ Main entry point :func:`reconstruct`. Methods:
   :mod:`subpix_ros.core.superres_model` — each frame's geometry inside the
   forward model, the inputs are never resampled — warm-started from the
   Fourier solution.
-* ``"windowed"``: eq. 7 (normalised) as one separable filter on the
-  interleaved grid; needs shifts on the k/p grid (falls back otherwise).
+* ``"windowed"``: eq. 7 (normalised) as one separable filter
+  (``cv2.sepFilter2D``) on the interleaved grid; needs shifts on the k/p
+  grid (falls back otherwise).
 * ``"pinv"``: eq. 6, reference only (unstable; O(n^3)).
 * ``"bicubic"``: bicubic upscaling of the reference frame (the baseline).
 
@@ -548,7 +553,7 @@ def _transfer_main(n_lr: int, p: int, shift: float, blur_sigma: float, rfft: boo
 
 def _solve_separable(
     spec: np.ndarray, ay: np.ndarray, ax: np.ndarray, fy: np.ndarray, fx: np.ndarray,
-    c: float, alpha: float, reg: float, noise_power: float,
+    c: float, alpha: float, reg: float, noise_power: float, block_bins: int = 1 << 16,
 ) -> np.ndarray:
     """Per-bin MAP solve (eq. 9, normal-equation form) when every frame's noise variance is frequency-independent.
 
@@ -558,7 +563,7 @@ def _solve_separable(
     Because ``a`` is separable, each Gram entry is a rank-N product of a row
     factor and a column factor,
     ``G[m, m'](ky, kx) = sum_n (conj(ay[n,m1]) ay[n,m1'])(ky) (conj(ax[n,m2]) ax[n,m2'])(kx)``,
-    i.e. a (hp x N) @ (N x wc) matrix product: only the k (k+1) / 2
+    i.e. a (rows x N) @ (N x wc) matrix product: only the k (k+1) / 2
     lower-triangle entries are formed, one ``cv2.gemm`` (complex, single
     precision) per row-factor pair (m1, m1'). The right-hand side
     ``A^H Y / v`` is ``sum_n conj(ay[n,m1]) (conj(ax[n,m2]) Y_n)``: the column
@@ -566,50 +571,69 @@ def _solve_separable(
     batched (p x N) @ (N x p wc) product per spectrum row. The k x k Hermitian
     systems are solved by a Cholesky factorisation ``L L^H`` vectorised over
     bins (loops over the k x k matrix indices only, in-place updates).
-    complex64 / float32 throughout. Returns X (p, p, hp, wc) complex64.
+    The spectrum is processed in blocks of whole rows of about ``block_bins``
+    bins, so the working arrays stay in cache. complex64 / float32
+    throughout. Returns X (p, p, hp, wc) complex64.
     """
     n, p, hp = ay.shape
     wc = ax.shape[2]
-    k = p * p
-    idx = [(m1, m2) for m1 in range(p) for m2 in range(p)]
+    xs = np.empty((p, p, hp, wc), np.complex64)
+    rows = max(1, min(hp, block_bins // max(wc, 1)))
     ay32 = ay.astype(np.complex64)
     ax32 = ax.astype(np.complex64)
     cay = np.conj(ay32) * np.float32(1.0 / noise_power)  # 1/v folded into the row factors
     cax = np.conj(ax32)
-
-    def as_c2(z: np.ndarray) -> np.ndarray:  # complex64 -> 2-channel float32 (cv2's complex matrices)
-        z = np.ascontiguousarray(z)
-        return z.view(np.float32).reshape(z.shape + (2,))
-
-    # Gram, lower triangle i >= j (i = (a1, a2), j = (b1, b2)): group by the row-factor pair (a1, b1)
-    gram: dict[tuple[int, int], np.ndarray] = {}
+    # column factors of the Gram entries, lower triangle i >= j (i = (a1, a2), j = (b1, b2)), grouped by (a1, b1)
+    col_fac = {}
     for a1 in range(p):
         for b1 in range(a1 + 1):
             cols = [(a2, b2) for a2 in range(p) for b2 in range(p) if a1 * p + a2 >= b1 * p + b2]
-            u = (cay[:, a1] * ay32[:, b1]).T  # (hp, n)
             w = np.concatenate([cax[:, a2] * ax32[:, b2] for a2, b2 in cols], axis=1)  # (n, len(cols) wc)
-            prod = cv2.gemm(as_c2(u), as_c2(w), 1.0, None, 0.0).view(np.complex64)[..., 0]
-            for q, (a2, b2) in enumerate(cols):
-                gram[a1 * p + a2, b1 * p + b2] = prod[:, q * wc : (q + 1) * wc]
-    # right-hand side b[m1, m2] = sum_n cay[n, m1] (cax[n, m2] Y_n)
-    t = spec.transpose(1, 0, 2)[:, :, None, :] * cax[None, :, :, :]  # (hp, n, p, wc)
-    rhs = np.matmul(cay.transpose(2, 1, 0), t.reshape(hp, n, p * wc))  # (hp, p, p wc)
-    del t
+            col_fac[a1, b1] = (cols, _as_c2(w))
+    lam_cols = [(fy[m1].astype(np.float64) ** 2, fx[m2].astype(np.float64) ** 2) for m1 in range(p) for m2 in range(p)]
+    for r0 in range(0, hp, rows):  # blocks of spectrum rows (cache), not pixels
+        r1 = min(hp, r0 + rows)
+        _solve_separable_block(spec[:, r0:r1], ay32[:, :, r0:r1], cay[:, :, r0:r1], cax, col_fac, lam_cols, r0, r1,
+                               alpha, np.float32(reg / c), xs[:, :, r0:r1])
+    return xs
 
-    fy2 = (fy**2).astype(np.float32)
-    fx2 = (fx**2).astype(np.float32)
-    lam_scale = np.float32(reg / c)
-    tmp_r = np.empty((hp, wc), np.float32)
-    tmp_c = np.empty((hp, wc), np.complex64)
+
+def _as_c2(z: np.ndarray) -> np.ndarray:
+    """complex64 array -> 2-channel float32 view (OpenCV's complex matrices)."""
+    z = np.ascontiguousarray(z, dtype=np.complex64)
+    return z.view(np.float32).reshape(z.shape + (2,))
+
+
+def _solve_separable_block(
+    spec: np.ndarray, ay32: np.ndarray, cay: np.ndarray, cax: np.ndarray, col_fac: dict, lam_cols: list,
+    r0: int, r1: int, alpha: float, lam_scale: np.float32, out: np.ndarray,
+) -> None:
+    """Rows r0..r1 of :func:`_solve_separable` (same arrays, cut to the block); writes ``out`` (p, p, R, wc)."""
+    n, p, nr = ay32.shape
+    wc = cax.shape[2]
+    k = p * p
+    idx = [(m1, m2) for m1 in range(p) for m2 in range(p)]
+    gram: dict[tuple[int, int], np.ndarray] = {}
+    for (a1, b1), (cols, w2) in col_fac.items():  # Gram: one product per row-factor pair
+        u = (cay[:, a1] * ay32[:, b1]).T  # (R, n)
+        prod = cv2.gemm(_as_c2(u), w2, 1.0, None, 0.0).view(np.complex64)[..., 0]
+        for q, (a2, b2) in enumerate(cols):
+            gram[a1 * p + a2, b1 * p + b2] = prod[:, q * wc : (q + 1) * wc]
+    # right-hand side b[m1, m2] = sum_n cay[n, m1] (cax[n, m2] Y_n)
+    t = spec.transpose(1, 0, 2)[:, :, None, :] * cax[None, :, :, :]  # (R, n, p, wc)
+    rhs = np.matmul(cay.transpose(2, 1, 0), t.reshape(nr, n, p * wc))  # (R, p, p wc)
+    del t
+    tmp_r = np.empty((nr, wc), np.float32)
+    tmp_c = np.empty((nr, wc), np.complex64)
     low: dict[tuple[int, int], np.ndarray] = {}
     dinv: list[np.ndarray] = []
     for j in range(k):  # Cholesky over the k x k index, vectorised over bins
-        m1, m2 = idx[j]
+        fy2, fx2 = lam_cols[j]
         # prior precision reg / P(f) = reg |f|^alpha / c, |f|^alpha = (fy^2 + fx^2)^(alpha/2)
-        np.add(fy2[m1][:, None], fx2[m2][None, :], out=tmp_r)
+        np.add(fy2[r0:r1, None], fx2[None, :], out=tmp_r, casting="same_kind")
         d = cv2.pow(tmp_r, alpha / 2.0)
         d *= lam_scale
-        if j == 0:
+        if j == 0 and r0 == 0:
             d[0, 0] = 0.0  # alias (0, 0) at bin (0, 0) is the HR DC term
         d += gram[j, j].real
         for q in range(j):
@@ -620,18 +644,18 @@ def _solve_separable(
         np.sqrt(d, out=d)
         np.divide(np.float32(1.0), d, out=d)
         dinv.append(d)
+        dc = d.astype(np.complex64)
         for i in range(j + 1, k):
-            v = gram[i, j].copy()
+            v = gram[i, j]  # a view into this block's own product: updated in place
             for q in range(j):
                 np.multiply(low[i, q], np.conj(low[j, q]), out=tmp_c)
                 v -= tmp_c
-            v *= d
+            v *= dc
             low[i, j] = v
-    xs = np.empty((p, p, hp, wc), np.complex64)
     z: list[np.ndarray] = []
-    for i in range(k):  # forward substitution
+    for i in range(k):  # forward substitution (in place on the right-hand side)
         m1, m2 = idx[i]
-        v = rhs[:, m1, m2 * wc : (m2 + 1) * wc].copy()
+        v = rhs[:, m1, m2 * wc : (m2 + 1) * wc]
         for q in range(i):
             np.multiply(low[i, q], z[q], out=tmp_c)
             v -= tmp_c
@@ -640,10 +664,9 @@ def _solve_separable(
     for i in reversed(range(k)):  # back substitution with L^H, written into the result
         v = z[i]
         for q in range(i + 1, k):
-            np.multiply(np.conj(low[q, i]), xs[idx[q]], out=tmp_c)
+            np.multiply(np.conj(low[q, i]), out[idx[q]], out=tmp_c)
             v -= tmp_c
-        np.multiply(v, dinv[i], out=xs[idx[i]])
-    return xs
+        np.multiply(v, dinv[i], out=out[idx[i]])
 
 
 def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
@@ -652,25 +675,61 @@ def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
     HR bin (m1 hp + ky, m2 wp + kx) holds ``xs[m1, m2, ky, kx]``; HR rfft columns whose
     LR bin lies outside the rfft half come from Hermitian symmetry
     ``X[-K] = conj(X[K])``. Inverse real FFT of size (p hp, p wp), single precision
-    (float32 result).
+    (float32 result): ``cv2.dft`` on OpenCV's packed (CCS) half spectrum when
+    both sizes are even (the half spectrum is written straight into it), else
+    ``np.fft.irfft2``.
     """
     p = xs.shape[0]
     wc = xs.shape[3]
     nh, nw = p * hp, p * wp
-    half = np.empty((nh, nw // 2 + 1), dtype=np.complex64)
-    # HR row index -K mod nh for every HR row K (the mirror rows of the Hermitian half)
-    neg = (-np.arange(nh)) % nh
+    nc = nw // 2 + 1  # HR rfft columns
+    ccs_path = nh % 2 == 0 and nw % 2 == 0 and nw >= 4
+    if ccs_path:
+        ccs = np.empty((nh, nw), np.float32)
+        mid = ccs[:, 1 : nw - 1].view(np.complex64)  # half-spectrum columns 1 .. nc - 2
+        edge = np.empty((2, nh), np.complex64)  # columns 0 and nc - 1 (packed separately)
+
+        def put(rows: slice, a: int, b: int, values: np.ndarray, conj: bool = False) -> None:
+            # half[rows, a:b] = values (conjugated if asked), split over edge / mid
+            for lo, hi, dst in ((0, 1, None), (1, nc - 1, mid), (nc - 1, nc, None)):
+                s, e = max(a, lo), min(b, hi)
+                if e <= s:
+                    continue
+                v = values[:, s - a : e - a]
+                target = edge[0 if lo == 0 else 1, rows][:, None] if dst is None else dst[rows, s - 1 : e - 1]
+                if conj:
+                    np.conjugate(v, out=target)
+                else:
+                    target[...] = v
+    else:
+        half = np.empty((nh, nc), dtype=np.complex64)
+
+        def put(rows: slice, a: int, b: int, values: np.ndarray, conj: bool = False) -> None:
+            if conj:
+                np.conjugate(values, out=half[rows, a:b])
+            else:
+                half[rows, a:b] = values
+
     for m2 in range(p):  # alias columns, not pixels
         c0 = m2 * wp
-        n_direct = min(wc, nw // 2 + 1 - c0)
+        n_direct = min(wc, nc - c0)
         if n_direct > 0:
-            half[:, c0 : c0 + n_direct] = xs[:, m2, :, :n_direct].reshape(nh, n_direct)
-        lo, hi = c0 + wc, min(c0 + wp, nw // 2 + 1)
-        if hi > lo:  # kx in [wc, wp): conj of alias p-1-m2 at column wp - kx, HR row -K
-            src = xs[:, p - 1 - m2].reshape(nh, wc)
-            cols = wp - np.arange(lo - c0, hi - c0)
-            half[:, lo:hi] = np.conj(src[neg[:, None], cols[None, :]])
-    return np.fft.irfft2(half, s=(nh, nw))
+            for m1 in range(p):  # alias rows
+                put(slice(m1 * hp, (m1 + 1) * hp), c0, c0 + n_direct, xs[m1, m2, :, :n_direct])
+        lo, hi = c0 + wc, min(c0 + wp, nc)
+        if hi > lo:  # kx in [wc, wp): conj of alias p-1-m2 at LR column wp - kx, HR row -K mod nh
+            cs, ce = wp - (hi - c0) + 1, wp - (lo - c0) + 1
+            blk = xs[:, p - 1 - m2, :, cs:ce].reshape(nh, ce - cs)[:, ::-1]  # rows K, columns wp - kx
+            put(slice(0, 1), lo, hi, blk[:1], conj=True)
+            put(slice(1, nh), lo, hi, blk[:0:-1], conj=True)
+    if not ccs_path:
+        return np.fft.irfft2(half, s=(nh, nw))
+    for col, e in ((0, edge[0]), (nw - 1, edge[1])):  # CCS packing of the two real-symmetric columns
+        ccs[0, col] = e[0].real
+        ccs[1 : nh - 1 : 2, col] = e[1 : nh // 2].real
+        ccs[2 : nh - 1 : 2, col] = e[1 : nh // 2].imag
+        ccs[nh - 1, col] = e[nh // 2].real
+    return cv2.dft(ccs, flags=cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
 
 
 def _lanczos_delay(d: float, taps: int = 8) -> np.ndarray:

@@ -5,7 +5,8 @@ import cv2
 import numpy as np
 import pytest
 
-from subpix_ros.core.mosaic import Mosaic
+from subpix_ros.core.mosaic import FrameGeometry, Mosaic, PairModel
+from subpix_ros.core.registration_points import apply_h
 from subpix_ros.data import seneca_frame_paths
 
 
@@ -70,3 +71,103 @@ def test_bad_input_raises():
         m.add(np.zeros((100, 100), np.float32))
     with pytest.raises(ValueError):
         Mosaic(max_size_px=10)
+
+
+# -- h(y) transition (METHODS C, eq. 3) -------------------------------------------------------
+
+def _h_forward(dy: float, persp: float) -> np.ndarray:
+    """Frame k px -> frame k-1 px for a 200x300 (HxW) frame advanced by ``dy`` rows, with a small
+    rotation and perspective (so that H is not a similarity)."""
+    th = np.deg2rad(2.0)
+    h = np.array([[np.cos(th), -np.sin(th), 3.0], [np.sin(th), np.cos(th), dy], [0.0, persp, 1.0]])
+    return h
+
+
+def test_transition_weight_and_maps_follow_eq3():
+    shape = (200, 300)
+    h_prev = PairModel(_h_forward(120.0, 2e-4))  # frame k -> k-1 (frame k lies 120 rows further down)
+    h_next = PairModel(_h_forward(110.0, -1e-4))  # frame k+1 -> k
+    p_prev = np.array([[0.9, -0.1, 40.0], [0.1, 0.9, 70.0], [0, 0, 1.0]])  # similarity placing frame k-1
+    geo = FrameGeometry.chained(p_prev, h_prev, shape, shape, h_next, shape)
+    # flight direction: frame k-1's centre maps to negative rows of frame k -> d points down (+y)
+    assert geo.direction[1] > 0.99
+    xs = np.linspace(0, 299, 31)
+    trailing = np.stack([xs, np.zeros_like(xs)], 1)  # row 0: the edge frame k-1 is seen across
+    assert np.allclose(geo.weight(trailing), 1.0)
+    g = np.stack(np.meshgrid(np.linspace(0, 299, 13), np.linspace(0, 199, 9)), -1).reshape(-1, 2)
+    inside_next = h_next.fwd(g)  # frame k+1's pixels in frame k ...
+    inside_next = inside_next[(inside_next >= 0).all(1) & (inside_next[:, 0] <= 299) & (inside_next[:, 1] <= 199)]
+    assert len(inside_next) > 20 and np.allclose(geo.weight(inside_next), 0.0)  # ... keep frame k's own geometry
+    # linear in between (eq. 3: h = 1 - (y - H_k) / (H_(k+1) - H_k))
+    t = np.linspace(geo.t1, geo.t2, 7)
+    pts = geo.centre + t[:, None] * geo.direction
+    np.testing.assert_allclose(geo.weight(pts), 1 - (t - geo.t1) / (geo.t2 - geo.t1), atol=1e-12)
+    # D_k = P_(k-1) H_k where h = 1, and P_k = P_(k-1) A_k (own geometry) where h = 0
+    np.testing.assert_allclose(geo.to_mosaic(trailing), apply_h(p_prev, h_prev.fwd(trailing)), atol=1e-9)
+    np.testing.assert_allclose(geo.to_mosaic(inside_next), apply_h(geo.placement, inside_next), atol=1e-9)
+    a = geo.placement[:2, :2]
+    np.testing.assert_allclose(a @ a.T, np.eye(2) * np.linalg.det(a), atol=1e-12)  # a similarity
+    # H is not a similarity, so the two geometries really differ inside the frame
+    assert np.abs(apply_h(p_prev, h_prev.fwd(inside_next)) - apply_h(geo.placement, inside_next)).max() > 1.0
+
+
+def test_seam_is_exact_and_own_geometry_reverses():
+    """Frame k+1 drawn with h = 1 at its seam lands exactly on frame k's own geometry; going back
+    over the same pair reverses the similarity exactly (no drift from the construction)."""
+    shape = (200, 300)
+    hk, hk1 = PairModel(_h_forward(120.0, 2e-4)), PairModel(_h_forward(110.0, -1e-4))
+    geo_k = FrameGeometry.chained(np.eye(3), hk, shape, shape, hk1, shape)
+    geo_k1 = FrameGeometry.chained(geo_k.placement, hk1, shape, shape)
+    seam = np.stack([np.linspace(0, 299, 11), np.zeros(11)], 1)  # frame k+1's trailing edge
+    np.testing.assert_allclose(geo_k1.to_mosaic(seam), geo_k.to_mosaic(hk1.fwd(seam)), atol=1e-9)
+    back = FrameGeometry.chained(np.eye(3), PairModel(np.linalg.inv(hk1.h)), shape, shape)
+    np.testing.assert_allclose(geo_k1.a @ back.a, np.eye(3), atol=1e-9)
+
+
+def test_strip_visible_parts_match_their_frames(strip_mosaic, frames):
+    """Where each frame stays visible (not covered by later ones), the canvas sampled through the
+    frame's drawing map reproduces that frame; a 2-canvas-px displacement does not."""
+    m, _ = strip_mosaic
+    img = m.image()
+    hh, ww = frames[0].shape[:2]
+    ys, xs = np.mgrid[40:hh - 40:4, 40:ww - 40:4]
+    pts = np.stack([xs.ravel(), ys.ravel()], 1).astype(float)
+    k = int(round(1 / m.scale))
+    border = np.array([[0, 0], [ww - 1, 0], [ww - 1, hh - 1], [0, hh - 1]], float)
+    for i in range(len(frames)):
+        q = m.to_canvas(i, pts).astype(np.float32)
+        covered = np.zeros(img.shape[:2], np.uint8)
+        for j in range(i + 1, len(frames)):
+            cv2.fillConvexPoly(covered, np.rint(m.to_canvas(j, border)).astype(np.int32), 1)
+        covered = cv2.dilate(covered, np.ones((7, 7), np.uint8))
+        qi = np.clip(np.rint(q).astype(int), 0, [img.shape[1] - 1, img.shape[0] - 1])
+        vis = covered[qi[:, 1], qi[:, 0]] == 0
+        assert vis.sum() > 20000, (i, vis.sum())
+        ref = cv2.resize(cv2.resize(frames[i], None, fx=1 / k, fy=1 / k, interpolation=cv2.INTER_AREA),
+                         (ww, hh), interpolation=cv2.INTER_LINEAR)[ys, xs].reshape(-1, 3).astype(float)
+
+        def diff(dx):
+            s = cv2.remap(img, (q[:, 0] + dx).reshape(xs.shape), q[:, 1].reshape(xs.shape), cv2.INTER_LINEAR)
+            return np.abs(s.reshape(-1, 3).astype(float) - ref)[vis].mean()
+
+        assert diff(0.0) < 6.0, (i, diff(0.0))
+        assert diff(2.0) > diff(0.0) + 1.0, (i, diff(0.0), diff(2.0))
+
+
+def test_back_and_forth_placement_does_not_drift_like_the_homography_chain(frames):
+    """Frames 0..4..0: frame 0's placement on return vs the first time (corner displacement, frame px),
+    against the plain homography chain over the same registrations."""
+    m = Mosaic(max_size_px=800)
+    seq = [0, 1, 2, 3, 4, 3, 2, 1, 0]
+    chain = [np.eye(3)]
+    for i, k in enumerate(seq):
+        u = m.add(frames[k])
+        assert u.ok, u.reason
+        if i:
+            chain.append(chain[-1] @ u.registration.homography)
+    hh, ww = frames[0].shape[:2]
+    c = np.array([[0, 0], [ww - 1, 0], [ww - 1, hh - 1], [0, hh - 1]], float)
+    drift = np.hypot(*(apply_h(m.transforms[-1], c) - c).T).max()
+    drift_h = np.hypot(*(apply_h(chain[-1], c) - c).T).max()
+    assert drift < 8.0, drift
+    assert drift < 0.25 * drift_h, (drift, drift_h)

@@ -208,9 +208,9 @@ def fit_spectrum(
     sel = _spectrum_bins(h, w, max_bins)
     ky, kx = np.unravel_index(sel, (h, wc))
     obs = psd.ravel()[sel]
-    amp = (np.abs(ay[:, None, ky] * ax[None, :, kx]) ** 2).reshape(p * p, -1) * p * p  # (p^2, bins)
+    amp = np.ascontiguousarray((np.abs(ay[:, None, ky] * ax[None, :, kx]) ** 2).reshape(p * p, -1) * p * p)
     fm = np.hypot(fy[:, None, ky], fx[None, :, kx]).reshape(p * p, -1)
-    logf = np.log(np.maximum(fm, 1e-9))
+    logf = np.ascontiguousarray(np.log(np.maximum(fm, 1e-9)))  # (p^2, bins), C order for the sums below
     # all 31 exponents at once: q[a] = sum_m amp_m |f_m|^-alpha_a, alpha_a = 1 + 0.1 a, by the recurrence
     # |f|^-(alpha + 0.1) = |f|^-alpha |f|^-0.1 (no loop over bins)
     alphas = np.arange(1.0, 4.0001, 0.1)
@@ -223,8 +223,9 @@ def fit_spectrum(
     w0 = 1.0 / np.maximum(obs, 1e-12) ** 2
     wgt = None  # first pass: the same weights 1/obs^2 for every exponent
     model = np.empty_like(q)
+    wq = np.empty_like(q)
     for _ in range(3):  # reweighting passes, all exponents at once
-        wq = q * (w0 if wgt is None else wgt)
+        np.multiply(q, w0 if wgt is None else wgt, out=wq)
         s_qq = np.einsum("ab,ab->a", wq, q)
         s_q = wq.sum(axis=1)
         if noise_sigma is None:
@@ -243,7 +244,8 @@ def fit_spectrum(
         model += s2[:, None]
         wgt = np.square(model, out=wgt)
         np.divide(1.0, wgt, out=wgt)
-    rel = (obs - model) / model
+    rel = np.subtract(obs, model, out=wq)
+    rel /= model
     err = np.einsum("ab,ab->a", rel, rel) / obs.size
     best = int(np.argmin(err))
     c, alpha, s2 = c_[best], alphas[best], s2[best]

@@ -1201,7 +1201,8 @@ def reconstruct(
         offs = grid_offsets(s, p, p)
         if offs is None:
             return _fallback(ref, p, f"{method} (eq. {7 if method == 'windowed' else 6}) needs shifts on the k/{p} grid", sigma, n, s)
-        # 8/16-bit frames: the sums are exact in float32 (half the memory traffic; the filter runs in float64)
+        # 8/16-bit frames: float32 holds the sums exactly (averages of frames sharing a phase to float32
+        # round-off); half the memory traffic, and the filter still runs in float64
         y, filled = interleave(arrs, offs, p, p, dtype=np.float32 if _small_ints(arrs) else np.float64)
         if method == "windowed":
             x = windowed_solution(y, p, p, w=p + 2 if window is None else window)

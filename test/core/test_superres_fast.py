@@ -1,0 +1,218 @@
+"""The fast paths of the super-resolution solver equal their direct definitions.
+
+Each vectorised / blocked / windowed helper of :mod:`subpix_ros.core.superres`
+and :func:`subpix_ros.core.superres_paper.interleave` is compared with a
+plain reference written here from its docstring (dense per-bin solves,
+whole-frame filtering, an array-wide roll-based hole fill, a per-exponent
+least-squares loop). Random inputs; tolerances are the single-precision
+round-off of the fast path.
+"""
+import cv2
+import numpy as np
+import pytest
+
+from subpix_ros.core import superres as sr
+from subpix_ros.core.render import render_sequence
+from subpix_ros.core.superres_model import frame_transfer_1d, gaussian_kernel
+from subpix_ros.core.superres_paper import interleave
+
+
+def _dense_map(spec, ay, ax, fy, fx, c, alpha, reg, noise_power):
+    """Per-bin normal equations solved one by one (eq. 9, normal-equation form), float64."""
+    n, p, hp = ay.shape
+    wc = ax.shape[2]
+    out = np.zeros((p, p, hp, wc), complex)
+    for ky in range(hp):  # reference: loops over bins on purpose
+        for kx in range(wc):
+            a = (ay[:, :, None, ky] * ax[:, None, :, kx]).reshape(n, p * p)
+            f = np.hypot(fy[:, None, ky], fx[None, :, kx]).ravel()
+            lam = reg * np.maximum(f, 1e-30) ** alpha / c
+            if ky == 0 and kx == 0:
+                lam[0] = 0.0
+            m = a.conj().T @ a / noise_power + np.diag(lam)
+            out[:, :, ky, kx] = np.linalg.solve(m, a.conj().T @ spec[:, ky, kx] / noise_power).reshape(p, p)
+    return out
+
+
+@pytest.mark.parametrize("p,n,block", [(2, 4, 40), (2, 7, 1 << 16), (3, 5, 64)])
+def test_separable_solve_equals_dense_per_bin_solve(p, n, block):
+    rng = np.random.default_rng(p * 10 + n)
+    hp, wp = 12, 14
+    wc = wp // 2 + 1
+    shifts = rng.uniform(-0.5, 0.5, (n, 2))
+    shifts[0] = 0
+    ay = np.stack([frame_transfer_1d(hp, p, s, 0.4)[0] for s in shifts[:, 0]])
+    ax = np.stack([frame_transfer_1d(wp, p, s, 0.4)[0][:, :wc] for s in shifts[:, 1]])
+    fy = frame_transfer_1d(hp, p, 0.0, 0.4)[1]
+    fx = frame_transfer_1d(wp, p, 0.0, 0.4)[1][:, :wc]
+    spec = (rng.normal(size=(n, hp, wc)) + 1j * rng.normal(size=(n, hp, wc))) * 100
+    args = (spec.astype(np.complex64), ay, ax, fy, fx, 3.0e5, 2.5, 1.0, hp * wp * 0.5)
+    fast = sr._solve_separable(*args, block_bins=block)  # small blocks: several row blocks
+    ref = _dense_map(spec, *args[1:])
+    assert np.abs(fast - ref).max() < 1e-4 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("p", [2, 3, 4])
+@pytest.mark.parametrize("hp,wp", [(16, 16), (15, 21), (18, 25), (27, 32)])
+def test_assemble_hr_inverts_the_alias_split(p, hp, wp):
+    rng = np.random.default_rng(hp * wp + p)
+    img = rng.normal(size=(p * hp, p * wp))
+    spec = np.fft.fft2(img)
+    wc = wp // 2 + 1
+    xs = np.empty((p, p, hp, wc), np.complex64)
+    for m1 in range(p):
+        for m2 in range(p):
+            xs[m1, m2] = spec[m1 * hp : (m1 + 1) * hp, m2 * wp : m2 * wp + wc]
+    out = sr._assemble_hr(xs, hp, wp)
+    assert out.shape == img.shape
+    assert np.abs(out - img).max() < 1e-4
+
+
+def _interleave_reference(frames, offsets, p, q):
+    """The eq. 3 interleave as documented, with the hole fill as whole-array cyclic rolls."""
+    h, w = frames[0].shape
+    acc = np.zeros((h * p, w * q))
+    cnt = np.zeros((h * p, w * q))
+    for fr, (tr, tc) in zip(frames, offsets):
+        for i in range(h):
+            for j in range(w):
+                k, l = p * i - tr, q * j - tc
+                if 0 <= k < h * p and 0 <= l < w * q:
+                    acc[k, l] += p * q * float(fr[i, j])
+                    cnt[k, l] += 1
+    filled = cnt > 0
+    y = np.where(filled, acc / np.maximum(cnt, 1), 0.0)
+    have = filled.copy()
+    for axis, f in ((0, p), (1, q), (0, p), (1, q)):
+        for d in range(1, f + 1):
+            for sgn in (1, -1):
+                take = ~have & np.roll(have, sgn * d, axis=axis)
+                y[take] = np.roll(y, sgn * d, axis=axis)[take]
+                have |= take
+            if have.all():
+                break
+        if have.all():
+            break
+    return y, filled
+
+
+@pytest.mark.parametrize("p,q", [(2, 2), (3, 2), (4, 4)])
+def test_interleave_equals_reference(p, q):
+    rng = np.random.default_rng(p * q)
+    for trial in range(6):
+        h, w = rng.integers(4, 12, 2)
+        if trial == 0:  # the standard grid
+            offs = np.array([(a, b) for a in range(p) for b in range(q)])
+        else:  # random: duplicates, missing phases, frames partly or wholly outside
+            offs = rng.integers(-2 * p, 2 * p, (int(rng.integers(1, 2 * p * q)), 2))
+        frames = [rng.integers(0, 256, (h, w)).astype(np.uint8) for _ in range(len(offs))]
+        y_ref, f_ref = _interleave_reference(frames, offs, p, q)
+        y, filled = interleave(frames, offs, p, q)
+        np.testing.assert_array_equal(filled, f_ref)
+        np.testing.assert_allclose(y, y_ref, rtol=1e-12, atol=1e-9)
+        y32, _ = interleave(frames, offs, p, q, dtype=np.float32)
+        # 8-bit sums are exact in float32; averages of frames sharing a phase are rounded to float32
+        np.testing.assert_allclose(y32.astype(np.float64), y_ref, rtol=1.2e-7, atol=0)
+        if len({(int(a) % p, int(b) % q) for a, b in offs}) == len(offs):
+            np.testing.assert_array_equal(y32.astype(np.float64), y_ref)
+
+
+@pytest.mark.parametrize("pre,post", [((0, 0), (0, 0)), ((1, -2), (0, 0)), ((0, 0), (-1, 1)), ((2, 1), (1, -1))])
+def test_lowpass_window_equals_whole_frame_filter(pre, post):
+    rng = np.random.default_rng(5)
+    frame = rng.normal(size=(60, 70))
+    g = gaussian_kernel(1.0)
+    whole = cv2.sepFilter2D(sr._integer_preshift(frame, *pre), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101)
+    whole = sr._integer_preshift(whole, *post)
+    for rows, cols in [(slice(20, 40), slice(25, 50)), (slice(0, 30), slice(0, 20)), (slice(45, 60), slice(50, 70)),
+                       (slice(2, 58), slice(1, 69))]:
+        np.testing.assert_allclose(sr._lowpass_window(frame, g, pre, post, rows, cols), whole[rows, cols],
+                                   rtol=0, atol=1e-12)
+
+
+def test_fractional_shift_window_equals_whole_image():
+    rng = np.random.default_rng(6)
+    img = rng.uniform(0, 255, (50, 64)).astype(np.float32)
+    whole = sr._fractional_shift(img, 0.3, -0.45)
+    for win in [(slice(0, 10), slice(0, 64)), (slice(40, 50), slice(0, 64)), (slice(10, 40), slice(0, 7)),
+                (slice(10, 40), slice(57, 64)), (slice(20, 30), slice(20, 30))]:
+        np.testing.assert_allclose(sr._fractional_shift(img, 0.3, -0.45, window=win), whole[win], rtol=0, atol=1e-3)
+
+
+@pytest.mark.parametrize("p", [2, 3, 4])
+def test_bicubic_rim_equals_whole_frame_bicubic(p):
+    rng = np.random.default_rng(p)
+    ref = rng.uniform(0, 255, (40, 52))
+    img = rng.normal(size=(40 * p, 52 * p))
+    inner = img[p:-p, p:-p].copy()
+    out = sr._bicubic_rim(img.copy(), ref, p)
+    bic = sr.bicubic_upscale(ref, p)
+    np.testing.assert_array_equal(out[p:-p, p:-p], inner)  # the inside is untouched
+    rim = np.ones(out.shape, bool)
+    rim[p:-p, p:-p] = False
+    # strips vs whole frame: OpenCV computes the cubic weights in single precision from absolute coordinates
+    assert np.abs(out[rim] - bic[rim]).max() < 0.02
+
+
+def test_refined_shifts_do_not_depend_on_batching(crops):
+    seq = render_sequence(crops["crop_trees"][: 2 * 160, : 2 * 160], 2, [(0, 0), (0.3, 0.6), (0.55, 0.1), (0.8, 0.9)],
+                          blur_sigma=0.4, snr_db=40, seed=3)
+    frames = np.stack(seq.frames).astype(np.float64)
+    given = seq.shifts + np.array([[0, 0], [0.05, -0.04], [-0.03, 0.06], [0.02, 0.03]])
+    ishift = np.rint(given).astype(np.int64)
+    resid = given - ishift
+    together = sr._refine_shifts(frames, ishift, resid)
+    for i in range(1, 4):  # each frame alone against the reference
+        alone = sr._refine_shifts(frames[[0, i]], ishift[[0, i]], resid[[0, i]])
+        np.testing.assert_allclose(alone[0][1], together[0][i], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(alone[1][1], together[1][i], rtol=1e-9)
+        np.testing.assert_allclose(alone[3][1], together[3][i], rtol=1e-9)
+    assert np.abs(together[0] + ishift - seq.shifts).max() < 0.01
+
+
+def _fit_spectrum_loop(psd_obs, amp, logf, noise_sigma):
+    """fit_spectrum's exponent search written as the plain per-exponent loop."""
+    best = None
+    for alpha in np.arange(1.0, 4.0001, 0.1):
+        q = np.sum(amp * np.exp(-alpha * logf), axis=0)
+        wgt = 1.0 / np.maximum(psd_obs, 1e-12) ** 2
+        for _ in range(3):
+            if noise_sigma is None:
+                mat = np.stack([q, np.ones_like(q)], axis=1)
+                c_, s2 = np.linalg.solve((mat * wgt[:, None]).T @ mat, (mat * wgt[:, None]).T @ psd_obs)
+                s2 = max(s2, 1e-6)
+            else:
+                s2 = noise_sigma**2
+                c_ = float(np.sum(wgt * q * (psd_obs - s2)) / np.sum(wgt * q * q))
+            c_ = max(c_, 1e-12)
+            model = c_ * q + s2
+            wgt = 1.0 / model**2
+        err = float(np.mean(((psd_obs - model) / model) ** 2))
+        if best is None or err < best[0]:
+            best = (err, c_, alpha, s2)
+    return best[1], best[2], float(np.sqrt(best[3]))
+
+
+@pytest.mark.parametrize("noise_sigma", [None, 0.6])
+@pytest.mark.parametrize("p", [2, 3])
+def test_fit_spectrum_equals_per_exponent_loop(crops, p, noise_sigma):
+    seq = render_sequence(crops["crop_field_edge"][: 100 * p, : 100 * p], p, [(0, 0), (0.5, 0.5)], blur_sigma=0.4,
+                          snr_db=40, seed=2)
+    frames = np.stack(seq.frames).astype(np.float64)
+    c, alpha, sigma = sr.fit_spectrum(frames, p, 0.4, noise_sigma)
+    # the same observation and model terms, built as fit_spectrum's docstring states
+    h = w = frames.shape[1]
+    win = np.outer(sr._tukey(h), sr._tukey(w))
+    x = (frames - frames.mean(axis=(1, 2), keepdims=True)) * win
+    psd = np.mean([np.abs(np.fft.rfft2(f)) ** 2 for f in x], axis=0) / float(np.sum(win**2))
+    ay, fy = frame_transfer_1d(h, p, 0.0, 0.4)
+    ax, fx = frame_transfer_1d(w, p, 0.0, 0.4)
+    wc = w // 2 + 1
+    sel = sr._spectrum_bins(h, w, 8000)
+    ky, kx = np.unravel_index(sel, (h, wc))
+    amp = (np.abs(ay[:, None, ky] * ax[:, :wc][None, :, kx]) ** 2).reshape(p * p, -1) * p * p
+    logf = np.log(np.maximum(np.hypot(fy[:, None, ky], fx[:, :wc][None, :, kx]).reshape(p * p, -1), 1e-9))
+    c_ref, alpha_ref, sigma_ref = _fit_spectrum_loop(psd.ravel()[sel], amp, logf, noise_sigma)
+    assert alpha == pytest.approx(alpha_ref, abs=1e-9)
+    assert c == pytest.approx(c_ref, rel=1e-3)  # single- vs double-precision periodogram
+    assert sigma == pytest.approx(sigma_ref, rel=1e-3)

@@ -15,7 +15,7 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("need at least two frames")
     m = Mosaic(max_size_px=args.max_size)
     n_ok = 0
-    print("frame  ok  inliers  rms_px  seam_px  time_ms  file")
+    print("frame  ok  inliers  rms_px  seam_px  overlap_px  time_ms  file")
     for i, path in enumerate(args.frames):
         img = cv2.imread(path, cv2.IMREAD_COLOR)
         if img is None:
@@ -24,7 +24,8 @@ def run(args: argparse.Namespace) -> int:
         n_ok += u.ok
         rms = "-" if u.rms_px is None else f"{u.rms_px:.3f}"
         seam = "-" if u.seam_residual_px is None else f"{u.seam_residual_px:.3f}"
-        print(f"{i:5d}  {'yes' if u.ok else 'NO ':3s} {u.inliers:7d}  {rms:>6s}  {seam:>7s}  {u.time_s * 1000:7.0f}  {path}"
+        over = "-" if u.overlap_residual_px is None else f"{u.overlap_residual_px:.3f}"
+        print(f"{i:5d}  {'yes' if u.ok else 'NO ':3s} {u.inliers:7d}  {rms:>6s}  {seam:>7s}  {over:>10s}  {u.time_s * 1000:7.0f}  {path}"
               + ("" if u.ok else f"  ({u.reason})"))
     if not cv2.imwrite(args.output, m.image()):
         raise CliError(f"cannot write {args.output!r}")

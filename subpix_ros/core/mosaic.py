@@ -67,7 +67,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .registration import RegistrationResult, register, to_gray32
+from .registration import RegistrationResult, register
 from .registration_fit import Normaliser, distort_points, undistort_points
 from .registration_points import apply_h
 
@@ -397,9 +397,12 @@ class Mosaic:
         """Register ``frame`` (HxW mono or HxWx3 BGR, uint8) to the previous one and draw it."""
         t0 = time.perf_counter()
         img = np.asarray(frame)
-        to_gray32(img, "frame")  # validates shape / dtype / finiteness
         if img.dtype != np.uint8:
             raise ValueError(f"frame must be uint8, got {img.dtype}")
+        if img.ndim == 3 and img.shape[2] == 1:
+            img = img[:, :, 0]
+        if not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 3)) or min(img.shape[:2]) < 32:
+            raise ValueError(f"frame: expected HxW or HxWx3 (BGR) of at least 32x32, got shape {img.shape}")
         if img.ndim == 2:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
         idx = len(self.transforms)

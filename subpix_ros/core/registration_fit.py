@@ -220,17 +220,38 @@ def fit_homography_distortion_lm(
     coordinates to UNDISTORTED reference pixel coordinates.
     """
     t = norm.t
+    m = apply_h(t, pts_mov)  # normalised coordinates: centre 0, half-diagonal 1
     r = apply_h(t, pts_ref)
+    unit = Normaliser(0.0, 0.0, 1.0)
+
+    def model(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        u = undistort_points(m, q[-1], unit)
+        y = apply_h(_h_from_params(q[:-1], affine), u)
+        return distort_points(y, q[-1], unit), u
 
     def res(q: np.ndarray) -> np.ndarray:
-        lam = q[-1]
-        hu = norm.to_pixel_h(_h_from_params(q[:-1], affine))
-        pr = distort_points(apply_h(hu, undistort_points(pts_mov, lam, norm)), lam, norm)
-        out = (apply_h(t, pr) - r).ravel()
+        out = (model(q)[0] - r).ravel()
         return np.where(np.isfinite(out), out, 1e3)
 
+    def jac(q: np.ndarray) -> np.ndarray:
+        # d/dH: (dD/dy) (dy/dq), dy/dq analytic (eq. P), the 2x2 dD/dy by forward differences;
+        # d/dlam by a forward difference.
+        lam = q[-1]
+        p0, u = model(q)
+        y = apply_h(_h_from_params(q[:-1], affine), u)
+        e = 1e-7
+        jd = np.stack([(distort_points(y + [e, 0.0], lam, unit) - p0) / e,
+                       (distort_points(y + [0.0, e], lam, unit) - p0) / e], axis=2)  # (N, 2, 2)
+        jh = _jacobian_eq_p(q[:-1], u, affine).reshape(len(u), 2, -1)
+        jq = np.einsum("nij,njp->nip", jd, jh).reshape(2 * len(u), -1)
+        ql = q.copy()
+        ql[-1] += e
+        jl = ((model(ql)[0] - p0) / e).reshape(-1, 1)
+        out = np.hstack([jq, jl])
+        return np.where(np.isfinite(out), out, 0.0)
+
     q0 = np.concatenate([_params_from_h(norm.to_norm_h(h0), affine), [0.0]])
-    q = levenberg_marquardt(res, q0)
+    q = levenberg_marquardt(res, q0, jac=jac)
     return norm.to_pixel_h(_h_from_params(q[:-1], affine)), float(q[-1])
 
 

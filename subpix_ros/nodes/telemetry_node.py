@@ -42,6 +42,7 @@ class TelemetryNode(StageNode):
         Param("system_id", 0, "MAVLink system id to follow (0: the first vehicle seen)", 0, 255),
         Param("link_timeout_s", 2.0, "no message for this long: link lost", 0.1, 60.0),
         Param("tlog_rate", 1.0, "tlog replay speed (0: as fast as possible)", 0.0, 1000.0),
+        Param("tlog_start_delay_s", 1.0, "tlog replay starts this long after start-up (subscribers connect)", 0.0, 60.0),
         Param("focal_length_mm", 4.3, "camera focal length (mm)", 0.1, 2000.0),
         Param("pixel_pitch_um", 1.54, "detector pixel pitch (um)", 0.1, 100.0),
         Param("p", 2.0, "sub-pixel factor: frames should step by 1/p pixel", 2.0, 16.0),
@@ -85,10 +86,17 @@ class TelemetryNode(StageNode):
             self.reader = MavlinkReader(url, baud=self.p("baud"), system_id=self.p("system_id") or None,
                                         link_timeout_s=self.p("link_timeout_s"), on_sample=self.handle_sample,
                                         on_status=self._on_link, rate=rate or None)
-            self.reader.start()
+            if url.endswith(".tlog") and self.p("tlog_start_delay_s") > 0:
+                self._delay = self.create_timer(self.p("tlog_start_delay_s"), self._start_reader)
+            else:
+                self.reader.start()
         except (ValueError, OSError) as exc:
             self.diag.error(f"cannot open MAVLink connection {url!r}: {exc}")
             self.reader = None
+
+    def _start_reader(self) -> None:
+        self._delay.cancel()
+        self.reader.start()
 
     def _start_mavros(self) -> None:
         q = reliable_qos(20)

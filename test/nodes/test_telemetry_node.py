@@ -93,10 +93,11 @@ def test_udp_mavlink_to_ros_topics_and_link_loss(rclpy_node):
 def test_tlog_replay_matches_the_flight(rclpy_node, sample_bags):
     from subpix_ros.data import data_root
 
-    proc = _start(f"connection:={sample_bags / 'seneca.tlog'}", "tlog_rate:=10.0", "pixel_pitch_um:=3.08")
+    proc = _start(f"connection:={sample_bags / 'seneca.tlog'}", "tlog_rate:=10.0", "pixel_pitch_um:=3.08",
+                  "tlog_start_delay_s:=3.0")
     sink = Sink(rclpy_node)
     try:
-        assert _spin(rclpy_node, lambda: len(sink.fix) >= 361, 30.0), len(sink.fix)
+        assert _spin(rclpy_node, lambda: len(sink.fix) >= 361, 60.0), len(sink.fix)
     finally:
         proc.terminate()
         proc.wait(10)

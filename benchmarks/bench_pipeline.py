@@ -1,0 +1,170 @@
+#!/usr/bin/env python3
+"""End-to-end throughput and latency of the nodes at 1920x1080 (issue 6).
+
+A camera stand-in in this process publishes 1920x1080 bgr8 frames (raw CDR,
+stamped at publication) at ``--rate`` Hz: a real Seneca frame drifting by
+(0.41, 0.27) px per frame. The nodes run as
+
+* ``separate``: registration, shift, reconstruction and mosaic nodes, each its
+  own process, talking over DDS;
+* ``single``: the ``pipeline`` executable (one process, stages in memory).
+
+Printed per layout: frames in, shifts out, super-resolved images out, frames
+dropped by each node's queue (from /diagnostics), latency frame-in ->
+shift-out (p50, p99) and frames-in -> super-resolved-out (from the last frame
+of a set), and the CPU time of the node processes.
+
+Usage: python benchmarks/bench_pipeline.py [--rate 10] [--seconds 20] [--layouts separate single]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+STEP = (0.41, 0.27)
+SET = 8
+
+
+def make_frames(n: int, w: int = 1920, h: int = 1080) -> list[np.ndarray]:
+    """n frames of a real scene drifting by STEP px per frame (bilinear warp of an upscaled Seneca frame)."""
+    scene = cv2.imread(str(ROOT / "data" / "seneca" / "IMG_0463.jpg"), cv2.IMREAD_COLOR)
+    scene = cv2.resize(scene, (2400, 1800), interpolation=cv2.INTER_CUBIC)
+    out = []
+    for k in range(n):
+        m = np.float32([[1, 0, -100 + k * STEP[1]], [0, 1, -100 + k * STEP[0]]])
+        out.append(cv2.warpAffine(scene, m, (w, h), flags=cv2.INTER_LINEAR))
+    return out
+
+
+def start_layout(layout: str, env: dict) -> list[subprocess.Popen]:
+    params = ["--params-file", str(ROOT / "config" / "bench.yaml")]
+    if layout == "single":
+        cmds = [[sys.executable, "-m", "subpix_ros.nodes.pipeline", "--no-telemetry", "--ros-args", "-r",
+                 "image:=/camera/image_raw", *params]]
+    else:
+        cmds = [[sys.executable, "-m", f"subpix_ros.nodes.{n}", "--ros-args", *params] +
+                (["-r", "image:=/camera/image_raw"] if n in ("registration_node", "mosaic_node") else [])
+                for n in ("registration_node", "shift_node", "reconstruction_node", "mosaic_node")]
+    return [subprocess.Popen(c, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for c in cmds]
+
+
+def cpu_seconds(pid: int) -> float:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except OSError:
+        return float("nan")
+
+
+def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: float) -> dict:
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Vector3Stamped
+    from sensor_msgs.msg import Image
+
+    from subpix_ros.io import cdr
+    from subpix_ros.nodes.common import latched_qos, reliable_qos
+
+    env = dict(os.environ)
+    procs = start_layout(layout, env)
+    rclpy.init()
+    node = rclpy.create_node("bench_camera")
+    pub = node.create_publisher(Image, "/camera/image_raw", reliable_qos(30))
+    sent: dict[int, float] = {}
+    shifts: dict[int, float] = {}
+    srs: dict[int, float] = {}
+    diag: dict[str, dict[str, str]] = {}
+    node.create_subscription(Vector3Stamped, "/shift", lambda r: shifts.setdefault(
+        cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]), time.monotonic()), reliable_qos(100), raw=True)
+    node.create_subscription(Image, "/super_resolved", lambda r: srs.setdefault(
+        cdr.header_to_ns(cdr.cdr_to_image_msg(r).header), time.monotonic()), latched_qos(), raw=True)
+    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diag.update(
+        {s.name: {kv.key: kv.value for kv in s.values} for s in m.status}), 50)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (pub.get_subscription_count() >= (1 if layout == "single" else 2)
+                                                   and node.count_publishers("/shift") and node.count_publishers("/super_resolved")):
+            rclpy.spin_once(node, timeout_sec=0.1)
+        for _ in range(20):
+            rclpy.spin_once(node, timeout_sec=0.05)
+        cpu0 = sum(cpu_seconds(p.pid) for p in procs)
+        n = int(rate * seconds)
+        t0 = time.monotonic()
+        base = time.time_ns()
+        for k in range(n):
+            target = t0 + k / rate
+            while time.monotonic() < target:
+                rclpy.spin_once(node, timeout_sec=max(0.0, min(0.005, target - time.monotonic())))
+            stamp = base + int(k * 1e9 / rate)
+            raw = cdr.image_to_cdr(frames[k % len(frames)], "bgr8", stamp, "camera")
+            sent[stamp] = time.monotonic()
+            pub.publish(raw)
+        wall = time.monotonic() - t0
+        end = time.monotonic() + 30
+        while time.monotonic() < end and len(shifts) < n - n // SET - 2:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        end = time.monotonic() + 10
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        cpu = sum(cpu_seconds(p.pid) for p in procs) - cpu0
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+        for p in procs:
+            p.send_signal(2)
+        for p in procs:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+    order = sorted(sent)
+    lat_shift = np.array([shifts[s] - sent[s] for s in shifts if s in sent]) * 1000
+    lat_sr = []
+    for ref, t in srs.items():  # the set's last frame is SET-1 frames after its reference
+        if ref in sent:
+            i = order.index(ref)
+            last = order[min(i + SET - 1, len(order) - 1)]
+            lat_sr.append((t - sent[last]) * 1000)
+    drops = {name.replace("_node", ""): d.get("dropped_frames", "?") for name, d in sorted(diag.items())}
+    return {"layout": layout, "frames": len(sent), "rate": len(sent) / wall, "shifts": len(shifts), "sr": len(srs),
+            "lat_shift": lat_shift, "lat_sr": np.array(lat_sr), "drops": drops, "cpu_s_per_frame": cpu / len(sent)}
+
+
+def pct(a: np.ndarray, q: float) -> str:
+    return f"{np.percentile(a, q):8.0f}" if a.size else "       -"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--rate", type=float, default=10.0)
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--layouts", nargs="+", default=["separate", "single"], choices=["separate", "single"])
+    args = ap.parse_args()
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(101, 199)))
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    frames = make_frames(48)
+    rows = [run_layout(layout, frames, args.rate, args.seconds) for layout in args.layouts]
+    print(f"\n1920x1080 bgr8 at {args.rate:g} Hz for {args.seconds:g} s, sets of {SET} frames, x2 super-resolution "
+          f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
+    print("| layout   | frames in | in Hz | shifts out | SR out | frame->shift p50/p99 ms | set->SR p50/p99 ms "
+          "| CPU s/frame | dropped (per node) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['layout']:8s} | {r['frames']:9d} | {r['rate']:5.1f} | {r['shifts']:10d} | {r['sr']:6d} | "
+              f"{pct(r['lat_shift'], 50)} / {pct(r['lat_shift'], 99)} | {pct(r['lat_sr'], 50)} / {pct(r['lat_sr'], 99)} | "
+              f"{r['cpu_s_per_frame']:.3f} | {r['drops']} |")
+
+
+if __name__ == "__main__":
+    main()

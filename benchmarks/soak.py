@@ -1,0 +1,126 @@
+#!/usr/bin/env python3
+"""Soak: the single-process pipeline fed 1920x1080 frames at 30 Hz for 18,000 frames (issue 7).
+
+Not a CI test (10 minutes at 30 Hz). A camera stand-in publishes a loop of
+real-scene frames (see bench_pipeline.make_frames) with fresh, increasing
+stamps; the pipeline's resident memory is sampled every 5 s. Printed: frames
+in, shifts out, super-resolved images out, frames dropped per stage (the
+bounded drop-oldest queues: at 30 Hz the pipeline is expected to drop, and
+must count it), latency frame -> shift (p50, p99), and memory: RSS after
+warm-up (first 60 s), at the end, growth, and the maximum.
+
+Usage: python benchmarks/soak.py [--frames 18000] [--rate 30]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_pipeline import make_frames, start_layout  # noqa: E402
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=18000)
+    ap.add_argument("--rate", type=float, default=30.0)
+    ap.add_argument("--warmup-s", type=float, default=60.0)
+    args = ap.parse_args()
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(101, 199)))
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Vector3Stamped
+    from sensor_msgs.msg import Image
+
+    from subpix_ros.io import cdr
+    from subpix_ros.nodes.common import latched_qos, reliable_qos
+
+    frames = make_frames(64)
+    (proc,) = start_layout("single", dict(os.environ))
+    rclpy.init()
+    node = rclpy.create_node("soak_camera")
+    pub = node.create_publisher(Image, "/camera/image_raw", reliable_qos(30))
+    sent: dict[int, float] = {}
+    lat: list[float] = []
+    srs = [0]
+    diag: dict[str, dict[str, str]] = {}
+
+    def on_shift(raw):
+        s = cdr.header_to_ns(cdr.cdr_to_vector3_stamped(raw)[1])
+        t = sent.pop(s, None)
+        if t is not None:
+            lat.append(time.monotonic() - t)
+
+    node.create_subscription(Vector3Stamped, "/shift", on_shift, reliable_qos(100), raw=True)
+    node.create_subscription(Image, "/super_resolved", lambda r: srs.__setitem__(0, srs[0] + 1), latched_qos(), raw=True)
+    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diag.update(
+        {s.name: {kv.key: kv.value for kv in s.values} for s in m.status}), 50)
+    mem: list[tuple[float, float]] = []
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (pub.get_subscription_count() and node.count_publishers("/shift")):
+            rclpy.spin_once(node, timeout_sec=0.1)
+        t0 = time.monotonic()
+        next_mem = t0
+        base = time.time_ns()
+        for k in range(args.frames):
+            target = t0 + k / args.rate
+            while time.monotonic() < target:
+                rclpy.spin_once(node, timeout_sec=max(0.0, min(0.005, target - time.monotonic())))
+            stamp = base + int(k * 1e9 / args.rate)
+            pub.publish(cdr.image_to_cdr(frames[k % len(frames)], "bgr8", stamp, "camera"))
+            sent[stamp] = time.monotonic()
+            if len(sent) > 2000:  # frames never answered (dropped) leave the latency table
+                for s in sorted(sent)[:1000]:
+                    del sent[s]
+            if time.monotonic() >= next_mem:
+                mem.append((time.monotonic() - t0, rss_mb(proc.pid)))
+                next_mem += 5.0
+                if proc.poll() is not None:
+                    raise SystemExit(f"pipeline died with status {proc.returncode}")
+        wall = time.monotonic() - t0
+        end = time.monotonic() + 15
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        mem.append((time.monotonic() - t0, rss_mb(proc.pid)))
+        alive = proc.poll() is None
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+        proc.send_signal(2)
+        proc.wait(15)
+    m = np.array(mem)
+    after = m[m[:, 0] >= args.warmup_s]
+    base_mb = after[0, 1] if len(after) else m[0, 1]
+    lat_ms = np.array(lat) * 1000
+    drops = {n.replace("_node", ""): d.get("dropped_frames", "?") for n, d in sorted(diag.items())}
+    print(f"\nsoak: single-process pipeline, 1920x1080 bgr8 at {args.rate:g} Hz, {args.frames} frames in {wall:.0f} s "
+          f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
+    print("| frames in | shifts out | SR out | frame->shift p50 / p99 ms | RSS after warm-up MB | RSS end MB | "
+          "growth MB | RSS max MB | crashed | dropped (per stage) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    print(f"| {args.frames} | {len(lat)} | {srs[0]} | {np.percentile(lat_ms, 50):.0f} / {np.percentile(lat_ms, 99):.0f} | "
+          f"{base_mb:.0f} | {m[-1, 1]:.0f} | {m[-1, 1] - base_mb:+.0f} | {m[:, 1].max():.0f} | {not alive} | {drops} |")
+    print("memory samples (s, MB): " + ", ".join(f"{t:.0f}:{v:.0f}" for t, v in m[:: max(1, len(m) // 20)]))
+
+
+if __name__ == "__main__":
+    main()

@@ -460,7 +460,8 @@ def _lk_batch(
     Gauss-Newton from ``s0[m]`` on ``F ~ R - d . grad R`` over ``inner``:
     ``R`` is the reference moved by the fractional part of s in the Fourier
     domain (reflect-padded by ``pad`` px, phase ``exp(-2 pi i k.s)``, real
-    ``cos(pi s)`` at Nyquist; each reference transformed once), ``grad R`` by
+    ``cos(pi s)`` at Nyquist; each reference transformed once; single-precision
+    transforms, only the rows the fit reads inverted; float64 sums), ``grad R`` by
     central differences ``(R[i+1] - R[i-1]) / 2``, step ``d = -(G^T G)^-1 G^T (F - R)``. All pairs'
     transforms, gradients and 2x2 solves are batched. A pair whose step is
     not finite or exceeds 0.5 px (or whose G^T G is singular) stops with its
@@ -469,11 +470,13 @@ def _lk_batch(
     ``var(r) / (2 (sum g^2)^2)`` implied by the final residual r (M each).
     """
     m_all = len(ref_of)
-    padded = np.pad(np.stack(refs).astype(np.float64), ((0, 0), (pad, pad), (pad, pad)), mode="reflect")
+    padded = np.pad(np.stack(refs).astype(np.float32), ((0, 0), (pad, pad), (pad, pad)), mode="reflect")
     hh, ww = padded.shape[1:]
-    spec = np.fft.rfft2(padded)  # (T, hh, ww//2+1), once per reference
+    spec = np.fft.rfft2(padded)  # (T, hh, ww//2+1) complex64, once per reference
     wy = -2j * np.pi * np.fft.fftfreq(hh)
     wx = -2j * np.pi * np.fft.rfftfreq(ww)
+    r0, r1, c0, c1 = inner[0].start, inner[0].stop, inner[1].start, inner[1].stop
+    rows = slice(pad + r0 - 1, pad + r1 + 1)  # the rows the fit and its row differences read
     s = np.asarray(s0, dtype=np.float64).copy()
     sig = np.full(m_all, np.inf)
     resvar = np.full(m_all, np.nan)
@@ -498,10 +501,12 @@ def _lk_batch(
             ty[:, hh // 2] = np.cos(np.pi * frac[:, 0])
         if ww % 2 == 0:
             tx[:, -1] = np.cos(np.pi * frac[:, 1])
-        pred = np.fft.irfft2(spec[ref_of[act]] * (ty[:, :, None] * tx[:, None, :]), s=(hh, ww))
-        pred = pred[:, pad:-pad, pad:-pad]
+        # inverse 2-D real FFT as column ifft then row irfft (as np.fft.irfft2), rows limited to the fit's
+        shifted = spec[ref_of[act]] * (ty[:, :, None] * tx[:, None, :]).astype(np.complex64)
+        pred_rows = np.fft.irfft(np.fft.ifft(shifted, axis=1)[:, rows], n=ww, axis=2)
+        pred = np.zeros((act.size, hh - 2 * pad, ww - 2 * pad))  # float64 from here on (sums over the region)
+        pred[:, r0 - 1 : r1 + 1] = pred_rows[:, :, pad:-pad]
         # central differences (as np.gradient in the interior; ``inner`` is >= 4 px from the window's edge)
-        r0, r1, c0, c1 = inner[0].start, inner[0].stop, inner[1].start, inner[1].stop
         gy = ((pred[:, r0 + 1 : r1 + 1, c0:c1] - pred[:, r0 - 1 : r1 - 1, c0:c1]) / 2.0).reshape(act.size, -1)
         gx = ((pred[:, r0:r1, c0 + 1 : c1 + 1] - pred[:, r0:r1, c0 - 1 : c1 - 1]) / 2.0).reshape(act.size, -1)
         e = (np.stack([mv[r0:r1, c0:c1] for mv in movc]) - pred[:, r0:r1, c0:c1]).reshape(act.size, -1)

@@ -820,6 +820,7 @@ def _fourier_map(
     reg: float,
     refine_shifts: bool,
     pad: int,
+    integer_valued: bool | None = None,
 ) -> dict:
     """MAP estimate of eq. 9 for translated frames, solved per LR frequency bin.
 
@@ -865,7 +866,9 @@ def _fourier_map(
             shift_cov = np.asarray(shift_cov)[keep]
             n = int(keep.sum())
     padded = _consistent_padding(frames, ishift, resid, pad, hp, wp)
-    spec = np.stack([_rfft2_32(f) for f in padded])  # (n, hp, wc) complex64
+    spec = np.empty((n, hp, wc), np.complex64)
+    for i in range(n):  # per frame: single-precision DFT, rfft half
+        spec[i] = _rfft2_32(padded[i])
     # fit_spectrum reads only the central crop of the first two (integer-preshifted) frames: cut just that
     ch, cw = min(h, _SPECTRUM_CROP), min(w, _SPECTRUM_CROP)
     rc, cc = (h - ch) // 2, (w - cw) // 2
@@ -876,7 +879,9 @@ def _fourier_map(
     c_psd, alpha, sig_fit = fit_spectrum(pre, p, blur_sigma, noise_sigma)
     if noise_sigma is None:
         # integer-valued data carry at least the rounding noise 1/sqrt(12) DN
-        floor = 1.0 / np.sqrt(12.0) if np.all(frames == np.rint(frames)) else 0.05
+        if integer_valued is None:  # (integer dtypes are known to be; float data are checked)
+            integer_valued = bool(np.all(frames == np.rint(frames)))
+        floor = 1.0 / np.sqrt(12.0) if integer_valued else 0.05
         noise_sigma = max(sig_fit, floor)
         if sig_fit < floor:  # refit the prior level with the floor as the noise
             c_psd, alpha, _ = fit_spectrum(pre, p, blur_sigma, noise_sigma)
@@ -1246,7 +1251,9 @@ def reconstruct(
             if np.isfinite(tile_noise):
                 noise_sigma = tile_noise
     try:
-        sol = _fourier_map(stack, trans, p, blur_sigma, noise_sigma, cov, reg, refine_shifts and not use_cg, pad)
+        ints = True if all(np.issubdtype(a.dtype, np.integer) or a.dtype == bool for a in arrs) else None
+        sol = _fourier_map(stack, trans, p, blur_sigma, noise_sigma, cov, reg, refine_shifts and not use_cg, pad,
+                           integer_valued=ints)
     except (ValueError, np.linalg.LinAlgError) as exc:
         return _fallback(ref, p, f"MAP solve failed: {exc}", sigma, n, s)
     img = sol["image"]

@@ -3,7 +3,8 @@
 Subscribes ``aligned/reference``, ``aligned`` + ``aligned/mask`` and
 ``shift`` (matched to the aligned frames by header stamp within
 ``time_tolerance_s``). A set is the reference frame plus the next
-``n_frames - 1`` aligned frames of that reference that have a shift; when a
+``n_frames - 1`` aligned frames of that reference that have a shift (or, if
+the next reference starts first, the ``min_frames`` or more it has); when a
 set completes the node publishes ``super_resolved`` (sensor_msgs/Image,
 ``factor`` x the input size; mono8 for mono input, bgr8 for colour input:
 luminance is super-resolved and the chroma upsampled; header = the reference
@@ -31,6 +32,8 @@ class ReconstructionNode(StageNode):
     PARAMS = (
         Param("factor", 2, "resolution factor", 2, 4),
         Param("n_frames", 8, "frames per super-resolved image (the reference included)", 2, 64),
+        Param("min_frames", 4, "an incomplete set (frames dropped or without a shift) is still used if it has "
+              "this many frames when the next reference starts", 2, 64),
         Param("method", "map", "reconstruction method", choices=("map", "windowed", "pinv", "bicubic")),
         Param("time_tolerance_s", 0.001, "shift and frame stamps closer than this match", 0.0, 1.0),
         Param("queue_size", 2, "complete sets waiting for the worker; the oldest is dropped beyond this", 1, 20),
@@ -123,13 +126,19 @@ class ReconstructionNode(StageNode):
         """Add one (shift, aligned frame) to its reference's set; queue the set when complete."""
         s, a = item
         self.diag.rate("input").tick()
-        if self.check_time(s.stamp_ns):
-            pass
+        self.check_time(s.stamp_ns)
         key = a.reference.stamp_ns
         members = self.sets.setdefault(key, [])
         members.append((s, a))
         for old in [k for k in self.sets if k < key]:
-            del self.sets[old]  # a newer reference started: the old set can no longer complete
+            # a newer reference started: the old set can no longer grow (frames were dropped or
+            # had no shift); reconstruct it if it still has min_frames, else say why it is dropped
+            partial = self.sets.pop(old)
+            if len(partial) + 1 >= self.p("min_frames"):
+                self.worker.put((partial[0][1].reference, partial))
+            else:
+                self.diag.warn(f"set of reference {old / 1e9:.3f} s dropped: {len(partial) + 1} frames "
+                               f"< min_frames {self.p('min_frames')}")
         if len(members) + 1 >= self.p("n_frames"):
             del self.sets[key]
             self.worker.put((a.reference, members))

@@ -115,3 +115,20 @@ def test_tlog_replay_matches_the_flight(rclpy_node, sample_bags):
     s = traj[0]
     expected = 3.08e-6 * s.height_agl_m / (2 * 4.3e-3 * s.ground_speed_mps)
     assert sink.interval[0].data == pytest.approx(expected, rel=1e-3)
+
+
+@pytest.mark.parametrize("connection, expect", [
+    ("/nonexistent/flight.tlog", "tlog file not found"),
+    ("udpin:127.0.0.1:14550; rm -rf /tmp/x", "cannot open MAVLink connection"),
+    ("ftp://example.org/flight", "cannot open MAVLink connection"),
+])
+def test_bad_connection_parameter_is_reported_and_node_keeps_running(rclpy_node, connection, expect):
+    proc = _start(f"connection:={connection}")
+    sink = Sink(rclpy_node)
+    try:
+        assert _spin(rclpy_node, lambda: any(expect in s.message or any(expect in kv.value for kv in s.values)
+                                             for s in sink.diag), 20.0)
+        assert proc.poll() is None
+    finally:
+        proc.terminate()
+        proc.wait(10)

@@ -197,3 +197,55 @@ def test_align_warps_rotation_but_keeps_subpixel_translation(crops):
     err_zero = np.abs(al.aligned[m] - ref[m].astype(np.float64)).mean()
     assert max(abs(al.prior_shift[0]), abs(al.prior_shift[1])) <= 0.5
     assert err_prior < 0.7 * err_zero
+
+
+def _distort_frame(img: np.ndarray, lam: float) -> np.ndarray:
+    """The frame a lens with division-model ``lam`` records: distorted pixel x_d shows the
+    undistorted image at U(x_d) (registration_fit.undistort_points), bicubic."""
+    from subpix_ros.core.registration_fit import Normaliser, undistort_points
+
+    h, w = img.shape
+    ys, xs = np.mgrid[0:h, 0:w]
+    u = undistort_points(np.stack([xs.ravel(), ys.ravel()], 1).astype(float), lam, Normaliser.for_shape(img.shape))
+    return cv2.remap(img, u[:, 0].reshape(h, w).astype(np.float32), u[:, 1].reshape(h, w).astype(np.float32),
+                     cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+
+
+def test_radial_distortion_estimated_and_calibrated(crops):
+    """Frames of a distorting lens (lambda = -0.03, ~8 px at the corners): the per-pair estimate and the
+    pooled calibration recover lambda, and a fixed calibration registers the pair to the full model."""
+    from subpix_ros.core.registration import calibrate_distortion
+    from subpix_ros.core.registration_fit import Normaliser, distort_points, undistort_points
+
+    lam = -0.03
+    norm = Normaliser.for_shape((384, 384))
+    pairs, truths = [], []
+    for k, name in enumerate(["crop_trees", "crop_field_edge"]):
+        h_true = _known_h(2.0 * (k + 1), 9.0 - 4 * k, -6.0 + 3 * k)
+        ref_u, mov_u = _synthetic_pair(crops[name], h_true, noise=0.5, seed=11 + k)
+        pairs.append((_distort_frame(ref_u, lam), _distort_frame(mov_u, lam)))
+        truths.append(h_true)
+    grid = np.stack(np.meshgrid(np.linspace(40, 343, 8), np.linspace(40, 343, 8)), -1).reshape(-1, 2)
+    results = []
+    for (ref, mov), h_true in zip(pairs, truths):
+        res = register(ref, mov)
+        assert res.ok, res.reason
+        assert res.distortion == pytest.approx(lam, abs=0.006)
+        truth = distort_points(apply_h(h_true, undistort_points(grid, lam, norm)), lam, norm)
+        err = np.hypot(*(res.transfer(grid) - truth).T).mean()
+        plain = register(ref, mov, distortion=False)
+        err_plain = np.hypot(*(plain.transfer(grid) - truth).T).mean()
+        assert err < 0.02, err
+        assert err_plain > 3 * err, (err, err_plain)  # the projective model alone does not fit the lens
+        results.append(res)
+    lam_cal = calibrate_distortion(results)
+    assert lam_cal == pytest.approx(lam, abs=0.003)
+    ref, mov = pairs[0]
+    fixed = register(ref, mov, distortion=lam_cal)
+    assert fixed.ok and fixed.distortion == lam_cal
+    truth = distort_points(apply_h(truths[0], undistort_points(grid, lam, norm)), lam, norm)
+    assert np.hypot(*(fixed.transfer(grid) - truth).T).mean() < 0.02
+    with pytest.raises(ValueError):
+        register(ref, mov, distortion=float("nan"))
+    with pytest.raises(ValueError):
+        calibrate_distortion([register(np.full((100, 100), 7, np.uint8), np.full((100, 100), 7, np.uint8))])

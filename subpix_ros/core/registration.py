@@ -17,6 +17,19 @@ Pipeline (all stages vectorised over pixels / points):
    inliers, optionally jointly with one radial-distortion term (division
    model, shared by both frames).
 
+Deviations from the paper (documented, measured in benchmarks/bench_registration.py)
+-------------------------------------------------------------------------------------
+* Stage 1 defaults to ORB + MAGSAC similarity at a ~450 px pyramid level
+  (``coarse_method="orb"``): the paper's translation-only fragment search
+  fails on this strip's camera yaw (up to 32 degrees between frames). The
+  paper's method stays available as ``coarse_method="fragments"`` (under
+  rotation hypotheses from gradient-orientation histograms).
+* The paper has no outlier rejection; MAGSAC (USAC) is used before the LM fit.
+* Lens distortion: ``distortion=True`` estimates one division-model lambda
+  per pair; ``distortion=<float>`` fixes a camera calibration (the same
+  camera for every frame), e.g. from :func:`calibrate_distortion` pooled
+  over a strip.
+
 Conventions
 -----------
 * Pixel coordinates are ``(x, y) = (column, row)``, pixel centres at integers.

@@ -92,12 +92,6 @@ def shift_from_cdr(raw: bytes) -> Shift:
                  float("nan"), float("nan"), header.frame_id)
 
 
-def mask_from_frame(frame: Frame) -> np.ndarray:
-    if frame.image.ndim != 2:
-        raise ValueError("mask image must be mono8")
-    return frame.image > 0
-
-
 # ---------------------------------------------------------------- payloads -> messages
 def image_cdr(image: np.ndarray, stamp_ns: int, frame_id: str = "") -> bytes:
     if image.dtype == np.uint8:

@@ -24,8 +24,8 @@ from sensor_msgs.msg import Image
 from subpix_ros.core import superres
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode
+from subpix_ros.nodes.aligned_input import AlignedInput
 from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes
-from subpix_ros.nodes.shift_node import ReferenceCache, StampMatcher
 
 
 class ReconstructionNode(StageNode):
@@ -43,54 +43,18 @@ class ReconstructionNode(StageNode):
         super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
         self.pub = self.create_publisher(Image, "super_resolved", latched_qos())
         self.make_worker(self._process, self.p("queue_size"))
-        self.refs = ReferenceCache()
-        self.matcher = StampMatcher()
         self._pending_frames: dict[int, pl.Aligned] = {}
         self._pending_shifts: list[pl.Shift] = []
         self.sets: dict[int, list[tuple[pl.Shift, pl.Aligned]]] = {}
         self.published = 0
+        self.inputs = None
         if subscribe_inputs:
-            q = reliable_qos(20)
-            self.create_subscription(Image, "aligned/reference", self._on_reference, latched_qos(), raw=True)
-            self.create_subscription(Image, "aligned", self._on_aligned, q, raw=True)
-            self.create_subscription(Image, "aligned/mask", self._on_mask, q, raw=True)
-            self.create_subscription(Vector3Stamped, "shift", self._on_shift, q, raw=True)
+            self.inputs = AlignedInput(self, self._frame_ready, depth=20)
+            self.create_subscription(Vector3Stamped, "shift", self._on_shift, reliable_qos(20), raw=True)
 
     # ---------------------------------------------------------------- DDS inputs
-    def _on_reference(self, raw: bytes) -> None:
-        try:
-            self.refs.add(pl.frame_from_cdr(raw))
-        except Exception as exc:  # noqa: BLE001
-            self.diag.error(f"bad reference image: {exc}")
-
-    def _on_aligned(self, raw: bytes) -> None:
-        try:
-            f = pl.frame_from_cdr(raw)
-        except Exception as exc:  # noqa: BLE001
-            self.diag.error(f"bad aligned image: {exc}")
-            return
-        pair = self.matcher.add_a(f.stamp_ns, f)
-        if pair:
-            self._frame_ready(*pair)
-
-    def _on_mask(self, raw: bytes) -> None:
-        try:
-            m = pl.frame_from_cdr(raw)
-            mask = pl.mask_from_frame(m)
-        except Exception as exc:  # noqa: BLE001
-            self.diag.error(f"bad mask image: {exc}")
-            return
-        pair = self.matcher.add_b(m.stamp_ns, mask)
-        if pair:
-            self._frame_ready(*pair)
-
-    def _frame_ready(self, frame: pl.Frame, mask: np.ndarray) -> None:
-        ref = self.refs.for_stamp(frame.stamp_ns)
-        if ref is None:
-            self.diag.warn("aligned frame without a reference: skipped")
-            return
-        self._pending_frames[frame.stamp_ns] = pl.Aligned(frame.stamp_ns, frame.image, mask, ref, np.eye(3), None,
-                                                          frame.frame_id, frame.received)
+    def _frame_ready(self, a: pl.Aligned) -> None:
+        self._pending_frames[a.stamp_ns] = a
         self._match()
 
     def _on_shift(self, raw: bytes) -> None:
@@ -125,7 +89,7 @@ class ReconstructionNode(StageNode):
     def handle_shift(self, item: tuple[pl.Shift, pl.Aligned]) -> None:
         """Add one (shift, aligned frame) to its reference's set; queue the set when complete."""
         s, a = item
-        self.diag.rate("input").tick()
+        self.diag.rate("shifts_in").tick()
         self.check_time(s.stamp_ns)
         key = a.reference.stamp_ns
         members = self.sets.setdefault(key, [])
@@ -145,8 +109,8 @@ class ReconstructionNode(StageNode):
 
     def reset(self) -> None:
         self.sets.clear()
-        self.refs.clear()
-        self.matcher.clear()
+        if self.inputs is not None:
+            self.inputs.clear()
         self._pending_frames.clear()
         self._pending_shifts.clear()
         if self.worker is not None:

@@ -11,73 +11,20 @@ and the reason goes to /diagnostics.
 """
 from __future__ import annotations
 
-import collections
-
 import numpy as np
 
-from sensor_msgs.msg import Image
 from geometry_msgs.msg import Vector3Stamped
 
 from subpix_ros.core.luminance import luminance
 from subpix_ros.core.shift import estimate_shift
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode
-from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes
+from subpix_ros.nodes.aligned_input import AlignedInput
+from subpix_ros.nodes.common import Param, reliable_qos, run_nodes
 
 
 def gray(image: np.ndarray) -> np.ndarray:
     return luminance(image, order="bgr" if image.ndim == 3 else "mono")
-
-
-class StampMatcher:
-    """Pair messages of two streams by exact header stamp (bounded memory)."""
-
-    def __init__(self, maxlen: int = 32) -> None:
-        self.a: collections.OrderedDict[int, object] = collections.OrderedDict()
-        self.b: collections.OrderedDict[int, object] = collections.OrderedDict()
-        self.maxlen = maxlen
-
-    def _put(self, mine, other, stamp, item):
-        if stamp in other:
-            return other.pop(stamp)
-        mine[stamp] = item
-        while len(mine) > self.maxlen:
-            mine.popitem(last=False)
-        return None
-
-    def add_a(self, stamp: int, item):
-        b = self._put(self.a, self.b, stamp, item)
-        return None if b is None else (item, b)
-
-    def add_b(self, stamp: int, item):
-        a = self._put(self.b, self.a, stamp, item)
-        return None if a is None else (a, item)
-
-    def clear(self) -> None:
-        self.a.clear()
-        self.b.clear()
-
-
-class ReferenceCache:
-    """References by stamp; an aligned frame belongs to the latest not later than it."""
-
-    def __init__(self, maxlen: int = 8) -> None:
-        self.refs: collections.OrderedDict[int, pl.Frame] = collections.OrderedDict()
-        self.maxlen = maxlen
-
-    def add(self, frame: pl.Frame) -> None:
-        self.refs[frame.stamp_ns] = frame
-        self.refs = collections.OrderedDict(sorted(self.refs.items())[-self.maxlen:])
-
-    def for_stamp(self, stamp_ns: int) -> pl.Frame | None:
-        best = None
-        for s, f in self.refs.items():
-            if s <= stamp_ns:
-                best = f
-        return best
-
-    def clear(self) -> None:
-        self.refs.clear()
 
 
 class ShiftNode(StageNode):
@@ -94,69 +41,22 @@ class ShiftNode(StageNode):
         super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
         self.pub = self.create_publisher(Vector3Stamped, "shift", reliable_qos(20))
         self.make_worker(self._process, self.p("queue_size"))
-        self.refs = ReferenceCache()
-        self.matcher = StampMatcher()
         self.published = 0
         self.failed = 0
-        if subscribe_inputs:
-            q = reliable_qos(10)
-            self.create_subscription(Image, "aligned", self._on_aligned, q, raw=True)
-            self.create_subscription(Image, "aligned/mask", self._on_mask, q, raw=True)
-            self.create_subscription(Image, "aligned/reference", self._on_reference, latched_qos(), raw=True)
-
-    # ---------------------------------------------------------------- DDS inputs
-    def _on_reference(self, raw: bytes) -> None:
-        try:
-            self.refs.add(pl.frame_from_cdr(raw))
-        except Exception as exc:  # noqa: BLE001
-            self.diag.error(f"bad reference image: {exc}")
-
-    def _on_aligned(self, raw: bytes) -> None:
-        self.diag.rate("input").tick()
-        try:
-            f = pl.frame_from_cdr(raw)
-        except Exception as exc:  # noqa: BLE001
-            self.diag.error(f"bad aligned image: {exc}")
-            return
-        pair = self.matcher.add_a(f.stamp_ns, f)
-        if pair:
-            self._pair(*pair)
-
-    def _on_mask(self, raw: bytes) -> None:
-        try:
-            m = pl.frame_from_cdr(raw)
-            mask = pl.mask_from_frame(m)
-        except Exception as exc:  # noqa: BLE001
-            self.diag.error(f"bad mask image: {exc}")
-            return
-        pair = self.matcher.add_b(m.stamp_ns, mask)
-        if pair:
-            self._pair(*pair)
-
-    def _pair(self, frame: pl.Frame, mask: np.ndarray) -> None:
-        ref = self.refs.for_stamp(frame.stamp_ns)
-        if ref is None:
-            self.diag.warn("aligned frame without a reference yet: skipped")
-            return
-        if mask.shape != frame.image.shape[:2]:
-            self.diag.error(f"mask shape {mask.shape} does not match image {frame.image.shape[:2]}")
-            return
-        self.handle_aligned(pl.Aligned(frame.stamp_ns, frame.image, mask, ref, np.eye(3), None, frame.frame_id,
-                                       frame.received))
+        self.inputs = AlignedInput(self, self.handle_aligned) if subscribe_inputs else None
 
     # ---------------------------------------------------------------- work
     def handle_aligned(self, aligned: pl.Aligned) -> None:
         self.worker.put(aligned)
 
     def reset(self) -> None:
-        self.refs.clear()
-        self.matcher.clear()
+        if self.inputs is not None:
+            self.inputs.clear()
         if self.worker is not None:
             self.worker.clear()
 
     def _process(self, a: pl.Aligned) -> None:
-        if self.check_time(a.stamp_ns):
-            pass
+        self.check_time(a.stamp_ns)
         ref = a.reference
         if ref.image.shape[:2] != a.image.shape[:2]:
             self.failed += 1

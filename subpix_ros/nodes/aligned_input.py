@@ -1,0 +1,127 @@
+"""Aligned frames arriving over DDS, reassembled into :class:`payloads.Aligned`.
+
+Subscribes ``aligned`` + ``aligned/mask`` (paired by exact header stamp) and
+``aligned/reference`` (latched); each aligned frame belongs to the latest
+reference whose stamp is not later than its own. Used by the shift and
+reconstruction nodes; in the single-process pipeline they get the objects
+directly instead.
+"""
+from __future__ import annotations
+
+import collections
+from typing import Callable
+
+import numpy as np
+
+from sensor_msgs.msg import Image
+
+from subpix_ros.nodes import payloads as pl
+from subpix_ros.nodes.common import latched_qos, reliable_qos
+
+
+class StampMatcher:
+    """Pair messages of two streams by exact header stamp (bounded memory)."""
+
+    def __init__(self, maxlen: int = 32) -> None:
+        self.a: collections.OrderedDict[int, object] = collections.OrderedDict()
+        self.b: collections.OrderedDict[int, object] = collections.OrderedDict()
+        self.maxlen = maxlen
+
+    def _put(self, mine, other, stamp, item):
+        if stamp in other:
+            return other.pop(stamp)
+        mine[stamp] = item
+        while len(mine) > self.maxlen:
+            mine.popitem(last=False)
+        return None
+
+    def add_a(self, stamp: int, item):
+        b = self._put(self.a, self.b, stamp, item)
+        return None if b is None else (item, b)
+
+    def add_b(self, stamp: int, item):
+        a = self._put(self.b, self.a, stamp, item)
+        return None if a is None else (a, item)
+
+    def clear(self) -> None:
+        self.a.clear()
+        self.b.clear()
+
+
+class ReferenceCache:
+    """References by stamp; an aligned frame belongs to the latest not later than it."""
+
+    def __init__(self, maxlen: int = 8) -> None:
+        self.refs: collections.OrderedDict[int, pl.Frame] = collections.OrderedDict()
+        self.maxlen = maxlen
+
+    def add(self, frame: pl.Frame) -> None:
+        self.refs[frame.stamp_ns] = frame
+        self.refs = collections.OrderedDict(sorted(self.refs.items())[-self.maxlen:])
+
+    def for_stamp(self, stamp_ns: int) -> pl.Frame | None:
+        earlier = [s for s in self.refs if s <= stamp_ns]
+        return self.refs[max(earlier)] if earlier else None
+
+    def clear(self) -> None:
+        self.refs.clear()
+
+
+class AlignedInput:
+    """The three subscriptions of a node that consumes aligned frames."""
+
+    def __init__(self, node, on_aligned: Callable[[pl.Aligned], None], depth: int = 10) -> None:
+        self.node = node
+        self.on_aligned = on_aligned
+        self.refs = ReferenceCache()
+        self.matcher = StampMatcher()
+        q = reliable_qos(depth)
+        node.create_subscription(Image, "aligned", self._on_aligned, q, raw=True)
+        node.create_subscription(Image, "aligned/mask", self._on_mask, q, raw=True)
+        node.create_subscription(Image, "aligned/reference", self._on_reference, latched_qos(), raw=True)
+
+    def _decode(self, raw: bytes, what: str) -> pl.Frame | None:
+        try:
+            return pl.frame_from_cdr(raw)
+        except Exception as exc:  # noqa: BLE001 - bad input must not kill the node
+            self.node.diag.error(f"bad {what} image: {exc}")
+            return None
+
+    def _on_reference(self, raw: bytes) -> None:
+        f = self._decode(raw, "reference")
+        if f is not None:
+            self.refs.add(f)
+
+    def _on_aligned(self, raw: bytes) -> None:
+        self.node.diag.rate("input").tick()
+        f = self._decode(raw, "aligned")
+        if f is not None:
+            pair = self.matcher.add_a(f.stamp_ns, f)
+            if pair:
+                self._pair(*pair)
+
+    def _on_mask(self, raw: bytes) -> None:
+        m = self._decode(raw, "mask")
+        if m is None:
+            return
+        if m.image.ndim != 2:
+            self.node.diag.error("bad mask image: not mono8")
+            return
+        pair = self.matcher.add_b(m.stamp_ns, m.image > 0)
+        if pair:
+            self._pair(*pair)
+
+    def _pair(self, frame: pl.Frame, mask: np.ndarray) -> None:
+        ref = self.refs.for_stamp(frame.stamp_ns)
+        if ref is None:
+            self.node.diag.warn("aligned frame without a reference yet: skipped")
+            return
+        if mask.shape != frame.image.shape[:2]:
+            self.node.diag.error(f"mask shape {mask.shape} does not match image {frame.image.shape[:2]}")
+            return
+        self.on_aligned(pl.Aligned(frame.stamp_ns, frame.image, mask, ref, np.eye(3), None, frame.frame_id,
+                                   frame.received))
+
+    def clear(self) -> None:
+        self.refs.clear()
+        self.matcher.clear()

@@ -292,6 +292,8 @@ class Mosaic:
         self._s = np.eye(3)  # mosaic (first-frame px) -> canvas px
         self._prev: np.ndarray | None = None  # previous accepted frame (as given)
         self._prev_geo: FrameGeometry | None = None  # its geometry
+        self._prev_index = -1  # its index in ``geometries``
+        self._prev_prev_shape: tuple[int, int] | None = None  # shape of the frame before it
         #: per added frame: its placement P_k (frame px -> mosaic px, a similarity; None if rejected)
         self.transforms: list[np.ndarray | None] = []
         #: per added frame: its full drawing geometry D_k (None if rejected)

@@ -190,7 +190,8 @@ def fit_spectrum(
     region averaged over (up to) the first two frames. For each
     alpha on a 0.1 grid in [1, 4], (c, sigma^2) solve a weighted linear least
     squares (weights 1/model^2: a periodogram's std equals its mean; 3
-    reweighting passes); the alpha with the least relative misfit wins. With
+    reweighting passes); the alpha with the least relative misfit wins. All
+    31 exponents are fitted at once (arrays exponents x bins). With
     ``noise_sigma`` given, only c and alpha are fitted. Uses up to
     ``max_bins`` frequency bins (fixed subsample) above 0.03 cycles/LR px.
     Returns ``(c, alpha, sigma)``; sigma in DN, c in DN^2 (HR px units).
@@ -549,13 +550,6 @@ def _tukey(n: int, frac: float = 0.25) -> np.ndarray:
     t[:m] = ramp
     t[-m:] = ramp[::-1]
     return t
-
-
-def _transfer_main(n_lr: int, p: int, shift: float, blur_sigma: float, rfft: bool = False) -> np.ndarray:
-    """Model transfer (per axis, incl. the 1/p alias factor) at each LR bin's lowest alias."""
-    f = (np.fft.rfftfreq(n_lr) if rfft else np.fft.fftfreq(n_lr)) / p
-    hbox = np.exp(2j * np.pi * f[:, None] * np.arange(p)).mean(axis=1)
-    return hbox * np.exp(-2.0 * np.pi**2 * (p * blur_sigma) ** 2 * f**2) * np.exp(-2j * np.pi * f * p * shift) / p
 
 
 def _solve_separable(

@@ -21,7 +21,7 @@ import numpy as np
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import Image
 
-from subpix_ros.core import superres
+from subpix_ros.core.superres_masks import reconstruct_aligned
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode
 from subpix_ros.nodes.aligned_input import AlignedInput
@@ -125,10 +125,7 @@ class ReconstructionNode(StageNode):
         if any(f.shape != ref.image.shape for f in frames):
             self.diag.error("frames of one set differ in size: set dropped")
             return
-        if ref.image.ndim == 3:
-            res = superres.reconstruct_colour(frames, shifts, self.p("factor"), method=self.p("method"), masks=masks)
-        else:
-            res = superres.reconstruct(frames, shifts, self.p("factor"), method=self.p("method"), masks=masks)
+        res = reconstruct_aligned(frames, shifts, self.p("factor"), masks=masks, method=self.p("method"))
         img = res.image
         if not np.all(np.isfinite(img)):
             self.diag.error("reconstruction produced non-finite pixels: not published")

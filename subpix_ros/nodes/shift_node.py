@@ -11,6 +11,8 @@ and the reason goes to /diagnostics.
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from geometry_msgs.msg import Vector3Stamped
@@ -63,6 +65,7 @@ class ShiftNode(StageNode):
             self.diag.error(f"aligned frame {a.image.shape[:2]} and reference {ref.image.shape[:2]} differ in size")
             return
         prior = a.prior if self.p("use_prior") else None
+        t0 = time.monotonic()
         r = estimate_shift(gray(ref.image), gray(a.image), mask=a.mask, method=self.p("method"), prior=prior)
         if not r.ok:
             self.failed += 1
@@ -82,7 +85,7 @@ class ShiftNode(StageNode):
         self.published += 1
         self.diag.rate("output").tick()
         self.latency_since(a.received)
-        self.diag.set(u=r.u, v=r.v, u_std=r.u_std, v_std=r.v_std, cond=float(r.cond), pixels=r.n_pixels,
+        self.diag.set(estimate_ms=1000 * (time.monotonic() - t0), u=r.u, v=r.v, u_std=r.u_std, v_std=r.v_std, cond=float(r.cond), pixels=r.n_pixels,
                       iterations=r.iterations, shifts_published=self.published)
         self.diag.ok()
 

@@ -121,7 +121,7 @@ def test_shift_node_bad_pairs_and_valid_neighbours(ctx, crops):
     full = np.ones(seq.frames[0].shape, bool)
     try:
         hs.pubs["/aligned/reference"].publish(pl.image_cdr(seq.frames[0], T0))
-        hs.spin(lambda: len(node.inputs.refs.refs) == 1, 5)
+        assert hs.spin(lambda: len(node.inputs.refs.refs) == 1, 20)
         # 1: valid
         hs.pubs["/aligned"].publish(pl.image_cdr(seq.frames[1], T0 + 1))
         hs.pubs["/aligned/mask"].publish(pl.mask_cdr(full, T0 + 1))

@@ -77,7 +77,7 @@ def test_shift_published_for_aligned_frames(ctx, crops):
     try:
         t0 = 1_700_000_000_000_000_000
         pubs["/aligned/reference"].publish(pl.image_cdr(seq.frames[0], t0))
-        _spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 5)
+        assert _spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 20)
         full = np.ones(seq.frames[0].shape, bool)
         for k in (1,):
             pubs["/aligned"].publish(pl.image_cdr(seq.frames[k], t0 + k * 10**8))
@@ -85,10 +85,10 @@ def test_shift_published_for_aligned_frames(ctx, crops):
         # a textureless frame: nothing published, the reason in diagnostics
         flat = np.full_like(seq.frames[0], 128)
         pubs["/aligned/reference"].publish(pl.image_cdr(flat, t0 + 2 * 10**8))
-        _spin([node, h], lambda: len(node.inputs.refs.refs) == 2, 5)
+        assert _spin([node, h], lambda: len(node.inputs.refs.refs) == 2, 20)
         pubs["/aligned"].publish(pl.image_cdr(flat, t0 + 3 * 10**8))
         pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + 3 * 10**8))
-        assert _spin([node, h], lambda: len(got) >= 1 and node.failed >= 1, 20)
+        assert _spin([node, h], lambda: len(got) >= 1 and node.failed >= 1, 40)
         _spin([node, h], lambda: any("shift not" in s.message for s in diags), 3)
     finally:
         node.close()

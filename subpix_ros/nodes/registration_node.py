@@ -64,8 +64,7 @@ class RegistrationNode(StageNode):
 
     def __init__(self, *, subscribe_inputs: bool = True, name: str = "registration_node", **kw) -> None:
         super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
-        self.selector = FrameSelector(p=self.p("p"), mode="step" if self.p("selection") == "all" else self.p("selection"),
-                                      max_age_s=self.p("telemetry_timeout_s"))
+        self.selector = self._make_selector()
         self.telemetry = TelemetryBuffer(max_age_s=60.0, stale_after_s=self.p("telemetry_timeout_s"))
         self._height: float | None = None
         self._yaw: float | None = None
@@ -88,6 +87,16 @@ class RegistrationNode(StageNode):
             self.create_subscription(TwistStamped, "telemetry/velocity", self._on_velocity, tq)
             self.create_subscription(Float64, "telemetry/height", self._on_height, tq)
             self.create_subscription(Imu, "telemetry/imu", self._on_imu, tq)
+
+    def _make_selector(self) -> FrameSelector:
+        mode = self.p("selection")
+        return FrameSelector(p=self.p("p"), mode="step" if mode == "all" else mode,
+                             max_age_s=self.p("telemetry_timeout_s"))
+
+    def _on_param_change(self, name: str, value) -> None:
+        super()._on_param_change(name, value)
+        if name in ("p", "selection", "telemetry_timeout_s"):
+            self.selector = self._make_selector()  # takes effect from the next frame
 
     # ---------------------------------------------------------------- inputs
     def _on_image(self, raw: bytes) -> None:

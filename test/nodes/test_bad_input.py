@@ -231,3 +231,21 @@ def test_telemetry_loss_falls_back_to_every_frame_and_recovers(ctx):
         assert node.kept - 10 - kept_with_telemetry == 10
     finally:
         hs.close()
+
+
+def test_registration_parameters_at_run_time(ctx):
+    from subpix_ros.nodes.registration_node import RegistrationNode
+
+    node = RegistrationNode(parameter_overrides=[Parameter("p", value=1.0), Parameter("model", value=3)])
+    try:
+        assert node.p("p") == 2.0 and node.p("model") == "projective"  # rejected at start: defaults kept
+        assert node.selector.p == 2.0
+        bad = node.set_parameters([Parameter("p", value=40.0)])[0]
+        assert not bad.successful and node.p("p") == 2.0 and node.selector.p == 2.0
+        bad = node.set_parameters([Parameter("selection", value=5)])[0]
+        assert not bad.successful and node.p("selection") == "step"
+        good = node.set_parameters([Parameter("p", value=3.0)])[0]
+        assert good.successful and node.selector.p == 3.0  # the frame selection follows
+    finally:
+        node.close()
+        node.destroy_node()

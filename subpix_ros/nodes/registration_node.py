@@ -55,6 +55,8 @@ class RegistrationNode(StageNode):
         Param("camera_yaw_offset_deg", 0.0, "compass angle of the image top relative to the vehicle heading (deg)",
               -180.0, 180.0),
         Param("model", "projective", "registration model", choices=("projective", "affine")),
+        Param("n_points", 700, "tie points sought per pair (fewer: faster, less accurate)", 50, 5000),
+        Param("distortion", True, "estimate a radial distortion term per pair (off: projective only, faster)"),
         Param("max_frames_per_reference", 8, "aligned frames per reference frame before a new reference", 1, 10000),
         Param("min_inliers", 30, "fewer inlier tie points start a new reference", 4, 100000),
         Param("max_rms_px", 1.5, "a larger inlier RMS residual (px) starts a new reference", 0.01, 50.0),
@@ -187,7 +189,8 @@ class RegistrationNode(StageNode):
             self._new_reference(frame, "first frame" if self.reference is None else "set complete")
             return
         t0 = time.monotonic()
-        result = reg.register(self.reference.image, frame.image, model=self.p("model"))
+        result = reg.register(self.reference.image, frame.image, model=self.p("model"), n_points=self.p("n_points"),
+                              distortion=self.p("distortion"))
         why = self._quality_problem(result)
         if why:
             self.failures += 1

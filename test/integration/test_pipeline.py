@@ -106,45 +106,49 @@ def _check_subpixel(out, bags):
     return est, out.sr
 
 
-@pytest.fixture
-def ros(rclpy_node):
-    return rclpy_node
+@pytest.fixture(scope="module")
+def ros():
+    rclpy.init()
+    node = rclpy.create_node("subpix_pipeline_test")
+    yield node
+    node.destroy_node()
+    rclpy.shutdown()
 
 
-def test_separate_processes_shift_and_superres(ros, sample_bags):
-    procs = [_node("registration_node", "-r", "image:=/camera/image_raw"), _node("shift_node"),
-             _node("reconstruction_node")]
+def _run_layout(ros, bags, layout):
+    if layout == "single":
+        procs = [subprocess.Popen([sys.executable, "-m", "subpix_ros.nodes.pipeline", "--no-telemetry", "--ros-args",
+                                   "--params-file", PARAMS, "-r", "image:=/camera/image_raw"],
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
+    else:
+        procs = [_node("registration_node", "-r", "image:=/camera/image_raw"), _node("shift_node"),
+                 _node("reconstruction_node")]
     try:
         out = Outputs(ros)
-        _replay_subpixel(ros, out, sample_bags, procs)
+        _replay_subpixel(ros, out, bags, procs)
     finally:
         _stop(procs)
-    _check_subpixel(out, sample_bags)
+    return out
 
 
-def test_single_process_pipeline_gives_the_same_outputs(ros, sample_bags):
-    procs = [subprocess.Popen([sys.executable, "-m", "subpix_ros.nodes.pipeline", "--no-telemetry", "--ros-args",
-                               "--params-file", PARAMS, "-r", "image:=/camera/image_raw"],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
-    try:
-        out = Outputs(ros)
-        _replay_subpixel(ros, out, sample_bags, procs)
-    finally:
-        _stop(procs)
-    est, sr = _check_subpixel(out, sample_bags)
-    # and the separate-process layout, run again here, agrees exactly
-    procs = [_node("registration_node", "-r", "image:=/camera/image_raw"), _node("shift_node"),
-             _node("reconstruction_node")]
-    try:
-        out2 = Outputs(ros)
-        _replay_subpixel(ros, out2, sample_bags, procs)
-    finally:
-        _stop(procs)
-    est2 = {cdr.header_to_ns(h): v[:2] for v, h in out2.shifts}
+@pytest.fixture(scope="module")
+def separate(ros, sample_bags):
+    """The subpixel flight through registration, shift and reconstruction nodes, each its own process."""
+    return _run_layout(ros, sample_bags, "separate")
+
+
+def test_separate_processes_shift_and_superres(separate, sample_bags):
+    _check_subpixel(separate, sample_bags)
+
+
+def test_single_process_pipeline_gives_the_same_outputs(ros, separate, sample_bags):
+    est, sr = _check_subpixel(_run_layout(ros, sample_bags, "single"), sample_bags)
+    est2 = {cdr.header_to_ns(h): v[:2] for v, h in separate.shifts}
     common = sorted(set(est) & set(est2))
     assert len(common) >= 18
     assert max(float(np.max(np.abs(np.asarray(est[s]) - np.asarray(est2[s])))) for s in common) < 1e-9
-    by_stamp = {cdr.header_to_ns(h): img for img, h in out2.sr}
+    by_stamp = {cdr.header_to_ns(h): img for img, h in separate.sr}
+    assert by_stamp
     for img, h in sr:
         s = cdr.header_to_ns(h)
         if s in by_stamp:

@@ -21,6 +21,9 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        # the bundled real sample data (CC0), so an installed package finds it (subpix_ros.data)
+        ("share/" + package_name + "/data/seneca", glob("data/seneca/*.*")),
+        ("share/" + package_name + "/data/crops", glob("data/crops/*.*")),
     ],
     # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in
     # a venv, from requirements.txt: never from install_requires.

@@ -170,6 +170,38 @@ def course_from_velocity(v_north: float, v_east: float) -> float:
     return float(math.atan2(v_east, v_north) % _TWO_PI)
 
 
+def heading_from_quaternion_enu(x: float, y: float, z: float, w: float) -> float:
+    """Compass heading (rad, clockwise from north, [0, 2 pi)) of the body x axis.
+
+    Inverse of the yaw part of :func:`attitude_quaternion_enu`: the ENU yaw
+    ``psi = atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))`` (counter-clockwise from
+    east) becomes ``pi/2 - psi``.
+    """
+    psi = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return float((math.pi / 2.0 - psi) % _TWO_PI)
+
+
+def sample_from_enu(
+    t: float,
+    vel_enu_mps: Sequence[float],
+    height_agl_m: float,
+    *,
+    lat_deg: float = 0.0,
+    lon_deg: float = 0.0,
+    alt_msl_m: float = 0.0,
+    heading_rad: float | None = None,
+) -> TelemetrySample:
+    """A :class:`TelemetrySample` from ROS (REP-103) inputs: ENU velocity (m/s),
+    height above ground (m) and an optional compass heading (rad); course and
+    ground speed follow from the velocity, yaw = heading (course if None),
+    roll/pitch unknown (0)."""
+    ve, vn, vu = (float(c) for c in vel_enu_mps)
+    course = course_from_velocity(vn, ve)
+    return TelemetrySample(t=t, lat_deg=lat_deg, lon_deg=lon_deg, alt_msl_m=alt_msl_m, height_agl_m=float(height_agl_m),
+                           vel_ned_mps=np.array([vn, ve, -vu]), ground_speed_mps=math.hypot(ve, vn), course_rad=course,
+                           yaw_rad=course if heading_rad is None else heading_rad)
+
+
 # --------------------------------------------------------------------------- #
 # Validation
 # --------------------------------------------------------------------------- #

@@ -33,11 +33,12 @@ from sensor_msgs.msg import CompressedImage, Image, Imu
 from std_msgs.msg import Float64, Float64MultiArray
 
 from subpix_ros.core import registration as reg
-from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample, validate_sample
+from subpix_ros.core.telemetry import (TelemetryBuffer, TelemetrySample, heading_from_quaternion_enu,
+                                       sample_from_enu, validate_sample)
 from subpix_ros.core.timing import FrameSelector, expected_shift_px
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode
-from subpix_ros.nodes.common import Param, camera_qos, latched_qos, reliable_qos, run_nodes
+from subpix_ros.nodes.common import Param, camera_qos, latched_qos, reliable_qos, run_nodes, stamp_to_ns
 
 
 class RegistrationNode(StageNode):
@@ -124,25 +125,18 @@ class RegistrationNode(StageNode):
         self.telemetry.add(sample)
 
     def _on_velocity(self, msg: TwistStamped) -> None:
-        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        ve, vn, vu = msg.twist.linear.x, msg.twist.linear.y, msg.twist.linear.z
         if self._height is None:
             return
-        speed = math.hypot(ve, vn)
-        course = math.atan2(ve, vn) % (2 * math.pi)
-        yaw = self._yaw if self._yaw is not None else course
-        self.telemetry.add(TelemetrySample(t=t, lat_deg=0.0, lon_deg=0.0, alt_msl_m=0.0, height_agl_m=self._height,
-                                           vel_ned_mps=np.array([vn, ve, -vu]), ground_speed_mps=speed,
-                                           course_rad=course, yaw_rad=yaw))
+        v = msg.twist.linear
+        self.telemetry.add(sample_from_enu(stamp_to_ns(msg.header.stamp) * 1e-9, (v.x, v.y, v.z), self._height,
+                                           heading_rad=self._yaw))
 
     def _on_height(self, msg: Float64) -> None:
         self._height = float(msg.data) if math.isfinite(msg.data) else None
 
     def _on_imu(self, msg: Imu) -> None:
         q = msg.orientation
-        # ENU yaw of the body x axis -> compass heading (clockwise from north).
-        yaw_enu = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
-        self._yaw = (math.pi / 2 - yaw_enu) % (2 * math.pi)
+        self._yaw = heading_from_quaternion_enu(q.x, q.y, q.z, q.w)
 
     # ---------------------------------------------------------------- work
     def reset(self) -> None:

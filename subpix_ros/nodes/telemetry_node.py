@@ -20,18 +20,17 @@ import math
 import threading
 from pathlib import Path
 
-import numpy as np
 
 from geometry_msgs.msg import TwistStamped, Vector3Stamped
 from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Float64
 
-from subpix_ros.core.telemetry import TelemetrySample, validate_sample
+from subpix_ros.core.telemetry import TelemetrySample, heading_from_quaternion_enu, sample_from_enu, validate_sample
 from subpix_ros.core.timing import detector_angle, expected_shift_px, frame_interval
 from subpix_ros.io import cdr
 from subpix_ros.io import telemetry_msgs as tm
 from subpix_ros.nodes.base import StageNode
-from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes
+from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes, stamp_to_ns
 
 
 class TelemetryNode(StageNode):
@@ -110,19 +109,12 @@ class TelemetryNode(StageNode):
         if fix is None or h is None:
             self.diag.warn("mavros: waiting for fix and rel_alt before publishing")
             return
-        ve, vn, vu = msg.twist.linear.x, msg.twist.linear.y, msg.twist.linear.z
-        yaw = None
         imu = self._mavros.get("imu")
-        if imu is not None:
-            q = imu.orientation
-            yaw_enu = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
-            yaw = (math.pi / 2 - yaw_enu) % (2 * math.pi)
-        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        s = TelemetrySample(t=t, lat_deg=fix.latitude, lon_deg=fix.longitude, alt_msl_m=fix.altitude,
-                            height_agl_m=float(h), vel_ned_mps=np.array([vn, ve, -vu]),
-                            ground_speed_mps=math.hypot(ve, vn), course_rad=math.atan2(ve, vn) % (2 * math.pi),
-                            roll_rad=0.0 if yaw is not None else None, pitch_rad=0.0 if yaw is not None else None,
-                            yaw_rad=yaw)
+        heading = None if imu is None else heading_from_quaternion_enu(
+            imu.orientation.x, imu.orientation.y, imu.orientation.z, imu.orientation.w)
+        v = msg.twist.linear
+        s = sample_from_enu(stamp_to_ns(msg.header.stamp) * 1e-9, (v.x, v.y, v.z), float(h), lat_deg=fix.latitude,
+                            lon_deg=fix.longitude, alt_msl_m=fix.altitude, heading_rad=heading)
         self.handle_sample(s)
 
     def _on_link(self, event) -> None:

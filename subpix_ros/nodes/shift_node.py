@@ -44,6 +44,7 @@ class ShiftNode(StageNode):
         self.pub = self.create_publisher(Vector3Stamped, "shift", reliable_qos(20))
         self.make_worker(self._process, self.p("queue_size"))
         self.published = 0
+        self._ref_gray: tuple[int, np.ndarray] | None = None  # the reference's luminance, computed once
         self.failed = 0
         self.inputs = AlignedInput(self, self.handle_aligned) if subscribe_inputs else None
 
@@ -52,6 +53,7 @@ class ShiftNode(StageNode):
         self.worker.put(aligned)
 
     def reset(self) -> None:
+        self._ref_gray = None
         if self.inputs is not None:
             self.inputs.clear()
         if self.worker is not None:
@@ -66,7 +68,9 @@ class ShiftNode(StageNode):
             return
         prior = a.prior if self.p("use_prior") else None
         t0 = time.monotonic()
-        r = estimate_shift(gray(ref.image), gray(a.image), mask=a.mask, method=self.p("method"), prior=prior)
+        if self._ref_gray is None or self._ref_gray[0] != ref.stamp_ns:
+            self._ref_gray = (ref.stamp_ns, gray(ref.image))
+        r = estimate_shift(self._ref_gray[1], gray(a.image), mask=a.mask, method=self.p("method"), prior=prior)
         if not r.ok:
             self.failed += 1
             self.diag.warn(f"shift not estimated: {r.reason}")

@@ -23,7 +23,7 @@ import numpy as np
 from scipy.special import erf
 
 from subpix_ros.core.mtf import mtf_crossing, slanted_edge_mtf
-from subpix_ros.core.render import render_sequence
+from subpix_ros.core.render import render_sequence, slanted_edge_scene
 from subpix_ros.core.superres import bicubic_upscale, reconstruct
 from subpix_ros.data import load_crop
 
@@ -62,27 +62,12 @@ def accuracy() -> None:
     print(f"worst |error| {worst:.4f} cycles/pixel (target <= 0.01)")
 
 
-def edge_target_scene(p, lr=160, angle=5.0):
-    n = (lr + 16) * p
-    base = load_crop("crop_field_edge")[:n, :n].astype(float)
-    th = np.deg2rad(angle)
-    ss = 4
-    sub = (np.arange(ss) + 0.5) / ss - 0.5
-    r = np.arange(n)[:, None, None, None] + sub[None, None, :, None] - n / 2
-    c = np.arange(n)[None, :, None, None] + sub[None, None, None, :] - n / 2
-    edge = 50 + 160 * ((c * np.cos(th) - r * np.sin(th)) > 0).mean(axis=(2, 3))
-    q0, q1 = n // 4, 3 * n // 4
-    base[q0:q1, q0:q1] = edge[q0:q1, q0:q1]
-    x0 = q0 // p - 8 + 4
-    return base, (x0, x0, (q1 - q0) // p - 8, (q1 - q0) // p - 8)
-
-
 def paper_evaluation() -> None:
     print("\nPaper evaluation: MTF30 in cycles per input pixel (slanted-edge target in a real field crop)")
     print(f"{'factor':>6s} {'input':>7s} {'bicubic':>8s} {'windowed':>9s} {'map':>7s} {'ceiling':>8s} "
           f"{'gain map':>9s} {'gain win':>9s} {'map/ceil':>9s}")
     for p in (2, 3, 4):
-        hr, roi = edge_target_scene(p)
+        hr, roi = slanted_edge_scene(load_crop("crop_field_edge"), p, lr=160)
         seq = render_sequence(hr, p, [(a / p, b / p) for a in range(p) for b in range(p)], 0.4, snr_db=40, seed=1)
         x, y, w, h = roi
         rh = (x * p, y * p, w * p, h * p)

@@ -43,6 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from subpix_ros.core.evaluate import max_bin_bias  # noqa: E402
 from subpix_ros.core.render import fourier_shift_blur, render_frame, render_sequence  # noqa: E402
 from subpix_ros.core.shift import estimate_shift  # noqa: E402
 from subpix_ros.data import CROP_NAMES, load_crop, seneca_frame_paths  # noqa: E402
@@ -172,18 +173,6 @@ def crb_diag(clean, sigma, border=0):
     return np.diag(2.0 * sigma**2 * np.linalg.inv(J))
 
 
-def max_bin_bias(err, truth, nbins=5):
-    frac = np.mod(truth, 1.0)
-    worst = 0.0
-    for ax in (0, 1):
-        b = np.minimum((frac[:, ax] * nbins).astype(int), nbins - 1)
-        for k in range(nbins):
-            sel = b == k
-            if sel.sum() >= 5:
-                worst = max(worst, abs(float(err[sel, ax].mean())))
-    return worst
-
-
 def evaluate(pairs, fn):
     est, fails = [], 0
     for r, m, _, _ in pairs:
@@ -228,7 +217,7 @@ def accuracy(quick: bool):
             fails += f
             ok = np.all(np.isfinite(err), axis=1)
             e = err[ok]
-            row[key] = (float(np.sqrt(np.mean(e**2))) if len(e) else float("nan"), max_bin_bias(e, truth[ok]) if len(e) else float("nan"))
+            row[key] = (float(np.sqrt(np.mean(e**2))) if len(e) else float("nan"), max_bin_bias(e, truth[ok])[0] if len(e) else float("nan"))
             if key == "C":
                 row["crb"] = float(np.sqrt(np.mean(e**2) / np.mean(crb[ok]))) if len(e) else float("nan")
                 row["crb_in"] = float(np.sqrt(np.mean(e**2) / np.mean(crb_in[ok]))) if len(e) else float("nan")

@@ -2,6 +2,8 @@ import os
 import sys
 from pathlib import Path
 
+from dataclasses import dataclass
+
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,3 +61,16 @@ def rclpy_node():
 def subpix_cmd(*args: str) -> list[str]:
     """The `subpix` command line (run as a module so the checkout's code is used)."""
     return [sys.executable, "-m", "subpix_ros.cli", *args]
+
+
+@dataclass
+class ImageMsg:
+    """A plain stand-in for sensor_msgs/Image (subpix_ros.io.images is duck-typed)."""
+
+    height: int
+    width: int
+    encoding: str
+    is_bigendian: int
+    step: int
+    data: object
+    header: object = None

@@ -44,3 +44,25 @@ def wrapped_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
     when whole pixels were removed by alignment."""
     d = np.asarray(estimate, np.float64) - np.asarray(truth, np.float64)
     return (d + 0.5) % 1.0 - 0.5
+
+
+def max_bin_bias(err: np.ndarray, truth: np.ndarray, nbins: int = 5, min_count: int = 5) -> tuple[float, int]:
+    """Bias of a shift estimator across the sub-pixel phase.
+
+    ``err`` and ``truth`` are (N, 2) arrays (px). The fractional part of the
+    true shift is split into ``nbins`` bins per axis; returns the largest
+    ``|mean error|`` over the bins holding at least ``min_count`` pairs, and
+    the smallest bin count (so callers can require enough pairs per bin).
+    """
+    frac = np.mod(np.asarray(truth, np.float64), 1.0)
+    err = np.asarray(err, np.float64)
+    worst, fewest = 0.0, len(err)
+    for ax in (0, 1):
+        b = np.minimum((frac[:, ax] * nbins).astype(int), nbins - 1)
+        counts = np.bincount(b, minlength=nbins)
+        sums = np.bincount(b, weights=err[:, ax], minlength=nbins)
+        ok = counts >= min_count
+        if ok.any():
+            worst = max(worst, float(np.max(np.abs(sums[ok] / counts[ok]))))
+        fewest = min(fewest, int(counts.min()))
+    return worst, fewest

@@ -35,6 +35,7 @@ __all__ = [
     "render_sequence",
     "RenderedSequence",
     "noise_sigma_for_snr",
+    "slanted_edge_scene",
 ]
 
 
@@ -172,3 +173,29 @@ def render_sequence(
         blur_sigma=blur_sigma,
         noise_sigma=float(noise_sigma),
     )
+
+
+def slanted_edge_scene(base: np.ndarray, factor: int, lr: int, angle_deg: float = 5.0, margin: int = 8,
+                       levels: tuple[float, float] = (50.0, 210.0)) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """A real scene with a slanted-edge target (ISO 12233 style) pasted in its middle.
+
+    The first ``(lr + 2 margin) * factor`` rows/columns of ``base`` (HR px)
+    get a square half their size holding a straight edge tilted ``angle_deg``
+    from the columns, dark ``levels[0]`` / bright ``levels[1]`` DN, area-sampled
+    4x4 per pixel. Returns the float64 scene and the edge ROI ``(x, y, w, h)``
+    in LR px of frames rendered from it by :func:`render_sequence` with the
+    same ``factor`` and ``margin``.
+    """
+    n = (lr + 2 * margin) * factor
+    scene = np.asarray(base, dtype=np.float64)[:n, :n].copy()
+    th = np.deg2rad(angle_deg)
+    ss = 4
+    sub = (np.arange(ss) + 0.5) / ss - 0.5
+    r = np.arange(n)[:, None, None, None] + sub[None, None, :, None] - n / 2
+    c = np.arange(n)[None, :, None, None] + sub[None, None, None, :] - n / 2
+    edge = levels[0] + (levels[1] - levels[0]) * ((c * np.cos(th) - r * np.sin(th)) > 0).mean(axis=(2, 3))
+    q0, q1 = n // 4, 3 * n // 4
+    scene[q0:q1, q0:q1] = edge[q0:q1, q0:q1]
+    x0 = q0 // factor - margin + 4
+    side = (q1 - q0) // factor - 8
+    return scene, (x0, x0, side, side)

@@ -4,7 +4,7 @@ import pytest
 from scipy.special import erf
 
 from subpix_ros.core.mtf import mtf_crossing, slanted_edge_mtf
-from subpix_ros.core.render import render_sequence
+from subpix_ros.core.render import render_sequence, slanted_edge_scene
 from subpix_ros.core.superres import bicubic_upscale, reconstruct
 
 
@@ -75,23 +75,6 @@ def test_bad_input_raises(image, kw, match):
         slanted_edge_mtf(image, **kw)
 
 
-def edge_target_scene(field, p, lr=112, angle=5.0):
-    """A real field crop with a slanted-edge target (dark/bright square) pasted in its middle."""
-    n = (lr + 16) * p
-    base = field[:n, :n].astype(float)
-    th = np.deg2rad(angle)
-    ss = 4
-    sub = (np.arange(ss) + 0.5) / ss - 0.5
-    r = np.arange(n)[:, None, None, None] + sub[None, None, :, None] - n / 2
-    c = np.arange(n)[None, :, None, None] + sub[None, None, None, :] - n / 2
-    edge = 50 + 160 * ((c * np.cos(th) - r * np.sin(th)) > 0).mean(axis=(2, 3))
-    q0, q1 = n // 4, 3 * n // 4
-    base[q0:q1, q0:q1] = edge[q0:q1, q0:q1]
-    m = 8  # render_sequence margin, LR px
-    x0 = q0 // p - m + 4
-    return base, (x0, x0, (q1 - q0) // p - 8, (q1 - q0) // p - 8)
-
-
 @pytest.mark.parametrize("p", [2, 3, 4])
 def test_paper_evaluation_reconstruction_reaches_optics_limit(crops, p):
     """MTF30 of the reconstruction vs one input frame, and vs the optics-blurred HR truth.
@@ -99,7 +82,7 @@ def test_paper_evaluation_reconstruction_reaches_optics_limit(crops, p):
     All MTF30 values are converted to cycles per *input* pixel. The physical
     ceiling is the optics-blurred truth (no pixel aperture): reach >= 95 % of it.
     """
-    hr, roi = edge_target_scene(crops["crop_field_edge"], p)
+    hr, roi = slanted_edge_scene(crops["crop_field_edge"], p, lr=112)
     seq = render_sequence(hr, p, [(a / p, b / p) for a in range(p) for b in range(p)], 0.4, snr_db=40, seed=1)
     x, y, w, h = roi
     roi_hr = (x * p, y * p, w * p, h * p)

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import array
 import tracemalloc
-from dataclasses import dataclass
 from types import SimpleNamespace
 
 import cv2
@@ -11,6 +10,7 @@ import numpy as np
 import pytest
 
 from subpix_ros.data import seneca_frame_paths
+from conftest import ImageMsg as Msg
 from subpix_ros.io.images import (
     KNOWN_ENCODINGS,
     FrameFormatTracker,
@@ -23,19 +23,6 @@ from subpix_ros.io.images import (
     numpy_to_image_fields,
     require_finite,
 )
-
-
-@dataclass
-class Msg:
-    """A plain stand-in for sensor_msgs/Image (the module is duck-typed)."""
-
-    height: int
-    width: int
-    encoding: str
-    is_bigendian: int
-    step: int
-    data: object
-    header: object = None
 
 
 def msg_of(array, encoding, **kw) -> Msg:

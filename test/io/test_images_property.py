@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import ImageMsg as Msg
 from subpix_ros.io.images import (
     KNOWN_ENCODINGS,
     ImageConversionError,
@@ -27,16 +28,6 @@ PLAIN = [e for e in KNOWN_ENCODINGS if encoding_info(e).kind == "plain"]
 BAYER = [e for e in KNOWN_ENCODINGS if encoding_info(e).kind == "bayer"]
 YUV = [e for e in KNOWN_ENCODINGS if encoding_info(e).kind == "yuv422"]
 CONTAINERS = ["bytes", "bytearray", "array", "memoryview", "ndarray"]
-
-
-@dataclass
-class Msg:
-    height: int
-    width: int
-    encoding: str
-    is_bigendian: int
-    step: int
-    data: object
 
 
 @dataclass

@@ -72,6 +72,7 @@ class RegistrationNode(StageNode):
         self._height: float | None = None
         self._yaw: float | None = None
         self.reference: pl.Frame | None = None
+        self._ref_gray: np.ndarray | None = None
         self.since_reference = 0
         self.kept = 0
         self.skipped = 0
@@ -183,7 +184,7 @@ class RegistrationNode(StageNode):
             self._new_reference(frame, "first frame" if self.reference is None else "set complete")
             return
         t0 = time.monotonic()
-        result = reg.register(self.reference.image, frame.image, model=self.p("model"), n_points=self.p("n_points"),
+        result = reg.register(self._ref_gray, frame.image, model=self.p("model"), n_points=self.p("n_points"),
                               distortion=self.p("distortion"))
         why = self._quality_problem(result)
         if why:
@@ -218,6 +219,7 @@ class RegistrationNode(StageNode):
         return ""
 
     def _new_reference(self, frame: pl.Frame, why: str) -> None:
+        self._ref_gray = reg.to_gray32(frame.image, "reference")  # once per reference, not per frame
         self.reference = frame
         self.since_reference = 0
         self.pub_ref.publish(pl.image_cdr(frame.image, frame.stamp_ns, frame.frame_id))

@@ -1,8 +1,8 @@
 """mosaic_node: live overview mosaic for the operator.
 
 Subscribes ``image`` / ``image/compressed``; every frame at least
-``min_interval_s`` after the last one added is registered to the previous
-one and chained into a bounded preview canvas (METHODS.md C). Publishes
+``min_interval_s`` after the last one taken (queued for the mosaic) is
+registered to the previous one and chained into a bounded preview canvas (METHODS.md C). Publishes
 ``mosaic`` (sensor_msgs/Image bgr8) and ``mosaic/compressed``
 (sensor_msgs/CompressedImage, JPEG) at ``publish_rate_hz`` with reliable +
 transient-local depth-1 QoS, so an operator tool that joins late gets the
@@ -25,7 +25,8 @@ class MosaicNode(StageNode):
     PARAMS = (
         Param("camera_reliable", False, "subscribe to the camera with reliable QoS instead of SensorDataQoS"),
         Param("publish_rate_hz", 1.0, "how often the mosaic is published (Hz)", 0.01, 30.0),
-        Param("min_interval_s", 0.0, "frames closer in time than this to the last added frame are skipped", 0.0, 60.0),
+        Param("min_interval_s", 0.0, "frames closer in time than this to the last frame taken for the mosaic are "
+              "skipped (not counted as dropped)", 0.0, 60.0),
         Param("max_size_px", 2048, "largest side of the preview canvas (px); the scale shrinks to fit", 256, 16384),
         Param("jpeg_quality", 85, "JPEG quality of mosaic/compressed", 10, 100),
         Param("queue_size", 2, "frames waiting for the worker; the oldest is dropped beyond this", 1, 100),
@@ -36,7 +37,8 @@ class MosaicNode(StageNode):
         self.mosaic = Mosaic(max_size_px=self.p("max_size_px"))
         self._lock = threading.Lock()
         self._dirty = False
-        self._last_added_ns: int | None = None
+        self._last_taken_ns: int | None = None
+        self.skipped = 0
         self._last_stamp_out = 0
         self.added = 0
         self.pub = self.create_publisher(Image, "mosaic", latched_qos())
@@ -70,15 +72,17 @@ class MosaicNode(StageNode):
 
     def handle_frame(self, frame: pl.Frame) -> None:
         self.diag.rate("input").tick()
-        last = self._last_added_ns
+        last = self._last_taken_ns
         if last is not None and 0 <= frame.stamp_ns - last < self.p("min_interval_s") * 1e9:
+            self.skipped += 1  # by design (min_interval_s), not a drop
             return
+        self._last_taken_ns = frame.stamp_ns  # gate on what was taken, so frames arriving during an add wait their turn
         self.worker.put(frame)
 
     def reset(self) -> None:
         with self._lock:
             self.mosaic = Mosaic(max_size_px=self.p("max_size_px"))
-            self._last_added_ns = None
+            self._last_taken_ns = None
             self.added = 0
 
     def _process(self, frame: pl.Frame) -> None:
@@ -88,13 +92,12 @@ class MosaicNode(StageNode):
         if not upd.ok:
             self.diag.warn(f"frame not added to the mosaic: {upd.reason}")
             return
-        self._last_added_ns = frame.stamp_ns
         self._last_stamp_out = frame.stamp_ns
         self.added += 1
         self._dirty = True
         self.latency_since(frame.received)
         seam = upd.seam_residual_px
-        self.diag.set(frames_added=self.added, seam_residual_px=float(seam) if seam is not None else "n/a",
+        self.diag.set(frames_added=self.added, frames_skipped=self.skipped, seam_residual_px=float(seam) if seam is not None else "n/a",
                       add_ms=1000 * float(upd.time_s))
         self.diag.ok()
 

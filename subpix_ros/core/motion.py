@@ -1,0 +1,56 @@
+"""Frame-to-frame motion model for video-rate registration (constant velocity).
+
+Homographies follow :mod:`subpix_ros.core.registration`: ``H_k`` maps frame
+``k``'s pixel coordinates ``(x, y, 1)`` (x = column, y = row) to the
+reference frame's. The motion between consecutive frames is
+
+    D_k = H_{k-1}^-1 H_k        (frame k pixels -> frame k-1 pixels),
+
+and under constant velocity ``D_{k+1} ~ D_k``, so the prediction for the
+next frame is
+
+    H_{k+1} ~ H_k D_k.
+
+A new reference frame restarts the chain at ``H = I`` while ``D`` carries on
+(the camera's motion does not change because the reference did). Used to
+start :func:`~subpix_ros.core.registration.register` from a prior instead of
+a coarse search; the registration checks the prediction and falls back to
+the full search when it is wrong, so the model only has to be good to a few
+pixels.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["frame_motion", "predict_homography"]
+
+
+def _normalised(h: np.ndarray) -> np.ndarray:
+    h = np.asarray(h, dtype=np.float64).reshape(3, 3)
+    if not np.isfinite(h).all() or abs(h[2, 2]) < 1e-12:
+        raise ValueError("homography must be finite with a non-zero H[2, 2]")
+    return h / h[2, 2]
+
+
+def frame_motion(h_prev: np.ndarray | None, h: np.ndarray) -> np.ndarray:
+    """``D = H_prev^-1 H`` (frame k -> frame k-1 pixels), normalised to ``D[2, 2] = 1``.
+
+    ``h_prev`` None means the previous frame is the reference itself
+    (``H_prev = I``). Raises ``ValueError`` for a singular or non-finite input.
+    """
+    h = _normalised(h)
+    if h_prev is None:
+        return h
+    hp = _normalised(h_prev)
+    if abs(np.linalg.det(hp)) < 1e-12:
+        raise ValueError("previous homography is singular")
+    return _normalised(np.linalg.solve(hp, h))
+
+
+def predict_homography(h_last: np.ndarray | None, motion: np.ndarray) -> np.ndarray:
+    """Constant-velocity prediction ``H_{k+1} = H_k D_k`` (next frame -> reference pixels).
+
+    ``h_last`` None means the last frame was the reference (``H_k = I``).
+    """
+    d = _normalised(motion)
+    return d if h_last is None else _normalised(_normalised(h_last) @ d)

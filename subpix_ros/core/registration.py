@@ -52,7 +52,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .registration_coarse import coarse_orb, coarse_overlap, gradient_magnitude, orientation_hypotheses
+from .registration_coarse import coarse_orb, coarse_overlap, gradient_magnitude, orb_features, orientation_hypotheses
 from .registration_fit import (
     Normaliser,
     check_homography,
@@ -61,9 +61,9 @@ from .registration_fit import (
     fit_homography_lm,
     undistort_points,
 )
-from .registration_points import apply_h, harris_points, ncc_match, refine_gauss_newton
+from .registration_points import apply_h, harris_peaks, ncc_match, refine_gauss_newton, select_spread
 
-__all__ = ["RegistrationResult", "AlignResult", "register", "align", "calibrate_distortion", "to_gray32", "overlap_fraction"]
+__all__ = ["RegistrationResult", "AlignResult", "ReferenceFrame", "prepare_reference", "register", "align", "calibrate_distortion", "to_gray32", "overlap_fraction"]
 
 #: Seed luminance weights (METHODS A) in OpenCV B, G, R order.
 _LUMA_BGR = np.array([[0.1141, 0.587, 0.2989]], dtype=np.float32)
@@ -129,6 +129,8 @@ class RegistrationResult:
     ref_shape: tuple[int, int] = (0, 0)
     mov_shape: tuple[int, int] = (0, 0)
     time_s: float = 0.0
+    tracked: bool = False  # True if the tracking path (``prior``) gave this result
+    track_failure: str = ""  # why tracking failed when a prior was given and the full pipeline ran
 
     def _norm(self) -> Normaliser:
         return Normaliser.for_shape(self.ref_shape)
@@ -175,6 +177,8 @@ class RegistrationResult:
             "ref_shape": list(self.ref_shape),
             "mov_shape": list(self.mov_shape),
             "time_s": self.time_s,
+            "tracked": self.tracked,
+            "track_failure": self.track_failure,
         }
 
 
@@ -317,113 +321,100 @@ def _fail(reason: str, t0: float, shapes, model: str) -> RegistrationResult:
     return RegistrationResult(False, reason, model=model, ref_shape=shapes[0], mov_shape=shapes[1], time_s=time.perf_counter() - t0)
 
 
-def register(
-    reference: np.ndarray,
-    moving: np.ndarray,
-    *,
-    model: str = "projective",
-    distortion: bool | float = True,
-    n_points: int = 700,
-    coarse_size: int = 128,
-    detect_size: int = 1000,
-    template_half: int = 7,
-    inlier_px: float = 1.5,
-    min_inliers: int = 16,
-    min_spread: float = 0.25,
-    coarse_method: str = "orb",
-    angles: list[float] | None = None,
-) -> RegistrationResult:
-    """Register ``moving`` to ``reference``; see the module docstring for the pipeline and conventions.
+@dataclass(eq=False)
+class ReferenceFrame:
+    """Reference-side work of :func:`register`, reusable across many moving frames.
 
-    ``model``: ``"projective"`` (METHODS C, eq. P) or ``"affine"`` (the shift
-    paper's choice). ``distortion``: ``True`` estimates the radial term (division
-    model, one lambda for both frames) from this pair's tie points (needs >= 40
-    inliers; kept only if it lowers the RMS residual); a float is a fixed
-    camera calibration lambda (e.g. from :func:`calibrate_distortion` over a
-    strip; the same camera for every frame), only ``H_u`` is fitted; ``False``
-    (or 0.0) fits the projective model alone. ``inlier_px``:
-    inlier threshold on the transfer residual (reference px, at input
-    resolution). ``angles``: rotation hypotheses (radians) to use instead of
-    the orientation-histogram ones. Failure (``ok=False`` with a reason) for:
-    blank / textureless frames, no confirmed overlap, too few or badly spread
-    tie points, a degenerate or insane fit.
+    Holds the float32 luminance (:func:`to_gray32`), its Gaussian pyramid
+    (``cv2.pyrDown``, level ``l`` has ``2^-l`` the resolution), the Harris
+    maxima (:func:`~.registration_points.harris_peaks`) per level and the ORB
+    features of the coarse level, each computed on first use and kept.
+    Build it with :func:`prepare_reference` and pass it to :func:`register`
+    in place of the reference array. Not thread-safe (a lazily filled cache).
     """
-    t0 = time.perf_counter()
-    if isinstance(distortion, (bool, np.bool_)):
-        fixed_lam = None if distortion else 0.0
-    else:
-        fixed_lam = float(distortion)
-        if not (np.isfinite(fixed_lam) and abs(fixed_lam) < 0.3):
-            raise ValueError(f"distortion lambda must be finite and |lambda| < 0.3, got {distortion!r}")
-    if model not in ("projective", "affine"):
-        raise ValueError(f"model must be 'projective' or 'affine', got {model!r}")
+
+    gray: np.ndarray
+    pyramid: list[np.ndarray]
+    blank: bool
+    _peaks: dict[int, tuple] = field(default_factory=dict, repr=False)
+    _orb: dict[int, tuple] = field(default_factory=dict, repr=False)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.gray.shape
+
+    def level(self, lev: int) -> np.ndarray:
+        """Pyramid level ``lev`` (extended on demand)."""
+        while len(self.pyramid) <= lev:
+            self.pyramid.append(cv2.pyrDown(self.pyramid[-1]))
+        return self.pyramid[lev]
+
+    def peaks(self, lev: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Harris maxima ``(xs, ys, R)`` of pyramid level ``lev`` (METHODS C, stage 2)."""
+        if lev not in self._peaks:
+            self._peaks[lev] = harris_peaks(self.level(lev))
+        return self._peaks[lev]
+
+    def orb(self, lev: int) -> tuple:
+        """ORB keypoints and descriptors of pyramid level ``lev`` (coarse stage)."""
+        if lev not in self._orb:
+            self._orb[lev] = orb_features(self.level(lev))
+        return self._orb[lev]
+
+
+def _levels(shape: tuple[int, int], coarse_size: int, detect_size: int) -> tuple[int, int, int]:
+    """(top, detection, middle) pyramid levels of :func:`register` for a reference of ``shape``."""
+    n_lev = max(0, int(np.ceil(np.log2(max(shape) / coarse_size))))
+    det_lev = min(n_lev, max(0, int(np.ceil(np.log2(max(shape) / detect_size)))))
+    mid_lev = min(n_lev, max(0, int(np.ceil(np.log2(max(shape) / 480)))))
+    return n_lev, det_lev, mid_lev
+
+
+def prepare_reference(reference: np.ndarray | ReferenceFrame, *, coarse_size: int = 128,
+                      detect_size: int = 1000) -> ReferenceFrame:
+    """Luminance, pyramid, Harris maxima (detection and refinement levels) and coarse ORB features of a reference.
+
+    Pass the result to :func:`register` (as ``reference``) for every frame
+    registered to the same reference, so this work is done once. Raises
+    ``ValueError`` for bad input (as :func:`to_gray32`). ``coarse_size`` /
+    ``detect_size`` must match the ones given to :func:`register` for the
+    eager part to be reused (other levels are computed on demand).
+    """
+    if isinstance(reference, ReferenceFrame):
+        return reference
+    g = to_gray32(reference, "reference")
+    ref = ReferenceFrame(g, [g], float(g[::2, ::2].std()) < 1.0)
+    if not ref.blank:
+        n_lev, det_lev, mid_lev = _levels(g.shape, coarse_size, detect_size)
+        ref.level(n_lev)
+        for lev in range(det_lev, max(mid_lev, det_lev) + 1):
+            ref.peaks(lev)
+        ref.orb(mid_lev)
+    return ref
+
+
+def _level_shape(shape: tuple[int, int], lev: int) -> tuple[int, int]:
+    """Shape of ``cv2.pyrDown`` applied ``lev`` times: ``(n + 1) // 2`` per level."""
+    h, w = shape
+    for _ in range(lev):
+        h, w = (h + 1) // 2, (w + 1) // 2
+    return h, w
+
+
+def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndarray, h_lev: int, radius: int, *,
+                 model: str, fixed_lam: float | None, distortion, template_half: int, inlier_px: float,
+                 min_inliers: int, min_spread: float, t0: float) -> tuple[RegistrationResult, int]:
+    """Input-resolution stage of :func:`register` (stage 3): NCC, MAGSAC, LM, Gauss-Newton, final LM, checks.
+
+    ``pts_det``: reference tie points (x, y) at pyramid level ``h_lev``;
+    ``h``: moving -> reference homography at that level; ``radius``: NCC
+    search radius at input resolution (px). Returns the result and the
+    number of tie points that were searched.
+    """
     affine = model == "affine"
-    gr = to_gray32(reference, "reference")
-    gm = to_gray32(moving, "moving")
     shapes = (gr.shape, gm.shape)
-    for g, nm in ((gr, "reference"), (gm, "moving")):
-        if float(g[::2, ::2].std()) < 1.0:  # every 4th pixel is plenty to tell a blank frame
-            return _fail(f"no texture: the {nm} frame is blank (std < 1 DN)", t0, shapes, model)
-    n_lev = max(0, int(np.ceil(np.log2(max(max(gr.shape), max(gm.shape)) / coarse_size))))
-    pr_, pm_ = _pyramid(gr, n_lev), _pyramid(gm, n_lev)
-    det_lev = min(n_lev, max(0, int(np.ceil(np.log2(max(gr.shape) / detect_size)))))
-    mid_lev = min(n_lev, max(0, int(np.ceil(np.log2(max(gr.shape) / 480)))))
-
-    # Stage 1: coarse overlap.
-    if coarse_method == "orb":
-        coarse = coarse_orb(pr_[mid_lev], pm_[mid_lev])
-        h_lev = mid_lev
-    elif coarse_method == "fragments":  # METHODS C stage 1, under rotation hypotheses
-        gc_r = gradient_magnitude(cv2.GaussianBlur(pr_[n_lev], (3, 3), 0))
-        gc_m = gradient_magnitude(cv2.GaussianBlur(pm_[n_lev], (3, 3), 0))
-        if angles is not None:
-            hyps = [float(a) for a in angles]
-        else:  # histogram peaks, plus "no rotation" (the usual case between consecutive frames)
-            hyps = orientation_hypotheses(pr_[mid_lev], pm_[mid_lev])
-            if min(abs(((a + np.pi) % (2 * np.pi)) - np.pi) for a in hyps) > np.deg2rad(7):
-                hyps.append(0.0)
-        coarse = coarse_overlap(gc_r, gc_m, hyps)
-        h_lev = n_lev
-    else:
-        raise ValueError(f"coarse_method must be 'orb' or 'fragments', got {coarse_method!r}")
-    if not coarse.ok:
-        return _fail(coarse.reason, t0, shapes, model)
-    h = coarse.transform
-    if not np.isfinite(h).all():
-        return _fail("degenerate coarse fit", t0, shapes, model)
-
-    # Stage 2: pyramid refinement down to the detection level.
-    half = template_half
-    pts_det = None
-    first = True
-    for lev in range(min(h_lev, max(mid_lev, det_lev)) if coarse_method == "orb" else h_lev - 1, det_lev - 1, -1):
-        h = _scale_h(h, 2.0 ** (h_lev - lev))
-        h_lev = lev
-        ref_l, mov_l = pr_[lev], pm_[lev]
-        radius = 6 if first else 4
-        first = False
-        margin = half + radius + 2
-        valid = _valid_ref_points(ref_l.shape, mov_l.shape, h, margin, margin)
-        if valid.sum() < 64:
-            return _fail("no overlap: the predicted overlap is empty", t0, shapes, model)
-        n_t = n_points if lev == det_lev else 150
-        pts = harris_points(ref_l, valid, n_target=n_t)
-        p_r, p_m, _ = ncc_match(ref_l, mov_l, pts, h, half=half, radius=radius)
-        hn, inl = _robust(p_m, p_r, 1.0 if lev > det_lev else 1.5, affine)
-        if hn is None or inl.sum() < max(8, min_inliers // 2):
-            return _fail(f"too few tie points at pyramid level {lev} ({int(inl.sum())} consistent matches)", t0, shapes, model)
-        reason = check_homography(hn, mov_l.shape)
-        if reason:
-            return _fail(reason, t0, shapes, model)
-        h = hn
-        pts_det = pts
-    if pts_det is None:  # no refinement level (tiny input): detect at the input level directly
-        valid = _valid_ref_points(gr.shape, gm.shape, h, half + 6, half + 6)
-        pts_det = harris_points(gr, valid, n_target=n_points)
-    # Stage 3: input resolution.
     f = 2.0 ** h_lev
     h = _scale_h(h, f)
-    radius = 1 + int(f)
     # Above the detection size the texture per pixel is finer and blurrier: keep the template's
     # footprint on the ground the same as at the detection level's double.
     half = int(round(template_half * max(1.0, f / 2)))
@@ -436,10 +427,11 @@ def register(
     ok_in = ((pm_pred[:, 0] >= margin) & (pm_pred[:, 0] <= gm.shape[1] - 1 - margin)
              & (pm_pred[:, 1] >= margin) & (pm_pred[:, 1] <= gm.shape[0] - 1 - margin))
     pts0 = pts0[ok_in]
+    n_try = len(pts0)
     p_r, p_m, _ = ncc_match(gr, gm, pts0, h, half=half, radius=radius)
     hn, inl = _robust(p_m, p_r, 2.0, affine)
     if hn is None or inl.sum() < min_inliers:
-        return _fail(f"too few tie points: {int(inl.sum())} consistent matches (need {min_inliers})", t0, shapes, model)
+        return _fail(f"too few tie points: {int(inl.sum())} consistent matches (need {min_inliers})", t0, shapes, model), n_try
     p_r, p_m = p_r[inl], p_m[inl]
     norm = Normaliser.for_shape(gr.shape)
     # LM from the identity (METHODS C), guarded by the robust estimate.
@@ -450,7 +442,7 @@ def register(
     p_m2, conv = refine_gauss_newton(gr, gm, p_r, p_m, h, half=half)
     p_r, p_m = p_r[conv], p_m2[conv]
     if len(p_r) < min_inliers:
-        return _fail(f"too few tie points after sub-pixel refinement ({len(p_r)})", t0, shapes, model)
+        return _fail(f"too few tie points after sub-pixel refinement ({len(p_r)})", t0, shapes, model), n_try
     h = fit_homography_lm(p_m, p_r, norm, affine, h0=h)
     inl = _residuals(h, p_m, p_r) <= 2 * inlier_px
     h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
@@ -477,15 +469,21 @@ def register(
     h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h) if inl.sum() >= 8 else h
     n_in = int(inl.sum())
     if n_in < min_inliers:
-        return _fail(f"too few inliers: {n_in} (need {min_inliers})", t0, shapes, model)
+        return _fail(f"too few inliers: {n_in} (need {min_inliers})", t0, shapes, model), n_try
     reason = check_homography(h, gm.shape)
     if reason:
-        return _fail(reason, t0, shapes, model)
+        return _fail(reason, t0, shapes, model), n_try
     spread = _spread(p_r[inl], h, gr.shape, gm.shape)
     if spread < min_spread:
-        return _fail(f"tie points badly spread: {spread:.2f} of the overlap cells (need {min_spread})", t0, shapes, model)
+        return _fail(f"tie points badly spread: {spread:.2f} of the overlap cells (need {min_spread})", t0, shapes, model), n_try
     rms_full = float(np.sqrt(np.mean(res[inl] ** 2)))
     rms_proj = float(np.sqrt(np.mean(_residuals(h, p_m[inl], p_r[inl]) ** 2)))
+    if fixed_lam is None and lam != 0.0 and rms_full > rms_proj:
+        # The estimated term was fitted on an earlier inlier set: refit it on the final one, starting
+        # from the projective fit and lambda = 0 (LM only accepts improvements, so it cannot end worse).
+        hu, lam = fit_homography_distortion_lm(p_m[inl], p_r[inl], norm, h, affine)
+        res = _full_residuals(hu, lam, norm, p_m, p_r)
+        rms_full = float(np.sqrt(np.mean(res[inl] ** 2)))
     return RegistrationResult(
         ok=True,
         homography=h,
@@ -502,7 +500,224 @@ def register(
         ref_shape=gr.shape,
         mov_shape=gm.shape,
         time_s=time.perf_counter() - t0,
-    )
+    ), n_try
+
+
+def _check_prior(prior) -> np.ndarray:
+    p = np.asarray(prior, dtype=np.float64)
+    if p.shape != (3, 3) or not np.isfinite(p).all() or abs(p[2, 2]) < 1e-12:
+        raise ValueError(f"prior must be a finite 3x3 homography with H[2, 2] != 0, got shape {p.shape}")
+    return p / p[2, 2]
+
+
+def _register_tracked(ref: ReferenceFrame, gm: np.ndarray, prior: np.ndarray, radius: int, n_points: int,
+                      detect_size: int, coarse_size: int, template_half: int, min_fraction: float,
+                      kw: dict, t0: float) -> RegistrationResult:
+    """Tracking path: the tie points are matched around ``prior``'s prediction, no coarse stage.
+
+    At the detection level only (no coarse stage, no pyramid descent): the
+    reference's Harris points inside the overlap predicted by ``prior``
+    (moving -> reference px) are matched by NCC within ``radius`` input px of
+    the prediction and a homography fitted robustly (as the full pipeline's
+    last refinement level), then :func:`_final_stage` runs as in the full
+    pipeline. Extra acceptance checks (a wrong prior must not give a result):
+    at least ``min_fraction`` of the searched points are inliers, and the
+    model departs from the prior by less than ``radius + 1`` px over the inliers.
+    """
+    gr = ref.gray
+    shapes = (gr.shape, gm.shape)
+    model = kw["model"]
+    reason = check_homography(prior, gm.shape)
+    if reason:
+        return _fail(f"prior rejected: {reason}", t0, shapes, model)
+    _, det_lev, _ = _levels(gr.shape, coarse_size, detect_size)
+    f = 2.0 ** det_lev
+    h_det = _scale_h(prior, 1.0 / f)
+    r_det = int(np.ceil(radius / f)) + 1  # the NCC peak must be inside the window, not on its border
+    mov_l = gm
+    for _ in range(det_lev):
+        mov_l = cv2.pyrDown(mov_l)
+    ref_l = ref.level(det_lev)
+    margin = template_half + r_det + 2
+    valid = _valid_ref_points(ref_l.shape, mov_l.shape, h_det, margin, margin)
+    if valid.sum() < 64:
+        return _fail("no overlap: the prior's predicted overlap is empty", t0, shapes, model)
+    pts = select_spread(ref.peaks(det_lev), valid, n_target=n_points)
+    p_r, p_m, _ = ncc_match(ref_l, mov_l, pts, h_det, half=template_half, radius=r_det)
+    hn, inl = _robust(p_m, p_r, 1.5, model == "affine")
+    if hn is None or inl.sum() < max(8, kw["min_inliers"] // 2, min_fraction * len(pts)):
+        return _fail(f"tracking lost: {int(inl.sum())} of {len(pts)} tie points consistent with the prior", t0, shapes, model)
+    reason = check_homography(hn, mov_l.shape)
+    if reason:
+        return _fail(reason, t0, shapes, model)
+    res, n_try = _final_stage(gr, gm, pts, hn, det_lev, 1 + int(f), t0=t0, template_half=template_half, **kw)
+    if not res.ok:
+        return res
+    if res.inliers < min_fraction * n_try:
+        return _fail(f"tracking lost: {res.inliers} of {n_try} tie points are inliers (need {min_fraction:.0%})",
+                     t0, shapes, model)
+    pm = res.points[:, 2:]
+    dev = float(np.max(np.hypot(*(res.transfer(pm) - apply_h(prior, pm)).T)))
+    if not dev < radius + 1:
+        return _fail(f"tracking lost: the model departs {dev:.1f} px from the prior (search radius {radius})",
+                     t0, shapes, model)
+    res.tracked = True
+    return res
+
+
+def register(
+    reference: np.ndarray | ReferenceFrame,
+    moving: np.ndarray,
+    *,
+    model: str = "projective",
+    distortion: bool | float = True,
+    n_points: int = 700,
+    coarse_size: int = 128,
+    detect_size: int = 1000,
+    template_half: int = 7,
+    inlier_px: float = 1.5,
+    min_inliers: int = 16,
+    min_spread: float = 0.25,
+    coarse_method: str = "orb",
+    angles: list[float] | None = None,
+    prior: np.ndarray | None = None,
+    track_radius: int = 4,
+    track_min_fraction: float = 0.1,
+) -> RegistrationResult:
+    """Register ``moving`` to ``reference``; see the module docstring for the pipeline and conventions.
+
+    ``reference``: a frame, or a :class:`ReferenceFrame` from
+    :func:`prepare_reference` (its luminance, pyramid, Harris points and
+    coarse features are then reused, not recomputed). ``model``:
+    ``"projective"`` (METHODS C, eq. P) or ``"affine"`` (the shift
+    paper's choice). ``distortion``: ``True`` estimates the radial term (division
+    model, one lambda for both frames) from this pair's tie points (needs >= 40
+    inliers; kept only if it lowers the RMS residual); a float is a fixed
+    camera calibration lambda (e.g. from :func:`calibrate_distortion` over a
+    strip; the same camera for every frame), only ``H_u`` is fitted; ``False``
+    (or 0.0) fits the projective model alone. ``inlier_px``:
+    inlier threshold on the transfer residual (reference px, at input
+    resolution). ``angles``: rotation hypotheses (radians) to use instead of
+    the orientation-histogram ones. Failure (``ok=False`` with a reason) for:
+    blank / textureless frames, no confirmed overlap, too few or badly spread
+    tie points, a degenerate or insane fit.
+
+    ``prior`` (tracking, e.g. at video rate against a fixed reference): a 3x3
+    homography, moving -> reference px, predicting this frame (e.g. the
+    previous frame's result). The coarse stage and the pyramid are skipped:
+    the tie points are matched at input resolution within ``track_radius`` px
+    of the prior's prediction, then fitted and checked as usual, and also
+    required to be at least ``track_min_fraction`` inliers and to depart from
+    the prior by less than ``track_radius``. If tracking fails, the full
+    pipeline runs; ``result.tracked`` says which path gave the result and
+    ``result.track_failure`` why tracking failed.
+    """
+    t0 = time.perf_counter()
+    if isinstance(distortion, (bool, np.bool_)):
+        fixed_lam = None if distortion else 0.0
+    else:
+        fixed_lam = float(distortion)
+        if not (np.isfinite(fixed_lam) and abs(fixed_lam) < 0.3):
+            raise ValueError(f"distortion lambda must be finite and |lambda| < 0.3, got {distortion!r}")
+    if model not in ("projective", "affine"):
+        raise ValueError(f"model must be 'projective' or 'affine', got {model!r}")
+    if coarse_method not in ("orb", "fragments"):
+        raise ValueError(f"coarse_method must be 'orb' or 'fragments', got {coarse_method!r}")
+    if prior is not None:
+        prior = _check_prior(prior)
+        if not (isinstance(track_radius, (int, np.integer)) and 1 <= track_radius <= 64):
+            raise ValueError(f"track_radius must be an integer in [1, 64], got {track_radius!r}")
+    affine = model == "affine"
+    ref = prepare_reference(reference, coarse_size=coarse_size, detect_size=detect_size)
+    gr = ref.gray
+    gm = to_gray32(moving, "moving")
+    shapes = (gr.shape, gm.shape)
+    if ref.blank:
+        return _fail("no texture: the reference frame is blank (std < 1 DN)", t0, shapes, model)
+    if float(gm[::2, ::2].std()) < 1.0:  # every 4th pixel is plenty to tell a blank frame
+        return _fail("no texture: the moving frame is blank (std < 1 DN)", t0, shapes, model)
+    kw = dict(model=model, fixed_lam=fixed_lam, distortion=distortion, inlier_px=inlier_px,
+              min_inliers=min_inliers, min_spread=min_spread)
+    track_failure = ""
+    if prior is not None:
+        res = _register_tracked(ref, gm, prior, int(track_radius), n_points, detect_size, coarse_size,
+                                template_half, track_min_fraction, kw, t0)
+        if res.ok:
+            return res
+        track_failure = res.reason
+    res = _register_full(ref, gm, n_points=n_points, coarse_size=coarse_size, detect_size=detect_size,
+                         template_half=template_half, coarse_method=coarse_method, angles=angles, kw=kw, t0=t0)
+    res.track_failure = track_failure
+    return res
+
+
+def _register_full(ref: ReferenceFrame, gm: np.ndarray, *, n_points: int, coarse_size: int, detect_size: int,
+                   template_half: int, coarse_method: str, angles, kw: dict, t0: float) -> RegistrationResult:
+    """Full pipeline of :func:`register`: coarse stage, pyramid refinement, :func:`_final_stage`."""
+    gr = ref.gray
+    shapes = (gr.shape, gm.shape)
+    model = kw["model"]
+    affine = model == "affine"
+    min_inliers = kw["min_inliers"]
+    n_lev = max(0, int(np.ceil(np.log2(max(max(gr.shape), max(gm.shape)) / coarse_size))))
+    _, det_lev, mid_lev = _levels(gr.shape, coarse_size, detect_size)
+    det_lev, mid_lev = min(n_lev, det_lev), min(n_lev, mid_lev)
+    pm_ = _pyramid(gm, n_lev)
+
+    # Stage 1: coarse overlap.
+    if coarse_method == "orb":
+        coarse = coarse_orb(ref.level(mid_lev), pm_[mid_lev], ref_features=ref.orb(mid_lev))
+        h_lev = mid_lev
+    else:  # METHODS C stage 1, under rotation hypotheses
+        gc_r = gradient_magnitude(cv2.GaussianBlur(ref.level(n_lev), (3, 3), 0))
+        gc_m = gradient_magnitude(cv2.GaussianBlur(pm_[n_lev], (3, 3), 0))
+        if angles is not None:
+            hyps = [float(a) for a in angles]
+        else:  # histogram peaks, plus "no rotation" (the usual case between consecutive frames)
+            hyps = orientation_hypotheses(ref.level(mid_lev), pm_[mid_lev])
+            if min(abs(((a + np.pi) % (2 * np.pi)) - np.pi) for a in hyps) > np.deg2rad(7):
+                hyps.append(0.0)
+        coarse = coarse_overlap(gc_r, gc_m, hyps)
+        h_lev = n_lev
+    if not coarse.ok:
+        return _fail(coarse.reason, t0, shapes, model)
+    h = coarse.transform
+    if not np.isfinite(h).all():
+        return _fail("degenerate coarse fit", t0, shapes, model)
+
+    # Stage 2: pyramid refinement down to the detection level.
+    half = template_half
+    pts_det = None
+    first = True
+    for lev in range(min(h_lev, max(mid_lev, det_lev)) if coarse_method == "orb" else h_lev - 1, det_lev - 1, -1):
+        h = _scale_h(h, 2.0 ** (h_lev - lev))
+        h_lev = lev
+        ref_l, mov_l = ref.level(lev), pm_[lev]
+        radius = 6 if first else 4
+        first = False
+        margin = half + radius + 2
+        valid = _valid_ref_points(ref_l.shape, mov_l.shape, h, margin, margin)
+        if valid.sum() < 64:
+            return _fail("no overlap: the predicted overlap is empty", t0, shapes, model)
+        n_t = n_points if lev == det_lev else 150
+        pts = select_spread(ref.peaks(lev), valid, n_target=n_t)
+        p_r, p_m, _ = ncc_match(ref_l, mov_l, pts, h, half=half, radius=radius)
+        hn, inl = _robust(p_m, p_r, 1.0 if lev > det_lev else 1.5, affine)
+        if hn is None or inl.sum() < max(8, min_inliers // 2):
+            return _fail(f"too few tie points at pyramid level {lev} ({int(inl.sum())} consistent matches)", t0, shapes, model)
+        reason = check_homography(hn, mov_l.shape)
+        if reason:
+            return _fail(reason, t0, shapes, model)
+        h = hn
+        pts_det = pts
+    if pts_det is None:  # no refinement level (tiny input): detect at the input level directly
+        h = _scale_h(h, 2.0 ** h_lev)
+        h_lev = 0
+        valid = _valid_ref_points(gr.shape, gm.shape, h, half + 6, half + 6)
+        pts_det = select_spread(ref.peaks(0), valid, n_target=n_points)
+    # Stage 3: input resolution.
+    res, _ = _final_stage(gr, gm, pts_det, h, h_lev, 1 + int(2.0 ** h_lev), t0=t0, template_half=template_half, **kw)
+    return res
 
 
 @dataclass

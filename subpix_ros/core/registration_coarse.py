@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["gradient_magnitude", "orientation_hypotheses", "CoarseResult", "coarse_overlap"]
+__all__ = ["gradient_magnitude", "orientation_hypotheses", "CoarseResult", "coarse_overlap", "orb_features", "coarse_orb"]
 
 
 def gradient_magnitude(gray: np.ndarray) -> np.ndarray:
@@ -233,7 +233,22 @@ def coarse_overlap(
     return best
 
 
-def coarse_orb(ref: np.ndarray, mov: np.ndarray, n_features: int = 1500, min_inliers: int = 10) -> CoarseResult:
+def _orb_u8(img: np.ndarray) -> np.ndarray:
+    clahe = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8))  # even out the weak NIR field texture
+    return clahe.apply(cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8))
+
+
+def orb_features(img: np.ndarray, n_features: int = 1500) -> tuple[tuple, np.ndarray | None]:
+    """ORB keypoints and descriptors of one pyramid level (CLAHE-equalised 8-bit copy), for :func:`coarse_orb`.
+
+    Depends only on the frame, so a fixed reference frame computes it once.
+    """
+    orb = cv2.ORB_create(nfeatures=n_features, scaleFactor=1.2, nlevels=6, edgeThreshold=19, patchSize=19, fastThreshold=3)
+    return orb.detectAndCompute(_orb_u8(img), None)
+
+
+def coarse_orb(ref: np.ndarray, mov: np.ndarray, n_features: int = 1500, min_inliers: int = 10,
+               ref_features: tuple[tuple, np.ndarray | None] | None = None) -> CoarseResult:
     """Rotation-invariant coarse alignment: ORB features + USAC/MAGSAC similarity, at a low pyramid level.
 
     Used instead of (before) the paper's translation-only fragment search,
@@ -243,13 +258,10 @@ def coarse_orb(ref: np.ndarray, mov: np.ndarray, n_features: int = 1500, min_inl
     level; output transform in that level's pixels (moving -> reference), a
     4-dof similarity (rotation, scale, translation). Accuracy only needs to
     be a few pixels: the pyramid refinement takes it from there.
+    ``ref_features``: the reference's :func:`orb_features` when already known.
     """
-    orb = cv2.ORB_create(nfeatures=n_features, scaleFactor=1.2, nlevels=6, edgeThreshold=19, patchSize=19, fastThreshold=3)
-    clahe = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8))  # even out the weak NIR field texture
-    a8 = clahe.apply(cv2.normalize(ref, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8))
-    b8 = clahe.apply(cv2.normalize(mov, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8))
-    ka, da = orb.detectAndCompute(a8, None)
-    kb, db = orb.detectAndCompute(b8, None)
+    ka, da = ref_features if ref_features is not None else orb_features(ref, n_features)
+    kb, db = orb_features(mov, n_features)
     if da is None or db is None or len(ka) < min_inliers or len(kb) < min_inliers:
         return CoarseResult(False, "no texture: too few coarse features", None, 0, np.inf)
     knn = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(db, da, k=2)

@@ -31,6 +31,8 @@ import numpy as np
 
 __all__ = [
     "harris_response",
+    "harris_peaks",
+    "select_spread",
     "harris_points",
     "apply_h",
     "sample_bicubic",
@@ -58,31 +60,40 @@ def harris_response(gray: np.ndarray, window: int = 11, k: float = 0.04) -> np.n
     return a * c - b * b - np.float32(k) * (a + c) ** 2
 
 
-def harris_points(
-    gray: np.ndarray,
-    valid: np.ndarray,
-    n_target: int = 600,
-    grid: tuple[int, int] = (12, 16),
-    window: int = 11,
-    nms_radius: int = 4,
-) -> np.ndarray:
-    """Harris maxima spread over ``valid`` by a grid quota; returns (N, 2) float64 (x, y).
+def harris_peaks(gray: np.ndarray, window: int = 11, nms_radius: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Local maxima of the Harris response over the whole frame: ``(xs, ys, R)`` (int, int, float32).
 
     Non-maximum suppression keeps pixels equal to the maximum of their
-    ``(2 nms_radius + 1)^2`` neighbourhood with a positive response. The
-    bounding box of ``valid`` is cut into ``grid`` (rows, cols) cells and each
-    cell keeps at most ``ceil(n_target / cells)`` of its strongest maxima, so
-    no single textured field takes all the points.
+    ``(2 nms_radius + 1)^2`` neighbourhood with a positive response
+    (METHODS C, stage 2). The result depends only on the frame, so a fixed
+    reference frame computes it once (:func:`select_spread` then picks per
+    overlap).
     """
     resp = harris_response(gray, window)
     k = 2 * nms_radius + 1
     dil = cv2.dilate(resp, np.ones((k, k), np.uint8))
-    peak = (resp >= dil) & (resp > 0) & valid
-    ys, xs = np.nonzero(peak)
+    ys, xs = np.nonzero((resp >= dil) & (resp > 0))
+    return xs, ys, resp[ys, xs]
+
+
+def select_spread(
+    peaks: tuple[np.ndarray, np.ndarray, np.ndarray],
+    valid: np.ndarray,
+    n_target: int = 600,
+    grid: tuple[int, int] = (12, 16),
+) -> np.ndarray:
+    """Grid-quota selection of Harris maxima inside ``valid``; returns (N, 2) float64 (x, y).
+
+    Maxima weaker than ``1e-4`` of the strongest one inside ``valid`` are
+    dropped (flat noise). The bounding box of ``valid`` is cut into ``grid``
+    (rows, cols) cells and each cell keeps at most ``ceil(n_target / cells)``
+    of its strongest maxima, so no single textured field takes all the points.
+    """
+    xs, ys, r = peaks
+    inv = valid[ys, xs]
+    xs, ys, r = xs[inv], ys[inv], r[inv]
     if xs.size == 0:
         return np.zeros((0, 2))
-    r = resp[ys, xs]
-    # Weak maxima (flat noise) are not corners: relative floor.
     keep = r > 1e-4 * float(r.max())
     ys, xs, r = ys[keep], xs[keep], r[keep]
     vy, vx = np.nonzero(valid)
@@ -97,6 +108,23 @@ def harris_points(
     rank = np.arange(cs.size) - start
     sel = order[rank < quota]
     return np.stack([xs[sel], ys[sel]], axis=1).astype(np.float64)
+
+
+def harris_points(
+    gray: np.ndarray,
+    valid: np.ndarray,
+    n_target: int = 600,
+    grid: tuple[int, int] = (12, 16),
+    window: int = 11,
+    nms_radius: int = 4,
+) -> np.ndarray:
+    """Harris maxima spread over ``valid`` by a grid quota; returns (N, 2) float64 (x, y).
+
+    :func:`harris_peaks` (response, non-maximum suppression) followed by
+    :func:`select_spread` (relative floor, grid quota over ``valid``'s
+    bounding box).
+    """
+    return select_spread(harris_peaks(gray, window, nms_radius), valid, n_target, grid)
 
 
 def apply_h(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -255,6 +283,7 @@ def refine_gauss_newton(
     h_mr: np.ndarray,
     half: int = 7,
     iterations: int = 3,
+    tol: float = 0.01,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel refinement of tie points by Gauss-Newton on patch translation.
 
@@ -263,11 +292,12 @@ def refine_gauss_newton(
     template grid ``q``; both patches are normalised to zero mean and unit
     norm (gain/offset invariance) and ``d`` is updated by
     ``delta = (G^T G)^-1 G^T (T - S_d)`` with ``G`` the central-difference
-    gradient of ``S_d`` (px^-1). The local displacement ``d0`` from the
-    current match seeds the iteration. Returns the refined moving points
-    ``H^-1 (p + d)`` and a bool mask of points that converged (finite,
-    well-conditioned, ``|delta| < 0.01 px`` in the last step, ``|d - d0|``
-    below 1 px).
+    gradient of ``S_d`` (px^-1), each component clipped to 0.5 px. The local
+    displacement ``d0`` from the current match seeds the iteration. A point
+    stops iterating once its step is below ``tol`` px (the others go on, up
+    to ``iterations``). Returns the refined moving points ``H^-1 (p + d)``
+    and a bool mask of points that converged (finite, well-conditioned, last
+    step below ``tol``, ``|d - d0|`` below 1 px).
     """
     n = pts_ref.shape[0]
     if n == 0:
@@ -281,10 +311,14 @@ def refine_gauss_newton(
     qx, qy = _patch_grid(half + 1)
     hinv = np.linalg.inv(h_mr)
     good = np.ones(n, bool)
-    step = np.full(n, np.inf)
+    done = np.zeros(n, bool)
     for _ in range(iterations):
-        gx = p[:, 0, None, None] + d[:, 0, None, None] + qx
-        gy = p[:, 1, None, None] + d[:, 1, None, None] + qy
+        act = np.nonzero(good & ~done)[0]  # points still iterating
+        if act.size == 0:
+            break
+        pa, da = p[act], d[act]
+        gx = pa[:, 0, None, None] + da[:, 0, None, None] + qx
+        gy = pa[:, 1, None, None] + da[:, 1, None, None] + qy
         mp = apply_h(hinv, np.stack([gx.ravel(), gy.ravel()], axis=1))
         s = sample_cubic_cv(mov, mp[:, 0].reshape(gx.shape), mp[:, 1].reshape(gx.shape)).astype(np.float64)
         inner = s[:, 1:-1, 1:-1]
@@ -296,18 +330,17 @@ def refine_gauss_newton(
         a11 = (g_x * g_x).sum(axis=(1, 2))
         a12 = (g_x * g_y).sum(axis=(1, 2))
         a22 = (g_y * g_y).sum(axis=(1, 2))
-        e = t - si
+        e = t[act] - si
         b1 = (g_x * e).sum(axis=(1, 2))
         b2 = (g_y * e).sum(axis=(1, 2))
         det = a11 * a22 - a12 * a12
-        good &= det > 1e-12 * np.maximum(a11 + a22, 1e-30) ** 2
-        dets = np.where(good, det, 1.0)
-        dx = (a22 * b1 - a12 * b2) / dets
-        dy = (a11 * b2 - a12 * b1) / dets
-        dx = np.clip(np.where(good, dx, 0.0), -0.5, 0.5)
-        dy = np.clip(np.where(good, dy, 0.0), -0.5, 0.5)
-        d += np.stack([dx, dy], axis=1)
-        step = np.hypot(dx, dy)
-    good &= (step < 0.01) & (np.hypot(*(d - d0).T) < 1.0) & np.isfinite(d).all(axis=1)
+        ok = det > 1e-12 * np.maximum(a11 + a22, 1e-30) ** 2
+        dets = np.where(ok, det, 1.0)
+        dx = np.clip(np.where(ok, (a22 * b1 - a12 * b2) / dets, 0.0), -0.5, 0.5)
+        dy = np.clip(np.where(ok, (a11 * b2 - a12 * b1) / dets, 0.0), -0.5, 0.5)
+        d[act] += np.stack([dx, dy], axis=1)
+        good[act] &= ok & np.isfinite(d[act]).all(axis=1) & (np.hypot(*(d[act] - d0[act]).T) < 1.0)
+        done[act] = np.hypot(dx, dy) < tol
+    good &= done
     pm = apply_h(hinv, p + d)
     return pm, good

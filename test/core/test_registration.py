@@ -249,3 +249,82 @@ def test_radial_distortion_estimated_and_calibrated(crops):
         register(ref, mov, distortion=float("nan"))
     with pytest.raises(ValueError):
         calibrate_distortion([register(np.full((100, 100), 7, np.uint8), np.full((100, 100), 7, np.uint8))])
+
+
+# --- tracking fast path (prior) and the prepared reference --------------------------------------
+
+
+def test_prepared_reference_gives_the_same_result(crops):
+    """register() with a ReferenceFrame reuses the reference's work and changes nothing in the result."""
+    from subpix_ros.core.registration import prepare_reference
+
+    h_true = _known_h(2.5, 8.2, -5.1)
+    ref, mov = _synthetic_pair(crops["crop_trees"], h_true, seed=21)
+    plain = register(ref, mov)
+    prep = prepare_reference(ref)
+    again = register(prep, mov)
+    assert plain.ok and again.ok, (plain.reason, again.reason)
+    np.testing.assert_allclose(again.homography, plain.homography, rtol=0, atol=1e-9)
+    assert again.inliers == plain.inliers and not again.tracked
+    assert prepare_reference(prep) is prep
+
+
+@pytest.mark.parametrize("name", ["crop_field_edge", "crop_rows"])
+def test_tracked_equals_full_on_synthetic_pairs(crops, name):
+    """With a prior a couple of px off the truth, the tracking path (no coarse stage, no pyramid)
+    gives the full pipeline's homography within 0.02 px at the frame corners."""
+    from subpix_ros.core.registration import prepare_reference
+
+    h_true = _known_h(-3.0, 6.7, 9.4)
+    ref, mov = _synthetic_pair(crops[name], h_true, seed=4)
+    full = register(ref, mov)
+    prior = full.homography.copy()
+    prior[:2, 2] += (1.3, -0.9)  # the previous video frame's result: a little off
+    tr = register(prepare_reference(ref), mov, prior=prior)
+    assert full.ok and tr.ok, (full.reason, tr.reason)
+    assert tr.tracked and not full.tracked and tr.track_failure == ""
+    assert np.hypot(*(tr.transfer(CORNERS) - full.transfer(CORNERS)).T).mean() <= 0.02
+    assert np.hypot(*(tr.transfer(CORNERS) - apply_h(h_true, CORNERS)).T).mean() <= 0.03
+
+
+def test_wrong_prior_falls_back_to_the_full_pipeline(crops):
+    from subpix_ros.core.registration import prepare_reference
+
+    h_true = _known_h(1.5, -9.3, 4.4)
+    ref, mov = _synthetic_pair(crops["crop_road"], h_true, seed=6)
+    prior = h_true.copy()
+    prior[0, 2] += 40.0  # 40 px off: nothing within the search radius
+    res = register(prepare_reference(ref), mov, prior=prior)
+    assert res.ok, res.reason
+    assert not res.tracked and res.track_failure
+    assert np.hypot(*(res.transfer(CORNERS) - apply_h(h_true, CORNERS)).T).mean() <= 0.03
+    with pytest.raises(ValueError):
+        register(ref, mov, prior=np.eye(2))
+    with pytest.raises(ValueError):
+        register(ref, mov, prior=np.full((3, 3), np.nan))
+
+
+@pytest.mark.parametrize("i", [2, 5])
+def test_tracked_real_pairs_agree_with_full(seneca, i):
+    """Real half-resolution pairs, one prepared reference: tracking from a prior 1.5 px off gives the
+    full pipeline's model over the overlap. The projective model leaves ~0.8 px RMS on these pairs, so
+    two full runs with different tie-point sets (n_points 500 vs 600) already differ by 0.03-0.36 px
+    over the overlap: the tolerance is that reproducibility, not the synthetic 0.02 px."""
+    from subpix_ros.core.registration import prepare_reference
+
+    ref = prepare_reference(seneca[i])
+    full = register(ref, seneca[i + 1], distortion=False, n_points=500)
+    prior = full.homography.copy()
+    prior[:2, 2] += (1.5, -1.0)
+    tr = register(ref, seneca[i + 1], distortion=False, n_points=500, prior=prior)
+    assert full.ok and tr.ok and tr.tracked, (full.reason, tr.reason, tr.track_failure)
+    pm = full.points[:, 2:]
+    err = np.hypot(*(tr.transfer(pm) - full.transfer(pm)).T)
+    assert err.mean() <= 0.15, err.mean()
+    assert tr.inliers >= 0.8 * full.inliers
+    assert abs(tr.rms_px - full.rms_px) <= 0.1
+    # a prior 40 px off falls back and still registers
+    bad = prior.copy()
+    bad[0, 2] += 40.0
+    fb = register(ref, seneca[i + 1], distortion=False, n_points=500, prior=bad)
+    assert fb.ok and not fb.tracked and fb.track_failure

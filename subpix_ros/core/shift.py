@@ -391,13 +391,20 @@ def coarse_shift(
 # ---------------------------------------------------------------------------
 
 
+_DEFAULT_SIGMA = 0.8  # prefilter (px) against aliasing when the pair is not noise-limited
+_ADAPTIVE_SIGMAS = (0.6, 0.45)  # candidates tried on noise-limited pairs (smallest covariance wins)
+_NOISE_LIMITED_PX = 0.005  # standard error (px) above which a pair counts as noise-limited
 _BLOCK = 16  # block size (px) of the sandwich covariance and the misfit grid
 _TILE = 128  # tile size (px) when only the most textured max_pixels are used
 
 
 def _block_sum(a: np.ndarray, bs: int) -> np.ndarray:
-    """Sums over bs x bs blocks of a 2-D float32 array whose sides are multiples of bs."""
+    """Sums over bs x bs blocks of a 2-D float32 array (the last row/column of blocks may be partial)."""
     h, w = a.shape
+    ph, pw = -h % bs, -w % bs
+    if ph or pw:  # a partial last block row/column: zero padding adds nothing to its sums
+        a = cv2.copyMakeBorder(a, 0, ph, 0, pw, cv2.BORDER_CONSTANT, value=0)
+        h, w = a.shape
     return cv2.resize(a, (w // bs, h // bs), interpolation=cv2.INTER_AREA).astype(np.float64) * (bs * bs)
 
 
@@ -448,12 +455,9 @@ class _Level:
         r1 = min(self.h - border, self.h - self.m, self.h - k0 - a)
         c0 = max(border, self.m, -k1 + a - 1)
         c1 = min(self.w - border, self.w - self.m, self.w - k1 - a)
-        nr, nc = (r1 - r0) // bs, (c1 - c0) // bs
-        if nr < 1 or nc < 1:
+        if r1 - r0 < bs or c1 - c0 < bs:
             return None
-        r0 += ((r1 - r0) - nr * bs) // 2
-        c0 += ((c1 - c0) - nc * bs) // 2
-        r1, c1 = r0 + nr * bs, c0 + nc * bs
+        # the whole overlap is used (the last block row/column may be partial)
         if self.max_pixels is None or (r1 - r0) * (c1 - c0) <= self.max_pixels:
             return ((r0, r1, c0, c1),)
         # tiles: chosen once on a lattice valid for |k| <= kmax, then the ones that
@@ -556,9 +560,13 @@ class _Level:
     def block_centres(self, rects):
         rr, cc = [], []
         for r0, r1, c0, c1 in rects:
-            nr, nc = (r1 - r0) // _BLOCK, (c1 - c0) // _BLOCK
-            rr.append(np.repeat(r0 + (np.arange(nr) + 0.5) * _BLOCK, nc))
-            cc.append(np.tile(c0 + (np.arange(nc) + 0.5) * _BLOCK, nr))
+            nr, nc = -(-(r1 - r0) // _BLOCK), -(-(c1 - c0) // _BLOCK)
+            ra = np.arange(nr) * _BLOCK
+            ca = np.arange(nc) * _BLOCK
+            rc = r0 + (ra + np.minimum(ra + _BLOCK, r1 - r0)) / 2.0  # centre of a possibly partial block
+            ccn = c0 + (ca + np.minimum(ca + _BLOCK, c1 - c0)) / 2.0
+            rr.append(np.repeat(rc, nc))
+            cc.append(np.tile(ccn, nr))
         return np.concatenate(rr), np.concatenate(cc)
 
 
@@ -589,7 +597,7 @@ def _gn_sums(lv: _Level, rects, s, want_blocks: bool):
             maps = [cv2.multiply(g0, g0), cv2.multiply(g0, g1), cv2.multiply(g1, g1), g0, g1]
             if want_blocks or lv.blocks:  # a level that will need blocks computes them once
                 bl = [_block_sum(mp, _BLOCK) for mp in maps]
-                bl.append(np.full(bl[0].shape, float(_BLOCK * _BLOCK)))
+                bl.append(_block_sum(np.ones(g0.shape, np.float32), _BLOCK))
                 tot = [float(x.sum()) for x in bl]
             else:
                 bl = None
@@ -757,6 +765,9 @@ def _pyr_mask(v: Optional[np.ndarray]) -> Optional[np.ndarray]:
 
 def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pixels, coarse_size, misfit_px) -> ShiftResult:
     method = "default"
+    adaptive = sigma is None
+    if adaptive:
+        sigma = _DEFAULT_SIGMA
     h, w = R.shape
     border = 2
     # pyramid: level L has 1/2^L the size; the coarsest is used for phase correlation
@@ -803,6 +814,28 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
     conv, last = out["converged"], out["last"]
     if not conv and last > 0.05:
         return _fail(f"Gauss-Newton did not converge (last step {last:.3g} px)", method, iterations=it, coarse=coarse)
+    res = _statistics(out, lv, h, w, misfit_px, coarse)
+    if res.ok and adaptive and not res.misfit and max(res.u_std, res.v_std) > _NOISE_LIMITED_PX:
+        # noise-limited pair: aliasing bias (< 0.003 px) no longer matters and the
+        # prefilter is re-chosen for the smallest noise variance (METHODS.md A, notes)
+        s1 = np.array([res.u, res.v])
+        for sig_c in _ADAPTIVE_SIGMAS:
+            lv_c = _Level(R, M, vr, vm, taps, sig_c, band, max_pixels, score, kmax=int(np.max(np.abs(s1))) + 3)
+            lv_c.blocks = True
+            out_c = _gauss_newton(lv_c, s1, max_iterations, tol, border, blocks=True)
+            if out_c["reason"] or not (out_c["converged"] or out_c["last"] <= 0.05):
+                continue
+            res_c = _statistics(out_c, lv_c, h, w, misfit_px, coarse)
+            if res_c.ok and not res_c.misfit and np.trace(res_c.cov) < np.trace(res.cov):
+                res_c.iterations += res.iterations
+                res = res_c
+    return res
+
+
+def _statistics(out: dict, lv: "_Level", h: int, w: int, misfit_px: float, coarse) -> ShiftResult:
+    """Result, sandwich covariance and misfit test from a converged Gauss-Newton run."""
+    method = "default"
+    it, conv = out["it"], out["converged"]
     # statistics of the last solve (at s_eval); the result is s_eval - d
     A, b, ee, n, bl, d = out["A"], out["b"], out["ee"], out["n"], out["blocks"], out["d"]
     rects = out["rects"]
@@ -899,7 +932,7 @@ def estimate_shift(
     max_iterations: int = 10,
     tol: float = 1e-3,
     taps: int = 8,
-    prefilter_sigma: float = 0.8,
+    prefilter_sigma: Optional[float] = None,
     band: float = 0.85,
     max_pixels: Optional[int] = 1 << 18,
     coarse_size: int = 256,
@@ -976,7 +1009,7 @@ def estimate_shift(
         int(max_iterations),
         float(tol),
         int(taps),
-        float(prefilter_sigma),
+        None if prefilter_sigma is None else float(prefilter_sigma),
         float(band),
         max_pixels,
         int(coarse_size),

@@ -20,6 +20,14 @@ reference frame and publishes:
 A new reference starts on the first frame, after ``max_frames_per_reference``
 aligned frames, and when registration fails or its quality drops
 (inliers, residual, overlap).
+
+Video-rate tracking (``tracking``, on by default): the reference's luminance,
+pyramid and tie points are prepared once per reference
+(:func:`~subpix_ros.core.registration.prepare_reference`), and each frame is
+registered starting from a predicted homography (the previous frame's,
+moved on by the last frame-to-frame motion: constant velocity), which skips
+the coarse search; when the prediction is wrong the core falls back to the
+full pipeline by itself (counted in /diagnostics as ``tracking_fallbacks``).
 """
 from __future__ import annotations
 
@@ -33,6 +41,7 @@ from sensor_msgs.msg import CompressedImage, Image, Imu
 from std_msgs.msg import Float64, Float64MultiArray
 
 from subpix_ros.core import registration as reg
+from subpix_ros.core.motion import frame_motion, predict_homography
 from subpix_ros.core.telemetry import (TelemetryBuffer, TelemetrySample, heading_from_quaternion_enu,
                                        sample_from_enu, validate_sample)
 from subpix_ros.core.timing import FrameSelector, expected_shift_px
@@ -62,6 +71,9 @@ class RegistrationNode(StageNode):
         Param("min_inliers", 30, "fewer inlier tie points start a new reference", 4, 100000),
         Param("max_rms_px", 1.5, "a larger inlier RMS residual (px) starts a new reference", 0.01, 50.0),
         Param("min_overlap", 0.3, "a smaller overlap fraction starts a new reference", 0.0, 1.0),
+        Param("tracking", True, "register each frame from the previous frame's motion (constant velocity), skipping "
+              "the coarse search; falls back to the full search when the prediction is wrong"),
+        Param("track_radius_px", 4, "search radius around the predicted position when tracking (px)", 1, 64),
         Param("warp_threshold_px", 0.1, "rotation/perspective beyond this (px at the corners) is warped out", 0.0, 100.0),
     )
 
@@ -72,7 +84,11 @@ class RegistrationNode(StageNode):
         self._height: float | None = None
         self._yaw: float | None = None
         self.reference: pl.Frame | None = None
-        self._ref_gray: np.ndarray | None = None
+        self._ref_prepared: reg.ReferenceFrame | None = None
+        self._last_h: np.ndarray | None = None  # previous aligned frame -> reference (None: it was the reference)
+        self._motion: np.ndarray | None = None  # last frame-to-frame motion (frame k -> frame k-1 pixels)
+        self.tracked = 0
+        self.track_fallbacks = 0
         self.since_reference = 0
         self.kept = 0
         self.skipped = 0
@@ -142,6 +158,9 @@ class RegistrationNode(StageNode):
     # ---------------------------------------------------------------- work
     def reset(self) -> None:
         self.reference = None
+        self._ref_prepared = None
+        self._last_h = None
+        self._motion = None
         self.since_reference = 0
         self.selector.reset()
         self.telemetry = TelemetryBuffer(max_age_s=60.0, stale_after_s=self.p("telemetry_timeout_s"))
@@ -184,15 +203,27 @@ class RegistrationNode(StageNode):
             self._new_reference(frame, "first frame" if self.reference is None else "set complete")
             return
         t0 = time.monotonic()
-        result = reg.register(self._ref_gray, frame.image, model=self.p("model"), n_points=self.p("n_points"),
-                              distortion=self.p("distortion"))
+        prior = self._predict() if self.p("tracking") else None
+        result = reg.register(self._ref_prepared, frame.image, model=self.p("model"), n_points=self.p("n_points"),
+                              distortion=self.p("distortion"), prior=prior, track_radius=self.p("track_radius_px"))
+        if prior is not None:
+            if result.tracked:
+                self.tracked += 1
+            else:
+                self.track_fallbacks += 1
+                self.diag.set(last_tracking_fallback=result.track_failure or "tracking failed")
+            self.diag.set(frames_tracked=self.tracked, tracking_fallbacks=self.track_fallbacks)
         why = self._quality_problem(result)
         if why:
+            self._motion = None
             self.failures += 1
             self.diag.warn(f"registration to reference failed ({why}): new reference")
             self.diag.set(registration_failures=self.failures)
             self._new_reference(frame, why)
             return
+        h = np.asarray(result.homography, dtype=np.float64)
+        self._motion = frame_motion(self._last_h, h)
+        self._last_h = h
         al = reg.align(self.reference.image, frame.image, result, warp_threshold_px=self.p("warp_threshold_px"))
         out = pl.Aligned(frame.stamp_ns, al.aligned, al.mask, self.reference, np.asarray(result.homography),
                          tuple(al.prior_shift) if al.prior_shift is not None else None, frame.frame_id, frame.received)
@@ -207,6 +238,12 @@ class RegistrationNode(StageNode):
                       frames_kept=self.kept, warped=bool(al.warped))
         self.diag.ok()
 
+    def _predict(self) -> np.ndarray | None:
+        """Predicted homography (this frame -> reference) from the previous frame's and the last motion."""
+        if self._motion is None:
+            return self._last_h  # constant position (None right after a new reference: full search)
+        return predict_homography(self._last_h, self._motion)
+
     def _quality_problem(self, result) -> str:
         if not result.ok:
             return result.reason or "registration failed"
@@ -219,7 +256,8 @@ class RegistrationNode(StageNode):
         return ""
 
     def _new_reference(self, frame: pl.Frame, why: str) -> None:
-        self._ref_gray = reg.to_gray32(frame.image, "reference")  # once per reference, not per frame
+        self._ref_prepared = reg.prepare_reference(frame.image)  # once per reference, not per frame
+        self._last_h = None  # the chain restarts at the identity; the last motion carries on (core.motion)
         self.reference = frame
         self.since_reference = 0
         self.pub_ref.publish(pl.image_cdr(frame.image, frame.stamp_ns, frame.frame_id))

@@ -52,7 +52,7 @@ def test_shift_node_killed_and_restarted_rebuilds_from_next_frames(rclpy_node, s
     procs = [reg, shift]
     try:
         assert _spin(node, lambda: node.count_publishers("/shift") and node.count_publishers("/aligned"), 30)
-        replay = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--rate", "0.1", "--topics",
+        replay = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--rate", "0.05", "--topics",
                                              "/camera/image_raw", "--wait-for", "/camera/image_raw"))
         procs.append(replay)
         assert _spin(node, lambda: len(shifts) >= 3, 60)

@@ -8,7 +8,11 @@ Time per pair: best of ``--repeat`` runs (the machine may be shared), images
 already decoded. Inliers / residual: the method's own inlier set (ours:
 1.5 px threshold on the full model; ORB/SIFT: RANSAC 3 px) and its RMS.
 
-    python benchmarks/bench_registration.py [--repeat 2] [--no-fullres]
+Tracking rows (``register(..., prior=H)`` with a prepared reference, the video-rate path):
+1920x1080 frames made from the bundled pairs (resized to 1920 wide, centre 1080 rows), the
+prior = the full result moved by (1.5, -1.0) px; time per frame, tracked vs full.
+
+    python benchmarks/bench_registration.py [--repeat 2] [--no-fullres] [--only tracking|real|synthetic]
 """
 from __future__ import annotations
 
@@ -23,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from subpix_ros.core.registration import calibrate_distortion, register  # noqa: E402
+from subpix_ros.core.registration import calibrate_distortion, prepare_reference, register  # noqa: E402
 from subpix_ros.core.registration_points import apply_h  # noqa: E402
 from subpix_ros.data import CROP_NAMES, load_crop, seneca_frame_paths  # noqa: E402
 
@@ -143,12 +147,72 @@ def synthetic_rows():
     return rows
 
 
+def to_1080p(img: np.ndarray) -> np.ndarray:
+    """A 1920x1080 frame from a 1800x1350 one: resized to 1920x1440 (area), centre 1080 rows."""
+    big = cv2.resize(img, (1920, 1440), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(big[180:1260])
+
+
+def tracking_rows(repeat: int, lam: float | None):
+    """Tracked (prior, prepared reference) vs full registration of 1080p frames; per setting one row."""
+    ims = [to_1080p(cv2.imread(str(p))) for p in seneca_frame_paths()]
+    settings = [(n, False) for n in (300, 500, 700)]
+    if lam is not None:
+        settings.append((500, lam))
+    rows = []
+    for n_points, dist in settings:
+        t_tr, t_full, t_plain, agree, n_tr, n_ok, inl_tr, inl_full = [], [], [], [], 0, 0, [], []
+        for i in range(len(ims) - 1):
+            a, b = ims[i], ims[i + 1]
+            t_plain.append(timed(lambda: register(a, b, distortion=dist, n_points=n_points), 1)[0])
+            ref = prepare_reference(a)
+            tf, full = timed(lambda: register(ref, b, distortion=dist, n_points=n_points), repeat)
+            if not full.ok:
+                continue
+            n_ok += 1
+            t_full.append(tf)
+            prior = full.homography.copy()
+            prior[:2, 2] += (1.5, -1.0)
+            tt, tr = timed(lambda: register(ref, b, distortion=dist, n_points=n_points, prior=prior), repeat + 1)
+            if tr.ok and tr.tracked:
+                n_tr += 1
+                t_tr.append(tt)
+                pm = full.points[:, 2:]
+                agree.append(float(np.hypot(*(tr.transfer(pm) - full.transfer(pm)).T).mean()))
+                inl_tr.append(tr.inliers)
+                inl_full.append(full.inliers)
+        rows.append((n_points, "off" if dist is False else f"{dist:+.4f}", n_ok, len(ims) - 1, n_tr,
+                     np.median(t_tr) * 1e3 if t_tr else np.nan, np.max(t_tr) * 1e3 if t_tr else np.nan,
+                     np.median(t_full) * 1e3 if t_full else np.nan, np.median(t_plain) * 1e3,
+                     np.median(inl_tr) if inl_tr else 0, np.median(inl_full) if inl_full else 0,
+                     np.median(agree) if agree else np.nan, np.max(agree) if agree else np.nan))
+    return rows
+
+
+def print_tracking(rows) -> None:
+    print("\nTracking path, 1920x1080 (prior = full result + (1.5, -1.0) px; prepared reference; ms/frame, best of repeats)")
+    print(f"{'n_points':>8s} {'lambda':>8s} {'full ok':>7s} {'tracked':>7s} {'trk med':>8s} {'trk max':>8s} "
+          f"{'full(prep)':>10s} {'full':>7s} {'inl trk':>7s} {'inl full':>8s} {'|trk-full| med':>14s} {'max':>6s}")
+    for r in rows:
+        print(f"{r[0]:8d} {r[1]:>8s} {r[2]:>3d}/{r[3]:<3d} {r[4]:>3d}/{r[2]:<3d} {r[5]:8.1f} {r[6]:8.1f} {r[7]:10.1f} {r[8]:7.1f} "
+              f"{r[9]:7.0f} {r[10]:8.0f} {r[11]:14.3f} {r[12]:6.3f}")
+    print("(|trk-full|: mean transfer difference over the full result's inlier tie points, px)")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--no-fullres", action="store_true")
+    ap.add_argument("--only", choices=["tracking", "real", "synthetic"], help="run one section only")
     a = ap.parse_args()
     print(f"cv2 {cv2.__version__}, numpy {np.__version__}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
+    if a.only == "tracking":
+        print_tracking(tracking_rows(a.repeat, None))
+        print(f"load average at the end {os.getloadavg()[0]:.1f}")
+        return 0
+    if a.only == "synthetic":
+        print_synthetic()
+        return 0
     # One radial-distortion calibration for the camera (same for every frame): pooled over the
     # per-pair registrations of the bundled strip (in-sample), lambda is resolution-independent.
     ims = [cv2.imread(str(p)) for p in seneca_frame_paths()]
@@ -163,11 +227,20 @@ def main() -> int:
     for r in rows:
         print(f"{r[0]:10s} {r[1]:16s} {r[2]:>5s} {r[3]:7d} {r[4]:7d} {r[5]:7.3f} {r[6]:7.3f} {r[7]:7.3f}  {r[8]}"
               + (f"   (ours, projective part only: rms.med {r[9]:.3f})" if r[9] is not None else ""))
+    if a.only == "real":
+        print(f"load average at the end {os.getloadavg()[0]:.1f}")
+        return 0
+    print_synthetic()
+    print_tracking(tracking_rows(a.repeat, lam))
+    print(f"load average at the end {os.getloadavg()[0]:.1f}")
+    return 0
+
+
+def print_synthetic() -> None:
     print("\nSynthetic pairs, known homography (4 real crops x 2, rotation +-5 deg, perspective, 384x384, 1 DN noise)")
     print(f"{'method':12s} {'ok':>6s} {'corner err mean':>16s} {'max':>8s}")
     for m, ok, n, e, emax in synthetic_rows():
         print(f"{m:12s} {ok:>3d}/{n:<2d} {e:16.4f} {emax:8.4f}")
-    return 0
 
 
 if __name__ == "__main__":

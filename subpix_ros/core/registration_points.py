@@ -29,6 +29,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+REL_FLOOR = 1e-6  # relative Harris floor: NIR lawn maxima are ~1e-5 of a roof corner (R ~ contrast^4)
+
 __all__ = [
     "harris_response",
     "harris_peaks",
@@ -84,29 +86,33 @@ def select_spread(
 ) -> np.ndarray:
     """Grid-quota selection of Harris maxima inside ``valid``; returns (N, 2) float64 (x, y).
 
-    Maxima weaker than ``1e-4`` of the strongest one inside ``valid`` are
-    dropped (flat noise). The bounding box of ``valid`` is cut into ``grid``
-    (rows, cols) cells and each cell keeps at most ``ceil(n_target / cells)``
-    of its strongest maxima, so no single textured field takes all the points.
+    Maxima weaker than ``REL_FLOOR`` (1e-6) of the strongest one inside
+    ``valid`` are dropped (flat noise; the response scales as contrast^4). The bounding box of ``valid`` is cut into ``grid``
+    (rows, cols) cells, which are visited round robin (each cell's strongest
+    maximum, then each cell's second strongest, ...) until ``n_target`` points
+    are taken, so no single textured field takes all the points while cells
+    short of maxima leave their share to the others.
     """
     xs, ys, r = peaks
     inv = valid[ys, xs]
     xs, ys, r = xs[inv], ys[inv], r[inv]
     if xs.size == 0:
         return np.zeros((0, 2))
-    keep = r > 1e-4 * float(r.max())
+    keep = r > REL_FLOOR * float(r.max())
     ys, xs, r = ys[keep], xs[keep], r[keep]
     vy, vx = np.nonzero(valid)
     y0, y1, x0, x1 = vy.min(), vy.max() + 1, vx.min(), vx.max() + 1
     gr, gc = grid
     cell = (np.minimum((ys - y0) * gr // max(y1 - y0, 1), gr - 1) * gc
             + np.minimum((xs - x0) * gc // max(x1 - x0, 1), gc - 1))
-    quota = int(np.ceil(n_target / (gr * gc)))
     order = np.lexsort((-r, cell))
     cs = cell[order]
     start = np.searchsorted(cs, cs, side="left")
-    rank = np.arange(cs.size) - start
-    sel = order[rank < quota]
+    rank = np.arange(cs.size) - start  # 0 = strongest maximum of its cell
+    # Round robin over the cells: every cell's strongest maximum first, then every cell's second, ...
+    # (cells short of maxima leave their share to the others, so ~n_target points when there are enough).
+    rr = order[np.lexsort((-r[order], rank))]
+    sel = rr[:n_target]
     return np.stack([xs[sel], ys[sel]], axis=1).astype(np.float64)
 
 
@@ -282,7 +288,7 @@ def refine_gauss_newton(
     pts_mov: np.ndarray,
     h_mr: np.ndarray,
     half: int = 7,
-    iterations: int = 3,
+    iterations: int = 6,
     tol: float = 0.01,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel refinement of tie points by Gauss-Newton on patch translation.

@@ -1,0 +1,67 @@
+"""registration_node in this process: video-rate tracking from the constant-velocity prediction, and its fallback."""
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+import rclpy
+from rclpy.parameter import Parameter
+
+from subpix_ros.data import seneca_frame_paths
+from subpix_ros.nodes import payloads as pl
+
+
+@pytest.fixture
+def ctx():
+    rclpy.init()
+    yield
+    rclpy.shutdown()
+
+
+def _frames(offsets, w=960, h=720):
+    """Frames of a real scene whose content moves by ``offsets[k]`` = (rows, cols) px relative to frame 0."""
+    scene = cv2.imread(str(seneca_frame_paths()[4]), cv2.IMREAD_COLOR)
+    out = []
+    for u, v in offsets:
+        m = np.float32([[1, 0, -200 + v], [0, 1, -200 + u]])
+        out.append(cv2.warpAffine(scene, m, (w, h), flags=cv2.INTER_LINEAR))
+    return out
+
+
+def _run(node, frames):
+    got = []
+    node.listen("aligned", got.append)
+    for k, img in enumerate(frames):
+        node.handle_frame(pl.Frame(stamp_ns=1_000_000_000 + k * 100_000_000, image=img, frame_id="camera"))
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not node.worker.idle():
+            time.sleep(0.01)
+    return got
+
+
+def test_tracking_follows_constant_velocity_and_falls_back_on_a_jump(ctx):
+    from subpix_ros.nodes.registration_node import RegistrationNode
+
+    step = np.array([1.41, -2.27])
+    offsets = [k * step for k in range(7)] + [6 * step + [25.0, 31.0]]  # the last frame jumps far off the prediction
+    node = RegistrationNode(subscribe_inputs=False, parameter_overrides=[
+        Parameter("selection", value="all"), Parameter("distortion", value=False), Parameter("n_points", value=300),
+        Parameter("max_frames_per_reference", value=20)])
+    try:
+        got = _run(node, _frames(offsets))
+        assert len(got) == 7  # frame 0 is the reference, every other frame aligned
+        # frame 1: no motion known yet (full search, no prior); frames 2-6 follow the prediction;
+        # frame 7 jumps 40 px off it: tracking fails and the full search takes over
+        assert node.tracked == 5 and node.track_fallbacks == 1, (node.tracked, node.track_fallbacks)
+        for a, off in zip(got, offsets[1:]):
+            # prior: the sub-pixel remainder (rows, cols) left in the aligned frame after the integer crop
+            assert np.all(np.abs(a.prior) <= 0.5 + 1e-9)
+            n_y = round(off[0] - a.prior[0])
+            n_x = round(off[1] - a.prior[1])
+            assert abs(off[0] - n_y - a.prior[0]) < 0.05 and abs(off[1] - n_x - a.prior[1]) < 0.05, (off, a.prior)
+            # the homography maps moving -> reference: a moving pixel goes back by the content offset
+            assert abs(a.homography[0, 2] + off[1]) < 0.05 and abs(a.homography[1, 2] + off[0]) < 0.05
+    finally:
+        node.close()
+        node.destroy_node()

@@ -188,10 +188,12 @@ def fit_spectrum(
     ``a_m`` from :func:`frame_transfer_1d`) plus white noise ``sigma^2``.
     ``S_y`` is the Tukey-windowed periodogram of the central ``crop`` x ``crop``
     region averaged over (up to) the first two frames. For each
-    alpha on a 0.1 grid in [1, 4], (c, sigma^2) solve a weighted linear least
-    squares (weights 1/model^2: a periodogram's std equals its mean; 3
-    reweighting passes); the alpha with the least relative misfit wins. All
-    31 exponents are fitted at once (arrays exponents x bins). With
+    alpha, (c, sigma^2) solve a weighted linear least squares (weights
+    1/model^2: a periodogram's std equals its mean; 3 reweighting passes);
+    the alpha with the least relative misfit wins, searched on a 0.3 grid in
+    [1, 4] and then on the 0.1 grid within +-0.2 of the coarse winner (16
+    exponents fitted instead of 31; each stage's exponents at once, arrays
+    exponents x bins). With
     ``noise_sigma`` given, only c and alpha are fitted. Uses up to
     ``max_bins`` frequency bins (fixed subsample) above 0.03 cycles/LR px.
     Returns ``(c, alpha, sigma)``; sigma in DN, c in DN^2 (HR px units).
@@ -199,26 +201,40 @@ def fit_spectrum(
     _, h0, w0 = frames.shape
     h, w = min(h0, crop), min(w0, crop)
     sub = frames[:2, (h0 - h) // 2 : (h0 - h) // 2 + h, (w0 - w) // 2 : (w0 - w) // 2 + w]
-    win = np.outer(_tukey(h), _tukey(w))
-    x = (sub - sub.mean(axis=(1, 2), keepdims=True)) * win
-    psd = np.mean([np.abs(_rfft2_32(f)) ** 2 for f in x], axis=0) / float(np.sum(win**2))
-    ay, fy = frame_transfer_1d(h, p, 0.0, blur_sigma)
-    ax, fx = frame_transfer_1d(w, p, 0.0, blur_sigma)
-    wc = w // 2 + 1
-    ax, fx = ax[:, :wc], fx[:, :wc]
-    sel = _spectrum_bins(h, w, max_bins)
-    ky, kx = np.unravel_index(sel, (h, wc))
+    win = _tukey2(h, w)
+    psd = np.zeros((h, w // 2 + 1))
+    for f in sub:  # (up to) two frames: mean removed, windowed, single precision
+        x = np.asarray(f, dtype=np.float32)
+        x = (x - np.float32(x.mean(dtype=np.float64))) * win
+        psd += np.abs(_rfft2_32(x)) ** 2
+    psd /= len(sub) * float(np.sum(np.square(win, dtype=np.float64)))
+    sel, amp, logf = _spectrum_model(h, w, p, float(blur_sigma), max_bins)
     obs = psd.ravel()[sel]
-    amp = np.ascontiguousarray((np.abs(ay[:, None, ky] * ax[None, :, kx]) ** 2).reshape(p * p, -1) * p * p)
-    fm = np.hypot(fy[:, None, ky], fx[None, :, kx]).reshape(p * p, -1)
-    logf = np.ascontiguousarray(np.log(np.maximum(fm, 1e-9)))  # (p^2, bins), C order for the sums below
-    # all 31 exponents at once: q[a] = sum_m amp_m |f_m|^-alpha_a, alpha_a = 1 + 0.1 a, by the recurrence
-    # |f|^-(alpha + 0.1) = |f|^-alpha |f|^-0.1 (no loop over bins)
-    alphas = np.arange(1.0, 4.0001, 0.1)
-    step = np.exp(-0.1 * logf)
-    term = amp * np.exp(-alphas[0] * logf)
-    q = np.empty((alphas.size, obs.size))
-    for a in range(alphas.size):  # exponents, not bins
+    # coarse search on a 0.3 grid, then the 0.1 grid within +-0.2 of the coarse best (misfit is smooth
+    # and single-minimum in alpha on real scenes: the test compares with the full 0.1 grid)
+    coarse = _fit_exponents(1.0, 0.3, 11, amp, logf, obs, noise_sigma)
+    a_best = coarse[1]
+    lo = max(1.0, a_best - 0.2)
+    n_fine = int(round((min(4.0, a_best + 0.2) - lo) / 0.1)) + 1
+    c, alpha, s2, _ = _fit_exponents(lo, 0.1, n_fine, amp, logf, obs, noise_sigma)
+    return float(c), float(alpha), float(np.sqrt(s2))
+
+
+def _fit_exponents(
+    a0: float, da: float, count: int, amp: np.ndarray, logf: np.ndarray, obs: np.ndarray, noise_sigma: float | None
+) -> tuple[float, float, float, float]:
+    """:func:`fit_spectrum`'s fit for the exponents ``a0 + da j``, j < count, at once.
+
+    ``q[j] = sum_m amp_m |f_m|^-alpha_j`` by the recurrence
+    ``|f|^-(alpha + da) = |f|^-alpha |f|^-da`` (no loop over bins); per exponent
+    (c, sigma^2) by 3 passes of weighted least squares (weights 1/model^2).
+    Returns (c, alpha, sigma^2, relative misfit) of the best exponent.
+    """
+    alphas = a0 + da * np.arange(count)
+    step = np.exp(-da * logf)
+    term = amp * np.exp(-a0 * logf)
+    q = np.empty((count, obs.size))
+    for a in range(count):  # exponents, not bins
         q[a] = term.sum(axis=0)
         term *= step
     w0 = 1.0 / np.maximum(obs, 1e-12) ** 2
@@ -230,15 +246,15 @@ def fit_spectrum(
         s_qq = np.einsum("ab,ab->a", wq, q)
         s_q = wq.sum(axis=1)
         if noise_sigma is None:
-            ata = np.empty((alphas.size, 2, 2))
+            ata = np.empty((count, 2, 2))
             ata[:, 0, 0] = s_qq
             ata[:, 0, 1] = ata[:, 1, 0] = s_q
             ata[:, 1, 1] = w0.sum() if wgt is None else wgt.sum(axis=1)
-            rhs = np.stack([wq @ obs, np.full(alphas.size, w0 @ obs) if wgt is None else wgt @ obs], axis=1)
+            rhs = np.stack([wq @ obs, np.full(count, w0 @ obs) if wgt is None else wgt @ obs], axis=1)
             sol = np.linalg.solve(ata, rhs[..., None])[..., 0]
             c_, s2 = sol[:, 0], np.maximum(sol[:, 1], 1e-6)
         else:
-            s2 = np.full(alphas.size, noise_sigma**2)
+            s2 = np.full(count, noise_sigma**2)
             c_ = (wq @ obs - s2 * s_q) / s_qq
         c_ = np.maximum(c_, 1e-12)
         np.multiply(q, c_[:, None], out=model)
@@ -249,8 +265,7 @@ def fit_spectrum(
     rel /= model
     err = np.einsum("ab,ab->a", rel, rel) / obs.size
     best = int(np.argmin(err))
-    c, alpha, s2 = c_[best], alphas[best], s2[best]
-    return float(c), float(alpha), float(np.sqrt(s2))
+    return float(c_[best]), float(alphas[best]), float(s2[best]), float(err[best])
 
 
 @functools.lru_cache(maxsize=16)
@@ -269,6 +284,35 @@ def _spectrum_bins(h: int, w: int, max_bins: int) -> np.ndarray:
         sel = np.sort(np.random.default_rng(0).choice(sel, max_bins, replace=False))
     sel.flags.writeable = False
     return sel
+
+
+@functools.lru_cache(maxsize=16)
+def _spectrum_model(h: int, w: int, p: int, blur_sigma: float, max_bins: int) -> tuple[np.ndarray, ...]:
+    """:func:`fit_spectrum`'s bins and model terms for an h x w crop (cached per shape, read-only).
+
+    Returns the flat bin indices ``sel`` (:func:`_spectrum_bins`), ``amp[m] = p^2 |a_m|^2`` and
+    ``log |f_m|`` (p^2, bins) of the p^2 aliases m at those bins.
+    """
+    ay, fy = frame_transfer_1d(h, p, 0.0, blur_sigma)
+    ax, fx = frame_transfer_1d(w, p, 0.0, blur_sigma)
+    wc = w // 2 + 1
+    ax, fx = ax[:, :wc], fx[:, :wc]
+    sel = _spectrum_bins(h, w, max_bins)
+    ky, kx = np.unravel_index(sel, (h, wc))
+    amp = np.ascontiguousarray((np.abs(ay[:, None, ky] * ax[None, :, kx]) ** 2).reshape(p * p, -1) * p * p)
+    fm = np.hypot(fy[:, None, ky], fx[None, :, kx]).reshape(p * p, -1)
+    logf = np.ascontiguousarray(np.log(np.maximum(fm, 1e-9)))  # (p^2, bins), C order for the sums
+    for a in (amp, logf):
+        a.flags.writeable = False
+    return sel, amp, logf
+
+
+@functools.lru_cache(maxsize=16)
+def _tukey2(h: int, w: int) -> np.ndarray:
+    """2-D Tukey window ``outer(_tukey(h), _tukey(w))`` (float32, cached, read-only)."""
+    win = np.outer(_tukey(h), _tukey(w)).astype(np.float32)
+    win.flags.writeable = False
+    return win
 
 
 def _solve_hermitian(m: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -360,12 +404,14 @@ def detect_geometry(
     """Check whether frames are related by more than a translation; fit affines if so.
 
     Each frame is registered to frame 0 in ``tiles x tiles`` tiles (Lucas-
-    Kanade on low-passed frames, started from ``shifts``, over at most
-    ``tile_max`` px square at each tile's centre; only those windows are
-    low-passed, and each reference tile is Fourier-transformed once for all
-    frames); the tile shifts
-    ``d(r, c)`` are fitted by ``d = s + J (r - r0, c - c0)`` (least squares,
-    (r0, c0) the frame centre). If the non-translational part ``J`` moves any
+    Kanade on low-passed frames, started from ``shifts``, over one window
+    shape for all tiles — the smallest tile, at most ``tile_max`` px square —
+    at each tile's centre, moved inwards where its 16 px context would leave
+    the frame, so all tiles and frames are registered in one batch; only
+    those windows are low-passed, and each reference tile is Fourier-
+    transformed once for all frames); the tile shifts
+    ``d(r, c)`` (at the window centres) are fitted by
+    ``d = s + J (r - r0, c - c0)`` (least squares, (r0, c0) the frame centre). If the non-translational part ``J`` moves any
     tile centre by more than ``tol`` LR px, the affine of every frame is
     returned as a homography (reference -> frame LR pixel coordinates, as
     :class:`FrameOperator` takes them), else None. Also returns the tile
@@ -377,26 +423,32 @@ def detect_geometry(
     g = gaussian_kernel(lp_sigma)
     ty = np.linspace(0, h, tiles + 1).astype(int)
     tx = np.linspace(0, w, tiles + 1).astype(int)
-    centres = np.array([((ty[a] + ty[a + 1] - 1) / 2.0, (tx[b] + tx[b + 1] - 1) / 2.0)
-                        for a in range(tiles) for b in range(tiles)])
+    ctx_pad = 16  # _lk_context's default
+    # one window shape for all tiles (the smallest tile, at most tile_max), each window moved inwards
+    # where needed so that its context lies inside the frame: all tiles x frames form one batch
+    ha, wa = min(int(np.diff(ty).min()), tile_max), min(int(np.diff(tx).min()), tile_max)
+    wins = []
+    for a in range(tiles):  # tiles, not pixels
+        for b in range(tiles):
+            ra, ca = (ty[a] + ty[a + 1] - ha) // 2, (tx[b] + tx[b + 1] - wa) // 2
+            if h >= ha + 2 * ctx_pad:
+                ra = min(max(ra, ctx_pad), h - ctx_pad - ha)
+            if w >= wa + 2 * ctx_pad:
+                ca = min(max(ca, ctx_pad), w - ctx_pad - wa)
+            wins.append((slice(ra, ra + ha), slice(ca, ca + wa)))
+    centres = np.array([((sl[0].start + sl[0].stop - 1) / 2.0, (sl[1].start + sl[1].stop - 1) / 2.0) for sl in wins])
     r0, c0 = (h - 1) / 2.0, (w - 1) / 2.0
     rel = centres - np.array([r0, c0])
     design = np.concatenate([np.ones((len(rel), 1)), rel], axis=1)  # (T, 3)
     tshift = np.zeros((n, len(rel), 2))
     resvar_t = np.full((n, len(rel)), np.nan)
     groups: dict[tuple, list[tuple[int, tuple[slice, slice]]]] = {}
-    k = 0
-    for a in range(tiles):  # tiles, not pixels
-        for b in range(tiles):
-            ha, wa = min(ty[a + 1] - ty[a], tile_max), min(tx[b + 1] - tx[b], tile_max)
-            ra, ca = (ty[a] + ty[a + 1] - ha) // 2, (tx[b] + tx[b + 1] - wa) // 2
-            sl = (slice(ra, ra + ha), slice(ca, ca + wa))
-            ctx = _lk_context(sl, h, w)
-            inner = _lk_inner(sl, ctx)
-            key = (ctx[0].stop - ctx[0].start, ctx[1].stop - ctx[1].start, inner[0].start, inner[0].stop,
-                   inner[1].start, inner[1].stop)
-            groups.setdefault(key, []).append((k, ctx))
-            k += 1
+    for k, sl in enumerate(wins):  # tiles
+        ctx = _lk_context(sl, h, w, ctx_pad)
+        inner = _lk_inner(sl, ctx)
+        key = (ctx[0].stop - ctx[0].start, ctx[1].stop - ctx[1].start, inner[0].start, inner[0].stop,
+               inner[1].start, inner[1].stop)
+        groups.setdefault(key, []).append((k, ctx))
     for key, members in groups.items():  # tiles whose windows have one shape: all tiles x frames at once
         refs = [_lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx) for _, ctx in members]
         pair_tile = np.repeat(np.arange(len(members)), n - 1)
@@ -451,7 +503,7 @@ def _lk_inner(sl: tuple[slice, slice], ctx: tuple[slice, slice]) -> tuple[slice,
 
 def _lk_batch(
     refs: list[np.ndarray], ref_of: np.ndarray, mov_window, keys: np.ndarray, s0: np.ndarray,
-    inner: tuple[slice, slice], g: np.ndarray, iters: int = 3, pad: int = 8,
+    inner: tuple[slice, slice], g: np.ndarray, iters: int = 3, pad: int = 8, tol: float = 1e-3,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lucas-Kanade shifts of M (reference, moving) window pairs at once (all windows one shape).
 
@@ -463,7 +515,9 @@ def _lk_batch(
     domain (reflect-padded by ``pad`` px, phase ``exp(-2 pi i k.s)``, real
     ``cos(pi s)`` at Nyquist; each reference transformed once; single-precision
     transforms, only the rows the fit reads inverted; float64 sums), ``grad R`` by
-    central differences ``(R[i+1] - R[i-1]) / 2``, step ``d = -(G^T G)^-1 G^T (F - R)``. All pairs'
+    central differences ``(R[i+1] - R[i-1]) / 2``, step ``d = -(G^T G)^-1 G^T (F - R)``, at most ``iters``
+    steps; a pair whose step falls below ``tol`` px has converged and takes no
+    more (the next would change s by far less). All unconverged pairs'
     transforms, gradients and 2x2 solves are batched. A pair whose step is
     not finite or exceeds 0.5 px (or whose G^T G is singular) stops with its
     current s, std inf and NaN variance. Returns s (M, 2), the std of s
@@ -483,8 +537,8 @@ def _lk_batch(
     resvar = np.full(m_all, np.nan)
     active = np.ones(m_all, dtype=bool)
     cache: dict[tuple[int, int, int], np.ndarray] = {}
-    last = None
-    for _ in range(iters):  # Gauss-Newton iterations, all pairs at once
+    g2 = 2.0 * float(np.sum(g**2)) ** 2
+    for _ in range(iters):  # Gauss-Newton iterations, all unconverged pairs at once
         act = np.flatnonzero(active)
         if act.size == 0:
             break
@@ -505,12 +559,11 @@ def _lk_batch(
         # inverse 2-D real FFT as column ifft then row irfft (as np.fft.irfft2), rows limited to the fit's
         shifted = spec[ref_of[act]] * (ty[:, :, None] * tx[:, None, :]).astype(np.complex64)
         pred_rows = np.fft.irfft(np.fft.ifft(shifted, axis=1)[:, rows], n=ww, axis=2)
-        pred = np.zeros((act.size, hh - 2 * pad, ww - 2 * pad))  # float64 from here on (sums over the region)
-        pred[:, r0 - 1 : r1 + 1] = pred_rows[:, :, pad:-pad]
+        pred = pred_rows[:, :, pad + c0 - 1 : pad + c1 + 1].astype(np.float64)  # rows r0-1 .. r1, cols c0-1 .. c1
         # central differences (as np.gradient in the interior; ``inner`` is >= 4 px from the window's edge)
-        gy = ((pred[:, r0 + 1 : r1 + 1, c0:c1] - pred[:, r0 - 1 : r1 - 1, c0:c1]) / 2.0).reshape(act.size, -1)
-        gx = ((pred[:, r0:r1, c0 + 1 : c1 + 1] - pred[:, r0:r1, c0 - 1 : c1 - 1]) / 2.0).reshape(act.size, -1)
-        e = (np.stack([mv[r0:r1, c0:c1] for mv in movc]) - pred[:, r0:r1, c0:c1]).reshape(act.size, -1)
+        gy = ((pred[:, 2:, 1:-1] - pred[:, :-2, 1:-1]) / 2.0).reshape(act.size, -1)
+        gx = ((pred[:, 1:-1, 2:] - pred[:, 1:-1, :-2]) / 2.0).reshape(act.size, -1)
+        e = (np.stack([mv[r0:r1, c0:c1] for mv in movc]) - pred[:, 1:-1, 1:-1]).reshape(act.size, -1)
         ata = np.empty((act.size, 2, 2))
         ata[:, 0, 0] = np.einsum("ap,ap->a", gy, gy)
         ata[:, 0, 1] = ata[:, 1, 0] = np.einsum("ap,ap->a", gy, gx)
@@ -521,18 +574,17 @@ def _lk_batch(
         if ok.any():
             step[ok] = -np.linalg.solve(ata[ok], rhs[ok][..., None])[..., 0]
         good = np.isfinite(step).all(axis=1) & (np.abs(step).max(axis=1) <= 0.5)
-        active[act[~good]] = False
-        s[act[good]] += step[good]
-        last = (act[good], gy[good], gx[good], e[good], ata[good], step[good])
-    if last is not None and iters > 0:
-        idx, gy, gx, e, ata, step = last
-        keep = active[idx]
-        idx, gy, gx, e, ata, step = idx[keep], gy[keep], gx[keep], e[keep], ata[keep], step[keep]
-        if idx.size:
-            r = e - (gy * step[:, 0, None] + gx * step[:, 1, None])
+        bad = act[~good]
+        active[bad] = False
+        sig[bad], resvar[bad] = np.inf, np.nan
+        if good.any():  # the residual after this step: its variance and the shift's std
+            idx, st = act[good], step[good]
+            s[idx] += st
+            r = e[good] - (gy[good] * st[:, 0, None] + gx[good] * st[:, 1, None])
             vr = np.var(r, axis=1)
-            resvar[idx] = vr / (2.0 * float(np.sum(g**2)) ** 2)
-            sig[idx] = np.sqrt(vr * np.trace(np.linalg.inv(ata), axis1=1, axis2=2) / 2.0)
+            resvar[idx] = vr / g2
+            sig[idx] = np.sqrt(vr * np.trace(np.linalg.inv(ata[good]), axis1=1, axis2=2) / 2.0)
+            active[idx[np.abs(st).max(axis=1) < tol]] = False  # converged: no further iterations
     return s, sig, resvar
 
 

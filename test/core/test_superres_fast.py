@@ -170,27 +170,29 @@ def test_refined_shifts_do_not_depend_on_batching(crops):
     assert np.abs(together[0] + ishift - seq.shifts).max() < 0.01
 
 
-def _fit_spectrum_loop(psd_obs, amp, logf, noise_sigma):
-    """fit_spectrum's exponent search written as the plain per-exponent loop."""
-    best = None
-    for alpha in np.arange(1.0, 4.0001, 0.1):
-        q = np.sum(amp * np.exp(-alpha * logf), axis=0)
-        wgt = 1.0 / np.maximum(psd_obs, 1e-12) ** 2
-        for _ in range(3):
-            if noise_sigma is None:
-                mat = np.stack([q, np.ones_like(q)], axis=1)
-                c_, s2 = np.linalg.solve((mat * wgt[:, None]).T @ mat, (mat * wgt[:, None]).T @ psd_obs)
-                s2 = max(s2, 1e-6)
-            else:
-                s2 = noise_sigma**2
-                c_ = float(np.sum(wgt * q * (psd_obs - s2)) / np.sum(wgt * q * q))
-            c_ = max(c_, 1e-12)
-            model = c_ * q + s2
-            wgt = 1.0 / model**2
-        err = float(np.mean(((psd_obs - model) / model) ** 2))
-        if best is None or err < best[0]:
-            best = (err, c_, alpha, s2)
-    return best[1], best[2], float(np.sqrt(best[3]))
+def _fit_one_exponent(alpha, psd_obs, amp, logf, noise_sigma):
+    """(misfit, c, sigma^2) of one exponent: 3 passes of weighted least squares, as fit_spectrum documents."""
+    q = np.sum(amp * np.exp(-alpha * logf), axis=0)
+    wgt = 1.0 / np.maximum(psd_obs, 1e-12) ** 2
+    for _ in range(3):
+        if noise_sigma is None:
+            mat = np.stack([q, np.ones_like(q)], axis=1)
+            c_, s2 = np.linalg.solve((mat * wgt[:, None]).T @ mat, (mat * wgt[:, None]).T @ psd_obs)
+            s2 = max(s2, 1e-6)
+        else:
+            s2 = noise_sigma**2
+            c_ = float(np.sum(wgt * q * (psd_obs - s2)) / np.sum(wgt * q * q))
+        c_ = max(c_, 1e-12)
+        model = c_ * q + s2
+        wgt = 1.0 / model**2
+    return float(np.mean(((psd_obs - model) / model) ** 2)), c_, s2
+
+
+def _fit_spectrum_loop(psd_obs, amp, logf, noise_sigma, alphas):
+    """fit_spectrum's exponent search over ``alphas`` written as the plain per-exponent loop."""
+    fits = [(*_fit_one_exponent(a, psd_obs, amp, logf, noise_sigma), a) for a in alphas]
+    err, c_, s2, alpha = min(fits, key=lambda t: t[0])
+    return c_, alpha, float(np.sqrt(s2))
 
 
 @pytest.mark.parametrize("noise_sigma", [None, 0.6])
@@ -212,7 +214,13 @@ def test_fit_spectrum_equals_per_exponent_loop(crops, p, noise_sigma):
     ky, kx = np.unravel_index(sel, (h, wc))
     amp = (np.abs(ay[:, None, ky] * ax[:, :wc][None, :, kx]) ** 2).reshape(p * p, -1) * p * p
     logf = np.log(np.maximum(np.hypot(fy[:, None, ky], fx[:, :wc][None, :, kx]).reshape(p * p, -1), 1e-9))
-    c_ref, alpha_ref, sigma_ref = _fit_spectrum_loop(psd.ravel()[sel], amp, logf, noise_sigma)
+    obs = psd.ravel()[sel]
+    # the documented search: 0.3 grid over [1, 4], then the 0.1 grid within +-0.2 of its winner
+    a_coarse = _fit_spectrum_loop(obs, amp, logf, noise_sigma, 1.0 + 0.3 * np.arange(11))[1]
+    fine = [a for a in a_coarse + 0.1 * np.arange(-2, 3) if 1.0 - 1e-9 <= a <= 4.0 + 1e-9]
+    c_ref, alpha_ref, sigma_ref = _fit_spectrum_loop(obs, amp, logf, noise_sigma, fine)
+    # and it finds the minimum of the full 0.1 grid (the misfit has one minimum in alpha)
+    assert _fit_spectrum_loop(obs, amp, logf, noise_sigma, 1.0 + 0.1 * np.arange(31))[1] == pytest.approx(alpha_ref)
     assert alpha == pytest.approx(alpha_ref, abs=1e-9)
     assert c == pytest.approx(c_ref, rel=1e-3)  # single- vs double-precision periodogram
     assert sigma == pytest.approx(sigma_ref, rel=1e-3)

@@ -137,8 +137,11 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
             last = order[min(i + SET - 1, len(order) - 1)]
             lat_sr.append((t - sent[last]) * 1000)
     drops = {name.replace("_node", ""): d.get("dropped_frames", "?") for name, d in sorted(diag.items())}
+    stage_keys = ("registration_ms", "frames_tracked", "tracking_fallbacks", "estimate_ms", "reconstruction_ms", "add_ms",
+                  "latency_p50_ms")
+    stages = {name.replace("_node", ""): {k: v for k, v in d.items() if k in stage_keys} for name, d in sorted(diag.items())}
     return {"layout": layout, "frames": len(sent), "rate": len(sent) / wall, "shifts": len(shifts), "sr": len(srs),
-            "lat_shift": lat_shift, "lat_sr": np.array(lat_sr), "drops": drops, "cpu_s_per_frame": cpu / len(sent)}
+            "lat_shift": lat_shift, "lat_sr": np.array(lat_sr), "drops": drops, "stages": stages, "cpu_s_per_frame": cpu / len(sent)}
 
 
 def pct(a: np.ndarray, q: float) -> str:
@@ -164,6 +167,8 @@ def main() -> None:
         print(f"| {r['layout']:8s} | {r['frames']:9d} | {r['rate']:5.1f} | {r['shifts']:10d} | {r['sr']:6d} | "
               f"{pct(r['lat_shift'], 50)} / {pct(r['lat_shift'], 99)} | {pct(r['lat_sr'], 50)} / {pct(r['lat_sr'], 99)} | "
               f"{r['cpu_s_per_frame']:.3f} | {r['drops']} |")
+    for r in rows:
+        print(f"  {r['layout']}: last stage figures from /diagnostics: {r['stages']}")
 
 
 if __name__ == "__main__":

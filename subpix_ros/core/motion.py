@@ -9,7 +9,7 @@ reference frame's. The motion between consecutive frames is
 and under constant velocity ``D_{k+1} ~ D_k``, so the prediction for the
 next frame is
 
-    H_{k+1} ~ H_k D_k.
+    H_{k+1} ~ H_k D_k    (scaled by the ratio of frame intervals when frames were dropped).
 
 A new reference frame restarts the chain at ``H = I`` while ``D`` carries on
 (the camera's motion does not change because the reference did). Used to
@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["frame_motion", "predict_homography"]
+__all__ = ["frame_motion", "predict_homography", "scale_motion"]
 
 
 def _normalised(h: np.ndarray) -> np.ndarray:
@@ -47,10 +47,26 @@ def frame_motion(h_prev: np.ndarray | None, h: np.ndarray) -> np.ndarray:
     return _normalised(np.linalg.solve(hp, h))
 
 
-def predict_homography(h_last: np.ndarray | None, motion: np.ndarray) -> np.ndarray:
-    """Constant-velocity prediction ``H_{k+1} = H_k D_k`` (next frame -> reference pixels).
+def scale_motion(motion: np.ndarray, ratio: float) -> np.ndarray:
+    """The motion over ``ratio`` times the time it was measured over: ``D^ratio ~ I + ratio (D - I)``.
 
-    ``h_last`` None means the last frame was the reference (``H_k = I``).
+    First order in ``D - I`` (exact for translations; consecutive frames
+    differ by a small rotation/scale, so the neglected term is tiny next to
+    the tracking search radius). Used when frames were dropped or skipped
+    and the time between frames changed. ``ratio`` >= 0.
     """
+    if not (np.isfinite(ratio) and ratio >= 0):
+        raise ValueError(f"ratio must be finite and >= 0, got {ratio!r}")
     d = _normalised(motion)
+    return _normalised(np.eye(3) + ratio * (d - np.eye(3)))
+
+
+def predict_homography(h_last: np.ndarray | None, motion: np.ndarray, ratio: float = 1.0) -> np.ndarray:
+    """Constant-velocity prediction ``H_{k+1} = H_k D_k^ratio`` (next frame -> reference pixels).
+
+    ``h_last`` None means the last frame was the reference (``H_k = I``);
+    ``ratio`` = (time from frame k to k+1) / (time over which ``motion`` was
+    measured), see :func:`scale_motion`.
+    """
+    d = _normalised(motion) if ratio == 1.0 else scale_motion(motion, ratio)
     return d if h_last is None else _normalised(_normalised(h_last) @ d)

@@ -87,6 +87,8 @@ class RegistrationNode(StageNode):
         self._ref_prepared: reg.ReferenceFrame | None = None
         self._last_h: np.ndarray | None = None  # previous aligned frame -> reference (None: it was the reference)
         self._motion: np.ndarray | None = None  # last frame-to-frame motion (frame k -> frame k-1 pixels)
+        self._motion_dt = 0.0  # the time (s) that motion took
+        self._last_stamp_s: float | None = None  # stamp of the previous frame of the chain (aligned or reference)
         self.tracked = 0
         self.track_fallbacks = 0
         self.since_reference = 0
@@ -161,6 +163,7 @@ class RegistrationNode(StageNode):
         self._ref_prepared = None
         self._last_h = None
         self._motion = None
+        self._last_stamp_s = None
         self.since_reference = 0
         self.selector.reset()
         self.telemetry = TelemetryBuffer(max_age_s=60.0, stale_after_s=self.p("telemetry_timeout_s"))
@@ -203,7 +206,7 @@ class RegistrationNode(StageNode):
             self._new_reference(frame, "first frame" if self.reference is None else "set complete")
             return
         t0 = time.monotonic()
-        prior = self._predict() if self.p("tracking") else None
+        prior = self._predict(frame.stamp_s) if self.p("tracking") else None
         result = reg.register(self._ref_prepared, frame.image, model=self.p("model"), n_points=self.p("n_points"),
                               distortion=self.p("distortion"), prior=prior, track_radius=self.p("track_radius_px"))
         if prior is not None:
@@ -223,7 +226,9 @@ class RegistrationNode(StageNode):
             return
         h = np.asarray(result.homography, dtype=np.float64)
         self._motion = frame_motion(self._last_h, h)
+        self._motion_dt = frame.stamp_s - self._last_stamp_s if self._last_stamp_s is not None else 0.0
         self._last_h = h
+        self._last_stamp_s = frame.stamp_s
         al = reg.align(self.reference.image, frame.image, result, warp_threshold_px=self.p("warp_threshold_px"))
         out = pl.Aligned(frame.stamp_ns, al.aligned, al.mask, self.reference, np.asarray(result.homography),
                          tuple(al.prior_shift) if al.prior_shift is not None else None, frame.frame_id, frame.received)
@@ -238,11 +243,14 @@ class RegistrationNode(StageNode):
                       frames_kept=self.kept, warped=bool(al.warped))
         self.diag.ok()
 
-    def _predict(self) -> np.ndarray | None:
-        """Predicted homography (this frame -> reference) from the previous frame's and the last motion."""
-        if self._motion is None:
+    def _predict(self, stamp_s: float) -> np.ndarray | None:
+        """Predicted homography (this frame -> reference): the last motion carried on for the time since the last frame."""
+        if self._motion is None or self._last_stamp_s is None or self._motion_dt <= 0:
             return self._last_h  # constant position (None right after a new reference: full search)
-        return predict_homography(self._last_h, self._motion)
+        ratio = (stamp_s - self._last_stamp_s) / self._motion_dt
+        if not 0 <= ratio <= 20:  # a long gap: the prediction means nothing, search fully
+            return None
+        return predict_homography(self._last_h, self._motion, ratio)
 
     def _quality_problem(self, result) -> str:
         if not result.ok:
@@ -258,6 +266,7 @@ class RegistrationNode(StageNode):
     def _new_reference(self, frame: pl.Frame, why: str) -> None:
         self._ref_prepared = reg.prepare_reference(frame.image)  # once per reference, not per frame
         self._last_h = None  # the chain restarts at the identity; the last motion carries on (core.motion)
+        self._last_stamp_s = frame.stamp_s
         self.reference = frame
         self.since_reference = 0
         self.pub_ref.publish(pl.image_cdr(frame.image, frame.stamp_ns, frame.frame_id))

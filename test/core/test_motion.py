@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from subpix_ros.core.motion import frame_motion, predict_homography
+from subpix_ros.core.motion import frame_motion, predict_homography, scale_motion
 
 
 def _h(tx, ty, ang=0.0, s=1.0):
@@ -38,3 +38,16 @@ def test_scale_of_homography_is_irrelevant_and_bad_input_raises():
         frame_motion(None, np.full((3, 3), np.nan))
     with pytest.raises(ValueError):
         frame_motion(np.zeros((3, 3)) + np.diag([1.0, 0.0, 1.0]), d)
+
+
+def test_motion_scaled_by_frame_interval():
+    d = _h(0.41, 0.27)  # measured over one frame interval
+    np.testing.assert_allclose(scale_motion(d, 3.0), _h(1.23, 0.81), atol=1e-12)  # two frames dropped
+    np.testing.assert_allclose(scale_motion(d, 0.0), np.eye(3), atol=1e-12)
+    r = _h(2.0, -1.0, np.deg2rad(0.2))
+    # first order: off the true matrix power by ~ rotation x translation (0.0035 rad x 2 px = 0.007 px here),
+    # far inside the tracking search radius
+    np.testing.assert_allclose(scale_motion(r, 2.0), r @ r, atol=1e-2)
+    np.testing.assert_allclose(predict_homography(_h(5.0, 1.0), d, ratio=2.0), _h(5.82, 1.54), atol=1e-12)
+    with pytest.raises(ValueError):
+        scale_motion(d, -1.0)

@@ -29,10 +29,10 @@ def _frames(offsets, w=960, h=720):
     return out
 
 
-def _run(node, frames):
+def _run(node, frames, ticks):
     got = []
     node.listen("aligned", got.append)
-    for k, img in enumerate(frames):
+    for k, img in zip(ticks, frames):
         node.handle_frame(pl.Frame(stamp_ns=1_000_000_000 + k * 100_000_000, image=img, frame_id="camera"))
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and not node.worker.idle():
@@ -43,17 +43,20 @@ def _run(node, frames):
 def test_tracking_follows_constant_velocity_and_falls_back_on_a_jump(ctx):
     from subpix_ros.nodes.registration_node import RegistrationNode
 
-    step = np.array([1.41, -2.27])
-    offsets = [k * step for k in range(7)] + [6 * step + [25.0, 31.0]]  # the last frame jumps far off the prediction
+    step = np.array([1.41, -2.27])  # px per 0.1 s frame interval
+    # frames 0-6 at 10 Hz, then three frames lost (the next is 0.4 s later, 10.7 px further: the time-scaled
+    # prediction must still hit it), then a frame that jumps 40 px off the prediction
+    ticks = list(range(7)) + [10, 11]
+    offsets = [k * step for k in ticks[:-1]] + [11 * step + [25.0, 31.0]]
     node = RegistrationNode(subscribe_inputs=False, parameter_overrides=[
         Parameter("selection", value="all"), Parameter("distortion", value=False), Parameter("n_points", value=300),
         Parameter("max_frames_per_reference", value=20)])
     try:
-        got = _run(node, _frames(offsets))
-        assert len(got) == 7  # frame 0 is the reference, every other frame aligned
-        # frame 1: no motion known yet (full search, no prior); frames 2-6 follow the prediction;
-        # frame 7 jumps 40 px off it: tracking fails and the full search takes over
-        assert node.tracked == 5 and node.track_fallbacks == 1, (node.tracked, node.track_fallbacks)
+        got = _run(node, _frames(offsets), ticks)
+        assert len(got) == 8  # frame 0 is the reference, every other frame aligned
+        # frame 1: no motion known yet (full search, no prior); frames 2-6 and the one after the gap follow the
+        # prediction; the last jumps 40 px off it: tracking fails and the full search takes over
+        assert node.tracked == 6 and node.track_fallbacks == 1, (node.tracked, node.track_fallbacks)
         for a, off in zip(got, offsets[1:]):
             # prior: the sub-pixel remainder (rows, cols) left in the aligned frame after the integer crop
             assert np.all(np.abs(a.prior) <= 0.5 + 1e-9)

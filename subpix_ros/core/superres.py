@@ -607,6 +607,7 @@ def _tukey(n: int, frac: float = 0.25) -> np.ndarray:
 def _solve_separable(
     spec: np.ndarray, ay: np.ndarray, ax: np.ndarray, fy: np.ndarray, fx: np.ndarray,
     c: float, alpha: float, reg: float, noise_power: float, block_bins: int = 1 << 16,
+    shifts: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per-bin MAP solve (eq. 9, normal-equation form) when every frame's noise variance is frequency-independent.
 
@@ -624,6 +625,16 @@ def _solve_separable(
     batched (p x N) @ (N x p wc) product per spectrum row. The k x k Hermitian
     systems are solved by a Cholesky factorisation ``L L^H`` vectorised over
     bins (loops over the k x k matrix indices only, in-place updates).
+
+    With ``shifts`` (N, 2), the fractional shifts (LR px) that ``ay``/``ax``
+    were built with (``frame_transfer_1d``: ``a[n, m] = h[m] exp(-2 pi i f_m p s_n)``),
+    the Gram entries collapse to rank one: the frame-dependent factor
+    ``conj(a[n, m]) a[n, m'] / (h-part) = exp(2 pi i (f_m - f_m') p s_n)`` depends
+    on the bin only through ``p (f_m - f_m')``, an integer class (one value per
+    alias pair for even p, two for odd p), so
+    ``G[m, m'](ky, kx) = gy(ky) gx(kx) T[cls_y(ky), cls_x(kx)]`` with the small table
+    ``T[cy, cx] = sum_n exp(2 pi i (cy u_n + cx v_n)) / v`` — an outer product
+    instead of a rank-N matrix product (the same values to round-off).
     The spectrum is processed in blocks of whole rows of about ``block_bins``
     bins, so the working arrays stay in cache. complex64 / float32
     throughout. Returns X (p, p, hp, wc) complex64.
@@ -636,19 +647,62 @@ def _solve_separable(
     ax32 = ax.astype(np.complex64)
     cay = np.conj(ay32) * np.float32(1.0 / noise_power)  # 1/v folded into the row factors
     cax = np.conj(ax32)
-    # column factors of the Gram entries, lower triangle i >= j (i = (a1, a2), j = (b1, b2)), grouped by (a1, b1)
-    col_fac = {}
-    for a1 in range(p):
-        for b1 in range(a1 + 1):
-            cols = [(a2, b2) for a2 in range(p) for b2 in range(p) if a1 * p + a2 >= b1 * p + b2]
-            w = np.concatenate([cax[:, a2] * ax32[:, b2] for a2, b2 in cols], axis=1)  # (n, len(cols) wc)
-            col_fac[a1, b1] = (cols, _as_c2(w))
+    if shifts is None:
+        # column factors of the Gram entries, lower triangle i >= j (i = (a1, a2), j = (b1, b2)), grouped by (a1, b1)
+        col_fac = {}
+        for a1 in range(p):
+            for b1 in range(a1 + 1):
+                cols = [(a2, b2) for a2 in range(p) for b2 in range(p) if a1 * p + a2 >= b1 * p + b2]
+                w = np.concatenate([cax[:, a2] * ax32[:, b2] for a2, b2 in cols], axis=1)  # (n, len(cols) wc)
+                col_fac[a1, b1] = (cols, _as_c2(w))
+    else:
+        col_fac = _rank_one_gram_factors(ay, ax, fy, fx, np.asarray(shifts, dtype=np.float64), noise_power)
     lam_cols = [(fy[m1].astype(np.float64) ** 2, fx[m2].astype(np.float64) ** 2) for m1 in range(p) for m2 in range(p)]
     for r0 in range(0, hp, rows):  # blocks of spectrum rows (cache), not pixels
         r1 = min(hp, r0 + rows)
         _solve_separable_block(spec[:, r0:r1], ay32[:, :, r0:r1], cay[:, :, r0:r1], cax, col_fac, lam_cols, r0, r1,
                                alpha, np.float32(reg / c), xs[:, :, r0:r1])
     return xs
+
+
+@dataclass
+class _RankOneGram:
+    """Rank-one Gram entries of :func:`_solve_separable`: ``entries[i, j] = (gy, cls_y, gx, cls_x, T)``."""
+
+    entries: dict
+
+
+def _alias_classes(f: np.ndarray, p: int, m: int, mp: int) -> tuple[np.ndarray, np.ndarray]:
+    """Integer classes ``p (f[m] - f[mp])`` per bin, as (distinct values, index of each bin's value)."""
+    d = np.rint(p * (f[m] - f[mp])).astype(np.int64)
+    vals, inv = np.unique(d, return_inverse=True)
+    return vals, inv.ravel()
+
+
+def _rank_one_gram_factors(
+    ay: np.ndarray, ax: np.ndarray, fy: np.ndarray, fx: np.ndarray, shifts: np.ndarray, noise_power: float
+) -> _RankOneGram:
+    """Factors of the rank-one Gram entries (lower triangle) for :func:`_solve_separable` with ``shifts``."""
+    p = ay.shape[1]
+    u, v = shifts[:, 0], shifts[:, 1]
+    # shift-free transfers h[m] = a[0, m] exp(+2 pi i f_m p s_0) (frame 0's phase removed)
+    hy = ay[0] * np.exp(2j * np.pi * fy * p * u[0])
+    hx = ax[0] * np.exp(2j * np.pi * fx * p * v[0])
+    entries = {}
+    for a1 in range(p):
+        for a2 in range(p):
+            for b1 in range(p):
+                for b2 in range(p):
+                    i, j = a1 * p + a2, b1 * p + b2
+                    if i < j:
+                        continue
+                    vy, cy = _alias_classes(fy, p, a1, b1)
+                    vx, cx = _alias_classes(fx, p, a2, b2)
+                    table = (np.exp(2j * np.pi * (vy[:, None, None] * u + vx[None, :, None] * v)).sum(axis=2)
+                             / noise_power)
+                    entries[i, j] = ((np.conj(hy[a1]) * hy[b1]).astype(np.complex64), cy,
+                                     (np.conj(hx[a2]) * hx[b2]).astype(np.complex64), cx, table.astype(np.complex64))
+    return _RankOneGram(entries)
 
 
 def _as_c2(z: np.ndarray) -> np.ndarray:
@@ -667,11 +721,19 @@ def _solve_separable_block(
     k = p * p
     idx = [(m1, m2) for m1 in range(p) for m2 in range(p)]
     gram: dict[tuple[int, int], np.ndarray] = {}
-    for (a1, b1), (cols, w2) in col_fac.items():  # Gram: one product per row-factor pair
-        u = (cay[:, a1] * ay32[:, b1]).T  # (R, n)
-        prod = cv2.gemm(_as_c2(u), w2, 1.0, None, 0.0).view(np.complex64)[..., 0]
-        for q, (a2, b2) in enumerate(cols):
-            gram[a1 * p + a2, b1 * p + b2] = prod[:, q * wc : (q + 1) * wc]
+    if isinstance(col_fac, _RankOneGram):  # rank-one entries: outer products (see _solve_separable)
+        for (i, j), (gy, cy, gx, cx, table) in col_fac.entries.items():
+            gyb, cyb = gy[r0:r1], cy[r0:r1]
+            if table.size == 1:
+                gram[i, j] = np.multiply.outer(gyb * table[0, 0], gx)
+            else:
+                gram[i, j] = np.multiply.outer(gyb, gx) * table[cyb][:, cx]
+    else:
+        for (a1, b1), (cols, w2) in col_fac.items():  # Gram: one product per row-factor pair
+            u = (cay[:, a1] * ay32[:, b1]).T  # (R, n)
+            prod = cv2.gemm(_as_c2(u), w2, 1.0, None, 0.0).view(np.complex64)[..., 0]
+            for q, (a2, b2) in enumerate(cols):
+                gram[a1 * p + a2, b1 * p + b2] = prod[:, q * wc : (q + 1) * wc]
     # right-hand side b[m1, m2] = sum_n cay[n, m1] (cax[n, m2] Y_n)
     t = spec.transpose(1, 0, 2)[:, :, None, :] * cax[None, :, :, :]  # (R, n, p, wc)
     rhs = np.matmul(cay.transpose(2, 1, 0), t.reshape(nr, n, p * wc))  # (R, p, p wc)
@@ -954,7 +1016,7 @@ def _fourier_map(
     max_var = float(np.max(cov[:, 0, 0] + cov[:, 1, 1]))
     resid_ratio = np.full(n, np.nan)
     if 2.0 * np.pi**2 * max_var * 0.5 < 1e-3:
-        xs = _solve_separable(spec, ay, ax, fy, fx, c, alpha, reg, noise_power)
+        xs = _solve_separable(spec, ay, ax, fy, fx, c, alpha, reg, noise_power, shifts=resid)
         wsum = np.sum(np.abs(ay[:, 0]) ** 2, axis=1) * np.sum(np.abs(ax[:, 0]) ** 2, axis=1)
     else:
         k = p * p

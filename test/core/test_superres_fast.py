@@ -34,7 +34,7 @@ def _dense_map(spec, ay, ax, fy, fx, c, alpha, reg, noise_power):
     return out
 
 
-@pytest.mark.parametrize("p,n,block", [(2, 4, 40), (2, 7, 1 << 16), (3, 5, 64)])
+@pytest.mark.parametrize("p,n,block", [(2, 4, 40), (2, 7, 1 << 16), (3, 5, 64), (4, 3, 50)])
 def test_separable_solve_equals_dense_per_bin_solve(p, n, block):
     rng = np.random.default_rng(p * 10 + n)
     hp, wp = 12, 14
@@ -47,8 +47,16 @@ def test_separable_solve_equals_dense_per_bin_solve(p, n, block):
     fx = frame_transfer_1d(wp, p, 0.0, 0.4)[1][:, :wc]
     spec = (rng.normal(size=(n, hp, wc)) + 1j * rng.normal(size=(n, hp, wc))) * 100
     args = (spec.astype(np.complex64), ay, ax, fy, fx, 3.0e5, 2.5, 1.0, hp * wp * 0.5)
-    fast = sr._solve_separable(*args, block_bins=block)  # small blocks: several row blocks
     ref = _dense_map(spec, *args[1:])
+    fast = sr._solve_separable(*args, block_bins=block)  # small blocks: several row blocks
+    assert np.abs(fast - ref).max() < 1e-4 * np.abs(ref).max()
+    # rank-one Gram entries from the shifts the transfers were built with (frame 0 not at zero shift here)
+    shifts[0] = rng.uniform(-0.5, 0.5, 2)
+    ay = np.stack([frame_transfer_1d(hp, p, s, 0.4)[0] for s in shifts[:, 0]])
+    ax = np.stack([frame_transfer_1d(wp, p, s, 0.4)[0][:, :wc] for s in shifts[:, 1]])
+    args = (spec.astype(np.complex64), ay, ax, fy, fx, 3.0e5, 2.5, 1.0, hp * wp * 0.5)
+    ref = _dense_map(spec, *args[1:])
+    fast = sr._solve_separable(*args, block_bins=block, shifts=shifts)
     assert np.abs(fast - ref).max() < 1e-4 * np.abs(ref).max()
 
 

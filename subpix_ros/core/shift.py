@@ -392,7 +392,7 @@ def coarse_shift(
 
 
 _DEFAULT_SIGMA = 0.8  # prefilter (px) against aliasing when the pair is not noise-limited
-_ADAPTIVE_SIGMAS = (0.6, 0.45)  # candidates tried on noise-limited pairs (smallest covariance wins)
+_ADAPTIVE_SIGMAS = (0.7, 0.6, 0.5, 0.4)  # candidates on noise-limited pairs (smallest predicted variance wins)
 _NOISE_LIMITED_PX = 0.005  # standard error (px) above which a pair counts as noise-limited
 _BLOCK = 16  # block size (px) of the sandwich covariance and the misfit grid
 _TILE = 128  # tile size (px) when only the most textured max_pixels are used
@@ -637,6 +637,84 @@ def _solve(A: np.ndarray, b: np.ndarray) -> Optional[np.ndarray]:
     return d if np.all(np.isfinite(d)) else None
 
 
+def _noise_variance(A: np.ndarray, b: np.ndarray, ee: float, n: int, taps: int, sigma: float, band: float, t) -> Optional[float]:
+    """Per-frame white-noise variance (DN^2) from the least-squares residual.
+
+    ``var(e) = sig2 (|h_t|^2 |h_t|^2 + |h_0|^2 |h_0|^2)`` (separable 2-D norms
+    of the moving-side and reference-side filters), with ``var(e)`` the residual
+    energy after the solve over ``n - 3`` degrees of freedom. Model error
+    (aliasing, misfit) counts as noise here. None if ``A`` is singular.
+    """
+    d = _solve(A, b)
+    if d is None:
+        return None
+    h0, _ = fractional_shift_kernel(0.0, taps, sigma, band)
+    htr, _ = fractional_shift_kernel(float(t[0]), taps, sigma, band)
+    htc, _ = fractional_shift_kernel(float(t[1]), taps, sigma, band)
+    n0 = float(np.dot(h0, h0))
+    fit = max(ee - float(d @ b), 0.0) / max(n - 3, 1)
+    return fit / (float(np.dot(htr, htr)) * float(np.dot(htc, htc)) + n0 * n0)
+
+
+_SPECTRUM_SIZE = 256  # side (px) of the central crop whose spectrum chooses the prefilter
+
+
+def predicted_shift_variance(ref: np.ndarray, mov: np.ndarray, noise_var: float, sigmas: Sequence[float]) -> np.ndarray:
+    """Predicted variance (px^2, u + v) of the Gaussian-prefiltered estimator, per ``sigma``.
+
+    Frequency-domain model of the estimating equation ``sum g e = 0`` for a
+    pair with white noise of variance ``noise_var`` (DN^2) in each frame: with
+    weight ``W = |G_sigma(w)|^2``, gradient ``s_i = sin(w_i)`` (central
+    difference) and signal power ``P`` (the Hann-windowed periodograms of the
+    two frames averaged, less the noise ``nu = noise_var sum w^2``), the slope
+    is ``S = sum W s w^T P`` and the score covariance ``B = 2 sum W^2 s s^T
+    (P nu + nu^2 / 2)``; the ``nu^2`` term is the noise-times-noise part that
+    keeps any estimator of an unknown scene above ``2 sigma^2 J^-1``. Returns
+    ``trace(S^-1 B S^-T)`` for each sigma (inf where S is singular). Only the
+    central ``_SPECTRUM_SIZE`` px square of the frames is used.
+    """
+    h, w = ref.shape
+    sh, sw = min(h, _SPECTRUM_SIZE), min(w, _SPECTRUM_SIZE)
+    r0, c0 = (h - sh) // 2, (w - sw) // 2
+    win = cv2.createHanningWindow((sw, sh), cv2.CV_64F)
+    nc = sw // 2 + 1
+    P = np.zeros((sh, nc))
+    for a in (ref, mov):
+        x = np.asarray(a[r0 : r0 + sh, c0 : c0 + sw], dtype=np.float64)
+        f = np.fft.rfft2((x - x.mean()) * win)
+        P += 0.5 * (f.real**2 + f.imag**2)
+    nu = float(noise_var) * float(np.sum(win * win))
+    P -= nu
+    # half-plane spectrum: columns other than 0 (and Nyquist) stand for their mirror too
+    mult = np.full(nc, 2.0)
+    mult[0] = 1.0
+    if sw % 2 == 0:
+        mult[-1] = 1.0
+    wy = np.broadcast_to(2.0 * np.pi * np.fft.fftfreq(sh)[:, None], P.shape)
+    wx = np.broadcast_to(2.0 * np.pi * np.fft.rfftfreq(sw)[None, :], P.shape)
+    sy, sx = np.sin(wy), np.sin(wx)
+    Pm = P * mult
+    nt = (P * nu + 0.5 * nu * nu) * mult
+    fa = np.stack([sy * wy * Pm, sy * wx * Pm, sx * wy * Pm, sx * wx * Pm]).reshape(4, -1)
+    fb = np.stack([sy * sy * nt, sy * sx * nt, sx * sx * nt]).reshape(3, -1)
+    sg = np.asarray(sigmas, dtype=np.float64)[:, None]
+    W = np.exp(-(sg**2) * (wy * wy + wx * wx).reshape(1, -1))
+    Sa = W @ fa.T  # (K, 4): slope entries
+    Bb = 2.0 * ((W * W) @ fb.T)  # (K, 3): score covariance entries
+    out = []
+    for k in range(sg.shape[0]):
+        S = Sa[k].reshape(2, 2)
+        B = np.array([[Bb[k, 0], Bb[k, 1]], [Bb[k, 1], Bb[k, 2]]])
+        try:
+            Si = np.linalg.inv(S)
+        except np.linalg.LinAlgError:
+            out.append(np.inf)
+            continue
+        v = float(np.trace(Si @ B @ Si.T))
+        out.append(v if np.isfinite(v) and v > 0 else np.inf)
+    return np.array(out)
+
+
 def _signal_matrix(A: np.ndarray, b: np.ndarray, ee: float, n: int, taps: int, sigma: float, band: float, t) -> np.ndarray:
     """Normal matrix with the reference-noise energy removed from the gradient terms.
 
@@ -649,16 +727,12 @@ def _signal_matrix(A: np.ndarray, b: np.ndarray, ee: float, n: int, taps: int, s
     and ``n sig2 |k*h_0|^2 |h_0|^2`` is taken off the diagonal (at most 80 %
     of it). Only used near the solution, where the residual is mostly noise.
     """
-    d = _solve(A, b)
-    if d is None:
+    sig2 = _noise_variance(A, b, ee, n, taps, sigma, band, t)
+    if sig2 is None:
         return A
     h0, _ = fractional_shift_kernel(0.0, taps, sigma, band)
-    htr, _ = fractional_shift_kernel(float(t[0]), taps, sigma, band)
-    htc, _ = fractional_shift_kernel(float(t[1]), taps, sigma, band)
     n0 = float(np.dot(h0, h0))
     nk = float(np.sum(np.convolve(h0.astype(np.float64), [0.5, 0.0, -0.5]) ** 2))
-    fit = max(ee - float(d @ b), 0.0) / max(n - 3, 1)
-    sig2 = fit / (float(np.dot(htr, htr)) * float(np.dot(htc, htc)) + n0 * n0)
     out = A.copy()
     for i in (0, 1):
         out[i, i] = max(A[i, i] - n * sig2 * nk * n0, 0.2 * A[i, i])
@@ -818,18 +892,79 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
     if res.ok and adaptive and not res.misfit and max(res.u_std, res.v_std) > _NOISE_LIMITED_PX:
         # noise-limited pair: aliasing bias (< 0.003 px) no longer matters and the
         # prefilter is re-chosen for the smallest noise variance (METHODS.md A, notes)
-        s1 = np.array([res.u, res.v])
-        for sig_c in _ADAPTIVE_SIGMAS:
-            lv_c = _Level(R, M, vr, vm, taps, sig_c, band, max_pixels, score, kmax=int(np.max(np.abs(s1))) + 3)
-            lv_c.blocks = True
-            out_c = _gauss_newton(lv_c, s1, max_iterations, tol, border, blocks=True)
-            if out_c["reason"] or not (out_c["converged"] or out_c["last"] <= 0.05):
-                continue
-            res_c = _statistics(out_c, lv_c, h, w, misfit_px, coarse)
-            if res_c.ok and not res_c.misfit and np.trace(res_c.cov) < np.trace(res.cov):
-                res_c.iterations += res.iterations
-                res = res_c
+        se = out["s_eval"]
+        sig2 = _noise_variance(out["A"], out["b"], out["ee"], out["n"], taps, sigma, band, se - np.floor(se))
+        if sig2 is not None and sig2 > 0:
+            cands = (sigma,) + tuple(x for x in _ADAPTIVE_SIGMAS if x != sigma)
+            pv = predicted_shift_variance(_fill_invalid(R, vr), _fill_invalid(M, vm), sig2, cands)
+            best = cands[int(np.argmin(pv))]
+            if best != sigma and np.isfinite(pv.min()):
+                s1 = np.array([res.u, res.v])
+                lv_c = _Level(R, M, vr, vm, taps, best, band, max_pixels, score, kmax=int(np.max(np.abs(s1))) + 3)
+                lv_c.blocks = True
+                out_c = _gauss_newton(lv_c, s1, max_iterations, tol, border, blocks=True)
+                if not out_c["reason"] and (out_c["converged"] or out_c["last"] <= 0.05):
+                    res_c = _statistics(out_c, lv_c, h, w, misfit_px, coarse)
+                    if res_c.ok and not res_c.misfit:
+                        res_c.iterations += res.iterations
+                        res = res_c
     return res
+
+
+def _score_slope(lv: "_Level", rects, s: np.ndarray, A: np.ndarray, b: np.ndarray, delta: float = 1e-3) -> Optional[np.ndarray]:
+    """Slope of the estimating equation ``b(s) = sum J e(s)`` at ``s``: ``[db/du, db/dv, db/dz]``.
+
+    ``db/dz = sum J`` (the third column of ``A``); ``db/du``, ``db/dv`` by a
+    one-sided difference of ``delta`` px (away from the next integer, so the
+    pixel set stays the same). This is the bread of the sandwich covariance:
+    ``A = sum J J^T`` differs from it because the reference gradient is a
+    central difference of a noisy frame (``sin(w)`` instead of ``w``, noise
+    energy in ``g g^T``), by 10-25 % on noisy, lightly prefiltered pairs.
+    """
+    S = np.empty((3, 3))
+    S[:, 2] = A[:, 2]
+    for j in (0, 1):
+        sp = np.array(s, dtype=np.float64)
+        dj = delta if (sp[j] - math.floor(sp[j])) + delta < 1.0 else -delta
+        sp[j] += dj
+        bp = _gn_sums(lv, rects, sp, False)[1]
+        S[:, j] = (bp - b) / dj
+    return S if np.all(np.isfinite(S)) else None
+
+
+_HAC_WEIGHT = 1.0  # weight of the neighbouring-block cross products in the score covariance
+
+
+def _block_meat(Bg: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Covariance of the summed score from per-block scores ``Bg`` (rows, cols, 3).
+
+    ``sum_k b_k b_k^T`` plus ``_HAC_WEIGHT`` times the cross products of
+    8-neighbouring blocks within the same tile (``seg``: tile id per block row):
+    a spatial HAC estimate. The neighbour terms matter because the filtered
+    noise is correlated over a few pixels, so products across a block edge
+    enter the two blocks with opposite signs (they telescope in the total);
+    without them ``sum b_k b_k^T`` overstates the variance of low-pass
+    filtered pairs. The result is symmetrised and, if not positive
+    semi-definite, replaced by the plain sum.
+    """
+    flat = Bg.reshape(-1, 3)
+    base = flat.T @ flat
+    meat = base.copy()
+    R, C, _ = Bg.shape
+    for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        if dj >= 0:
+            a, b = Bg[: R - di, : C - dj], Bg[di:, dj:]
+        else:
+            a, b = Bg[: R - di, -dj:], Bg[di:, : C + dj]
+        same = (seg[: R - di] == seg[di:])[:, None, None]
+        x = (a * same).reshape(-1, 3)
+        y = b.reshape(-1, 3)
+        cross = x.T @ y
+        meat += _HAC_WEIGHT * (cross + cross.T)
+    meat = 0.5 * (meat + meat.T)
+    if np.any(np.linalg.eigvalsh(meat[:2, :2]) <= 0):
+        return base
+    return meat
 
 
 def _statistics(out: dict, lv: "_Level", h: int, w: int, misfit_px: float, coarse) -> ShiftResult:
@@ -844,20 +979,30 @@ def _statistics(out: dict, lv: "_Level", h: int, w: int, misfit_px: float, coars
     cond = float(np.linalg.cond(A))
     see_final = max(ee - 2.0 * float(d @ b) + float(d @ A @ d), 0.0)
     resid_rms = math.sqrt(see_final / max(n - 3, 1))
-    # bread of the sandwich: the slope of the estimating equation (see _signal_matrix)
-    try:
-        Ainv = np.linalg.inv(out["As"])
-    except np.linalg.LinAlgError:
-        Ainv = np.linalg.inv(A)
+    # bread of the sandwich: the measured slope of the estimating equation
+    Ainv = None
+    Sd = _score_slope(lv, rects, out["s_eval"], A, b)
+    if Sd is not None:
+        try:
+            Ainv = np.linalg.inv(Sd)
+        except np.linalg.LinAlgError:
+            Ainv = None
+    if Ainv is None:
+        try:
+            Ainv = np.linalg.inv(out["As"])
+        except np.linalg.LinAlgError:
+            Ainv = np.linalg.inv(A)
     g00, g01, g11, g0, g1, ge0, ge1, e, _, cnt = (None if x is None else x.ravel() for x in bl)
     # block scores of the residual after the final step: b_k = sum_k J^T (e - J d)
     r0 = ge0 - (g00 * d[0] + g01 * d[1] + g0 * d[2])
     r1 = ge1 - (g01 * d[0] + g11 * d[1] + g1 * d[2])
     r2 = e - (g0 * d[0] + g1 * d[1] + cnt * d[2])
     Bk = np.stack([r0, r1, r2], 1)
-    Bm = Bk
-    nb = Bm.shape[0]
-    cov3 = Ainv @ (Bm.T @ Bm) @ Ainv * (nb / max(nb - 3, 1))
+    nb = Bk.shape[0]
+    grid = bl[0].shape
+    seg = np.repeat(np.arange(len(rects)), [-(-(r1_ - r0_) // _BLOCK) for r0_, r1_, _, _ in rects])
+    meat = _block_meat(Bk.reshape(grid[0], grid[1], 3), seg)
+    cov3 = Ainv @ meat @ Ainv * (nb / max(nb - 3, 1))
     cov = cov3[:2, :2].copy()
     # misfit: local shifts on a 3x3 grid of the frame
     RR, CC = lv.block_centres(rects)

@@ -10,15 +10,17 @@ reference Tikhonov least-squares solution by conjugate gradients
 gradient regulariser, weight tuned once on crop_field_edge).
 
 Speed: output sizes from 256^2 to 4K at x2 from 4 frames; best and median of
-``--repeats`` runs; ``map-core`` is the Fourier MAP solve with given shifts
-and noise (what the speed target is about), ``map`` the full default
-(shift refinement, geometry check, noise and prior estimation); bicubic
-(``cv2.resize``) and a scipy CG Tikhonov solution as references. Then a
+``--repeats`` runs, in s and s per output MP; ``map`` is the full default
+(shift refinement, geometry check, noise and prior estimation: what the
+speed target is about), ``map-core`` the Fourier MAP solve alone with given
+shifts and noise; the windowed eq. 7, bicubic (``cv2.resize``) and a scipy
+CG Tikhonov solution (up to 1 MP) as references in the same run. Then a
 least-squares fit ``best time = fixed + slope * MP`` per method: linear in
 pixel count means a small fixed per-call cost and a slope close to the
-large-size s/MP.
+large-size s/MP. Last, the reconstruction node's call (8 aligned 1920x1080
+frames with border-strip masks, x2, through ``reconstruct_aligned``).
 
-Run: ``python benchmarks/bench_superres.py [--quick] [--repeats 5]``. The
+Run: ``python benchmarks/bench_superres.py [--quick] [--repeats 5] [--only quality|speed|pipeline]``. The
 machine's load is printed: timings on a shared machine are noisy (report
 the best of several runs).
 """
@@ -144,7 +146,7 @@ def speed(quick: bool, repeats: int) -> None:
     sizes = [(256, 256), (512, 512), (1024, 1024), (1080, 1920)] + ([] if quick else [(2160, 3840)])
     print(f"\nSpeed: x2 from 4 frames (2x2 grid), best / median of {repeats} runs, seconds and s per output MP"
           f" (load average {os.getloadavg()[0]:.2f} at start)")
-    print(f"{'output':>11s} {'method':24s} {'best s':>8s} {'median s':>9s} {'best s/MP':>10s}")
+    print(f"{'output':>11s} {'method':24s} {'best s':>8s} {'median s':>9s} {'best s/MP':>10s} {'med s/MP':>9s}")
     best: dict[str, list[tuple[float, float]]] = {}
     full = False
     for oh, ow in sizes:
@@ -153,23 +155,24 @@ def speed(quick: bool, repeats: int) -> None:
         frames, sh = seq.frames, seq.shifts
         mp = seq.truth.size / 1e6
         methods = {
-            "map-core (given noise)": lambda: reconstruct(frames, sh, 2, refine_shifts=False, geometry="translation",
-                                                          noise_sigma=0.4),
-            "map (full default)": lambda: reconstruct(frames, sh, 2),
-            "windowed eq.7": lambda: reconstruct(frames, sh, 2, method="windowed"),
-            "bicubic cv2.resize": lambda: bicubic_upscale(frames[0], 2),
+            "map (full default)": (lambda: reconstruct(frames, sh, 2), repeats),
+            "map-core (given noise)": (lambda: reconstruct(frames, sh, 2, refine_shifts=False, geometry="translation",
+                                                           noise_sigma=0.4), repeats),
+            "windowed eq.7": (lambda: reconstruct(frames, sh, 2, method="windowed"), repeats),
+            "bicubic cv2.resize": (lambda: bicubic_upscale(frames[0], 2), repeats),
         }
-        if oh * ow <= 512 * 512:
-            methods["tikhonov-cg scipy 60it"] = lambda: tikhonov_cg(frames, sh, 2, 0.01)
-        for name, fn in methods.items():
+        if oh * ow <= 1024 * 1024:  # the scipy reference: 60 CG iterations (fewer runs at 1 MP)
+            methods["tikhonov-cg scipy 60it"] = (lambda: tikhonov_cg(frames, sh, 2, 0.01),
+                                                 repeats if oh * ow <= 512 * 512 else min(repeats, 2))
+        for name, (fn, reps) in methods.items():
             ts = []
-            for _ in range(repeats):
+            for _ in range(reps):
                 t = time.perf_counter()
                 fn()
                 ts.append(time.perf_counter() - t)
             best.setdefault(name, []).append((mp, min(ts)))
             print(f"{seq.truth.shape[1]:>5d}x{seq.truth.shape[0]:<5d} {name:24s} {min(ts):8.3f} {np.median(ts):9.3f} "
-                  f"{min(ts) / mp:10.3f}")
+                  f"{min(ts) / mp:10.4f} {np.median(ts) / mp:9.4f}")
     print("(source: full-resolution originals)" if full else "(source: bundled half-resolution frames, upsampled)")
     print(f"load average {os.getloadavg()[0]:.2f} at end")
     # linearity: least-squares fit best time = fixed + slope * MP over the sizes (fixed: per-call overhead)
@@ -185,17 +188,52 @@ def speed(quick: bool, repeats: int) -> None:
     print("targets (issue 5): MAP <= 0.05 s/MP (1920x1080 from 4 frames in ~0.1 s); windowed eq. 7 <= 0.01 s/MP")
 
 
+def pipeline_case(repeats: int) -> None:
+    """The reconstruction node's call: 8 aligned 1920x1080 frames with border-strip masks, x2 (3840x2160 out)."""
+    from subpix_ros.core.superres_masks import reconstruct_aligned
+
+    h, w = 1080, 1920
+    rng = np.random.default_rng(7)
+    hr, full = speed_source(2 * (h + 16) + 8, 2 * (w + 16) + 8)
+    shifts = [(0.0, 0.0)] + [tuple(rng.uniform(-0.5, 0.5, 2)) for _ in range(7)]
+    seq = render_sequence(hr, 2, shifts, blur_sigma=0.4, snr_db=40, seed=1, margin=8)
+    frames = [f[:h, :w] for f in seq.frames]
+    masks = [np.ones((h, w), bool)]
+    for _ in range(7):  # integer alignment leaves invalid strips along two borders
+        m = np.ones((h, w), bool)
+        a, b = rng.integers(1, 12, 2)
+        m[(slice(0, a) if rng.random() < 0.5 else slice(h - a, h))] = False
+        m[:, (slice(0, b) if rng.random() < 0.5 else slice(w - b, w))] = False
+        masks.append(m)
+    print(f"\nPipeline case (reconstruction_node): reconstruct_aligned, 8 aligned {w}x{h} frames with strip masks, x2 "
+          f"-> {2 * w}x{2 * h}; best / median of {repeats} (load average {os.getloadavg()[0]:.2f})")
+    cut = (slice(16, 2 * h - 16), slice(16, 2 * w - 16))
+    base = psnr(bicubic_upscale(frames[0], 2)[cut], seq.truth[: 2 * h, : 2 * w][cut])
+    for name, fr in (("mono", frames), ("BGR (luminance SR)", [cv2.cvtColor(f, cv2.COLOR_GRAY2BGR) for f in frames])):
+        ts = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            r = reconstruct_aligned(fr, np.array(seq.shifts), 2, masks=masks)
+            ts.append(time.perf_counter() - t)
+        img = r.image if r.image.ndim == 2 else cv2.cvtColor(r.image.astype(np.float32), cv2.COLOR_BGR2GRAY)
+        g = psnr(img[cut], seq.truth[: 2 * h, : 2 * w][cut]) - base
+        print(f"{name:20s} method {r.method:7s} best {min(ts):6.3f} s  median {np.median(ts):6.3f} s  "
+              f"{min(ts) / (4 * h * w / 1e6):.4f} s/MP out  gain over bicubic {g:+.2f} dB")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="smaller images, no scipy reference in quality")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--only", choices=["quality", "speed"], default=None)
+    ap.add_argument("--only", choices=["quality", "speed", "pipeline"], default=None)
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; OpenCV threads {cv2.getNumThreads()}")
-    if args.only != "speed":
+    if args.only in (None, "quality"):
         quality(args.quick)
-    if args.only != "quality":
+    if args.only in (None, "speed"):
         speed(args.quick, args.repeats)
+    if args.only in (None, "pipeline"):
+        pipeline_case(max(2, args.repeats // 2))
 
 
 if __name__ == "__main__":

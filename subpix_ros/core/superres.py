@@ -1402,8 +1402,8 @@ def reconstruct_colour(
     """Super-resolve colour frames: luminance by :func:`reconstruct`, chroma upsampled.
 
     Frames are HxWx3 BGR (OpenCV order) or 2-D (then this is
-    :func:`reconstruct`). Each frame is converted to YCrCb (ITU-R BT.601, as
-    ``cv2.COLOR_BGR2YCrCb`` on the frames' own scale); Y of all frames is
+    :func:`reconstruct`). Each frame's luminance Y (ITU-R BT.601, as
+    ``cv2.COLOR_BGR2YCrCb`` on the frames' own scale, single precision) is
     reconstructed with ``reconstruct(..., **kwargs)``; Cr and Cb of the
     reference frame are bicubic-upscaled (the eye and most uses need
     far less chroma resolution, and chroma would triple the cost). The
@@ -1418,12 +1418,15 @@ def reconstruct_colour(
         return reconstruct(arrs, shifts, factor, **kwargs)
     if any(a.ndim != 3 or a.shape[2] != 3 for a in arrs):
         raise ValueError("colour frames must all be HxWx3 (BGR)")
-    ycc = [cv2.cvtColor(a.astype(np.float32), cv2.COLOR_BGR2YCrCb) for a in arrs]
-    res = reconstruct([c[..., 0].astype(np.float64) for c in ycc], shifts, factor, **kwargs)
+    # luminance of every frame (Y of YCrCb is BGR2GRAY's weighted sum), chroma of the reference only
+    ys = [cv2.cvtColor(a.astype(np.float32), cv2.COLOR_BGR2GRAY) for a in arrs]
+    res = reconstruct(ys, shifts, factor, **kwargs)
     p = res.factor
-    chroma = [bicubic_upscale(ycc[0][..., k], p) for k in (1, 2)]
+    h, w = arrs[0].shape[:2]
+    ycc0 = cv2.cvtColor(arrs[0].astype(np.float32), cv2.COLOR_BGR2YCrCb)
+    chroma = cv2.resize(np.ascontiguousarray(ycc0[..., 1:]), (w * p, h * p), interpolation=cv2.INTER_CUBIC)
     # YCrCb offsets: OpenCV uses delta = 128 for 8-bit, 0.5 for float in [0, 1]; frames keep their scale,
     # so the offset was taken from the data's own convention by converting back with OpenCV
-    merged = np.dstack([res.image, chroma[0], chroma[1]]).astype(np.float32)
+    merged = cv2.merge([res.image.astype(np.float32), chroma[..., 0], chroma[..., 1]])
     res.image = cv2.cvtColor(merged, cv2.COLOR_YCrCb2BGR).astype(np.float64)
     return res

@@ -40,3 +40,39 @@ def test_strip_masks_match_the_unmasked_solution(crops):
     # the strips are filled from the reference (bicubic), never left empty or NaN
     assert np.isfinite(fast.image).all() and fast.image.shape == (2 * h, 2 * w)
     assert t_fast < 5.0
+
+
+def test_strips_outside_the_box_are_the_whole_frame_bicubic():
+    from subpix_ros.core.superres import bicubic_upscale
+    from subpix_ros.core.superres_masks import _bicubic_outside
+
+    rng = np.random.default_rng(8)
+    for ref in (rng.uniform(0, 255, (40, 52)), rng.uniform(0, 255, (40, 52, 3))):
+        for p, box in ((2, (3, 37, 2, 49)), (3, (0, 35, 5, 52)), (4, (6, 40, 0, 47))):
+            out = np.full((40 * p, 52 * p) + ref.shape[2:], np.nan)
+            _bicubic_outside(out, ref, p, box)
+            whole = bicubic_upscale(ref, p)
+            r0, r1, c0, c1 = box
+            inside = np.zeros(out.shape[:2], bool)
+            inside[p * r0 : p * r1, p * c0 : p * c1] = True
+            assert np.isnan(out[inside]).all()  # the box is left to the caller
+            # OpenCV computes the cubic weights in single precision from absolute coordinates
+            assert np.abs(out[~inside] - whole[~inside]).max() < 0.02
+
+
+def test_colour_strip_masks(crops):
+    import cv2
+
+    seq = render_sequence(crops["crop_rows"][:300, :300], 2, [(0, 0), (0.5, 0), (0, 0.5), (0.5, 0.5)], 0.4,
+                          snr_db=40, seed=4)
+    h, w = seq.frames[0].shape
+    colour = [cv2.merge([f, f, f]) for f in seq.frames]  # grey: the luminance is the mono frame
+    masks = [np.ones((h, w), bool) for _ in seq.frames]
+    masks[3][-4:] = False
+    res = reconstruct_aligned(colour, seq.shifts, 2, masks=masks)
+    mono = reconstruct_aligned(seq.frames, seq.shifts, 2, masks=masks)
+    assert res.image.shape == (2 * h, 2 * w, 3) and np.isfinite(res.image).all()
+    # its luminance is the mono reconstruction (to single-precision round-off), its chroma neutral
+    y = cv2.cvtColor(res.image.astype(np.float32), cv2.COLOR_BGR2GRAY)
+    assert np.abs(y - mono.image).max() < 0.05
+    assert np.abs(res.image[..., 0] - res.image[..., 2]).max() < 0.05

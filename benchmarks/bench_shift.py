@@ -10,9 +10,19 @@ crops (768 px full resolution, factor 4 -> 176 px LR frames after the 8 px
 margin) with exactly known shifts:
   A  |s| <= 1 px, SNR 40 dB, optics blur 0.5 LR px
   B  |s| <= 1 px, SNR 40 dB, optics blur 0.3 LR px (strong aliasing)
-  C  |s| <= 1 px, noise sigma 10 DN, blur 0.4: RMSE / Cramer-Rao bound
-     (2 sigma^2 J^-1 per pair, J from the spectral gradients of the
-     noise-free reference)
+  C  |s| <= 1 px, noise sigma 10 DN, blur 0.4, fresh noise on BOTH frames of
+     every pair (a reference shared by many pairs would make its one noise
+     draw a common error of all of them): RMSE / Cramer-Rao bound. /CRB:
+     2 sigma^2 J^-1 per pair, J the gradient energy matrix of the noise-free
+     reference (spectral gradients = exact derivative of the band-limited
+     frame; checked against finite differences of the renderer) over the
+     whole frame; /CRBc: the same over the frame less a 5 px border (the
+     pixels ours can use); /CRBw: the bound of the best frequency-weighted
+     estimator for an unknown scene, i.e. with the ideal weight
+     P/(2 P n + n^2) computed from the noise-free spectrum P (n the noise
+     power per frequency), which no estimator that does not know the scene
+     can use: 2 sigma^2 J^-1 is not attainable at low per-frequency SNR
+     because of the noise-times-noise term of the two noisy frames.
   D  |s| <= 4 px, SNR 40 dB, blur 0.4
   E  as A with blur 0.4 plus a 0.2 deg rotation between the frames (error of
      the translation at the frame centre; ours also reports the misfit flag)
@@ -99,6 +109,11 @@ def m_ecc(r, m):
     return (float(W[1, 2]), float(W[0, 2]))
 
 
+def m_ours_fixed(r, m):
+    res = estimate_shift(r, m, prefilter_sigma=0.8)
+    return (res.u, res.v) if res.ok else None
+
+
 def m_ours(r, m):
     res = estimate_shift(r, m)
     return (res.u, res.v) if res.ok else None
@@ -132,6 +147,25 @@ def render_set(n_per_crop, max_shift, blur, seed, snr_db=None, noise=0.0, clean=
             cref = render_sequence(hr, 4, shifts[:1], blur_sigma=blur, seed=seed + ci, quantize=False).frames[0]
         for i in range(n_per_crop):
             out.append((seq.frames[0], seq.frames[i + 1], sh[i], cref))
+    return out
+
+
+def render_noisy_set(n_per_crop, max_shift, blur, seed, noise):
+    """Pairs with fresh noise on both frames (the noise model of render_frame:
+    Gaussian, rounded, clipped to uint8); the clean reference is kept."""
+    rng = np.random.default_rng(seed)
+    out = []
+
+    def noisy(a):
+        return np.clip(np.rint(a + rng.normal(0.0, noise, a.shape)), 0, 255).astype(np.uint8)
+
+    for ci, name in enumerate(CROP_NAMES):
+        hr = load_crop(name)
+        sh = rng.uniform(-max_shift, max_shift, (n_per_crop, 2))
+        seq = render_sequence(hr, 4, [(0.0, 0.0)] + [tuple(x) for x in sh], blur_sigma=blur, seed=seed + ci, quantize=False)
+        cref = seq.frames[0]
+        for i in range(n_per_crop):
+            out.append((noisy(cref), noisy(seq.frames[i + 1]), sh[i], cref))
     return out
 
 
@@ -173,6 +207,34 @@ def crb_diag(clean, sigma, border=0):
     return np.diag(2.0 * sigma**2 * np.linalg.inv(J))
 
 
+_WBOUND = {}
+
+
+def crb_weighted_factor(clean, sigma):
+    """Per-axis ratio (unknown-scene bound) / (2 sigma^2 J^-1) for one noise-free frame.
+
+    On the mirrored (periodic, jump-free) frame with DFT power P(k) and noise
+    power n = N sigma^2 per frequency: the optimally weighted second-order
+    estimator has information sum w w^T P^2 / (2 P n + n^2), which tends to
+    J / (2 sigma^2) (J = sum w w^T P / N) where P >> n.
+    """
+    key = id(clean)
+    if key not in _WBOUND:
+        c = np.asarray(clean, np.float64) - float(np.mean(clean))
+        m = np.block([[c, c[:, ::-1]], [c[::-1], c[::-1, ::-1]]])
+        N = m.size
+        F = np.fft.fft2(m)
+        P = F.real**2 + F.imag**2
+        wy = 2 * np.pi * np.fft.fftfreq(m.shape[0])[:, None]
+        wx = 2 * np.pi * np.fft.fftfreq(m.shape[1])[None, :]
+        n = N * sigma**2
+        ww = (wy, wx)
+        J = np.array([[np.sum(ww[i] * ww[j] * P) for j in (0, 1)] for i in (0, 1)]) / N
+        Iw = np.array([[np.sum(ww[i] * ww[j] * P * P / (2 * P * n + n * n)) for j in (0, 1)] for i in (0, 1)])
+        _WBOUND[key] = np.diag(np.linalg.inv(Iw)) / np.diag(2 * sigma**2 * np.linalg.inv(J))
+    return _WBOUND[key]
+
+
 def evaluate(pairs, fn):
     est, fails = [], 0
     for r, m, _, _ in pairs:
@@ -195,19 +257,24 @@ def accuracy(quick: bool):
     sets = {
         "A": ("|s|<=1, 40 dB, blur 0.5", render_set(60 // k, 1.0, 0.5, 11, snr_db=40.0)),
         "B": ("|s|<=1, 40 dB, blur 0.3", render_set(60 // k, 1.0, 0.3, 22, snr_db=40.0)),
-        "C": ("|s|<=1, noise 10 DN, blur 0.4", render_set(40 // k, 1.0, 0.4, 33, noise=10.0, clean=True)),
+        "C": ("|s|<=1, noise 10 DN (fresh on both frames), blur 0.4", render_noisy_set(60 // k, 1.0, 0.4, 33, 10.0)),
         "D": ("|s|<=4, 40 dB, blur 0.4", render_set(30 // k, 4.0, 0.4, 44, snr_db=40.0)),
         "E": ("rotation 0.2 deg, blur 0.4", render_rotated(10 // k, 55)),
     }
-    crb = np.array([crb_diag(p[3], 10.0) for p in sets["C"][1]])
-    crb_in = np.array([crb_diag(p[3], 10.0, 8) for p in sets["C"][1]])
+    cache = {}
+    for p in sets["C"][1]:
+        if id(p[3]) not in cache:
+            cache[id(p[3])] = (crb_diag(p[3], 10.0), crb_diag(p[3], 10.0, 5), crb_weighted_factor(p[3], 10.0))
+    crb = np.array([cache[id(p[3])][0] for p in sets["C"][1]])
+    crb_in = np.array([cache[id(p[3])][1] for p in sets["C"][1]])
+    crb_w = np.array([cache[id(p[3])][0] * cache[id(p[3])][2] for p in sets["C"][1]])
     print("\nAccuracy on rendered real-texture pairs (176x176 px LR; errors in px)")
     for key, (desc, pairs) in sets.items():
         print(f"  set {key}: {desc}: {len(pairs)} pairs")
-    head = f"{'method':26s} | {'A rmse':>7s} {'A bias':>7s} | {'B rmse':>7s} {'B bias':>7s} | {'C rmse':>7s} {'/CRB':>5s} {'/CRBc':>5s} | {'D rmse':>7s} | {'E rmse':>7s} | fails"
+    head = f"{'method':26s} | {'A rmse':>7s} {'A bias':>7s} | {'B rmse':>7s} {'B bias':>7s} | {'C rmse':>7s} {'/CRB':>5s} {'/CRBc':>5s} {'/CRBw':>5s} | {'D rmse':>7s} | {'E rmse':>7s} | fails"
     print(head)
     print("-" * len(head))
-    for name, fn in METHODS:
+    for name, fn in METHODS[:-1] + [("ours, fixed prefilter 0.8", m_ours_fixed)] + METHODS[-1:]:
         if fn is m_skimage and phase_cross_correlation is None:
             continue
         row = {}
@@ -221,12 +288,19 @@ def accuracy(quick: bool):
             if key == "C":
                 row["crb"] = float(np.sqrt(np.mean(e**2) / np.mean(crb[ok]))) if len(e) else float("nan")
                 row["crb_in"] = float(np.sqrt(np.mean(e**2) / np.mean(crb_in[ok]))) if len(e) else float("nan")
+                row["crb_w"] = float(np.sqrt(np.mean(e**2) / np.mean(crb_w[ok]))) if len(e) else float("nan")
         print(
             f"{name:26s} | {row['A'][0]:7.4f} {row['A'][1]:7.4f} | {row['B'][0]:7.4f} {row['B'][1]:7.4f} | "
-            f"{row['C'][0]:7.4f} {row['crb']:5.2f} {row['crb_in']:5.2f} | {row['D'][0]:7.4f} | {row['E'][0]:7.4f} | {fails}"
+            f"{row['C'][0]:7.4f} {row['crb']:5.2f} {row['crb_in']:5.2f} {row['crb_w']:5.2f} | {row['D'][0]:7.4f} | {row['E'][0]:7.4f} | {fails}"
         )
-    print(f"  CRB (rms per axis) for set C: {math.sqrt(float(np.mean(crb))):.4f} px over the whole 176x176 frame (/CRB), "
-          f"{math.sqrt(float(np.mean(crb_in))):.4f} px over the central 160x160 px (/CRBc, about the pixels ours uses)")
+    print(f"  bounds (rms per axis) for set C: {math.sqrt(float(np.mean(crb))):.4f} px = 2 sigma^2 J^-1 over the whole "
+          f"176x176 frame (/CRB), {math.sqrt(float(np.mean(crb_in))):.4f} px over the central 166x166 px (/CRBc, the pixels "
+          f"ours uses), {math.sqrt(float(np.mean(crb_w))):.4f} px unknown-scene bound with the ideal weighting (/CRBw)")
+    resC = [estimate_shift(r, m) for r, m, _, _ in sets["C"][1]]
+    errC = np.array([(x.u - t[0], x.v - t[1]) for x, (_, _, t, _) in zip(resC, sets["C"][1])])
+    stdC = np.array([(x.u_std, x.v_std) for x in resC])
+    print(f"  ours on set C: empirical RMSE / reported std (rms) = "
+          f"{math.sqrt(float(np.mean(errC**2)) / float(np.mean(stdC**2))):.3f} (1 = honest); n_pixels {resC[0].n_pixels}")
     res = [estimate_shift(r, m) for r, m, _, _ in sets["E"][1]]
     flagged = sum(x.misfit for x in res)
     print(
@@ -244,8 +318,8 @@ def accuracy(quick: bool):
 # ---------------------------------------------------------------------------
 
 
-def big_pair(w, h, shift=(1.37, -2.61)):
-    """(reference, moving) uint8 of size w x h with an exact Fourier shift."""
+def big_pair(w, h, shift=(1.37, -2.61), noise=1.0):
+    """(reference, moving) uint8 of size w x h with an exact Fourier shift, noise sigma ``noise`` DN."""
     src = None
     if FULLRES.is_dir() and (FULLRES / "IMG_0464.jpg").is_file():
         src = cv2.imread(str(FULLRES / "IMG_0464.jpg"), cv2.IMREAD_GRAYSCALE)
@@ -261,17 +335,18 @@ def big_pair(w, h, shift=(1.37, -2.61)):
     x0 = (src.shape[1] - w) // 2
     crop = src[y0 : y0 + h, x0 : x0 + w].astype(np.float64)
     rng = np.random.default_rng(1)
-    ref = np.clip(np.rint(fourier_shift_blur(crop, (0, 0), 0.4, pad=16) + rng.normal(0, 1.0, crop.shape)), 0, 255).astype(np.uint8)
-    mov = np.clip(np.rint(fourier_shift_blur(crop, shift, 0.4, pad=16) + rng.normal(0, 1.0, crop.shape)), 0, 255).astype(np.uint8)
+    ref = np.clip(np.rint(fourier_shift_blur(crop, (0, 0), 0.4, pad=16) + rng.normal(0, noise, crop.shape)), 0, 255).astype(np.uint8)
+    mov = np.clip(np.rint(fourier_shift_blur(crop, shift, 0.4, pad=16) + rng.normal(0, noise, crop.shape)), 0, 255).astype(np.uint8)
     return ref, mov, origin, shift
 
 
 def speed(quick: bool):
     print("\nSpeed per pair (ms; uint8 input), methods interleaved in one loop")
-    reps = {"1080p": 3 if quick else 9, "4K": 2 if quick else 5}
-    for label, (w, h) in (("1080p", (1920, 1080)), ("4K", (3840, 2160))):
-        ref, mov, origin, truth = big_pair(w, h)
-        print(f"  {label} {w}x{h} from {origin}; true shift {truth}")
+    reps = {"1080p": 3 if quick else 9, "1080p noisy": 3 if quick else 9, "4K": 2 if quick else 5}
+    configs = (("1080p", (1920, 1080), 1.0), ("1080p noisy", (1920, 1080), 10.0), ("4K", (3840, 2160), 1.0))
+    for label, (w, h), noise in configs:
+        ref, mov, origin, truth = big_pair(w, h, noise=noise)
+        print(f"  {label} {w}x{h} from {origin}; noise {noise:g} DN; true shift {truth}")
         times = {name: [] for name, _ in METHODS}
         cpu = {name: [] for name, _ in METHODS}
         last = {}

@@ -78,6 +78,7 @@ __all__ = [
     "seed_solve",
     "fractional_shift_kernel",
     "coarse_shift",
+    "predicted_shift_variance",
     "METHODS",
 ]
 
@@ -394,6 +395,7 @@ def coarse_shift(
 _DEFAULT_SIGMA = 0.8  # prefilter (px) against aliasing when the pair is not noise-limited
 _ADAPTIVE_SIGMAS = (0.7, 0.6, 0.5, 0.4)  # candidates on noise-limited pairs (smallest predicted variance wins)
 _NOISE_LIMITED_PX = 0.005  # standard error (px) above which a pair counts as noise-limited
+_NOISY_PIXEL_FACTOR = 4  # a noise-limited pair gets this many times the max_pixels budget
 _BLOCK = 16  # block size (px) of the sandwich covariance and the misfit grid
 _TILE = 128  # tile size (px) when only the most textured max_pixels are used
 
@@ -711,7 +713,7 @@ def predicted_shift_variance(ref: np.ndarray, mov: np.ndarray, noise_var: float,
             out.append(np.inf)
             continue
         v = float(np.trace(Si @ B @ Si.T))
-        out.append(v if np.isfinite(v) and v > 0 else np.inf)
+        out.append(v if np.isfinite(v) and v >= 0 else np.inf)
     return np.array(out)
 
 
@@ -898,9 +900,12 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
             cands = (sigma,) + tuple(x for x in _ADAPTIVE_SIGMAS if x != sigma)
             pv = predicted_shift_variance(_fill_invalid(R, vr), _fill_invalid(M, vm), sig2, cands)
             best = cands[int(np.argmin(pv))]
-            if best != sigma and np.isfinite(pv.min()):
+            # tiles only (a pixel budget): noise-limited precision grows with the pixel count
+            tiled = out["rects"] is not None and len(out["rects"]) > 1
+            mp_c = max_pixels * _NOISY_PIXEL_FACTOR if tiled else max_pixels
+            if (best != sigma or tiled) and np.isfinite(pv.min()):
                 s1 = np.array([res.u, res.v])
-                lv_c = _Level(R, M, vr, vm, taps, best, band, max_pixels, score, kmax=int(np.max(np.abs(s1))) + 3)
+                lv_c = _Level(R, M, vr, vm, taps, best, band, mp_c, score, kmax=int(np.max(np.abs(s1))) + 3)
                 lv_c.blocks = True
                 out_c = _gauss_newton(lv_c, s1, max_iterations, tol, border, blocks=True)
                 if not out_c["reason"] and (out_c["converged"] or out_c["last"] <= 0.05):

@@ -81,7 +81,11 @@ def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
         raise ValueError(f"{name}: dtype {img.dtype} is not an integer or float image")
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
-    if img.ndim == 3 and img.shape[2] == 3:
+    if img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8:  # per channel, no float32 colour copy
+        b, gc, r = cv2.split(img)
+        g = cv2.addWeighted(b, float(_LUMA_BGR[0, 0]), gc, float(_LUMA_BGR[0, 1]), 0.0, dtype=cv2.CV_32F)
+        g = cv2.scaleAdd(r.astype(np.float32), float(_LUMA_BGR[0, 2]), g)
+    elif img.ndim == 3 and img.shape[2] == 3:
         g = cv2.transform(img.astype(np.float32, copy=False), _LUMA_BGR).reshape(img.shape[:2])
     elif img.ndim == 2:
         g = img.astype(np.float32)
@@ -403,13 +407,21 @@ def _level_shape(shape: tuple[int, int], lev: int) -> tuple[int, int]:
 
 def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndarray, h_lev: int, radius: int, *,
                  model: str, fixed_lam: float | None, distortion, template_half: int, inlier_px: float,
-                 min_inliers: int, min_spread: float, t0: float) -> tuple[RegistrationResult, int]:
+                 min_inliers: int, min_spread: float, t0: float,
+                 pred_det: np.ndarray | None = None, extra_det: np.ndarray | None = None,
+                 want_inliers: int = 0) -> tuple[RegistrationResult, int]:
     """Input-resolution stage of :func:`register` (stage 3): NCC, MAGSAC, LM, Gauss-Newton, final LM, checks.
 
     ``pts_det``: reference tie points (x, y) at pyramid level ``h_lev``;
-    ``h``: moving -> reference homography at that level; ``radius``: NCC
-    search radius at input resolution (px). Returns the result and the
-    number of tie points that were searched.
+    ``h``: moving -> reference homography at that level; ``pred_det``
+    (optional, same length): each point's matched moving position at that
+    level (NaN where it did not match), the centre of its search at input
+    resolution, so a point is found even where the level's homography is a
+    few px off (lens distortion, relief); ``radius``: NCC search radius at
+    input resolution (px). Returns the result and the number of tie points
+    that were searched. ``extra_det``: further candidate points at that level,
+    searched in the second pass only if it has fewer than ``want_inliers``
+    inliers (weak texture).
     """
     affine = model == "affine"
     shapes = (gr.shape, gm.shape)
@@ -420,15 +432,18 @@ def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndar
     half = int(round(template_half * max(1.0, f / 2)))
     margin = half + radius + 3
     pts0 = np.rint(pts_det * f)
+    pred = apply_h(np.linalg.inv(h), pts0)
+    if pred_det is not None:
+        own = pred_det * f
+        use = np.isfinite(own).all(axis=1) & (np.hypot(*(own - pred).T) <= 2 * radius)
+        pred[use] = own[use]
     ok_in = ((pts0[:, 0] >= margin) & (pts0[:, 0] <= gr.shape[1] - 1 - margin)
-             & (pts0[:, 1] >= margin) & (pts0[:, 1] <= gr.shape[0] - 1 - margin))
-    pts0 = pts0[ok_in]
-    pm_pred = apply_h(np.linalg.inv(h), pts0)
-    ok_in = ((pm_pred[:, 0] >= margin) & (pm_pred[:, 0] <= gm.shape[1] - 1 - margin)
-             & (pm_pred[:, 1] >= margin) & (pm_pred[:, 1] <= gm.shape[0] - 1 - margin))
-    pts0 = pts0[ok_in]
+             & (pts0[:, 1] >= margin) & (pts0[:, 1] <= gr.shape[0] - 1 - margin)
+             & (pred[:, 0] >= margin) & (pred[:, 0] <= gm.shape[1] - 1 - margin)
+             & (pred[:, 1] >= margin) & (pred[:, 1] <= gm.shape[0] - 1 - margin))
+    pts0, pred = pts0[ok_in], pred[ok_in]
     n_try = len(pts0)
-    p_r, p_m, _ = ncc_match(gr, gm, pts0, h, half=half, radius=radius)
+    p_r, p_m, _ = ncc_match(gr, gm, pts0, h, half=half, radius=radius, pred_mov=pred)
     hn, inl = _robust(p_m, p_r, 2.0, affine)
     if hn is None or inl.sum() < min_inliers:
         return _fail(f"too few tie points: {int(inl.sum())} consistent matches (need {min_inliers})", t0, shapes, model), n_try
@@ -467,6 +482,48 @@ def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndar
         res = _full_residuals(hu, lam, norm, p_m, p_r)
         inl = res <= inlier_px
     h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h) if inl.sum() >= 8 else h
+    # Second pass: the points the first one missed (the coarser level's projective prediction was a few px
+    # off, e.g. at the frame edges under lens distortion, so the NCC peak fell outside the window) are
+    # searched again around this model's prediction, refined, and kept if the model fits them.
+    if inl.sum() >= min_inliers:
+        key = lambda q: np.rint(q[:, 1]) * 1e6 + np.rint(q[:, 0])  # noqa: E731
+        miss = pts0[~np.isin(key(pts0), key(p_r[inl]))]
+        if extra_det is not None and len(extra_det) and inl.sum() < want_inliers:
+            ex = np.rint(extra_det * f)
+            ex = ex[(ex[:, 0] >= margin) & (ex[:, 0] <= gr.shape[1] - 1 - margin)
+                    & (ex[:, 1] >= margin) & (ex[:, 1] <= gr.shape[0] - 1 - margin)]
+            miss = np.vstack([miss, ex[~np.isin(key(ex), key(miss))]])
+        if len(miss):
+            if lam != 0.0 and hu is not None:
+                pred2 = distort_points(apply_h(np.linalg.inv(hu), undistort_points(miss, lam, norm)), lam, norm)
+            else:
+                pred2 = apply_h(np.linalg.inv(h), miss)
+            inside = (np.isfinite(pred2).all(axis=1) & (pred2[:, 0] >= margin) & (pred2[:, 0] <= gm.shape[1] - 1 - margin)
+                      & (pred2[:, 1] >= margin) & (pred2[:, 1] <= gm.shape[0] - 1 - margin))
+            miss, pred2 = miss[inside], pred2[inside]
+            r2, m2, _ = ncc_match(gr, gm, miss, h, half=half, radius=2, pred_mov=pred2)
+            m2, conv2 = refine_gauss_newton(gr, gm, r2, m2, h, half=half)
+            r2, m2 = r2[conv2], m2[conv2]
+            res2 = _full_residuals(hu, lam, norm, m2, r2) if hu is not None else _residuals(h, m2, r2)
+            if (res2 <= inlier_px).any():
+                keep_old = ~np.isin(key(p_r), key(r2))
+                p_r = np.vstack([p_r[keep_old], r2])
+                p_m = np.vstack([p_m[keep_old], m2])
+                if hu is not None:
+                    res = _full_residuals(hu, lam, norm, p_m, p_r)
+                    inl = res <= inlier_px
+                    if fixed_lam is not None:
+                        hu = _fit_fixed_lambda(p_m[inl], p_r[inl], lam, norm, affine, hu)
+                    else:
+                        hu, lam = fit_homography_distortion_lm(p_m[inl], p_r[inl], norm, hu, affine)
+                    res = _full_residuals(hu, lam, norm, p_m, p_r)
+                else:
+                    res = _residuals(h, p_m, p_r)
+                    inl = res <= inlier_px
+                    h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
+                    res = _residuals(h, p_m, p_r)
+                inl = res <= inlier_px
+                h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
     n_in = int(inl.sum())
     if n_in < min_inliers:
         return _fail(f"too few inliers: {n_in} (need {min_inliers})", t0, shapes, model), n_try
@@ -501,6 +558,29 @@ def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndar
         mov_shape=gm.shape,
         time_s=time.perf_counter() - t0,
     ), n_try
+
+
+def _per_point(pts: np.ndarray, p_r: np.ndarray, p_m: np.ndarray) -> np.ndarray:
+    """Matched moving positions ``p_m`` (of reference points ``p_r``, a subset of the integer points
+    ``pts``) put back in the order of ``pts``; NaN for points without a match."""
+    out = np.full((len(pts), 2), np.nan)
+    if len(p_r):
+        key_all = np.rint(pts[:, 1]) * 1e6 + np.rint(pts[:, 0])
+        order = np.argsort(key_all, kind="stable")
+        pos = np.searchsorted(key_all[order], np.rint(p_r[:, 1]) * 1e6 + np.rint(p_r[:, 0]))
+        out[order[np.clip(pos, 0, len(pts) - 1)]] = p_m
+    return out
+
+
+def _candidates(peaks, valid: np.ndarray, n_points: int, want_inliers: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """``n_points`` spread tie points, plus (if ``want_inliers`` > 0) up to ``2 n_points`` further spread
+    candidates for the second pass on weak texture."""
+    if want_inliers <= 0:
+        return select_spread(peaks, valid, n_target=n_points), None
+    pts = select_spread(peaks, valid, n_target=n_points)
+    more = select_spread(peaks, valid, n_target=3 * n_points)
+    key = lambda q: q[:, 1] * 1e6 + q[:, 0]  # noqa: E731
+    return pts, more[~np.isin(key(more), key(pts))]
 
 
 def _check_prior(prior) -> np.ndarray:
@@ -542,7 +622,7 @@ def _register_tracked(ref: ReferenceFrame, gm: np.ndarray, prior: np.ndarray, ra
     valid = _valid_ref_points(ref_l.shape, mov_l.shape, h_det, margin, margin)
     if valid.sum() < 64:
         return _fail("no overlap: the prior's predicted overlap is empty", t0, shapes, model)
-    pts = select_spread(ref.peaks(det_lev), valid, n_target=n_points)
+    pts, extra = _candidates(ref.peaks(det_lev), valid, n_points, kw["want_inliers"])
     p_r, p_m, _ = ncc_match(ref_l, mov_l, pts, h_det, half=template_half, radius=r_det)
     hn, inl = _robust(p_m, p_r, 1.5, model == "affine")
     if hn is None or inl.sum() < max(8, kw["min_inliers"] // 2, min_fraction * len(pts)):
@@ -550,14 +630,15 @@ def _register_tracked(ref: ReferenceFrame, gm: np.ndarray, prior: np.ndarray, ra
     reason = check_homography(hn, mov_l.shape)
     if reason:
         return _fail(reason, t0, shapes, model)
-    res, n_try = _final_stage(gr, gm, pts, hn, det_lev, 1 + int(f), t0=t0, template_half=template_half, **kw)
+    res, n_try = _final_stage(gr, gm, pts, hn, det_lev, 1 + int(f), t0=t0, template_half=template_half,
+                              pred_det=_per_point(pts, p_r, p_m), extra_det=extra, **kw)
     if not res.ok:
         return res
     if res.inliers < min_fraction * n_try:
         return _fail(f"tracking lost: {res.inliers} of {n_try} tie points are inliers (need {min_fraction:.0%})",
                      t0, shapes, model)
     pm = res.points[:, 2:]
-    dev = float(np.max(np.hypot(*(res.transfer(pm) - apply_h(prior, pm)).T)))
+    dev = float(np.max(np.hypot(*(apply_h(res.homography, pm) - apply_h(prior, pm)).T)))  # projective parts
     if not dev < radius + 1:
         return _fail(f"tracking lost: the model departs {dev:.1f} px from the prior (search radius {radius})",
                      t0, shapes, model)
@@ -583,6 +664,7 @@ def register(
     prior: np.ndarray | None = None,
     track_radius: int = 4,
     track_min_fraction: float = 0.1,
+    want_inliers: int = 200,
 ) -> RegistrationResult:
     """Register ``moving`` to ``reference``; see the module docstring for the pipeline and conventions.
 
@@ -600,7 +682,10 @@ def register(
     resolution). ``angles``: rotation hypotheses (radians) to use instead of
     the orientation-histogram ones. Failure (``ok=False`` with a reason) for:
     blank / textureless frames, no confirmed overlap, too few or badly spread
-    tie points, a degenerate or insane fit.
+    tie points, a degenerate or insane fit. ``want_inliers``: when the first
+    pass at input resolution ends with fewer inliers (weak texture), up to
+    ``2 n_points`` further Harris points are searched in the second pass
+    (0 disables it).
 
     ``prior`` (tracking, e.g. at video rate against a fixed reference): a 3x3
     homography, moving -> reference px, predicting this frame (e.g. the
@@ -637,7 +722,7 @@ def register(
     if float(gm[::2, ::2].std()) < 1.0:  # every 4th pixel is plenty to tell a blank frame
         return _fail("no texture: the moving frame is blank (std < 1 DN)", t0, shapes, model)
     kw = dict(model=model, fixed_lam=fixed_lam, distortion=distortion, inlier_px=inlier_px,
-              min_inliers=min_inliers, min_spread=min_spread)
+              min_inliers=min_inliers, min_spread=min_spread, want_inliers=int(want_inliers))
     track_failure = ""
     if prior is not None:
         res = _register_tracked(ref, gm, prior, int(track_radius), n_points, detect_size, coarse_size,
@@ -687,7 +772,7 @@ def _register_full(ref: ReferenceFrame, gm: np.ndarray, *, n_points: int, coarse
 
     # Stage 2: pyramid refinement down to the detection level.
     half = template_half
-    pts_det = None
+    pts_det = pred_det = extra_det = None
     first = True
     for lev in range(min(h_lev, max(mid_lev, det_lev)) if coarse_method == "orb" else h_lev - 1, det_lev - 1, -1):
         h = _scale_h(h, 2.0 ** (h_lev - lev))
@@ -699,8 +784,10 @@ def _register_full(ref: ReferenceFrame, gm: np.ndarray, *, n_points: int, coarse
         valid = _valid_ref_points(ref_l.shape, mov_l.shape, h, margin, margin)
         if valid.sum() < 64:
             return _fail("no overlap: the predicted overlap is empty", t0, shapes, model)
-        n_t = n_points if lev == det_lev else 150
-        pts = select_spread(ref.peaks(lev), valid, n_target=n_t)
+        if lev == det_lev:
+            pts, extra_det = _candidates(ref.peaks(lev), valid, n_points, kw["want_inliers"])
+        else:
+            pts = select_spread(ref.peaks(lev), valid, n_target=150)
         p_r, p_m, _ = ncc_match(ref_l, mov_l, pts, h, half=half, radius=radius)
         hn, inl = _robust(p_m, p_r, 1.0 if lev > det_lev else 1.5, affine)
         if hn is None or inl.sum() < max(8, min_inliers // 2):
@@ -710,13 +797,15 @@ def _register_full(ref: ReferenceFrame, gm: np.ndarray, *, n_points: int, coarse
             return _fail(reason, t0, shapes, model)
         h = hn
         pts_det = pts
+        pred_det = _per_point(pts, p_r, p_m)
     if pts_det is None:  # no refinement level (tiny input): detect at the input level directly
         h = _scale_h(h, 2.0 ** h_lev)
         h_lev = 0
         valid = _valid_ref_points(gr.shape, gm.shape, h, half + 6, half + 6)
         pts_det = select_spread(ref.peaks(0), valid, n_target=n_points)
     # Stage 3: input resolution.
-    res, _ = _final_stage(gr, gm, pts_det, h, h_lev, 1 + int(2.0 ** h_lev), t0=t0, template_half=template_half, **kw)
+    res, _ = _final_stage(gr, gm, pts_det, h, h_lev, 1 + int(2.0 ** h_lev), t0=t0, template_half=template_half,
+                          pred_det=pred_det, extra_det=extra_det, **kw)
     return res
 
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+ROUND_ROBIN = False
 REL_FLOOR = 1e-6  # relative Harris floor: NIR lawn maxima are ~1e-5 of a roof corner (R ~ contrast^4)
 
 __all__ = [
@@ -111,8 +112,11 @@ def select_spread(
     rank = np.arange(cs.size) - start  # 0 = strongest maximum of its cell
     # Round robin over the cells: every cell's strongest maximum first, then every cell's second, ...
     # (cells short of maxima leave their share to the others, so ~n_target points when there are enough).
-    rr = order[np.lexsort((-r[order], rank))]
-    sel = rr[:n_target]
+    if ROUND_ROBIN:
+        rr = order[np.lexsort((-r[order], rank))]
+        sel = rr[:n_target]
+    else:
+        sel = order[rank < int(np.ceil(n_target / (gr * gc)))]
     return np.stack([xs[sel], ys[sel]], axis=1).astype(np.float64)
 
 
@@ -136,10 +140,9 @@ def harris_points(
 def apply_h(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Apply a 3x3 homography to (N, 2) points (x, y): ``p' = (H [x, y, 1]^T)`` dehomogenised."""
     p = np.asarray(pts, dtype=np.float64)
-    w = h[2, 0] * p[:, 0] + h[2, 1] * p[:, 1] + h[2, 2]
-    x = (h[0, 0] * p[:, 0] + h[0, 1] * p[:, 1] + h[0, 2]) / w
-    y = (h[1, 0] * p[:, 0] + h[1, 1] * p[:, 1] + h[1, 2]) / w
-    return np.stack([x, y], axis=-1)
+    h = np.asarray(h, dtype=np.float64)
+    w = p @ h[2, :2] + h[2, 2]
+    return (p @ h[:2, :2].T + h[:2, 2]) / w[:, None]
 
 
 def _keys(t: np.ndarray) -> np.ndarray:
@@ -215,6 +218,7 @@ def ncc_match(
     half: int = 7,
     radius: int = 3,
     min_ncc: float = 0.5,
+    pred_mov: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Match reference points in ``mov`` by NCC around the prediction of ``h_mr``.
 
@@ -224,6 +228,12 @@ def ncc_match(
     reference template with every ``(2 radius + 1)^2`` offset ``d`` is
     ``sum(T0 W_d) / (|T0| |W_d - mean W_d|)``. The peak is refined by a
     parabola per axis. A match means ``ref(p) ~ mov(H^-1 (p + d))``.
+
+    ``pred_mov`` (N, 2), optional: each point's own predicted moving position
+    (e.g. its match one pyramid level up, scaled), which replaces the
+    centre ``H^-1 p`` of its search window (``H`` still gives the window's
+    rotation, scale and perspective): ``W(q) = mov(H^-1 (p+q) - H^-1 p + pred)``.
+    Points whose prediction is not finite use ``H^-1 p``.
 
     Returns ``(pts_ref, pts_mov, score)`` for the accepted points: peak NCC
     ``>= min_ncc``, peak not on the border of the search window (the true
@@ -243,19 +253,25 @@ def ncc_match(
     gy = p[:, 1, None, None] + qy
     hinv = np.linalg.inv(h_mr)
     mp = apply_h(hinv, np.stack([gx.ravel(), gy.ravel()], axis=1))
+    off = np.zeros((n, 2))
+    if pred_mov is not None:
+        off = np.asarray(pred_mov, dtype=np.float64) - apply_h(hinv, p)
+        off[~np.isfinite(off).all(axis=1)] = 0.0
+        mp = (mp.reshape(n, -1, 2) + off[:, None, :]).reshape(-1, 2)
     win32 = sample_linear_cv(mov, mp[:, 0].reshape(gx.shape), mp[:, 1].reshape(gx.shape))
-    win = win32.astype(np.float64)
     pp = 2 * half + 1
     k = 2 * radius + 1
-    num = np.empty((n, k, k), dtype=np.float64)
-    for a in range(k):  # (2r+1)^2 offsets, each a product-sum vectorised over all points and pixels
-        for b in range(k):
-            num[:, a, b] = np.einsum("nij,nij->n", t0, win32[:, a: a + pp, b: b + pp])
-    # Local sums of W and W^2 over each offset window (integral image).
-    ii = np.pad(win, ((0, 0), (1, 0), (1, 0))).cumsum(1).cumsum(2)
-    ii2 = np.pad(win * win, ((0, 0), (1, 0), (1, 0))).cumsum(1).cumsum(2)
-    s1 = ii[:, pp:, pp:] - ii[:, :-pp, pp:] - ii[:, pp:, :-pp] + ii[:, :-pp, :-pp]
-    s2 = ii2[:, pp:, pp:] - ii2[:, :-pp, pp:] - ii2[:, pp:, :-pp] + ii2[:, :-pp, :-pp]
+    b = pp + 2 * radius
+    # Numerator sum(T0 W_d) for all (2r+1)^2 offsets d at once: one batched matrix product over
+    # the (n, k*k, pp*pp) unfolded windows.
+    unf = np.lib.stride_tricks.sliding_window_view(win32, (pp, pp), axis=(1, 2)).reshape(n, k * k, pp * pp)
+    num = (unf @ t0.reshape(n, pp * pp, 1)).reshape(n, k, k).astype(np.float64)
+    # Local sums of W and W^2 over each offset window: box filters over the windows stacked vertically
+    # (anchor top-left, so a sum never crosses into the next window), on mean-removed float32 values.
+    wc = (win32 - win32.mean(axis=(1, 2), keepdims=True)).reshape(n * b, b)
+    box = dict(ddepth=cv2.CV_32F, ksize=(pp, pp), anchor=(0, 0), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    s1 = cv2.boxFilter(wc, **box).reshape(n, b, b)[:, :k, :k].astype(np.float64)
+    s2 = cv2.boxFilter(wc * wc, **box).reshape(n, b, b)[:, :k, :k].astype(np.float64)
     var = np.maximum(s2 - s1 * s1 / (pp * pp), 0.0)
     den = tn[:, None, None] * np.sqrt(var)
     ncc = np.where(den > 1e-9, num / np.maximum(den, 1e-12), -1.0)
@@ -276,7 +292,7 @@ def ncc_match(
     dy = iyc - radius + np.clip(sy, -0.5, 0.5)
     ok = inner & (best >= min_ncc) & (tn > 1e-6)
     q = np.stack([p[:, 0] + dx, p[:, 1] + dy], axis=1)
-    pm = apply_h(hinv, q)
+    pm = apply_h(hinv, q) + off
     ok &= np.isfinite(pm).all(axis=1)
     return p[ok], pm[ok], best[ok]
 

@@ -88,7 +88,7 @@ def test_real_seneca_pairs_all_register(seneca):
     for i in range(8):
         res = register(seneca[i], seneca[i + 1])
         assert res.ok, (i, res.reason)
-        assert res.inliers >= 50, (i, res.inliers)
+        assert res.inliers >= 200, (i, res.inliers)  # issue 4 target, also on the weak-texture lawn pairs
         assert res.spread >= 0.4, (i, res.spread)
         assert res.rms_px <= 1.0, (i, res.rms_px)
         assert res.rms_px <= res.rms_px_projective + 1e-9
@@ -304,27 +304,29 @@ def test_wrong_prior_falls_back_to_the_full_pipeline(crops):
         register(ref, mov, prior=np.full((3, 3), np.nan))
 
 
-@pytest.mark.parametrize("i", [2, 5])
+@pytest.mark.parametrize("i", [1, 2])
 def test_tracked_real_pairs_agree_with_full(seneca, i):
-    """Real half-resolution pairs, one prepared reference: tracking from a prior 1.5 px off gives the
-    full pipeline's model over the overlap. The projective model leaves ~0.8 px RMS on these pairs, so
-    two full runs with different tie-point sets (n_points 500 vs 600) already differ by 0.03-0.36 px
-    over the overlap: the tolerance is that reproducibility, not the synthetic 0.02 px."""
+    """Real half-resolution pairs, one prepared reference, a fixed camera lambda (as the registration
+    node runs): tracking from a prior 1.5 px off gives the full pipeline's model over the overlap.
+    The models leave 0.45-0.7 px RMS on these pairs (relief parallax), so two full runs with different
+    tie-point sets (n_points 500 vs 600) already differ by 0.02-0.05 px over the overlap; the tolerance
+    is a small multiple of that, not the synthetic 0.02 px at the corners."""
     from subpix_ros.core.registration import prepare_reference
 
     ref = prepare_reference(seneca[i])
-    full = register(ref, seneca[i + 1], distortion=False, n_points=500)
+    kw = dict(distortion=-0.01, n_points=500)
+    full = register(ref, seneca[i + 1], **kw)
     prior = full.homography.copy()
     prior[:2, 2] += (1.5, -1.0)
-    tr = register(ref, seneca[i + 1], distortion=False, n_points=500, prior=prior)
+    tr = register(ref, seneca[i + 1], prior=prior, **kw)
     assert full.ok and tr.ok and tr.tracked, (full.reason, tr.reason, tr.track_failure)
     pm = full.points[:, 2:]
     err = np.hypot(*(tr.transfer(pm) - full.transfer(pm)).T)
-    assert err.mean() <= 0.15, err.mean()
-    assert tr.inliers >= 0.8 * full.inliers
-    assert abs(tr.rms_px - full.rms_px) <= 0.1
+    assert err.mean() <= 0.1, err.mean()
+    assert tr.inliers >= 0.9 * full.inliers
+    assert abs(tr.rms_px - full.rms_px) <= 0.05
     # a prior 40 px off falls back and still registers
     bad = prior.copy()
     bad[0, 2] += 40.0
-    fb = register(ref, seneca[i + 1], distortion=False, n_points=500, prior=bad)
+    fb = register(ref, seneca[i + 1], prior=bad, **kw)
     assert fb.ok and not fb.tracked and fb.track_failure

@@ -44,13 +44,37 @@ warping the moving frame by the current estimate with OpenCV INTER_CUBIC,
    estimating equation with the reference-noise energy removed (see
    :func:`_signal_matrix`), is capped at 1 px and damped when it oscillates;
    if the coarse start does not converge, the co-registered start (0, 0) is
-   tried. Above ``max_pixels`` only the most textured 128x128 tiles (spread
-   over a 3x3 grid of the frame) enter the fine stage: the precision there is
+   tried. The whole overlap of the frames (less the filter margins) is used;
+   above ``max_pixels`` only the most textured 128x128 tiles (spread over a
+   3x3 grid of the frame) enter the fine stage: at high SNR the precision is
    set by aliasing, not by the pixel count.
-3. Quality: the covariance of (u, v) is the cluster-robust "sandwich"
-   ``S^-1 (sum_k b_k b_k^T) S^-1`` over 16x16-pixel blocks of the final
-   residual scores ``b_k`` (valid for the spatially correlated noise the
-   filters create and for model error), ``S`` the noise-corrected slope.
+3. Noise-limited pairs (reported standard error above 0.005 px, when the
+   aliasing bias < 0.003 px no longer matters), unless ``prefilter_sigma``
+   is given: the prefilter is re-chosen among 0.8, 0.7, 0.6, 0.5, 0.4 px by
+   the smallest variance predicted by :func:`predicted_shift_variance` from
+   the frames' own spectrum and the noise variance estimated from the
+   least-squares residual (:func:`_noise_variance`), the tile budget grows
+   4x, and the fine stage is re-run from the estimate. Why not reach the
+   Cramer-Rao bound ``2 sigma^2 J^-1``: every estimator of the shift between
+   two noisy frames of an unknown scene has a noise-times-noise term in its
+   score, ``var ~ sum_k W^2 w^2 (2 P n + n^2) / (sum_k W w^2 P)^2`` per
+   frequency ``k`` (signal power ``P``, noise power ``n``); the bound drops
+   it. The best weight ``W = P / (2 P n + n^2)`` needs the scene's own
+   spectrum per frequency; weights estimated from the noisy frames (smoothed
+   periodograms, radial or polar averages) do no better than the best
+   Gaussian, which is what is used (measured on the noisy benchmark set:
+   ideal weight 1.26x the bound, best Gaussian 1.37x, before edge losses).
+   Symmetric gradients (mean of both frames') leave this variance unchanged
+   (the two noise cross terms are the same sum after summation by parts) and
+   are not used.
+4. Quality: the covariance of (u, v) is the cluster-robust "sandwich"
+   ``S^-1 M S^-T`` over 16x16-pixel blocks of the final residual scores
+   ``b_k``: ``M = sum_k b_k b_k^T`` plus the cross products of neighbouring
+   blocks (spatial HAC, for the noise the filters correlate across block
+   edges), valid for correlated noise and for model error; ``S`` is the
+   measured slope of the estimating equation (:func:`_score_slope`; the
+   Gauss-Newton matrix ``sum J J^T`` understates it by 10-25 % on noisy,
+   lightly prefiltered pairs).
    Local shifts over a 3x3 grid of the frame measure residual misfit
    (rotation, scale, parallax): ``misfit`` is set when their RMS spread
    exceeds ``misfit_px`` and is significant (chi-square) against the noise
@@ -1107,8 +1131,11 @@ def estimate_shift(
     ``prior``: starting (u, v) guess, replaces the coarse stage.
     ``tol``: convergence threshold on the Gauss-Newton step (px).
     ``taps``, ``prefilter_sigma`` (px), ``band`` (fraction of Nyquist): the
-    designed filter. ``max_pixels``: above this many pixels only the most
-    textured 128x128 tiles (up to that total) enter the fine stage (None: all).
+    designed filter; ``prefilter_sigma=None`` (default) is 0.8 px, re-chosen
+    for noise-limited pairs from the noise estimated in the data (module
+    docstring, step 3); a number fixes it. ``max_pixels``: above this many
+    pixels only the most textured 128x128 tiles (up to that total; 4x that on
+    noise-limited pairs) enter the fine stage (None: all).
     ``misfit_px``: RMS spread of 3x3-grid local shifts above which (and
     statistically significant) the result is flagged ``misfit``.
 

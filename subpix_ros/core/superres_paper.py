@@ -18,6 +18,8 @@ by default):
 """
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -107,6 +109,7 @@ def pinv_solution(y: np.ndarray, p: int, q: int) -> np.ndarray:
     return np.linalg.pinv(t1) @ y @ np.linalg.pinv(t2)
 
 
+@functools.lru_cache(maxsize=64)
 def windowed_filter(p: int, w: int, normalise: bool = True) -> tuple[np.ndarray, int]:
     """Eq. 7 in 1-D: the filter that the sliding-window pseudo-inverse applies.
 
@@ -115,7 +118,8 @@ def windowed_filter(p: int, w: int, normalise: bool = True) -> tuple[np.ndarray,
     of ``pinv(T1)``: ``x[k] = sum_j g[j] y[k - c + j]`` (y sums). Returns
     ``(g, c)``. With ``normalise`` the taps are scaled so a constant image
     keeps its brightness (``p * sum(g) = 1``); eq. 7 as written has
-    ``p * sum(g) != 1`` for even p.
+    ``p * sum(g) != 1`` for even p. Cached (a pinv per call was most of the
+    windowed method's fixed cost); the taps are returned read-only.
     """
     if (w + p - 1) % 2 == 0:
         raise ValueError(f"eq. 7 needs w+p-1 odd (w={w}, p={p})")
@@ -125,6 +129,7 @@ def windowed_filter(p: int, w: int, normalise: bool = True) -> tuple[np.ndarray,
     g = np.linalg.pinv(band_matrix(w, p))[c].copy()
     if normalise:
         g = g / (p * g.sum())
+    g.setflags(write=False)
     return g, c
 
 

@@ -1407,8 +1407,9 @@ def reconstruct_colour(
     reconstructed with ``reconstruct(..., **kwargs)``; Cr and Cb of the
     reference frame are bicubic-upscaled (the eye and most uses need
     far less chroma resolution, and chroma would triple the cost). The
-    result's image is float64 BGR, (factor*H, factor*W, 3), on the same
-    output grid; ``method``/``fell_back``/``reason`` are those of the
+    result's image is float32 BGR, (factor*H, factor*W, 3), on the same
+    output grid (single precision holds 8- and 16-bit data with room to
+    spare, and halves the cost of the largest arrays); ``method``/``fell_back``/``reason`` are those of the
     luminance reconstruction.
     """
     if frames_bgr is None or len(frames_bgr) == 0:
@@ -1428,5 +1429,5 @@ def reconstruct_colour(
     # YCrCb offsets: OpenCV uses delta = 128 for 8-bit, 0.5 for float in [0, 1]; frames keep their scale,
     # so the offset was taken from the data's own convention by converting back with OpenCV
     merged = cv2.merge([res.image.astype(np.float32), chroma[..., 0], chroma[..., 1]])
-    res.image = cv2.cvtColor(merged, cv2.COLOR_YCrCb2BGR).astype(np.float64)
+    res.image = cv2.cvtColor(merged, cv2.COLOR_YCrCb2BGR)
     return res

@@ -52,7 +52,7 @@ def reconstruct_aligned(frames: Sequence[np.ndarray], shifts: np.ndarray, factor
     if (r0, r1, c0, c1) == (0, h, 0, w):
         return solve(frames, shifts, factor, **kw)
     res = solve([np.asarray(f)[r0:r1, c0:c1] for f in frames], shifts, factor, **kw)
-    out = np.empty((factor * h, factor * w) + res.image.shape[2:])
+    out = np.empty((factor * h, factor * w) + res.image.shape[2:], dtype=res.image.dtype)
     out[factor * r0:factor * r1, factor * c0:factor * c1] = res.image
     _bicubic_outside(out, np.asarray(frames[0]), factor, box)
     return replace(res, image=out)

@@ -130,7 +130,9 @@ class ReconstructionNode(StageNode):
         if not np.all(np.isfinite(img)):
             self.diag.error("reconstruction produced non-finite pixels: not published")
             return
-        out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        out = np.rint(img)  # to 8 bit in place: a 4K colour image is 25 M values
+        np.clip(out, 0, 255, out=out)
+        out = out.astype(np.uint8)
         # the image is on the reference frame's grid: it carries the reference's stamp
         self.pub.publish(pl.image_cdr(out, ref.stamp_ns, ref.frame_id))
         self.emit("super_resolved", (out, res, ref, members))

@@ -206,7 +206,7 @@ def test_colour_luminance_superresolved(crops):
     frames = [np.dstack([s.frames[i] for s in seqs]) for i in range(4)]
     truth = np.dstack([s.truth for s in seqs])
     r = reconstruct_colour(frames, shifts, 2)
-    assert r.image.shape == truth.shape and r.method == "map"
+    assert r.image.shape == truth.shape and r.method == "map" and r.image.dtype == np.float32
     bic = np.dstack([bicubic_upscale(frames[0][..., k], 2) for k in range(3)])
     assert psnr(r.image, truth, 8) - psnr(bic, truth, 8) > 3.0
     del rng

@@ -573,14 +573,11 @@ def _per_point(pts: np.ndarray, p_r: np.ndarray, p_m: np.ndarray) -> np.ndarray:
 
 
 def _candidates(peaks, valid: np.ndarray, n_points: int, want_inliers: int) -> tuple[np.ndarray, np.ndarray | None]:
-    """``n_points`` spread tie points, plus (if ``want_inliers`` > 0) up to ``2 n_points`` further spread
-    candidates for the second pass on weak texture."""
+    """``n_points`` spread tie points, plus (if ``want_inliers`` > 0) the next ``2 n_points`` tier of
+    spread candidates for the second pass on weak texture."""
     if want_inliers <= 0:
         return select_spread(peaks, valid, n_target=n_points), None
-    pts = select_spread(peaks, valid, n_target=n_points)
-    more = select_spread(peaks, valid, n_target=3 * n_points)
-    key = lambda q: q[:, 1] * 1e6 + q[:, 0]  # noqa: E731
-    return pts, more[~np.isin(key(more), key(pts))]
+    return select_spread(peaks, valid, n_target=n_points, n_more=2 * n_points)
 
 
 def _check_prior(prior) -> np.ndarray:

@@ -215,39 +215,53 @@ def fit_homography_distortion_lm(
 ) -> tuple[np.ndarray, float]:
     """Joint LM fit of ``H_u`` (eq. P on undistorted points) and the division-model ``lam``.
 
-    Residual ``D(H_u(U(x_m))) - x_r`` in normalised units. Returns
-    ``(H_u pixel 3x3, lam)``; ``H_u`` maps UNDISTORTED moving pixel
-    coordinates to UNDISTORTED reference pixel coordinates.
+    Residual, in normalised units, measured in the undistorted reference frame
+    and scaled back to distorted units to first order:
+
+        e_i = (1 + lam r_i^2) (H_u(U(x_m,i)) - U(x_r,i)),   r_i = |x_r,i - c| / s
+
+    (``D`` divides radii by ``1 / (1 + lam r_d^2)`` near ``U(x_r)``, so ``e_i``
+    equals ``D(H_u(U(x_m))) - x_r`` up to O(lam e); the factor keeps lambda
+    from shrinking all residuals by shrinking the coordinates). The Jacobian
+    is analytic, starting point ``(h0, lam = 0)``. Returns ``(H_u pixel 3x3,
+    lam)``; ``H_u`` maps UNDISTORTED moving pixel coordinates to UNDISTORTED
+    reference pixel coordinates.
     """
     t = norm.t
     m = apply_h(t, pts_mov)  # normalised coordinates: centre 0, half-diagonal 1
     r = apply_h(t, pts_ref)
-    unit = Normaliser(0.0, 0.0, 1.0)
+    rm2 = (m * m).sum(axis=1)
+    rr2 = (r * r).sum(axis=1)
 
-    def model(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        u = undistort_points(m, q[-1], unit)
-        y = apply_h(_h_from_params(q[:-1], affine), u)
-        return distort_points(y, q[-1], unit), u
+    def parts(q: np.ndarray):
+        lam = q[-1]
+        um = m / (1.0 + lam * rm2)[:, None]
+        ur = r / (1.0 + lam * rr2)[:, None]
+        hq = _h_from_params(q[:-1], affine)
+        y = apply_h(hq, um)
+        wgt = 1.0 + lam * rr2
+        return lam, um, ur, hq, y, wgt
 
     def res(q: np.ndarray) -> np.ndarray:
-        out = (model(q)[0] - r).ravel()
+        _, _, ur, _, y, wgt = parts(q)
+        out = (wgt[:, None] * (y - ur)).ravel()
         return np.where(np.isfinite(out), out, 1e3)
 
     def jac(q: np.ndarray) -> np.ndarray:
-        # d/dH: (dD/dy) (dy/dq), dy/dq analytic (eq. P), the 2x2 dD/dy by forward differences;
-        # d/dlam by a forward difference.
-        lam = q[-1]
-        p0, u = model(q)
-        y = apply_h(_h_from_params(q[:-1], affine), u)
-        e = 1e-7
-        jd = np.stack([(distort_points(y + [e, 0.0], lam, unit) - p0) / e,
-                       (distort_points(y + [0.0, e], lam, unit) - p0) / e], axis=2)  # (N, 2, 2)
-        jh = _jacobian_eq_p(q[:-1], u, affine).reshape(len(u), 2, -1)
-        jq = np.einsum("nij,njp->nip", jd, jh).reshape(2 * len(u), -1)
-        ql = q.copy()
-        ql[-1] += e
-        jl = ((model(ql)[0] - p0) / e).reshape(-1, 1)
-        out = np.hstack([jq, jl])
+        lam, um, ur, hq, y, wgt = parts(q)
+        n = len(m)
+        jh = _jacobian_eq_p(q[:-1], um, affine).reshape(n, 2, -1) * wgt[:, None, None]
+        # d/dlam: w (dH/du dU(m)/dlam - dU(r)/dlam) + r^2 (H(U(m)) - U(r)), dU(p)/dlam = -p rp^2 / (1 + lam rp^2)^2
+        w = hq[2, 0] * um[:, 0] + hq[2, 1] * um[:, 1] + 1.0
+        a = np.empty((n, 2, 2))
+        a[:, 0, 0] = (hq[0, 0] - y[:, 0] * hq[2, 0]) / w
+        a[:, 0, 1] = (hq[0, 1] - y[:, 0] * hq[2, 1]) / w
+        a[:, 1, 0] = (hq[1, 0] - y[:, 1] * hq[2, 0]) / w
+        a[:, 1, 1] = (hq[1, 1] - y[:, 1] * hq[2, 1]) / w
+        dum = -m * (rm2 / (1.0 + lam * rm2) ** 2)[:, None]
+        dur = -r * (rr2 / (1.0 + lam * rr2) ** 2)[:, None]
+        jl = wgt[:, None] * (np.einsum("nij,nj->ni", a, dum) - dur) + rr2[:, None] * (y - ur)
+        out = np.concatenate([jh, jl[:, :, None]], axis=2).reshape(2 * n, -1)
         return np.where(np.isfinite(out), out, 0.0)
 
     q0 = np.concatenate([_params_from_h(norm.to_norm_h(h0), affine), [0.0]])

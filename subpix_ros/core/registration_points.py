@@ -29,7 +29,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-ROUND_ROBIN = False
 REL_FLOOR = 1e-6  # relative Harris floor: NIR lawn maxima are ~1e-5 of a roof corner (R ~ contrast^4)
 
 __all__ = [
@@ -79,45 +78,51 @@ def harris_peaks(gray: np.ndarray, window: int = 11, nms_radius: int = 4) -> tup
     return xs, ys, resp[ys, xs]
 
 
+def _quota_rank(peaks, valid: np.ndarray, grid: tuple[int, int]):
+    """Harris maxima inside ``valid`` above the relative floor, with each one's strength rank in its grid cell."""
+    xs, ys, r = peaks
+    inv = valid[ys, xs]
+    xs, ys, r = xs[inv], ys[inv], r[inv]
+    if xs.size == 0:
+        return xs, ys, np.zeros(0, np.intp)
+    keep = r > REL_FLOOR * float(r.max())
+    ys, xs, r = ys[keep], xs[keep], r[keep]
+    rows, cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    gr, gc = grid
+    cell = (np.minimum((ys - y0) * gr // max(y1 - y0, 1), gr - 1) * gc
+            + np.minimum((xs - x0) * gc // max(x1 - x0, 1), gc - 1))
+    order = np.lexsort((-r, cell))  # by cell, strongest first
+    cs = cell[order]
+    rank = np.arange(cs.size) - np.searchsorted(cs, cs, side="left")  # 0 = strongest of its cell
+    return xs[order], ys[order], rank
+
+
 def select_spread(
     peaks: tuple[np.ndarray, np.ndarray, np.ndarray],
     valid: np.ndarray,
     n_target: int = 600,
     grid: tuple[int, int] = (12, 16),
-) -> np.ndarray:
+    n_more: int = 0,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Grid-quota selection of Harris maxima inside ``valid``; returns (N, 2) float64 (x, y).
 
     Maxima weaker than ``REL_FLOOR`` (1e-6) of the strongest one inside
-    ``valid`` are dropped (flat noise; the response scales as contrast^4). The bounding box of ``valid`` is cut into ``grid``
-    (rows, cols) cells, which are visited round robin (each cell's strongest
-    maximum, then each cell's second strongest, ...) until ``n_target`` points
-    are taken, so no single textured field takes all the points while cells
-    short of maxima leave their share to the others.
+    ``valid`` are dropped (flat noise; the response scales as contrast^4).
+    The bounding box of ``valid`` is cut into ``grid`` (rows, cols) cells and
+    each cell keeps at most ``ceil(n_target / cells)`` of its strongest
+    maxima, so no single textured field takes all the points. With
+    ``n_more > 0`` also returns the next tier: the points a quota of
+    ``ceil((n_target + n_more) / cells)`` adds (candidates for weak texture).
     """
-    xs, ys, r = peaks
-    inv = valid[ys, xs]
-    xs, ys, r = xs[inv], ys[inv], r[inv]
-    if xs.size == 0:
-        return np.zeros((0, 2))
-    keep = r > REL_FLOOR * float(r.max())
-    ys, xs, r = ys[keep], xs[keep], r[keep]
-    vy, vx = np.nonzero(valid)
-    y0, y1, x0, x1 = vy.min(), vy.max() + 1, vx.min(), vx.max() + 1
-    gr, gc = grid
-    cell = (np.minimum((ys - y0) * gr // max(y1 - y0, 1), gr - 1) * gc
-            + np.minimum((xs - x0) * gc // max(x1 - x0, 1), gc - 1))
-    order = np.lexsort((-r, cell))
-    cs = cell[order]
-    start = np.searchsorted(cs, cs, side="left")
-    rank = np.arange(cs.size) - start  # 0 = strongest maximum of its cell
-    # Round robin over the cells: every cell's strongest maximum first, then every cell's second, ...
-    # (cells short of maxima leave their share to the others, so ~n_target points when there are enough).
-    if ROUND_ROBIN:
-        rr = order[np.lexsort((-r[order], rank))]
-        sel = rr[:n_target]
-    else:
-        sel = order[rank < int(np.ceil(n_target / (gr * gc)))]
-    return np.stack([xs[sel], ys[sel]], axis=1).astype(np.float64)
+    xs, ys, rank = _quota_rank(peaks, valid, grid)
+    cells = grid[0] * grid[1]
+    q1 = int(np.ceil(n_target / cells))
+    pts = np.stack([xs, ys], axis=1).astype(np.float64)
+    if n_more <= 0:
+        return pts[rank < q1]
+    q2 = int(np.ceil((n_target + n_more) / cells))
+    return pts[rank < q1], pts[(rank >= q1) & (rank < q2)]
 
 
 def harris_points(
@@ -140,9 +145,12 @@ def harris_points(
 def apply_h(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Apply a 3x3 homography to (N, 2) points (x, y): ``p' = (H [x, y, 1]^T)`` dehomogenised."""
     p = np.asarray(pts, dtype=np.float64)
-    h = np.asarray(h, dtype=np.float64)
-    w = p @ h[2, :2] + h[2, 2]
-    return (p @ h[:2, :2].T + h[:2, 2]) / w[:, None]
+    x, y = p[:, 0], p[:, 1]
+    w = h[2, 0] * x + h[2, 1] * y + h[2, 2]
+    out = np.empty(p.shape, dtype=np.float64)
+    out[:, 0] = (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / w
+    out[:, 1] = (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / w
+    return out
 
 
 def _keys(t: np.ndarray) -> np.ndarray:

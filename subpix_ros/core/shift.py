@@ -434,6 +434,17 @@ def _block_sum(a: np.ndarray, bs: int) -> np.ndarray:
     return cv2.resize(a, (w // bs, h // bs), interpolation=cv2.INTER_AREA).astype(np.float64) * (bs * bs)
 
 
+def _block_counts(shape: Tuple[int, int], bs: int) -> np.ndarray:
+    """Pixels per bs x bs block of an array of ``shape`` (as :func:`_block_sum` of ones)."""
+    def ext(n: int) -> np.ndarray:
+        e = np.full(-(-n // bs), float(bs))
+        if n % bs:
+            e[-1] = float(n % bs)
+        return e
+
+    return np.outer(ext(shape[0]), ext(shape[1]))
+
+
 def _dilate_invalid(valid: Optional[np.ndarray], before: int, after: int) -> Optional[np.ndarray]:
     """Pixels x whose window x-before .. x+after (both axes) is entirely valid."""
     if valid is None:
@@ -623,7 +634,7 @@ def _gn_sums(lv: _Level, rects, s, want_blocks: bool):
             maps = [cv2.multiply(g0, g0), cv2.multiply(g0, g1), cv2.multiply(g1, g1), g0, g1]
             if want_blocks or lv.blocks:  # a level that will need blocks computes them once
                 bl = [_block_sum(mp, _BLOCK) for mp in maps]
-                bl.append(_block_sum(np.ones(g0.shape, np.float32), _BLOCK))
+                bl.append(_block_counts(g0.shape, _BLOCK))
                 tot = [float(x.sum()) for x in bl]
             else:
                 bl = None

@@ -260,6 +260,16 @@ def test_noisy_pairs_near_the_cramer_rao_bound(set_noisy):
     assert ratio < ratio_fixed, (ratio, ratio_fixed)
 
 
+def test_fine_stage_uses_the_whole_overlap(set_noisy):
+    # every pixel of the 176 px frames except the filter margins (taps/2 + 1 = 5 px
+    # for the default 8 taps, one more where the integer part of the shift is -1);
+    # no rounding down to whole 16 px covariance blocks (that gave 160 x 160)
+    for r, m, _, _ in set_noisy[:4]:
+        res = estimate_shift(r, m)
+        assert res.ok
+        assert res.n_pixels >= (r.shape[0] - 11) * (r.shape[1] - 11)
+
+
 def test_predicted_variance_prefers_light_prefilter_at_low_noise(crops):
     # the spectral model of the estimator's variance: without noise the lightest
     # prefilter keeps the most signal, heavy noise asks for a stronger one, and

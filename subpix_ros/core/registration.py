@@ -81,11 +81,7 @@ def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
         raise ValueError(f"{name}: dtype {img.dtype} is not an integer or float image")
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
-    if img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8:  # per channel, no float32 colour copy
-        b, gc, r = cv2.split(img)
-        g = cv2.addWeighted(b, float(_LUMA_BGR[0, 0]), gc, float(_LUMA_BGR[0, 1]), 0.0, dtype=cv2.CV_32F)
-        g = cv2.scaleAdd(r.astype(np.float32), float(_LUMA_BGR[0, 2]), g)
-    elif img.ndim == 3 and img.shape[2] == 3:
+    if img.ndim == 3 and img.shape[2] == 3:
         g = cv2.transform(img.astype(np.float32, copy=False), _LUMA_BGR).reshape(img.shape[:2])
     elif img.ndim == 2:
         g = img.astype(np.float32)
@@ -627,7 +623,7 @@ def _register_tracked(ref: ReferenceFrame, gm: np.ndarray, prior: np.ndarray, ra
     reason = check_homography(hn, mov_l.shape)
     if reason:
         return _fail(reason, t0, shapes, model)
-    res, n_try = _final_stage(gr, gm, pts, hn, det_lev, 1 + int(f), t0=t0, template_half=template_half,
+    res, n_try = _final_stage(gr, gm, pts, hn, det_lev, 2 + int(f) // 2, t0=t0, template_half=template_half,
                               pred_det=_per_point(pts, p_r, p_m), extra_det=extra, **kw)
     if not res.ok:
         return res
@@ -801,7 +797,9 @@ def _register_full(ref: ReferenceFrame, gm: np.ndarray, *, n_points: int, coarse
         valid = _valid_ref_points(gr.shape, gm.shape, h, half + 6, half + 6)
         pts_det = select_spread(ref.peaks(0), valid, n_target=n_points)
     # Stage 3: input resolution.
-    res, _ = _final_stage(gr, gm, pts_det, h, h_lev, 1 + int(2.0 ** h_lev), t0=t0, template_half=template_half,
+    # Search radius at input resolution: the level's per-point matches predict to ~0.5 level px.
+    radius = 1 + int(2.0 ** h_lev) if pred_det is None else 2 + int(2.0 ** h_lev) // 2
+    res, _ = _final_stage(gr, gm, pts_det, h, h_lev, radius, t0=t0, template_half=template_half,
                           pred_det=pred_det, extra_det=extra_det, **kw)
     return res
 

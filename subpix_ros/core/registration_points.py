@@ -272,8 +272,13 @@ def ncc_match(
     b = pp + 2 * radius
     # Numerator sum(T0 W_d) for all (2r+1)^2 offsets d at once: one batched matrix product over
     # the (n, k*k, pp*pp) unfolded windows.
-    unf = np.lib.stride_tricks.sliding_window_view(win32, (pp, pp), axis=(1, 2)).reshape(n, k * k, pp * pp)
-    num = (unf @ t0.reshape(n, pp * pp, 1)).reshape(n, k, k).astype(np.float64)
+    # Chunks of points keep the unfolded copy under ~16 MB.
+    num = np.empty((n, k, k), dtype=np.float64)
+    step = max(1, int(4e6 // (k * k * pp * pp)))
+    for c0 in range(0, n, step):  # a few chunks, each one batched product over its points
+        w = win32[c0: c0 + step]
+        unf = np.lib.stride_tricks.sliding_window_view(w, (pp, pp), axis=(1, 2)).reshape(len(w), k * k, pp * pp)
+        num[c0: c0 + step] = (unf @ t0[c0: c0 + step].reshape(len(w), pp * pp, 1)).reshape(len(w), k, k)
     # Local sums of W and W^2 over each offset window: box filters over the windows stacked vertically
     # (anchor top-left, so a sum never crosses into the next window), on mean-removed float32 values.
     wc = (win32 - win32.mean(axis=(1, 2), keepdims=True)).reshape(n * b, b)

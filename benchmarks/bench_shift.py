@@ -17,12 +17,13 @@ margin) with exactly known shifts:
      reference (spectral gradients = exact derivative of the band-limited
      frame; checked against finite differences of the renderer) over the
      whole frame; /CRBc: the same over the frame less a 5 px border (the
-     pixels ours can use); /CRBw: the bound of the best frequency-weighted
-     estimator for an unknown scene, i.e. with the ideal weight
+     pixels ours can use); /CRBw: the variance of the best frequency-weighted
+     (gradient / cross-correlation) estimator, i.e. with the ideal weight
      P/(2 P n + n^2) computed from the noise-free spectrum P (n the noise
-     power per frequency), which no estimator that does not know the scene
-     can use: 2 sigma^2 J^-1 is not attainable at low per-frequency SNR
-     because of the noise-times-noise term of the two noisy frames.
+     power per frequency), a weight no estimator that does not know the
+     scene has: estimators of this family do not reach 2 sigma^2 J^-1 at
+     low per-frequency SNR because of the noise-times-noise term of the two
+     noisy frames (ideal periodic frames, same weights: see shift.py).
   D  |s| <= 4 px, SNR 40 dB, blur 0.4
   E  as A with blur 0.4 plus a 0.2 deg rotation between the frames (error of
      the translation at the frame centre; ours also reports the misfit flag)

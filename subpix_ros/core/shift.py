@@ -55,12 +55,13 @@ warping the moving frame by the current estimate with OpenCV INTER_CUBIC,
    the frames' own spectrum and the noise variance estimated from the
    least-squares residual (:func:`_noise_variance`), the tile budget grows
    4x, and the fine stage is re-run from the estimate. Why not reach the
-   Cramer-Rao bound ``2 sigma^2 J^-1``: every estimator of the shift between
-   two noisy frames of an unknown scene has a noise-times-noise term in its
-   score, ``var ~ sum_k W^2 w^2 (2 P n + n^2) / (sum_k W w^2 P)^2`` per
-   frequency ``k`` (signal power ``P``, noise power ``n``); the bound drops
-   it. The best weight ``W = P / (2 P n + n^2)`` needs the scene's own
-   spectrum per frequency; weights estimated from the noisy frames (smoothed
+   Cramer-Rao bound ``2 sigma^2 J^-1``: a gradient / cross-correlation
+   estimator with frequency weight ``W`` between two noisy frames of an
+   unknown scene has a noise-times-noise term in its score, ``var ~ sum_k
+   W^2 w^2 (2 P n + n^2) / (sum_k W w^2 P)^2`` over frequencies ``k``
+   (signal power ``P``, noise power ``n``), which the bound lacks. The best
+   weight ``W = P / (2 P n + n^2)`` needs the scene's own noise-free power
+   per frequency; weights estimated from the noisy frames (smoothed
    periodograms, radial or polar averages) do no better than the best
    Gaussian, which is what is used (measured on the noisy benchmark set:
    ideal weight 1.26x the bound, best Gaussian 1.37x, before edge losses).

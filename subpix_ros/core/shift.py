@@ -63,10 +63,11 @@ warping the moving frame by the current estimate with OpenCV INTER_CUBIC,
    weight ``W = P / (2 P n + n^2)`` needs the scene's own noise-free power
    per frequency; weights estimated from the noisy frames (smoothed
    periodograms, radial or polar averages) do no better than the best
-   Gaussian, which is what is used (measured on the noisy benchmark set:
-   ideal weight 1.26x the bound, best Gaussian 1.37x, before edge losses).
-   Symmetric gradients (mean of both frames') leave this variance unchanged
-   (the two noise cross terms are the same sum after summation by parts) and
+   Gaussian, which is what is used (computed with this formula from the
+   noise-free references of the noisy benchmark set, periodic frames: ideal
+   weight 1.26x the bound, best Gaussian 1.37x, before edge losses).
+   Symmetric gradients (mean of both frames') give the same score: in the
+   Fourier domain ``Im[conj((X + Y) / 2) (Y - X)] = Im[conj(X) Y]``, so they
    are not used.
 4. Quality: the covariance of (u, v) is the cluster-robust "sandwich"
    ``S^-1 M S^-T`` over 16x16-pixel blocks of the final residual scores

@@ -10,12 +10,21 @@ Pipeline (all stages vectorised over pixels / points):
    tie points (METHODS C, stage 2, with a grid quota over the overlap) are
    matched by NCC around the current prediction and a homography is fitted
    robustly (OpenCV USAC/MAGSAC).
-3. Full resolution: the detection-level points are matched by NCC, refined to
-   sub-pixel by Gauss-Newton on patch translation, outliers rejected by
-   MAGSAC, the projective model (METHODS C, eq. P) fitted by
-   Levenberg-Marquardt from the identity (the paper), then refined on the
-   inliers, optionally jointly with one radial-distortion term (division
-   model, shared by both frames).
+3. Input resolution: the detection-level points are matched by NCC around
+   their own detection-level matches, outliers rejected by MAGSAC, the
+   projective model (METHODS C, eq. P) fitted by Levenberg-Marquardt from
+   the identity (the paper), the points refined to sub-pixel by Gauss-Newton
+   on patch translation, the model refitted on the inliers, optionally
+   jointly with one radial-distortion term (division model, shared by both
+   frames). A second pass searches the points the first one missed (and, on
+   weak texture, further candidates) around this model's prediction, and the
+   model is refitted.
+
+Tracking (``prior=``, video rate against a fixed reference): stages 1-2 are
+replaced by one NCC search at the detection level around the prior's
+prediction; stage 3 is unchanged; failure falls back to the full pipeline.
+:func:`prepare_reference` keeps the reference's luminance, pyramid, Harris
+maxima and coarse features for reuse across frames.
 
 Deviations from the paper (documented, measured in benchmarks/bench_registration.py)
 -------------------------------------------------------------------------------------
@@ -23,7 +32,8 @@ Deviations from the paper (documented, measured in benchmarks/bench_registration
   (``coarse_method="orb"``): the paper's translation-only fragment search
   fails on this strip's camera yaw (up to 32 degrees between frames). The
   paper's method stays available as ``coarse_method="fragments"`` (under
-  rotation hypotheses from gradient-orientation histograms).
+  rotation hypotheses from gradient-orientation histograms), and is tried
+  automatically when ORB finds too few consistent features.
 * The paper has no outlier rejection; MAGSAC (USAC) is used before the LM fit.
 * Lens distortion: ``distortion=True`` estimates one division-model lambda
   per pair; ``distortion=<float>`` fixes a camera calibration (the same
@@ -196,6 +206,17 @@ def _scale_h(h: np.ndarray, factor: float) -> np.ndarray:
     return out / out[2, 2]
 
 
+def _valid_grid(shape_ref, shape_mov, h_mr, margin_mov: float, step: int) -> np.ndarray:
+    """Bool mask on the reference grid ``[0:h:step, 0:w:step]``: prediction inside the moving frame
+    with ``margin_mov + step`` px to spare."""
+    hr, wr = shape_ref
+    hm, wm = shape_mov
+    ys, xs = np.mgrid[0:hr:step, 0:wr:step]
+    pm = apply_h(np.linalg.inv(h_mr), np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64))
+    m = margin_mov + step
+    return ((pm[:, 0] >= m) & (pm[:, 0] <= wm - 1 - m) & (pm[:, 1] >= m) & (pm[:, 1] <= hm - 1 - m)).reshape(xs.shape)
+
+
 def _valid_ref_points(shape_ref, shape_mov, h_mr, margin_ref: int, margin_mov: float, step: int = 4) -> np.ndarray:
     """Bool mask (reference shape) of pixels whose prediction in the moving frame is inside it.
 
@@ -203,11 +224,7 @@ def _valid_ref_points(shape_ref, shape_mov, h_mr, margin_ref: int, margin_mov: f
     ``margin_ref`` / ``margin_mov`` px kept clear of either frame's border.
     """
     hr, wr = shape_ref
-    hm, wm = shape_mov
-    ys, xs = np.mgrid[0:hr:step, 0:wr:step]
-    pm = apply_h(np.linalg.inv(h_mr), np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64))
-    m = margin_mov + step
-    small = ((pm[:, 0] >= m) & (pm[:, 0] <= wm - 1 - m) & (pm[:, 1] >= m) & (pm[:, 1] <= hm - 1 - m)).reshape(xs.shape)
+    small = _valid_grid(shape_ref, shape_mov, h_mr, margin_mov, step)
     inside = np.repeat(np.repeat(small, step, axis=0), step, axis=1)[:hr, :wr].copy()
     inside[:margin_ref] = False
     inside[hr - margin_ref:] = False
@@ -243,7 +260,7 @@ def _spread(pr: np.ndarray, h_mr: np.ndarray, shape_ref, shape_mov, cells: int =
     ``cells x cells``; only cells whose centre lies in the overlap count.
     """
     step = 8
-    valid = _valid_ref_points(shape_ref, shape_mov, h_mr, 0, 0, step=step)[::step, ::step]
+    valid = _valid_grid(shape_ref, shape_mov, h_mr, 0, step)
     ys, xs = np.nonzero(valid)
     if xs.size == 0:
         return 0.0
@@ -743,10 +760,11 @@ def _register_full(ref: ReferenceFrame, gm: np.ndarray, *, n_points: int, coarse
     pm_ = _pyramid(gm, n_lev)
 
     # Stage 1: coarse overlap.
+    used = coarse_method
     if coarse_method == "orb":
         coarse = coarse_orb(ref.level(mid_lev), pm_[mid_lev], ref_features=ref.orb(mid_lev))
         h_lev = mid_lev
-    else:  # METHODS C stage 1, under rotation hypotheses
+    if coarse_method == "fragments" or not coarse.ok:  # METHODS C stage 1 (also when ORB finds too little)
         gc_r = gradient_magnitude(cv2.GaussianBlur(ref.level(n_lev), (3, 3), 0))
         gc_m = gradient_magnitude(cv2.GaussianBlur(pm_[n_lev], (3, 3), 0))
         if angles is not None:
@@ -755,8 +773,9 @@ def _register_full(ref: ReferenceFrame, gm: np.ndarray, *, n_points: int, coarse
             hyps = orientation_hypotheses(ref.level(mid_lev), pm_[mid_lev])
             if min(abs(((a + np.pi) % (2 * np.pi)) - np.pi) for a in hyps) > np.deg2rad(7):
                 hyps.append(0.0)
-        coarse = coarse_overlap(gc_r, gc_m, hyps)
-        h_lev = n_lev
+        frag = coarse_overlap(gc_r, gc_m, hyps)
+        if coarse_method == "fragments" or frag.ok:
+            coarse, used, h_lev = frag, "fragments", n_lev
     if not coarse.ok:
         return _fail(coarse.reason, t0, shapes, model)
     h = coarse.transform
@@ -767,7 +786,7 @@ def _register_full(ref: ReferenceFrame, gm: np.ndarray, *, n_points: int, coarse
     half = template_half
     pts_det = pred_det = extra_det = None
     first = True
-    for lev in range(min(h_lev, max(mid_lev, det_lev)) if coarse_method == "orb" else h_lev - 1, det_lev - 1, -1):
+    for lev in range(min(h_lev, max(mid_lev, det_lev)) if used == "orb" else h_lev - 1, det_lev - 1, -1):
         h = _scale_h(h, 2.0 ** (h_lev - lev))
         h_lev = lev
         ref_l, mov_l = ref.level(lev), pm_[lev]

@@ -708,7 +708,7 @@ def predicted_shift_variance(ref: np.ndarray, mov: np.ndarray, noise_var: float,
     two frames averaged, less the noise ``nu = noise_var sum w^2``), the slope
     is ``S = sum W s w^T P`` and the score covariance ``B = 2 sum W^2 s s^T
     (P nu + nu^2 / 2)``; the ``nu^2`` term is the noise-times-noise part that
-    keeps any estimator of an unknown scene above ``2 sigma^2 J^-1``. Returns
+    keeps this estimator above ``2 sigma^2 J^-1``. Returns
     ``trace(S^-1 B S^-T)`` for each sigma (inf where S is singular). Only the
     central ``_SPECTRUM_SIZE`` px square of the frames is used.
     """
@@ -930,7 +930,7 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
     res = _statistics(out, lv, h, w, misfit_px, coarse)
     if res.ok and adaptive and not res.misfit and max(res.u_std, res.v_std) > _NOISE_LIMITED_PX:
         # noise-limited pair: aliasing bias (< 0.003 px) no longer matters and the
-        # prefilter is re-chosen for the smallest noise variance (METHODS.md A, notes)
+        # prefilter is re-chosen for the smallest noise variance (module docstring, step 3)
         se = out["s_eval"]
         sig2 = _noise_variance(out["A"], out["b"], out["ee"], out["n"], taps, sigma, band, se - np.floor(se))
         if sig2 is not None and sig2 > 0:
@@ -1044,7 +1044,7 @@ def _statistics(out: dict, lv: "_Level", h: int, w: int, misfit_px: float, coars
     grid = bl[0].shape
     seg = np.repeat(np.arange(len(rects)), [-(-(r1_ - r0_) // _BLOCK) for r0_, r1_, _, _ in rects])
     meat = _block_meat(Bk.reshape(grid[0], grid[1], 3), seg)
-    cov3 = Ainv @ meat @ Ainv * (nb / max(nb - 3, 1))
+    cov3 = Ainv @ meat @ Ainv.T * (nb / max(nb - 3, 1))
     cov = cov3[:2, :2].copy()
     # misfit: local shifts on a 3x3 grid of the frame
     RR, CC = lv.block_centres(rects)
@@ -1072,7 +1072,7 @@ def _statistics(out: dict, lv: "_Level", h: int, w: int, misfit_px: float, coars
         local.append((-dk[:2], n / max(cn, 1.0)))
     # noise-only covariance: the sandwich over the block scores demeaned within each
     # grid cell (a misfit shifts whole cells and would otherwise count as noise)
-    cov_noise = (Ainv @ within @ Ainv)[:2, :2] * (nwb / max(nwb - ncell - 3, 1))
+    cov_noise = (Ainv @ within @ Ainv.T)[:2, :2] * (nwb / max(nwb - ncell - 3, 1))
     misfit = False
     mis_px = None
     warning = ""

@@ -240,6 +240,10 @@ def test_noisy_pairs_unbiased_with_calibrated_std(set_noisy):
     pred = np.array([(r.u_std, r.v_std) for r in res])
     calib = float(np.sqrt(np.mean(err**2) / np.mean(pred**2)))
     assert 0.7 <= calib <= 1.3, calib
+    for r in res:  # a covariance: symmetric, positive definite, matching the stds
+        np.testing.assert_allclose(r.cov, r.cov.T, rtol=1e-12, atol=0)
+        assert np.all(np.linalg.eigvalsh(r.cov) > 0)
+        assert r.u_std == pytest.approx(math.sqrt(r.cov[0, 0]))
     # and it is a real improvement over the paper's single solve on the same pairs
     e_seed, _, _ = _errors(set_noisy[::4], method="seed")
     assert np.sqrt(np.mean(err**2)) * 3 < np.sqrt(np.mean(e_seed**2))

@@ -422,7 +422,7 @@ def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndar
                  model: str, fixed_lam: float | None, distortion, template_half: int, inlier_px: float,
                  min_inliers: int, min_spread: float, t0: float,
                  pred_det: np.ndarray | None = None, extra_det: np.ndarray | None = None,
-                 want_inliers: int = 0) -> tuple[RegistrationResult, int]:
+                 want_inliers: int = 0, always_second_pass: bool = True) -> tuple[RegistrationResult, int]:
     """Input-resolution stage of :func:`register` (stage 3): NCC, MAGSAC, LM, Gauss-Newton, final LM, checks.
 
     ``pts_det``: reference tie points (x, y) at pyramid level ``h_lev``;
@@ -434,7 +434,8 @@ def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndar
     input resolution (px). Returns the result and the number of tie points
     that were searched. ``extra_det``: further candidate points at that level,
     searched in the second pass only if it has fewer than ``want_inliers``
-    inliers (weak texture).
+    inliers (weak texture). ``always_second_pass=False`` (tracking) runs the
+    second pass only when the first one has fewer than ``want_inliers`` inliers.
     """
     affine = model == "affine"
     shapes = (gr.shape, gm.shape)
@@ -498,7 +499,7 @@ def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndar
     # Second pass: the points the first one missed (the coarser level's projective prediction was a few px
     # off, e.g. at the frame edges under lens distortion, so the NCC peak fell outside the window) are
     # searched again around this model's prediction, refined, and kept if the model fits them.
-    if inl.sum() >= min_inliers:
+    if inl.sum() >= min_inliers and (always_second_pass or inl.sum() < want_inliers):
         key = lambda q: np.rint(q[:, 1]) * 1e6 + np.rint(q[:, 0])  # noqa: E731
         miss = pts0[~np.isin(key(pts0), key(p_r[inl]))]
         if extra_det is not None and len(extra_det) and inl.sum() < want_inliers:
@@ -641,7 +642,7 @@ def _register_tracked(ref: ReferenceFrame, gm: np.ndarray, prior: np.ndarray, ra
     if reason:
         return _fail(reason, t0, shapes, model)
     res, n_try = _final_stage(gr, gm, pts, hn, det_lev, 2 + int(f) // 2, t0=t0, template_half=template_half,
-                              pred_det=_per_point(pts, p_r, p_m), extra_det=extra, **kw)
+                              pred_det=_per_point(pts, p_r, p_m), extra_det=extra, always_second_pass=False, **kw)
     if not res.ok:
         return res
     if res.inliers < min_fraction * n_try:

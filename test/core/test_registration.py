@@ -323,7 +323,8 @@ def test_tracked_real_pairs_agree_with_full(seneca, i):
     pm = full.points[:, 2:]
     err = np.hypot(*(tr.transfer(pm) - full.transfer(pm)).T)
     assert err.mean() <= 0.1, err.mean()
-    assert tr.inliers >= 0.9 * full.inliers
+    # tracking skips the second pass once the first has want_inliers (200): fewer, but enough, inliers
+    assert tr.inliers >= min(200, 0.9 * full.inliers)
     assert abs(tr.rms_px - full.rms_px) <= 0.05
     # a prior 40 px off falls back and still registers
     bad = prior.copy()

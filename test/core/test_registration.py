@@ -325,7 +325,7 @@ def test_tracked_real_pairs_agree_with_full(seneca, i):
     assert err.mean() <= 0.1, err.mean()
     # tracking skips the second pass once the first has want_inliers (200): fewer, but enough, inliers
     assert tr.inliers >= min(200, 0.9 * full.inliers)
-    assert abs(tr.rms_px - full.rms_px) <= 0.05
+    assert tr.rms_px <= full.rms_px + 0.05  # (without the second pass's edge points it is usually lower)
     # a prior 40 px off falls back and still registers
     bad = prior.copy()
     bad[0, 2] += 40.0

@@ -192,13 +192,6 @@ class RegistrationResult:
         }
 
 
-def _pyramid(g: np.ndarray, levels: int) -> list[np.ndarray]:
-    out = [g]
-    for _ in range(levels):
-        out.append(cv2.pyrDown(out[-1]))
-    return out
-
-
 def _scale_h(h: np.ndarray, factor: float) -> np.ndarray:
     """Homography between coordinates scaled by ``factor`` (x' = factor x)."""
     s = np.diag([factor, factor, 1.0])
@@ -601,7 +594,7 @@ def _check_prior(prior) -> np.ndarray:
     return p / p[2, 2]
 
 
-def _register_tracked(ref: ReferenceFrame, gm: np.ndarray, prior: np.ndarray, radius: int, n_points: int,
+def _register_tracked(ref: ReferenceFrame, mov: ReferenceFrame, prior: np.ndarray, radius: int, n_points: int,
                       detect_size: int, coarse_size: int, template_half: int, min_fraction: float,
                       kw: dict, t0: float) -> RegistrationResult:
     """Tracking path: the tie points are matched around ``prior``'s prediction, no coarse stage.
@@ -615,7 +608,7 @@ def _register_tracked(ref: ReferenceFrame, gm: np.ndarray, prior: np.ndarray, ra
     at least ``min_fraction`` of the searched points are inliers, and the
     model departs from the prior by less than ``radius + 1`` px over the inliers.
     """
-    gr = ref.gray
+    gr, gm = ref.gray, mov.gray
     shapes = (gr.shape, gm.shape)
     model = kw["model"]
     reason = check_homography(prior, gm.shape)
@@ -625,9 +618,7 @@ def _register_tracked(ref: ReferenceFrame, gm: np.ndarray, prior: np.ndarray, ra
     f = 2.0 ** det_lev
     h_det = _scale_h(prior, 1.0 / f)
     r_det = int(np.ceil(radius / f)) + 1  # the NCC peak must be inside the window, not on its border
-    mov_l = gm
-    for _ in range(det_lev):
-        mov_l = cv2.pyrDown(mov_l)
+    mov_l = mov.level(det_lev)
     ref_l = ref.level(det_lev)
     margin = template_half + r_det + 2
     valid = _valid_ref_points(ref_l.shape, mov_l.shape, h_det, margin, margin)
@@ -659,7 +650,7 @@ def _register_tracked(ref: ReferenceFrame, gm: np.ndarray, prior: np.ndarray, ra
 
 def register(
     reference: np.ndarray | ReferenceFrame,
-    moving: np.ndarray,
+    moving: np.ndarray | ReferenceFrame,
     *,
     model: str = "projective",
     distortion: bool | float = True,
@@ -681,7 +672,9 @@ def register(
 
     ``reference``: a frame, or a :class:`ReferenceFrame` from
     :func:`prepare_reference` (its luminance, pyramid, Harris points and
-    coarse features are then reused, not recomputed). ``model``:
+    coarse features are then reused, not recomputed). ``moving`` may be a
+    :class:`ReferenceFrame` too (a strip: each frame prepared once serves as
+    the moving frame of one pair and the reference of the next). ``model``:
     ``"projective"`` (METHODS C, eq. P) or ``"affine"`` (the shift
     paper's choice). ``distortion``: ``True`` estimates the radial term (division
     model, one lambda for both frames) from this pair's tie points (needs >= 40
@@ -726,31 +719,36 @@ def register(
     affine = model == "affine"
     ref = prepare_reference(reference, coarse_size=coarse_size, detect_size=detect_size)
     gr = ref.gray
-    gm = to_gray32(moving, "moving")
+    if isinstance(moving, ReferenceFrame):  # prepared once, e.g. a strip frame that is reference next
+        mov = moving
+    else:
+        gm = to_gray32(moving, "moving")
+        mov = ReferenceFrame(gm, [gm], float(gm[::2, ::2].std()) < 1.0)  # every 4th pixel tells a blank frame
+    gm = mov.gray
     shapes = (gr.shape, gm.shape)
     if ref.blank:
         return _fail("no texture: the reference frame is blank (std < 1 DN)", t0, shapes, model)
-    if float(gm[::2, ::2].std()) < 1.0:  # every 4th pixel is plenty to tell a blank frame
+    if mov.blank:
         return _fail("no texture: the moving frame is blank (std < 1 DN)", t0, shapes, model)
     kw = dict(model=model, fixed_lam=fixed_lam, distortion=distortion, inlier_px=inlier_px,
               min_inliers=min_inliers, min_spread=min_spread, want_inliers=int(want_inliers))
     track_failure = ""
     if prior is not None:
-        res = _register_tracked(ref, gm, prior, int(track_radius), n_points, detect_size, coarse_size,
+        res = _register_tracked(ref, mov, prior, int(track_radius), n_points, detect_size, coarse_size,
                                 template_half, track_min_fraction, kw, t0)
         if res.ok:
             return res
         track_failure = res.reason
-    res = _register_full(ref, gm, n_points=n_points, coarse_size=coarse_size, detect_size=detect_size,
+    res = _register_full(ref, mov, n_points=n_points, coarse_size=coarse_size, detect_size=detect_size,
                          template_half=template_half, coarse_method=coarse_method, angles=angles, kw=kw, t0=t0)
     res.track_failure = track_failure
     return res
 
 
-def _register_full(ref: ReferenceFrame, gm: np.ndarray, *, n_points: int, coarse_size: int, detect_size: int,
+def _register_full(ref: ReferenceFrame, mov: ReferenceFrame, *, n_points: int, coarse_size: int, detect_size: int,
                    template_half: int, coarse_method: str, angles, kw: dict, t0: float) -> RegistrationResult:
     """Full pipeline of :func:`register`: coarse stage, pyramid refinement, :func:`_final_stage`."""
-    gr = ref.gray
+    gr, gm = ref.gray, mov.gray
     shapes = (gr.shape, gm.shape)
     model = kw["model"]
     affine = model == "affine"
@@ -758,12 +756,12 @@ def _register_full(ref: ReferenceFrame, gm: np.ndarray, *, n_points: int, coarse
     n_lev = max(0, int(np.ceil(np.log2(max(max(gr.shape), max(gm.shape)) / coarse_size))))
     _, det_lev, mid_lev = _levels(gr.shape, coarse_size, detect_size)
     det_lev, mid_lev = min(n_lev, det_lev), min(n_lev, mid_lev)
-    pm_ = _pyramid(gm, n_lev)
+    pm_ = [mov.level(lev) for lev in range(n_lev + 1)]
 
     # Stage 1: coarse overlap.
     used = coarse_method
     if coarse_method == "orb":
-        coarse = coarse_orb(ref.level(mid_lev), pm_[mid_lev], ref_features=ref.orb(mid_lev))
+        coarse = coarse_orb(ref.level(mid_lev), pm_[mid_lev], ref_features=ref.orb(mid_lev), mov_features=mov.orb(mid_lev))
         h_lev = mid_lev
     if coarse_method == "fragments" or not coarse.ok:  # METHODS C stage 1 (also when ORB finds too little)
         gc_r = gradient_magnitude(cv2.GaussianBlur(ref.level(n_lev), (3, 3), 0))

@@ -248,7 +248,8 @@ def orb_features(img: np.ndarray, n_features: int = 1500) -> tuple[tuple, np.nda
 
 
 def coarse_orb(ref: np.ndarray, mov: np.ndarray, n_features: int = 1500, min_inliers: int = 10,
-               ref_features: tuple[tuple, np.ndarray | None] | None = None) -> CoarseResult:
+               ref_features: tuple[tuple, np.ndarray | None] | None = None,
+               mov_features: tuple[tuple, np.ndarray | None] | None = None) -> CoarseResult:
     """Rotation-invariant coarse alignment: ORB features + USAC/MAGSAC similarity, at a low pyramid level.
 
     Used instead of (before) the paper's translation-only fragment search,
@@ -258,10 +259,10 @@ def coarse_orb(ref: np.ndarray, mov: np.ndarray, n_features: int = 1500, min_inl
     level; output transform in that level's pixels (moving -> reference), a
     4-dof similarity (rotation, scale, translation). Accuracy only needs to
     be a few pixels: the pyramid refinement takes it from there.
-    ``ref_features``: the reference's :func:`orb_features` when already known.
+    ``ref_features`` / ``mov_features``: the frames' :func:`orb_features` when already known.
     """
     ka, da = ref_features if ref_features is not None else orb_features(ref, n_features)
-    kb, db = orb_features(mov, n_features)
+    kb, db = mov_features if mov_features is not None else orb_features(mov, n_features)
     if da is None or db is None or len(ka) < min_inliers or len(kb) < min_inliers:
         return CoarseResult(False, "no texture: too few coarse features", None, 0, np.inf)
     knn = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(db, da, k=2)

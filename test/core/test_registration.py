@@ -267,6 +267,9 @@ def test_prepared_reference_gives_the_same_result(crops):
     np.testing.assert_allclose(again.homography, plain.homography, rtol=0, atol=1e-9)
     assert again.inliers == plain.inliers and not again.tracked
     assert prepare_reference(prep) is prep
+    # a strip: the moving frame prepared once as well (it is the next pair's reference)
+    both = register(prep, prepare_reference(mov))
+    np.testing.assert_allclose(both.homography, plain.homography, rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("name", ["crop_field_edge", "crop_rows"])

@@ -451,7 +451,10 @@ def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndar
     pts0, pred = pts0[ok_in], pred[ok_in]
     n_try = len(pts0)
     p_r, p_m, _ = ncc_match(gr, gm, pts0, h, half=half, radius=radius, pred_mov=pred)
-    hn, inl = _robust(p_m, p_r, 2.0, affine)
+    # Thresholds before the radial term is fitted grow with the resolution above the detection level's
+    # double: the unmodelled lens distortion (and relief parallax) in px grows with it.
+    pre = max(1.0, f / 2)
+    hn, inl = _robust(p_m, p_r, 2.0 * pre, affine)
     if hn is None or inl.sum() < min_inliers:
         return _fail(f"too few tie points: {int(inl.sum())} consistent matches (need {min_inliers})", t0, shapes, model), n_try
     p_r, p_m = p_r[inl], p_m[inl]
@@ -466,7 +469,7 @@ def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndar
     if len(p_r) < min_inliers:
         return _fail(f"too few tie points after sub-pixel refinement ({len(p_r)})", t0, shapes, model), n_try
     h = fit_homography_lm(p_m, p_r, norm, affine, h0=h)
-    inl = _residuals(h, p_m, p_r) <= 2 * inlier_px
+    inl = _residuals(h, p_m, p_r) <= 2 * inlier_px * pre
     h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
     lam, hu = 0.0, None
     res = _residuals(h, p_m, p_r)

@@ -67,7 +67,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .registration import RegistrationResult, register
+from .registration import RegistrationResult, prepare_reference, register
 from .registration_fit import Normaliser, distort_points, undistort_points
 from .registration_points import apply_h
 
@@ -271,6 +271,16 @@ class Mosaic:
     side). ``blend_px``: width of the seam blend (canvas px). ``gsd_m``:
     ground sampling distance of the first frame (m/px), to report the
     canvas' metres/pixel. ``register_kwargs`` go to :func:`register`.
+    ``frame_max_px``: frames whose larger side exceeds it are first reduced
+    (``cv2.INTER_AREA``) to that size, and every geometry (``transforms``,
+    ``geometries``, residuals) then refers to the reduced frame's pixels;
+    a preview canvas rarely needs more, and registration cost falls with
+    the square of the size. None: frames are used as given.
+
+    Each frame's registration-side work (luminance, pyramid, tie-point
+    candidates, coarse features: :func:`prepare_reference`) is done once: it
+    serves as the moving frame of its own pair and as the reference of the
+    next.
     """
 
     def __init__(
@@ -280,9 +290,13 @@ class Mosaic:
         blend_px: int = 24,
         gsd_m: float | None = None,
         register_kwargs: dict | None = None,
+        frame_max_px: int | None = None,
     ) -> None:
         if max_size_px < 64:
             raise ValueError("max_size_px must be at least 64")
+        if frame_max_px is not None and frame_max_px < 64:
+            raise ValueError("frame_max_px must be at least 64 (or None)")
+        self.frame_max_px = frame_max_px
         self.max_size_px = int(max_size_px)
         self._scale0 = scale
         self.blend_px = int(blend_px)
@@ -290,7 +304,8 @@ class Mosaic:
         self.register_kwargs = dict(register_kwargs or {})
         self._canvas: np.ndarray | None = None
         self._s = np.eye(3)  # mosaic (first-frame px) -> canvas px
-        self._prev: np.ndarray | None = None  # previous accepted frame (as given)
+        self._prev: np.ndarray | None = None  # previous accepted frame (as drawn: reduced to frame_max_px)
+        self._prev_prepared = None  # its registration-side work (ReferenceFrame)
         self._prev_geo: FrameGeometry | None = None  # its geometry
         self._prev_index = -1  # its index in ``geometries``
         self._prev_prev_shape: tuple[int, int] | None = None  # shape of the frame before it
@@ -407,6 +422,12 @@ class Mosaic:
             raise ValueError(f"frame: expected HxW or HxWx3 (BGR) of at least 32x32, got shape {img.shape}")
         if img.ndim == 2:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+        if self.frame_max_px is not None and max(img.shape[:2]) > self.frame_max_px:
+            f = self.frame_max_px / max(img.shape[:2])
+            size = (max(32, round(img.shape[1] * f)), max(32, round(img.shape[0] * f)))
+            img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+        kw = {k: self.register_kwargs[k] for k in ("coarse_size", "detect_size") if k in self.register_kwargs}
+        prepared = prepare_reference(img, **kw)
         idx = len(self.transforms)
         hf, wf = img.shape[:2]
         if self._prev is None:
@@ -416,11 +437,11 @@ class Mosaic:
             geo = FrameGeometry.first((hf, wf))
             self._fit_canvas(geo.to_mosaic(_border((hf, wf))))
             self._draw(img, geo)
-            self._accept(img, geo)
+            self._accept(img, geo, prepared)
             up = MosaicUpdate(True, "", idx, 0.0, 0, None, time.perf_counter() - t0, self.scale, self._canvas.shape[:2])
             self.updates.append(up)
             return up
-        reg = register(self._prev, img, **self.register_kwargs)
+        reg = register(self._prev_prepared, prepared, **self.register_kwargs)
         if not reg.ok:
             self.transforms.append(None)
             self.geometries.append(None)
@@ -444,14 +465,15 @@ class Mosaic:
         over = float(np.sqrt(np.mean(np.sum((q_prev - geo.to_mosaic(pm)) ** 2, axis=1)))) / ls
         self._fit_canvas(geo.to_mosaic(_border((hf, wf))))
         self._draw(img, geo)
-        self._accept(img, geo)
+        self._accept(img, geo, prepared)
         up = MosaicUpdate(True, "", idx, seam, reg.inliers, reg.rms_px, time.perf_counter() - t0, self.scale,
                           self._canvas.shape[:2], reg, over)
         self.updates.append(up)
         return up
 
-    def _accept(self, img: np.ndarray, geo: FrameGeometry) -> None:
+    def _accept(self, img: np.ndarray, geo: FrameGeometry, prepared) -> None:
         self._prev_prev_shape = None if self._prev is None else self._prev.shape[:2]
+        self._prev_prepared = prepared
         self._prev_index = len(self.transforms)
         self._prev, self._prev_geo = img, geo
         self.transforms.append(geo.placement)

@@ -28,13 +28,15 @@ class MosaicNode(StageNode):
         Param("min_interval_s", 0.0, "frames closer in time than this to the last frame taken for the mosaic are "
               "skipped (not counted as dropped)", 0.0, 60.0),
         Param("max_size_px", 2048, "largest side of the preview canvas (px); the scale shrinks to fit", 256, 16384),
+        Param("frame_max_px", 1280, "frames are reduced to this larger side before registration and drawing "
+              "(0: as received); the preview rarely needs more", 0, 16384),
         Param("jpeg_quality", 85, "JPEG quality of mosaic/compressed", 10, 100),
         Param("queue_size", 2, "frames waiting for the worker; the oldest is dropped beyond this", 1, 100),
     )
 
     def __init__(self, *, subscribe_inputs: bool = True, name: str = "mosaic_node", **kw) -> None:
         super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
-        self.mosaic = Mosaic(max_size_px=self.p("max_size_px"))
+        self.mosaic = self._new_mosaic()
         self._lock = threading.Lock()
         self._dirty = False
         self._last_taken_ns: int | None = None
@@ -49,6 +51,10 @@ class MosaicNode(StageNode):
             q = camera_qos(self.p("camera_reliable"), depth=30 if self.p("camera_reliable") else 5)
             self.create_subscription(Image, "image", self._on_image, q, raw=True)
             self.create_subscription(CompressedImage, "image/compressed", self._on_compressed, q, raw=True)
+
+    def _new_mosaic(self) -> Mosaic:
+        fmax = self.p("frame_max_px")
+        return Mosaic(max_size_px=self.p("max_size_px"), frame_max_px=max(64, fmax) if fmax else None)
 
     def _on_param_change(self, name: str, value) -> None:
         super()._on_param_change(name, value)
@@ -81,7 +87,7 @@ class MosaicNode(StageNode):
 
     def reset(self) -> None:
         with self._lock:
-            self.mosaic = Mosaic(max_size_px=self.p("max_size_px"))
+            self.mosaic = self._new_mosaic()
             self._last_taken_ns = None
             self.added = 0
 

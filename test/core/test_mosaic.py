@@ -171,3 +171,18 @@ def test_back_and_forth_placement_does_not_drift_like_the_homography_chain(frame
     drift_h = np.hypot(*(apply_h(chain[-1], c) - c).T).max()
     assert drift < 8.0, drift
     assert drift < 0.25 * drift_h, (drift, drift_h)
+
+
+def test_frames_reduced_to_frame_max_px(frames, strip_mosaic):
+    """Reduced frames: every frame still added, geometry in reduced pixels, same placement as the full-size mosaic."""
+    full, _ = strip_mosaic
+    m = Mosaic(max_size_px=1200, frame_max_px=900)
+    ups = [m.add(f) for f in frames[:5]]
+    assert all(u.ok for u in ups), [u.reason for u in ups if not u.ok]
+    assert all(g.shape == (675, 900) for g in m.geometries)
+    # frame 4's centre, placed through the reduced chain (x 2 back to full px) and through the full-size chain
+    c_red = apply_h(m.transforms[4], np.array([[449.5, 337.0]]))[0] * 2 + 0.5
+    c_full = apply_h(full.transforms[4], np.array([[899.5, 674.5]]))[0]
+    assert np.hypot(*(c_red - c_full)) < 3.0, (c_red, c_full)
+    with pytest.raises(ValueError):
+        Mosaic(frame_max_px=10)

@@ -402,9 +402,12 @@ def coarse_shift(
         L += 1
     r, m = reference, moving
     if L:
+        # crop to a multiple of 2^L first: INTER_AREA by an integer factor is a plain block mean (fast);
+        # a fractional factor (odd sizes, e.g. a 1079-row crop) takes OpenCV's general path, 4x slower
+        hc, wc = (h >> L) << L, (w >> L) << L
         size = (max(w >> L, 1), max(h >> L, 1))
-        r = cv2.resize(reference, size, interpolation=cv2.INTER_AREA)
-        m = cv2.resize(moving, size, interpolation=cv2.INTER_AREA)
+        r = cv2.resize(reference[:hc, :wc], size, interpolation=cv2.INTER_AREA)
+        m = cv2.resize(moving[:hc, :wc], size, interpolation=cv2.INTER_AREA)
     # a light blur keeps noise-dominated high frequencies out of the whitened spectrum
     r = cv2.GaussianBlur(r.astype(np.float64), (0, 0), 1.0)
     m = cv2.GaussianBlur(m.astype(np.float64), (0, 0), 1.0)
@@ -867,7 +870,9 @@ def _texture_scorer(img: np.ndarray, scale: float):
 
 
 def _pyr(a: np.ndarray) -> np.ndarray:
-    return cv2.resize(a, (a.shape[1] // 2, a.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    """2x2 block means (the last odd row/column dropped: an integer factor keeps INTER_AREA on its fast path)."""
+    h, w = a.shape[0] // 2, a.shape[1] // 2
+    return cv2.resize(a[: 2 * h, : 2 * w], (w, h), interpolation=cv2.INTER_AREA)
 
 
 def _pyr_mask(v: Optional[np.ndarray]) -> Optional[np.ndarray]:
@@ -1109,6 +1114,23 @@ def _statistics(out: dict, lv: "_Level", h: int, w: int, misfit_px: float, coars
     )
 
 
+def _rectangle(vr: np.ndarray | None, vm: np.ndarray | None) -> tuple[int, int, int, int] | None:
+    """``(r0, r1, c0, c1)`` if the pixels valid in both masks (None = all valid) form exactly that
+    rectangle and at least one mask is given; else None. Cropping both frames to it changes nothing
+    in the estimate's coordinates (the shift is a translation) and skips the masked sums."""
+    if vr is None and vm is None:
+        return None
+    valid = vr if vm is None else (vm if vr is None else vr & vm)
+    rows = np.flatnonzero(valid.any(axis=1))
+    cols = np.flatnonzero(valid.any(axis=0))
+    if rows.size == 0:
+        return None
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    if (r1 - r0) * (c1 - c0) != int(np.count_nonzero(valid)):
+        return None
+    return r0, r1, c0, c1
+
+
 def estimate_shift(
     reference: np.ndarray,
     moving: np.ndarray,
@@ -1169,6 +1191,12 @@ def estimate_shift(
         vr = mr if vr is None else (vr & mr)
     if mm is not None and not mm.all():
         vm = mm if vm is None else (vm & mm)
+    if method == "default":
+        box = _rectangle(vr, vm)
+        if box is not None:  # validity is a rectangle (an integer-crop alignment): crop to it, no mask needed
+            r0, r1, c0, c1 = box
+            R, M = R[r0:r1, c0:c1], M[r0:r1, c0:c1]
+            vr = vm = None
     min_side = 8 if method == "seed" else 2 * (taps // 2 + 2) + 2 * _BLOCK
     if min(R.shape) < min_side:
         return _fail(f"input too small: {R.shape[0]}x{R.shape[1]} px, need at least {min_side} px per side", method)

@@ -158,6 +158,20 @@ def latched_qos() -> QoSProfile:
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+def publish_if_subscribed(publisher, make: Callable[[], Any]) -> bool:
+    """Build the message with ``make()`` and publish it only if something subscribes (volatile topics).
+
+    The lazy publishing of image_transport: a 1080p frame is a 6 MB copy
+    that nobody needs when, say, the single-process pipeline hands it on in
+    memory. Not for transient-local topics (a late joiner must find the
+    latest message). Returns True if published.
+    """
+    if publisher.get_subscription_count() == 0:
+        return False
+    publisher.publish(make())
+    return True
+
+
 def qos_event_callbacks(node: Node, topic: str, diagnostics: "Diagnostics | None" = None):
     """Subscription and publisher event callbacks that log QoS incompatibilities."""
 

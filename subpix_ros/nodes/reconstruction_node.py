@@ -35,6 +35,10 @@ class ReconstructionNode(StageNode):
         Param("min_frames", 4, "an incomplete set (frames dropped or without a shift) is still used if it has "
               "this many frames when the next reference starts", 2, 64),
         Param("method", "map", "reconstruction method", choices=("map", "windowed", "pinv", "bicubic")),
+        Param("check_geometry", False, "re-check inside the reconstruction whether frames differ by more than a "
+              "translation (the registration node already warps out rotation and perspective beyond its threshold)"),
+        Param("refine_shifts", False, "re-estimate the shifts inside the reconstruction (off: the shift node's "
+              "estimates, already at the accuracy limit and screened by its max_std_px, are used as they are)"),
         Param("time_tolerance_s", 0.001, "shift and frame stamps closer than this match", 0.0, 1.0),
         Param("queue_size", 2, "complete sets waiting for the worker; the oldest is dropped beyond this", 1, 20),
     )
@@ -125,7 +129,9 @@ class ReconstructionNode(StageNode):
         if any(f.shape != ref.image.shape for f in frames):
             self.diag.error("frames of one set differ in size: set dropped")
             return
-        res = reconstruct_aligned(frames, shifts, self.p("factor"), masks=masks, method=self.p("method"))
+        res = reconstruct_aligned(frames, shifts, self.p("factor"), masks=masks, method=self.p("method"),
+                                  geometry="auto" if self.p("check_geometry") else "translation",
+                                  refine_shifts=self.p("refine_shifts"))
         img = res.image
         if not np.all(np.isfinite(img)):
             self.diag.error("reconstruction produced non-finite pixels: not published")

@@ -47,7 +47,8 @@ from subpix_ros.core.telemetry import (TelemetryBuffer, TelemetrySample, heading
 from subpix_ros.core.timing import FrameSelector, expected_shift_px
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode
-from subpix_ros.nodes.common import Param, camera_qos, latched_qos, reliable_qos, run_nodes, stamp_to_ns
+from subpix_ros.nodes.common import (Param, camera_qos, latched_qos, publish_if_subscribed, reliable_qos, run_nodes,
+                                    stamp_to_ns)
 
 
 class RegistrationNode(StageNode):
@@ -233,8 +234,8 @@ class RegistrationNode(StageNode):
         out = pl.Aligned(frame.stamp_ns, al.aligned, al.mask, self.reference, np.asarray(result.homography),
                          tuple(al.prior_shift) if al.prior_shift is not None else None, frame.frame_id, frame.received)
         self.since_reference += 1
-        self.pub_aligned.publish(pl.image_cdr(out.image, out.stamp_ns, out.frame_id))
-        self.pub_mask.publish(pl.mask_cdr(out.mask, out.stamp_ns, out.frame_id))
+        publish_if_subscribed(self.pub_aligned, lambda: pl.image_cdr(out.image, out.stamp_ns, out.frame_id))
+        publish_if_subscribed(self.pub_mask, lambda: pl.mask_cdr(out.mask, out.stamp_ns, out.frame_id))
         self.pub_h.publish(pl.homography_cdr(out.homography))
         self.emit("aligned", out)
         self.diag.rate("output").tick()

@@ -63,3 +63,21 @@ def test_rate_meter():
     for i in range(10):
         r.tick(100.0 + i * 0.05)
     assert r.rate(100.5) == 10.0 and r.rate(102.0) == 0.0 and r.total == 10
+
+
+def test_publish_if_subscribed_builds_nothing_without_subscribers(rclpy_node):
+    from std_msgs.msg import String
+
+    from subpix_ros.nodes.common import publish_if_subscribed, reliable_qos
+
+    pub = rclpy_node.create_publisher(String, "/lazy_test", reliable_qos(5))
+    built = []
+
+    def make():
+        built.append(1)
+        return String(data="x")
+
+    assert not publish_if_subscribed(pub, make) and not built  # nobody listens: no 6 MB copy made
+    got = []
+    rclpy_node.create_subscription(String, "/lazy_test", got.append, reliable_qos(5))
+    assert publish_if_subscribed(pub, make) and built == [1]

@@ -321,7 +321,8 @@ def _solve_hermitian(m: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _lowpass_window(
-    frame: np.ndarray, g: np.ndarray, pre: tuple[int, int], post: tuple[int, int], rows: slice, cols: slice
+    frame: np.ndarray, g: np.ndarray, pre: tuple[int, int], post: tuple[int, int], rows: slice, cols: slice,
+    whole: np.ndarray | None = None,
 ) -> np.ndarray:
     """``_integer_preshift(L, *post)[rows, cols]`` with ``L = lowpass(_integer_preshift(frame, *pre))``.
 
@@ -330,7 +331,10 @@ def _lowpass_window(
     is filtered whenever the window's source lies inside the frame (then the
     values equal those of filtering the whole frame exactly: the margin holds
     real pixels, or the frame's own edge where the window touches it);
-    otherwise the whole frame is filtered. float64.
+    otherwise the whole frame is filtered. float64. ``whole``: the whole
+    frame already low-passed (``sepFilter2D(frame, g, g)``, see
+    :class:`_WholeLowpass`); the window is then a slice of it whenever the
+    window's source lies inside the frame (the same values).
     """
     h, w = frame.shape
     r = (len(g) - 1) // 2
@@ -338,20 +342,62 @@ def _lowpass_window(
     c0, c1 = cols.start + post[1], cols.stop + post[1]
     if 0 <= r0 and r1 <= h and 0 <= c0 and c1 <= w:  # the post-shift is a plain index
         if pre == (0, 0):  # margin clipped at the frame's edges: same reflection as the whole frame
+            if whole is not None:
+                return whole[r0:r1, c0:c1]
             a0, a1, b0, b1 = max(r0 - r, 0), min(r1 + r, h), max(c0 - r, 0), min(c1 + r, w)
             sub = cv2.sepFilter2D(frame[a0:a1, b0:b1], cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101)
             return sub[r0 - a0 : r1 - a0, c0 - b0 : c1 - b0]
         a0, a1, b0, b1 = r0 + pre[0] - r, r1 + pre[0] + r, c0 + pre[1] - r, c1 + pre[1] + r
         if 0 <= a0 and a1 <= h and 0 <= b0 and b1 <= w:  # pre-shift and margin inside: interior values only
+            if whole is not None:
+                return whole[a0 + r : a1 - r, b0 + r : b1 - r]
             sub = cv2.sepFilter2D(frame[a0:a1, b0:b1], cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101)
             return sub[r : r + r1 - r0, r : r + c1 - c0]
+    if whole is not None and pre == (0, 0) and r1 - h < h - max(r0, 0) and -r0 < min(r1, h) and c1 - w < w - max(c0, 0) \
+            and -c0 < min(c1, w):
+        # L is the whole low-pass: the window's part inside the frame, reflected about the frame's edges
+        # where the window leaves it (the part touches those edges, so reflecting it is reflecting L)
+        sub = whole[max(r0, 0) : min(r1, h), max(c0, 0) : min(c1, w)]
+        return cv2.copyMakeBorder(sub, max(-r0, 0), max(r1 - h, 0), max(-c0, 0), max(c1 - w, 0), cv2.BORDER_REFLECT_101)
     low = cv2.sepFilter2D(_integer_preshift(frame, *pre), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101)
     return _integer_preshift(low, *post)[rows, cols]
 
 
+_WHOLE_LOWPASS_PX = 512 * 512  # frames up to this size are low-passed whole once (see _WholeLowpass)
+
+
+class _WholeLowpass:
+    """Whole-frame low-passes ``sepFilter2D(frames[i], g, g)`` (reflected border, float64), computed once per frame.
+
+    The tile registration (:func:`detect_geometry`) and the shift refinement
+    (:func:`_refine_shifts`) read many overlapping low-passed windows of the
+    same frames, several per frame at different integer shifts; for small
+    frames one filter pass over each whole frame, sliced by
+    :func:`_lowpass_window`, costs less than filtering every window (the
+    values are the same). ``get(i)`` is None for frames larger than
+    ``_WHOLE_LOWPASS_PX`` (their windows are filtered as before: bounded cost).
+    """
+
+    def __init__(self, frames: np.ndarray, lp_sigma: float = 1.0) -> None:
+        self.frames = frames
+        self.lp_sigma = float(lp_sigma)
+        self.g = gaussian_kernel(lp_sigma)
+        self.enabled = frames.shape[1] * frames.shape[2] <= _WHOLE_LOWPASS_PX
+        self._done: dict[int, np.ndarray] = {}
+
+    def get(self, i: int, lp_sigma: float) -> np.ndarray | None:
+        if not self.enabled or float(lp_sigma) != self.lp_sigma:
+            return None
+        low = self._done.get(i)
+        if low is None:
+            low = cv2.sepFilter2D(self.frames[i], cv2.CV_64F, self.g, self.g, borderType=cv2.BORDER_REFLECT_101)
+            self._done[i] = low
+        return low
+
+
 def _refine_shifts(
     frames: np.ndarray, ishift: np.ndarray, resid: np.ndarray, lp_sigma: float = 1.0, border: int = 8, iters: int = 3,
-    max_region: int = 256,
+    max_region: int = 256, lowpassed: _WholeLowpass | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """Refine each frame's sub-pixel shift against frame 0 (Lucas-Kanade on low-passed frames).
 
@@ -379,10 +425,11 @@ def _refine_shifts(
     region = (slice((h - rh) // 2, (h - rh) // 2 + rh), slice((w - rw) // 2, (w - rw) // 2 + rw))
     ctx = _lk_context(region, h, w)
     i0 = (int(ishift[0, 0]), int(ishift[0, 1]))
-    ref = _lowpass_window(frames[0], g, i0, (0, 0), *ctx)
+    whole = (lambda i: lowpassed.get(i, lp_sigma)) if lowpassed is not None else (lambda i: None)
+    ref = _lowpass_window(frames[0], g, i0, (0, 0), *ctx, whole=whole(0))
 
     def mov_window(i: int, iu: int, iv: int) -> np.ndarray:
-        return _lowpass_window(frames[i], g, (int(ishift[i, 0]), int(ishift[i, 1])), (iu, iv), *ctx)
+        return _lowpass_window(frames[i], g, (int(ishift[i, 0]), int(ishift[i, 1])), (iu, iv), *ctx, whole=whole(i))
 
     if n > 1:  # all frames against the reference at once
         s_all, sg_all, rv_all = _lk_batch([ref], np.zeros(n - 1, dtype=int), mov_window, np.arange(1, n),
@@ -399,7 +446,7 @@ def _refine_shifts(
 
 def detect_geometry(
     frames: np.ndarray, shifts: np.ndarray, tiles: int = 3, lp_sigma: float = 1.0, tol: float = 0.05,
-    tile_max: int = 64,
+    tile_max: int = 64, lowpassed: _WholeLowpass | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray, float]:
     """Check whether frames are related by more than a translation; fit affines if so.
 
@@ -421,6 +468,7 @@ def detect_geometry(
     """
     n, h, w = frames.shape
     g = gaussian_kernel(lp_sigma)
+    whole = (lambda i: lowpassed.get(i, lp_sigma)) if lowpassed is not None else (lambda i: None)
     ty = np.linspace(0, h, tiles + 1).astype(int)
     tx = np.linspace(0, w, tiles + 1).astype(int)
     ctx_pad = 16  # _lk_context's default
@@ -450,13 +498,14 @@ def detect_geometry(
                inner[1].start, inner[1].stop)
         groups.setdefault(key, []).append((k, ctx))
     for key, members in groups.items():  # tiles whose windows have one shape: all tiles x frames at once
-        refs = [_lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx) for _, ctx in members]
+        refs = [_lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx, whole=whole(0)) for _, ctx in members]
         pair_tile = np.repeat(np.arange(len(members)), n - 1)
         pair_frame = np.tile(np.arange(1, n), len(members))
         ctxs = [ctx for _, ctx in members]
 
         def mov_window(m: int, iu: int, iv: int) -> np.ndarray:
-            return _lowpass_window(frames[pair_frame[m]], g, (0, 0), (iu, iv), *ctxs[pair_tile[m]])
+            i = int(pair_frame[m])
+            return _lowpass_window(frames[i], g, (0, 0), (iu, iv), *ctxs[pair_tile[m]], whole=whole(i))
 
         s0 = np.asarray(shifts, dtype=np.float64)[pair_frame]
         inner = (slice(key[2], key[3]), slice(key[4], key[5]))
@@ -556,21 +605,31 @@ def _lk_batch(
             ty[:, hh // 2] = np.cos(np.pi * frac[:, 0])
         if ww % 2 == 0:
             tx[:, -1] = np.cos(np.pi * frac[:, 1])
-        # inverse 2-D real FFT as column ifft then row irfft (as np.fft.irfft2), rows limited to the fit's
-        shifted = spec[ref_of[act]] * (ty[:, :, None] * tx[:, None, :]).astype(np.complex64)
-        pred_rows = np.fft.irfft(np.fft.ifft(shifted, axis=1)[:, rows], n=ww, axis=2)
+        # inverse 2-D real FFT as column ifft then row irfft (as np.fft.irfft2), rows limited to the fit's;
+        # the column phase tx is constant along the column ifft's axis, so it is applied after it, on the
+        # fit's rows only
+        shifted = spec[ref_of[act]] * ty.astype(np.complex64)[:, :, None]
+        half = np.fft.ifft(shifted, axis=1)[:, rows]
+        half *= tx.astype(np.complex64)[:, None, :]
+        pred_rows = np.fft.irfft(half, n=ww, axis=2)
         pred = pred_rows[:, :, pad + c0 - 1 : pad + c1 + 1].astype(np.float64)  # rows r0-1 .. r1, cols c0-1 .. c1
-        # central differences (as np.gradient in the interior; ``inner`` is >= 4 px from the window's edge)
-        gy = ((pred[:, 2:, 1:-1] - pred[:, :-2, 1:-1]) / 2.0).reshape(act.size, -1)
-        gx = ((pred[:, 1:-1, 2:] - pred[:, 1:-1, :-2]) / 2.0).reshape(act.size, -1)
-        e = (np.stack([mv[r0:r1, c0:c1] for mv in movc]) - pred[:, 1:-1, 1:-1]).reshape(act.size, -1)
-        ata = np.empty((act.size, 2, 2))
-        ata[:, 0, 0] = np.einsum("ap,ap->a", gy, gy)
-        ata[:, 0, 1] = ata[:, 1, 0] = np.einsum("ap,ap->a", gy, gx)
-        ata[:, 1, 1] = np.einsum("ap,ap->a", gx, gx)
-        rhs = np.stack([np.einsum("ap,ap->a", gy, e), np.einsum("ap,ap->a", gx, e)], axis=1)
+        # rows of z per pair: grad_y R, grad_x R, e = F - R, 1 — all the sums the step and the residual's
+        # variance need are entries of z z^T (one batched matrix product instead of a pass per sum).
+        # Central differences (as np.gradient in the interior; ``inner`` is >= 4 px from the window's edge)
+        na = act.size
+        z = np.empty((na, 4, r1 - r0, c1 - c0))
+        np.subtract(pred[:, 2:, 1:-1], pred[:, :-2, 1:-1], out=z[:, 0])
+        np.subtract(pred[:, 1:-1, 2:], pred[:, 1:-1, :-2], out=z[:, 1])
+        z[:, :2] *= 0.5
+        for j, mv in enumerate(movc):  # pairs
+            np.subtract(mv[r0:r1, c0:c1], pred[j, 1:-1, 1:-1], out=z[j, 2])
+        z[:, 3] = 1.0
+        z = z.reshape(na, 4, -1)
+        zz = np.matmul(z, z.transpose(0, 2, 1))  # (M, 4, 4)
+        ata = np.ascontiguousarray(zz[:, :2, :2])
+        rhs = zz[:, :2, 2]
         ok = np.abs(np.linalg.det(ata)) > 0
-        step = np.full((act.size, 2), np.nan)
+        step = np.full((na, 2), np.nan)
         if ok.any():
             step[ok] = -np.linalg.solve(ata[ok], rhs[ok][..., None])[..., 0]
         good = np.isfinite(step).all(axis=1) & (np.abs(step).max(axis=1) <= 0.5)
@@ -580,8 +639,13 @@ def _lk_batch(
         if good.any():  # the residual after this step: its variance and the shift's std
             idx, st = act[good], step[good]
             s[idx] += st
-            r = e[good] - (gy[good] * st[:, 0, None] + gx[good] * st[:, 1, None])
-            vr = np.var(r, axis=1)
+            # var(r) of r = e - G st from the sums in zz (no further pass over the pixels):
+            # sum r^2 = e.e - 2 st.(G^T e) + st^T (G^T G) st, sum r = sum e - st.(sum G)
+            zg = zz[good]
+            npx = z.shape[2]
+            s_rr = zg[:, 2, 2] - 2.0 * np.einsum("ai,ai->a", st, zg[:, :2, 2]) + np.einsum("ai,aij,aj->a", st, zg[:, :2, :2], st)
+            s_r = zg[:, 2, 3] - np.einsum("ai,ai->a", st, zg[:, :2, 3])
+            vr = np.maximum(s_rr / npx - (s_r / npx) ** 2, 0.0)
             resvar[idx] = vr / g2
             sig[idx] = np.sqrt(vr * np.trace(np.linalg.inv(ata[good]), axis1=1, axis2=2) / 2.0)
             active[idx[np.abs(st).max(axis=1) < tol]] = False  # converged: no further iterations
@@ -929,6 +993,7 @@ def _fourier_map(
     refine_shifts: bool,
     pad: int,
     integer_valued: bool | None = None,
+    lowpassed: _WholeLowpass | None = None,
 ) -> dict:
     """MAP estimate of eq. 9 for translated frames, solved per LR frequency bin.
 
@@ -955,7 +1020,7 @@ def _fourier_map(
     if refine_shifts or noise_sigma is None:
         # registration against frame 0: refined shifts (used if refine_shifts), their std, and the
         # multi-frame noise estimate (used if noise_sigma is None)
-        refined, shift_sigma_fit, lk_noise, resvar = _refine_shifts(frames, ishift, resid)
+        refined, shift_sigma_fit, lk_noise, resvar = _refine_shifts(frames, ishift, resid, lowpassed=lowpassed)
         if refine_shifts:
             resid = refined
         else:
@@ -1336,8 +1401,9 @@ def reconstruct(
     stack = _stack64(arrs)
     cov = np.zeros((n, 2, 2)) if shift_cov is None else np.asarray(shift_cov, dtype=np.float64)
     reason = ""
+    lowpassed = _WholeLowpass(stack)  # shared by the geometry check and the shift refinement
     if homographies is None and geometry == "auto" and min(ref.shape) >= 96:
-        affines, _, tile_noise = detect_geometry(stack, s)
+        affines, _, tile_noise = detect_geometry(stack, s, lowpassed=lowpassed)
         if affines is not None:
             homographies = affines
             reason = "frames related by more than a translation: affine geometry fitted per frame, solved by CG"
@@ -1355,13 +1421,13 @@ def reconstruct(
             trans[i] = (q[1] / q[2] - centre[1], q[0] / q[2] - centre[0])
         if noise_sigma is None and min(ref.shape) >= 96:
             # multi-frame noise estimate from local (tile) registrations, where a translation fits
-            _, _, tile_noise = detect_geometry(stack, trans)
+            _, _, tile_noise = detect_geometry(stack, trans, lowpassed=lowpassed)
             if np.isfinite(tile_noise):
                 noise_sigma = tile_noise
     try:
         ints = True if all(np.issubdtype(a.dtype, np.integer) or a.dtype == bool for a in arrs) else None
         sol = _fourier_map(stack, trans, p, blur_sigma, noise_sigma, cov, reg, refine_shifts and not use_cg, pad,
-                           integer_valued=ints)
+                           integer_valued=ints, lowpassed=lowpassed)
     except (ValueError, np.linalg.LinAlgError) as exc:
         return _fallback(ref, p, f"MAP solve failed: {exc}", sigma, n, s)
     img = sol["image"]

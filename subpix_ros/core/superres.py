@@ -212,31 +212,31 @@ def fit_spectrum(
     obs = psd.ravel()[sel]
     # coarse search on a 0.3 grid, then the 0.1 grid within +-0.2 of the coarse best (misfit is smooth
     # and single-minimum in alpha on real scenes: the test compares with the full 0.1 grid)
-    coarse = _fit_exponents(1.0, 0.3, 11, amp, logf, obs, noise_sigma)
+    key = (h, w, p, float(blur_sigma), max_bins)
+    coarse = _fit_exponents(1.0, 0.3, 11, amp, logf, obs, noise_sigma, q=_exponent_terms(*key, 1.0, 0.3, 11))
     a_best = coarse[1]
     lo = max(1.0, a_best - 0.2)
     n_fine = int(round((min(4.0, a_best + 0.2) - lo) / 0.1)) + 1
-    c, alpha, s2, _ = _fit_exponents(lo, 0.1, n_fine, amp, logf, obs, noise_sigma)
+    c, alpha, s2, _ = _fit_exponents(lo, 0.1, n_fine, amp, logf, obs, noise_sigma,
+                                     q=_exponent_terms(*key, round(lo, 10), 0.1, n_fine))
     return float(c), float(alpha), float(np.sqrt(s2))
 
 
 def _fit_exponents(
-    a0: float, da: float, count: int, amp: np.ndarray, logf: np.ndarray, obs: np.ndarray, noise_sigma: float | None
+    a0: float, da: float, count: int, amp: np.ndarray, logf: np.ndarray, obs: np.ndarray, noise_sigma: float | None,
+    q: np.ndarray | None = None,
 ) -> tuple[float, float, float, float]:
     """:func:`fit_spectrum`'s fit for the exponents ``a0 + da j``, j < count, at once.
 
     ``q[j] = sum_m amp_m |f_m|^-alpha_j`` by the recurrence
     ``|f|^-(alpha + da) = |f|^-alpha |f|^-da`` (no loop over bins); per exponent
     (c, sigma^2) by 3 passes of weighted least squares (weights 1/model^2).
+    ``q`` (count, bins): those sums if already known (:func:`_exponent_terms`).
     Returns (c, alpha, sigma^2, relative misfit) of the best exponent.
     """
     alphas = a0 + da * np.arange(count)
-    step = np.exp(-da * logf)
-    term = amp * np.exp(-a0 * logf)
-    q = np.empty((count, obs.size))
-    for a in range(count):  # exponents, not bins
-        q[a] = term.sum(axis=0)
-        term *= step
+    if q is None:
+        q = _exponent_sums(a0, da, count, amp, logf)
     w0 = 1.0 / np.maximum(obs, 1e-12) ** 2
     wgt = None  # first pass: the same weights 1/obs^2 for every exponent
     model = np.empty_like(q)
@@ -266,6 +266,28 @@ def _fit_exponents(
     err = np.einsum("ab,ab->a", rel, rel) / obs.size
     best = int(np.argmin(err))
     return float(c_[best]), float(alphas[best]), float(s2[best]), float(err[best])
+
+
+def _exponent_sums(a0: float, da: float, count: int, amp: np.ndarray, logf: np.ndarray) -> np.ndarray:
+    """``q[j] = sum_m amp_m |f_m|^-(a0 + da j)`` (count, bins) by the recurrence of :func:`_fit_exponents`."""
+    step = np.exp(-da * logf)
+    term = amp * np.exp(-a0 * logf)
+    q = np.empty((count, amp.shape[1]))
+    for a in range(count):  # exponents, not bins
+        q[a] = term.sum(axis=0)
+        term *= step
+    return q
+
+
+@functools.lru_cache(maxsize=64)
+def _exponent_terms(h: int, w: int, p: int, blur_sigma: float, max_bins: int, a0: float, da: float,
+                    count: int) -> np.ndarray:
+    """:func:`_exponent_sums` on :func:`_spectrum_model`'s terms: it depends only on the crop shape, factor,
+    blur and exponents, so it is cached (read-only; the fine search has one table per coarse winner)."""
+    _, amp, logf = _spectrum_model(h, w, p, blur_sigma, max_bins)
+    q = _exponent_sums(a0, da, count, amp, logf)
+    q.flags.writeable = False
+    return q
 
 
 @functools.lru_cache(maxsize=16)
@@ -534,8 +556,19 @@ def detect_geometry(
             [jac[0, 1], 1 + jac[0, 0], s[0] - jac[0, 0] * r0 - jac[0, 1] * c0],
             [0.0, 0.0, 1.0],
         ])
-    noise = float(np.sqrt(np.percentile(resvars, 25))) if resvars else float("nan")
+    noise = float(np.sqrt(_quartile_low(resvars))) if resvars else float("nan")
     return (affines if nonlinear else None), tshift, noise
+
+
+def _quartile_low(values: list[float]) -> float:
+    """Lower quartile, as ``np.percentile(values, 25)`` (linear method, numpy's interpolation formula) on a short list."""
+    a = sorted(values)
+    x = 0.25 * (len(a) - 1)
+    lo = int(np.floor(x))
+    hi = min(lo + 1, len(a) - 1)
+    t = x - lo
+    d = a[hi] - a[lo]
+    return float(a[hi] - d * (1 - t)) if t >= 0.5 else float(a[lo] + d * t)
 
 
 def _lk_context(sl: tuple[slice, slice], h: int, w: int, pad: int = 16) -> tuple[slice, slice]:
@@ -574,9 +607,10 @@ def _lk_batch(
     ``var(r) / (2 (sum g^2)^2)`` implied by the final residual r (M each).
     """
     m_all = len(ref_of)
-    padded = np.pad(np.stack(refs).astype(np.float32), ((0, 0), (pad, pad), (pad, pad)), mode="reflect")
-    hh, ww = padded.shape[1:]
-    spec = np.fft.rfft2(padded)  # (T, hh, ww//2+1) complex64, once per reference
+    hh, ww = refs[0].shape[0] + 2 * pad, refs[0].shape[1] + 2 * pad
+    spec = np.empty((len(refs), hh, ww // 2 + 1), np.complex64)  # once per reference
+    for t, rf in enumerate(refs):  # references (tiles), not pixels: reflect-padded (as np.pad "reflect")
+        spec[t] = _rfft2_32(cv2.copyMakeBorder(np.asarray(rf, np.float32), pad, pad, pad, pad, cv2.BORDER_REFLECT_101))
     wy = -2j * np.pi * np.fft.fftfreq(hh)
     wx = -2j * np.pi * np.fft.rfftfreq(ww)
     r0, r1, c0, c1 = inner[0].start, inner[0].stop, inner[1].start, inner[1].stop
@@ -737,10 +771,24 @@ class _RankOneGram:
 
 
 def _alias_classes(f: np.ndarray, p: int, m: int, mp: int) -> tuple[np.ndarray, np.ndarray]:
-    """Integer classes ``p (f[m] - f[mp])`` per bin, as (distinct values, index of each bin's value)."""
+    """Integer classes ``p (f[m] - f[mp])`` per bin, as (distinct values, index of each bin's value).
+
+    ``f`` is a frequency table (:func:`frame_transfer_1d`'s, a function of its length and p only):
+    the classes are cached per table content and (p, m, mp), read-only.
+    """
+    f = np.ascontiguousarray(f, dtype=np.float64)
+    return _alias_classes_cached(f.tobytes(), f.shape, p, m, mp)
+
+
+@functools.lru_cache(maxsize=256)
+def _alias_classes_cached(fb: bytes, shape: tuple, p: int, m: int, mp: int) -> tuple[np.ndarray, np.ndarray]:
+    f = np.frombuffer(fb, dtype=np.float64).reshape(shape)
     d = np.rint(p * (f[m] - f[mp])).astype(np.int64)
     vals, inv = np.unique(d, return_inverse=True)
-    return vals, inv.ravel()
+    inv = inv.ravel()
+    vals.flags.writeable = False
+    inv.flags.writeable = False
+    return vals, inv
 
 
 def _rank_one_gram_factors(
@@ -911,12 +959,16 @@ def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
     return cv2.dft(ccs, flags=cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
 
 
+@functools.lru_cache(maxsize=256)
 def _lanczos_delay(d: float, taps: int = 8) -> np.ndarray:
-    """Taps ``h[j] = sinc(k + d) L(k + d)``, ``k = j - (taps/2 - 1)``, normalised to unit DC gain (float32)."""
+    """Taps ``h[j] = sinc(k + d) L(k + d)``, ``k = j - (taps/2 - 1)``, normalised to unit DC gain (float32;
+    cached per delay: a frame's padding strips share it; read-only)."""
     a = taps // 2
     t = np.arange(-a + 1, a + 1, dtype=np.float64) + d
     h = np.sinc(t) * np.sinc(t / a) * (np.abs(t) < a)
-    return (h / h.sum()).astype(np.float32)  # sepFilter2D correlates: tap j -> offset j - (a - 1) = k
+    out = (h / h.sum()).astype(np.float32)  # sepFilter2D correlates: tap j -> offset j - (a - 1) = k
+    out.flags.writeable = False
+    return out
 
 
 def _fractional_shift(
@@ -938,7 +990,7 @@ def _fractional_shift(
         c0, c1 = max(cols.start - (a - 1), 0), min(cols.stop + a, w)
         out = _fractional_shift(src[r0:r1, c0:c1], du, dv, taps)
         return out[rows.start - r0 : rows.stop - r0, cols.start - c0 : cols.stop - c0]
-    return cv2.sepFilter2D(src, cv2.CV_32F, _lanczos_delay(dv, taps), _lanczos_delay(du, taps),
+    return cv2.sepFilter2D(src, cv2.CV_32F, _lanczos_delay(float(dv), taps), _lanczos_delay(float(du), taps),
                            anchor=(a - 1, a - 1), borderType=cv2.BORDER_REFLECT_101)
 
 
@@ -980,6 +1032,30 @@ def _consistent_padding(
             else:
                 out[i][win] = _fractional_shift(ref, du, dv, window=win)
     return out
+
+
+@functools.lru_cache(maxsize=32)
+def _transfer_base(n_lr: int, p: int, blur_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`frame_transfer_1d` at zero shift, ``(a0, f)`` (cached per length, factor and blur; read-only)."""
+    a0, f = frame_transfer_1d(n_lr, p, 0.0, blur_sigma)
+    a0.flags.writeable = False
+    f.flags.writeable = False
+    return a0, f
+
+
+def _frame_transfers(
+    n_lr: int, p: int, shifts: np.ndarray, blur_sigma: float, keep: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`frame_transfer_1d` for every shift at once: ``a[n] = a0 exp(-2 pi i f p s_n)`` (N, p, keep), and f.
+
+    ``a0`` is the zero-shift transfer (cached); the shift enters as the phase factor only, as in
+    frame_transfer_1d (the same values to round-off). ``keep``: the first columns only (rfft half).
+    """
+    a0, f = _transfer_base(n_lr, p, float(blur_sigma))
+    if keep is not None:
+        a0, f = a0[:, :keep], f[:, :keep]
+    s = np.asarray(shifts, dtype=np.float64)
+    return a0[None] * np.exp((-2j * np.pi * p) * f[None] * s[:, None, None]), f
 
 
 def _fourier_map(
@@ -1070,13 +1146,8 @@ def _fourier_map(
         cov = np.eye(2)[None] * (np.maximum(fit_var, 0.003**2))[:, None, None]
     cov[0] = 0.0
 
-    ay = np.empty((n, p, hp), dtype=np.complex128)
-    ax = np.empty((n, p, wc), dtype=np.complex128)
-    fy = fx = None
-    for i in range(n):
-        ay[i], fy = frame_transfer_1d(hp, p, resid[i, 0], blur_sigma)
-        a_x, f_x = frame_transfer_1d(wp, p, resid[i, 1], blur_sigma)
-        ax[i], fx = a_x[:, :wc], f_x[:, :wc]
+    ay, fy = _frame_transfers(hp, p, resid[:, 0], blur_sigma)
+    ax, fx = _frame_transfers(wp, p, resid[:, 1], blur_sigma, wc)
     # registration error negligible at all frequencies (< 1e-3 relative transfer loss): constant weights
     max_var = float(np.max(cov[:, 0, 0] + cov[:, 1, 1]))
     resid_ratio = np.full(n, np.nan)

@@ -153,8 +153,7 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
             last = order[min(i + SET - 1, len(order) - 1)]
             lat_sr.append((t - sent[last]) * 1000)
     drops = {name.replace("_node", ""): d.get("dropped_frames", "?") for name, d in sorted(diag.items())}
-    stage_keys = ("registration_ms", "frames_tracked", "tracking_fallbacks", "estimate_ms", "reconstruction_ms", "add_ms",
-                  "latency_p50_ms")
+    stage_keys = ("frames_tracked", "tracking_fallbacks", "worker_cpu_ms_per_item", "latency_p50_ms")
     stages = {name.replace("_node", ""): {k: v for k, v in d.items() if k in stage_keys} for name, d in sorted(diag.items())}
     return {"layout": layout, "frames": len(sent), "rate": len(sent) / wall, "shifts": len(shifts), "sr": len(srs),
             "lat_shift": lat_shift, "lat_sr": np.array(lat_sr), "drops": drops, "stages": stages, "cpu_s_per_frame": cpu / len(sent),

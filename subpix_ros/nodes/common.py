@@ -234,6 +234,7 @@ class DropOldestWorker:
         self.dropped = 0
         self.processed = 0
         self.errors = 0
+        self.cpu_s = 0.0  # CPU time of the worker thread spent in the handler
         self.busy = False
         self._stop = False
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
@@ -271,6 +272,7 @@ class DropOldestWorker:
                     return
                 item = self._q.popleft()
                 self.busy = True
+            t_cpu = time.thread_time()
             try:
                 self._handler(item)
                 self.processed += 1
@@ -281,7 +283,14 @@ class DropOldestWorker:
                 else:
                     traceback.print_exc()
             finally:
+                self.cpu_s += time.thread_time() - t_cpu
                 self.busy = False
+
+    @property
+    def cpu_ms_per_item(self) -> float:
+        """Mean CPU time (this worker thread only) per item handled, ms."""
+        n = self.processed + self.errors
+        return 1000.0 * self.cpu_s / n if n else 0.0
 
     def stop(self, timeout: float = 2.0) -> None:
         with self._cv:
@@ -406,6 +415,7 @@ class Diagnostics:
             values["queue_depth"] = str(self.worker.depth)
             values["dropped_frames"] = str(self.worker.dropped)
             values["worker_errors"] = str(self.worker.errors)
+            values["worker_cpu_ms_per_item"] = f"{self.worker.cpu_ms_per_item:.1f}"
         st.values = [KeyValue(key=k, value=v) for k, v in sorted(values.items())]
         return st
 

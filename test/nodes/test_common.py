@@ -81,3 +81,23 @@ def test_publish_if_subscribed_builds_nothing_without_subscribers(rclpy_node):
     got = []
     rclpy_node.create_subscription(String, "/lazy_test", got.append, reliable_qos(5))
     assert publish_if_subscribed(pub, make) and built == [1]
+
+
+def test_worker_measures_its_cpu_time_per_item():
+    def busy(_):
+        t = time.thread_time()
+        while time.thread_time() - t < 0.02:  # 20 ms of CPU in this thread
+            pass
+
+    w = DropOldestWorker(busy, maxsize=10)
+    try:
+        for i in range(3):
+            w.put(i)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and w.processed < 3:
+            time.sleep(0.01)
+        time.sleep(0.05)  # cpu_s is added just after processed
+        assert w.processed == 3
+        assert 19.0 <= w.cpu_ms_per_item <= 40.0, w.cpu_ms_per_item
+    finally:
+        w.stop()

@@ -208,10 +208,13 @@ def interleave(
             b0, b1 = (ck.start - first_c) // q, (ck.start - first_c) // q + (ci.stop - ci.start)
             if a1 <= a0 or b1 <= b0:
                 a0 = a1 = b0 = b1 = 0
-            out_rows = np.r_[0:a0, a1:hp_]
-            out_cols = np.r_[0:b0, b1:wp_]
-            rr = np.concatenate([np.repeat(out_rows, wp_), np.repeat(np.arange(a0, a1), out_cols.size)])
-            cc = np.concatenate([np.tile(np.arange(wp_), out_rows.size), np.tile(out_cols, a1 - a0)])
+            if a0 == 0 and a1 == hp_ and b0 == 0 and b1 == wp_:
+                continue  # the frame covers its whole phase plane: no holes
+            # holes: whole rows outside [a0, a1), then the columns outside [b0, b1) of the rows inside
+            out_rows = np.concatenate((np.arange(a0), np.arange(a1, hp_)))
+            out_cols = np.concatenate((np.arange(b0), np.arange(b1, wp_)))
+            rr = np.concatenate((np.repeat(out_rows, wp_), np.tile(np.arange(a0, a1), out_cols.size)))
+            cc = np.concatenate((np.tile(np.arange(wp_), out_rows.size), np.repeat(out_cols, a1 - a0)))
         else:  # no frame, or several frames on one phase: average them on that phase's sub-grid
             acc = np.zeros((hp_, wp_))
             cnt = np.zeros((hp_, wp_))

@@ -232,3 +232,62 @@ def test_fit_spectrum_equals_per_exponent_loop(crops, p, noise_sigma):
     assert alpha == pytest.approx(alpha_ref, abs=1e-9)
     assert c == pytest.approx(c_ref, rel=1e-3)  # single- vs double-precision periodogram
     assert sigma == pytest.approx(sigma_ref, rel=1e-3)
+
+
+@pytest.mark.parametrize("pre,post", [((0, 0), (0, 0)), ((1, -2), (0, 0)), ((0, 0), (-1, 1)), ((0, 0), (2, -3)),
+                                      ((2, 1), (1, -1))])
+def test_lowpass_window_from_whole_lowpass_equals_direct(pre, post):
+    """Windows sliced (or reflected) from the shared whole-frame low-pass equal the per-window filtering."""
+    rng = np.random.default_rng(7)
+    frames = rng.normal(size=(2, 60, 70)) * 30 + 100
+    g = gaussian_kernel(1.0)
+    lp = sr._WholeLowpass(frames)
+    assert lp.get(1, 1.0) is not None and lp.get(1, 0.5) is None  # another low-pass: not shared
+    for rows, cols in [(slice(20, 40), slice(25, 50)), (slice(0, 30), slice(0, 20)), (slice(45, 60), slice(50, 70)),
+                       (slice(2, 58), slice(1, 69)), (slice(0, 60), slice(0, 70))]:
+        direct = sr._lowpass_window(frames[1], g, pre, post, rows, cols)
+        shared = sr._lowpass_window(frames[1], g, pre, post, rows, cols, whole=lp.get(1, 1.0))
+        np.testing.assert_allclose(shared, direct, rtol=0, atol=1e-9)
+
+
+def test_lk_residual_variance_equals_direct_residual(crops):
+    """_lk_batch's noise variance from the z z^T sums equals var(F - R - d . grad R) computed on the pixels."""
+    seq = render_sequence(crops["crop_trees"][: 2 * 96, : 2 * 96], 2, [(0, 0), (0.3, -0.4)], blur_sigma=0.4,
+                          snr_db=40, seed=4)
+    frames = np.stack(seq.frames).astype(np.float64)
+    g = gaussian_kernel(1.0)
+    sl = (slice(24, 72), slice(24, 72))
+    ctx = sr._lk_context(sl, 96, 96)
+    inner = sr._lk_inner(sl, ctx)
+    ref = sr._lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx)
+
+    def mov(_k, iu, iv):
+        return sr._lowpass_window(frames[1], g, (0, 0), (iu, iv), *ctx)
+
+    s, sig, rv = sr._lk_batch([ref], np.zeros(1, int), mov, np.arange(1), np.array([[0.25, -0.35]]), inner, g, iters=1)
+    # the same single Gauss-Newton step written out on the pixels (Fourier shift by the start value)
+    pad = 8
+    pr = np.pad(ref, pad, mode="reflect")
+    ky = np.fft.fftfreq(pr.shape[0])[:, None]
+    kx = np.fft.fftfreq(pr.shape[1])[None, :]
+    s0 = np.array([0.25, -0.35])
+    pred = np.fft.ifft2(np.fft.fft2(pr) * np.exp(-2j * np.pi * (ky * s0[0] + kx * s0[1]))).real[pad:-pad, pad:-pad]
+    gy, gx = np.gradient(pred)
+    r0, r1, c0, c1 = inner[0].start, inner[0].stop, inner[1].start, inner[1].stop
+    e = (mov(0, 0, 0) - pred)[r0:r1, c0:c1].ravel()
+    gm = np.stack([gy[r0:r1, c0:c1].ravel(), gx[r0:r1, c0:c1].ravel()], axis=1)
+    step = -np.linalg.solve(gm.T @ gm, gm.T @ e)
+    resid = e + gm @ step
+    np.testing.assert_allclose(s[0], s0 + step, rtol=0, atol=1e-4)
+    np.testing.assert_allclose(rv[0], np.var(resid) / (2.0 * np.sum(g**2) ** 2), rtol=2e-3)
+
+
+def test_noise_estimate_of_8bit_frames_equals_float_path():
+    """The histogram median of 8-bit frames gives exactly the float path's np.median value (odd and even counts)."""
+    rng = np.random.default_rng(8)
+    for h, w in [(3, 3), (4, 5), (17, 30), (64, 64), (101, 37)]:
+        for spread in (0.3, 5.0, 60.0):
+            f = np.clip(np.rint(rng.normal(128, spread, (h, w))), 0, 255).astype(np.uint8)
+            assert sr.estimate_noise_sigma(f) == sr.estimate_noise_sigma(f.astype(np.float64))
+    f = rng.integers(0, 256, (300, 280)).astype(np.uint8)
+    assert sr.estimate_noise_sigma(f, max_size=256) == sr.estimate_noise_sigma(f.astype(np.float64), max_size=256)

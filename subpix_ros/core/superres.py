@@ -229,55 +229,61 @@ def fit_spectrum(
     # coarse search on a 0.3 grid, then the 0.1 grid within +-0.2 of the coarse best (misfit is smooth
     # and single-minimum in alpha on real scenes: the test compares with the full 0.1 grid)
     key = (h, w, p, float(blur_sigma), max_bins)
-    coarse = _fit_exponents(1.0, 0.3, 11, amp, logf, obs, noise_sigma, q=_exponent_terms(*key, 1.0, 0.3, 11))
+    coarse = _fit_exponents(1.0, 0.3, 11, amp, logf, obs, noise_sigma, *_exponent_terms(*key, 1.0, 0.3, 11))
     a_best = coarse[1]
     lo = max(1.0, a_best - 0.2)
     n_fine = int(round((min(4.0, a_best + 0.2) - lo) / 0.1)) + 1
     c, alpha, s2, _ = _fit_exponents(lo, 0.1, n_fine, amp, logf, obs, noise_sigma,
-                                     q=_exponent_terms(*key, round(lo, 10), 0.1, n_fine))
+                                     *_exponent_terms(*key, round(lo, 10), 0.1, n_fine))
     return float(c), float(alpha), float(np.sqrt(s2))
 
 
 def _fit_exponents(
     a0: float, da: float, count: int, amp: np.ndarray, logf: np.ndarray, obs: np.ndarray, noise_sigma: float | None,
-    q: np.ndarray | None = None,
+    q: np.ndarray | None = None, q2: np.ndarray | None = None,
 ) -> tuple[float, float, float, float]:
     """:func:`fit_spectrum`'s fit for the exponents ``a0 + da j``, j < count, at once.
 
     ``q[j] = sum_m amp_m |f_m|^-alpha_j`` by the recurrence
     ``|f|^-(alpha + da) = |f|^-alpha |f|^-da`` (no loop over bins); per exponent
     (c, sigma^2) by 3 passes of weighted least squares (weights 1/model^2).
-    ``q`` (count, bins): those sums if already known (:func:`_exponent_terms`).
+    ``q`` (count, bins) and ``q2 = q^2``: those sums if already known (:func:`_exponent_terms`).
+    Each pass's weighted sums are ``sum_b w q^2``, ``sum_b w q``, ``sum_b w q S_y``: matrix-vector
+    products in the first pass (one weight vector for all exponents), row-wise dot products after.
     Returns (c, alpha, sigma^2, relative misfit) of the best exponent.
     """
     alphas = a0 + da * np.arange(count)
     if q is None:
         q = _exponent_sums(a0, da, count, amp, logf)
+    if q2 is None:
+        q2 = q * q
+    qy = q * obs
     w0 = 1.0 / np.maximum(obs, 1e-12) ** 2
-    wgt = None  # first pass: the same weights 1/obs^2 for every exponent
+    wgt = None  # first pass: the same weights 1/obs^2 for every exponent (matrix-vector products)
     model = np.empty_like(q)
-    wq = np.empty_like(q)
-    for _ in range(3):  # reweighting passes, all exponents at once
-        np.multiply(q, w0 if wgt is None else wgt, out=wq)
-        s_qq = np.einsum("ab,ab->a", wq, q)
-        s_q = wq.sum(axis=1)
+    for it in range(3):  # reweighting passes, all exponents at once
+        if wgt is None:
+            s_qq, s_q, s_qy = q2 @ w0, q @ w0, qy @ w0
+        else:
+            s_qq, s_q, s_qy = (np.einsum("ab,ab->a", wgt, t) for t in (q2, q, qy))
         if noise_sigma is None:
             ata = np.empty((count, 2, 2))
             ata[:, 0, 0] = s_qq
             ata[:, 0, 1] = ata[:, 1, 0] = s_q
             ata[:, 1, 1] = w0.sum() if wgt is None else wgt.sum(axis=1)
-            rhs = np.stack([wq @ obs, np.full(count, w0 @ obs) if wgt is None else wgt @ obs], axis=1)
+            rhs = np.stack([s_qy, np.full(count, w0 @ obs) if wgt is None else wgt @ obs], axis=1)
             sol = np.linalg.solve(ata, rhs[..., None])[..., 0]
             c_, s2 = sol[:, 0], np.maximum(sol[:, 1], 1e-6)
         else:
             s2 = np.full(count, noise_sigma**2)
-            c_ = (wq @ obs - s2 * s_q) / s_qq
+            c_ = (s_qy - s2 * s_q) / s_qq
         c_ = np.maximum(c_, 1e-12)
         np.multiply(q, c_[:, None], out=model)
         model += s2[:, None]
-        wgt = np.square(model, out=wgt)
-        np.divide(1.0, wgt, out=wgt)
-    rel = np.subtract(obs, model, out=wq)
+        if it < 2:  # the next pass's weights
+            wgt = np.square(model, out=wgt)
+            np.divide(1.0, wgt, out=wgt)
+    rel = np.subtract(obs, model)
     rel /= model
     err = np.einsum("ab,ab->a", rel, rel) / obs.size
     best = int(np.argmin(err))
@@ -297,13 +303,16 @@ def _exponent_sums(a0: float, da: float, count: int, amp: np.ndarray, logf: np.n
 
 @functools.lru_cache(maxsize=64)
 def _exponent_terms(h: int, w: int, p: int, blur_sigma: float, max_bins: int, a0: float, da: float,
-                    count: int) -> np.ndarray:
-    """:func:`_exponent_sums` on :func:`_spectrum_model`'s terms: it depends only on the crop shape, factor,
-    blur and exponents, so it is cached (read-only; the fine search has one table per coarse winner)."""
+                    count: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(q, q^2)`` of :func:`_exponent_sums` on :func:`_spectrum_model`'s terms: they depend only on the crop
+    shape, factor, blur and exponents, so they are cached (read-only; the fine search has one table per coarse
+    winner)."""
     _, amp, logf = _spectrum_model(h, w, p, blur_sigma, max_bins)
     q = _exponent_sums(a0, da, count, amp, logf)
+    q2 = q * q
     q.flags.writeable = False
-    return q
+    q2.flags.writeable = False
+    return q, q2
 
 
 @functools.lru_cache(maxsize=16)
@@ -612,7 +621,7 @@ def _lk_batch(
     ``R`` is the reference moved by the fractional part of s in the Fourier
     domain (reflect-padded by ``pad`` px, phase ``exp(-2 pi i k.s)``, real
     ``cos(pi s)`` at Nyquist; each reference transformed once; single-precision
-    transforms, only the rows the fit reads inverted; float64 sums), ``grad R`` by
+    transforms, only the rows the fit reads inverted), ``grad R`` by
     central differences ``(R[i+1] - R[i-1]) / 2``, step ``d = -(G^T G)^-1 G^T (F - R)``, at most ``iters``
     steps; a pair whose step falls below ``tol`` px has converged and takes no
     more (the next would change s by far less). All unconverged pairs'
@@ -620,7 +629,11 @@ def _lk_batch(
     not finite or exceeds 0.5 px (or whose G^T G is singular) stops with its
     current s, std inf and NaN variance. Returns s (M, 2), the std of s
     ``sqrt(var(r) tr((G^T G)^-1) / 2)`` and the noise variance per pixel
-    ``var(r) / (2 (sum g^2)^2)`` implied by the final residual r (M each).
+    ``var(r) / (2 (sum g^2)^2)`` implied by the final residual r (M each),
+    ``r = F - R(s + d) ~ (F - R) + d . grad R``. All sums (G^T G, G^T e, e.e, sum e, sum G) are
+    the entries of one single-precision product ``z z^T`` per pair, z the rows
+    (grad_y R, grad_x R, e, 1) (BLAS accumulation: relative error ~1e-6, far below the
+    shifts' own uncertainty); var(r) follows from them without another pass.
     """
     m_all = len(ref_of)
     hh, ww = refs[0].shape[0] + 2 * pad, refs[0].shape[1] + 2 * pad
@@ -662,12 +675,12 @@ def _lk_batch(
         half = np.fft.ifft(shifted, axis=1)[:, rows]
         half *= tx.astype(np.complex64)[:, None, :]
         pred_rows = np.fft.irfft(half, n=ww, axis=2)
-        pred = pred_rows[:, :, pad + c0 - 1 : pad + c1 + 1].astype(np.float64)  # rows r0-1 .. r1, cols c0-1 .. c1
+        pred = pred_rows[:, :, pad + c0 - 1 : pad + c1 + 1]  # rows r0-1 .. r1, cols c0-1 .. c1 (float32)
         # rows of z per pair: grad_y R, grad_x R, e = F - R, 1 — all the sums the step and the residual's
         # variance need are entries of z z^T (one batched matrix product instead of a pass per sum).
         # Central differences (as np.gradient in the interior; ``inner`` is >= 4 px from the window's edge)
         na = act.size
-        z = np.empty((na, 4, r1 - r0, c1 - c0))
+        z = np.empty((na, 4, r1 - r0, c1 - c0), np.float32)
         np.subtract(pred[:, 2:, 1:-1], pred[:, :-2, 1:-1], out=z[:, 0])
         np.subtract(pred[:, 1:-1, 2:], pred[:, 1:-1, :-2], out=z[:, 1])
         z[:, :2] *= 0.5
@@ -675,7 +688,7 @@ def _lk_batch(
             np.subtract(mv[r0:r1, c0:c1], pred[j, 1:-1, 1:-1], out=z[j, 2])
         z[:, 3] = 1.0
         z = z.reshape(na, 4, -1)
-        zz = np.matmul(z, z.transpose(0, 2, 1))  # (M, 4, 4)
+        zz = np.matmul(z, z.transpose(0, 2, 1)).astype(np.float64)  # (M, 4, 4)
         ata = np.ascontiguousarray(zz[:, :2, :2])
         rhs = zz[:, :2, 2]
         ok = np.abs(np.linalg.det(ata)) > 0

@@ -414,14 +414,16 @@ _WHOLE_LOWPASS_PX = 512 * 512  # frames up to this size are low-passed whole onc
 
 
 class _WholeLowpass:
-    """Whole-frame low-passes ``sepFilter2D(frames[i], g, g)`` (reflected border, float64), computed once per frame.
+    """Whole-frame low-passes ``sepFilter2D(frames[i], g, g)`` (reflected border, single precision), computed once
+    per frame.
 
     The tile registration (:func:`detect_geometry`) and the shift refinement
     (:func:`_refine_shifts`) read many overlapping low-passed windows of the
     same frames, several per frame at different integer shifts; for small
     frames one filter pass over each whole frame, sliced by
     :func:`_lowpass_window`, costs less than filtering every window (the
-    values are the same). ``get(i)`` is None for frames larger than
+    same values to single-precision round-off: the registration transforms
+    and sums are single precision anyway). ``get(i)`` is None for frames larger than
     ``_WHOLE_LOWPASS_PX`` (their windows are filtered as before: bounded cost).
     """
 
@@ -437,7 +439,8 @@ class _WholeLowpass:
             return None
         low = self._done.get(i)
         if low is None:
-            low = cv2.sepFilter2D(self.frames[i], cv2.CV_64F, self.g, self.g, borderType=cv2.BORDER_REFLECT_101)
+            low = cv2.sepFilter2D(self.frames[i].astype(np.float32), cv2.CV_32F, self.g.astype(np.float32),
+                                  self.g.astype(np.float32), borderType=cv2.BORDER_REFLECT_101)
             self._done[i] = low
         return low
 

@@ -202,7 +202,8 @@ def interleave(
         if len(members) == 1:  # one frame: write its samples straight into y; holes = outside its rectangle
             n_ = members[0]
             (ri, rk), (ci, ck) = span(int(offsets[n_, 0]), h, p), span(int(offsets[n_, 1]), w, q)
-            np.multiply(np.asarray(frames[n_])[ri, ci], float(p * q), out=y[rk, ck], casting="unsafe")
+            # the factor in y's own precision (exact: small integer), so the product runs in that precision
+            np.multiply(np.asarray(frames[n_])[ri, ci], y.dtype.type(p * q), out=y[rk, ck], casting="unsafe")
             filled[rk, ck] = True
             a0, a1 = (rk.start - first_r) // p, (rk.start - first_r) // p + (ri.stop - ri.start)
             b0, b1 = (ck.start - first_c) // q, (ck.start - first_c) // q + (ci.stop - ci.start)

@@ -26,7 +26,8 @@ from subpix_ros.nodes.common import Param, reliable_qos, run_nodes
 
 
 def gray(image: np.ndarray) -> np.ndarray:
-    return luminance(image, order="bgr" if image.ndim == 3 else "mono")
+    # float32: the estimator's working precision (a float64 frame would only be converted back)
+    return luminance(image, order="bgr" if image.ndim == 3 else "mono", dtype=np.float32)
 
 
 class ShiftNode(StageNode):

@@ -67,3 +67,19 @@ def test_mono_passes_through():
 def test_rejects(img, order):
     with pytest.raises(ValueError):
         luminance(img, order)
+
+
+@pytest.mark.parametrize("order", ["bgr", "rgb", "bgra", "rgba"])
+@pytest.mark.parametrize("dt", [np.uint8, np.uint16, np.float64])
+def test_float32_output_matches_the_seed_weights(order, dt):
+    rng = np.random.default_rng(3)
+    top = 255 if dt == np.uint8 else 65535
+    img = (rng.random((9, 11, len(order))) * top).astype(dt)
+    ref = luminance(img, order)
+    out = luminance(img, order, dtype=np.float32)
+    assert out.dtype == np.float32 and out.shape == (9, 11)
+    # float32 rounding only: relative 1e-6 of the value range
+    assert np.max(np.abs(out - ref)) <= 2e-6 * top
+    assert luminance(img[..., 0], "mono", dtype=np.float32).dtype == np.float32
+    with pytest.raises(ValueError):
+        luminance(img, order, dtype=np.int32)

@@ -67,6 +67,8 @@ class RegistrationNode(StageNode):
               -180.0, 180.0),
         Param("model", "projective", "registration model", choices=("projective", "affine")),
         Param("n_points", 700, "tie points sought per pair (fewer: faster, less accurate)", 50, 5000),
+        Param("want_inliers", 200, "a pair with fewer inliers is searched again with extra tie-point candidates "
+              "(more accurate on weak texture, slower; 0: never)", 0, 100000),
         Param("distortion", True, "estimate a radial distortion term per pair (off: projective only, faster)"),
         Param("max_frames_per_reference", 8, "aligned frames per reference frame before a new reference", 1, 10000),
         Param("min_inliers", 30, "fewer inlier tie points start a new reference", 4, 100000),
@@ -209,7 +211,8 @@ class RegistrationNode(StageNode):
         t0 = time.monotonic()
         prior = self._predict(frame.stamp_s) if self.p("tracking") else None
         result = reg.register(self._ref_prepared, frame.image, model=self.p("model"), n_points=self.p("n_points"),
-                              distortion=self.p("distortion"), prior=prior, track_radius=self.p("track_radius_px"))
+                              distortion=self.p("distortion"), prior=prior, track_radius=self.p("track_radius_px"),
+                              want_inliers=self.p("want_inliers"))
         if prior is not None:
             if result.tracked:
                 self.tracked += 1

@@ -22,7 +22,7 @@ import time
 import numpy as np
 from scipy.special import erf
 
-from subpix_ros.core.mtf import mtf_crossing, slanted_edge_mtf
+from subpix_ros.core.mtf import gaussian_pixel_mtf, mtf_crossing, slanted_edge_mtf
 from subpix_ros.core.render import render_sequence, slanted_edge_scene
 from subpix_ros.core.superres import bicubic_upscale, reconstruct
 from subpix_ros.data import load_crop
@@ -50,8 +50,7 @@ def accuracy(seeds: int = 5) -> None:
     for angle in (2.5, 5.0, 8.0, 15.0, 30.0):
         for sigma in (0.3, 0.4, 0.5, 0.8, 1.2):
             for noise in (0.0, 1.0):
-                th = np.deg2rad(angle)
-                ref = np.exp(-2 * np.pi**2 * sigma**2 * f**2) * np.abs(np.sinc(f * np.cos(th)) * np.sinc(f * np.sin(th)))
+                ref = gaussian_pixel_mtf(f, sigma, angle)
                 a50, a30 = mtf_crossing(f, ref, 0.5), mtf_crossing(f, ref, 0.3)
                 m50, m30, ms = [], [], []
                 for seed in range(seeds if noise else 1):

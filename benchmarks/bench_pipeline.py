@@ -86,6 +86,7 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
     from geometry_msgs.msg import Vector3Stamped
     from sensor_msgs.msg import Image
 
+    from subpix_ros.cli._ros import stop_processes
     from subpix_ros.io import cdr
     from subpix_ros.nodes.common import latched_qos, reliable_qos
 
@@ -137,13 +138,7 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
     finally:
         node.destroy_node()
         rclpy.shutdown()
-        for p in procs:
-            p.send_signal(2)
-        for p in procs:
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        stop_processes(procs)
     order = sorted(sent)
     lat_shift = np.array([shifts[s] - sent[s] for s in shifts if s in sent]) * 1000
     lat_sr = []

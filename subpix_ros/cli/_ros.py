@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import contextlib
-from typing import Iterator
+import signal
+import subprocess
+from typing import Iterable, Iterator
 
 
 @contextlib.contextmanager
@@ -19,3 +21,16 @@ def ros_node(name: str, use_sim_time: bool = False) -> Iterator[object]:
         node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+
+
+def stop_processes(procs: Iterable[subprocess.Popen], timeout: float = 10.0) -> None:
+    """SIGINT every process still running (a node's clean shutdown), wait, and kill what hangs."""
+    procs = list(procs)
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(timeout)
+        except subprocess.TimeoutExpired:
+            p.kill()

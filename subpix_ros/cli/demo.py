@@ -19,7 +19,6 @@ import argparse
 import csv
 import json
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -27,6 +26,7 @@ import time
 from pathlib import Path
 
 from subpix_ros.cli import CliError
+from subpix_ros.cli._ros import stop_processes
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -202,14 +202,7 @@ def run(args: argparse.Namespace) -> int:
             diag = dict(col.diag)
             mosaic = col.mosaic
     finally:
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in procs:
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        stop_processes(procs)
 
     # ---- write what the operator looks at
     summary: dict = {"frames_in": {"subpixel": len(frames), "seneca": 9}, "timing_s": timings}

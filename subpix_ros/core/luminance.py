@@ -65,7 +65,7 @@ def luminance(image: np.ndarray, order: str = "bgr", dtype: type = np.float64) -
     if dtype == np.float32:  # one OpenCV pass over the pixels, weights in B, G, R order of the array
         w = np.zeros((1, img.shape[2]), np.float32)
         w[0, ir], w[0, ig], w[0, ib] = wr, wg, wb
-        return cv2.transform(img.astype(np.float32), w).reshape(img.shape[:2])
+        return cv2.transform(img.astype(np.float32, copy=False), w).reshape(img.shape[:2])
     out = wr * img[:, :, ir].astype(np.float64)
     out += wg * img[:, :, ig]
     out += wb * img[:, :, ib]

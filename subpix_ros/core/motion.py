@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["frame_motion", "predict_homography", "scale_motion"]
+__all__ = ["MotionTracker", "frame_motion", "predict_homography", "scale_motion"]
 
 
 def _normalised(h: np.ndarray) -> np.ndarray:
@@ -70,3 +70,45 @@ def predict_homography(h_last: np.ndarray | None, motion: np.ndarray, ratio: flo
     """
     d = _normalised(motion) if ratio == 1.0 else scale_motion(motion, ratio)
     return d if h_last is None else _normalised(_normalised(h_last) @ d)
+
+
+class MotionTracker:
+    """The state behind the prediction: the chain against the current reference and the last motion.
+
+    ``restart(t)`` when frame ``t`` becomes the reference (the chain restarts
+    at ``H = I``, the motion carries on); ``update(H, t)`` after frame ``t``
+    was registered (``H``: frame -> reference); ``forget()`` when the motion is
+    no longer known (a failed registration); ``predict(t)`` gives the
+    homography expected for frame ``t`` or None (no basis: search fully).
+    Times in seconds. A gap of more than ``max_ratio`` measured intervals
+    predicts nothing.
+    """
+
+    def __init__(self, max_ratio: float = 20.0) -> None:
+        self.max_ratio = float(max_ratio)
+        self.h_last: np.ndarray | None = None  # last frame -> reference (None: it was the reference)
+        self.motion: np.ndarray | None = None  # last frame-to-frame motion D
+        self.motion_dt = 0.0  # the time D took, s
+        self.last_t: float | None = None  # stamp of the last frame of the chain
+
+    def restart(self, t: float) -> None:
+        self.h_last, self.last_t = None, t
+
+    def forget(self) -> None:
+        self.motion = None
+
+    def update(self, h: np.ndarray, t: float) -> None:
+        h = _normalised(h)
+        self.motion = frame_motion(self.h_last, h)
+        self.motion_dt = t - self.last_t if self.last_t is not None else 0.0
+        self.h_last, self.last_t = h, t
+
+    def predict(self, t: float) -> np.ndarray | None:
+        """``H_k D^ratio`` with ``ratio`` = (t - last stamp) / the motion's interval; the last
+        homography (constant position) while no motion is known; None without a basis."""
+        if self.motion is None or self.last_t is None or self.motion_dt <= 0:
+            return self.h_last
+        ratio = (t - self.last_t) / self.motion_dt
+        if not 0 <= ratio <= self.max_ratio:
+            return None
+        return predict_homography(self.h_last, self.motion, ratio)

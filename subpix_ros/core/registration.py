@@ -62,6 +62,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from .luminance import luminance
 from .registration_coarse import coarse_orb, coarse_overlap, gradient_magnitude, orb_features, orientation_hypotheses
 from .registration_fit import (
     Normaliser,
@@ -75,15 +76,13 @@ from .registration_points import apply_h, harris_peaks, ncc_match, refine_gauss_
 
 __all__ = ["RegistrationResult", "AlignResult", "ReferenceFrame", "prepare_reference", "register", "align", "calibrate_distortion", "to_gray32", "overlap_fraction"]
 
-#: Seed luminance weights (METHODS A) in OpenCV B, G, R order.
-_LUMA_BGR = np.array([[0.1141, 0.587, 0.2989]], dtype=np.float32)
 
 
 def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
     """Validate a frame and return its luminance as float32 HxW (digital numbers).
 
     Mono HxW passes through; HxWx3 is OpenCV BGR and reduced with the seed
-    weights ``gray = 0.2989 R + 0.587 G + 0.1141 B`` (METHODS A). Raises
+    weights ``gray = 0.2989 R + 0.587 G + 0.1141 B`` (METHODS A, :func:`.luminance.luminance`). Raises
     ``ValueError`` for other shapes, non-numeric dtypes or non-finite values.
     """
     img = np.asarray(image)
@@ -92,7 +91,7 @@ def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.ndim == 3 and img.shape[2] == 3:
-        g = cv2.transform(img.astype(np.float32, copy=False), _LUMA_BGR).reshape(img.shape[:2])
+        g = luminance(img, "bgr", dtype=np.float32)
     elif img.ndim == 2:
         g = img.astype(np.float32)
     else:

@@ -97,6 +97,8 @@ from typing import Optional, Sequence, Tuple, Union
 import cv2
 import numpy as np
 
+from .validity import common_valid_box
+
 __all__ = [
     "ShiftResult",
     "estimate_shift",
@@ -1114,23 +1116,6 @@ def _statistics(out: dict, lv: "_Level", h: int, w: int, misfit_px: float, coars
     )
 
 
-def _rectangle(vr: np.ndarray | None, vm: np.ndarray | None) -> tuple[int, int, int, int] | None:
-    """``(r0, r1, c0, c1)`` if the pixels valid in both masks (None = all valid) form exactly that
-    rectangle and at least one mask is given; else None. Cropping both frames to it changes nothing
-    in the estimate's coordinates (the shift is a translation) and skips the masked sums."""
-    if vr is None and vm is None:
-        return None
-    valid = vr if vm is None else (vm if vr is None else vr & vm)
-    rows = np.flatnonzero(valid.any(axis=1))
-    cols = np.flatnonzero(valid.any(axis=0))
-    if rows.size == 0:
-        return None
-    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-    if (r1 - r0) * (c1 - c0) != int(np.count_nonzero(valid)):
-        return None
-    return r0, r1, c0, c1
-
-
 def estimate_shift(
     reference: np.ndarray,
     moving: np.ndarray,
@@ -1192,7 +1177,7 @@ def estimate_shift(
     if mm is not None and not mm.all():
         vm = mm if vm is None else (vm & mm)
     if method == "default":
-        box = _rectangle(vr, vm)
+        box = common_valid_box([m for m in (vr, vm) if m is not None])
         if box is not None:  # validity is a rectangle (an integer-crop alignment): crop to it, no mask needed
             r0, r1, c0, c1 = box
             R, M = R[r0:r1, c0:c1], M[r0:r1, c0:c1]

@@ -20,21 +20,9 @@ from typing import Sequence
 import numpy as np
 
 from subpix_ros.core.superres import SRResult, bicubic_upscale, reconstruct, reconstruct_colour
+from subpix_ros.core.validity import common_valid_box
 
 MIN_SIDE = 32  # LR px: a smaller common rectangle is not worth the fast path
-
-
-def common_valid_box(masks: Sequence[np.ndarray]) -> tuple[int, int, int, int] | None:
-    """``(r0, r1, c0, c1)`` if the pixels valid in every mask form that rectangle, else None."""
-    valid = np.logical_and.reduce([np.asarray(m, bool) for m in masks])
-    rows = np.flatnonzero(valid.any(axis=1))
-    cols = np.flatnonzero(valid.any(axis=0))
-    if rows.size == 0 or cols.size == 0:
-        return None
-    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-    if not valid[r0:r1, c0:c1].all():
-        return None
-    return r0, r1, c0, c1
 
 
 def reconstruct_aligned(frames: Sequence[np.ndarray], shifts: np.ndarray, factor: int,

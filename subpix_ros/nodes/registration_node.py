@@ -41,7 +41,7 @@ from sensor_msgs.msg import CompressedImage, Image, Imu
 from std_msgs.msg import Float64, Float64MultiArray
 
 from subpix_ros.core import registration as reg
-from subpix_ros.core.motion import frame_motion, predict_homography
+from subpix_ros.core.motion import MotionTracker
 from subpix_ros.core.telemetry import (TelemetryBuffer, TelemetrySample, heading_from_quaternion_enu,
                                        sample_from_enu, validate_sample)
 from subpix_ros.core.timing import FrameSelector, expected_shift_px
@@ -88,10 +88,7 @@ class RegistrationNode(StageNode):
         self._yaw: float | None = None
         self.reference: pl.Frame | None = None
         self._ref_prepared: reg.ReferenceFrame | None = None
-        self._last_h: np.ndarray | None = None  # previous aligned frame -> reference (None: it was the reference)
-        self._motion: np.ndarray | None = None  # last frame-to-frame motion (frame k -> frame k-1 pixels)
-        self._motion_dt = 0.0  # the time (s) that motion took
-        self._last_stamp_s: float | None = None  # stamp of the previous frame of the chain (aligned or reference)
+        self.motion = MotionTracker()  # constant-velocity prediction for tracking (core.motion)
         self.tracked = 0
         self.track_fallbacks = 0
         self.since_reference = 0
@@ -164,9 +161,7 @@ class RegistrationNode(StageNode):
     def reset(self) -> None:
         self.reference = None
         self._ref_prepared = None
-        self._last_h = None
-        self._motion = None
-        self._last_stamp_s = None
+        self.motion = MotionTracker()
         self.since_reference = 0
         self.selector.reset()
         self.telemetry = TelemetryBuffer(max_age_s=60.0, stale_after_s=self.p("telemetry_timeout_s"))
@@ -209,7 +204,7 @@ class RegistrationNode(StageNode):
             self._new_reference(frame, "first frame" if self.reference is None else "set complete")
             return
         t0 = time.monotonic()
-        prior = self._predict(frame.stamp_s) if self.p("tracking") else None
+        prior = self.motion.predict(frame.stamp_s) if self.p("tracking") else None
         result = reg.register(self._ref_prepared, frame.image, model=self.p("model"), n_points=self.p("n_points"),
                               distortion=self.p("distortion"), prior=prior, track_radius=self.p("track_radius_px"),
                               want_inliers=self.p("want_inliers"))
@@ -222,17 +217,13 @@ class RegistrationNode(StageNode):
             self.diag.set(frames_tracked=self.tracked, tracking_fallbacks=self.track_fallbacks)
         why = self._quality_problem(result)
         if why:
-            self._motion = None
+            self.motion.forget()
             self.failures += 1
             self.diag.warn(f"registration to reference failed ({why}): new reference")
             self.diag.set(registration_failures=self.failures)
             self._new_reference(frame, why)
             return
-        h = np.asarray(result.homography, dtype=np.float64)
-        self._motion = frame_motion(self._last_h, h)
-        self._motion_dt = frame.stamp_s - self._last_stamp_s if self._last_stamp_s is not None else 0.0
-        self._last_h = h
-        self._last_stamp_s = frame.stamp_s
+        self.motion.update(result.homography, frame.stamp_s)
         al = reg.align(self.reference.image, frame.image, result, warp_threshold_px=self.p("warp_threshold_px"))
         out = pl.Aligned(frame.stamp_ns, al.aligned, al.mask, self.reference, np.asarray(result.homography),
                          tuple(al.prior_shift) if al.prior_shift is not None else None, frame.frame_id, frame.received)
@@ -247,15 +238,6 @@ class RegistrationNode(StageNode):
                       frames_kept=self.kept, warped=bool(al.warped))
         self.diag.ok()
 
-    def _predict(self, stamp_s: float) -> np.ndarray | None:
-        """Predicted homography (this frame -> reference): the last motion carried on for the time since the last frame."""
-        if self._motion is None or self._last_stamp_s is None or self._motion_dt <= 0:
-            return self._last_h  # constant position (None right after a new reference: full search)
-        ratio = (stamp_s - self._last_stamp_s) / self._motion_dt
-        if not 0 <= ratio <= 20:  # a long gap: the prediction means nothing, search fully
-            return None
-        return predict_homography(self._last_h, self._motion, ratio)
-
     def _quality_problem(self, result) -> str:
         if not result.ok:
             return result.reason or "registration failed"
@@ -269,8 +251,7 @@ class RegistrationNode(StageNode):
 
     def _new_reference(self, frame: pl.Frame, why: str) -> None:
         self._ref_prepared = reg.prepare_reference(frame.image)  # once per reference, not per frame
-        self._last_h = None  # the chain restarts at the identity; the last motion carries on (core.motion)
-        self._last_stamp_s = frame.stamp_s
+        self.motion.restart(frame.stamp_s)  # the chain restarts at the identity; the last motion carries on
         self.reference = frame
         self.since_reference = 0
         self.pub_ref.publish(pl.image_cdr(frame.image, frame.stamp_ns, frame.frame_id))

@@ -51,3 +51,21 @@ def test_motion_scaled_by_frame_interval():
     np.testing.assert_allclose(predict_homography(_h(5.0, 1.0), d, ratio=2.0), _h(5.82, 1.54), atol=1e-12)
     with pytest.raises(ValueError):
         scale_motion(d, -1.0)
+
+
+def test_tracker_follows_restarts_forgets_and_gives_up_on_long_gaps():
+    from subpix_ros.core.motion import MotionTracker
+
+    d = _h(0.41, 0.27)  # per 0.1 s
+    tr = MotionTracker()
+    tr.restart(0.0)
+    assert tr.predict(0.1) is None  # no motion known, the last frame is the reference: search fully
+    tr.update(d, 0.1)
+    np.testing.assert_allclose(tr.predict(0.2), d @ d, atol=1e-12)
+    np.testing.assert_allclose(tr.predict(0.4), _h(1.23 + 0.41, 0.81 + 0.27), atol=1e-12)  # two frames lost
+    tr.restart(0.1)  # frame 1 becomes the reference: the chain restarts, the motion carries on
+    np.testing.assert_allclose(tr.predict(0.2), d, atol=1e-12)
+    assert tr.predict(0.1 + 0.1 * 25) is None  # a gap of 25 intervals predicts nothing
+    tr.update(d, 0.2)
+    tr.forget()  # registration failed: constant position only
+    np.testing.assert_allclose(tr.predict(0.3), d, atol=1e-12)

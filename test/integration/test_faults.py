@@ -1,6 +1,5 @@
 """Faults across processes (issue 7): a node killed and restarted mid-stream, a looped
 bag (time jumps back), and use_sim_time with `subpix replay --clock`."""
-import signal
 import subprocess
 import sys
 import time
@@ -11,6 +10,7 @@ from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import Image
 
 from conftest import ROOT, subpix_cmd
+from subpix_ros.cli._ros import stop_processes as _stop
 from subpix_ros.io import cdr
 from subpix_ros.io.bags import read_messages
 from subpix_ros.nodes.common import latched_qos, reliable_qos
@@ -28,17 +28,6 @@ def _spin(node, until, timeout):
     while time.monotonic() < deadline and not until():
         rclpy.spin_once(node, timeout_sec=0.05)
     return until()
-
-
-def _stop(procs):
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGINT)
-    for p in procs:
-        try:
-            p.wait(10)
-        except subprocess.TimeoutExpired:
-            p.kill()
 
 
 def test_shift_node_killed_and_restarted_rebuilds_from_next_frames(rclpy_node, sample_bags):

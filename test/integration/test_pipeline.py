@@ -17,6 +17,7 @@ from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import CompressedImage, Image
 
 from conftest import ROOT, subpix_cmd
+from subpix_ros.cli._ros import stop_processes as _stop
 from subpix_ros.core.evaluate import gain_over_bicubic, truth_on_grid, wrapped_error
 from subpix_ros.io import cdr
 from subpix_ros.io.bags import read_messages
@@ -52,17 +53,6 @@ def _spin(node, until, timeout, procs=()):
         for p in procs:
             assert p.poll() is None, f"{p.args[2]} died:\n{p.stdout.read()}"
     return until()
-
-
-def _stop(procs):
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(2)
-    for p in procs:
-        try:
-            p.wait(10)
-        except subprocess.TimeoutExpired:
-            p.kill()
 
 
 def _replay_subpixel(node, out, bags, procs, rate="0.5"):

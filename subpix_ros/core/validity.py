@@ -1,0 +1,30 @@
+"""Validity masks that are rectangles (the border strips an integer-crop alignment leaves).
+
+Pixel alignment by an integer crop (:func:`subpix_ros.core.registration.align`)
+marks a frame valid on one axis-aligned rectangle. Consumers that would
+otherwise take a slower masked path (masked sums in the shift estimator, the
+conjugate-gradient solver in super-resolution) crop to that rectangle instead.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["common_valid_box"]
+
+
+def common_valid_box(masks: Sequence[np.ndarray]) -> tuple[int, int, int, int] | None:
+    """``(r0, r1, c0, c1)`` (rows r0..r1-1, columns c0..c1-1) if the pixels valid in every mask
+    form exactly that rectangle, else None (also for no mask or no valid pixel)."""
+    if len(masks) == 0:
+        return None
+    valid = np.logical_and.reduce([np.asarray(m, bool) for m in masks])
+    rows = np.flatnonzero(valid.any(axis=1))
+    cols = np.flatnonzero(valid.any(axis=0))
+    if rows.size == 0 or cols.size == 0:
+        return None
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    if (r1 - r0) * (c1 - c0) != int(np.count_nonzero(valid)):
+        return None
+    return r0, r1, c0, c1

@@ -10,15 +10,20 @@ Pipeline (all stages vectorised over pixels / points):
    tie points (METHODS C, stage 2, with a grid quota over the overlap) are
    matched by NCC around the current prediction and a homography is fitted
    robustly (OpenCV USAC/MAGSAC).
-3. Input resolution: the detection-level points are matched by NCC around
-   their own detection-level matches, outliers rejected by MAGSAC, the
-   projective model (METHODS C, eq. P) fitted by Levenberg-Marquardt from
-   the identity (the paper), the points refined to sub-pixel by Gauss-Newton
-   on patch translation, the model refitted on the inliers, optionally
-   jointly with one radial-distortion term (division model, shared by both
-   frames). A second pass searches the points the first one missed (and, on
-   weak texture, further candidates) around this model's prediction, and the
-   model is refitted.
+3. Input resolution: the detection-level matches, scaled up, are the
+   starting points (the detection-level points without a match are searched
+   by NCC one level finer), outliers rejected by MAGSAC, the projective model
+   (METHODS C, eq. P) fitted by Levenberg-Marquardt from the identity (the
+   paper), the points refined to sub-pixel by Gauss-Newton on patch
+   translation (coarse to fine from the level below the detection level down
+   to the input), the model refitted on the inliers, optionally jointly with
+   one radial-distortion term (division model, shared by both frames). A
+   second pass searches the points the first one missed (and, on weak
+   texture, further candidates: at input resolutions above twice the
+   detection size, Harris maxima of the finer level) around this model's
+   prediction, and the model is refitted. NCC runs no finer than twice the
+   detection size (the template's nominal ground footprint); only
+   Gauss-Newton works on a finer input.
 
 Tracking (``prior=``, video rate against a fixed reference): stages 1-2 are
 replaced by one NCC search at the detection level around the prior's
@@ -410,46 +415,113 @@ def _level_shape(shape: tuple[int, int], lev: int) -> tuple[int, int]:
     return h, w
 
 
-def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndarray, h_lev: int, radius: int, *,
+def _inside(p: np.ndarray, shape: tuple[int, ...], margin: float) -> np.ndarray:
+    """Points (x, y) at least ``margin`` px inside a frame of ``shape`` (finite)."""
+    return (np.isfinite(p).all(axis=1) & (p[:, 0] >= margin) & (p[:, 0] <= shape[1] - 1 - margin)
+            & (p[:, 1] >= margin) & (p[:, 1] <= shape[0] - 1 - margin))
+
+
+def _refine_levels(ref: ReferenceFrame, mov: ReferenceFrame, p_r: np.ndarray, p_m: np.ndarray, h: np.ndarray,
+                   top: int, bottom: int, template_half: int, half: int,
+                   iterations: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Newton sub-pixel refinement (:func:`refine_gauss_newton`), coarse to fine.
+
+    ``p_r`` (integer input px, divisible by ``2^top``), ``p_m``: reference points and their moving
+    positions at input resolution; ``h``: moving -> reference at input resolution. Refines at
+    pyramid levels ``top, ..., bottom`` (``template_half`` above the input, where the template
+    keeps its nominal size; ``half`` at the input, level 0); a point must converge at every level.
+    Returns the refined moving positions (input px) and the converged mask.
+    """
+    p_m = p_m.copy()
+    conv = np.ones(len(p_r), bool)
+    for lev in range(top, bottom - 1, -1):
+        s = 2.0 ** lev
+        idx = np.nonzero(conv)[0]
+        m_l, c_l = refine_gauss_newton(ref.level(lev), mov.level(lev), p_r[idx] / s, p_m[idx] / s,
+                                       _scale_h(h, 1.0 / s), half=template_half if lev > 0 else half,
+                                       iterations=iterations)
+        p_m[idx[c_l]] = m_l[c_l] * s
+        conv[idx[~c_l]] = False
+    return p_m, conv
+
+
+def _finer_candidates(ref: ReferenceFrame, mov: ReferenceFrame, lev: int, h: np.ndarray, taken: np.ndarray,
+                      n_target: int, margin: float) -> np.ndarray:
+    """Harris maxima of pyramid level ``lev`` (finer than the detection level) inside the overlap
+    predicted by ``h`` (input px), at least 4 level px from the points in ``taken`` (input px, the
+    same corners seen one level up); grid quota of ``n_target``. Returns input px (x, y).
+
+    The Harris response is computed on the overlap's bounding box only (plus a 16 px border, more
+    than the filters' and the non-maximum suppression's reach), not cached.
+    """
+    s = 2.0 ** lev
+    ref_l = ref.level(lev)
+    valid = _valid_ref_points(ref_l.shape, mov.level(lev).shape, _scale_h(h, 1.0 / s), int(np.ceil(margin / s)), margin / s)
+    t = np.rint(taken / s).astype(np.intp)
+    t = t[_inside(t.astype(float), ref_l.shape, 0)]
+    near = np.zeros(ref_l.shape, np.uint8)
+    near[t[:, 1], t[:, 0]] = 1
+    valid &= cv2.dilate(near, np.ones((9, 9), np.uint8)) == 0
+    if valid.sum() < 64:
+        return np.zeros((0, 2))
+    rows, cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+    y0, y1 = max(0, rows[0] - 16), min(ref_l.shape[0], rows[-1] + 17)
+    x0, x1 = max(0, cols[0] - 16), min(ref_l.shape[1], cols[-1] + 17)
+    xs, ys, r = harris_peaks(np.ascontiguousarray(ref_l[y0:y1, x0:x1]))
+    return select_spread((xs + x0, ys + y0, r), valid, n_target=n_target) * s
+
+
+def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, h: np.ndarray, h_lev: int, radius: int, *,
                  model: str, fixed_lam: float | None, distortion, template_half: int, inlier_px: float,
                  min_inliers: int, min_spread: float, t0: float,
                  pred_det: np.ndarray | None = None, extra_det: np.ndarray | None = None,
-                 want_inliers: int = 0, always_second_pass: bool = True) -> tuple[RegistrationResult, int]:
-    """Input-resolution stage of :func:`register` (stage 3): NCC, MAGSAC, LM, Gauss-Newton, final LM, checks.
+                 want_inliers: int = 0, always_second_pass: bool = True, n_points: int = 700) -> tuple[RegistrationResult, int]:
+    """Input-resolution stage of :func:`register` (stage 3): MAGSAC, LM, Gauss-Newton, final LM, checks.
 
     ``pts_det``: reference tie points (x, y) at pyramid level ``h_lev``;
     ``h``: moving -> reference homography at that level; ``pred_det``
     (optional, same length): each point's matched moving position at that
-    level (NaN where it did not match), the centre of its search at input
-    resolution, so a point is found even where the level's homography is a
-    few px off (lens distortion, relief); ``radius``: NCC search radius at
-    input resolution (px). Returns the result and the number of tie points
-    that were searched. ``extra_det``: further candidate points at that level,
-    searched in the second pass only if it has fewer than ``want_inliers``
-    inliers (weak texture). ``always_second_pass=False`` (tracking) runs the
+    level (NaN where it did not match). Those matches, scaled to input
+    resolution, seed the Gauss-Newton refinement directly (coarse to fine from
+    level ``h_lev - 1``); without ``pred_det`` (no detection level above the
+    input) the points are matched by NCC within ``radius`` input px of ``h``'s
+    prediction. The second pass searches the points without an inlier match (and,
+    when the first pass has fewer than ``want_inliers`` inliers, further
+    candidates: ``extra_det`` at that level, or, when the input is finer than
+    the detection level's double, Harris maxima of level ``h_lev - 1``) by NCC at
+    level ``h_lev - 1`` (the template's nominal size there) around the model's
+    prediction, refines them and refits. Returns the result and the number of
+    tie points of the first pass. ``always_second_pass=False`` (tracking) runs the
     second pass only when the first one has fewer than ``want_inliers`` inliers.
     """
+    gr, gm = ref.gray, mov.gray
     affine = model == "affine"
     shapes = (gr.shape, gm.shape)
     f = 2.0 ** h_lev
     h = _scale_h(h, f)
     # Above the detection size the texture per pixel is finer and blurrier: keep the template's
-    # footprint on the ground the same as at the detection level's double.
+    # footprint on the ground the same as at the detection level's double (level m_lev, where NCC runs).
     half = int(round(template_half * max(1.0, f / 2)))
+    m_lev = max(0, h_lev - 1)
+    fm = 2.0 ** m_lev
+    half_m = template_half if m_lev > 0 else half
     margin = half + radius + 3
     pts0 = np.rint(pts_det * f)
     pred = apply_h(np.linalg.inv(h), pts0)
+    seeded = np.zeros(len(pts0), bool)
     if pred_det is not None:
         own = pred_det * f
-        use = np.isfinite(own).all(axis=1) & (np.hypot(*(own - pred).T) <= 2 * radius)
-        pred[use] = own[use]
-    ok_in = ((pts0[:, 0] >= margin) & (pts0[:, 0] <= gr.shape[1] - 1 - margin)
-             & (pts0[:, 1] >= margin) & (pts0[:, 1] <= gr.shape[0] - 1 - margin)
-             & (pred[:, 0] >= margin) & (pred[:, 0] <= gm.shape[1] - 1 - margin)
-             & (pred[:, 1] >= margin) & (pred[:, 1] <= gm.shape[0] - 1 - margin))
-    pts0, pred = pts0[ok_in], pred[ok_in]
+        seeded = np.isfinite(own).all(axis=1) & (np.hypot(*(own - pred).T) <= 2 * radius)
+        pred[seeded] = own[seeded]
+    ok_in = _inside(pts0, gr.shape, margin) & _inside(pred, gm.shape, margin)
+    pts0, pred, seeded = pts0[ok_in], pred[ok_in], seeded[ok_in]
     n_try = len(pts0)
-    p_r, p_m, _ = ncc_match(gr, gm, pts0, h, half=half, radius=radius, pred_mov=pred)
+    # The detection-level NCC matches (to ~0.2 level px) start the refinement directly; the points
+    # without one are matched by NCC at level m_lev around the model's prediction.
+    r_m = int(np.ceil(radius / fm))
+    q_r, q_m, _ = ncc_match(ref.level(m_lev), mov.level(m_lev), pts0[~seeded] / fm, _scale_h(h, 1.0 / fm),
+                            half=half_m, radius=r_m, pred_mov=pred[~seeded] / fm)
+    p_r, p_m = np.vstack([pts0[seeded], q_r * fm]), np.vstack([pred[seeded], q_m * fm])
     # Thresholds before the radial term is fitted grow with the resolution above the detection level's
     # double: the unmodelled lens distortion (and relief parallax) in px grows with it.
     pre = max(1.0, f / 2)
@@ -463,7 +535,8 @@ def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndar
     h_rb = fit_homography_lm(p_m, p_r, norm, affine, h0=hn)
     h = h_id if np.sqrt(np.mean(_residuals(h_id, p_m, p_r) ** 2)) <= np.sqrt(np.mean(_residuals(h_rb, p_m, p_r) ** 2)) + 1e-9 else h_rb
     # Sub-pixel refinement of the tie points, then the final fit on the inliers.
-    p_m2, conv = refine_gauss_newton(gr, gm, p_r, p_m, h, half=half)
+    # Seeds from the detection level start up to ~0.5 level px off: up to 10 iterations.
+    p_m2, conv = _refine_levels(ref, mov, p_r, p_m, h, m_lev, 0, template_half, half, iterations=10)
     p_r, p_m = p_r[conv], p_m2[conv]
     if len(p_r) < min_inliers:
         return _fail(f"too few tie points after sub-pixel refinement ({len(p_r)})", t0, shapes, model), n_try
@@ -497,23 +570,42 @@ def _final_stage(gr: np.ndarray, gm: np.ndarray, pts_det: np.ndarray, h: np.ndar
     if inl.sum() >= min_inliers and (always_second_pass or inl.sum() < want_inliers):
         key = lambda q: np.rint(q[:, 1]) * 1e6 + np.rint(q[:, 0])  # noqa: E731
         miss = pts0[~np.isin(key(pts0), key(p_r[inl]))]
-        if extra_det is not None and len(extra_det) and inl.sum() < want_inliers:
-            ex = np.rint(extra_det * f)
-            ex = ex[(ex[:, 0] >= margin) & (ex[:, 0] <= gr.shape[1] - 1 - margin)
-                    & (ex[:, 1] >= margin) & (ex[:, 1] <= gr.shape[0] - 1 - margin)]
+        if inl.sum() < want_inliers:  # weak texture: further candidates
+            if m_lev > 0:  # input finer than the detection level's double: maxima of level m_lev
+                # As many as the deficit needs: on the weak-texture Seneca pairs at full resolution one
+                # candidate in 5-10 becomes an inlier (measured), so 15 per missing inlier.
+                n_fine = int(np.clip(15 * (want_inliers - inl.sum()), n_points // 2, 3 * n_points))
+                ex = _finer_candidates(ref, mov, m_lev, h, pts0, n_fine, margin)
+            else:
+                ex = np.zeros((0, 2)) if extra_det is None else np.rint(extra_det * f)
+            ex = ex[_inside(ex, gr.shape, margin)]
             miss = np.vstack([miss, ex[~np.isin(key(ex), key(miss))]])
         if len(miss):
             if lam != 0.0 and hu is not None:
                 pred2 = distort_points(apply_h(np.linalg.inv(hu), undistort_points(miss, lam, norm)), lam, norm)
             else:
                 pred2 = apply_h(np.linalg.inv(h), miss)
-            inside = (np.isfinite(pred2).all(axis=1) & (pred2[:, 0] >= margin) & (pred2[:, 0] <= gm.shape[1] - 1 - margin)
-                      & (pred2[:, 1] >= margin) & (pred2[:, 1] <= gm.shape[0] - 1 - margin))
+            inside = _inside(pred2, gm.shape, margin)
             miss, pred2 = miss[inside], pred2[inside]
-            r2, m2, _ = ncc_match(gr, gm, miss, h, half=half, radius=2, pred_mov=pred2)
-            m2, conv2 = refine_gauss_newton(gr, gm, r2, m2, h, half=half)
+            r2, m2, _ = ncc_match(ref.level(m_lev), mov.level(m_lev), miss / fm, _scale_h(h, 1.0 / fm), half=half_m,
+                                  radius=2, pred_mov=pred2 / fm)
+            r2, m2 = r2 * fm, m2 * fm
+            resid = (lambda q_m, q_r: _full_residuals(hu, lam, norm, q_m, q_r)) if hu is not None else \
+                (lambda q_m, q_r: _residuals(h, q_m, q_r))
+            if m_lev > 0:
+                # Refined first at the NCC level (cheap); only matches that can be inliers (0.5 px to spare for
+                # that level's precision) are refined at the input resolution.
+                m2, c = _refine_levels(ref, mov, r2, m2, h, m_lev, 1, template_half, half)
+                r2, m2 = r2[c], m2[c]
+                near = resid(m2, r2) <= inlier_px + 0.5
+            else:
+                # Gauss-Newton moves a point by less than 1 px (it rejects larger moves), so a match further
+                # than inlier_px + 1 px from the model cannot become an inlier (0.5 px to spare).
+                near = resid(m2, r2) <= inlier_px + 1.5
+            r2, m2 = r2[near], m2[near]
+            m2, conv2 = _refine_levels(ref, mov, r2, m2, h, 0, 0, template_half, half, iterations=10)
             r2, m2 = r2[conv2], m2[conv2]
-            res2 = _full_residuals(hu, lam, norm, m2, r2) if hu is not None else _residuals(h, m2, r2)
+            res2 = resid(m2, r2)
             if (res2 <= inlier_px).any():
                 keep_old = ~np.isin(key(p_r), key(r2))
                 p_r = np.vstack([p_r[keep_old], r2])
@@ -634,7 +726,7 @@ def _register_tracked(ref: ReferenceFrame, mov: ReferenceFrame, prior: np.ndarra
     reason = check_homography(hn, mov_l.shape)
     if reason:
         return _fail(reason, t0, shapes, model)
-    res, n_try = _final_stage(gr, gm, pts, hn, det_lev, 2 + int(f) // 2, t0=t0, template_half=template_half,
+    res, n_try = _final_stage(ref, mov, pts, hn, det_lev, 2 + int(f) // 2, t0=t0, template_half=template_half, n_points=n_points,
                               pred_det=_per_point(pts, p_r, p_m), extra_det=extra, always_second_pass=False, **kw)
     if not res.ok:
         return res
@@ -819,7 +911,7 @@ def _register_full(ref: ReferenceFrame, mov: ReferenceFrame, *, n_points: int, c
     # Stage 3: input resolution.
     # Search radius at input resolution: the level's per-point matches predict to ~0.5 level px.
     radius = 1 + int(2.0 ** h_lev) if pred_det is None else 2 + int(2.0 ** h_lev) // 2
-    res, _ = _final_stage(gr, gm, pts_det, h, h_lev, radius, t0=t0, template_half=template_half,
+    res, _ = _final_stage(ref, mov, pts_det, h, h_lev, radius, t0=t0, template_half=template_half, n_points=n_points,
                           pred_det=pred_det, extra_det=extra_det, **kw)
     return res
 

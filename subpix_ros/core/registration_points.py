@@ -189,23 +189,39 @@ def sample_bicubic(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return out
 
 
+#: cv2.remap needs maps of fewer than SHRT_MAX (32767) rows and columns.
+_REMAP_MAX = 32000
+
+
+def _remap(img: np.ndarray, x: np.ndarray, y: np.ndarray, interp: int) -> np.ndarray:
+    """``cv2.remap`` of ``img`` at float32 positions ``x, y`` of any shape (..., W); float32, same shape.
+
+    Each output sample depends only on its own position, so the maps are laid
+    out as rows of ``W`` samples, in blocks of fewer than ``SHRT_MAX`` rows
+    (OpenCV's limit on a map's size).
+    """
+    shp = x.shape
+    mx = x.reshape(-1, shp[-1])
+    my = y.reshape(-1, shp[-1])
+    if mx.dtype != np.float32:
+        mx, my = mx.astype(np.float32), my.astype(np.float32)
+    if len(mx) < _REMAP_MAX:
+        out = cv2.remap(img, mx, my, interp, borderMode=cv2.BORDER_REPLICATE)
+    else:
+        out = np.vstack([cv2.remap(img, mx[r0: r0 + _REMAP_MAX], my[r0: r0 + _REMAP_MAX], interp,
+                                   borderMode=cv2.BORDER_REPLICATE) for r0 in range(0, len(mx), _REMAP_MAX)])
+    return out.reshape(shp)
+
+
 def sample_linear_cv(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear sampling with ``cv2.remap`` (fast; fraction quantised to 1/32 px). float32."""
-    shp = x.shape
-    mx = x.reshape(-1, shp[-1]).astype(np.float32)
-    my = y.reshape(-1, shp[-1]).astype(np.float32)
-    out = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(shp)
+    return _remap(img, x, y, cv2.INTER_LINEAR)
 
 
 def sample_cubic_cv(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bicubic sampling with ``cv2.remap`` (fraction quantised to 1/32 px; the error is
     random across points and averages out in the model fit). float32."""
-    shp = x.shape
-    mx = x.reshape(-1, shp[-1]).astype(np.float32)
-    my = y.reshape(-1, shp[-1]).astype(np.float32)
-    out = cv2.remap(img, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(shp)
+    return _remap(img, x, y, cv2.INTER_CUBIC)
 
 
 def _patch_grid(half: int) -> tuple[np.ndarray, np.ndarray]:
@@ -231,6 +247,32 @@ def _local_affine(h: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarra
     j[:, 1, 0] = (h[1, 0] - c[:, 1] * h[2, 0]) / w
     j[:, 1, 1] = (h[1, 1] - c[:, 1] * h[2, 1]) / w
     return c, j
+
+
+def _correlate_batch(win: np.ndarray, tpl: np.ndarray) -> np.ndarray:
+    """Valid cross-correlation of each window with its own template, for all points at once.
+
+    ``num[n, dy, dx] = sum_{i,j} tpl[n, i, j] win[n, dy + i, dx + j]`` for
+    ``win`` (N, B, B) and ``tpl`` (N, P, P), offsets ``0 <= dy, dx < K = B - P + 1``;
+    float32 (N, K, K). Computed row-wise: ``C[n, r, dx, i] = sum_j win[n, r, dx + j]
+    tpl[n, i, j]`` is one batched matrix product over the windows unfolded along
+    their rows only (``B K P`` values per point, not ``K^2 P^2``), then
+    ``num[n, dy, dx] = sum_i C[n, dy + i, dx, i]`` (``P`` slice additions).
+    """
+    n, b, _ = win.shape
+    pp = tpl.shape[1]
+    k = b - pp + 1
+    out = np.zeros((n, k, k), np.float32)
+    step = max(1, int(4e6 // (b * k * pp)))  # chunks of points keep the unfolded copy under ~16 MB
+    for c0 in range(0, n, step):  # usually one chunk
+        w = win[c0: c0 + step]
+        m = len(w)
+        unf = np.lib.stride_tricks.sliding_window_view(w, pp, axis=2).reshape(m, b * k, pp)
+        c = np.matmul(unf, tpl[c0: c0 + step].transpose(0, 2, 1)).reshape(m, b, k, pp)
+        o = out[c0: c0 + step]
+        for i in range(pp):  # P additions, each over all points and offsets
+            o += c[:, i: i + k, :, i]
+    return out
 
 
 def ncc_match(
@@ -288,15 +330,8 @@ def ncc_match(
     pp = 2 * half + 1
     k = 2 * radius + 1
     b = pp + 2 * radius
-    # Numerator sum(T0 W_d) for all (2r+1)^2 offsets d at once: one batched matrix product over
-    # the (n, k*k, pp*pp) unfolded windows.
-    # Chunks of points keep the unfolded copy under ~16 MB.
-    num = np.empty((n, k, k), dtype=np.float64)
-    step = max(1, int(4e6 // (k * k * pp * pp)))
-    for c0 in range(0, n, step):  # a few chunks, each one batched product over its points
-        w = win32[c0: c0 + step]
-        unf = np.lib.stride_tricks.sliding_window_view(w, (pp, pp), axis=(1, 2)).reshape(len(w), k * k, pp * pp)
-        num[c0: c0 + step] = (unf @ t0[c0: c0 + step].reshape(len(w), pp * pp, 1)).reshape(len(w), k, k)
+    # Numerator sum(T0 W_d) for all (2r+1)^2 offsets d at once (:func:`_correlate_batch`).
+    num = _correlate_batch(win32, t0).astype(np.float64)
     # Local sums of W and W^2 over each offset window: box filters over the windows stacked vertically
     # (anchor top-left, so a sum never crosses into the next window), on mean-removed float32 values.
     wc = (win32 - win32.mean(axis=(1, 2), keepdims=True)).reshape(n * b, b)
@@ -345,8 +380,11 @@ def refine_gauss_newton(
     ~1e-4 px), is sampled at ``p + d + q`` for the reference
     template grid ``q``; both patches are normalised to zero mean and unit
     norm (gain/offset invariance) and ``d`` is updated by
-    ``delta = (G^T G)^-1 G^T (T - S_d)`` with ``G`` the central-difference
-    gradient of ``S_d`` (px^-1), each component clipped to 0.5 px. The local
+    ``delta = (G^T G)^-1 G^T (T - S_d)`` with ``G = (grad S_d + grad T) / 2``
+    (central differences, px^-1; the efficient second-order minimisation of
+    Benhimane and Malis, which needs fewer iterations than ``grad S_d`` alone
+    on noisy weak texture, where the noise inflates ``G^T G`` and shortens
+    the steps), each component clipped to 0.5 px. The local
     displacement ``d0`` from the current match seeds the iteration. A point
     stops iterating once its step is below ``tol`` px (the others go on, up
     to ``iterations``). Returns the refined moving points ``H^-1 (p + d)``
@@ -357,9 +395,13 @@ def refine_gauss_newton(
     if n == 0:
         return pts_mov.copy(), np.zeros(0, bool)
     p = np.rint(pts_ref)
-    t = _ref_patches(ref, p, half)
+    tf = _ref_patches(ref, p, half + 1)  # template with a 1 px border for its gradient
+    t = tf[:, 1:-1, 1:-1]
     t = t - t.mean(axis=(1, 2), keepdims=True)
-    t /= np.maximum(np.sqrt((t * t).sum(axis=(1, 2), keepdims=True)), 1e-12)
+    tnrm = np.maximum(np.sqrt((t * t).sum(axis=(1, 2), keepdims=True)), 1e-12)
+    t = t / tnrm
+    gt_x = ((tf[:, 1:-1, 2:] - tf[:, 1:-1, :-2]) / (2 * tnrm)).astype(np.float32)
+    gt_y = ((tf[:, 2:, 1:-1] - tf[:, :-2, 1:-1]) / (2 * tnrm)).astype(np.float32)
     d = apply_h(h_mr, pts_mov) - p  # current displacement in reference px
     d0 = d.copy()
     qx, qy = _patch_grid(half + 1)
@@ -381,14 +423,15 @@ def refine_gauss_newton(
         if act.size == 0:
             break
         mp = base[act] + np.einsum("nij,nj->ni", jac[act], d[act]).astype(np.float32)[:, None, :]
-        s = cv2.remap(mov, np.ascontiguousarray(mp[:, :, 0]).reshape(-1, side), np.ascontiguousarray(mp[:, :, 1]).reshape(-1, side),
-                      cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE).reshape(-1, side, side)
+        s = _remap(mov, np.ascontiguousarray(mp[:, :, 0]).reshape(-1, side, side),
+                   np.ascontiguousarray(mp[:, :, 1]).reshape(-1, side, side), cv2.INTER_CUBIC)
         inner = s[:, 1:-1, 1:-1]
         mu = inner.mean(axis=(1, 2), keepdims=True)
         nrm = np.maximum(np.sqrt(((inner - mu) ** 2).sum(axis=(1, 2), keepdims=True)), np.float32(1e-12))
         si = (inner - mu) / nrm
-        g_x = (s[:, 1:-1, 2:] - s[:, 1:-1, :-2]) / (2 * nrm)
-        g_y = (s[:, 2:, 1:-1] - s[:, :-2, 1:-1]) / (2 * nrm)
+        # ESM Jacobian: the mean of the warped patch's and the template's normalised gradients.
+        g_x = (s[:, 1:-1, 2:] - s[:, 1:-1, :-2]) / (4 * nrm) + 0.5 * gt_x[act]
+        g_y = (s[:, 2:, 1:-1] - s[:, :-2, 1:-1]) / (4 * nrm) + 0.5 * gt_y[act]
         a11 = np.einsum("nij,nij->n", g_x, g_x)
         a12 = np.einsum("nij,nij->n", g_x, g_y)
         a22 = np.einsum("nij,nij->n", g_y, g_y)

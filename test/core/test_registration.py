@@ -334,3 +334,41 @@ def test_tracked_real_pairs_agree_with_full(seneca, i):
     bad[0, 2] += 40.0
     fb = register(ref, seneca[i + 1], prior=bad, **kw)
     assert fb.ok and not fb.tracked and fb.track_failure
+
+
+# --- building blocks ---------------------------------------------------------------------------
+
+
+def test_correlate_batch_equals_direct_sum():
+    """The row-wise batched correlation in ncc_match is the plain sum over template pixels."""
+    from subpix_ros.core.registration_points import _correlate_batch
+
+    rng = np.random.default_rng(3)
+    for n, pp, k in ((5, 15, 7), (3, 29, 9), (4, 5, 1)):
+        win = rng.normal(size=(n, pp + k - 1, pp + k - 1)).astype(np.float32)
+        tpl = rng.normal(size=(n, pp, pp)).astype(np.float32)
+        got = _correlate_batch(win, tpl)
+        want = np.array([[[np.sum(tpl[i].astype(np.float64) * win[i, dy:dy + pp, dx:dx + pp]) for dx in range(k)]
+                          for dy in range(k)] for i in range(n)])
+        assert got.shape == (n, k, k)
+        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-3 * np.sqrt(pp * pp))
+
+
+def test_ncc_and_gauss_newton_with_more_rows_than_remap_allows(crops):
+    """1500 points with 29 px templates stack 55,500 window rows, beyond cv2.remap's 32,767-row limit:
+    matching and refinement still work and find the known translation."""
+    from subpix_ros.core.registration_points import ncc_match, refine_gauss_newton
+
+    img = cv2.GaussianBlur(crops["crop_trees"].astype(np.float32), (0, 0), 1.0)
+    ref = img[40:700, 40:700].copy()
+    mov = img[37:697, 42:702].copy()  # content at (r, c) in ref is at (r + 3, c - 2) in mov
+    ys, xs = np.mgrid[40:620:15, 40:620:15]
+    pts = np.stack([xs.ravel(), ys.ravel()], 1).astype(float)[:1500]
+    assert len(pts) * (29 + 8) > 32767
+    h = np.array([[1.0, 0, 0.4], [0, 1.0, -0.3], [0, 0, 1]])  # a prior 0.5 px off (moving -> reference)
+    p_r, p_m, _ = ncc_match(ref, mov, pts, h, half=14, radius=4)
+    assert len(p_r) > 0.8 * len(pts)
+    m2, conv = refine_gauss_newton(ref, mov, p_r, p_m, h, half=14)
+    assert conv.mean() > 0.8
+    d = m2[conv] - p_r[conv]
+    np.testing.assert_allclose(np.median(d, axis=0), [-2.0, 3.0], atol=0.02)

@@ -96,7 +96,11 @@ def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.ndim == 3 and img.shape[2] == 3:
-        g = luminance(img, "bgr", dtype=np.float32)
+        # In blocks of 64 rows: luminance's float32 copy of each block stays in cache (and its
+        # allocation small) instead of a full-frame HxWx3 float32 temporary (same values).
+        g = np.empty(img.shape[:2], np.float32)
+        for r0 in range(0, img.shape[0], 64):
+            g[r0: r0 + 64] = luminance(img[r0: r0 + 64], "bgr", dtype=np.float32)
     elif img.ndim == 2:
         g = img.astype(np.float32)
     else:
@@ -217,12 +221,25 @@ def _valid_grid(shape_ref, shape_mov, h_mr, margin_mov: float, step: int) -> np.
 def _valid_ref_points(shape_ref, shape_mov, h_mr, margin_ref: int, margin_mov: float, step: int = 4) -> np.ndarray:
     """Bool mask (reference shape) of pixels whose prediction in the moving frame is inside it.
 
-    Evaluated on a grid every ``step`` px and expanded (nearest), with
-    ``margin_ref`` / ``margin_mov`` px kept clear of either frame's border.
+    ``margin_ref`` / ``margin_mov`` px are kept clear of either frame's border. The moving frame
+    shrunk by ``margin_mov + 1`` maps to a convex quadrilateral under ``h_mr`` (a homography maps
+    lines to lines), which is filled; if a corner crosses the perspective horizon the mask is
+    evaluated on a grid every ``step`` px instead (expanded, nearest, ``step`` px more margin).
     """
     hr, wr = shape_ref
-    small = _valid_grid(shape_ref, shape_mov, h_mr, margin_mov, step)
-    inside = np.repeat(np.repeat(small, step, axis=0), step, axis=1)[:hr, :wr].copy()
+    hm, wm = shape_mov
+    m = margin_mov + 1
+    quad = np.array([[m, m], [wm - 1 - m, m], [wm - 1 - m, hm - 1 - m], [m, hm - 1 - m]], float)
+    w = h_mr[2, 0] * quad[:, 0] + h_mr[2, 1] * quad[:, 1] + h_mr[2, 2]
+    if m < min(hm, wm) / 2 and np.all(w > 0):
+        q = apply_h(h_mr, quad)
+        inside = np.zeros((hr, wr), np.uint8)
+        if np.isfinite(q).all() and np.abs(q).max() < 1e6:
+            cv2.fillConvexPoly(inside, np.rint(q * 16).astype(np.int32), 1, lineType=cv2.LINE_8, shift=4)
+        inside = inside.astype(bool)
+    else:
+        small = _valid_grid(shape_ref, shape_mov, h_mr, margin_mov, step)
+        inside = np.repeat(np.repeat(small, step, axis=0), step, axis=1)[:hr, :wr].copy()
     inside[:margin_ref] = False
     inside[hr - margin_ref:] = False
     inside[:, :margin_ref] = False
@@ -475,7 +492,7 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
                  model: str, fixed_lam: float | None, distortion, template_half: int, inlier_px: float,
                  min_inliers: int, min_spread: float, t0: float,
                  pred_det: np.ndarray | None = None, extra_det: np.ndarray | None = None,
-                 want_inliers: int = 0, always_second_pass: bool = True, n_points: int = 700) -> tuple[RegistrationResult, int]:
+                 want_inliers: int = 0, n_points: int = 700) -> tuple[RegistrationResult, int]:
     """Input-resolution stage of :func:`register` (stage 3): MAGSAC, LM, Gauss-Newton, final LM, checks.
 
     ``pts_det``: reference tie points (x, y) at pyramid level ``h_lev``;
@@ -491,8 +508,11 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
     the detection level's double, Harris maxima of level ``h_lev - 1``) by NCC at
     level ``h_lev - 1`` (the template's nominal size there) around the model's
     prediction, refines them and refits. Returns the result and the number of
-    tie points of the first pass. ``always_second_pass=False`` (tracking) runs the
-    second pass only when the first one has fewer than ``want_inliers`` inliers.
+    tie points of the first pass. The second pass also runs when tracking: without it
+    the frame edges, where the projective prior misses the lens distortion by a few
+    px, keep almost no tie points and the model extrapolates there (measured: 0.16 vs
+    0.02 px mean difference from the full pipeline on Seneca pair 1, 1080p tracking
+    row 34 vs 30 ms at 500 points).
     """
     gr, gm = ref.gray, mov.gray
     affine = model == "affine"
@@ -567,7 +587,7 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
     # Second pass: the points the first one missed (the coarser level's projective prediction was a few px
     # off, e.g. at the frame edges under lens distortion, so the NCC peak fell outside the window) are
     # searched again around this model's prediction, refined, and kept if the model fits them.
-    if inl.sum() >= min_inliers and (always_second_pass or inl.sum() < want_inliers):
+    if inl.sum() >= min_inliers:
         key = lambda q: np.rint(q[:, 1]) * 1e6 + np.rint(q[:, 0])  # noqa: E731
         miss = pts0[~np.isin(key(pts0), key(p_r[inl]))]
         if inl.sum() < want_inliers:  # weak texture: further candidates
@@ -727,7 +747,7 @@ def _register_tracked(ref: ReferenceFrame, mov: ReferenceFrame, prior: np.ndarra
     if reason:
         return _fail(reason, t0, shapes, model)
     res, n_try = _final_stage(ref, mov, pts, hn, det_lev, 2 + int(f) // 2, t0=t0, template_half=template_half, n_points=n_points,
-                              pred_det=_per_point(pts, p_r, p_m), extra_det=extra, always_second_pass=False, **kw)
+                              pred_det=_per_point(pts, p_r, p_m), extra_det=extra, **kw)
     if not res.ok:
         return res
     if res.inliers < min_fraction * n_try:
@@ -781,9 +801,11 @@ def register(
     the orientation-histogram ones. Failure (``ok=False`` with a reason) for:
     blank / textureless frames, no confirmed overlap, too few or badly spread
     tie points, a degenerate or insane fit. ``want_inliers``: when the first
-    pass at input resolution ends with fewer inliers (weak texture), up to
-    ``2 n_points`` further Harris points are searched in the second pass
-    (0 disables it).
+    pass at input resolution ends with fewer inliers (weak texture), further
+    Harris points are searched in the second pass (0 disables it): up to
+    ``2 n_points`` of the detection level, or, for inputs more than twice the
+    detection size, 15 per missing inlier (``n_points / 2`` to ``3 n_points``)
+    of the next finer level.
 
     ``prior`` (tracking, e.g. at video rate against a fixed reference): a 3x3
     homography, moving -> reference px, predicting this frame (e.g. the
@@ -883,7 +905,9 @@ def _register_full(ref: ReferenceFrame, mov: ReferenceFrame, *, n_points: int, c
         h = _scale_h(h, 2.0 ** (h_lev - lev))
         h_lev = lev
         ref_l, mov_l = ref.level(lev), pm_[lev]
-        radius = 6 if first else 4
+        # First level: the coarse similarity is off by up to ~10 level px over the overlap (no
+        # perspective or lens distortion; ORB features clustered on a few objects; Seneca pair 0).
+        radius = 8 if first else 4
         first = False
         margin = half + radius + 2
         valid = _valid_ref_points(ref_l.shape, mov_l.shape, h, margin, margin)

@@ -400,8 +400,8 @@ def refine_gauss_newton(
     t = t - t.mean(axis=(1, 2), keepdims=True)
     tnrm = np.maximum(np.sqrt((t * t).sum(axis=(1, 2), keepdims=True)), 1e-12)
     t = t / tnrm
-    gt_x = ((tf[:, 1:-1, 2:] - tf[:, 1:-1, :-2]) / (2 * tnrm)).astype(np.float32)
-    gt_y = ((tf[:, 2:, 1:-1] - tf[:, :-2, 1:-1]) / (2 * tnrm)).astype(np.float32)
+    gt = np.stack([tf[:, 1:-1, 2:] - tf[:, 1:-1, :-2], tf[:, 2:, 1:-1] - tf[:, :-2, 1:-1]], axis=1)
+    gt = (gt / (2 * tnrm[:, None])).astype(np.float32)  # template gradient (x, y), normalised
     d = apply_h(h_mr, pts_mov) - p  # current displacement in reference px
     d0 = d.copy()
     qx, qy = _patch_grid(half + 1)
@@ -409,36 +409,44 @@ def refine_gauss_newton(
     # Sampling positions H^-1(p + d + q) = H^-1(p + q) + J_p d + O(|c| |q| |d|) with J_p the Jacobian of
     # H^-1 at p: the second-order term is ~1e-4 px for |q| <= 8 px, |d| < 1 px and |c| ~ 1e-5 px^-1.
     base = apply_h(hinv, np.stack([(p[:, 0, None, None] + qx).ravel(), (p[:, 1, None, None] + qy).ravel()], axis=1))
-    base = base.reshape(n, -1, 2).astype(np.float32)  # remap quantises positions to 1/32 px anyway
+    side = 2 * half + 3
+    bx = base[:, 0].astype(np.float32).reshape(n, side, side)  # remap quantises positions to 1/32 px anyway
+    by = base[:, 1].astype(np.float32).reshape(n, side, side)
     t = t.astype(np.float32)
     e1 = apply_h(hinv, p + [1e-3, 0.0])
     e2 = apply_h(hinv, p + [0.0, 1e-3])
     c0 = apply_h(hinv, p)
     jac = np.stack([(e1 - c0) / 1e-3, (e2 - c0) / 1e-3], axis=2)  # (n, 2, 2): d(moving x, y) / d(d_x, d_y)
-    side = 2 * half + 3
+    pp = (2 * half + 1) ** 2
     good = np.ones(n, bool)
     done = np.zeros(n, bool)
     for _ in range(iterations):
         act = np.nonzero(good & ~done)[0]  # points still iterating
         if act.size == 0:
             break
-        mp = base[act] + np.einsum("nij,nj->ni", jac[act], d[act]).astype(np.float32)[:, None, :]
-        s = _remap(mov, np.ascontiguousarray(mp[:, :, 0]).reshape(-1, side, side),
-                   np.ascontiguousarray(mp[:, :, 1]).reshape(-1, side, side), cv2.INTER_CUBIC)
+        m = act.size
+        sh = np.einsum("nij,nj->ni", jac[act], d[act]).astype(np.float32)
+        mx = bx[act]
+        mx += sh[:, 0, None, None]
+        my = by[act]
+        my += sh[:, 1, None, None]
+        s = _remap(mov, mx, my, cv2.INTER_CUBIC)
         inner = s[:, 1:-1, 1:-1]
-        mu = inner.mean(axis=(1, 2), keepdims=True)
-        nrm = np.maximum(np.sqrt(((inner - mu) ** 2).sum(axis=(1, 2), keepdims=True)), np.float32(1e-12))
-        si = (inner - mu) / nrm
+        z = inner - inner.mean(axis=(1, 2), keepdims=True)
+        nrm = np.sqrt(np.einsum("nij,nij->n", z, z))
+        nrm = np.maximum(nrm, np.float32(1e-12))[:, None, None]
         # ESM Jacobian: the mean of the warped patch's and the template's normalised gradients.
-        g_x = (s[:, 1:-1, 2:] - s[:, 1:-1, :-2]) / (4 * nrm) + 0.5 * gt_x[act]
-        g_y = (s[:, 2:, 1:-1] - s[:, :-2, 1:-1]) / (4 * nrm) + 0.5 * gt_y[act]
-        a11 = np.einsum("nij,nij->n", g_x, g_x)
-        a12 = np.einsum("nij,nij->n", g_x, g_y)
-        a22 = np.einsum("nij,nij->n", g_y, g_y)
-        e = t[act] - si
-        b1 = np.einsum("nij,nij->n", g_x, e)
-        b2 = np.einsum("nij,nij->n", g_y, e)
-        a11, a12, a22, b1, b2 = (v.astype(np.float64) for v in (a11, a12, a22, b1, b2))
+        g = np.empty((m, 2, 2 * half + 1, 2 * half + 1), np.float32)
+        np.subtract(s[:, 1:-1, 2:], s[:, 1:-1, :-2], out=g[:, 0])
+        np.subtract(s[:, 2:, 1:-1], s[:, :-2, 1:-1], out=g[:, 1])
+        g /= 4 * nrm[:, None]
+        g += 0.5 * gt[act]
+        g = g.reshape(m, 2, pp)
+        e = (t[act] - z / nrm).reshape(m, pp, 1)
+        am = g @ g.transpose(0, 2, 1)
+        bv = (g @ e)[:, :, 0]
+        a11, a12, a22 = (am[:, 0, 0].astype(np.float64), am[:, 0, 1].astype(np.float64), am[:, 1, 1].astype(np.float64))
+        b1, b2 = bv[:, 0].astype(np.float64), bv[:, 1].astype(np.float64)
         det = a11 * a22 - a12 * a12
         ok = det > 1e-12 * np.maximum(a11 + a22, 1e-30) ** 2
         dets = np.where(ok, det, 1.0)

@@ -326,9 +326,9 @@ def test_tracked_real_pairs_agree_with_full(seneca, i):
     pm = full.points[:, 2:]
     err = np.hypot(*(tr.transfer(pm) - full.transfer(pm)).T)
     assert err.mean() <= 0.1, err.mean()
-    # tracking skips the second pass once the first has want_inliers (200): fewer, but enough, inliers
+    # tracking runs the second pass too (the edge points the projective prior misses): as many inliers
     assert tr.inliers >= min(200, 0.9 * full.inliers)
-    assert tr.rms_px <= full.rms_px + 0.05  # (without the second pass's edge points it is usually lower)
+    assert tr.rms_px <= full.rms_px + 0.05
     # a prior 40 px off falls back and still registers
     bad = prior.copy()
     bad[0, 2] += 40.0

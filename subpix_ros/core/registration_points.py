@@ -77,7 +77,13 @@ def harris_peaks(gray: np.ndarray, window: int = 11, nms_radius: int = 4) -> tup
     resp = harris_response(gray, window)
     k = 2 * nms_radius + 1
     dil = cv2.dilate(resp, np.ones((k, k), np.uint8))
-    ys, xs = np.nonzero((resp >= dil) & (resp > 0))
+    # Pixels equal to their neighbourhood maximum and positive, listed row by row (as np.nonzero).
+    nz = cv2.findNonZero(cv2.bitwise_and(cv2.compare(resp, dil, cv2.CMP_GE), cv2.compare(resp, 0, cv2.CMP_GT)))
+    if nz is None:
+        z = np.zeros(0, np.intp)
+        return z, z, np.zeros(0, np.float32)
+    nz = nz.reshape(-1, 2).astype(np.intp)
+    xs, ys = nz[:, 0], nz[:, 1]
     return xs, ys, resp[ys, xs]
 
 
@@ -376,8 +382,8 @@ def refine_gauss_newton(
     """Sub-pixel refinement of tie points by Gauss-Newton on patch translation.
 
     The moving frame warped to the reference grid, ``W(x) = mov(H^-1 x)``
-    (bicubic, ``cv2.remap``; ``H^-1`` linearised in ``d`` about ``p + q``,
-    ~1e-4 px), is sampled at ``p + d + q`` for the reference
+    (bicubic, ``cv2.remap``; ``H^-1`` linearised about ``p``, ~6e-4 px over
+    the patch), is sampled at ``p + d + q`` for the reference
     template grid ``q``; both patches are normalised to zero mean and unit
     norm (gain/offset invariance) and ``d`` is updated by
     ``delta = (G^T G)^-1 G^T (T - S_d)`` with ``G = (grad S_d + grad T) / 2``
@@ -406,17 +412,17 @@ def refine_gauss_newton(
     d0 = d.copy()
     qx, qy = _patch_grid(half + 1)
     hinv = np.linalg.inv(h_mr)
-    # Sampling positions H^-1(p + d + q) = H^-1(p + q) + J_p d + O(|c| |q| |d|) with J_p the Jacobian of
-    # H^-1 at p: the second-order term is ~1e-4 px for |q| <= 8 px, |d| < 1 px and |c| ~ 1e-5 px^-1.
-    base = apply_h(hinv, np.stack([(p[:, 0, None, None] + qx).ravel(), (p[:, 1, None, None] + qy).ravel()], axis=1))
+    # Sampling positions H^-1(p + d + q) = c + J (q + d) + O(|c_h| |q + d|^2): the local affine expansion
+    # of H^-1 about p (c = H^-1 p, J its Jacobian, c_h the perspective row of H^-1). The second-order
+    # term is ~6e-4 px for |q| <= 8 px and |c_h| ~ 1e-5 px^-1, and even in q, so it does not move the
+    # patch's centre; remap quantises positions to 1/32 px anyway.
     side = 2 * half + 3
-    bx = base[:, 0].astype(np.float32).reshape(n, side, side)  # remap quantises positions to 1/32 px anyway
-    by = base[:, 1].astype(np.float32).reshape(n, side, side)
+    c, jac = _local_affine(hinv, p)  # jac (n, 2, 2): d(moving x, y) / d(d_x, d_y)
+    c, jq = c.astype(np.float32), jac.astype(np.float32)
+    qx, qy = qx.astype(np.float32), qy.astype(np.float32)
+    bx = c[:, 0, None, None] + jq[:, 0, 0, None, None] * qx + jq[:, 0, 1, None, None] * qy
+    by = c[:, 1, None, None] + jq[:, 1, 0, None, None] * qx + jq[:, 1, 1, None, None] * qy
     t = t.astype(np.float32)
-    e1 = apply_h(hinv, p + [1e-3, 0.0])
-    e2 = apply_h(hinv, p + [0.0, 1e-3])
-    c0 = apply_h(hinv, p)
-    jac = np.stack([(e1 - c0) / 1e-3, (e2 - c0) / 1e-3], axis=2)  # (n, 2, 2): d(moving x, y) / d(d_x, d_y)
     pp = (2 * half + 1) ** 2
     good = np.ones(n, bool)
     done = np.zeros(n, bool)

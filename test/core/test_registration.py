@@ -372,3 +372,50 @@ def test_ncc_and_gauss_newton_with_more_rows_than_remap_allows(crops):
     assert conv.mean() > 0.8
     d = m2[conv] - p_r[conv]
     np.testing.assert_allclose(np.median(d, axis=0), [-2.0, 3.0], atol=0.02)
+
+
+def test_harris_response_is_the_plain_formula():
+    """The buffer-reusing Harris response equals R = a c - b^2 - k (a + c)^2 written out."""
+    from subpix_ros.core.registration_points import harris_response
+
+    img = cv2.GaussianBlur(np.random.default_rng(5).normal(100, 30, (120, 150)).astype(np.float32), (0, 0), 1.5)
+    g = cv2.GaussianBlur(img, (3, 3), 0)
+    vx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
+    vy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
+    a, b, c = (cv2.GaussianBlur(v, (11, 11), 0) for v in (vx * vx, vx * vy, vy * vy))
+    np.testing.assert_array_equal(harris_response(img), a * c - b * b - np.float32(0.04) * (a + c) ** 2)
+
+
+def test_overlap_mask_matches_the_pointwise_definition():
+    """The filled quadrilateral is the set of reference pixels whose prediction lies inside the moving
+    frame with the margin (checked pointwise, away from the polygon's 1 px boundary)."""
+    from subpix_ros.core.registration import _valid_ref_points
+
+    h = _known_h(12.0, 40.0, -25.0, p=(3e-5, -2e-5))
+    mask = _valid_ref_points((300, 400), (280, 360), h, 5, 10.0)
+    ys, xs = np.mgrid[0:300, 0:400]
+    pm = apply_h(np.linalg.inv(h), np.stack([xs.ravel(), ys.ravel()], 1).astype(float))
+    m = 10.0 + 1
+    inside = ((pm[:, 0] >= m) & (pm[:, 0] <= 359 - m) & (pm[:, 1] >= m) & (pm[:, 1] <= 279 - m)).reshape(300, 400)
+    inside[:5] = inside[-5:] = False
+    inside[:, :5] = inside[:, -5:] = False
+    core = cv2.erode(inside.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    outer = cv2.dilate(inside.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    assert mask[core].all() and not mask[~outer].any()
+    assert 0.5 * inside.sum() < mask.sum() < 1.5 * inside.sum()
+
+
+def test_input_finer_than_twice_the_detection_level(seneca):
+    """Input 3.6x the detection size (the full-resolution case, here a half-resolution pair with
+    detect_size=500): NCC one level below the detection level, Gauss-Newton coarse to fine, and, short of
+    want_inliers, Harris candidates of that finer level. Without them this pair has fewer than 200
+    inliers; with them at least 200, and the model agrees with the default-level registration."""
+    base = register(seneca[2], seneca[3])
+    few = register(seneca[2], seneca[3], detect_size=500, want_inliers=0)
+    res = register(seneca[2], seneca[3], detect_size=500)
+    assert base.ok and few.ok and res.ok, (base.reason, few.reason, res.reason)
+    assert few.inliers < 200 <= res.inliers, (few.inliers, res.inliers)
+    assert res.spread >= 0.4
+    pm = base.points[:, 2:]
+    err = np.hypot(*(res.transfer(pm) - base.transfer(pm)).T)
+    assert err.mean() <= 0.1, err.mean()

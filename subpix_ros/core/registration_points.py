@@ -15,7 +15,9 @@ METHODS.md C, stage 2 (tie points), vectorised over all points at once:
   NCC peak is refined by a parabola through its neighbours.
 * Sub-pixel refinement: Gauss-Newton on the translation of each patch
   (``delta = (G^T G)^-1 G^T (T - S)``, the gradient model of METHODS A
-  applied to one small window), with the moving patch resampled (bicubic,
+  applied to one small window, with ``G`` the mean of the patch's and the
+  template's gradients: efficient second-order minimisation, fewer
+  iterations on noisy texture), with the moving patch resampled (bicubic,
   ``cv2.remap``, positions quantised to 1/32 px, an error random across
   points) at the updated position each iteration, each point until its step
   is below 0.01 px; this converges to the unbiased position, without the

@@ -254,7 +254,7 @@ def main() -> int:
     rows = real_rows(seneca_frame_paths(), a.repeat, "1800x1350", lam)
     full = sorted(FULLRES.glob("IMG_*.jpg")) if FULLRES.is_dir() else []
     if full and not a.no_fullres:
-        rows += real_rows(full, 1, "3600x2700", lam)
+        rows += real_rows(full, a.repeat, "3600x2700", lam)  # best of repeats, as at half resolution
     print("\nReal consecutive Seneca pairs (inliers: method's own inlier set; rms: inlier RMS residual, px)")
     print(f"{'size':10s} {'method':16s} {'ok':>5s} {'inl.med':>7s} {'inl.min':>7s} {'rms.med':>7s} {'rms.max':>7s} {'s/pair':>7s} "
           f"{'s.max':>6s}  per-pair rms (ours: and inliers)")

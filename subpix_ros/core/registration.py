@@ -593,9 +593,9 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
         if inl.sum() < want_inliers:  # weak texture: further candidates
             if m_lev > 0:  # input finer than the detection level's double: maxima of level m_lev
                 # As many as the deficit needs: on the weak-texture Seneca pairs at full resolution one
-                # candidate in 4-10 became an inlier (measured), so 10 per missing inlier (7 left a pair
-                # at 209 inliers, 15 cost 15% more time on the pairs that need them).
-                n_fine = int(np.clip(10 * (want_inliers - inl.sum()), n_points // 2, 3 * n_points))
+                # candidate in 4-10 became an inlier (measured), so 15 per missing inlier (10 left pair 7
+                # at 185 inliers with the fixed camera lambda; 15 costs ~10% more on the pairs that need it).
+                n_fine = int(np.clip(15 * (want_inliers - inl.sum()), n_points // 2, 3 * n_points))
                 ex = _finer_candidates(ref, mov, m_lev, h, pts0, n_fine, margin)
             else:
                 ex = np.zeros((0, 2)) if extra_det is None else np.rint(extra_det * f)
@@ -805,7 +805,7 @@ def register(
     pass at input resolution ends with fewer inliers (weak texture), further
     Harris points are searched in the second pass (0 disables it): up to
     ``2 n_points`` of the detection level, or, for inputs more than twice the
-    detection size, 10 per missing inlier (``n_points / 2`` to ``3 n_points``)
+    detection size, 15 per missing inlier (``n_points / 2`` to ``3 n_points``)
     of the next finer level.
 
     ``prior`` (tracking, e.g. at video rate against a fixed reference): a 3x3

@@ -23,6 +23,10 @@ For each of the 8 consecutive half-resolution pairs (bundled 1800x1350 frames):
   resolution): ``H = B f / (|t| p)``.
 * ``px/cm``: parallax of 1 cm of relief between the two exposures,
   ``|t| dh / H`` (px per cm).
+* ``view``: the angle between the two lines of sight to a ground point
+  under the baseline's midpoint, ``2 atan(B / 2H)`` (degrees): how differently
+  the two exposures see 3-D texture (furrows, crops, verges: shading and
+  self-occlusion change with it, in every direction, unlike parallax).
 
     python benchmarks/bench_registration_residuals.py
 """
@@ -89,7 +93,7 @@ def main() -> int:
         meta = {row["file"]: row for row in csv.DictReader(f)}
     print("Inlier residual anatomy, Seneca strip at 1800x1350 (px unless stated)")
     head = (f"{'pair':>4s} {'inl':>4s} {'rms':>6s} {'along':>6s} {'cross':>6s} {'nn.al':>6s} {'nn.cr':>6s} {'row':>5s} "
-            f"{'ctrl':>6s} {'c.inl':>5s} {'B m':>6s} {'|t| px':>7s} {'H m':>6s} {'px/cm':>6s}")
+            f"{'ctrl':>6s} {'c.inl':>5s} {'B m':>6s} {'|t| px':>7s} {'H m':>6s} {'px/cm':>6s} {'view':>5s}")
     print(head)
     print("-" * len(head))
     allr = []
@@ -105,15 +109,16 @@ def main() -> int:
         base = float(np.hypot(east, north))
         height = base * FOCAL_M / (s["t_px"] * PITCH_HALF_M)
         s["pxcm"] = s["t_px"] * 0.01 / height
+        s["view"] = float(np.degrees(2 * np.arctan(base / (2 * height))))
         allr.append(s)
         print(f"{i:4d} {s['inliers']:4d} {s['rms']:6.3f} {s['along']:6.3f} {s['cross']:6.3f} {s['nn_al']:6.2f} "
               f"{s['nn_cr']:6.2f} {s['row']:5.2f} {s['ctrl']:6.3f} {s['ctrl_inl']:5d} {base:6.1f} {s['t_px']:7.1f} "
-              f"{height:6.1f} {s['pxcm']:6.3f}")
+              f"{height:6.1f} {s['pxcm']:6.3f} {s['view']:5.1f}")
     if allr:
-        med = {k: float(np.median([s[k] for s in allr])) for k in ("rms", "along", "cross", "nn_al", "nn_cr", "row", "ctrl", "pxcm")}
+        med = {k: float(np.median([s[k] for s in allr])) for k in ("rms", "along", "cross", "nn_al", "nn_cr", "row", "ctrl", "pxcm", "view")}
         print(f"median: rms {med['rms']:.3f}, along {med['along']:.3f}, cross {med['cross']:.3f}, nn corr along "
               f"{med['nn_al']:.2f} / cross {med['nn_cr']:.2f}, row-explained {med['row']:.2f}, control {med['ctrl']:.3f} px; "
-              f"1 cm of relief = {med['pxcm']:.3f} px of parallax along the baseline")
+              f"1 cm of relief = {med['pxcm']:.3f} px of parallax along the baseline; lines of sight {med['view']:.0f} deg apart")
     return 0
 
 

@@ -18,6 +18,9 @@ __all__ = ["luminance", "LUMA_WEIGHTS_RGB", "ORDERS"]
 #: Seed weights for (R, G, B).
 LUMA_WEIGHTS_RGB = (0.2989, 0.587, 0.1141)
 
+#: Rows per block of the float32 path.
+_ROWS = 64
+
 #: Accepted channel orders and, for each, the index of R, G and B.
 ORDERS = {
     "bgr": (2, 1, 0),
@@ -65,7 +68,13 @@ def luminance(image: np.ndarray, order: str = "bgr", dtype: type = np.float64) -
     if dtype == np.float32:  # one OpenCV pass over the pixels, weights in B, G, R order of the array
         w = np.zeros((1, img.shape[2]), np.float32)
         w[0, ir], w[0, ig], w[0, ib] = wr, wg, wb
-        return cv2.transform(img.astype(np.float32, copy=False), w).reshape(img.shape[:2])
+        # In blocks of _ROWS rows: each block's float32 copy stays in cache and small, instead of a
+        # frame-sized HxWxC float32 temporary (same values; its page faults cost more than the sum).
+        out = np.empty(img.shape[:2], np.float32)
+        for r0 in range(0, img.shape[0], _ROWS):
+            blk = img[r0: r0 + _ROWS]
+            out[r0: r0 + _ROWS] = cv2.transform(blk.astype(np.float32, copy=False), w).reshape(blk.shape[:2])
+        return out
     out = wr * img[:, :, ir].astype(np.float64)
     out += wg * img[:, :, ig]
     out += wb * img[:, :, ib]

@@ -96,11 +96,7 @@ def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.ndim == 3 and img.shape[2] == 3:
-        # In blocks of 64 rows: luminance's float32 copy of each block stays in cache (and its
-        # allocation small) instead of a full-frame HxWx3 float32 temporary (same values).
-        g = np.empty(img.shape[:2], np.float32)
-        for r0 in range(0, img.shape[0], 64):
-            g[r0: r0 + 64] = luminance(img[r0: r0 + 64], "bgr", dtype=np.float32)
+        g = luminance(img, "bgr", dtype=np.float32)
     elif img.ndim == 2:
         g = img.astype(np.float32)
     else:

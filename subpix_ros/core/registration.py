@@ -888,6 +888,14 @@ def _register_full(ref: ReferenceFrame, mov: ReferenceFrame, *, n_points: int, c
         frag = coarse_overlap(gc_r, gc_m, hyps)
         if coarse_method == "fragments" or frag.ok:
             coarse, used, h_lev = frag, "fragments", n_lev
+    if coarse_method == "orb" and not coarse.ok:
+        # Last resort (both stages above failed; e.g. ~20 % overlap on weak infrared texture, a 1080p
+        # crop of Seneca pair 1): 5000 weaker ORB corners one level finer (~0.2 s, only on this path).
+        lev = max(det_lev, mid_lev - 1)
+        rich = coarse_orb(ref.level(lev), pm_[lev], ref_features=orb_features(ref.level(lev), 5000, fast_threshold=10),
+                          mov_features=orb_features(pm_[lev], 5000, fast_threshold=10))
+        if rich.ok:
+            coarse, used, h_lev = rich, "orb", lev
     if not coarse.ok:
         return _fail(coarse.reason, t0, shapes, model)
     h = coarse.transform

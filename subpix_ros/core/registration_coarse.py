@@ -238,7 +238,7 @@ def _orb_u8(img: np.ndarray) -> np.ndarray:
     return clahe.apply(cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8))
 
 
-def orb_features(img: np.ndarray, n_features: int = 1500) -> tuple[tuple, np.ndarray | None]:
+def orb_features(img: np.ndarray, n_features: int = 1500, fast_threshold: int = 20) -> tuple[tuple, np.ndarray | None]:
     """ORB keypoints and descriptors of one pyramid level (CLAHE-equalised 8-bit copy), for :func:`coarse_orb`.
 
     Depends only on the frame, so a fixed reference frame computes it once. Four ORB scales
@@ -246,9 +246,11 @@ def orb_features(img: np.ndarray, n_features: int = 1500) -> tuple[tuple, np.nda
     threshold of 20 (of 255, on the equalised copy) drops the weak corners, which never gave
     consistent matches (measured on the Seneca strip, half and full resolution: as many consistent
     matches as 6 scales / threshold 3, with ~1000 instead of 1500 features on the lawn frames, so
-    detection takes 40% and the quadratic matching about half the time).
+    detection takes 40% and the quadratic matching about half the time). :func:`register`'s last
+    resort for low overlap asks for more and weaker corners (``n_features``, ``fast_threshold``).
     """
-    orb = cv2.ORB_create(nfeatures=n_features, scaleFactor=1.2, nlevels=4, edgeThreshold=19, patchSize=19, fastThreshold=20)
+    orb = cv2.ORB_create(nfeatures=n_features, scaleFactor=1.2, nlevels=4, edgeThreshold=19, patchSize=19,
+                         fastThreshold=fast_threshold)
     return orb.detectAndCompute(_orb_u8(img), None)
 
 

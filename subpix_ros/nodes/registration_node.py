@@ -18,8 +18,10 @@ reference frame and publishes:
   latest reference whose stamp is not later than theirs.
 
 A new reference starts on the first frame, after ``max_frames_per_reference``
-aligned frames, and when registration fails or its quality drops
-(inliers, residual, overlap).
+aligned frames, when registration fails or its quality drops
+(inliers, residual, overlap), and, without trying a registration, when the
+predicted homography (below) leaves less than half of ``min_overlap``
+(a strip of widely spaced frames: counted as ``references_predicted``).
 
 Video-rate tracking (``tracking``, on by default): the reference's luminance,
 pyramid and tie points are prepared once per reference
@@ -95,6 +97,7 @@ class RegistrationNode(StageNode):
         self.kept = 0
         self.skipped = 0
         self.failures = 0
+        self.references_predicted = 0
         sub_ev, pub_ev = self.events("image")
         self.pub_aligned = self.create_publisher(Image, "aligned", reliable_qos(10), event_callbacks=pub_ev)
         self.pub_mask = self.create_publisher(Image, "aligned/mask", reliable_qos(10))
@@ -205,6 +208,13 @@ class RegistrationNode(StageNode):
             return
         t0 = time.monotonic()
         prior = self.motion.predict(frame.stamp_s) if self.p("tracking") else None
+        if prior is not None:
+            ov = reg.overlap_fraction(prior, self.reference.image.shape, frame.image.shape)
+            if ov < 0.5 * self.p("min_overlap"):  # would fail on overlap: no full search that cannot succeed
+                self.references_predicted += 1
+                self.diag.set(references_predicted=self.references_predicted)
+                self._new_reference(frame, f"predicted overlap {ov:.2f} < min_overlap / 2")
+                return
         result = reg.register(self._ref_prepared, frame.image, model=self.p("model"), n_points=self.p("n_points"),
                               distortion=self.p("distortion"), prior=prior, track_radius=self.p("track_radius_px"),
                               want_inliers=self.p("want_inliers"))

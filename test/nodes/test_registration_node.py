@@ -68,3 +68,26 @@ def test_tracking_follows_constant_velocity_and_falls_back_on_a_jump(ctx):
     finally:
         node.close()
         node.destroy_node()
+
+
+def test_predicted_loss_of_overlap_starts_a_new_reference_without_a_failed_search(ctx):
+    """A strip of widely spaced frames (280 px per frame on 640 px): frame 1 overlaps the reference by
+    56 %, frame 2 is predicted to keep 12.5 % (< min_overlap / 2): it becomes the reference at once,
+    with no failed registration; frame 3 then registers to it, tracked from the carried-on motion."""
+    from subpix_ros.nodes.registration_node import RegistrationNode
+
+    offsets = [(0.0, -280.0 * k) for k in range(4)]
+    node = RegistrationNode(subscribe_inputs=False, parameter_overrides=[
+        Parameter("selection", value="all"), Parameter("distortion", value=False), Parameter("n_points", value=300),
+        Parameter("max_frames_per_reference", value=20)])
+    try:
+        got = _run(node, _frames(offsets, w=640, h=480), [0, 1, 2, 3])
+        assert node.references_predicted == 1 and node.failures == 0, (node.references_predicted, node.failures)
+        assert len(got) == 2  # frames 1 and 3; frames 0 and 2 are references
+        assert got[1].reference.stamp_ns == 1_000_000_000 + 2 * 100_000_000
+        for a in got:  # 280 px of content motion to the left, in each frame's own pair
+            assert abs(a.homography[0, 2] - 280.0) < 0.05 and abs(a.homography[1, 2]) < 0.05, a.homography
+        assert node.tracked == 1  # frame 3, from the motion measured on frame 1
+    finally:
+        node.close()
+        node.destroy_node()

@@ -203,15 +203,19 @@ def _scale_h(h: np.ndarray, factor: float) -> np.ndarray:
     return out / out[2, 2]
 
 
+def _inside(p: np.ndarray, shape: tuple[int, ...], margin: float) -> np.ndarray:
+    """Points (x, y) at least ``margin`` px inside a frame of ``shape`` (finite)."""
+    return (np.isfinite(p).all(axis=1) & (p[:, 0] >= margin) & (p[:, 0] <= shape[1] - 1 - margin)
+            & (p[:, 1] >= margin) & (p[:, 1] <= shape[0] - 1 - margin))
+
+
 def _valid_grid(shape_ref, shape_mov, h_mr, margin_mov: float, step: int) -> np.ndarray:
     """Bool mask on the reference grid ``[0:h:step, 0:w:step]``: prediction inside the moving frame
     with ``margin_mov + step`` px to spare."""
     hr, wr = shape_ref
-    hm, wm = shape_mov
     ys, xs = np.mgrid[0:hr:step, 0:wr:step]
     pm = apply_h(np.linalg.inv(h_mr), np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64))
-    m = margin_mov + step
-    return ((pm[:, 0] >= m) & (pm[:, 0] <= wm - 1 - m) & (pm[:, 1] >= m) & (pm[:, 1] <= hm - 1 - m)).reshape(xs.shape)
+    return _inside(pm, shape_mov, margin_mov + step).reshape(xs.shape)
 
 
 def _valid_ref_points(shape_ref, shape_mov, h_mr, margin_ref: int, margin_mov: float, step: int = 4) -> np.ndarray:
@@ -304,6 +308,15 @@ def _fit_fixed_lambda(pm: np.ndarray, pr: np.ndarray, lam: float, norm: Normalis
     return fit_homography_lm(undistort_points(pm, lam, norm), undistort_points(pr, lam, norm), norm, affine, h0=h0)
 
 
+def _refit_distortion(pm: np.ndarray, pr: np.ndarray, lam: float, hu: np.ndarray, fixed_lam: float | None,
+                      norm: Normaliser, affine: bool) -> tuple[np.ndarray, float]:
+    """Refit the full model on the tie points ``pm`` -> ``pr``: ``H_u`` alone with a fixed camera
+    lambda (``fixed_lam``), else ``H_u`` and lambda jointly from ``(hu, lam)``. Returns ``(H_u, lambda)``."""
+    if fixed_lam is not None:
+        return _fit_fixed_lambda(pm, pr, lam, norm, affine, hu), lam
+    return fit_homography_distortion_lm(pm, pr, norm, hu, affine)
+
+
 def calibrate_distortion(results: list[RegistrationResult], lam_range: float = 0.1) -> float:
     """One division-model lambda for a camera, from the tie points of several registrations.
 
@@ -366,6 +379,12 @@ class ReferenceFrame:
     _peaks: dict[int, tuple] = field(default_factory=dict, repr=False)
     _orb: dict[int, tuple] = field(default_factory=dict, repr=False)
 
+    @classmethod
+    def of(cls, gray: np.ndarray) -> "ReferenceFrame":
+        """A frame of this float32 luminance, nothing computed yet; blank if its std is below 1 DN
+        (every 4th pixel is plenty to tell)."""
+        return cls(gray, [gray], float(gray[::2, ::2].std()) < 1.0)
+
     @property
     def shape(self) -> tuple[int, int]:
         return self.gray.shape
@@ -409,29 +428,14 @@ def prepare_reference(reference: np.ndarray | ReferenceFrame, *, coarse_size: in
     """
     if isinstance(reference, ReferenceFrame):
         return reference
-    g = to_gray32(reference, "reference")
-    ref = ReferenceFrame(g, [g], float(g[::2, ::2].std()) < 1.0)
+    ref = ReferenceFrame.of(to_gray32(reference, "reference"))
     if not ref.blank:
-        n_lev, det_lev, mid_lev = _levels(g.shape, coarse_size, detect_size)
+        n_lev, det_lev, mid_lev = _levels(ref.shape, coarse_size, detect_size)
         ref.level(n_lev)
         for lev in range(det_lev, max(mid_lev, det_lev) + 1):
             ref.peaks(lev)
         ref.orb(mid_lev)
     return ref
-
-
-def _level_shape(shape: tuple[int, int], lev: int) -> tuple[int, int]:
-    """Shape of ``cv2.pyrDown`` applied ``lev`` times: ``(n + 1) // 2`` per level."""
-    h, w = shape
-    for _ in range(lev):
-        h, w = (h + 1) // 2, (w + 1) // 2
-    return h, w
-
-
-def _inside(p: np.ndarray, shape: tuple[int, ...], margin: float) -> np.ndarray:
-    """Points (x, y) at least ``margin`` px inside a frame of ``shape`` (finite)."""
-    return (np.isfinite(p).all(axis=1) & (p[:, 0] >= margin) & (p[:, 0] <= shape[1] - 1 - margin)
-            & (p[:, 1] >= margin) & (p[:, 1] <= shape[0] - 1 - margin))
 
 
 def _refine_levels(ref: ReferenceFrame, mov: ReferenceFrame, p_r: np.ndarray, p_m: np.ndarray, h: np.ndarray,
@@ -573,10 +577,7 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
                 lam, hu, res = lam_c, hu_c, res_c
     inl = res <= inlier_px
     if lam != 0.0 and inl.sum() >= (8 if fixed_lam is not None else 40):
-        if fixed_lam is not None:
-            hu = _fit_fixed_lambda(p_m[inl], p_r[inl], lam, norm, affine, hu)
-        else:
-            hu, lam = fit_homography_distortion_lm(p_m[inl], p_r[inl], norm, hu, affine)
+        hu, lam = _refit_distortion(p_m[inl], p_r[inl], lam, hu, fixed_lam, norm, affine)
         res = _full_residuals(hu, lam, norm, p_m, p_r)
         inl = res <= inlier_px
     h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h) if inl.sum() >= 8 else h
@@ -584,7 +585,7 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
     # off, e.g. at the frame edges under lens distortion, so the NCC peak fell outside the window) are
     # searched again around this model's prediction, refined, and kept if the model fits them.
     if inl.sum() >= min_inliers:
-        key = lambda q: np.rint(q[:, 1]) * 1e6 + np.rint(q[:, 0])  # noqa: E731
+        key = _point_key
         miss = pts0[~np.isin(key(pts0), key(p_r[inl]))]
         if inl.sum() < want_inliers:  # weak texture: further candidates
             if m_lev > 0:  # input finer than the detection level's double: maxima of level m_lev
@@ -630,10 +631,7 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
                 if hu is not None:
                     res = _full_residuals(hu, lam, norm, p_m, p_r)
                     inl = res <= inlier_px
-                    if fixed_lam is not None:
-                        hu = _fit_fixed_lambda(p_m[inl], p_r[inl], lam, norm, affine, hu)
-                    else:
-                        hu, lam = fit_homography_distortion_lm(p_m[inl], p_r[inl], norm, hu, affine)
+                    hu, lam = _refit_distortion(p_m[inl], p_r[inl], lam, hu, fixed_lam, norm, affine)
                     res = _full_residuals(hu, lam, norm, p_m, p_r)
                 else:
                     res = _residuals(h, p_m, p_r)
@@ -678,14 +676,19 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
     ), n_try
 
 
+def _point_key(q: np.ndarray) -> np.ndarray:
+    """One number per integer pixel position (x, y) of ``q`` (N, 2), for set operations on points."""
+    return np.rint(q[:, 1]) * 1e6 + np.rint(q[:, 0])
+
+
 def _per_point(pts: np.ndarray, p_r: np.ndarray, p_m: np.ndarray) -> np.ndarray:
     """Matched moving positions ``p_m`` (of reference points ``p_r``, a subset of the integer points
     ``pts``) put back in the order of ``pts``; NaN for points without a match."""
     out = np.full((len(pts), 2), np.nan)
     if len(p_r):
-        key_all = np.rint(pts[:, 1]) * 1e6 + np.rint(pts[:, 0])
+        key_all = _point_key(pts)
         order = np.argsort(key_all, kind="stable")
-        pos = np.searchsorted(key_all[order], np.rint(p_r[:, 1]) * 1e6 + np.rint(p_r[:, 0]))
+        pos = np.searchsorted(key_all[order], _point_key(p_r))
         out[order[np.clip(pos, 0, len(pts) - 1)]] = p_m
     return out
 
@@ -835,8 +838,7 @@ def register(
     if isinstance(moving, ReferenceFrame):  # prepared once, e.g. a strip frame that is reference next
         mov = moving
     else:
-        gm = to_gray32(moving, "moving")
-        mov = ReferenceFrame(gm, [gm], float(gm[::2, ::2].std()) < 1.0)  # every 4th pixel tells a blank frame
+        mov = ReferenceFrame.of(to_gray32(moving, "moving"))
     gm = mov.gray
     shapes = (gr.shape, gm.shape)
     if ref.blank:

@@ -451,7 +451,7 @@ def refine_gauss_newton(
         mx += sh[:, 0, None, None]
         my = by[act]
         my += sh[:, 1, None, None]
-        s = _remap(mov, mx, my, cv2.INTER_CUBIC)
+        s = sample_cubic_cv(mov, mx, my)
         inner = s[:, 1:-1, 1:-1]
         z = inner - inner.mean(axis=(1, 2), keepdims=True)
         nrm = np.sqrt(np.einsum("nij,nij->n", z, z))

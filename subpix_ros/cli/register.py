@@ -43,6 +43,10 @@ def run(args: argparse.Namespace) -> int:
         h = res.homography
         print(f"inliers {res.inliers}  rms {res.rms_px:.3f} px (projective only {res.rms_px_projective:.3f} px)  "
               f"overlap {res.overlap:.2f}  distortion lambda {res.distortion:+.4f}  {res.time_s * 1000:.0f} ms")
+        ac = res.residual_along_cross()
+        if ac is not None:
+            hint = " (mostly along: parallax of relief, not a registration error)" if ac[0] > 1.5 * ac[1] else ""
+            print(f"residual rms along the baseline {ac[0]:.3f} px, across {ac[1]:.3f} px{hint}")
         print("homography (MOVING px -> REF px):")
         for row in h:
             print("  " + "  ".join(f"{v: .6g}" for v in row))

@@ -168,6 +168,31 @@ class RegistrationResult:
         hi = np.linalg.inv(self.homography_undistorted)
         return distort_points(apply_h(hi, undistort_points(pts, self.distortion, n)), self.distortion, n)
 
+    def residual_along_cross(self) -> tuple[float, float] | None:
+        """RMS of the inlier residuals along and across the baseline, ``(along, cross)`` px.
+
+        The baseline direction is the motion of the moving frame's centre in
+        reference pixels, ``t = transfer(c) - c``. Parallax of relief (a
+        3-D scene seen from two positions of a translating camera) lies
+        along ``t`` (the epipolar lines of a nadir camera in straight
+        flight), while matching noise is isotropic: ``along`` well above
+        ``cross`` says the residual is the scene, not the registration.
+        None when the registration failed, has no inliers or ``|t| < 1`` px
+        (no direction).
+        """
+        if not self.ok or len(self.points) == 0:
+            return None
+        hm, wm = self.mov_shape
+        c = np.array([[wm / 2.0, hm / 2.0]])
+        t = (self.transfer(c) - c)[0]
+        nt = float(np.hypot(*t))
+        if not nt >= 1.0:
+            return None
+        e = t / nt
+        d = self.transfer(self.points[:, 2:]) - self.points[:, :2]
+        along, cross = d @ e, d @ np.array([-e[1], e[0]])
+        return float(np.sqrt(np.mean(along**2))), float(np.sqrt(np.mean(cross**2)))
+
     def _require_ok(self) -> None:
         if not self.ok:
             raise ValueError(f"registration failed: {self.reason}")
@@ -183,6 +208,7 @@ class RegistrationResult:
             "rms_px": self.rms_px,
             "rms_px_projective": self.rms_px_projective,
             "median_px": self.median_px,
+            "rms_along_cross_px": self.residual_along_cross(),
             "overlap": self.overlap,
             "spread": self.spread,
             "model": self.model,

@@ -65,6 +65,9 @@ def test_tracking_follows_constant_velocity_and_falls_back_on_a_jump(ctx):
             assert abs(off[0] - n_y - a.prior[0]) < 0.05 and abs(off[1] - n_x - a.prior[1]) < 0.05, (off, a.prior)
             # the homography maps moving -> reference: a moving pixel goes back by the content offset
             assert abs(a.homography[0, 2] + off[1]) < 0.05 and abs(a.homography[1, 2] + off[0]) < 0.05
+        # diagnostics carry the residual split along / across the baseline (a flat scene: both tiny)
+        kv = {x.key: x.value for x in node.diag.snapshot().values}
+        assert float(kv["rms_along_px"]) < 0.1 and float(kv["rms_cross_px"]) < 0.1, kv
     finally:
         node.close()
         node.destroy_node()

@@ -17,6 +17,12 @@ For each of the 8 consecutive half-resolution pairs (bundled 1800x1350 frames):
   but no scene change: the reference frame warped by the pair's own fitted
   homography (Lanczos-4) stands in for the moving frame. Its residual is the
   matching + fitting floor on this real texture.
+* ``epi``: the RMS distance of each reference tie point from the epipolar
+  line of its match (fundamental matrix, 8-point least squares on all the
+  inliers, distortion removed with the pair's own lambda). Any rigid 3-D
+  scene satisfies the epipolar constraint, so ``epi`` is the part of the
+  residual that relief cannot explain (matching error, appearance change):
+  ``rms`` far above ``epi`` means the homography's residual is depth.
 * ``B m``, ``|t| px``, ``H m``: GPS baseline between the exposures, the
   baseline in image px (frame-centre motion) and the height above ground
   implied by both with the camera model (f 4.3 mm, 3.08 um pitch at half
@@ -54,6 +60,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from subpix_ros.core.registration import register  # noqa: E402
+from subpix_ros.core.registration_fit import Normaliser, undistort_points  # noqa: E402
 from subpix_ros.core.registration_points import apply_h  # noqa: E402
 from subpix_ros.core.telemetry import enu_offset_m  # noqa: E402
 from subpix_ros.data import seneca_frame_paths  # noqa: E402
@@ -89,6 +96,11 @@ def anatomy(ref: np.ndarray, mov: np.ndarray) -> dict:
     e = t / np.hypot(*t)
     along, cross = d @ e, d @ np.array([-e[1], e[0]])
     # control: same geometry, same exposure (reference warped by the fitted homography)
+    nrm = Normaliser.for_shape(r.ref_shape)
+    ur, um = undistort_points(pr, r.distortion, nrm), undistort_points(pm, r.distortion, nrm)
+    f, _ = cv2.findFundamentalMat(um, ur, cv2.FM_8POINT)
+    lines = np.hstack([um, np.ones((len(um), 1))]) @ f.T  # epipolar lines in the reference: a x + b y + c = 0
+    epi = np.sum(np.hstack([ur, np.ones((len(ur), 1))]) * lines, axis=1) / np.hypot(lines[:, 0], lines[:, 1])
     ctrl_mov = cv2.warpPerspective(ref, r.homography, (w, h), flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP)
     rc = register(ref, ctrl_mov, distortion=False)
     return {
@@ -96,6 +108,7 @@ def anatomy(ref: np.ndarray, mov: np.ndarray) -> dict:
         "along": float(np.sqrt(np.mean(along ** 2))), "cross": float(np.sqrt(np.mean(cross ** 2))),
         "nn_al": nn_corr(pr, along), "nn_cr": nn_corr(pr, cross), "row": row_explained(pr[:, 1], along),
         "ctrl": rc.rms_px if rc.ok else float("nan"), "ctrl_inl": rc.inliers, "t_px": float(np.hypot(*t)),
+        "epi": float(np.sqrt(np.mean(epi ** 2))),
     }
 
 
@@ -184,7 +197,7 @@ def main() -> int:
         meta = {row["file"]: row for row in csv.DictReader(f)}
     print("Inlier residual anatomy, Seneca strip at 1800x1350 (px unless stated)")
     head = (f"{'pair':>4s} {'inl':>4s} {'rms':>6s} {'along':>6s} {'cross':>6s} {'nn.al':>6s} {'nn.cr':>6s} {'row':>5s} "
-            f"{'ctrl':>6s} {'c.inl':>5s} {'B m':>6s} {'|t| px':>7s} {'H m':>6s} {'px/cm':>6s} {'view':>5s}")
+            f"{'epi':>6s} {'ctrl':>6s} {'c.inl':>5s} {'B m':>6s} {'|t| px':>7s} {'H m':>6s} {'px/cm':>6s} {'view':>5s}")
     print(head)
     print("-" * len(head))
     allr = []
@@ -203,12 +216,12 @@ def main() -> int:
         s["view"] = float(np.degrees(2 * np.arctan(base / (2 * height))))
         allr.append(s)
         print(f"{i:4d} {s['inliers']:4d} {s['rms']:6.3f} {s['along']:6.3f} {s['cross']:6.3f} {s['nn_al']:6.2f} "
-              f"{s['nn_cr']:6.2f} {s['row']:5.2f} {s['ctrl']:6.3f} {s['ctrl_inl']:5d} {base:6.1f} {s['t_px']:7.1f} "
+              f"{s['nn_cr']:6.2f} {s['row']:5.2f} {s['epi']:6.3f} {s['ctrl']:6.3f} {s['ctrl_inl']:5d} {base:6.1f} {s['t_px']:7.1f} "
               f"{height:6.1f} {s['pxcm']:6.3f} {s['view']:5.1f}")
     if allr:
-        med = {k: float(np.median([s[k] for s in allr])) for k in ("rms", "along", "cross", "nn_al", "nn_cr", "row", "ctrl", "pxcm", "view")}
+        med = {k: float(np.median([s[k] for s in allr])) for k in ("rms", "along", "cross", "nn_al", "nn_cr", "row", "epi", "ctrl", "pxcm", "view")}
         print(f"median: rms {med['rms']:.3f}, along {med['along']:.3f}, cross {med['cross']:.3f}, nn corr along "
-              f"{med['nn_al']:.2f} / cross {med['nn_cr']:.2f}, row-explained {med['row']:.2f}, control {med['ctrl']:.3f} px; "
+              f"{med['nn_al']:.2f} / cross {med['nn_cr']:.2f}, row-explained {med['row']:.2f}, off the epipolar lines {med['epi']:.3f}, control {med['ctrl']:.3f} px; "
               f"1 cm of relief = {med['pxcm']:.3f} px of parallax along the baseline; lines of sight {med['view']:.0f} deg apart")
     lens_table(paths)
     return 0

@@ -84,28 +84,23 @@ def row_explained(rows: np.ndarray, a: np.ndarray, deg: int = 8) -> float:
     return float(1.0 - np.var(a - V @ c) / np.var(a))
 
 
-def anatomy(ref: np.ndarray, mov: np.ndarray) -> dict:
-    r = register(ref, mov)
-    if not r.ok:
-        return {"ok": False, "reason": r.reason}
+def anatomy(ref: np.ndarray, r) -> dict:
+    """The columns of the first table for one pair: ``r`` = register(ref, moving), successful."""
     pr, pm = r.points[:, :2], r.points[:, 2:]
-    d = r.transfer(pm) - pr
     h, w = ref.shape[:2]
-    c = np.array([[w / 2.0, h / 2.0]])
-    t = (apply_h(r.homography, c) - c)[0]  # moving centre -> reference: minus the scene motion
-    e = t / np.hypot(*t)
-    along, cross = d @ e, d @ np.array([-e[1], e[0]])
-    # control: same geometry, same exposure (reference warped by the fitted homography)
+    t = r.baseline_px()  # moving centre -> reference: minus the scene motion
+    along, cross = r.residual_components()
+    rms_along, rms_cross = r.residual_along_cross()
     nrm = Normaliser.for_shape(r.ref_shape)
     ur, um = undistort_points(pr, r.distortion, nrm), undistort_points(pm, r.distortion, nrm)
     f, _ = cv2.findFundamentalMat(um, ur, cv2.FM_8POINT)
     lines = np.hstack([um, np.ones((len(um), 1))]) @ f.T  # epipolar lines in the reference: a x + b y + c = 0
     epi = np.sum(np.hstack([ur, np.ones((len(ur), 1))]) * lines, axis=1) / np.hypot(lines[:, 0], lines[:, 1])
+    # control: same geometry, same exposure (reference warped by the fitted homography)
     ctrl_mov = cv2.warpPerspective(ref, r.homography, (w, h), flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP)
     rc = register(ref, ctrl_mov, distortion=False)
     return {
-        "ok": True, "inliers": r.inliers, "rms": r.rms_px,
-        "along": float(np.sqrt(np.mean(along ** 2))), "cross": float(np.sqrt(np.mean(cross ** 2))),
+        "inliers": r.inliers, "rms": r.rms_px, "along": rms_along, "cross": rms_cross,
         "nn_al": nn_corr(pr, along), "nn_cr": nn_corr(pr, cross), "row": row_explained(pr[:, 1], along),
         "ctrl": rc.rms_px if rc.ok else float("nan"), "ctrl_inl": rc.inliers, "t_px": float(np.hypot(*t)),
         "epi": float(np.sqrt(np.mean(epi ** 2))),
@@ -165,18 +160,16 @@ def joint_lens_fit(pairs: list, shape: tuple) -> list:
     return out
 
 
-def lens_table(paths: list) -> None:
-    pts, ours = [], []
-    for i in range(len(paths) - 1):
-        a, b = cv2.imread(str(paths[i])), cv2.imread(str(paths[i + 1]))
-        r0 = register(a, b, distortion=False, inlier_px=3.0)
-        r1 = register(a, b)
-        if not (r0.ok and r1.ok):
-            print(f"{i:4d} failed")
+def lens_table(ims: list, ours: list) -> None:
+    """The second table: ``ours[i]`` = register(ims[i], ims[i + 1]) (all successful)."""
+    pts = []
+    for i in range(len(ims) - 1):
+        r0 = register(ims[i], ims[i + 1], distortion=False, inlier_px=3.0)
+        if not r0.ok:
+            print(f"{i:4d} failed without distortion: {r0.reason}")
             return
         pts.append((r0.points[:, 2:], r0.points[:, :2], r0.homography))
-        ours.append(r1)
-    res = joint_lens_fit(pts, a.shape[:2])
+    res = joint_lens_fit(pts, ims[0].shape[:2])
     print("\nA richer lens model? Joint fit over the strip: one Brown model (k1 k2 k3 p1 p2 + centre) for all frames")
     head = f"{'pair':>4s} {'register: inl':>13s} {'rms':>6s} | {'joint Brown: <=1.5':>18s} {'rms<=1.5':>8s}"
     print(head)
@@ -200,13 +193,14 @@ def main() -> int:
             f"{'epi':>6s} {'ctrl':>6s} {'c.inl':>5s} {'B m':>6s} {'|t| px':>7s} {'H m':>6s} {'px/cm':>6s} {'view':>5s}")
     print(head)
     print("-" * len(head))
+    ims = [cv2.imread(str(p)) for p in paths]
+    results = [register(ims[i], ims[i + 1]) for i in range(len(ims) - 1)]
     allr = []
-    for i in range(len(paths) - 1):
-        a, b = cv2.imread(str(paths[i])), cv2.imread(str(paths[i + 1]))
-        s = anatomy(a, b)
-        if not s["ok"]:
-            print(f"{i:4d} failed: {s['reason']}")
+    for i, r in enumerate(results):
+        if not r.ok:
+            print(f"{i:4d} failed: {r.reason}")
             continue
+        s = anatomy(ims[i], r)
         m0, m1 = meta[paths[i].name], meta[paths[i + 1].name]
         east, north = enu_offset_m(float(m0["latitude_deg"]), float(m0["longitude_deg"]),
                                    float(m1["latitude_deg"]), float(m1["longitude_deg"]))
@@ -223,7 +217,8 @@ def main() -> int:
         print(f"median: rms {med['rms']:.3f}, along {med['along']:.3f}, cross {med['cross']:.3f}, nn corr along "
               f"{med['nn_al']:.2f} / cross {med['nn_cr']:.2f}, row-explained {med['row']:.2f}, off the epipolar lines {med['epi']:.3f}, control {med['ctrl']:.3f} px; "
               f"1 cm of relief = {med['pxcm']:.3f} px of parallax along the baseline; lines of sight {med['view']:.0f} deg apart")
-    lens_table(paths)
+    if all(r.ok for r in results):
+        lens_table(ims, results)
     return 0
 
 

@@ -168,29 +168,40 @@ class RegistrationResult:
         hi = np.linalg.inv(self.homography_undistorted)
         return distort_points(apply_h(hi, undistort_points(pts, self.distortion, n)), self.distortion, n)
 
-    def residual_along_cross(self) -> tuple[float, float] | None:
-        """RMS of the inlier residuals along and across the baseline, ``(along, cross)`` px.
-
-        The baseline direction is the motion of the moving frame's centre in
-        reference pixels, ``t = transfer(c) - c``. Parallax of relief (a
-        3-D scene seen from two positions of a translating camera) lies
-        along ``t`` (the epipolar lines of a nadir camera in straight
-        flight), while matching noise is isotropic: ``along`` well above
-        ``cross`` says the residual is the scene, not the registration.
-        None when the registration failed, has no inliers or ``|t| < 1`` px
-        (no direction).
-        """
-        if not self.ok or len(self.points) == 0:
+    def baseline_px(self) -> np.ndarray | None:
+        """The motion ``t = transfer(c) - c`` of the moving frame's centre ``c``, reference px (x, y); None on failure."""
+        if not self.ok:
             return None
         hm, wm = self.mov_shape
         c = np.array([[wm / 2.0, hm / 2.0]])
-        t = (self.transfer(c) - c)[0]
+        return (self.transfer(c) - c)[0]
+
+    def residual_components(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Each inlier's transfer residual (px) along and across the baseline (:meth:`baseline_px`).
+
+        Parallax of relief (a 3-D scene seen from two positions of a
+        translating camera) lies along the baseline (the epipolar lines of a
+        nadir camera in straight flight), while matching noise is isotropic.
+        Returns ``(along, cross)`` arrays, None when the registration failed,
+        has no inliers or ``|t| < 1`` px (no direction).
+        """
+        t = self.baseline_px()
+        if t is None or len(self.points) == 0:
+            return None
         nt = float(np.hypot(*t))
         if not nt >= 1.0:
             return None
         e = t / nt
         d = self.transfer(self.points[:, 2:]) - self.points[:, :2]
-        along, cross = d @ e, d @ np.array([-e[1], e[0]])
+        return d @ e, d @ np.array([-e[1], e[0]])
+
+    def residual_along_cross(self) -> tuple[float, float] | None:
+        """RMS of :meth:`residual_components`, ``(along, cross)`` px: ``along`` well above ``cross``
+        says the residual is the scene (relief parallax), not the registration. None as there."""
+        comp = self.residual_components()
+        if comp is None:
+            return None
+        along, cross = comp
         return float(np.sqrt(np.mean(along**2))), float(np.sqrt(np.mean(cross**2)))
 
     def _require_ok(self) -> None:
@@ -322,6 +333,12 @@ def _full_residuals(hu: np.ndarray, lam: float, norm: Normaliser, pm: np.ndarray
     """Transfer residuals ``|D(H_u(U(x_m))) - x_r|`` (reference px); inf where the model is invalid."""
     res = np.hypot(*(distort_points(apply_h(hu, undistort_points(pm, lam, norm)), lam, norm) - pr).T)
     return np.where(np.isfinite(res), res, np.inf)
+
+
+def _model_residuals(h: np.ndarray, hu: np.ndarray | None, lam: float, norm: Normaliser, pm: np.ndarray,
+                     pr: np.ndarray) -> np.ndarray:
+    """Transfer residuals of the current model: the full one (``hu``, ``lam``) once fitted, else ``h``."""
+    return _full_residuals(hu, lam, norm, pm, pr) if hu is not None else _residuals(h, pm, pr)
 
 
 def _fit_fixed_lambda(pm: np.ndarray, pr: np.ndarray, lam: float, norm: Normaliser, affine: bool,
@@ -611,8 +628,7 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
     # off, e.g. at the frame edges under lens distortion, so the NCC peak fell outside the window) are
     # searched again around this model's prediction, refined, and kept if the model fits them.
     if inl.sum() >= min_inliers:
-        key = _point_key
-        miss = pts0[~np.isin(key(pts0), key(p_r[inl]))]
+        miss = pts0[~np.isin(_point_key(pts0), _point_key(p_r[inl]))]
         if inl.sum() < want_inliers:  # weak texture: further candidates
             if m_lev > 0:  # input finer than the detection level's double: maxima of level m_lev
                 # As many as the deficit needs: on the weak-texture Seneca pairs at full resolution one
@@ -623,7 +639,7 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
             else:
                 ex = np.zeros((0, 2)) if extra_det is None else np.rint(extra_det * f)
             ex = ex[_inside(ex, gr.shape, margin)]
-            miss = np.vstack([miss, ex[~np.isin(key(ex), key(miss))]])
+            miss = np.vstack([miss, ex[~np.isin(_point_key(ex), _point_key(miss))]])
         if len(miss):
             if lam != 0.0 and hu is not None:
                 pred2 = distort_points(apply_h(np.linalg.inv(hu), undistort_points(miss, lam, norm)), lam, norm)
@@ -634,36 +650,30 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
             r2, m2, _ = ncc_match(ref.level(m_lev), mov.level(m_lev), miss / fm, _scale_h(h, 1.0 / fm), half=half_m,
                                   radius=2, pred_mov=pred2 / fm)
             r2, m2 = r2 * fm, m2 * fm
-            resid = (lambda q_m, q_r: _full_residuals(hu, lam, norm, q_m, q_r)) if hu is not None else \
-                (lambda q_m, q_r: _residuals(h, q_m, q_r))
             if m_lev > 0:
                 # Refined first at the NCC level (cheap); only matches that can be inliers (0.5 px to spare for
                 # that level's precision) are refined at the input resolution.
                 m2, c = _refine_levels(ref, mov, r2, m2, h, m_lev, 1, template_half, half)
                 r2, m2 = r2[c], m2[c]
-                near = resid(m2, r2) <= inlier_px + 0.5
+                near = _model_residuals(h, hu, lam, norm, m2, r2) <= inlier_px + 0.5
             else:
                 # Gauss-Newton moves a point by less than 1 px (it rejects larger moves), so a match further
                 # than inlier_px + 1 px from the model cannot become an inlier (0.5 px to spare).
-                near = resid(m2, r2) <= inlier_px + 1.5
+                near = _model_residuals(h, hu, lam, norm, m2, r2) <= inlier_px + 1.5
             r2, m2 = r2[near], m2[near]
             m2, conv2 = _refine_levels(ref, mov, r2, m2, h, 0, 0, template_half, half, iterations=10)
             r2, m2 = r2[conv2], m2[conv2]
-            res2 = resid(m2, r2)
+            res2 = _model_residuals(h, hu, lam, norm, m2, r2)
             if (res2 <= inlier_px).any():
-                keep_old = ~np.isin(key(p_r), key(r2))
+                keep_old = ~np.isin(_point_key(p_r), _point_key(r2))
                 p_r = np.vstack([p_r[keep_old], r2])
                 p_m = np.vstack([p_m[keep_old], m2])
+                inl = _model_residuals(h, hu, lam, norm, p_m, p_r) <= inlier_px
                 if hu is not None:
-                    res = _full_residuals(hu, lam, norm, p_m, p_r)
-                    inl = res <= inlier_px
                     hu, lam = _refit_distortion(p_m[inl], p_r[inl], lam, hu, fixed_lam, norm, affine)
-                    res = _full_residuals(hu, lam, norm, p_m, p_r)
                 else:
-                    res = _residuals(h, p_m, p_r)
-                    inl = res <= inlier_px
                     h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
-                    res = _residuals(h, p_m, p_r)
+                res = _model_residuals(h, hu, lam, norm, p_m, p_r)
                 inl = res <= inlier_px
                 h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
     n_in = int(inl.sum())

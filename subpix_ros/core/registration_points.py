@@ -431,7 +431,6 @@ def refine_gauss_newton(
     # of H^-1 about p (c = H^-1 p, J its Jacobian, c_h the perspective row of H^-1). The second-order
     # term is ~6e-4 px for |q| <= 8 px and |c_h| ~ 1e-5 px^-1, and even in q, so it does not move the
     # patch's centre; remap quantises positions to 1/32 px anyway.
-    side = 2 * half + 3
     c, jac = _local_affine(hinv, p)  # jac (n, 2, 2): d(moving x, y) / d(d_x, d_y)
     c, jq = c.astype(np.float32), jac.astype(np.float32)
     qx, qy = qx.astype(np.float32), qy.astype(np.float32)

@@ -430,7 +430,7 @@ class _WholeLowpass:
     def __init__(self, frames: np.ndarray, lp_sigma: float = 1.0) -> None:
         self.frames = frames
         self.lp_sigma = float(lp_sigma)
-        self.g = gaussian_kernel(lp_sigma)
+        self.g = gaussian_kernel(lp_sigma).astype(np.float32)
         self.enabled = frames.shape[1] * frames.shape[2] <= _WHOLE_LOWPASS_PX
         self._done: dict[int, np.ndarray] = {}
 
@@ -439,10 +439,17 @@ class _WholeLowpass:
             return None
         low = self._done.get(i)
         if low is None:
-            low = cv2.sepFilter2D(self.frames[i].astype(np.float32), cv2.CV_32F, self.g.astype(np.float32),
-                                  self.g.astype(np.float32), borderType=cv2.BORDER_REFLECT_101)
+            low = cv2.sepFilter2D(self.frames[i].astype(np.float32), cv2.CV_32F, self.g, self.g,
+                                  borderType=cv2.BORDER_REFLECT_101)
             self._done[i] = low
         return low
+
+    @staticmethod
+    def getter(lowpassed: "_WholeLowpass | None", lp_sigma: float):
+        """``i -> lowpassed.get(i, lp_sigma)``, or always None without a shared low-pass."""
+        if lowpassed is None:
+            return lambda i: None
+        return lambda i: lowpassed.get(i, lp_sigma)
 
 
 def _refine_shifts(
@@ -475,7 +482,7 @@ def _refine_shifts(
     region = (slice((h - rh) // 2, (h - rh) // 2 + rh), slice((w - rw) // 2, (w - rw) // 2 + rw))
     ctx = _lk_context(region, h, w)
     i0 = (int(ishift[0, 0]), int(ishift[0, 1]))
-    whole = (lambda i: lowpassed.get(i, lp_sigma)) if lowpassed is not None else (lambda i: None)
+    whole = _WholeLowpass.getter(lowpassed, lp_sigma)
     ref = _lowpass_window(frames[0], g, i0, (0, 0), *ctx, whole=whole(0))
 
     def mov_window(i: int, iu: int, iv: int) -> np.ndarray:
@@ -518,7 +525,7 @@ def detect_geometry(
     """
     n, h, w = frames.shape
     g = gaussian_kernel(lp_sigma)
-    whole = (lambda i: lowpassed.get(i, lp_sigma)) if lowpassed is not None else (lambda i: None)
+    whole = _WholeLowpass.getter(lowpassed, lp_sigma)
     ty = np.linspace(0, h, tiles + 1).astype(int)
     tx = np.linspace(0, w, tiles + 1).astype(int)
     ctx_pad = 16  # _lk_context's default
@@ -584,19 +591,8 @@ def detect_geometry(
             [jac[0, 1], 1 + jac[0, 0], s[0] - jac[0, 0] * r0 - jac[0, 1] * c0],
             [0.0, 0.0, 1.0],
         ])
-    noise = float(np.sqrt(_quartile_low(resvars))) if resvars else float("nan")
+    noise = float(np.sqrt(np.percentile(resvars, 25))) if resvars else float("nan")
     return (affines if nonlinear else None), tshift, noise
-
-
-def _quartile_low(values: list[float]) -> float:
-    """Lower quartile, as ``np.percentile(values, 25)`` (linear method, numpy's interpolation formula) on a short list."""
-    a = sorted(values)
-    x = 0.25 * (len(a) - 1)
-    lo = int(np.floor(x))
-    hi = min(lo + 1, len(a) - 1)
-    t = x - lo
-    d = a[hi] - a[lo]
-    return float(a[hi] - d * (1 - t)) if t >= 0.5 else float(a[lo] + d * t)
 
 
 def _lk_context(sl: tuple[slice, slice], h: int, w: int, pad: int = 16) -> tuple[slice, slice]:

@@ -31,6 +31,16 @@ def test_strip_keeps_every_frame_with_small_seam_residual(strip_mosaic):
     assert img.dtype == np.uint8 and img.ndim == 3 and max(img.shape[:2]) <= 1200
 
 
+def test_reversed_strip_keeps_every_frame_with_small_seam_residual(frames):
+    """The same strip flown the other way (frames 8..0): the new frame's overlap is now on its other
+    side and the h(y) transition runs the other way round; every frame is kept all the same."""
+    m = Mosaic(max_size_px=1200)
+    ups = [m.add(f) for f in frames[::-1]]
+    assert all(u.ok for u in ups), [u.reason for u in ups if not u.ok]
+    seams = [u.seam_residual_px for u in ups[1:]]
+    assert max(seams) <= 1.0, seams
+
+
 def test_mosaic_content_matches_last_frame(strip_mosaic, frames):
     """The newest frame is drawn on top: sampling the canvas through its chain reproduces it."""
     m, _ = strip_mosaic

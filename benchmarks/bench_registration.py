@@ -6,7 +6,8 @@ at full resolution (3600x2700); synthetic pairs with a known homography
 (real crops, small rotation + perspective) for the corner transfer error.
 Time per pair: best of ``--repeat`` runs (the machine may be shared), images
 already decoded; the rows give the median over the pairs (s/pair) and the slowest
-pair (s.max). ``ours,strip``: each frame prepared once (the operational case of a
+pair (s.max). ``ours``: ``register(ref, mov)`` on two arrays (as ``subpix register``: the two
+frames are prepared at the same time, in two threads). ``ours,strip``: each frame prepared once (the operational case of a
 video stream or a mosaic), per pair = preparing the new frame + registering it to
 the prepared previous one, same statistic (the first frame's preparation is listed
 separately; it happens once). Inliers / residual: the method's own inlier set (ours:

@@ -239,6 +239,12 @@ def test_bad_input_raises():
     img[5, 5] = np.nan
     with pytest.raises(ValueError):
         register(img, img)
+    # the two frames of a one-off pair are prepared in two threads; the reference's error still comes
+    # first, and the moving frame's own error is reported when only it is bad
+    with pytest.raises(ValueError, match="reference"):
+        register(img, np.zeros((10, 10, 2)))
+    with pytest.raises(ValueError, match="moving"):
+        register(np.zeros((100, 100)), img)
 
 
 @pytest.mark.parametrize("shift", [(3.3, -5.6), (-2.7, 1.2), (0.45, 7.55)])

@@ -618,17 +618,22 @@ class _Level:
             w = wm if w is None else (w & wm)
         return w
 
-    def block_centres(self, rects):
-        rr, cc = [], []
-        for r0, r1, c0, c1 in rects:
-            nr, nc = -(-(r1 - r0) // _BLOCK), -(-(c1 - c0) // _BLOCK)
-            ra = np.arange(nr) * _BLOCK
-            ca = np.arange(nc) * _BLOCK
-            rc = r0 + (ra + np.minimum(ra + _BLOCK, r1 - r0)) / 2.0  # centre of a possibly partial block
-            ccn = c0 + (ca + np.minimum(ca + _BLOCK, c1 - c0)) / 2.0
-            rr.append(np.repeat(rc, nc))
-            cc.append(np.tile(ccn, nr))
-        return np.concatenate(rr), np.concatenate(cc)
+    @staticmethod
+    def block_centres(rects):
+        """Centres (rows, cols; level px) of the 16x16 blocks of ``rects``, in block order (rect by rect,
+        row-major). The rects are one region or equal tiles (:meth:`rects`), so one block layout serves all."""
+        r = np.asarray(rects, dtype=np.int64).reshape(-1, 4)
+        th, tw = int(r[0, 1] - r[0, 0]), int(r[0, 3] - r[0, 2])
+        if not (np.all(r[:, 1] - r[:, 0] == th) and np.all(r[:, 3] - r[:, 2] == tw)):
+            raise ValueError("block_centres: rects of unequal size")
+        ra = np.arange(0, th, _BLOCK)
+        ca = np.arange(0, tw, _BLOCK)
+        rc = (ra + np.minimum(ra + _BLOCK, th)) / 2.0  # centre of a possibly partial block
+        cc = (ca + np.minimum(ca + _BLOCK, tw)) / 2.0
+        shape = (len(r), ra.size, ca.size)
+        rr = np.broadcast_to(r[:, 0, None, None] + rc[None, :, None], shape)
+        cl = np.broadcast_to(r[:, 2, None, None] + cc[None, None, :], shape)
+        return rr.reshape(-1), cl.reshape(-1)
 
 
 def _gn_sums(lv: _Level, rects, s, want_blocks: bool):
@@ -1073,27 +1078,25 @@ def _statistics(out: dict, lv: "_Level", h: int, w: int, misfit_px: float, coars
     # misfit: local shifts on a 3x3 grid of the frame
     RR, CC = lv.block_centres(rects)
     gi = np.minimum((RR * 3 / h).astype(int), 2) * 3 + np.minimum((CC * 3 / w).astype(int), 2)
-    local = []
-    within = np.zeros((3, 3))
-    nwb = 0
-    ncell = 0
-    for c in range(9):
-        sel = gi == c
-        if sel.sum() < 2:
-            continue
-        Bc = Bk[sel]
-        dev_c = Bc - Bc.mean(0)
-        within += dev_c.T @ dev_c
-        nwb += Bc.shape[0]
-        ncell += 1
-        if sel.sum() < 4:
-            continue
-        s00, s01, s11, s0_, s1_, cn = (x[sel].sum() for x in (g00, g01, g11, g0, g1, cnt))
-        Ak = np.array([[s00, s01, s0_], [s01, s11, s1_], [s0_, s1_, cn]])
-        if not np.isfinite(np.linalg.cond(Ak)) or np.linalg.cond(Ak) > 1e10:
-            continue
-        dk = np.linalg.solve(Ak, Bc.sum(0))
-        local.append((-dk[:2], n / max(cn, 1.0)))
+    # per grid cell (all 9 at once): block counts, score sums and normal-equation sums
+    def per_cell(x: np.ndarray) -> np.ndarray:
+        return np.bincount(gi, weights=x, minlength=9)
+
+    nblk = np.bincount(gi, minlength=9)
+    bsum = np.stack([per_cell(Bk[:, j]) for j in range(3)], 1)
+    used = nblk[gi] >= 2  # blocks of the cells with at least 2 blocks
+    dev_b = (Bk - bsum[gi] / np.maximum(nblk[gi], 1)[:, None])[used]
+    within = dev_b.T @ dev_b
+    nwb = int(used.sum())
+    ncell = int(np.count_nonzero(nblk >= 2))
+    s00, s01, s11, s0_, s1_, cn = (per_cell(x) for x in (g00, g01, g11, g0, g1, cnt))
+    Ak = np.stack([np.stack([s00, s01, s0_], -1), np.stack([s01, s11, s1_], -1), np.stack([s0_, s1_, cn], -1)], 1)
+    cells = np.flatnonzero(nblk >= 4)
+    if cells.size:
+        ck = np.linalg.cond(Ak[cells])
+        cells = cells[np.isfinite(ck) & (ck <= 1e10)]
+    dks = np.linalg.solve(Ak[cells], bsum[cells][:, :, None])[:, :, 0] if cells.size else np.zeros((0, 3))
+    local = [(-dk[:2], n / max(float(cn[c]), 1.0)) for c, dk in zip(cells, dks)]
     # noise-only covariance: the sandwich over the block scores demeaned within each
     # grid cell (a misfit shifts whole cells and would otherwise count as noise)
     cov_noise = (Ainv @ within @ Ainv.T)[:2, :2] * (nwb / max(nwb - ncell - 3, 1))

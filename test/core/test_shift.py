@@ -486,3 +486,18 @@ def test_rectangular_mask_is_a_crop(set_b05):
     mask[40:50, 40:50] = False
     r = estimate_shift(ref, mov, mask=mask)
     assert r.ok and abs(r.u - true[0]) < 0.01 and abs(r.v - true[1]) < 0.01
+
+
+def test_block_centres_known_layout():
+    """16x16 blocks of a 40x50 region at (10, 20), the last ones partial: centres at the middle of each
+    block as it is cut (rows 8, 24, 36; cols 8, 24, 40, 49 inside the region), rect by rect, row-major."""
+    from subpix_ros.core.shift import _Level
+
+    rr, cc = _Level.block_centres([(10, 50, 20, 70), (100, 140, 0, 50)])
+    rows, cols = np.array([18.0, 34.0, 46.0]), np.array([28.0, 44.0, 60.0, 69.0])
+    np.testing.assert_array_equal(rr[:12], np.repeat(rows, 4))
+    np.testing.assert_array_equal(cc[:12], np.tile(cols, 3))
+    np.testing.assert_array_equal(rr[12:], np.repeat(rows + 90, 4))
+    np.testing.assert_array_equal(cc[12:], np.tile(cols - 20, 3))
+    with pytest.raises(ValueError, match="unequal"):
+        _Level.block_centres([(0, 32, 0, 32), (0, 16, 0, 32)])

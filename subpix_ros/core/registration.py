@@ -505,7 +505,7 @@ def _prepare_pair(reference: np.ndarray, moving: np.ndarray, coarse_size: int,
     the moving frame's share of :func:`register`'s full pipeline (luminance, pyramid,
     coarse ORB features). OpenCV and numpy release the GIL in this work, so on two
     cores the two preparations take about the time of one (measured at 1800x1350:
-    47 ms one after the other, 20 ms together). The same work as on one thread, so
+    35 ms one after the other, 20 ms together). The same work as on one thread, so
     the same result. Bad input raises ``ValueError`` as before, the reference's first.
     """
     fut = _pool().submit(prepare_reference, reference, coarse_size=coarse_size, detect_size=detect_size)

@@ -198,20 +198,17 @@ def fft_gradients(a, pad=32):
     )
 
 
-def crb_diag(clean, sigma, border=0):
+def central_gradients(a):
+    """Central differences (np.gradient): the common shortcut for J, looser than the bound."""
+    return np.gradient(np.asarray(a, np.float64))
+
+
+def crb_diag(clean, sigma, border=0, gradients=fft_gradients):
     """diag(2 sigma^2 J^-1), J the gradient energy matrix of the noise-free frame
-    (spectral gradients), over the frame minus ``border`` px on each side."""
-    g0, g1 = fft_gradients(clean)
+    (``gradients``: spectral by default), over the frame minus ``border`` px on each side."""
+    g0, g1 = gradients(clean)
     if border:
         g0, g1 = g0[border:-border, border:-border], g1[border:-border, border:-border]
-    J = np.array([[np.sum(g0 * g0), np.sum(g0 * g1)], [np.sum(g0 * g1), np.sum(g1 * g1)]])
-    return np.diag(2.0 * sigma**2 * np.linalg.inv(J))
-
-
-def crb_diag_central(clean, sigma):
-    """``crb_diag`` with J from central differences (np.gradient) of the noise-free frame:
-    the common shortcut, printed for comparison only (it is looser than the bound)."""
-    g0, g1 = np.gradient(np.asarray(clean, np.float64))
     J = np.array([[np.sum(g0 * g0), np.sum(g0 * g1)], [np.sum(g0 * g1), np.sum(g1 * g1)]])
     return np.diag(2.0 * sigma**2 * np.linalg.inv(J))
 
@@ -308,7 +305,7 @@ def accuracy(quick: bool):
     resC = [estimate_shift(r, m) for r, m, _, _ in sets["C"][1]]
     errC = np.array([(x.u - t[0], x.v - t[1]) for x, (_, _, t, _) in zip(resC, sets["C"][1])])
     stdC = np.array([(x.u_std, x.v_std) for x in resC])
-    crb_cd = np.array([crb_diag_central(p[3], 10.0) for p in sets["C"][1]])
+    crb_cd = np.array([crb_diag(p[3], 10.0, gradients=central_gradients) for p in sets["C"][1]])
     print(f"  ours on set C with J from central differences of the noise-free frame instead (the np.gradient shortcut: "
           f"J {float(np.mean(crb) / np.mean(crb_cd)):.2f}x the exact one, sin(w) for w): RMSE / that figure "
           f"{math.sqrt(float(np.mean(errC**2)) / float(np.mean(crb_cd))):.2f}. Not a bound (it undercounts the near-Nyquist "

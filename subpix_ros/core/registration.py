@@ -475,13 +475,22 @@ def prepare_reference(reference: np.ndarray | ReferenceFrame, *, coarse_size: in
     if isinstance(reference, ReferenceFrame):
         return reference
     ref = ReferenceFrame.of(to_gray32(reference, "reference"))
-    if not ref.blank:
-        n_lev, det_lev, mid_lev = _levels(ref.shape, coarse_size, detect_size)
-        ref.level(n_lev)
-        for lev in range(det_lev, max(mid_lev, det_lev) + 1):
-            ref.peaks(lev)
-        ref.orb(mid_lev)
-    return ref
+    return _compute_eager(ref, ref.shape, coarse_size, detect_size, peaks=True)
+
+
+def _compute_eager(frame: ReferenceFrame, ref_shape: tuple[int, ...], coarse_size: int, detect_size: int, *,
+                   peaks: bool) -> ReferenceFrame:
+    """What :func:`register`'s full pipeline uses of ``frame``, computed now (levels from the reference's
+    shape ``ref_shape``): the pyramid, the coarse ORB features and, for a reference (``peaks``), the Harris
+    maxima of the detection and refinement levels. Nothing for a blank frame. Returns ``frame``."""
+    if not frame.blank:
+        n_lev, det_lev, mid_lev = _levels(ref_shape[:2], coarse_size, detect_size)
+        frame.level(n_lev)
+        if peaks:
+            for lev in range(det_lev, max(mid_lev, det_lev) + 1):
+                frame.peaks(lev)
+        frame.orb(mid_lev)
+    return frame
 
 
 _POOL: ThreadPoolExecutor | None = None
@@ -510,11 +519,8 @@ def _prepare_pair(reference: np.ndarray, moving: np.ndarray, coarse_size: int,
     """
     fut = _pool().submit(prepare_reference, reference, coarse_size=coarse_size, detect_size=detect_size)
     try:
-        mov = ReferenceFrame.of(to_gray32(moving, "moving"))
-        if not mov.blank:
-            n_lev, _, mid_lev = _levels(np.shape(reference)[:2], coarse_size, detect_size)
-            mov.level(n_lev)
-            mov.orb(mid_lev)
+        mov = _compute_eager(ReferenceFrame.of(to_gray32(moving, "moving")), np.shape(reference), coarse_size,
+                             detect_size, peaks=False)
     except ValueError:
         fut.result()  # a bad reference is reported first, as on one thread
         raise

@@ -34,6 +34,9 @@ def _node(name, *extra):
 class Outputs:
     def __init__(self, node):
         self.shifts, self.sr, self.mosaic, self.mosaic_c, self.refs = [], [], [], [], []
+        self.diag = {}  # node name -> its latest /diagnostics values (for failure messages)
+        node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: self.diag.update(
+            {s.name: {kv.key: kv.value for kv in s.values} for s in m.status}), 50)
         node.create_subscription(Image, "/aligned/reference", lambda r: self.refs.append(cdr.header_to_ns(
             cdr.cdr_to_image_msg(r).header)), latched_qos(), raw=True)
         node.create_subscription(Vector3Stamped, "/shift", lambda r: self.shifts.append(cdr.cdr_to_vector3_stamped(r)),
@@ -44,6 +47,13 @@ class Outputs:
                                  raw=True)
         node.create_subscription(CompressedImage, "/mosaic/compressed",
                                  lambda r: self.mosaic_c.append(cdr.cdr_to_compressed(r)), latched_qos(), raw=True)
+
+    def report(self):
+        """What the stages said about drops and failures: the first thing to read when a count is short."""
+        keys = ("input_total", "output_total", "dropped_frames", "queue_depth", "worker_errors", "shift_failures",
+                "shifts_published", "warnings_total", "errors_total", "recent_problems")
+        return "; ".join(f"{name}: " + ", ".join(f"{k}={v[k]}" for k in keys if v.get(k)) for name, v in
+                         sorted(self.diag.items()))
 
 
 def _spin(node, until, timeout, procs=()):
@@ -72,7 +82,9 @@ def _check_subpixel(out, bags):
     true = {f["stamp_ns"]: (f["u"], f["v"]) for f in truth["frames"]}
     frames = {m.timestamp_ns: cdr.cdr_to_image(m.raw)[0] for m in read_messages(bags / "subpixel", ["/camera/image_raw"])}
     est = {cdr.header_to_ns(h): v[:2] for v, h in out.shifts}
-    assert len(est) >= 18, f"only {len(est)} shifts of the 21 aligned frames"
+    stamps = sorted(frames)
+    assert len(est) >= 18, (f"only {len(est)} shifts of the 21 aligned frames (frames "
+                            f"{[stamps.index(s) for s in sorted(est) if s in stamps]}); {out.report()}")
     assert len(out.refs) == 3  # frames 0, 8 and 16 start the three 8-frame sets
 
     def relative_truth(stamp):  # against the reference the frame was aligned to

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import signal
+import sys
 
 from subpix_ros.cli import CliError
 from subpix_ros.io.bags import BagError
@@ -25,6 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="before starting, wait until these topics have a subscriber")
     p.add_argument("--wait-timeout", type=float, default=15.0, help="seconds to wait for --wait-for (default 15)")
     p.add_argument("--delay", type=float, default=0.5, help="seconds to wait before the first message (discovery)")
+    p.add_argument("--ack-timeout", type=float, default=10.0,
+                   help="after the last message, wait up to this many seconds until every reliable subscriber has "
+                   "acknowledged everything (a slow subscriber still gets the end of the bag); default 10")
     p.set_defaults(func=run)
 
 
@@ -34,6 +38,8 @@ def run(args: argparse.Namespace) -> int:
     from subpix_ros.cli._ros import ros_node
     from subpix_ros.io.player import Player
 
+    if not args.ack_timeout >= 0:
+        raise CliError(f"--ack-timeout must be >= 0, got {args.ack_timeout}")
     remap = {}
     for r in args.remap:
         if ":=" not in r:
@@ -51,12 +57,20 @@ def run(args: argparse.Namespace) -> int:
             if args.wait_for and not player.wait_for_subscribers(args.wait_for, args.wait_timeout):
                 raise CliError(f"no subscriber on {', '.join(args.wait_for)} within {args.wait_timeout:.0f} s")
             time.sleep(max(0.0, args.delay))
+            interrupted = False
             try:
                 stats = player.play()
             except KeyboardInterrupt:
-                stats = player.stats
-            time.sleep(0.3)  # let reliable writers flush the last messages
+                stats, interrupted = player.stats, True
+            interrupted = interrupted or player.stopped
+            # Tearing the writers down with samples in flight would lose the end of the bag for a
+            # subscriber that is behind; on Ctrl-C only a short grace.
+            timeout = min(args.ack_timeout, 1.0) if interrupted else args.ack_timeout
+            acked = player.wait_for_acks(timeout)
     except BagError as exc:
         raise CliError(str(exc)) from None
+    if not acked and not interrupted:
+        print(f"subpix replay: warning: not every reliable subscriber acknowledged every message within "
+              f"{args.ack_timeout:g} s (a subscriber is slow, stalled or gone)", file=sys.stderr)
     print(f"replayed {stats.published} messages from {args.bag} ({stats.loops} pass(es))")
     return 0

@@ -81,6 +81,27 @@ class Player:
     def stop(self) -> None:
         self._stop.set()
 
+    @property
+    def stopped(self) -> bool:
+        return self._stop.is_set()
+
+    def wait_for_acks(self, timeout_s: float) -> bool:
+        """Block until every reliable subscriber has acknowledged every message published so far
+        (``Publisher.wait_for_all_acked``, the same wait as ``ros2 bag play --wait-for-all-acked``), at
+        most ``timeout_s`` seconds in all. False if some were still unacknowledged: a subscriber that is
+        slow, stalled or gone (a dead reader stays matched until its DDS lease runs out)."""
+        from rclpy.duration import Duration
+
+        deadline = time.monotonic() + max(0.0, timeout_s)
+        for pub in self.publishers.values():
+            left = max(0.0, deadline - time.monotonic())
+            try:
+                if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+                    return False
+            except Exception:  # noqa: BLE001 - the context is already shut down (Ctrl-C): nothing to wait for
+                return False
+        return True
+
     def wait_for_subscribers(self, topics: Sequence[str], timeout_s: float = 10.0) -> bool:
         """Block until every topic in ``topics`` has a matched subscriber."""
         deadline = time.monotonic() + timeout_s

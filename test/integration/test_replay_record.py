@@ -94,6 +94,7 @@ def test_record_then_replay_round_trip(sample_bags, tmp_path):
     (["replay", "{bag}", "--topics", "/nope"], "not in bag"),
     (["replay", "{corrupt}"], "cannot open bag"),
     (["replay", "{bag}", "--rate", "0"], "rate must be > 0"),
+    (["replay", "{bag}", "--ack-timeout", "-1"], "--ack-timeout must be >= 0"),
 ])
 def test_replay_errors_are_one_line(sample_bags, tmp_path, args, message):
     corrupt = tmp_path / "corrupt.mcap"
@@ -118,3 +119,71 @@ def test_replay_unknown_message_type(tmp_path):
         w.write("/odd", "nosuch_msgs/msg/Thing", 1, raw)
     r = subprocess.run(subpix_cmd("replay", str(tmp_path / "odd")), capture_output=True, text=True, timeout=60)
     assert r.returncode != 0 and "unknown message type" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_replay_waits_until_a_stalled_subscriber_has_every_message(sample_bags, rclpy_node, tmp_path):
+    """A reliable subscriber that falls behind (here: its process stopped while the bag plays, 14 MB of
+    frames) still gets every message: replay waits for the acknowledgements before it exits, instead of
+    tearing its writers down with samples the subscriber has yet to receive."""
+    import signal
+
+    import rclpy
+
+    bag = sample_bags / "subpixel"
+    out = tmp_path / "slow.mcap"
+    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), "/camera/image_raw", "--discover-timeout", "30"),
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    play = subprocess.Popen(subpix_cmd("replay", str(bag), "--topics", "/camera/image_raw", "--rate", "10",
+                                       "--wait-for", "/camera/image_raw", "--delay", "1.0"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while rclpy_node.count_subscribers("/camera/image_raw") < 1 and time.monotonic() < deadline:
+            rclpy.spin_once(rclpy_node, timeout_sec=0.05)
+        assert rclpy_node.count_subscribers("/camera/image_raw") >= 1, "the recorder never subscribed"
+        rec.send_signal(signal.SIGSTOP)  # the subscriber stalls before the first frame
+        time.sleep(4.0)  # the bag (0.08 s at rate 10) is long published; replay is waiting for acknowledgements
+        assert play.poll() is None, "replay exited while a matched reliable subscriber still lacked messages"
+        rec.send_signal(signal.SIGCONT)
+        out_play, err_play = play.communicate(timeout=60)
+        assert play.returncode == 0, err_play
+        time.sleep(0.5)
+        rec.send_signal(signal.SIGINT)
+        _, err = rec.communicate(timeout=20)
+    finally:
+        for p in (rec, play):
+            if p.poll() is None:
+                p.send_signal(signal.SIGCONT)
+                p.kill()
+    assert rec.returncode == 0, err
+    original = [m.raw for m in read_messages(bag, ["/camera/image_raw"])]
+    assert [m.raw for m in read_messages(out, ["/camera/image_raw"])] == original
+
+
+def test_replay_gives_up_on_a_subscriber_that_stays_stalled_and_says_so(sample_bags, rclpy_node, tmp_path):
+    import signal
+
+    import rclpy
+
+    rec = subprocess.Popen(subpix_cmd("record", "-o", str(tmp_path / "never.mcap"), "/camera/image_raw",
+                                      "--discover-timeout", "30"), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    play = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--topics", "/camera/image_raw",
+                                       "--rate", "10", "--wait-for", "/camera/image_raw", "--delay", "1.0",
+                                       "--ack-timeout", "2"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while rclpy_node.count_subscribers("/camera/image_raw") < 1 and time.monotonic() < deadline:
+            rclpy.spin_once(rclpy_node, timeout_sec=0.05)
+        rec.send_signal(signal.SIGSTOP)
+        t0 = time.monotonic()
+        out, err = play.communicate(timeout=60)
+        waited = time.monotonic() - t0
+    finally:
+        rec.send_signal(signal.SIGCONT)
+        rec.kill()
+        rec.wait(10)
+        if play.poll() is None:
+            play.kill()
+    assert play.returncode == 0 and "replayed 24 messages" in out
+    assert "not every reliable subscriber acknowledged every message within 2 s" in err, err
+    assert 2.0 <= waited < 15.0

@@ -46,6 +46,15 @@ undistorted plane "wins" by shrinking the residuals with it). It is fitted
 to the very points it is scored on, so it is optimistic. ``rms<=1.5`` is
 the RMS over the points within 1.5 px (``register``'s inlier threshold).
 
+A third table asks whether the residual is bad matches: each inlier's
+normalised cross-correlation (15x15 px) between the reference patch and the
+moving frame sampled at the point's OWN match, with the model's local
+geometry around it. A mismatch or a patch whose appearance changed between
+the views (occlusion, shading) correlates worse; if those carried the
+residual, the best-correlated points would fit the homography better.
+(Sampled at the model's prediction instead, the correlation would only
+restate the residual.)
+
     python benchmarks/bench_registration_residuals.py
 """
 from __future__ import annotations
@@ -105,6 +114,41 @@ def anatomy(ref: np.ndarray, r) -> dict:
         "ctrl": rc.rms_px if rc.ok else float("nan"), "ctrl_inl": rc.inliers, "t_px": float(np.hypot(*t)),
         "epi": float(np.sqrt(np.mean(epi ** 2))),
     }
+
+
+def match_ncc(ref: np.ndarray, mov: np.ndarray, r, half: int = 7) -> np.ndarray:
+    """NCC of each inlier's reference patch with the moving frame around the inlier's own match.
+
+    The moving frame is sampled (bilinear) at ``m + T(x) - T(p)`` for the patch pixels ``x`` around the
+    reference point ``p`` (``T`` = the full model's reference -> moving map, ``m`` the match).
+    """
+    g0 = cv2.cvtColor(ref, cv2.COLOR_BGR2GRAY).astype(np.float32) if ref.ndim == 3 else ref.astype(np.float32)
+    g1 = cv2.cvtColor(mov, cv2.COLOR_BGR2GRAY).astype(np.float32) if mov.ndim == 3 else mov.astype(np.float32)
+    pr, pm = r.points[:, :2], r.points[:, 2:]
+    d = np.arange(-half, half + 1, dtype=np.float64)
+    offs = np.stack(np.meshgrid(d, d), -1).reshape(1, -1, 2)
+    grid = pr[:, None, :] + offs  # (N, k*k, 2) reference positions
+    mg = r.inverse_transfer(grid.reshape(-1, 2)).reshape(grid.shape) - r.inverse_transfer(pr)[:, None, :] + pm[:, None, :]
+    a = cv2.remap(g0, grid[..., 0].astype(np.float32), grid[..., 1].astype(np.float32), cv2.INTER_LINEAR)
+    b = cv2.remap(g1, mg[..., 0].astype(np.float32), mg[..., 1].astype(np.float32), cv2.INTER_LINEAR)
+    a = a - a.mean(1, keepdims=True)
+    b = b - b.mean(1, keepdims=True)
+    return (a * b).sum(1) / np.sqrt((a * a).sum(1) * (b * b).sum(1) + 1e-12)
+
+
+def quality_table(ims: list, ours: list) -> None:
+    """The third table: residual RMS over the inliers whose own match correlates at least ``t``."""
+    res = np.concatenate([np.hypot(*(r.transfer(r.points[:, 2:]) - r.points[:, :2]).T) for r in ours])
+    ncc = np.concatenate([match_ncc(ims[i], ims[i + 1], r) for i, r in enumerate(ours)])
+    print("\nBad matches? Inlier residual by the NCC of each point's own match (15x15 px, all 8 pairs)")
+    head = f"{'NCC >=':>6s} {'points':>7s} {'share':>6s} {'rms px':>7s}"
+    print(head)
+    print("-" * len(head))
+    for t in (-1.0, 0.7, 0.8, 0.85, 0.9, 0.95):
+        k = ncc >= t
+        if k.any():
+            print(f"{t:6.2f} {int(k.sum()):7d} {k.mean():6.2f} {float(np.sqrt(np.mean(res[k] ** 2))):7.3f}")
+    print(f"correlation of |residual| with NCC: {float(np.corrcoef(res, ncc)[0, 1]):+.3f}")
 
 
 def _brown_undistort(p: np.ndarray, k: np.ndarray, c: np.ndarray, scale: float) -> np.ndarray:
@@ -219,6 +263,7 @@ def main() -> int:
               f"1 cm of relief = {med['pxcm']:.3f} px of parallax along the baseline; lines of sight {med['view']:.0f} deg apart")
     if all(r.ok for r in results):
         lens_table(ims, results)
+        quality_table(ims, results)
     return 0
 
 

@@ -35,18 +35,27 @@ class Outputs:
     def __init__(self, node):
         self.shifts, self.sr, self.mosaic, self.mosaic_c, self.refs = [], [], [], [], []
         self.diag = {}  # node name -> its latest /diagnostics values (for failure messages)
-        node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: self.diag.update(
-            {s.name: {kv.key: kv.value for kv in s.values} for s in m.status}), 50)
-        node.create_subscription(Image, "/aligned/reference", lambda r: self.refs.append(cdr.header_to_ns(
-            cdr.cdr_to_image_msg(r).header)), latched_qos(), raw=True)
-        node.create_subscription(Vector3Stamped, "/shift", lambda r: self.shifts.append(cdr.cdr_to_vector3_stamped(r)),
-                                 reliable_qos(100), raw=True)
-        node.create_subscription(Image, "/super_resolved", lambda r: self.sr.append(cdr.cdr_to_image(r)),
-                                 reliable_qos(10), raw=True)
-        node.create_subscription(Image, "/mosaic", lambda r: self.mosaic.append(cdr.cdr_to_image(r)), latched_qos(),
-                                 raw=True)
-        node.create_subscription(CompressedImage, "/mosaic/compressed",
-                                 lambda r: self.mosaic_c.append(cdr.cdr_to_compressed(r)), latched_qos(), raw=True)
+        self.node = node
+        self.subs = [
+            node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: self.diag.update(
+                {s.name: {kv.key: kv.value for kv in s.values} for s in m.status}), 50),
+            node.create_subscription(Image, "/aligned/reference", lambda r: self.refs.append(cdr.header_to_ns(
+                cdr.cdr_to_image_msg(r).header)), latched_qos(), raw=True),
+            node.create_subscription(Vector3Stamped, "/shift",
+                                     lambda r: self.shifts.append(cdr.cdr_to_vector3_stamped(r)), reliable_qos(100), raw=True),
+            node.create_subscription(Image, "/super_resolved", lambda r: self.sr.append(cdr.cdr_to_image(r)),
+                                     reliable_qos(10), raw=True),
+            node.create_subscription(Image, "/mosaic", lambda r: self.mosaic.append(cdr.cdr_to_image(r)), latched_qos(),
+                                     raw=True),
+            node.create_subscription(CompressedImage, "/mosaic/compressed",
+                                     lambda r: self.mosaic_c.append(cdr.cdr_to_compressed(r)), latched_qos(), raw=True),
+        ]
+
+    def close(self):
+        """Stop listening (what was received stays): a later run's messages are not decoded twice."""
+        for sub in self.subs:
+            self.node.destroy_subscription(sub)
+        self.subs = []
 
     def report(self):
         """What the stages said about drops and failures: the first thing to read when a count is short."""
@@ -74,7 +83,9 @@ def _replay_subpixel(node, out, bags, procs, rate="0.5"):
                                          "/camera/image_raw", "--wait-for", "/camera/image_raw", "--wait-timeout", "60"))
     assert _spin(node, lambda: replay.poll() is not None, 120, procs)
     assert replay.returncode == 0
-    _spin(node, lambda: len(out.sr) >= 3, 60, procs)
+    # All 21 shifts AND 3 images, not the images alone: the executor takes one message per subscription
+    # per wait, so shifts published before the last image can still be queued here when it is taken.
+    _spin(node, lambda: len(out.sr) >= 3 and len(out.shifts) >= 21, 60, procs)
 
 
 def _check_subpixel(out, bags):
@@ -125,11 +136,12 @@ def _run_layout(ros, bags, layout):
     else:
         procs = [_node("registration_node", "-r", "image:=/camera/image_raw"), _node("shift_node"),
                  _node("reconstruction_node")]
+    out = Outputs(ros)
     try:
-        out = Outputs(ros)
         _replay_subpixel(ros, out, bags, procs)
     finally:
         _stop(procs)
+        out.close()
     return out
 
 
@@ -162,8 +174,8 @@ def test_seneca_bag_produces_a_mosaic(ros, sample_bags):
     added = []
     ros.create_subscription(DiagnosticArray, "/diagnostics", lambda m: added.extend(
         int(kv.value) for s in m.status if s.name == "mosaic_node" for kv in s.values if kv.key == "frames_added"), 50)
+    out = Outputs(ros)
     try:
-        out = Outputs(ros)
         r = subprocess.run(subpix_cmd("replay", str(sample_bags / "seneca"), "--rate", "5", "--topics",
                                       "/camera/image_raw", "--wait-for", "/camera/image_raw"), timeout=120)
         assert r.returncode == 0
@@ -178,6 +190,7 @@ def test_seneca_bag_produces_a_mosaic(ros, sample_bags):
         late.destroy_node()
     finally:
         _stop(procs)
+        out.close()
     assert out.mosaic and out.mosaic_c and got
     mosaic = out.mosaic[-1][0]
     assert mosaic.ndim == 3 and max(mosaic.shape[:2]) <= 2400 and np.array_equal(got[-1], mosaic)

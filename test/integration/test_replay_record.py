@@ -134,15 +134,16 @@ def test_replay_waits_until_a_stalled_subscriber_has_every_message(sample_bags, 
     rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), "/camera/image_raw", "--discover-timeout", "30"),
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     play = subprocess.Popen(subpix_cmd("replay", str(bag), "--topics", "/camera/image_raw", "--rate", "10",
-                                       "--wait-for", "/camera/image_raw", "--delay", "1.0"),
+                                       "--wait-for", "/camera/image_raw", "--delay", "3"),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 30
         while rclpy_node.count_subscribers("/camera/image_raw") < 1 and time.monotonic() < deadline:
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)
         assert rclpy_node.count_subscribers("/camera/image_raw") >= 1, "the recorder never subscribed"
-        rec.send_signal(signal.SIGSTOP)  # the subscriber stalls before the first frame
-        time.sleep(4.0)  # the bag (0.08 s at rate 10) is long published; replay is waiting for acknowledgements
+        rec.send_signal(signal.SIGSTOP)  # the subscriber stalls before the first frame (replay starts 3 s after it
+        # subscribed: --delay 3, time for this process to see the subscription and stop it first)
+        time.sleep(6.5)  # the bag (0.08 s at rate 10) is long published; replay is waiting for acknowledgements
         assert play.poll() is None, "replay exited while a matched reliable subscriber still lacked messages"
         rec.send_signal(signal.SIGCONT)
         out_play, err_play = play.communicate(timeout=60)
@@ -168,7 +169,7 @@ def test_replay_gives_up_on_a_subscriber_that_stays_stalled_and_says_so(sample_b
     rec = subprocess.Popen(subpix_cmd("record", "-o", str(tmp_path / "never.mcap"), "/camera/image_raw",
                                       "--discover-timeout", "30"), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     play = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--topics", "/camera/image_raw",
-                                       "--rate", "10", "--wait-for", "/camera/image_raw", "--delay", "1.0",
+                                       "--rate", "10", "--wait-for", "/camera/image_raw", "--delay", "3",
                                        "--ack-timeout", "2"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 30

@@ -121,70 +121,73 @@ def test_replay_unknown_message_type(tmp_path):
     assert r.returncode != 0 and "unknown message type" in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
 
+def _replay_to_a_stalled_recorder(node, bag, out, *replay_args):
+    """`subpix record` of /camera/image_raw into ``out`` and `subpix replay` of ``bag`` (rate 10), the recorder
+    stopped (SIGSTOP) after it subscribed and BEFORE the first frame: replay also waits for a /clock
+    subscriber, which this process creates only once the recorder is stopped. Returns (rec, play, t) with
+    ``t`` the time the replay was let go."""
+    import signal
+
+    import rclpy
+    from rosgraph_msgs.msg import Clock
+
+    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), "/camera/image_raw", "--discover-timeout", "30"),
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    play = subprocess.Popen(subpix_cmd("replay", str(bag), "--topics", "/camera/image_raw", "--rate", "10", "--clock",
+                                       "--wait-for", "/camera/image_raw", "/clock", "--delay", "0.5", *replay_args),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 30
+    while node.count_subscribers("/camera/image_raw") < 1 and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    assert node.count_subscribers("/camera/image_raw") >= 1, "the recorder never subscribed"
+    rec.send_signal(signal.SIGSTOP)
+    node.create_subscription(Clock, "/clock", lambda m: None, 10)  # lets the replay start
+    return rec, play, time.monotonic()
+
+
+def _finish(*procs):
+    import signal
+
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGCONT)
+            p.kill()
+            p.wait(10)
+
+
 def test_replay_waits_until_a_stalled_subscriber_has_every_message(sample_bags, rclpy_node, tmp_path):
     """A reliable subscriber that falls behind (here: its process stopped while the bag plays, 14 MB of
     frames) still gets every message: replay waits for the acknowledgements before it exits, instead of
     tearing its writers down with samples the subscriber has yet to receive."""
     import signal
 
-    import rclpy
-
     bag = sample_bags / "subpixel"
     out = tmp_path / "slow.mcap"
-    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), "/camera/image_raw", "--discover-timeout", "30"),
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    play = subprocess.Popen(subpix_cmd("replay", str(bag), "--topics", "/camera/image_raw", "--rate", "10",
-                                       "--wait-for", "/camera/image_raw", "--delay", "3"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rec, play, _ = _replay_to_a_stalled_recorder(rclpy_node, bag, out)
     try:
-        deadline = time.monotonic() + 30
-        while rclpy_node.count_subscribers("/camera/image_raw") < 1 and time.monotonic() < deadline:
-            rclpy.spin_once(rclpy_node, timeout_sec=0.05)
-        assert rclpy_node.count_subscribers("/camera/image_raw") >= 1, "the recorder never subscribed"
-        rec.send_signal(signal.SIGSTOP)  # the subscriber stalls before the first frame (replay starts 3 s after it
-        # subscribed: --delay 3, time for this process to see the subscription and stop it first)
-        time.sleep(6.5)  # the bag (0.08 s at rate 10) is long published; replay is waiting for acknowledgements
+        time.sleep(3.0)  # the bag (0.08 s at rate 10, after 0.5 s) is long published; replay waits for the acks
         assert play.poll() is None, "replay exited while a matched reliable subscriber still lacked messages"
         rec.send_signal(signal.SIGCONT)
-        out_play, err_play = play.communicate(timeout=60)
+        _, err_play = play.communicate(timeout=60)
         assert play.returncode == 0, err_play
         time.sleep(0.5)
         rec.send_signal(signal.SIGINT)
         _, err = rec.communicate(timeout=20)
     finally:
-        for p in (rec, play):
-            if p.poll() is None:
-                p.send_signal(signal.SIGCONT)
-                p.kill()
+        _finish(rec, play)
     assert rec.returncode == 0, err
     original = [m.raw for m in read_messages(bag, ["/camera/image_raw"])]
     assert [m.raw for m in read_messages(out, ["/camera/image_raw"])] == original
 
 
 def test_replay_gives_up_on_a_subscriber_that_stays_stalled_and_says_so(sample_bags, rclpy_node, tmp_path):
-    import signal
-
-    import rclpy
-
-    rec = subprocess.Popen(subpix_cmd("record", "-o", str(tmp_path / "never.mcap"), "/camera/image_raw",
-                                      "--discover-timeout", "30"), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    play = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--topics", "/camera/image_raw",
-                                       "--rate", "10", "--wait-for", "/camera/image_raw", "--delay", "3",
-                                       "--ack-timeout", "2"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rec, play, t0 = _replay_to_a_stalled_recorder(rclpy_node, sample_bags / "subpixel", tmp_path / "never.mcap",
+                                                  "--ack-timeout", "2")
     try:
-        deadline = time.monotonic() + 30
-        while rclpy_node.count_subscribers("/camera/image_raw") < 1 and time.monotonic() < deadline:
-            rclpy.spin_once(rclpy_node, timeout_sec=0.05)
-        rec.send_signal(signal.SIGSTOP)
-        t0 = time.monotonic()
         out, err = play.communicate(timeout=60)
         waited = time.monotonic() - t0
     finally:
-        rec.send_signal(signal.SIGCONT)
-        rec.kill()
-        rec.wait(10)
-        if play.poll() is None:
-            play.kill()
+        _finish(rec, play)
     assert play.returncode == 0 and "replayed 24 messages" in out
     assert "not every reliable subscriber acknowledged every message within 2 s" in err, err
     assert 2.0 <= waited < 15.0

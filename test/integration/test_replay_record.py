@@ -70,18 +70,21 @@ def test_replay_rate_and_clock(sample_bags, rclpy_node):
 def test_record_then_replay_round_trip(sample_bags, tmp_path):
     bag = sample_bags / "subpixel"
     out = tmp_path / "rec.mcap"
+    original = {t: [m.raw for m in read_messages(bag, [t])] for t in ("/camera/image_raw", "/telemetry/velocity")}
+    total = sum(len(v) for v in original.values())
     rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), "/camera/image_raw", "/telemetry/velocity",
-                                      "--count", "0", "--discover-timeout", "20"),
+                                      "--count", str(total), "--discover-timeout", "20"),
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     play = subprocess.run(subpix_cmd("replay", str(bag), "--topics", "/camera/image_raw", "/telemetry/velocity",
                                      "--wait-for", "/camera/image_raw", "/telemetry/velocity", "--delay", "0.5"),
                           capture_output=True, text=True, timeout=60)
     assert play.returncode == 0, play.stderr
-    time.sleep(1.0)
-    rec.send_signal(2)
-    _, err = rec.communicate(timeout=20)
+    try:
+        _, err = rec.communicate(timeout=30)  # it stops by itself once it has every message (--count)
+    finally:
+        if rec.poll() is None:
+            rec.kill()
     assert rec.returncode == 0, err
-    original = {t: [m.raw for m in read_messages(bag, [t])] for t in ("/camera/image_raw", "/telemetry/velocity")}
     recorded = {t: [m.raw for m in read_messages(out, [t])] for t in original}
     assert recorded == original
     # and what we recorded replays

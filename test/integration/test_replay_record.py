@@ -1,4 +1,5 @@
 """`subpix replay` and `subpix record` in their own processes, over real DDS."""
+import os
 import subprocess
 import time
 
@@ -134,11 +135,15 @@ def _replay_to_a_stalled_recorder(node, bag, out, *replay_args, count=0):
     import rclpy
     from rosgraph_msgs.msg import Clock
 
+    # UDP only between these two: a process frozen by SIGSTOP cannot then hold a lock inside a Fast DDS
+    # shared-memory segment that other participants (later tests) would wait on.
+    env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="UDPv4")
     rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), "/camera/image_raw", "--discover-timeout", "30",
-                                      "--count", str(count)), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                      "--count", str(count)), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           env=env)
     play = subprocess.Popen(subpix_cmd("replay", str(bag), "--topics", "/camera/image_raw", "--rate", "10", "--clock",
                                        "--wait-for", "/camera/image_raw", "/clock", "--delay", "0.5", *replay_args),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     deadline = time.monotonic() + 30
     while node.count_subscribers("/camera/image_raw") < 1 and time.monotonic() < deadline:
         rclpy.spin_once(node, timeout_sec=0.05)
@@ -149,13 +154,18 @@ def _replay_to_a_stalled_recorder(node, bag, out, *replay_args, count=0):
 
 
 def _finish(*procs):
+    """Resume and stop cleanly (SIGINT: a node's own shutdown) what still runs; kill only what hangs."""
     import signal
 
     for p in procs:
         if p.poll() is None:
             p.send_signal(signal.SIGCONT)
-            p.kill()
-            p.wait(10)
+            p.send_signal(signal.SIGINT)
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(10)
 
 
 def test_replay_waits_until_a_stalled_subscriber_has_every_message(sample_bags, rclpy_node, tmp_path):

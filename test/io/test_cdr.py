@@ -284,7 +284,8 @@ PUBLISHER = EXPECTED_SRC + textwrap.dedent(
 
 SUBSCRIBER = EXPECTED_SRC + textwrap.dedent(
     """
-    import sys, time
+    import faulthandler, sys, time
+    faulthandler.dump_traceback_later(30)  # a hang (e.g. in DDS start-up) shows where, before the test gives up
     import numpy as np
     import rclpy
     from sensor_msgs.msg import Image

@@ -51,7 +51,9 @@ class StampMatcher:
 class ReferenceCache:
     """References by stamp; an aligned frame belongs to the latest not later than it."""
 
-    def __init__(self, maxlen: int = 8) -> None:
+    MAXLEN = 8
+
+    def __init__(self, maxlen: int = MAXLEN) -> None:
         self.refs: collections.OrderedDict[int, pl.Frame] = collections.OrderedDict()
         self.maxlen = maxlen
 
@@ -76,9 +78,14 @@ class AlignedInput:
         self.refs = ReferenceCache()
         self.matcher = StampMatcher()
         q = reliable_qos(depth)
+        # The reference subscription is made FIRST: rclpy's executors take the ready subscriptions of a
+        # node in the order they were made, so a new reference waiting beside the first frame aligned to it
+        # is taken before that frame (made after, the frame went with the previous reference). Depth 8: two
+        # references in quick succession are both kept.
+        node.create_subscription(Image, "aligned/reference", self._on_reference, latched_qos(ReferenceCache.MAXLEN),
+                                 raw=True)
         node.create_subscription(Image, "aligned", self._on_aligned, q, raw=True)
         node.create_subscription(Image, "aligned/mask", self._on_mask, q, raw=True)
-        node.create_subscription(Image, "aligned/reference", self._on_reference, latched_qos(), raw=True)
 
     def _decode(self, raw: bytes, what: str) -> pl.Frame | None:
         try:

@@ -152,9 +152,10 @@ def reliable_qos(depth: int = 10) -> QoSProfile:
                       durability=DurabilityPolicy.VOLATILE)
 
 
-def latched_qos() -> QoSProfile:
-    """Reliable + transient-local, depth 1: a late joiner gets the latest message."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+def latched_qos(depth: int = 1) -> QoSProfile:
+    """Reliable + transient-local: a late joiner gets the latest message (a publisher's depth 1). A
+    subscriber's ``depth`` > 1 keeps messages that arrive faster than it takes them."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 

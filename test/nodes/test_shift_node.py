@@ -99,3 +99,40 @@ def test_shift_published_for_aligned_frames(ctx, crops):
     assert cdr.header_to_ns(header) == t0 + 10**8  # header = the moving frame's
     assert abs(vec[0] - 0.3) < 0.01 and abs(vec[1] + 0.45) < 0.01
     assert any("shift not" in s.message for s in diags)
+
+
+def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_takes_them(ctx, crops):
+    """The registration node publishes a new reference before the frames aligned to it, but on another
+    topic: when both wait in the node's queues, the frame must still go with ITS reference, never with the
+    previous one (and a reference followed at once by the next one must not be overwritten)."""
+    from subpix_ros.nodes.shift_node import ShiftNode
+
+    node = ShiftNode()
+    got = []
+    node.inputs.on_aligned = lambda a: got.append((a.stamp_ns, a.reference.stamp_ns))
+    img = crops["crop_trees"][:64, :64]
+    full = np.ones(img.shape, bool)
+    h, pubs, _, _ = _harness(node)
+    t0 = 1_700_000_000_000_000_000
+    try:
+        pubs["/aligned/reference"].publish(pl.image_cdr(img, t0))
+        assert _spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 20)
+        # reference 8 and its frame 9 both queued before the node spins
+        pubs["/aligned/reference"].publish(pl.image_cdr(img, t0 + 8))
+        pubs["/aligned"].publish(pl.image_cdr(img, t0 + 9))
+        pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + 9))
+        time.sleep(0.5)  # all three delivered to the node's readers
+        assert _spin([node, h], lambda: len(got) == 1, 20)
+        # references 16 and 24 back to back, then frame 17 (of 16) and frame 25 (of 24)
+        pubs["/aligned/reference"].publish(pl.image_cdr(img, t0 + 16))
+        pubs["/aligned/reference"].publish(pl.image_cdr(img, t0 + 24))
+        for k in (17, 25):
+            pubs["/aligned"].publish(pl.image_cdr(img, t0 + k))
+            pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + k))
+        time.sleep(0.5)
+        assert _spin([node, h], lambda: len(got) == 3, 20)
+    finally:
+        node.close()
+        node.destroy_node()
+        h.destroy_node()
+    assert got == [(t0 + 9, t0 + 8), (t0 + 17, t0 + 16), (t0 + 25, t0 + 24)]

@@ -21,8 +21,8 @@ def ctx():
     rclpy.shutdown()
 
 
-def _spin(nodes, until, timeout=10.0):
-    ex = SingleThreadedExecutor()
+def _spin(nodes, until, timeout=10.0, executor=SingleThreadedExecutor):
+    ex = executor()
     for n in nodes:
         ex.add_node(n)
     deadline = time.monotonic() + timeout
@@ -101,11 +101,17 @@ def test_shift_published_for_aligned_frames(ctx, crops):
     assert any("shift not" in s.message for s in diags)
 
 
-def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_takes_them(ctx, crops):
+@pytest.mark.parametrize("executor", ["single", "multi"])
+def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_takes_them(ctx, crops, executor):
     """The registration node publishes a new reference before the frames aligned to it, but on another
     topic: when both wait in the node's queues, the frame must still go with ITS reference, never with the
-    previous one (and a reference followed at once by the next one must not be overwritten)."""
+    previous one (and a reference followed at once by the next one must not be overwritten). On both
+    executors (the nodes spin on a MultiThreadedExecutor)."""
+    from rclpy.executors import MultiThreadedExecutor
+
     from subpix_ros.nodes.shift_node import ShiftNode
+
+    kind = SingleThreadedExecutor if executor == "single" else (lambda: MultiThreadedExecutor(num_threads=2))
 
     node = ShiftNode()
     got = []
@@ -122,7 +128,7 @@ def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_take
         pubs["/aligned"].publish(pl.image_cdr(img, t0 + 9))
         pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + 9))
         time.sleep(0.5)  # all three delivered to the node's readers
-        assert _spin([node, h], lambda: len(got) == 1, 20)
+        assert _spin([node, h], lambda: len(got) == 1, 20, kind)
         # references 16 and 24 back to back, then frame 17 (of 16) and frame 25 (of 24)
         pubs["/aligned/reference"].publish(pl.image_cdr(img, t0 + 16))
         pubs["/aligned/reference"].publish(pl.image_cdr(img, t0 + 24))
@@ -130,7 +136,7 @@ def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_take
             pubs["/aligned"].publish(pl.image_cdr(img, t0 + k))
             pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + k))
         time.sleep(0.5)
-        assert _spin([node, h], lambda: len(got) == 3, 20)
+        assert _spin([node, h], lambda: len(got) == 3, 20, kind)
     finally:
         node.close()
         node.destroy_node()

@@ -61,6 +61,8 @@ __all__ = [
     "cdr_to_float64_array",
     "vector3_stamped_to_cdr",
     "cdr_to_vector3_stamped",
+    "time_reference_to_cdr",
+    "cdr_to_time_reference",
 ]
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -68,6 +70,7 @@ IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
 VECTOR3_STAMPED = "geometry_msgs/msg/Vector3Stamped"
+TIME_REFERENCE = "sensor_msgs/msg/TimeReference"
 
 _T = TYPESTORE.types
 _Header = _T["std_msgs/msg/Header"]
@@ -78,6 +81,7 @@ _MultiArrayLayout = _T["std_msgs/msg/MultiArrayLayout"]
 _MultiArrayDimension = _T["std_msgs/msg/MultiArrayDimension"]
 _Vector3Stamped = _T[VECTOR3_STAMPED]
 _Vector3 = _T["geometry_msgs/msg/Vector3"]
+_TimeReference = _T[TIME_REFERENCE]
 
 _NS = 1_000_000_000
 _INT32 = (-(2**31), 2**31 - 1)
@@ -294,3 +298,18 @@ def cdr_to_vector3_stamped(raw: bytes | bytearray | memoryview) -> tuple[np.ndar
     """``(array([x, y, z]), header)`` from geometry_msgs/msg/Vector3Stamped CDR bytes."""
     msg = deserialize(raw, VECTOR3_STAMPED)
     return np.array([msg.vector.x, msg.vector.y, msg.vector.z], dtype=np.float64), msg.header
+
+
+def time_reference_to_cdr(stamp_ns: int, time_ref_ns: int, frame_id: str = "", source: str = "") -> bytes:
+    """CDR bytes of a sensor_msgs/msg/TimeReference: ``header.stamp`` = ``stamp_ns``, ``time_ref`` = ``time_ref_ns``."""
+    sec, nanosec = _split_stamp(time_ref_ns)
+    if not isinstance(source, str):
+        raise CdrError(f"source must be a str, got {type(source).__name__}")
+    msg = _TimeReference(header=make_header(stamp_ns, frame_id), time_ref=_Time(sec=sec, nanosec=nanosec), source=source)
+    return serialize(msg, TIME_REFERENCE)
+
+
+def cdr_to_time_reference(raw: bytes | bytearray | memoryview) -> tuple[int, int, Any]:
+    """``(header stamp ns, time_ref ns, message)`` from sensor_msgs/msg/TimeReference CDR bytes."""
+    msg = deserialize(raw, TIME_REFERENCE)
+    return header_to_ns(msg.header), int(msg.time_ref.sec) * _NS + int(msg.time_ref.nanosec), msg

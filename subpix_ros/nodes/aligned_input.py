@@ -1,7 +1,12 @@
 """Aligned frames arriving over DDS, reassembled into :class:`payloads.Aligned`.
 
-Subscribes ``aligned`` + ``aligned/mask`` (paired by exact header stamp) and
-``aligned/reference`` (latched); each aligned frame belongs to the latest
+Subscribes ``aligned`` + ``aligned/mask`` (paired by exact header stamp),
+``aligned/reference`` (latched) and ``aligned/reference_stamp``
+(sensor_msgs/TimeReference: the frame's stamp -> its reference's stamp). A
+frame goes with the reference its link names; a frame whose link or reference
+has not arrived yet waits for it (bounded), so the topics may arrive in any
+order (another host, retransmissions). Without a link publisher (an older
+registration node, a hand-made stream) a frame belongs to the latest
 reference whose stamp is not later than its own. Used by the shift and
 reconstruction nodes; in the single-process pipeline they get the objects
 directly instead.
@@ -13,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import Image, TimeReference
 
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.common import latched_qos, reliable_qos
@@ -70,7 +75,9 @@ class ReferenceCache:
 
 
 class AlignedInput:
-    """The three subscriptions of a node that consumes aligned frames."""
+    """The four subscriptions of a node that consumes aligned frames."""
+
+    MAX_PENDING = 32  # frames held for a link or a reference (about 4 sets of 8)
 
     def __init__(self, node, on_aligned: Callable[[pl.Aligned], None], depth: int = 10) -> None:
         self.node = node
@@ -84,8 +91,12 @@ class AlignedInput:
         # references in quick succession are both kept.
         node.create_subscription(Image, "aligned/reference", self._on_reference, latched_qos(ReferenceCache.MAXLEN),
                                  raw=True)
+        self.link_sub = node.create_subscription(TimeReference, "aligned/reference_stamp", self._on_link, q, raw=True)
         node.create_subscription(Image, "aligned", self._on_aligned, q, raw=True)
         node.create_subscription(Image, "aligned/mask", self._on_mask, q, raw=True)
+        self.links: collections.OrderedDict[int, int] = collections.OrderedDict()  # frame stamp -> reference stamp
+        self.unlinked: collections.OrderedDict[int, tuple] = collections.OrderedDict()  # (frame, mask) awaiting a link
+        self.waiting: collections.OrderedDict[tuple[int, int], tuple] = collections.OrderedDict()  # awaiting a reference
 
     def _decode(self, raw: bytes, what: str) -> pl.Frame | None:
         try:
@@ -98,6 +109,19 @@ class AlignedInput:
         f = self._decode(raw, "reference")
         if f is not None:
             self.refs.add(f)
+            for key in [k for k in self.waiting if k[0] == f.stamp_ns]:  # its frames that came first
+                self._deliver(*self.waiting.pop(key), f)
+
+    def _on_link(self, raw: bytes) -> None:
+        try:
+            stamp, ref_stamp = pl.reference_link_from_cdr(raw)
+        except Exception as exc:  # noqa: BLE001 - bad input must not kill the node
+            self.node.diag.error(f"bad aligned/reference_stamp message: {exc}")
+            return
+        if stamp in self.unlinked:
+            self._with_reference(*self.unlinked.pop(stamp), ref_stamp)
+        else:
+            _bounded_put(self.links, stamp, ref_stamp, self.MAX_PENDING)
 
     def _on_aligned(self, raw: bytes) -> None:
         self.node.diag.rate("input").tick()
@@ -119,16 +143,45 @@ class AlignedInput:
             self._pair(*pair)
 
     def _pair(self, frame: pl.Frame, mask: np.ndarray) -> None:
-        ref = self.refs.for_stamp(frame.stamp_ns)
-        if ref is None:
-            self.node.diag.warn("aligned frame without a reference yet: skipped")
-            return
         if mask.shape != frame.image.shape[:2]:
             self.node.diag.error(f"mask shape {mask.shape} does not match image {frame.image.shape[:2]}")
             return
+        if frame.stamp_ns in self.links:
+            self._with_reference(frame, mask, self.links.pop(frame.stamp_ns))
+        elif self.link_sub.get_publisher_count() > 0:  # its link is on the way
+            if _bounded_put(self.unlinked, frame.stamp_ns, (frame, mask), self.MAX_PENDING):
+                self.node.diag.warn("aligned frames without their aligned/reference_stamp: oldest dropped")
+        else:  # no link publisher: the latest reference not later than the frame
+            ref = self.refs.for_stamp(frame.stamp_ns)
+            if ref is None:
+                self.node.diag.warn("aligned frame without a reference yet: skipped")
+                return
+            self._deliver(frame, mask, ref)
+
+    def _with_reference(self, frame: pl.Frame, mask: np.ndarray, ref_stamp: int) -> None:
+        ref = self.refs.refs.get(ref_stamp)
+        if ref is not None:
+            self._deliver(frame, mask, ref)
+        elif _bounded_put(self.waiting, (ref_stamp, frame.stamp_ns), (frame, mask), self.MAX_PENDING):
+            self.node.diag.warn("aligned frames whose reference never arrived: oldest dropped")
+
+    def _deliver(self, frame: pl.Frame, mask: np.ndarray, ref: pl.Frame) -> None:
         self.on_aligned(pl.Aligned(frame.stamp_ns, frame.image, mask, ref, np.eye(3), None, frame.frame_id,
                                    frame.received))
 
     def clear(self) -> None:
         self.refs.clear()
         self.matcher.clear()
+        self.links.clear()
+        self.unlinked.clear()
+        self.waiting.clear()
+
+
+def _bounded_put(store: collections.OrderedDict, key, value, maxlen: int) -> bool:
+    """``store[key] = value``, dropping the oldest entries beyond ``maxlen``; True if any was dropped."""
+    store[key] = value
+    dropped = False
+    while len(store) > maxlen:
+        store.popitem(last=False)
+        dropped = True
+    return dropped

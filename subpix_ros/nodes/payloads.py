@@ -117,3 +117,15 @@ def homography_cdr(h: np.ndarray) -> bytes:
 def shift_cdr(s: Shift) -> bytes:
     """Vector3Stamped: x = u (rows), y = v (columns), z = intensity offset; header of the moving frame."""
     return cdr.vector3_stamped_to_cdr((s.u, s.v, s.z), s.stamp_ns, s.frame_id)
+
+
+def reference_link_cdr(stamp_ns: int, reference_stamp_ns: int, frame_id: str = "") -> bytes:
+    """sensor_msgs/TimeReference naming an aligned frame's reference: header = the aligned frame's (stamp,
+    frame_id), ``time_ref`` = its reference frame's stamp."""
+    return cdr.time_reference_to_cdr(stamp_ns, reference_stamp_ns, frame_id, "subpix_ros reference frame")
+
+
+def reference_link_from_cdr(raw: bytes) -> tuple[int, int]:
+    """``(aligned frame stamp ns, reference stamp ns)`` from :func:`reference_link_cdr` bytes."""
+    stamp, ref, _ = cdr.cdr_to_time_reference(raw)
+    return stamp, ref

@@ -15,7 +15,10 @@ reference frame and publishes:
   reference frame's;
 * ``aligned/reference`` (sensor_msgs/Image, reliable + transient local): the
   reference frame, each time a new one starts. Aligned frames belong to the
-  latest reference whose stamp is not later than theirs.
+  latest reference whose stamp is not later than theirs;
+* ``aligned/reference_stamp`` (sensor_msgs/TimeReference): per aligned frame,
+  header = the frame's, ``time_ref`` = its reference's stamp, so a consumer
+  pairs them exactly whatever order the topics arrive in.
 
 A new reference starts on the first frame, after ``max_frames_per_reference``
 aligned frames, when registration fails or its quality drops
@@ -39,7 +42,7 @@ import time
 import numpy as np
 
 from geometry_msgs.msg import TwistStamped
-from sensor_msgs.msg import CompressedImage, Image, Imu
+from sensor_msgs.msg import CompressedImage, Image, Imu, TimeReference
 from std_msgs.msg import Float64, Float64MultiArray
 
 from subpix_ros.core import registration as reg
@@ -103,6 +106,8 @@ class RegistrationNode(StageNode):
         self.pub_mask = self.create_publisher(Image, "aligned/mask", reliable_qos(10))
         self.pub_h = self.create_publisher(Float64MultiArray, "homography", reliable_qos(10))
         self.pub_ref = self.create_publisher(Image, "aligned/reference", latched_qos())
+        # which reference each aligned frame belongs to, by stamp (consumers need not infer it from arrival order)
+        self.pub_link = self.create_publisher(TimeReference, "aligned/reference_stamp", reliable_qos(10))
         self.make_worker(self._process, self.p("queue_size"))
         if subscribe_inputs:
             qos = camera_qos(self.p("camera_reliable"), depth=30 if self.p("camera_reliable") else 5)
@@ -238,6 +243,7 @@ class RegistrationNode(StageNode):
         out = pl.Aligned(frame.stamp_ns, al.aligned, al.mask, self.reference, np.asarray(result.homography),
                          tuple(al.prior_shift) if al.prior_shift is not None else None, frame.frame_id, frame.received)
         self.since_reference += 1
+        self.pub_link.publish(pl.reference_link_cdr(out.stamp_ns, self.reference.stamp_ns, out.frame_id))
         publish_if_subscribed(self.pub_aligned, lambda: pl.image_cdr(out.image, out.stamp_ns, out.frame_id))
         publish_if_subscribed(self.pub_mask, lambda: pl.mask_cdr(out.mask, out.stamp_ns, out.frame_id))
         self.pub_h.publish(pl.homography_cdr(out.homography))

@@ -25,6 +25,7 @@ from subpix_ros.io.cdr import (
     cdr_to_float64_array,
     cdr_to_image,
     cdr_to_image_msg,
+    cdr_to_time_reference,
     cdr_to_vector3_stamped,
     compressed_to_cdr,
     deserialize,
@@ -33,6 +34,7 @@ from subpix_ros.io.cdr import (
     image_to_cdr,
     make_header,
     serialize,
+    time_reference_to_cdr,
     vector3_stamped_to_cdr,
 )
 from subpix_ros.io.images import ImageConversionError, numpy_to_image_fields
@@ -239,6 +241,22 @@ def test_float64_array_and_vector3():
     assert (mv.vector.x, mv.vector.y, mv.vector.z) == (0.25, -1.5, 3.0)
     with pytest.raises(CdrError, match="3 values"):
         vector3_stamped_to_cdr((1.0, 2.0), 0)
+
+
+def test_time_reference_round_trip_and_rclpy():
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import TimeReference
+
+    ref = STAMP - 2_345_678_901
+    raw = time_reference_to_cdr(STAMP, ref, "cam", "subpix_ros reference frame")
+    stamp, time_ref, msg = cdr_to_time_reference(raw)
+    assert (stamp, time_ref, msg.header.frame_id, msg.source) == (STAMP, ref, "cam", "subpix_ros reference frame")
+    m = deserialize_message(raw, TimeReference)
+    assert m.time_ref.sec * 10**9 + m.time_ref.nanosec == ref and m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == STAMP
+    with pytest.raises(CdrError):
+        time_reference_to_cdr(STAMP, 2**80)
+    with pytest.raises(CdrError):
+        cdr_to_time_reference(b"\x00\x01\x00\x00\x01")
 
 
 # ----------------------------------------------------------------------------- rclpy, two processes

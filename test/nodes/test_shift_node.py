@@ -142,3 +142,47 @@ def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_take
         node.destroy_node()
         h.destroy_node()
     assert got == [(t0 + 9, t0 + 8), (t0 + 17, t0 + 16), (t0 + 25, t0 + 24)]
+
+
+def test_aligned_frames_follow_their_reference_link_in_any_arrival_order(ctx, crops):
+    """With the registration node's aligned/reference_stamp links (sensor_msgs/TimeReference), a frame goes
+    with the reference its link names even when the frame arrives BEFORE that reference (it waits; it never
+    goes with the previous one), and when its link arrives after the frame."""
+    from sensor_msgs.msg import TimeReference
+
+    from subpix_ros.nodes.shift_node import ShiftNode
+
+    node = ShiftNode()
+    got = []
+    node.inputs.on_aligned = lambda a: got.append((a.stamp_ns, a.reference.stamp_ns))
+    img = crops["crop_trees"][:64, :64]
+    full = np.ones(img.shape, bool)
+    h, pubs, _, _ = _harness(node)
+    link = h.create_publisher(TimeReference, "/aligned/reference_stamp", reliable_qos(20))
+    t0 = 1_700_000_000_000_000_000
+
+    def frame(k, ref):
+        if ref is not None:
+            link.publish(pl.reference_link_cdr(t0 + k, t0 + ref))
+        pubs["/aligned"].publish(pl.image_cdr(img, t0 + k))
+        pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + k))
+
+    try:
+        assert _spin([node, h], lambda: link.get_subscription_count() and node.inputs.link_sub.get_publisher_count(), 10)
+        pubs["/aligned/reference"].publish(pl.image_cdr(img, t0))
+        assert _spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 20)
+        frame(9, 8)  # reference 8 not published yet
+        _spin([node, h], lambda: False, 1.0)
+        assert got == []  # held, not paired with reference 0
+        pubs["/aligned/reference"].publish(pl.image_cdr(img, t0 + 8))
+        assert _spin([node, h], lambda: len(got) == 1, 20)
+        frame(10, None)  # the link comes after the frame
+        _spin([node, h], lambda: False, 1.0)
+        assert len(got) == 1
+        link.publish(pl.reference_link_cdr(t0 + 10, t0 + 8))
+        assert _spin([node, h], lambda: len(got) == 2, 20)
+    finally:
+        node.close()
+        node.destroy_node()
+        h.destroy_node()
+    assert got == [(t0 + 9, t0 + 8), (t0 + 10, t0 + 8)]

@@ -77,7 +77,7 @@ class ReferenceCache:
 class AlignedInput:
     """The four subscriptions of a node that consumes aligned frames."""
 
-    MAX_PENDING = 32  # frames held for a link or a reference (about 4 sets of 8)
+    MAX_PENDING = 16  # frames held for a link or for a reference (two sets of 8), each map
 
     def __init__(self, node, on_aligned: Callable[[pl.Aligned], None], depth: int = 10) -> None:
         self.node = node
@@ -91,7 +91,9 @@ class AlignedInput:
         # references in quick succession are both kept.
         node.create_subscription(Image, "aligned/reference", self._on_reference, latched_qos(ReferenceCache.MAXLEN),
                                  raw=True)
-        self.link_sub = node.create_subscription(TimeReference, "aligned/reference_stamp", self._on_link, q, raw=True)
+        # links are tiny: a deep queue, so a busy node never loses one (its frame would wait in vain)
+        self.link_sub = node.create_subscription(TimeReference, "aligned/reference_stamp", self._on_link,
+                                                 reliable_qos(max(depth, 100)), raw=True)
         node.create_subscription(Image, "aligned", self._on_aligned, q, raw=True)
         node.create_subscription(Image, "aligned/mask", self._on_mask, q, raw=True)
         self.links: collections.OrderedDict[int, int] = collections.OrderedDict()  # frame stamp -> reference stamp
@@ -121,7 +123,7 @@ class AlignedInput:
         if stamp in self.unlinked:
             self._with_reference(*self.unlinked.pop(stamp), ref_stamp)
         else:
-            _bounded_put(self.links, stamp, ref_stamp, self.MAX_PENDING)
+            _bounded_put(self.links, stamp, ref_stamp, 8 * self.MAX_PENDING)
 
     def _on_aligned(self, raw: bytes) -> None:
         self.node.diag.rate("input").tick()

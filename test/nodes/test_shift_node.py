@@ -186,3 +186,13 @@ def test_aligned_frames_follow_their_reference_link_in_any_arrival_order(ctx, cr
         node.destroy_node()
         h.destroy_node()
     assert got == [(t0 + 9, t0 + 8), (t0 + 10, t0 + 8)]
+
+
+def test_bounded_put_keeps_the_newest_and_says_when_it_drops():
+    import collections
+
+    from subpix_ros.nodes.aligned_input import _bounded_put
+
+    d = collections.OrderedDict()
+    assert [_bounded_put(d, k, k * 10, 3) for k in range(5)] == [False, False, False, True, True]
+    assert list(d.items()) == [(2, 20), (3, 30), (4, 40)]

@@ -101,6 +101,19 @@ def test_shift_published_for_aligned_frames(ctx, crops):
     assert any("shift not" in s.message for s in diags)
 
 
+def _recording_shift_node(crops):
+    """A shift node whose aligned input records (frame stamp, reference stamp) instead of estimating, with
+    the harness; and a small image and full mask to publish."""
+    from subpix_ros.nodes.shift_node import ShiftNode
+
+    node = ShiftNode()
+    got = []
+    node.inputs.on_aligned = lambda a: got.append((a.stamp_ns, a.reference.stamp_ns))
+    img = crops["crop_trees"][:64, :64]
+    h, pubs, _, _ = _harness(node)
+    return node, got, img, np.ones(img.shape, bool), h, pubs
+
+
 @pytest.mark.parametrize("executor", ["single", "multi"])
 def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_takes_them(ctx, crops, executor):
     """The registration node publishes a new reference before the frames aligned to it, but on another
@@ -109,16 +122,9 @@ def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_take
     executors (the nodes spin on a MultiThreadedExecutor)."""
     from rclpy.executors import MultiThreadedExecutor
 
-    from subpix_ros.nodes.shift_node import ShiftNode
-
     kind = SingleThreadedExecutor if executor == "single" else (lambda: MultiThreadedExecutor(num_threads=2))
 
-    node = ShiftNode()
-    got = []
-    node.inputs.on_aligned = lambda a: got.append((a.stamp_ns, a.reference.stamp_ns))
-    img = crops["crop_trees"][:64, :64]
-    full = np.ones(img.shape, bool)
-    h, pubs, _, _ = _harness(node)
+    node, got, img, full, h, pubs = _recording_shift_node(crops)
     t0 = 1_700_000_000_000_000_000
     try:
         pubs["/aligned/reference"].publish(pl.image_cdr(img, t0))
@@ -150,14 +156,7 @@ def test_aligned_frames_follow_their_reference_link_in_any_arrival_order(ctx, cr
     goes with the previous one), and when its link arrives after the frame."""
     from sensor_msgs.msg import TimeReference
 
-    from subpix_ros.nodes.shift_node import ShiftNode
-
-    node = ShiftNode()
-    got = []
-    node.inputs.on_aligned = lambda a: got.append((a.stamp_ns, a.reference.stamp_ns))
-    img = crops["crop_trees"][:64, :64]
-    full = np.ones(img.shape, bool)
-    h, pubs, _, _ = _harness(node)
+    node, got, img, full, h, pubs = _recording_shift_node(crops)
     link = h.create_publisher(TimeReference, "/aligned/reference_stamp", reliable_qos(20))
     t0 = 1_700_000_000_000_000_000
 

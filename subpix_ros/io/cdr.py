@@ -133,17 +133,28 @@ def _split_stamp(stamp_ns: int) -> tuple[int, int]:
     return sec, nanosec
 
 
+def _time(stamp_ns: int) -> Any:
+    """A rosbags ``builtin_interfaces/msg/Time`` for ``stamp_ns`` (integer ns since the epoch)."""
+    sec, nanosec = _split_stamp(stamp_ns)
+    return _Time(sec=sec, nanosec=nanosec)
+
+
+def _time_to_ns(t: Any) -> int:
+    """A builtin_interfaces Time (rosbags or rclpy) as integer nanoseconds: ``sec * 1e9 + nanosec``."""
+    return int(t.sec) * _NS + int(t.nanosec)
+
+
 def make_header(stamp_ns: int, frame_id: str = "") -> Any:
     """A rosbags ``std_msgs/msg/Header`` for ``stamp_ns`` (integer ns since the epoch)."""
-    sec, nanosec = _split_stamp(stamp_ns)
+    stamp = _time(stamp_ns)
     if not isinstance(frame_id, str):
         raise CdrError(f"frame_id must be a string, got {frame_id!r}")
-    return _Header(stamp=_Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
+    return _Header(stamp=stamp, frame_id=frame_id)
 
 
 def header_to_ns(header: Any) -> int:
     """Stamp of a Header (rosbags or rclpy) as integer nanoseconds: ``sec * 1e9 + nanosec``."""
-    return int(header.stamp.sec) * _NS + int(header.stamp.nanosec)
+    return _time_to_ns(header.stamp)
 
 
 def _put_string(buf: bytearray, text: str) -> None:
@@ -302,14 +313,13 @@ def cdr_to_vector3_stamped(raw: bytes | bytearray | memoryview) -> tuple[np.ndar
 
 def time_reference_to_cdr(stamp_ns: int, time_ref_ns: int, frame_id: str = "", source: str = "") -> bytes:
     """CDR bytes of a sensor_msgs/msg/TimeReference: ``header.stamp`` = ``stamp_ns``, ``time_ref`` = ``time_ref_ns``."""
-    sec, nanosec = _split_stamp(time_ref_ns)
     if not isinstance(source, str):
         raise CdrError(f"source must be a str, got {type(source).__name__}")
-    msg = _TimeReference(header=make_header(stamp_ns, frame_id), time_ref=_Time(sec=sec, nanosec=nanosec), source=source)
+    msg = _TimeReference(header=make_header(stamp_ns, frame_id), time_ref=_time(time_ref_ns), source=source)
     return serialize(msg, TIME_REFERENCE)
 
 
 def cdr_to_time_reference(raw: bytes | bytearray | memoryview) -> tuple[int, int, Any]:
     """``(header stamp ns, time_ref ns, message)`` from sensor_msgs/msg/TimeReference CDR bytes."""
     msg = deserialize(raw, TIME_REFERENCE)
-    return header_to_ns(msg.header), int(msg.time_ref.sec) * _NS + int(msg.time_ref.nanosec), msg
+    return header_to_ns(msg.header), _time_to_ns(msg.time_ref), msg

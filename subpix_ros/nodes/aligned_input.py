@@ -66,6 +66,10 @@ class ReferenceCache:
         self.refs[frame.stamp_ns] = frame
         self.refs = collections.OrderedDict(sorted(self.refs.items())[-self.maxlen:])
 
+    def get(self, stamp_ns: int) -> pl.Frame | None:
+        """The reference of exactly this stamp, if it has arrived."""
+        return self.refs.get(stamp_ns)
+
     def for_stamp(self, stamp_ns: int) -> pl.Frame | None:
         earlier = [s for s in self.refs if s <= stamp_ns]
         return self.refs[max(earlier)] if earlier else None
@@ -161,7 +165,7 @@ class AlignedInput:
             self._deliver(frame, mask, ref)
 
     def _with_reference(self, frame: pl.Frame, mask: np.ndarray, ref_stamp: int) -> None:
-        ref = self.refs.refs.get(ref_stamp)
+        ref = self.refs.get(ref_stamp)
         if ref is not None:
             self._deliver(frame, mask, ref)
         elif _bounded_put(self.waiting, (ref_stamp, frame.stamp_ns), (frame, mask), self.MAX_PENDING):

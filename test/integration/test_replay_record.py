@@ -154,18 +154,15 @@ def _replay_to_a_stalled_recorder(node, bag, out, *replay_args, count=0):
 
 
 def _finish(*procs):
-    """Resume and stop cleanly (SIGINT: a node's own shutdown) what still runs; kill only what hangs."""
+    """Resume what is still stopped, then stop it cleanly (SIGINT; kill only what hangs)."""
     import signal
+
+    from subpix_ros.cli._ros import stop_processes
 
     for p in procs:
         if p.poll() is None:
             p.send_signal(signal.SIGCONT)
-            p.send_signal(signal.SIGINT)
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait(10)
+    stop_processes(procs)
 
 
 def test_replay_waits_until_a_stalled_subscriber_has_every_message(sample_bags, rclpy_node, tmp_path):

@@ -103,6 +103,7 @@ class AlignedInput:
         self.links: collections.OrderedDict[int, int] = collections.OrderedDict()  # frame stamp -> reference stamp
         self.unlinked: collections.OrderedDict[int, tuple] = collections.OrderedDict()  # (frame, mask) awaiting a link
         self.waiting: collections.OrderedDict[tuple[int, int], tuple] = collections.OrderedDict()  # awaiting a reference
+        self.newest_link = -1  # stamp of the latest frame whose link arrived
 
     def _decode(self, raw: bytes, what: str) -> pl.Frame | None:
         try:
@@ -128,6 +129,18 @@ class AlignedInput:
             self._with_reference(*self.unlinked.pop(stamp), ref_stamp)
         else:
             _bounded_put(self.links, stamp, ref_stamp, 8 * self.MAX_PENDING)
+        # Links come in frame order (one writer, reliable): a frame older than the newest link and still
+        # without its own lost it (e.g. published before the link reader was matched); it would wait for ever.
+        # (The newest is the last to arrive, so a bag replayed from its start again resets it.)
+        self.newest_link = stamp
+        lost = [t for t in self.unlinked if t < stamp]
+        for t in lost:
+            del self.unlinked[t]
+        if lost:
+            self._link_lost(len(lost))
+
+    def _link_lost(self, n: int) -> None:
+        self.node.diag.warn(f"{n} aligned frame(s) whose aligned/reference_stamp never came: skipped")
 
     def _on_aligned(self, raw: bytes) -> None:
         self.node.diag.rate("input").tick()
@@ -154,6 +167,8 @@ class AlignedInput:
             return
         if frame.stamp_ns in self.links:
             self._with_reference(frame, mask, self.links.pop(frame.stamp_ns))
+        elif frame.stamp_ns < self.newest_link:  # a later frame's link came first: this one's is lost
+            self._link_lost(1)
         elif self.link_sub.get_publisher_count() > 0:  # its link is on the way
             if _bounded_put(self.unlinked, frame.stamp_ns, (frame, mask), self.MAX_PENDING):
                 self.node.diag.warn("aligned frames without their aligned/reference_stamp: oldest dropped")
@@ -181,6 +196,7 @@ class AlignedInput:
         self.links.clear()
         self.unlinked.clear()
         self.waiting.clear()
+        self.newest_link = -1
 
 
 def _bounded_put(store: collections.OrderedDict, key, value, maxlen: int) -> bool:

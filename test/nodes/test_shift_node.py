@@ -103,15 +103,15 @@ def test_shift_published_for_aligned_frames(ctx, crops):
 
 def _recording_shift_node(crops):
     """A shift node whose aligned input records (frame stamp, reference stamp) instead of estimating, with
-    the harness; and a small image and full mask to publish."""
+    the harness; and a small image and full mask to publish, and the node's diagnostics."""
     from subpix_ros.nodes.shift_node import ShiftNode
 
     node = ShiftNode()
     got = []
     node.inputs.on_aligned = lambda a: got.append((a.stamp_ns, a.reference.stamp_ns))
     img = crops["crop_trees"][:64, :64]
-    h, pubs, _, _ = _harness(node)
-    return node, got, img, np.ones(img.shape, bool), h, pubs
+    h, pubs, _, diags = _harness(node)
+    return node, got, img, np.ones(img.shape, bool), h, pubs, diags
 
 
 @pytest.mark.parametrize("executor", ["single", "multi"])
@@ -124,7 +124,7 @@ def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_take
 
     kind = SingleThreadedExecutor if executor == "single" else (lambda: MultiThreadedExecutor(num_threads=2))
 
-    node, got, img, full, h, pubs = _recording_shift_node(crops)
+    node, got, img, full, h, pubs, diags = _recording_shift_node(crops)
     t0 = 1_700_000_000_000_000_000
     try:
         pubs["/aligned/reference"].publish(pl.image_cdr(img, t0))
@@ -156,7 +156,7 @@ def test_aligned_frames_follow_their_reference_link_in_any_arrival_order(ctx, cr
     goes with the previous one), and when its link arrives after the frame."""
     from sensor_msgs.msg import TimeReference
 
-    node, got, img, full, h, pubs = _recording_shift_node(crops)
+    node, got, img, full, h, pubs, diags = _recording_shift_node(crops)
     link = h.create_publisher(TimeReference, "/aligned/reference_stamp", reliable_qos(20))
     t0 = 1_700_000_000_000_000_000
 
@@ -180,11 +180,17 @@ def test_aligned_frames_follow_their_reference_link_in_any_arrival_order(ctx, cr
         assert len(got) == 1
         link.publish(pl.reference_link_cdr(t0 + 10, t0 + 8))
         assert _spin([node, h], lambda: len(got) == 2, 20)
+        # frame 11's link is lost; frame 12's link shows it will never come: 11 is skipped, said so
+        frame(11, None)
+        frame(12, 8)
+        assert _spin([node, h], lambda: len(got) == 3, 20)
+        assert _spin([node, h], lambda: any("never came" in d.message for d in diags), 5)
+        assert not node.inputs.unlinked
     finally:
         node.close()
         node.destroy_node()
         h.destroy_node()
-    assert got == [(t0 + 9, t0 + 8), (t0 + 10, t0 + 8)]
+    assert got == [(t0 + 9, t0 + 8), (t0 + 10, t0 + 8), (t0 + 12, t0 + 8)]
 
 
 def test_bounded_put_keeps_the_newest_and_says_when_it_drops():

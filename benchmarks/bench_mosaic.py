@@ -23,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from subpix_ros.core.mosaic import Mosaic  # noqa: E402
 from subpix_ros.core.registration_points import apply_h  # noqa: E402
 from subpix_ros.data import seneca_frame_paths  # noqa: E402
+from subpix_ros.runtime import allocator_line  # noqa: E402
 
 FULLRES = Path(os.environ.get("SUBPIX_FULLRES", "/work/shared/data/seneca"))
 
@@ -63,7 +64,9 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--additions", type=int, default=200)
     ap.add_argument("--out", default="/tmp/bench_mosaic.png")
+    ap.add_argument("--default-malloc", action="store_true", help="glibc's default allocator thresholds (subpix_ros.runtime)")
     a = ap.parse_args()
+    print(allocator_line(a.default_malloc))
     frames = [cv2.imread(str(p)) for p in seneca_frame_paths()]
     print(f"cv2 {cv2.__version__}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
 

@@ -13,6 +13,8 @@ import importlib
 import sys
 from typing import Sequence
 
+from ..runtime import keep_freed_memory
+
 # Subcommand modules, in the order ``subpix --help`` lists them.
 MODULES = (
     "demo",
@@ -53,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    keep_freed_memory()  # frame buffers reused, not re-faulted per frame (subpix_ros.runtime)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

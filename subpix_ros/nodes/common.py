@@ -31,6 +31,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
+from ..runtime import keep_freed_memory
+
 __all__ = [
     "Param",
     "declare_params",
@@ -429,7 +431,11 @@ class Diagnostics:
 
 # --------------------------------------------------------------------------- main
 def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None, threads: int | None = None) -> int:
-    """Init rclpy, build the nodes, spin them on a MultiThreadedExecutor, shut down cleanly."""
+    """Init rclpy, build the nodes, spin them on a MultiThreadedExecutor, shut down cleanly.
+
+    Freed frame buffers stay in the process's heap for reuse (:func:`subpix_ros.runtime.keep_freed_memory`).
+    """
+    keep_freed_memory()
     rclpy.init(args=args)
     nodes: list[Node] = []
     executor = MultiThreadedExecutor(num_threads=threads)

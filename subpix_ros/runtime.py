@@ -24,8 +24,8 @@ it). The cost is resident memory: the process stays near its peak usage.
 Every node's ``main``, the ``subpix`` command and the benchmarks call it.
 It is a no-op where glibc's ``mallopt`` is missing (musl, macOS, Windows),
 and an operator's own ``MALLOC_MMAP_THRESHOLD_`` / ``MALLOC_TRIM_THRESHOLD_``
-or ``GLIBC_TUNABLES=glibc.malloc.*`` environment settings win: nothing is
-changed then.
+or ``GLIBC_TUNABLES=glibc.malloc.*`` environment settings win, and
+``SUBPIX_DEFAULT_MALLOC=1`` opts out: nothing is changed then.
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ import ctypes.util
 import os
 import sys
 
-__all__ = ["keep_freed_memory", "MMAP_THRESHOLD", "TRIM_THRESHOLD"]
+__all__ = ["keep_freed_memory", "allocator_line", "MMAP_THRESHOLD", "TRIM_THRESHOLD", "OPT_OUT"]
 
 #: glibc's ``mallopt`` parameter numbers (malloc.h).
 _M_TRIM_THRESHOLD = -1
@@ -47,10 +47,14 @@ TRIM_THRESHOLD = 512 * 1024 * 1024
 
 _ENV = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 
+#: Set to 1 to leave glibc's allocator alone (inherited by child processes, e.g. the nodes a benchmark starts).
+OPT_OUT = "SUBPIX_DEFAULT_MALLOC"
+
 
 def _operator_set() -> bool:
-    """True if the environment sets glibc's malloc thresholds (old variables or the tunables)."""
-    return any(os.environ.get(k) for k in _ENV) or "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", "")
+    """True if the environment opts out or sets glibc's malloc thresholds (old variables or the tunables)."""
+    return (os.environ.get(OPT_OUT, "") not in ("", "0") or any(os.environ.get(k) for k in _ENV)
+            or "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", ""))
 
 
 def _mallopt():
@@ -82,13 +86,16 @@ def keep_freed_memory(mmap_threshold: int = MMAP_THRESHOLD, trim_threshold: int 
     fn = _mallopt()
     if fn is None:
         return False
-    return bool(fn(_M_MMAP_THRESHOLD, int(mmap_threshold))) & bool(fn(_M_TRIM_THRESHOLD, int(trim_threshold)))
+    mmap_ok = fn(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
+    trim_ok = fn(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1
+    return mmap_ok and trim_ok
 
 
 def allocator_line(default_malloc: bool = False) -> str:
     """For benchmarks: apply :func:`keep_freed_memory` (as the nodes and ``subpix`` do) unless
     ``default_malloc``, and return a one-line description of the allocator the timings ran with."""
     if default_malloc:
+        os.environ[OPT_OUT] = "1"  # and in the processes this one starts
         return "allocator: glibc defaults (--default-malloc; the nodes and subpix keep freed frame buffers)"
     if keep_freed_memory():
         return (f"allocator: freed frame buffers kept for reuse, as in the nodes and subpix "

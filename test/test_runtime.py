@@ -34,7 +34,8 @@ CHILD = textwrap.dedent("""
 
 
 def _child(mode: str, env: dict | None = None) -> dict:
-    e = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
+    e = {k: v for k, v in os.environ.items()
+         if not k.startswith("MALLOC_") and k not in ("GLIBC_TUNABLES", "SUBPIX_DEFAULT_MALLOC")}
     e.update(env or {})
     r = subprocess.run([sys.executable, "-c", CHILD, mode], capture_output=True, text=True, timeout=120, env=e)
     assert r.returncode == 0, r.stderr
@@ -55,7 +56,8 @@ def test_registration_reuses_freed_frame_buffers():
 
 @glibc
 @pytest.mark.parametrize("env", [{"MALLOC_TRIM_THRESHOLD_": "1000000"}, {"MALLOC_MMAP_THRESHOLD_": "65536"},
-                                 {"GLIBC_TUNABLES": "glibc.malloc.trim_threshold=1000000"}])
+                                 {"GLIBC_TUNABLES": "glibc.malloc.trim_threshold=1000000"},
+                                 {"SUBPIX_DEFAULT_MALLOC": "1"}])
 def test_operator_malloc_settings_are_kept(env):
     assert _child("keep", env)["applied"] is False
 

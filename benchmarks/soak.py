@@ -28,6 +28,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_pipeline import make_frames, start_layout  # noqa: E402
 
+from subpix_ros.runtime import allocator_line  # noqa: E402
+
 
 def rss_mb(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -41,7 +43,10 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=18000)
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--warmup-s", type=float, default=60.0)
+    ap.add_argument("--default-malloc", action="store_true", help="glibc's default allocator thresholds in the "
+                    "pipeline process (subpix_ros.runtime)")
     args = ap.parse_args()
+    print(allocator_line(args.default_malloc))
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(101, 199)))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 

@@ -7,7 +7,8 @@ stamps; the pipeline's resident memory is sampled every 5 s. Printed: frames
 in, shifts out, super-resolved images out, frames dropped per stage (the
 bounded drop-oldest queues: at 30 Hz the pipeline is expected to drop, and
 must count it), latency frame -> shift (p50, p99), and memory: RSS after
-warm-up (first 60 s), at the end, growth, and the maximum.
+warm-up (first 60 s), at the end, growth, and the maximum, and the floor
+(the lowest RSS of each minute: a leak lifts it, images in flight do not).
 
 Usage: python benchmarks/soak.py [--frames 18000] [--rate 30]
 """
@@ -120,6 +121,11 @@ def main() -> None:
     base_mb = float(np.median(after[:k, 1]))
     end_mb = float(np.median(after[-k:, 1]))
     slope = float(np.polyfit(after[:, 0], after[:, 1], 1)[0] * 60) if len(after) > 2 else float("nan")
+    # The floor: the lowest RSS of each minute after warm-up (what stays when no image is in flight). A leak
+    # lifts the floor; frames and 4K images in flight only lift the peaks, which the medians above still see.
+    win = np.floor((after[:, 0] - args.warmup_s) / 60.0)
+    floors = np.array([[w, after[win == w, 1].min()] for w in np.unique(win) if (win == w).sum() >= 6])
+    floor_slope = float(np.polyfit(floors[:, 0], floors[:, 1], 1)[0]) if len(floors) > 2 else float("nan")
     lat_ms = np.array(lat) * 1000
     drops = {n.replace("_node", ""): d.get("dropped_frames", "?") for n, d in sorted(diag.items())}
     print(f"\nsoak: single-process pipeline, 1920x1080 bgr8 at {args.rate:g} Hz, {args.frames} frames in {wall:.0f} s "
@@ -130,6 +136,10 @@ def main() -> None:
     print(f"| {args.frames} | {len(lat)} | {srs[0]} | {np.percentile(lat_ms, 50):.0f} / {np.percentile(lat_ms, 99):.0f} | "
           f"{base_mb:.0f} | {end_mb:.0f} | {end_mb - base_mb:+.0f} | {slope:+.1f} | {m[:, 1].max():.0f} | {not alive} | "
           f"{drops} |")
+    if len(floors):
+        print(f"RSS floor (lowest of each minute after warm-up), MB: first {floors[0, 1]:.0f}, last {floors[-1, 1]:.0f}, "
+              f"trend {floor_slope:+.1f} MB/min over {len(floors)} minutes: "
+              + ", ".join(f"{v:.0f}" for v in floors[:, 1]))
     print("memory samples (s, MB): " + ", ".join(f"{t:.0f}:{v:.0f}" for t, v in m[:: max(1, len(m) // 20)]))
 
 

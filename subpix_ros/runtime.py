@@ -20,11 +20,14 @@ that size come from the heap: a 4K or a full-resolution Seneca float32 frame
 is 33-39 MB; at full resolution the faults per pair drop from 890 to 300)
 and the trim threshold to 64 MiB (the process keeps up to that much freed
 heap on top for reuse instead of returning it; 32 MiB already gave the whole
-gain, 512 MiB only raised the resident memory). The cost in resident memory
-is small: the 30 Hz 1080p soak (``benchmarks/soak.py --frames 7200``) ran at
-1.9 GB median RSS, 2.12 GB at most, against 1.6-2.0 GB and 2.10 GB with
-``--default-malloc``, with no growth either way, and processed 9 % more
-frames (2503 against 2296 shifts).
+gain, 512 MiB only raised the resident memory). Resident memory hardly
+changes: in the 10-minute 30 Hz 1080p soak (``benchmarks/soak.py``) the RSS
+peaked at 2.10-2.41 GB with it (3 runs) and 2.25 GB without (1 run); the
+lowest RSS of each minute (measured in one run with it) came back to
+1.44-1.50 GB from the first minute to the eighth (single minutes read up to
+1.72 GB), so nothing accumulates. The same runs processed as many frames either way
+(5335-5836 against 5585 shifts).
+
 Every node's ``main``, the ``subpix`` command and the benchmarks call it.
 It is a no-op where glibc's ``mallopt`` is missing (musl, macOS, Windows),
 and an operator's own ``MALLOC_MMAP_THRESHOLD_`` / ``MALLOC_TRIM_THRESHOLD_``
@@ -105,4 +108,4 @@ def allocator_line(default_malloc: bool = False) -> str:
         return (f"allocator: freed frame buffers kept for reuse, as in the nodes and subpix "
                 f"(mmap threshold {MMAP_THRESHOLD >> 20} MiB, trim threshold {TRIM_THRESHOLD >> 20} MiB; "
                 f"--default-malloc for glibc's defaults)")
-    return "allocator: unchanged (not glibc, or MALLOC_* / GLIBC_TUNABLES set in the environment)"
+    return "allocator: unchanged (not glibc, or SUBPIX_DEFAULT_MALLOC, MALLOC_* or GLIBC_TUNABLES set in the environment)"

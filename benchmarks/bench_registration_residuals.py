@@ -68,9 +68,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from subpix_ros.core.registration import register  # noqa: E402
+from subpix_ros.core.registration import register, to_gray32  # noqa: E402
 from subpix_ros.core.registration_fit import Normaliser, undistort_points  # noqa: E402
-from subpix_ros.core.registration_points import apply_h  # noqa: E402
+from subpix_ros.core.registration_points import apply_h, sample_linear_cv  # noqa: E402
 from subpix_ros.core.telemetry import enu_offset_m  # noqa: E402
 from subpix_ros.data import seneca_frame_paths  # noqa: E402
 
@@ -122,23 +122,27 @@ def match_ncc(ref: np.ndarray, mov: np.ndarray, r, half: int = 7) -> np.ndarray:
     The moving frame is sampled (bilinear) at ``m + T(x) - T(p)`` for the patch pixels ``x`` around the
     reference point ``p`` (``T`` = the full model's reference -> moving map, ``m`` the match).
     """
-    g0 = cv2.cvtColor(ref, cv2.COLOR_BGR2GRAY).astype(np.float32) if ref.ndim == 3 else ref.astype(np.float32)
-    g1 = cv2.cvtColor(mov, cv2.COLOR_BGR2GRAY).astype(np.float32) if mov.ndim == 3 else mov.astype(np.float32)
+    g0, g1 = to_gray32(ref), to_gray32(mov)  # the seed luminance register() matched on
     pr, pm = r.points[:, :2], r.points[:, 2:]
     d = np.arange(-half, half + 1, dtype=np.float64)
     offs = np.stack(np.meshgrid(d, d), -1).reshape(1, -1, 2)
     grid = pr[:, None, :] + offs  # (N, k*k, 2) reference positions
     mg = r.inverse_transfer(grid.reshape(-1, 2)).reshape(grid.shape) - r.inverse_transfer(pr)[:, None, :] + pm[:, None, :]
-    a = cv2.remap(g0, grid[..., 0].astype(np.float32), grid[..., 1].astype(np.float32), cv2.INTER_LINEAR)
-    b = cv2.remap(g1, mg[..., 0].astype(np.float32), mg[..., 1].astype(np.float32), cv2.INTER_LINEAR)
+    a = sample_linear_cv(g0, grid[..., 0], grid[..., 1])
+    b = sample_linear_cv(g1, mg[..., 0], mg[..., 1])
     a = a - a.mean(1, keepdims=True)
     b = b - b.mean(1, keepdims=True)
     return (a * b).sum(1) / np.sqrt((a * a).sum(1) * (b * b).sum(1) + 1e-12)
 
 
+def inlier_residuals(ours: list) -> np.ndarray:
+    """Transfer residual (px, reference frame) of every inlier of the registrations ``ours``, concatenated."""
+    return np.concatenate([np.hypot(*(r.transfer(r.points[:, 2:]) - r.points[:, :2]).T) for r in ours])
+
+
 def quality_table(ims: list, ours: list) -> None:
     """The third table: residual RMS over the inliers whose own match correlates at least ``t``."""
-    res = np.concatenate([np.hypot(*(r.transfer(r.points[:, 2:]) - r.points[:, :2]).T) for r in ours])
+    res = inlier_residuals(ours)
     ncc = np.concatenate([match_ncc(ims[i], ims[i + 1], r) for i, r in enumerate(ours)])
     print("\nBad matches? Inlier residual by the NCC of each point's own match (15x15 px, all 8 pairs)")
     head = f"{'NCC >=':>6s} {'points':>7s} {'share':>6s} {'rms px':>7s}"
@@ -223,7 +227,7 @@ def lens_table(ims: list, ours: list) -> None:
         print(f"{i:4d} {r1.inliers:13d} {r1.rms_px:6.3f} | {int(inl.sum()):18d} {float(np.sqrt(np.mean(d[inl] ** 2))):8.3f}")
     allr = np.concatenate(res)
     inl = allr <= 1.5
-    own = np.concatenate([np.hypot(*(r.transfer(r.points[:, 2:]) - r.points[:, :2]).T) for r in ours])
+    own = inlier_residuals(ours)
     print(f"all pairs: register (one lambda per pair) {np.sqrt(np.mean(own ** 2)):.3f} px over {own.size} inliers;"
           f" joint Brown {np.sqrt(np.mean(allr[inl] ** 2)):.3f} px over {int(inl.sum())} of {allr.size} points")
 

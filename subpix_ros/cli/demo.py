@@ -254,10 +254,10 @@ def run(args: argparse.Namespace) -> int:
                   "reconstruction_node": "reconstruction_ms", "mosaic_node": "add_ms"}
 
     def _ms(d, n, k):
-        v = d.get(n, {}).get(k)
+        v = d.get(n, {}).get(f"{k}_p50")
         return None if v is None else round(float(v), 1)
 
-    # the last value each stage reported during each flight (machine load included)
+    # each stage's median time over the flight, as its last /diagnostics reported it (machine load included)
     summary["stage_ms_subpixel"] = {n: _ms(diag_subpixel, n, k) for n, k in stage_keys.items() if n != "mosaic_node"}
     summary["stage_ms_seneca"] = {n: _ms(diag, n, k) for n, k in stage_keys.items() if n in ("registration_node", "mosaic_node")}
     summary["dropped_frames"] = {n: diag.get(n, {}).get("dropped_frames") for n in stage_keys}
@@ -271,9 +271,9 @@ def run(args: argparse.Namespace) -> int:
                  + ", ".join(f"{g['gain_db']:+.2f} dB ({g['psnr_sr_db']:.2f} vs {g['psnr_bicubic_db']:.2f})"
                              for g in gains))
     lines.append(f"  seneca strip: 9 frames in, mosaic {summary.get('mosaic_px', 'not produced')}")
-    lines.append("  time per stage, subpixel flight (ms, 448x448 in): " + ", ".join(
+    lines.append("  time per stage (median), subpixel flight (ms, 448x448 in): " + ", ".join(
         f"{n.replace('_node', '')} {v}" for n, v in summary["stage_ms_subpixel"].items()))
-    lines.append("  time per stage, seneca strip (ms, 1800x1350 in): " + ", ".join(
+    lines.append("  time per stage (median), seneca strip (ms, 1800x1350 in): " + ", ".join(
         f"{n.replace('_node', '')} {v}" for n, v in summary["stage_ms_seneca"].items()))
     lines.append(f"  frames dropped by the queues: {summary['dropped_frames']}")
     lines.append(f"  outputs in {out}/: superres.png, bicubic.png, side_by_side.png, mosaic.png, shifts.csv, summary.json")

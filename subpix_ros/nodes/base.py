@@ -63,6 +63,7 @@ class StageNode(Node):
         if last is not None and stamp_ns < last:
             self.diag.warn(f"time jumped back by {(last - stamp_ns) / 1e9:.3f} s: pipeline state reset")
             self.reset()
+            self.diag.clear_stage_times()  # the new stream's stage times are not mixed with the old one's
             self.emit("reset", stamp_ns)
             return True
         return False

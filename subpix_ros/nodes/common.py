@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import collections
+import math
 import threading
 import time
 import traceback
@@ -320,11 +321,16 @@ class _Status:
 class Diagnostics:
     """One node's DiagnosticStatus on /diagnostics (diagnostic_updater equivalent).
 
-    Stages report with :meth:`set` (key/values), :meth:`warn` / :meth:`error`
-    (with a message that stays visible for ``hold_s`` seconds) and
-    :meth:`ok`. Rates, latency, queue depth and drops come from the meters and
-    worker attached with :meth:`attach`.
+    Stages report with :meth:`set` (key/values), :meth:`stage_time` (a
+    duration: the last one as ``<key>``, and the median and maximum of the
+    last 200 as ``<key>_p50`` / ``<key>_max``, since one value jumps with the
+    frame and the machine's load), :meth:`warn` / :meth:`error` (with a
+    message that stays visible for ``hold_s`` seconds) and :meth:`ok`. Rates,
+    latency, queue depth and drops come from the meters and worker attached
+    with :meth:`attach`.
     """
+
+    HISTORY = 200  # durations kept per stage_time key (and latencies)
 
     def __init__(self, node: Node, hardware_id: str = "subpix_ros", period_s: float = 1.0, hold_s: float = 5.0) -> None:
         self.node = node
@@ -335,7 +341,8 @@ class Diagnostics:
         self._lock = threading.Lock()
         self.rates: dict[str, RateMeter] = {}
         self.worker: DropOldestWorker | None = None
-        self._latencies: collections.deque[float] = collections.deque(maxlen=200)
+        self._latencies: collections.deque[float] = collections.deque(maxlen=self.HISTORY)
+        self._durations: dict[str, collections.deque[float]] = {}
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.timer = node.create_timer(period_s, self.publish)
 
@@ -347,6 +354,20 @@ class Diagnostics:
 
     def latency(self, seconds: float) -> None:
         self._latencies.append(seconds)
+
+    def stage_time(self, key: str, ms: float) -> None:
+        """A stage's duration in ms: published as ``key`` (last), ``key_p50`` and ``key_max`` (last 200)."""
+        ms = float(ms)
+        if not math.isfinite(ms) or ms < 0:
+            raise ValueError(f"stage_time {key!r}: duration must be finite and >= 0, got {ms}")
+        with self._lock:
+            self._durations.setdefault(key, collections.deque(maxlen=self.HISTORY)).append(ms)
+            self._status.values[key] = f"{ms:.6g}"
+
+    def clear_stage_times(self) -> None:
+        """Forget the durations behind ``_p50`` / ``_max`` (a new stream: a looped or another bag)."""
+        with self._lock:
+            self._durations.clear()
 
     def set(self, **values: Any) -> None:
         with self._lock:
@@ -407,6 +428,10 @@ class Diagnostics:
             values["recent_problems"] = " | ".join(self._status.recent)
             values["errors_total"] = str(self._status.errors)
             values["warnings_total"] = str(self._status.warnings)
+            for key, hist in self._durations.items():
+                d = sorted(hist)
+                values[f"{key}_p50"] = f"{d[len(d) // 2]:.6g}"
+                values[f"{key}_max"] = f"{d[-1]:.6g}"
         for name, meter in self.rates.items():
             values[f"{name}_hz"] = f"{meter.rate():.3f}"
             values[f"{name}_total"] = str(meter.total)

@@ -103,8 +103,8 @@ class MosaicNode(StageNode):
         self._dirty = True
         self.latency_since(frame.received)
         seam = upd.seam_residual_px
-        self.diag.set(frames_added=self.added, frames_skipped=self.skipped, seam_residual_px=float(seam) if seam is not None else "n/a",
-                      add_ms=1000 * float(upd.time_s))
+        self.diag.set(frames_added=self.added, frames_skipped=self.skipped, seam_residual_px=float(seam) if seam is not None else "n/a")
+        self.diag.stage_time("add_ms", 1000 * float(upd.time_s))
         self.diag.ok()
 
     def _publish(self) -> None:

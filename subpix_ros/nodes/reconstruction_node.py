@@ -145,8 +145,9 @@ class ReconstructionNode(StageNode):
         self.published += 1
         self.diag.rate("output").tick()
         self.latency_since(ref.received)
+        self.diag.stage_time("reconstruction_ms", 1000 * (time.monotonic() - t0))
         self.diag.set(method=res.method, fell_back=res.fell_back, fallback_reason=res.reason,
-                      noise_sigma=float(res.noise_sigma), frames=len(frames), reconstruction_ms=1000 * (time.monotonic() - t0),
+                      noise_sigma=float(res.noise_sigma), frames=len(frames),
                       images_published=self.published)
         if res.fell_back:
             self.diag.warn(f"super-resolution fell back to {res.method}: {res.reason}")

@@ -251,7 +251,8 @@ class RegistrationNode(StageNode):
         self.diag.rate("output").tick()
         self.latency_since(frame.received)
         ac = result.residual_along_cross()
-        self.diag.set(inliers=result.inliers, rms_px=float(result.rms_px), registration_ms=1000 * (time.monotonic() - t0),
+        self.diag.stage_time("registration_ms", 1000 * (time.monotonic() - t0))
+        self.diag.set(inliers=result.inliers, rms_px=float(result.rms_px),
                       frames_kept=self.kept, warped=bool(al.warped),
                       rms_along_px="n/a" if ac is None else ac[0], rms_cross_px="n/a" if ac is None else ac[1])
         self.diag.ok()

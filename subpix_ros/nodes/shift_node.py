@@ -90,7 +90,8 @@ class ShiftNode(StageNode):
         self.published += 1
         self.diag.rate("output").tick()
         self.latency_since(a.received)
-        self.diag.set(estimate_ms=1000 * (time.monotonic() - t0), u=r.u, v=r.v, u_std=r.u_std, v_std=r.v_std, cond=float(r.cond), pixels=r.n_pixels,
+        self.diag.stage_time("estimate_ms", 1000 * (time.monotonic() - t0))
+        self.diag.set(u=r.u, v=r.v, u_std=r.u_std, v_std=r.v_std, cond=float(r.cond), pixels=r.n_pixels,
                       iterations=r.iterations, shifts_published=self.published)
         self.diag.ok()
 

@@ -101,3 +101,37 @@ def test_worker_measures_its_cpu_time_per_item():
         assert 19.0 <= w.cpu_ms_per_item <= 40.0, w.cpu_ms_per_item
     finally:
         w.stop()
+
+
+def test_diagnostics_stage_times_report_last_median_and_max(rclpy_node):
+    import pytest
+
+    from subpix_ros.nodes.common import Diagnostics
+
+    d = Diagnostics(rclpy_node)
+
+    def values():
+        return {kv.key: kv.value for kv in d.snapshot().values}
+
+    for ms in (5.0, 100.0, 7.0, 6.0):
+        d.stage_time("x_ms", ms)
+    v = values()
+    assert float(v["x_ms"]) == 6.0  # the last one
+    assert float(v["x_ms_p50"]) == 7.0  # median of 5, 6, 7, 100 (the upper one of the middle two)
+    assert float(v["x_ms_max"]) == 100.0
+    for _ in range(Diagnostics.HISTORY):  # the slow one leaves the history
+        d.stage_time("x_ms", 1.0)
+    v = values()
+    assert float(v["x_ms_p50"]) == 1.0 and float(v["x_ms_max"]) == 1.0
+    for bad in (float("nan"), float("inf"), -1.0):
+        with pytest.raises(ValueError, match="x_ms"):
+            d.stage_time("x_ms", bad)
+    assert float(values()["x_ms_max"]) == 1.0  # nothing recorded
+    d.clear_stage_times()
+    v = values()
+    assert "x_ms_p50" not in v and "x_ms_max" not in v
+    assert float(v["x_ms"]) == 1.0  # the last value stays until the next one
+    d.stage_time("x_ms", 3.0)
+    assert float(values()["x_ms_p50"]) == 3.0
+    rclpy_node.destroy_timer(d.timer)
+    rclpy_node.destroy_publisher(d.pub)

@@ -135,3 +135,23 @@ def test_diagnostics_stage_times_report_last_median_and_max(rclpy_node):
     assert float(values()["x_ms_p50"]) == 3.0
     rclpy_node.destroy_timer(d.timer)
     rclpy_node.destroy_publisher(d.pub)
+
+
+def test_stage_times_restart_when_time_jumps_back(rclpy_node):
+    from subpix_ros.nodes.base import StageNode
+
+    node = StageNode("stage_time_probe")
+    try:
+        def keys():
+            return {kv.key for kv in node.diag.snapshot().values}
+
+        assert node.check_time(2_000_000_000) is False
+        node.diag.stage_time("work_ms", 50.0)
+        assert node.check_time(3_000_000_000) is False  # forwards: kept
+        assert "work_ms_p50" in keys()
+        assert node.check_time(1_000_000_000) is True  # backwards (a looped bag): a new stream
+        assert "work_ms_p50" not in keys()
+        node.diag.stage_time("work_ms", 7.0)
+        assert {kv.key: kv.value for kv in node.diag.snapshot().values}["work_ms_max"] == "7"
+    finally:
+        node.destroy_node()

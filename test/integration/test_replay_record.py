@@ -71,22 +71,29 @@ def test_replay_rate_and_clock(sample_bags, rclpy_node):
 def test_record_then_replay_round_trip(sample_bags, tmp_path):
     bag = sample_bags / "subpixel"
     out = tmp_path / "rec.mcap"
-    original = {t: [m.raw for m in read_messages(bag, [t])] for t in ("/camera/image_raw", "/telemetry/velocity")}
+    topics = ("/camera/image_raw", "/telemetry/velocity")
+    original = {t: [m.raw for m in read_messages(bag, [t])] for t in topics}
     total = sum(len(v) for v in original.values())
-    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), "/camera/image_raw", "/telemetry/velocity",
+    # Topics of this test alone: a subscriber or publisher of the same names left from an earlier test (or
+    # not yet forgotten by discovery) could otherwise satisfy the replay's --wait-for before the recorder's
+    # own subscriptions match, or make the recorder take best effort from a stale offer.
+    ns = f"/roundtrip_{os.getpid()}_{time.monotonic_ns() % 1_000_000}"
+    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), *(ns + t for t in topics),
                                       "--count", str(total), "--discover-timeout", "20"),
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    play = subprocess.run(subpix_cmd("replay", str(bag), "--topics", "/camera/image_raw", "/telemetry/velocity",
-                                     "--wait-for", "/camera/image_raw", "/telemetry/velocity", "--delay", "0.5"),
+    play = subprocess.run(subpix_cmd("replay", str(bag), "--topics", *topics, "--remap", *(f"{t}:={ns}{t}" for t in topics),
+                                     "--wait-for", *topics, "--delay", "0.5"),
                           capture_output=True, text=True, timeout=60)
     assert play.returncode == 0, play.stderr
     try:
-        _, err = rec.communicate(timeout=30)  # it stops by itself once it has every message (--count)
-    finally:
-        if rec.poll() is None:
-            rec.kill()
+        rec_out, err = rec.communicate(timeout=30)  # it stops by itself once it has every message (--count)
+    except subprocess.TimeoutExpired:
+        rec.kill()
+        rec_out, err = rec.communicate()
+        pytest.fail(f"recorder did not get all {total} messages within 30 s; replay said: {play.stdout!r} "
+                    f"{play.stderr!r}; recorder said: {rec_out!r} {err!r}")
     assert rec.returncode == 0, err
-    recorded = {t: [m.raw for m in read_messages(out, [t])] for t in original}
+    recorded = {t: [m.raw for m in read_messages(out, [ns + t])] for t in topics}
     assert recorded == original
     # and what we recorded replays
     again = subprocess.run(subpix_cmd("replay", str(out), "--delay", "0"), capture_output=True, text=True, timeout=60)

@@ -41,7 +41,7 @@ if str(ROOT) not in sys.path:
 
 from subpix_ros.data import seneca_frame_paths  # noqa: E402
 from subpix_ros.io.cdr import cdr_to_image, image_to_cdr  # noqa: E402
-from subpix_ros.runtime import allocator_line  # noqa: E402
+from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
 SIZES = [(480, 640, "640x480"), (1080, 1920, "1920x1080"), (2160, 3840, "3840x2160")]
 FULL_RES = Path("/work/shared/data/seneca")  # optional: original 3600x2700 frames, benchmarks only
@@ -77,7 +77,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=7, help="timed runs per cell (default 7)")
     ap.add_argument("--naive-runs", type=int, default=3, help="runs for the slow data=ndarray path (default 3)")
-    ap.add_argument("--default-malloc", action="store_true", help="glibc's default allocator thresholds (subpix_ros.runtime)")
+    add_malloc_argument(ap)
     args = ap.parse_args()
     print(allocator_line(args.default_malloc))
 

@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from subpix_ros.core.mosaic import Mosaic  # noqa: E402
 from subpix_ros.core.registration_points import apply_h  # noqa: E402
 from subpix_ros.data import seneca_frame_paths  # noqa: E402
-from subpix_ros.runtime import allocator_line  # noqa: E402
+from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
 FULLRES = Path(os.environ.get("SUBPIX_FULLRES", "/work/shared/data/seneca"))
 
@@ -64,7 +64,7 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--additions", type=int, default=200)
     ap.add_argument("--out", default="/tmp/bench_mosaic.png")
-    ap.add_argument("--default-malloc", action="store_true", help="glibc's default allocator thresholds (subpix_ros.runtime)")
+    add_malloc_argument(ap)
     a = ap.parse_args()
     print(allocator_line(a.default_malloc))
     frames = [cv2.imread(str(p)) for p in seneca_frame_paths()]

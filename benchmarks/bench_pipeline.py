@@ -33,7 +33,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from subpix_ros.runtime import allocator_line  # noqa: E402
+from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
 STEP = (0.41, 0.27)
 SET = 16  # frames per super-resolved image (the reference and 15 aligned frames), --set
@@ -167,8 +167,7 @@ def main() -> None:
     global SET
     ap.add_argument("--set", type=int, default=SET, help="frames per super-resolved image (default %(default)s)")
     ap.add_argument("--layouts", nargs="+", default=["separate", "single"], choices=["separate", "single"])
-    ap.add_argument("--default-malloc", action="store_true", help="glibc's default allocator thresholds in this "
-                    "process and the nodes (subpix_ros.runtime)")
+    add_malloc_argument(ap, " in this process and the nodes")
     args = ap.parse_args()
     print(allocator_line(args.default_malloc))
     SET = max(2, args.set)

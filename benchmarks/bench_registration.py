@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from subpix_ros.core.registration import calibrate_distortion, prepare_reference, register  # noqa: E402
 from subpix_ros.core.registration_points import apply_h  # noqa: E402
 from subpix_ros.data import CROP_NAMES, load_crop, seneca_frame_paths  # noqa: E402
-from subpix_ros.runtime import allocator_line  # noqa: E402
+from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
 FULLRES = Path(os.environ.get("SUBPIX_FULLRES", "/work/shared/data/seneca"))
 
@@ -239,7 +239,7 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--no-fullres", action="store_true")
     ap.add_argument("--only", choices=["tracking", "real", "synthetic"], help="run one section only")
-    ap.add_argument("--default-malloc", action="store_true", help="glibc's default allocator thresholds (subpix_ros.runtime)")
+    add_malloc_argument(ap)
     a = ap.parse_args()
     print(f"cv2 {cv2.__version__}, numpy {np.__version__}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
     print(allocator_line(a.default_malloc))

@@ -58,7 +58,7 @@ from subpix_ros.core.evaluate import max_bin_bias  # noqa: E402
 from subpix_ros.core.render import fourier_shift_blur, render_frame, render_sequence  # noqa: E402
 from subpix_ros.core.shift import estimate_shift  # noqa: E402
 from subpix_ros.data import CROP_NAMES, load_crop, seneca_frame_paths  # noqa: E402
-from subpix_ros.runtime import allocator_line  # noqa: E402
+from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
 try:
     from skimage.registration import phase_cross_correlation
@@ -399,7 +399,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="fewer pairs and repetitions")
     ap.add_argument("--no-speed", action="store_true")
     ap.add_argument("--no-accuracy", action="store_true")
-    ap.add_argument("--default-malloc", action="store_true", help="glibc's default allocator thresholds (subpix_ros.runtime)")
+    add_malloc_argument(ap)
     args = ap.parse_args()
     print(allocator_line(args.default_malloc))
     try:

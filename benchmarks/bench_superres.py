@@ -38,7 +38,7 @@ from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct
 from subpix_ros.core.superres_model import FrameOperator, translation_homography
 from subpix_ros.data import CROP_NAMES, load_crop, seneca_frame_paths
-from subpix_ros.runtime import allocator_line
+from subpix_ros.runtime import add_malloc_argument, allocator_line
 
 FULLRES = Path("/work/shared/data/seneca")
 
@@ -227,7 +227,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="smaller images, no scipy reference in quality")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--only", choices=["quality", "speed", "pipeline"], default=None)
-    ap.add_argument("--default-malloc", action="store_true", help="glibc's default allocator thresholds (subpix_ros.runtime)")
+    add_malloc_argument(ap)
     args = ap.parse_args()
     print(allocator_line(args.default_malloc))
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; OpenCV threads {cv2.getNumThreads()}")

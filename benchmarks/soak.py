@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_pipeline import make_frames, start_layout  # noqa: E402
 
-from subpix_ros.runtime import allocator_line  # noqa: E402
+from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
 
 def rss_mb(pid: int) -> float:
@@ -44,8 +44,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=18000)
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--warmup-s", type=float, default=60.0)
-    ap.add_argument("--default-malloc", action="store_true", help="glibc's default allocator thresholds in the "
-                    "pipeline process (subpix_ros.runtime)")
+    add_malloc_argument(ap, " in the pipeline process")
     args = ap.parse_args()
     print(allocator_line(args.default_malloc))
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(101, 199)))

@@ -41,7 +41,7 @@ import ctypes.util
 import os
 import sys
 
-__all__ = ["keep_freed_memory", "allocator_line", "MMAP_THRESHOLD", "TRIM_THRESHOLD", "OPT_OUT"]
+__all__ = ["keep_freed_memory", "allocator_line", "add_malloc_argument", "MMAP_THRESHOLD", "TRIM_THRESHOLD", "OPT_OUT"]
 
 #: glibc's ``mallopt`` parameter numbers (malloc.h).
 _M_TRIM_THRESHOLD = -1
@@ -96,6 +96,12 @@ def keep_freed_memory(mmap_threshold: int = MMAP_THRESHOLD, trim_threshold: int 
     mmap_ok = fn(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
     trim_ok = fn(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1
     return mmap_ok and trim_ok
+
+
+def add_malloc_argument(parser, where: str = "") -> None:
+    """For benchmarks: the ``--default-malloc`` flag (``where``: which processes it reaches, for the help)."""
+    parser.add_argument("--default-malloc", action="store_true",
+                        help=f"glibc's default allocator thresholds{where} (subpix_ros.runtime)")
 
 
 def allocator_line(default_malloc: bool = False) -> str:

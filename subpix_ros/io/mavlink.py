@@ -23,24 +23,21 @@ host (``udpin:14550`` binds 127.0.0.1:14550); give an explicit host such as
 """
 from __future__ import annotations
 
+import math
 import os
+import re
+import struct
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
 
-os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-import math  # noqa: E402
-import re  # noqa: E402
-import struct  # noqa: E402
-import threading  # noqa: E402
-import time  # noqa: E402
-from collections import Counter  # noqa: E402
-from dataclasses import dataclass, field  # noqa: E402
-from pathlib import Path  # noqa: E402
-from typing import Callable, Iterable, Sequence  # noqa: E402
-
-from pymavlink import mavutil  # noqa: E402
-from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
-
-from subpix_ros.core.telemetry import (  # noqa: E402
+from subpix_ros.core.telemetry import (
     TelemetrySample,
     course_from_velocity,
     validate_sample,

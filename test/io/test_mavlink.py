@@ -22,7 +22,7 @@ from subpix_ros.io.mavlink import (
     write_tlog,
 )
 
-from pymavlink import mavutil  # noqa: E402  (after subpix_ros.io.mavlink set MAVLINK20)
+from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 T0 = 1_700_000_000.0  # boot time of the synthetic autopilot (POSIX s)
@@ -405,3 +405,36 @@ def test_reader_survives_internal_errors(udp):
     st = reader.stats
     assert st.exceptions == 1 and "simulated decoder bug" in st.last_error
     assert [s.time_boot_ms for s in col.samples] == [200, 300]
+
+
+
+def test_import_leaves_the_environment_alone(tmp_path):
+    """Importing the module sets no MAVLINK20: MAVLink 2 is chosen inside each connection.
+
+    In a fresh interpreter without MAVLINK20, a tlog written by the package is read back
+    whole by the package's reader and by pymavlink's own, and the environment is untouched.
+    """
+    import os
+    import subprocess
+    import sys
+
+    code = f"""
+import os
+from subpix_ros.io import mavlink as m
+assert "MAVLINK20" not in os.environ, "import set MAVLINK20"
+from subpix_ros.core.telemetry import trajectory_from_frames_csv
+from subpix_ros.data import data_root
+traj = trajectory_from_frames_csv(data_root() / "seneca" / "frames.csv")
+path = {str(tmp_path / "t.tlog")!r}
+m.write_tlog(path, traj)
+got = []
+reader = m.MavlinkReader(path, on_sample=got.append).start()
+assert reader.join(20.0)
+assert len(got) == len(traj), (len(got), len(traj))
+assert "MAVLINK20" not in os.environ, "reading set MAVLINK20"
+print("ok", len(got))
+"""
+    env = {k: v for k, v in os.environ.items() if k != "MAVLINK20"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("ok 361")

@@ -41,7 +41,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from subpix_ros.core.render import render_frame  # noqa: E402
-from subpix_ros.core.telemetry import trajectory_from_frames_csv, trajectory_straight  # noqa: E402
+from subpix_ros.core.telemetry import trajectory_straight  # noqa: E402
+from subpix_ros.io.frame_metadata import read_frames_csv, trajectory_from_frames_csv  # noqa: E402
 from subpix_ros.core.timing import expected_shift_px, frame_interval  # noqa: E402
 from subpix_ros.io.bags import BagWriter  # noqa: E402
 from subpix_ros.io.cdr import image_to_cdr  # noqa: E402
@@ -76,20 +77,18 @@ def _telemetry(writer: BagWriter, samples, camera: dict, p: float = 2.0) -> None
 
 def build_seneca(out: Path, storage: str) -> None:
     data = ROOT / "data" / "seneca"
-    rows = [line.split(",") for line in (data / "frames.csv").read_text().splitlines()[1:] if line.strip()]
+    fixes = read_frames_csv(data / "frames.csv")
     samples = trajectory_from_frames_csv(data / "frames.csv", ground_alt_m=GROUND_ALT_M, rate_hz=10.0)
-    import datetime as dt
 
     bag = out / "seneca"
     with BagWriter(bag, storage=storage) as w:
         _telemetry(w, samples, SENECA_CAMERA)
-        for row in rows:
-            t = dt.datetime.strptime(row[1], "%Y:%m:%d %H:%M:%S").replace(tzinfo=dt.timezone.utc).timestamp()
-            img = cv2.imread(str(data / row[0]), cv2.IMREAD_COLOR)
+        for name, t in zip(fixes.names, fixes.t):
+            img = cv2.imread(str(data / name), cv2.IMREAD_COLOR)
             ns = int(round(t * 1e9))
             w.write(CAMERA_TOPIC, "sensor_msgs/msg/Image", ns, image_to_cdr(img, "bgr8", ns, "camera"))
     write_tlog(out / "seneca.tlog", samples)
-    print(f"seneca: {len(rows)} frames, {len(samples)} telemetry samples -> {bag}")
+    print(f"seneca: {len(fixes.names)} frames, {len(samples)} telemetry samples -> {bag}")
 
 
 def build_subpixel(out: Path, storage: str) -> None:

@@ -28,13 +28,9 @@ Frames and sign conventions
 from __future__ import annotations
 
 import bisect
-import calendar
-import csv
 import math
 import threading
 from dataclasses import dataclass, replace
-from datetime import datetime
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -49,7 +45,7 @@ __all__ = [
     "timing_usable",
     "enu_offset_m",
     "enu_to_latlon",
-    "trajectory_from_frames_csv",
+    "trajectory_through_fixes",
     "trajectory_straight",
     "WGS84_A",
     "WGS84_E2",
@@ -549,15 +545,6 @@ def _natural_cubic_spline(x: np.ndarray, y: np.ndarray, xq: np.ndarray) -> tuple
     return val, der
 
 
-def _exif_utc(text: str) -> float:
-    """POSIX time of an EXIF ``YYYY:MM:DD HH:MM:SS`` string, read as UTC."""
-    try:
-        dt = datetime.strptime(text.strip(), "%Y:%m:%d %H:%M:%S")
-    except ValueError as exc:
-        raise ValueError(f"bad EXIF datetime {text!r} (expected 'YYYY:MM:DD HH:MM:SS')") from exc
-    return float(calendar.timegm(dt.timetuple()))
-
-
 def _samples_from_arrays(
     t: np.ndarray,
     lat: np.ndarray,
@@ -587,40 +574,53 @@ def _samples_from_arrays(
     ]
 
 
-def trajectory_from_frames_csv(
-    csv_path: str | Path, ground_alt_m: float = 230.0, rate_hz: float = 10.0
+def trajectory_through_fixes(
+    t: np.ndarray,
+    lat_deg: np.ndarray,
+    lon_deg: np.ndarray,
+    alt_msl_m: np.ndarray,
+    ground_alt_m: float = 230.0,
+    rate_hz: float = 10.0,
 ) -> list[TelemetrySample]:
-    """A smooth trajectory through the per-frame GPS fixes of a ``frames.csv``.
+    """A smooth trajectory through GPS fixes taken at known times.
 
-    Columns used: ``datetime_original`` (EXIF local time, read as UTC),
-    ``latitude_deg``, ``longitude_deg``, ``gps_altitude_m``. East, north
-    (local tangent plane at the first fix, :func:`enu_offset_m`) and altitude
-    are each a natural cubic spline of time through the fixes, so the
-    trajectory passes exactly through every fix at its capture time;
-    velocity is the spline's time derivative (NED, m/s), ground speed its
-    horizontal norm, course ``atan2(v_e, v_n)``, yaw = course (camera fixed
-    to the airframe, no gimbal), roll = pitch = 0, height above ground =
-    ``gps_altitude_m - ground_alt_m``. Sampled at ``rate_hz`` from the first
-    to the last capture time (``t_k = t_first + k / rate_hz``).
+    Parameters
+    ----------
+    t : ndarray
+        Capture times of the fixes, POSIX s, strictly increasing (at least 2).
+    lat_deg, lon_deg : ndarray
+        WGS-84 latitude and longitude of each fix, degrees.
+    alt_msl_m : ndarray
+        Altitude of each fix above mean sea level, m.
+    ground_alt_m : float
+        Ground altitude (flat terrain), m: height above ground = ``alt_msl_m - ground_alt_m``.
+    rate_hz : float
+        Sample rate of the trajectory, Hz.
+
+    Returns
+    -------
+    list of TelemetrySample
+        Samples at ``t_k = t[0] + k / rate_hz`` up to the last fix.
+
+    Notes
+    -----
+    East, north (local tangent plane at the first fix, :func:`enu_offset_m`) and
+    altitude are each a natural cubic spline of time through the fixes, so the
+    trajectory passes exactly through every fix at its capture time; velocity is
+    the spline's time derivative (NED, m/s), ground speed its horizontal norm,
+    course ``atan2(v_e, v_n)``, yaw = course (camera fixed to the airframe, no
+    gimbal), roll = pitch = 0.
     """
-    path = Path(csv_path)
-    if not path.is_file():
-        raise FileNotFoundError(f"frames CSV not found: {path}")
+    tk = np.asarray(t, dtype=float)
+    lat = np.asarray(lat_deg, dtype=float)
+    lon = np.asarray(lon_deg, dtype=float)
+    alt = np.asarray(alt_msl_m, dtype=float)
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
-    with path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    need = ("datetime_original", "latitude_deg", "longitude_deg", "gps_altitude_m")
-    if not rows or any(k not in rows[0] for k in need):
-        raise ValueError(f"{path}: expected columns {need}")
-    tk = np.array([_exif_utc(r["datetime_original"]) for r in rows])
-    lat = np.array([float(r["latitude_deg"]) for r in rows])
-    lon = np.array([float(r["longitude_deg"]) for r in rows])
-    alt = np.array([float(r["gps_altitude_m"]) for r in rows])
     if len(tk) < 2:
-        raise ValueError(f"{path}: need at least 2 fixes, got {len(tk)}")
+        raise ValueError(f"need at least 2 fixes, got {len(tk)}")
     if np.any(np.diff(tk) <= 0):
-        raise ValueError(f"{path}: capture times must increase strictly (got {tk.tolist()})")
+        raise ValueError(f"capture times must increase strictly (got {tk.tolist()})")
     e, n = enu_offset_m(lat[0], lon[0], lat, lon)
     knots = np.stack([e, n, alt], axis=1)
     count = int(math.floor((tk[-1] - tk[0]) * rate_hz + 1e-9)) + 1

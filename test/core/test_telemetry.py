@@ -16,11 +16,12 @@ from subpix_ros.core.telemetry import (
     enu_to_latlon,
     ned_to_enu,
     timing_usable,
-    trajectory_from_frames_csv,
+    trajectory_through_fixes,
     trajectory_straight,
     validate_sample,
 )
 from subpix_ros.data import data_root
+from subpix_ros.io.frame_metadata import trajectory_from_frames_csv
 
 R_MEAN = 6371008.8  # IUGG mean Earth radius, m (for the hand haversine)
 # The module uses WGS-84 radii of curvature; at 41 deg N they differ from the
@@ -372,17 +373,15 @@ def test_frames_trajectory_speed_461_to_462_matches_hand_haversine():
     assert mean_v[2] == pytest.approx((288.40 - 287.14) / dt, abs=1e-3)
 
 
-def test_frames_trajectory_rejects_bad_files(tmp_path):
-    with pytest.raises(FileNotFoundError):
-        trajectory_from_frames_csv(tmp_path / "missing.csv")
-    bad = tmp_path / "frames.csv"
-    bad.write_text("file,datetime_original,latitude_deg,longitude_deg,gps_altitude_m\n"
-                   "a.jpg,2013:06:04 13:39:05,41,-83,280\nb.jpg,2013:06:04 13:39:05,41.1,-83,280\n")
+def test_trajectory_through_fixes_rejects_bad_fixes():
+    t = np.array([0.0, 0.0])
     with pytest.raises(ValueError, match="increase"):
-        trajectory_from_frames_csv(bad)
-    bad.write_text("file,when\na.jpg,x\n")
-    with pytest.raises(ValueError, match="columns"):
-        trajectory_from_frames_csv(bad)
+        trajectory_through_fixes(t, np.array([41.0, 41.1]), np.array([-83.0, -83.0]), np.array([280.0, 280.0]))
+    with pytest.raises(ValueError, match="at least 2"):
+        trajectory_through_fixes(np.array([0.0]), np.array([41.0]), np.array([-83.0]), np.array([280.0]))
+    with pytest.raises(ValueError, match="rate_hz"):
+        trajectory_through_fixes(np.array([0.0, 1.0]), np.array([41.0, 41.0]), np.array([-83.0, -83.0]),
+                                 np.array([280.0, 280.0]), rate_hz=0.0)
 
 
 def test_straight_trajectory_hand_values():

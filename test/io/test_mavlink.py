@@ -9,10 +9,10 @@ from subpix_ros.core.telemetry import (
     TelemetrySample,
     attitude_quaternion_enu,
     timing_usable,
-    trajectory_from_frames_csv,
     trajectory_straight,
 )
 from subpix_ros.data import data_root
+from subpix_ros.io.frame_metadata import trajectory_from_frames_csv
 from subpix_ros.io.mavlink import (
     MavlinkReader,
     MavlinkSender,
@@ -422,7 +422,7 @@ def test_import_leaves_the_environment_alone(tmp_path):
 import os
 from subpix_ros.io import mavlink as m
 assert "MAVLINK20" not in os.environ, "import set MAVLINK20"
-from subpix_ros.core.telemetry import trajectory_from_frames_csv
+from subpix_ros.io.frame_metadata import trajectory_from_frames_csv
 from subpix_ros.data import data_root
 traj = trajectory_from_frames_csv(data_root() / "seneca" / "frames.csv")
 path = {str(tmp_path / "t.tlog")!r}

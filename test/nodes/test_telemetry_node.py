@@ -13,7 +13,8 @@ from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Float64
 
-from subpix_ros.core.telemetry import TelemetrySample, trajectory_from_frames_csv
+from subpix_ros.core.telemetry import TelemetrySample
+from subpix_ros.io.frame_metadata import trajectory_from_frames_csv
 from subpix_ros.io.mavlink import MavlinkSender, encode_samples
 from subpix_ros.nodes.common import reliable_qos
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from subpix_ros.io.bags import BagError, BagWriter, bag_topics, read_messages
+from subpix_ros.io.bags import BagError, BagWriter, ReadReport, bag_topics, read_messages
 
 __all__ = ["message_class", "Player", "Recorder", "ReplayStats"]
 
@@ -45,7 +45,7 @@ class Player:
 
     def __init__(self, node, bag: str | Path, *, topics: Sequence[str] | None = None, rate: float = 1.0,
                  loop: bool = False, clock: bool = False, qos_depth: int = 100,
-                 remap: dict[str, str] | None = None) -> None:
+                 remap: dict[str, str] | None = None, skip_corrupt: bool = False) -> None:
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
         if not rate > 0:
@@ -55,6 +55,9 @@ class Player:
         self.rate = float(rate)
         self.loop = loop
         self.stats = ReplayStats()
+        self.skip_corrupt = skip_corrupt
+        #: what the bag reader skipped (--skip-corrupt), summed over loops
+        self.read_report = ReadReport()
         info = bag_topics(self.bag)
         present = {t.name: t for t in info}
         if topics:
@@ -131,7 +134,8 @@ class Player:
         while not self._stop.is_set():
             wall0 = None
             bag0 = None
-            for m in read_messages(self.bag, self.topics):
+            report = ReadReport()
+            for m in read_messages(self.bag, self.topics, skip_corrupt=self.skip_corrupt, report=report):
                 if self._stop.is_set():
                     break
                 if wall0 is None:
@@ -145,6 +149,8 @@ class Player:
                 self.stats.published += 1
                 if on_message is not None:
                     on_message(m.topic, m.timestamp_ns)
+            if self.stats.loops == 0:
+                self.read_report = report
             self.stats.loops += 1
             if not self.loop:
                 break

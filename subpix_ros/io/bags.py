@@ -33,6 +33,21 @@ class TopicInfo:
     name: str
     msgtype: str
     count: int
+    #: the publishers' QoS as recorded (rosbags ``Qos``: reliability, durability, depth, ...);
+    #: empty if the bag does not say
+    qos: tuple = ()
+
+
+def _parse_qos(text, where: str) -> tuple:
+    """offered_qos_profiles of any rosbag2 metadata version (4-8: integer enums, 9: names)."""
+    from rosbags.rosbag2.metadata import parse_qos
+
+    if not text:
+        return ()
+    try:
+        return tuple(parse_qos(text))
+    except Exception as exc:  # noqa: BLE001
+        raise BagError(f"{where}: unreadable offered_qos_profiles ({_one_line(exc)})") from None
 
 
 @dataclass(frozen=True)
@@ -137,12 +152,16 @@ def bag_topics(path: str | Path) -> list[TopicInfo]:
             raise BagError(f"bag {p}: topic {odd[0][0]} is serialised as {odd[0][1]!r}, not CDR")
         try:
             return sorted((TopicInfo(t["topic_metadata"]["name"], t["topic_metadata"]["type"],
-                                     int(t["message_count"])) for t in meta["topics_with_message_count"]),
+                                     int(t["message_count"]),
+                                     _parse_qos(t["topic_metadata"].get("offered_qos_profiles"),
+                                                f"bag {p} topic {t['topic_metadata']['name']}"))
+                           for t in meta["topics_with_message_count"]),
                           key=lambda t: t.name)
         except Exception as exc:  # noqa: BLE001
             raise BagError(f"bag {p}: bad metadata.yaml ({_one_line(exc)})") from None
     counts: dict[str, int] = {}
     types: dict[str, str] = {}
+    qos: dict[str, tuple] = {}
     if storage == "mcap":
         from subpix_ros.io import _mcap
 
@@ -161,15 +180,22 @@ def bag_topics(path: str | Path) -> list[TopicInfo]:
                 raise BagError(f"bag {p}: topic {ch.topic} is serialised as {ch.encoding!r}, not CDR")
             counts.setdefault(ch.topic, 0)
             types.setdefault(ch.topic, ch.msgtype)
+            qos.setdefault(ch.topic, _parse_qos(ch.qos, f"bag {p} topic {ch.topic}"))
     else:
         with _sqlite(p) as con:
             try:
-                for name, typ, n in con.execute(
-                        "SELECT name, type, (SELECT count(*) FROM messages WHERE topic_id = topics.id) FROM topics"):
+                cols = {r[1] for r in con.execute("PRAGMA table_info(topics)")}
+                q = "offered_qos_profiles" if "offered_qos_profiles" in cols else "''"
+                for name, typ, n, fmt, qtext in con.execute(
+                        f"SELECT name, type, (SELECT count(*) FROM messages WHERE topic_id = topics.id), "
+                        f"serialization_format, {q} FROM topics"):
+                    if fmt != "cdr":
+                        raise BagError(f"bag {p}: topic {name} is serialised as {fmt!r}, not CDR")
                     counts[name], types[name] = int(n), typ
+                    qos[name] = _parse_qos(qtext, f"bag {p} topic {name}")
             except sqlite3.DatabaseError as exc:
                 raise BagCorrupt(p, None, f"sqlite3: {_one_line(exc)}", 0) from None
-    return [TopicInfo(t, types[t], counts[t]) for t in sorted(counts)]
+    return [TopicInfo(t, types[t], counts[t], qos.get(t, ())) for t in sorted(counts)]
 
 
 def _scan_unindexed(f, buf) -> dict[int, int]:

@@ -68,10 +68,17 @@ class Player:
         if not info:
             raise BagError(f"bag {self.bag} has no messages")
         self.topics = [t.name for t in info]
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=qos_depth,
-                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+        from rosbags.interfaces import QosDurability
+
+        def qos(t):
+            # Reliable always (a subscriber of either kind matches); transient local when every
+            # recorded publisher offered it (a latched topic stays latched), as ros2 bag play does.
+            latched = bool(t.qos) and all(q.durability == QosDurability.TRANSIENT_LOCAL for q in t.qos)
+            return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
         remap = remap or {}
-        self.publishers = {t.name: node.create_publisher(message_class(t.msgtype), remap.get(t.name, t.name), qos)
+        self.publishers = {t.name: node.create_publisher(message_class(t.msgtype), remap.get(t.name, t.name), qos(t))
                            for t in info}
         self._clock_pub = None
         if clock:

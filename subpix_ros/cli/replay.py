@@ -30,8 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="after the last message, wait up to this many seconds until every reliable subscriber has "
                    "acknowledged everything (a slow subscriber still gets the end of the bag); default 10")
     p.add_argument("--skip-corrupt", action="store_true",
-                   help="replay what can be read from a damaged bag and report the skipped records at the end "
-                   "(the exit status is still non-zero); default: stop at the first damaged record")
+                   help="replay what can be read from a damaged bag and report the skipped "
+                   "records at the end (the exit status is still non-zero); default: stop at the "
+                   "first damaged record")
     p.set_defaults(func=run)
 
 

@@ -17,6 +17,7 @@ decompressed records, 0 = not set. Footer (last 37 bytes): ``0x02 | 20 u64 | sum
 | summary_offset_start u64 | summary_crc u32 | magic``; ``summary_crc`` covers the bytes from
 ``summary_start`` to the end of ``summary_offset_start``.
 """
+
 from __future__ import annotations
 
 import mmap
@@ -27,7 +28,14 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 MAGIC = b"\x89MCAP0\r\n"
-OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = (
+    0x01,
+    0x02,
+    0x03,
+    0x04,
+    0x05,
+    0x06,
+)
 OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_DATA_END = 0x07, 0x08, 0x0B, 0x0F
 _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 _CHUNK_HEAD = struct.Struct("<QQQI")
@@ -74,7 +82,9 @@ class McapFile:
     path: Path
     channels: dict[int, Channel] = field(default_factory=dict)
     chunks: list[_Chunk] = field(default_factory=list)
-    loose: list[tuple[int, int, int, int]] = field(default_factory=list)  # unchunked (time, off, cid, len)
+    loose: list[tuple[int, int, int, int]] = field(
+        default_factory=list
+    )  # unchunked (time, off, cid, len)
     bad: list[_Bad] = field(default_factory=list)
     message_count: int | None = None  # from the summary statistics
     indexed: bool = False
@@ -95,7 +105,7 @@ def _string(buf, pos: int, end: int) -> tuple[str, int]:
     (n,) = _U32.unpack_from(buf, pos)
     if pos + 4 + n > end:
         raise ValueError("string past its record")
-    return bytes(buf[pos + 4: pos + 4 + n]).decode("utf-8", "replace"), pos + 4 + n
+    return bytes(buf[pos + 4 : pos + 4 + n]).decode("utf-8", "replace"), pos + 4 + n
 
 
 def _schema(buf, pos: int, end: int) -> tuple[int, str]:
@@ -164,7 +174,7 @@ def _read_summary(f: McapFile, buf, size: int, data_start: int) -> int | None:
     """Read the summary section; returns its offset, or None (with the reason in f.bad) if the
     file has no usable summary."""
     foot = size - 37
-    if size < data_start + 37 or buf[size - 8:] != MAGIC or buf[foot] != OP_FOOTER:
+    if size < data_start + 37 or buf[size - 8 :] != MAGIC or buf[foot] != OP_FOOTER:
         return None  # no footer (a recording cut short, a truncated copy): walk the data section
     summary_start, _ = struct.unpack_from("<QQ", buf, foot + 9)
     (summary_crc,) = _U32.unpack_from(buf, foot + 25)
@@ -173,7 +183,7 @@ def _read_summary(f: McapFile, buf, size: int, data_start: int) -> int | None:
     if not data_start <= summary_start <= foot:
         f.bad.append(_Bad(foot, "footer points outside the file", 2**63))
         return None
-    if summary_crc and crc32(buf[summary_start: foot + 25]) != summary_crc:
+    if summary_crc and crc32(buf[summary_start : foot + 25]) != summary_crc:
         f.bad.append(_Bad(summary_start, "summary section checksum mismatch", 2**63))
         return None
     schemas: dict[int, str] = {}
@@ -197,7 +207,9 @@ def _read_summary(f: McapFile, buf, size: int, data_start: int) -> int | None:
                 (mlen,) = _U32.unpack_from(buf, body + 32)
                 if body + 36 + mlen > end:
                     raise ValueError("chunk index past its record")
-                offs = [struct.unpack_from("<HQ", buf, body + 36 + 10 * i) for i in range(mlen // 10)]
+                offs = [
+                    struct.unpack_from("<HQ", buf, body + 36 + 10 * i) for i in range(mlen // 10)
+                ]
                 (milen,) = _U64.unpack_from(buf, body + 36 + mlen)
                 counts = _index_counts(buf, offs, coff + clen + milen, summary_start)
                 chunks.append(_Chunk(coff, clen, start, stop, counts))
@@ -239,7 +251,7 @@ def _plausible_chunk(buf, pos: int, size: int) -> int:
     (clen,) = _U32.unpack_from(buf, pos + 37)
     if clen > 8:
         return 0
-    comp = bytes(buf[pos + 41: pos + 41 + clen])
+    comp = bytes(buf[pos + 41 : pos + 41 + clen])
     if comp not in (b"", b"zstd", b"lz4"):
         return 0
     (rlen,) = _U64.unpack_from(buf, pos + 41 + clen)
@@ -320,9 +332,11 @@ def _chunk_records(buf, c: _Chunk) -> tuple[bytes, int]:
     if p + 8 + rlen != pos + 9 + ln or usize > _MAX_CHUNK:
         raise Damaged(pos, "chunk record lengths disagree")
     try:
-        data = _decompress(buf[p + 8: p + 8 + rlen], comp, usize)
+        data = _decompress(buf[p + 8 : p + 8 + rlen], comp, usize)
     except Exception as exc:  # noqa: BLE001 - each decompressor raises its own types
-        raise Damaged(pos, f"chunk does not decompress ({' '.join(str(exc).split())[:80]})") from None
+        raise Damaged(
+            pos, f"chunk does not decompress ({' '.join(str(exc).split())[:80]})"
+        ) from None
     if len(data) != usize:
         raise Damaged(pos, f"chunk decompresses to {len(data)} bytes, header says {usize}")
     if crc and crc32(data) != crc:
@@ -339,14 +353,19 @@ def _inner_records(buf, c: _Chunk):
         op = data[q]
         (ln,) = _U64.unpack_from(data, q + 1)
         if op == 0 or q + 9 + ln > n:
-            raise Damaged(base + q, "record inside a chunk runs past the chunk (damaged length)"
-                          if op else "invalid record opcode 0 inside a chunk")
+            raise Damaged(
+                base + q,
+                "record inside a chunk runs past the chunk (damaged length)"
+                if op
+                else "invalid record opcode 0 inside a chunk",
+            )
         yield op, (data, q + 9), q + 9 + ln
         q += 9 + ln
 
 
-def chunk_messages(buf, c: _Chunk, wanted: set[int] | None, schemas: dict[int, str],
-                   channels: dict[int, Channel]) -> list[tuple[int, int, int, bytes]]:
+def chunk_messages(
+    buf, c: _Chunk, wanted: set[int] | None, schemas: dict[int, str], channels: dict[int, Channel]
+) -> list[tuple[int, int, int, bytes]]:
     """Every message of chunk ``c`` as (log_time, index in chunk, channel id, data), after all
     checks passed (Damaged otherwise). Channel records inside the chunk are added to
     ``channels``."""
@@ -361,7 +380,7 @@ def chunk_messages(buf, c: _Chunk, wanted: set[int] | None, schemas: dict[int, s
                 raise Damaged(c.offset, f"message time {t} outside its chunk's range")
             found[cid] = found.get(cid, 0) + 1
             if wanted is None or cid in wanted:
-                out.append((t, len(out), cid, data[p + 22: end]))
+                out.append((t, len(out), cid, data[p + 22 : end]))
         elif op == OP_SCHEMA:
             sid, name = _schema(data, p, end)
             schemas[sid] = name
@@ -369,8 +388,10 @@ def chunk_messages(buf, c: _Chunk, wanted: set[int] | None, schemas: dict[int, s
             cid, ch = _channel(data, p, end, schemas)
             channels.setdefault(cid, ch)
     if c.counts is not None and found != {k: v for k, v in c.counts.items() if v}:
-        raise Damaged(c.offset, f"chunk holds {sum(found.values())} messages, its index "
-                      f"{sum(c.counts.values())}")
+        raise Damaged(
+            c.offset,
+            f"chunk holds {sum(found.values())} messages, its index {sum(c.counts.values())}",
+        )
     out.sort()
     return out
 
@@ -378,8 +399,9 @@ def chunk_messages(buf, c: _Chunk, wanted: set[int] | None, schemas: dict[int, s
 Source = Iterator[tuple[int, tuple, object]]
 
 
-def sources(f: McapFile, buf, wanted_topics: set[str] | None,
-            on_bad: Callable[[int, str, int | None], None]) -> list[Source]:
+def sources(
+    f: McapFile, buf, wanted_topics: set[str] | None, on_bad: Callable[[int, str, int | None], None]
+) -> list[Source]:
     """One time-ordered generator per chunk / damaged part / run of unchunked messages, for a
     ``heapq.merge`` over (log_time, order, payload); payload None is a placeholder that only
     positions the source (nothing is decompressed before the merge reaches it)."""
@@ -420,9 +442,11 @@ def sources(f: McapFile, buf, wanted_topics: set[str] | None,
                 on_bad(off, f"message on undefined channel {cid}", 1)
                 continue
             if w is None or cid in w:
-                yield t, (i, k), (ch, bytes(buf[off + 9 + 22: off + 9 + ln]))
+                yield t, (i, k), (ch, bytes(buf[off + 9 + 22 : off + 9 + ln]))
 
-    items: list[tuple[int, object]] = [(c.offset, c) for c in f.chunks] + [(b.offset, b) for b in f.bad]
+    items: list[tuple[int, object]] = [(c.offset, c) for c in f.chunks] + [
+        (b.offset, b) for b in f.bad
+    ]
     items.sort(key=lambda x: x[0])
     for i, (_, it) in enumerate(items):
         out.append(chunk_src(i, it) if isinstance(it, _Chunk) else bad_src(i, it))

@@ -5,6 +5,7 @@ record writes what it received, so nothing is re-serialised. Every failure
 (missing path, corrupt or truncated storage, unknown topic) raises
 :class:`BagError` with a one-line message that names the bag and the problem.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -20,8 +21,17 @@ from typing import Iterable, Iterator, Sequence
 import yaml
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
-__all__ = ["BagError", "BagCorrupt", "BagMessage", "ReadReport", "TopicInfo", "open_reader", "bag_topics",
-           "read_messages", "BagWriter"]
+__all__ = [
+    "BagError",
+    "BagCorrupt",
+    "BagMessage",
+    "ReadReport",
+    "TopicInfo",
+    "open_reader",
+    "bag_topics",
+    "read_messages",
+    "BagWriter",
+]
 
 
 class BagError(Exception):
@@ -88,8 +98,10 @@ class BagCorrupt(BagError):
     def __init__(self, path: Path, offset: int | None, detail: str, count: int) -> None:
         self.path, self.offset, self.detail, self.count = Path(path), offset, detail, count
         where = "" if offset is None else f" at byte offset {offset}"
-        super().__init__(f"bag {path} is corrupt{where}: {detail}; {count} message(s) could be read "
-                         f"(--skip-corrupt reads what can be read)")
+        super().__init__(
+            f"bag {path} is corrupt{where}: {detail}; {count} message(s) could be read "
+            f"(--skip-corrupt reads what can be read)"
+        )
 
 
 @dataclass
@@ -103,9 +115,16 @@ class ReadReport:
     problems: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
-        lost = f" holding {self.skipped_messages} message(s) by the bag's index" if self.skipped_messages else ""
-        return f"skipped {self.skipped_records} corrupt record(s){lost}; first: {self.problems[0]}" \
-            if self.problems else "no corrupt records"
+        lost = (
+            f" holding {self.skipped_messages} message(s) by the bag's index"
+            if self.skipped_messages
+            else ""
+        )
+        return (
+            f"skipped {self.skipped_records} corrupt record(s){lost}; first: {self.problems[0]}"
+            if self.problems
+            else "no corrupt records"
+        )
 
 
 def _bag_files(path: Path) -> tuple[str, list[Path], dict | None]:
@@ -132,7 +151,9 @@ def _bag_files(path: Path) -> tuple[str, list[Path], dict | None]:
         return "mcap", [path], None
     if path.suffix == ".db3":
         return "sqlite3", [path], None
-    raise BagError(f"not a rosbag2 bag (a folder with metadata.yaml, a .mcap or a .db3 file): {path}")
+    raise BagError(
+        f"not a rosbag2 bag (a folder with metadata.yaml, a .mcap or a .db3 file): {path}"
+    )
 
 
 def bag_topics(path: str | Path) -> list[TopicInfo]:
@@ -143,20 +164,34 @@ def bag_topics(path: str | Path) -> list[TopicInfo]:
     storage, files, meta = _bag_files(p)
     if meta is not None:
         try:
-            odd = [(t["topic_metadata"]["name"], t["topic_metadata"].get("serialization_format", "cdr"))
-                   for t in meta["topics_with_message_count"]]
+            odd = [
+                (
+                    t["topic_metadata"]["name"],
+                    t["topic_metadata"].get("serialization_format", "cdr"),
+                )
+                for t in meta["topics_with_message_count"]
+            ]
         except Exception as exc:  # noqa: BLE001
             raise BagError(f"bag {p}: bad metadata.yaml ({_one_line(exc)})") from None
         odd = [(n, f) for n, f in odd if f != "cdr"]
         if odd:
             raise BagError(f"bag {p}: topic {odd[0][0]} is serialised as {odd[0][1]!r}, not CDR")
         try:
-            return sorted((TopicInfo(t["topic_metadata"]["name"], t["topic_metadata"]["type"],
-                                     int(t["message_count"]),
-                                     _parse_qos(t["topic_metadata"].get("offered_qos_profiles"),
-                                                f"bag {p} topic {t['topic_metadata']['name']}"))
-                           for t in meta["topics_with_message_count"]),
-                          key=lambda t: t.name)
+            return sorted(
+                (
+                    TopicInfo(
+                        t["topic_metadata"]["name"],
+                        t["topic_metadata"]["type"],
+                        int(t["message_count"]),
+                        _parse_qos(
+                            t["topic_metadata"].get("offered_qos_profiles"),
+                            f"bag {p} topic {t['topic_metadata']['name']}",
+                        ),
+                    )
+                    for t in meta["topics_with_message_count"]
+                ),
+                key=lambda t: t.name,
+            )
         except Exception as exc:  # noqa: BLE001
             raise BagError(f"bag {p}: bad metadata.yaml ({_one_line(exc)})") from None
     counts: dict[str, int] = {}
@@ -177,7 +212,9 @@ def bag_topics(path: str | Path) -> list[TopicInfo]:
                 types[ch.topic] = ch.msgtype
         for ch in f.channels.values():
             if ch.encoding != "cdr":
-                raise BagError(f"bag {p}: topic {ch.topic} is serialised as {ch.encoding!r}, not CDR")
+                raise BagError(
+                    f"bag {p}: topic {ch.topic} is serialised as {ch.encoding!r}, not CDR"
+                )
             counts.setdefault(ch.topic, 0)
             types.setdefault(ch.topic, ch.msgtype)
             qos.setdefault(ch.topic, _parse_qos(ch.qos, f"bag {p} topic {ch.topic}"))
@@ -187,8 +224,10 @@ def bag_topics(path: str | Path) -> list[TopicInfo]:
                 cols = {r[1] for r in con.execute("PRAGMA table_info(topics)")}
                 q = "offered_qos_profiles" if "offered_qos_profiles" in cols else "''"
                 for name, typ, n, fmt, qtext in con.execute(
-                        f"SELECT name, type, (SELECT count(*) FROM messages WHERE topic_id = topics.id), "
-                        f"serialization_format, {q} FROM topics"):
+                    "SELECT name, type, "
+                    "(SELECT count(*) FROM messages WHERE topic_id = topics.id), "
+                    f"serialization_format, {q} FROM topics"
+                ):
                     if fmt != "cdr":
                         raise BagError(f"bag {p}: topic {name} is serialised as {fmt!r}, not CDR")
                     counts[name], types[name] = int(n), typ
@@ -243,8 +282,9 @@ def _sqlite_bad_pages(con) -> tuple[int | None, str] | None:
     return offset, f"sqlite3 quick_check: {_one_line(rows[0])}"
 
 
-def _sqlite_messages(db: Path, topics: set[str] | None, expected: dict[str, int] | None,
-                     on_bad) -> Iterator[BagMessage]:
+def _sqlite_messages(
+    db: Path, topics: set[str] | None, expected: dict[str, int] | None, on_bad
+) -> Iterator[BagMessage]:
     """Messages of one sqlite3 storage file in time order; damaged pages are found with
     ``PRAGMA quick_check`` before anything is delivered, and then every row is read by its id."""
     with _sqlite(db) as con:
@@ -262,7 +302,9 @@ def _sqlite_messages(db: Path, topics: set[str] | None, expected: dict[str, int]
             got: dict[str, int] = {}
             try:
                 for tid, ts, data in con.execute(
-                        f"SELECT topic_id, timestamp, data FROM messages WHERE {where} ORDER BY timestamp, id"):
+                    f"SELECT topic_id, timestamp, data FROM messages WHERE {where} "
+                    "ORDER BY timestamp, id"
+                ):
                     name, typ = tmap[tid]
                     got[name] = got.get(name, 0) + 1
                     yield BagMessage(name, typ, int(ts), bytes(data))
@@ -272,8 +314,14 @@ def _sqlite_messages(db: Path, topics: set[str] | None, expected: dict[str, int]
             for name, n in (expected or {}).items():
                 if name in got or (topics is None or name in topics):
                     if got.get(name, 0) < n and (topics is None or name in topics):
-                        on_bad(db, None, f"{name}: metadata.yaml says {n} messages, the storage holds "
-                               f"{got.get(name, 0)}", n - got.get(name, 0), None)
+                        on_bad(
+                            db,
+                            None,
+                            f"{name}: metadata.yaml says {n} messages, the storage holds "
+                            f"{got.get(name, 0)}",
+                            n - got.get(name, 0),
+                            None,
+                        )
             return
         offset, detail = bad
         # Damaged: read row by row (a lookup by id stops only at the pages it needs).
@@ -285,10 +333,13 @@ def _sqlite_messages(db: Path, topics: set[str] | None, expected: dict[str, int]
         good, failed = [], 0
         for rid in range(1, top + 1):
             try:
-                row = con.execute(f"SELECT topic_id, timestamp FROM messages WHERE id = ? AND {where}",
-                                  (rid,)).fetchone()
+                row = con.execute(
+                    f"SELECT topic_id, timestamp FROM messages WHERE id = ? AND {where}", (rid,)
+                ).fetchone()
                 if row is not None:
-                    con.execute("SELECT data FROM messages WHERE id = ?", (rid,)).fetchone()  # overflow pages too
+                    con.execute(
+                        "SELECT data FROM messages WHERE id = ?", (rid,)
+                    ).fetchone()  # overflow pages too
                     good.append((int(row[1]), rid, row[0]))
             except sqlite3.DatabaseError:
                 failed += 1
@@ -296,8 +347,13 @@ def _sqlite_messages(db: Path, topics: set[str] | None, expected: dict[str, int]
         if expected:
             want = sum(n for name, n in expected.items() if topics is None or name in topics)
             lost = max(failed, want - len(good))
-        on_bad(db, offset, f"{detail} ({len(good)} readable row(s), {lost} unreadable or missing)", lost,
-               len(good))
+        on_bad(
+            db,
+            offset,
+            f"{detail} ({len(good)} readable row(s), {lost} unreadable or missing)",
+            lost,
+            len(good),
+        )
         for ts, rid, tid in sorted(good):
             try:
                 (data,) = con.execute("SELECT data FROM messages WHERE id = ?", (rid,)).fetchone()
@@ -307,8 +363,13 @@ def _sqlite_messages(db: Path, topics: set[str] | None, expected: dict[str, int]
             yield BagMessage(name, typ, ts, bytes(data))
 
 
-def read_messages(path: str | Path, topics: Sequence[str] | None = None, *, skip_corrupt: bool = False,
-                  report: ReadReport | None = None) -> Iterator[BagMessage]:
+def read_messages(
+    path: str | Path,
+    topics: Sequence[str] | None = None,
+    *,
+    skip_corrupt: bool = False,
+    report: ReadReport | None = None,
+) -> Iterator[BagMessage]:
     """Yield a bag's messages in time order, optionally only ``topics``; every reader of bags
     in the package goes through here.
 
@@ -338,10 +399,14 @@ def read_messages(path: str | Path, topics: Sequence[str] | None = None, *, skip
         missing = [t for t in topics if t not in present]
         if missing:
             raise BagError(
-                f"topic(s) not in bag {path}: {', '.join(missing)} (bag has: {', '.join(sorted(present))})")
+                f"topic(s) not in bag {path}: {', '.join(missing)} "
+                f"(bag has: {', '.join(sorted(present))})"
+            )
     wanted = set(topics) if topics else None
 
-    def on_bad(file: Path, offset: int | None, detail: str, lost: int | None, count: int | None) -> None:
+    def on_bad(
+        file: Path, offset: int | None, detail: str, lost: int | None, count: int | None
+    ) -> None:
         where = "" if offset is None else f" at byte offset {offset}"
         rep.skipped_records += 1
         rep.skipped_messages += lost or 0
@@ -357,8 +422,10 @@ def read_messages(path: str | Path, topics: Sequence[str] | None = None, *, skip
     if storage == "sqlite3":
         expected = None
         if meta is not None and len(files) == 1:
-            expected = {t["topic_metadata"]["name"]: int(t["message_count"])
-                        for t in meta.get("topics_with_message_count", [])}
+            expected = {
+                t["topic_metadata"]["name"]: int(t["message_count"])
+                for t in meta.get("topics_with_message_count", [])
+            }
         for db in files:
             for m in _sqlite_messages(db, wanted, expected, on_bad):
                 rep.messages += 1
@@ -442,7 +509,9 @@ class BagWriter:
             try:
                 conn = self._writer.add_connection(topic, msgtype, typestore=self._typestore)
             except Exception as exc:  # noqa: BLE001
-                raise BagError(f"cannot add topic {topic} of type {msgtype}: {_one_line(exc)}") from None
+                raise BagError(
+                    f"cannot add topic {topic} of type {msgtype}: {_one_line(exc)}"
+                ) from None
             self._connections[topic] = conn
         self._writer.write(conn, int(timestamp_ns), raw)
         self.count += 1

@@ -73,13 +73,17 @@ class Player:
         def qos(t):
             # Reliable always (a subscriber of either kind matches); transient local when every
             # recorded publisher offered it (a latched topic stays latched), as ros2 bag play does.
-            latched = bool(t.qos) and all(q.durability == QosDurability.TRANSIENT_LOCAL for q in t.qos)
-            return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE,
-                              durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+            latched = bool(t.qos) and all(
+                q.durability == QosDurability.TRANSIENT_LOCAL for q in t.qos)
+            return QoSProfile(
+                history=HistoryPolicy.KEEP_LAST, depth=qos_depth,
+                reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
         remap = remap or {}
-        self.publishers = {t.name: node.create_publisher(message_class(t.msgtype), remap.get(t.name, t.name), qos(t))
-                           for t in info}
+        self.publishers = {
+            t.name: node.create_publisher(message_class(t.msgtype), remap.get(t.name, t.name), qos(t))
+            for t in info}
         self._clock_pub = None
         if clock:
             from rosgraph_msgs.msg import Clock
@@ -142,7 +146,8 @@ class Player:
             wall0 = None
             bag0 = None
             report = ReadReport()
-            for m in read_messages(self.bag, self.topics, skip_corrupt=self.skip_corrupt, report=report):
+            for m in read_messages(self.bag, self.topics, skip_corrupt=self.skip_corrupt,
+                                   report=report):
                 if self._stop.is_set():
                     break
                 if wall0 is None:
@@ -175,7 +180,8 @@ class Recorder:
     complete after :meth:`close`.
     """
 
-    def __init__(self, node, output: str | Path, topics: Sequence[str], *, storage: str = "mcap") -> None:
+    def __init__(self, node, output: str | Path, topics: Sequence[str], *,
+                 storage: str = "mcap") -> None:
         if not topics:
             raise BagError("no topic to record")
         self.node = node
@@ -205,17 +211,24 @@ class Recorder:
             msgtype = infos[0].topic_type
             others = {i.topic_type for i in infos} - {msgtype}
             if others:
-                raise BagError(f"topic {topic} is published with several types: {msgtype}, {', '.join(others)}")
+                raise BagError(f"topic {topic} is published with several types: {msgtype}, "
+                               f"{', '.join(others)}")
             cls = message_class(msgtype)
-            best_effort = any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
-            latched = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
-            qos = QoSProfile(depth=100,
-                             reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+            best_effort = any(
+                i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
+            latched = all(
+                i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+            qos = QoSProfile(
+                depth=100,
+                reliability=ReliabilityPolicy.BEST_EFFORT if best_effort
+                else ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                else DurabilityPolicy.VOLATILE)
             with self._lock:
                 if self.writer is None:
                     self.writer = BagWriter(self.output, storage=self.storage)
-            self.subs.append(self.node.create_subscription(cls, topic, self._make_cb(topic, msgtype), qos, raw=True))
+            self.subs.append(self.node.create_subscription(
+                cls, topic, self._make_cb(topic, msgtype), qos, raw=True))
             self.subscribed[topic] = msgtype
             self.pending.remove(topic)
             new.append(topic)

@@ -1,5 +1,6 @@
 """`subpix record` started before the publishers, as one starts `ros2 bag record` before a flight
 (issue 19, item 4): real processes over real DDS."""
+
 import os
 import signal
 import subprocess
@@ -19,7 +20,16 @@ def _ns():
 
 
 def _replay(bag, ns, topics, wait=True):
-    args = ["replay", str(bag), "--topics", *topics, "--remap", *(f"{t}:={ns}{t}" for t in topics), "--delay", "0.5"]
+    args = [
+        "replay",
+        str(bag),
+        "--topics",
+        *topics,
+        "--remap",
+        *(f"{t}:={ns}{t}" for t in topics),
+        "--delay",
+        "0.5",
+    ]
     if wait:
         args += ["--wait-for", *topics]
     return subprocess.run(subpix_cmd(*args), capture_output=True, text=True, timeout=90)
@@ -41,11 +51,17 @@ def test_recorder_waits_for_a_publisher_that_starts_late(sample_bags, tmp_path):
     original = {t: [m.raw for m in read_messages(bag, [t])] for t in TOPICS}
     total = sum(len(v) for v in original.values())
     ns, out = _ns(), tmp_path / "late.mcap"
-    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), *(ns + t for t in TOPICS), "--count", str(total)),
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rec = subprocess.Popen(
+        subpix_cmd("record", "-o", str(out), *(ns + t for t in TOPICS), "--count", str(total)),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         time.sleep(12.5)
-        assert rec.poll() is None, f"the recorder quit before the publisher started: {rec.communicate()}"
+        assert rec.poll() is None, (
+            f"the recorder quit before the publisher started: {rec.communicate()}"
+        )
         play = _replay(bag, ns, TOPICS)
         assert play.returncode == 0, play.stderr
         rec_out, err = _wait(rec, 30)
@@ -57,15 +73,21 @@ def test_recorder_waits_for_a_publisher_that_starts_late(sample_bags, tmp_path):
     assert {t: [m.raw for m in read_messages(out, [ns + t])] for t in TOPICS} == original
 
 
-def test_recorder_subscribes_each_topic_when_it_appears_and_stops_cleanly_on_sigint(sample_bags, tmp_path):
+def test_recorder_subscribes_each_topic_when_it_appears_and_stops_cleanly_on_sigint(
+    sample_bags, tmp_path
+):
     """Two topics published one after the other, a third never: both recorded, then SIGINT leaves a
     complete bag (readable, every chunk checked) and a warning naming the missing topic."""
     bag = sample_bags / "subpixel"
     first, second = TOPICS
     original = {t: [m.raw for m in read_messages(bag, [t])] for t in TOPICS}
     ns, out = _ns(), tmp_path / "two.mcap"
-    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), ns + first, ns + second, ns + "/never"),
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rec = subprocess.Popen(
+        subpix_cmd("record", "-o", str(out), ns + first, ns + second, ns + "/never"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         play1 = _replay(bag, ns, [first])
         assert play1.returncode == 0, play1.stderr
@@ -88,8 +110,12 @@ def test_recorder_sigterm_leaves_a_complete_bag(sample_bags, tmp_path):
     bag = sample_bags / "subpixel"
     topic = TOPICS[1]
     ns, out = _ns(), tmp_path / "term.mcap"
-    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), ns + topic), stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True)
+    rec = subprocess.Popen(
+        subpix_cmd("record", "-o", str(out), ns + topic),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         play = _replay(bag, ns, [topic])
         assert play.returncode == 0, play.stderr
@@ -105,10 +131,20 @@ def test_recorder_sigterm_leaves_a_complete_bag(sample_bags, tmp_path):
 
 def test_recorder_discover_timeout(tmp_path):
     t0 = time.monotonic()
-    r = subprocess.run(subpix_cmd("record", "-o", str(tmp_path / "x.mcap"), _ns() + "/nobody",
-                                  "--discover-timeout", "1.5"), capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        subpix_cmd(
+            "record", "-o", str(tmp_path / "x.mcap"), _ns() + "/nobody", "--discover-timeout", "1.5"
+        ),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode != 0
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "no publisher found for topic(s)" in lines[0] and "within 1.5 s" in lines[0]
+    assert (
+        len(lines) == 1
+        and "no publisher found for topic(s)" in lines[0]
+        and "within 1.5 s" in lines[0]
+    )
     assert time.monotonic() - t0 < 20
     assert not (tmp_path / "x.mcap").exists()

@@ -1,6 +1,7 @@
 """Damaged bags: every reader of bags stops at the first damaged record with its offset and the
 number of messages read, or (skip_corrupt) reads what can be read and reports what it skipped
 (issue 19, item 2)."""
+
 import sqlite3
 import struct
 
@@ -99,7 +100,7 @@ def test_mcap_damaged_middle_chunk(tmp_path, damage):
         _overwrite(bag, o1 + l1 // 2, o1 + l1 // 2 + 16)
     else:  # the chunk record's own length field
         raw = bytearray(bag.read_bytes())
-        raw[o1 + 1: o1 + 9] = struct.pack("<Q", 2**40)
+        raw[o1 + 1 : o1 + 9] = struct.pack("<Q", 2**40)
         bag.write_bytes(bytes(raw))
     got = []
     with pytest.raises(BagCorrupt) as err:
@@ -142,7 +143,11 @@ def test_sqlite3_damaged(tmp_path):
     assert "quick_check" in str(e) and len(str(e).splitlines()) == 1
     report = ReadReport()
     msgs = list(read_messages(bag, skip_corrupt=True, report=report))
-    assert len(msgs) == e.count and report.skipped_records == 1 and report.skipped_messages == 6 - len(msgs)
+    assert (
+        len(msgs) == e.count
+        and report.skipped_records == 1
+        and report.skipped_messages == 6 - len(msgs)
+    )
     for m in msgs:  # what is delivered is what was written
         assert m.raw == _image((m.timestamp_ns - 10**9) // 10**8)
 

@@ -1,6 +1,7 @@
 """Bags written by rosbag2 itself and telemetry logs from ArduPilot (test/data/README.md says where
 each comes from): each is read, replayed or parsed, or refused with one clear line (issue 19,
 item 6)."""
+
 import subprocess
 from pathlib import Path
 
@@ -35,11 +36,14 @@ def test_rosbag2_bag_reads_as_its_metadata_says(name, version, storage):
     bag = BAGS / name
     meta = _metadata(bag)
     assert meta["version"] == version and meta["storage_identifier"] == storage
+
     def short(msgtype):  # version 6's test_bag_for_seek says "test_msgs/BasicTypes"
         return msgtype.replace("/msg/", "/")
 
-    want = {t["topic_metadata"]["name"]: (short(t["topic_metadata"]["type"]), t["message_count"])
-            for t in meta["topics_with_message_count"]}
+    want = {
+        t["topic_metadata"]["name"]: (short(t["topic_metadata"]["type"]), t["message_count"])
+        for t in meta["topics_with_message_count"]
+    }
     assert {t.name: (short(t.msgtype), t.count) for t in bag_topics(bag)} == want
     msgs = list(read_messages(bag))
     assert len(msgs) == meta["message_count"] == sum(n for _, n in want.values())
@@ -51,7 +55,10 @@ def test_rosbag2_bag_reads_as_its_metadata_says(name, version, storage):
     # every topic's offered QoS profiles parse (integer enums before version 9)
     for t in bag_topics(bag):
         if t.qos:
-            assert all(q.reliability in (QosReliability.RELIABLE, QosReliability.BEST_EFFORT) for q in t.qos)
+            assert all(
+                q.reliability in (QosReliability.RELIABLE, QosReliability.BEST_EFFORT)
+                for q in t.qos
+            )
 
 
 def test_rosbag2_mcap_cdr_decodes_with_its_own_definitions():
@@ -67,11 +74,11 @@ def test_rosbag2_mcap_cdr_decodes_with_its_own_definitions():
     raw = bytes(buf)
     start = raw.index(b"test_msgs/msg/BasicTypes")
     enc_at = start + len(b"test_msgs/msg/BasicTypes")
-    n2 = int.from_bytes(raw[enc_at: enc_at + 4], "little")
-    assert raw[enc_at + 4: enc_at + 4 + n2] == b"ros2msg"
+    n2 = int.from_bytes(raw[enc_at : enc_at + 4], "little")
+    assert raw[enc_at + 4 : enc_at + 4 + n2] == b"ros2msg"
     p = enc_at + 4 + n2
-    n3 = int.from_bytes(raw[p: p + 4], "little")
-    text = raw[p + 4: p + 4 + n3].decode()
+    n3 = int.from_bytes(raw[p : p + 4], "little")
+    text = raw[p + 4 : p + 4 + n3].decode()
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
@@ -81,9 +88,16 @@ def test_rosbag2_mcap_cdr_decodes_with_its_own_definitions():
     for m in msgs:
         v = store.deserialize_cdr(m.raw, "test_msgs/msg/BasicTypes")
         # rosbag2's cdr_test writes BasicTypes with int32_value = 123 and every other field 0
-        assert v.int32_value == 123 and not v.bool_value and v.int64_value == 0 and v.float64_value == 0.0
+        assert (
+            v.int32_value == 123
+            and not v.bool_value
+            and v.int64_value == 0
+            and v.float64_value == 0.0
+        )
     # and sqlite3 storage of the same test holds the same bytes
-    assert [m.raw for m in read_messages(BAGS / "sqlite3_cdr_test_v7", ["/test_topic"])] == [m.raw for m in msgs]
+    assert [m.raw for m in read_messages(BAGS / "sqlite3_cdr_test_v7", ["/test_topic"])] == [
+        m.raw for m in msgs
+    ]
 
 
 @pytest.mark.parametrize("name", ["mcap_talker_v4", "sqlite3_talker_v4"])
@@ -107,20 +121,33 @@ def test_rosbag2_single_mcap_file_without_metadata():
 
 
 def test_rosbag2_wrong_serialisation_format_is_refused_in_one_line():
-    with pytest.raises(BagError, match="topic /test_topic is serialised as 'wrong_format', not CDR|"
-                                       "topic /array_topic is serialised as 'wrong_format', not CDR"):
+    with pytest.raises(
+        BagError,
+        match="topic /test_topic is serialised as 'wrong_format', not CDR|"
+        "topic /array_topic is serialised as 'wrong_format', not CDR",
+    ):
         list(read_messages(BAGS / "sqlite3_wrong_format_v4"))
-    r = subprocess.run(subpix_cmd("replay", str(BAGS / "sqlite3_wrong_format_v4"), "--delay", "0"),
-                       capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        subpix_cmd("replay", str(BAGS / "sqlite3_wrong_format_v4"), "--delay", "0"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode != 0 and len(lines) == 1 and "not CDR" in lines[0], r.stderr
 
 
 def test_rosbag2_bag_of_unknown_types_replay_fails_in_one_line():
-    r = subprocess.run(subpix_cmd("replay", str(BAGS / "mcap_cdr_test_v7"), "--delay", "0"),
-                       capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        subpix_cmd("replay", str(BAGS / "mcap_cdr_test_v7"), "--delay", "0"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    assert r.returncode != 0 and len(lines) == 1 and "unknown message type 'test_msgs/msg/" in lines[0], r.stderr
+    assert (
+        r.returncode != 0 and len(lines) == 1 and "unknown message type 'test_msgs/msg/" in lines[0]
+    ), r.stderr
 
 
 @pytest.mark.parametrize("name", ["mcap_talker_v4", "sqlite3_talker_v4"])
@@ -137,21 +164,51 @@ def test_rosbag2_talker_replays_to_another_process(name, rclpy_node):
     bag = BAGS / name
     ns = f"/artefact_{name}_{time.monotonic_ns() % 1_000_000}"
     got = []
-    rclpy_node.create_subscription(String, ns + "/topic", lambda raw: got.append(bytes(raw)),
-                                   QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE), raw=True)
-    play = subprocess.Popen(subpix_cmd("replay", str(bag), "--topics", "/topic", "/rosout", "--rate", "20",
-                                       "--remap", f"/topic:={ns}/topic", f"/rosout:={ns}/rosout",
-                                       "--wait-for", "/topic", "--ack-timeout", "5"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rclpy_node.create_subscription(
+        String,
+        ns + "/topic",
+        lambda raw: got.append(bytes(raw)),
+        QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE),
+        raw=True,
+    )
+    play = subprocess.Popen(
+        subpix_cmd(
+            "replay",
+            str(bag),
+            "--topics",
+            "/topic",
+            "/rosout",
+            "--rate",
+            "20",
+            "--remap",
+            f"/topic:={ns}/topic",
+            f"/rosout:={ns}/rosout",
+            "--wait-for",
+            "/topic",
+            "--ack-timeout",
+            "5",
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     late = []
     try:
         deadline = time.monotonic() + 40
         while time.monotonic() < deadline and len(got) < 10:
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)
         # /rosout: subscribe only now, transient local, while the replay still holds its publisher
-        rclpy_node.create_subscription(Log, ns + "/rosout", lambda raw: late.append(bytes(raw)),
-                                       QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                                                  durability=DurabilityPolicy.TRANSIENT_LOCAL), raw=True)
+        rclpy_node.create_subscription(
+            Log,
+            ns + "/rosout",
+            lambda raw: late.append(bytes(raw)),
+            QoSProfile(
+                depth=100,
+                reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            ),
+            raw=True,
+        )
         deadline = time.monotonic() + 10
         while time.monotonic() < deadline and len(late) < 10 and play.poll() is None:
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)
@@ -161,10 +218,10 @@ def test_rosbag2_talker_replays_to_another_process(name, rclpy_node):
             play.kill()
     assert play.returncode == 0, err
     assert got == [m.raw for m in read_messages(bag, ["/topic"])]
-    assert late and late == [m.raw for m in read_messages(bag, ["/rosout"])][-len(late):]
+    assert late and late == [m.raw for m in read_messages(bag, ["/rosout"])][-len(late) :]
 
 
-# --------------------------------------------------------------------------- ArduPilot telemetry logs
+# ----------------------------------------------------------------- ArduPilot telemetry logs
 def _gpi(path):
     """GLOBAL_POSITION_INT of system 1, as pymavlink parses the log by itself."""
     from pymavlink import mavutil
@@ -179,8 +236,9 @@ def _gpi(path):
             out.append(msg)
 
 
-@pytest.mark.parametrize("name, n_samples", [("apm_bench_2012.tlog", 11),
-                                             ("arducopter_sitl_flight_excerpt.tlog", 209)])
+@pytest.mark.parametrize(
+    "name, n_samples", [("apm_bench_2012.tlog", 11), ("arducopter_sitl_flight_excerpt.tlog", 209)]
+)
 def test_ardupilot_tlog_parses(name, n_samples):
     from subpix_ros.io.mavlink import MavlinkReader
 
@@ -199,8 +257,13 @@ def test_ardupilot_tlog_parses(name, n_samples):
     assert st.mavlink1 == st.packets and st.mavlink2 == 0
     if name.startswith("arducopter"):
         # in flight at the SITL home, and the packets of a changed definition counted, not fatal
-        assert max(s.ground_speed_mps for s in samples) > 5 and max(s.height_agl_m for s in samples) > 10
-        assert all(abs(s.lat_deg + 35.3622) < 0.01 and abs(s.lon_deg - 149.1657) < 0.01 for s in samples)
+        assert (
+            max(s.ground_speed_mps for s in samples) > 5
+            and max(s.height_agl_m for s in samples) > 10
+        )
+        assert all(
+            abs(s.lat_deg + 35.3622) < 0.01 and abs(s.lon_deg - 149.1657) < 0.01 for s in samples
+        )
         assert st.bad_crc == 78
         ts = [s.t for s in samples]
         assert ts == sorted(ts) and 75 < ts[-1] - ts[0] < 81

@@ -419,6 +419,27 @@ def read_messages(
     if storage == "rosbags":
         yield from _rosbags_messages(p, wanted, rep)
         return
+    if meta is not None and (meta.get("compression_mode") or "").lower() == "message":
+        yield from _decompressed(p, _read_storage(p, storage, files, meta, wanted, rep, on_bad), rep)
+        return
+    yield from _read_storage(p, storage, files, meta, wanted, rep, on_bad)
+
+
+def _decompressed(path: Path, msgs: Iterator[BagMessage], rep: ReadReport) -> Iterator[BagMessage]:
+    """Per-message zstd compression (rosbag2 ``compression_mode: message``)."""
+    from subpix_ros.io._mcap import _decompress
+
+    for m in msgs:
+        try:
+            raw = _decompress(m.raw, "zstd", 0)
+        except Exception as exc:  # noqa: BLE001 - the decompressor's own types
+            raise BagCorrupt(
+                path, None, f"a {m.topic} message does not decompress ({_one_line(exc)})", rep.messages
+            ) from None
+        yield BagMessage(m.topic, m.msgtype, m.timestamp_ns, raw)
+
+
+def _read_storage(p, storage, files, meta, wanted, rep, on_bad) -> Iterator[BagMessage]:
     if storage == "sqlite3":
         expected = None
         if meta is not None and len(files) == 1:
@@ -444,14 +465,19 @@ def read_messages(
         def bad(offset, detail, lost, _file=file):
             on_bad(_file, offset, detail, lost, None)
 
-        for s in _mcap.sources(f, buf, wanted, bad):
-            srcs.append(((t, (k, *order), payload) for t, order, payload in s))
+        srcs.extend(_keyed(s, k) for s in _mcap.sources(f, buf, wanted, bad))
     for t, _, payload in heapq.merge(*srcs, key=lambda x: (x[0], x[1])):
         if payload is None:
             continue
         ch, data = payload
         rep.messages += 1
         yield BagMessage(ch.topic, ch.msgtype, int(t), bytes(data))
+
+
+def _keyed(src, k: int):
+    """Order key (file index, position in file) for the merge across storage files."""
+    for t, order, payload in src:
+        yield t, (k, *order), payload
 
 
 def _rosbags_messages(path: Path, wanted: set[str] | None, rep: ReadReport) -> Iterator[BagMessage]:

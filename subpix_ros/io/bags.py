@@ -529,17 +529,23 @@ class BagWriter:
         self._connections: dict[str, object] = {}
         self.count = 0
 
+    def add_topic(self, topic: str, msgtype: str, qos: Sequence = ()) -> None:
+        """Declare ``topic`` with the QoS profiles its publishers offered (rosbags ``Qos``),
+        stored as rosbag2's ``offered_qos_profiles``; :meth:`write` declares unknown topics
+        without them."""
+        if topic in self._connections:
+            raise BagError(f"topic {topic} already in the bag")
+        try:
+            self._connections[topic] = self._writer.add_connection(
+                topic, msgtype, typestore=self._typestore, offered_qos_profiles=list(qos)
+            )
+        except Exception as exc:  # noqa: BLE001
+            raise BagError(f"cannot add topic {topic} of type {msgtype}: {_one_line(exc)}") from None
+
     def write(self, topic: str, msgtype: str, timestamp_ns: int, raw: bytes | memoryview) -> None:
-        conn = self._connections.get(topic)
-        if conn is None:
-            try:
-                conn = self._writer.add_connection(topic, msgtype, typestore=self._typestore)
-            except Exception as exc:  # noqa: BLE001
-                raise BagError(
-                    f"cannot add topic {topic} of type {msgtype}: {_one_line(exc)}"
-                ) from None
-            self._connections[topic] = conn
-        self._writer.write(conn, int(timestamp_ns), raw)
+        if topic not in self._connections:
+            self.add_topic(topic, msgtype)
+        self._writer.write(self._connections[topic], int(timestamp_ns), raw)
         self.count += 1
 
     def write_all(self, messages: Iterable[BagMessage]) -> None:

@@ -169,6 +169,22 @@ class Player:
         return self.stats
 
 
+def _bag_qos(q):
+    """An rclpy QoSProfile as the rosbags ``Qos`` a bag's offered_qos_profiles stores (the
+    policies share rmw's integer values)."""
+    from rosbags.interfaces import (
+        Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime)
+
+    def t(d):
+        sec, nsec = divmod(int(d.nanoseconds), 1_000_000_000)
+        return QosTime(sec, nsec)
+
+    return Qos(QosHistory(int(q.history)), int(q.depth), QosReliability(int(q.reliability)),
+               QosDurability(int(q.durability)), t(q.deadline), t(q.lifespan),
+               QosLiveliness(int(q.liveliness)), t(q.liveliness_lease_duration),
+               bool(q.avoid_ros_namespace_conventions))
+
+
 class Recorder:
     """Subscribe raw to topics and write them to a rosbag2 file, as ``ros2 bag record`` does.
 
@@ -227,6 +243,7 @@ class Recorder:
             with self._lock:
                 if self.writer is None:
                     self.writer = BagWriter(self.output, storage=self.storage)
+                self.writer.add_topic(topic, msgtype, [_bag_qos(i.qos_profile) for i in infos])
             self.subs.append(self.node.create_subscription(
                 cls, topic, self._make_cb(topic, msgtype), qos, raw=True))
             self.subscribed[topic] = msgtype

@@ -148,3 +148,59 @@ def test_recorder_discover_timeout(tmp_path):
     )
     assert time.monotonic() - t0 < 20
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path, rclpy_node):
+    """A transient-local publisher that published before the recorder started: the recorder
+    subscribes transient local (as the publisher offers) and gets its last messages, stores the
+    offered QoS in the bag, and `subpix replay` offers the topic transient local again."""
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rosbags.interfaces import QosDurability, QosReliability
+    from std_msgs.msg import String
+
+    topic = _ns() + "/latched"
+    latched = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    pub = rclpy_node.create_publisher(String, topic, latched)
+    for i in range(3):
+        pub.publish(String(data=f"state {i}"))
+    out = tmp_path / "latched.mcap"
+    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), topic, "--count", "3"),
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while rec.poll() is None and time.monotonic() < deadline:
+            rclpy.spin_once(rclpy_node, timeout_sec=0.05)
+        rec_out, err = _wait(rec, 5)
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+    assert rec.returncode == 0, err
+    from rclpy.serialization import deserialize_message
+
+    assert [deserialize_message(m.raw, String).data for m in read_messages(out)] == \
+        [f"state {i}" for i in range(3)]
+    (info,) = bag_topics(out)
+    assert [q.durability for q in info.qos] == [QosDurability.TRANSIENT_LOCAL]
+    assert info.qos[0].reliability == QosReliability.RELIABLE  # (depth is not discoverable: 0)
+    rclpy_node.destroy_publisher(pub)
+    # replayed: a transient-local subscriber that joins after the replay published still gets them
+    replay_topic = topic + "_again"
+    play = subprocess.Popen(subpix_cmd("replay", str(out), "--remap", f"{topic}:={replay_topic}",
+                                       "--delay", "0", "--ack-timeout", "6"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    got = []
+    try:
+        time.sleep(2.0)  # the replay of 3 messages is over by now; its publisher is still up
+        rclpy_node.create_subscription(String, replay_topic, lambda m: got.append(m.data),
+                                       QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                                                  durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        deadline = time.monotonic() + 10
+        while len(got) < 3 and time.monotonic() < deadline:
+            rclpy.spin_once(rclpy_node, timeout_sec=0.05)
+        play.communicate(timeout=30)
+    finally:
+        if play.poll() is None:
+            play.kill()
+    assert got == [f"state {i}" for i in range(3)]

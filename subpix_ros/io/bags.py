@@ -381,6 +381,19 @@ def read_messages(
         read). True: damaged records are skipped and counted in ``report``.
     report : filled while reading: messages delivered, records skipped, problems.
 
+    Yields
+    ------
+    BagMessage
+        topic, type, receive time stamp (ns) and the CDR bytes as recorded (decompressed if the
+        bag compresses per message).
+
+    Raises
+    ------
+    BagError
+        bag missing or unreadable, topic not in it, a topic not serialised as CDR.
+    BagCorrupt
+        (``skip_corrupt`` False) the first damaged record: ``offset``, ``count``.
+
     Notes
     -----
     MCAP: record lengths, chunk CRCs (``uncompressed_crc``, when the writer set one) and each

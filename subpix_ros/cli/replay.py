@@ -6,7 +6,7 @@ import signal
 import sys
 
 from subpix_ros.cli import CliError
-from subpix_ros.io.bags import BagError
+from subpix_ros.io.bags import BagCorrupt, BagError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,6 +29,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--ack-timeout", type=float, default=10.0,
                    help="after the last message, wait up to this many seconds until every reliable subscriber has "
                    "acknowledged everything (a slow subscriber still gets the end of the bag); default 10")
+    p.add_argument("--skip-corrupt", action="store_true",
+                   help="replay what can be read from a damaged bag and report the skipped "
+                   "records at the end (the exit status is still non-zero); default: stop at the "
+                   "first damaged record")
     p.set_defaults(func=run)
 
 
@@ -49,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         with ros_node("subpix_replay") as node:
             player = Player(node, args.bag, topics=args.topics, rate=args.rate, loop=args.loop, clock=args.clock,
-                            remap=remap)
+                            remap=remap, skip_corrupt=args.skip_corrupt)
             signal.signal(signal.SIGTERM, lambda *_: player.stop())
             unknown = [t for t in args.wait_for if t not in player.publishers and not (t == "/clock" and args.clock)]
             if unknown:
@@ -58,10 +62,13 @@ def run(args: argparse.Namespace) -> int:
                 raise CliError(f"no subscriber on {', '.join(args.wait_for)} within {args.wait_timeout:.0f} s")
             time.sleep(max(0.0, args.delay))
             interrupted = False
+            corrupt = None
             try:
                 stats = player.play()
             except KeyboardInterrupt:
                 stats, interrupted = player.stats, True
+            except BagCorrupt as exc:  # the messages before it went out: let subscribers have them
+                stats, corrupt = player.stats, exc
             interrupted = interrupted or player.stopped
             # Tearing the writers down with samples in flight would lose the end of the bag for a
             # subscriber that is behind; on Ctrl-C only a short grace.
@@ -69,8 +76,14 @@ def run(args: argparse.Namespace) -> int:
             acked = player.wait_for_acks(timeout)
     except BagError as exc:
         raise CliError(str(exc)) from None
+    if corrupt is not None:
+        raise CliError(f"{corrupt} (replayed {stats.published} messages before it)", code=3)
     if not acked and not interrupted:
         print(f"subpix replay: warning: not every reliable subscriber acknowledged every message within "
               f"{args.ack_timeout:g} s (a subscriber is slow, stalled or gone)", file=sys.stderr)
     print(f"replayed {stats.published} messages from {args.bag} ({stats.loops} pass(es))")
+    rep = player.read_report
+    if rep.skipped_records:
+        print(f"subpix replay: error: bag {args.bag} is corrupt: {rep.summary()}", file=sys.stderr)
+        return 3
     return 0

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from subpix_ros.io.bags import BagError, BagWriter, bag_topics, read_messages
+from subpix_ros.io.bags import BagError, BagWriter, ReadReport, bag_topics, read_messages
 
 __all__ = ["message_class", "Player", "Recorder", "ReplayStats"]
 
@@ -45,7 +45,7 @@ class Player:
 
     def __init__(self, node, bag: str | Path, *, topics: Sequence[str] | None = None, rate: float = 1.0,
                  loop: bool = False, clock: bool = False, qos_depth: int = 100,
-                 remap: dict[str, str] | None = None) -> None:
+                 remap: dict[str, str] | None = None, skip_corrupt: bool = False) -> None:
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
         if not rate > 0:
@@ -55,6 +55,9 @@ class Player:
         self.rate = float(rate)
         self.loop = loop
         self.stats = ReplayStats()
+        self.skip_corrupt = skip_corrupt
+        #: what the bag reader skipped (--skip-corrupt), summed over loops
+        self.read_report = ReadReport()
         info = bag_topics(self.bag)
         present = {t.name: t for t in info}
         if topics:
@@ -65,11 +68,22 @@ class Player:
         if not info:
             raise BagError(f"bag {self.bag} has no messages")
         self.topics = [t.name for t in info]
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=qos_depth,
-                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+        from rosbags.interfaces import QosDurability
+
+        def qos(t):
+            # Reliable always (a subscriber of either kind matches); transient local when every
+            # recorded publisher offered it (a latched topic stays latched), as ros2 bag play does.
+            latched = bool(t.qos) and all(
+                q.durability == QosDurability.TRANSIENT_LOCAL for q in t.qos)
+            return QoSProfile(
+                history=HistoryPolicy.KEEP_LAST, depth=qos_depth,
+                reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
         remap = remap or {}
-        self.publishers = {t.name: node.create_publisher(message_class(t.msgtype), remap.get(t.name, t.name), qos)
-                           for t in info}
+        self.publishers = {
+            t.name: node.create_publisher(message_class(t.msgtype), remap.get(t.name, t.name), qos(t))
+            for t in info}
         self._clock_pub = None
         if clock:
             from rosgraph_msgs.msg import Clock
@@ -131,7 +145,9 @@ class Player:
         while not self._stop.is_set():
             wall0 = None
             bag0 = None
-            for m in read_messages(self.bag, self.topics):
+            report = ReadReport()
+            for m in read_messages(self.bag, self.topics, skip_corrupt=self.skip_corrupt,
+                                   report=report):
                 if self._stop.is_set():
                     break
                 if wall0 is None:
@@ -145,59 +161,110 @@ class Player:
                 self.stats.published += 1
                 if on_message is not None:
                     on_message(m.topic, m.timestamp_ns)
+            if self.stats.loops == 0:
+                self.read_report = report
             self.stats.loops += 1
             if not self.loop:
                 break
         return self.stats
 
 
+def _bag_qos(q):
+    """An rclpy QoSProfile as the rosbags ``Qos`` a bag's offered_qos_profiles stores (the
+    policies share rmw's integer values)."""
+    from rosbags.interfaces import (
+        Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime)
+
+    def t(d):
+        sec, nsec = divmod(int(d.nanoseconds), 1_000_000_000)
+        return QosTime(sec, nsec)
+
+    return Qos(QosHistory(int(q.history)), int(q.depth), QosReliability(int(q.reliability)),
+               QosDurability(int(q.durability)), t(q.deadline), t(q.lifespan),
+               QosLiveliness(int(q.liveliness)), t(q.liveliness_lease_duration),
+               bool(q.avoid_ros_namespace_conventions))
+
+
 class Recorder:
-    """Subscribe raw to topics and write them to a rosbag2 (mcap) file."""
+    """Subscribe raw to topics and write them to a rosbag2 file, as ``ros2 bag record`` does.
 
-    def __init__(self, node, output: str | Path, topics: Sequence[str], *, discover_timeout_s: float = 10.0,
+    A topic is subscribed when its first publisher appears (call :meth:`poll` now and then; it
+    returns the topics subscribed by that call), with the publishers' QoS: best effort if any
+    publisher offers only best effort, transient local if every publisher offers it (so a
+    latched last sample is recorded), reliable and volatile otherwise. Topics that appear later
+    are recorded from when they appear. The bag is created with the first subscription and is
+    complete after :meth:`close`.
+    """
+
+    def __init__(self, node, output: str | Path, topics: Sequence[str], *,
                  storage: str = "mcap") -> None:
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-
+        if not topics:
+            raise BagError("no topic to record")
         self.node = node
+        self.output = Path(output)
+        self.storage = storage
         self.count = 0
+        self.counts: dict[str, int] = {t: 0 for t in topics}
+        self.pending = list(dict.fromkeys(topics))
+        self.subscribed: dict[str, str] = {}  # topic -> message type
         self._lock = threading.Lock()
-        types = self._discover(topics, discover_timeout_s)
-        self.writer = BagWriter(output, storage=storage)
+        self.writer: BagWriter | None = None
+        if self.output.exists():  # refuse now, not when the first publisher appears
+            raise BagError(f"output exists: {self.output}")
+        if not self.output.parent.is_dir():
+            raise BagError(f"output folder does not exist: {self.output.parent}")
         self.subs = []
-        for topic in topics:
-            # Reliable unless a publisher only offers best effort (as ros2 bag does).
-            offered = [i.qos_profile.reliability for i in node.get_publishers_info_by_topic(topic)]
-            best_effort = any(r == ReliabilityPolicy.BEST_EFFORT for r in offered)
-            qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT if best_effort
-                             else ReliabilityPolicy.RELIABLE)
-            msgtype = types[topic]
-            cls = message_class(msgtype)
-            self.subs.append(node.create_subscription(cls, topic, self._make_cb(topic, msgtype), qos, raw=True))
 
-    def _discover(self, topics: Sequence[str], timeout_s: float) -> dict[str, str]:
-        deadline = time.monotonic() + timeout_s
-        names = {}
-        while True:
-            for name, types in self.node.get_topic_names_and_types():
-                if types:
-                    names[name] = types[0]
-            want = {t: names[t] for t in topics if t in names}
-            if len(want) == len(topics):
-                return want
-            if time.monotonic() > deadline:
-                missing = [t for t in topics if t not in names]
-                raise BagError(f"no publisher found for topic(s): {', '.join(missing)} within {timeout_s:.0f} s")
-            time.sleep(0.1)
+    def poll(self) -> list[str]:
+        """Subscribe every pending topic that now has a publisher; the topics subscribed."""
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+        new = []
+        for topic in list(self.pending):
+            infos = self.node.get_publishers_info_by_topic(topic)
+            if not infos:
+                continue
+            msgtype = infos[0].topic_type
+            others = {i.topic_type for i in infos} - {msgtype}
+            if others:
+                raise BagError(f"topic {topic} is published with several types: {msgtype}, "
+                               f"{', '.join(others)}")
+            cls = message_class(msgtype)
+            best_effort = any(
+                i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
+            latched = all(
+                i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+            qos = QoSProfile(
+                depth=100,
+                reliability=ReliabilityPolicy.BEST_EFFORT if best_effort
+                else ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                else DurabilityPolicy.VOLATILE)
+            with self._lock:
+                if self.writer is None:
+                    self.writer = BagWriter(self.output, storage=self.storage)
+                self.writer.add_topic(topic, msgtype, [_bag_qos(i.qos_profile) for i in infos])
+            self.subs.append(self.node.create_subscription(
+                cls, topic, self._make_cb(topic, msgtype), qos, raw=True))
+            self.subscribed[topic] = msgtype
+            self.pending.remove(topic)
+            new.append(topic)
+        return new
 
     def _make_cb(self, topic: str, msgtype: str):
         def cb(raw: bytes) -> None:
             t = time.time_ns()
             with self._lock:
+                if self.writer is None:
+                    return  # closed
                 self.writer.write(topic, msgtype, t, raw)
                 self.count += 1
+                self.counts[topic] += 1
 
         return cb
 
     def close(self) -> None:
         with self._lock:
-            self.writer.close()
+            if self.writer is not None:
+                self.writer.close()
+                self.writer = None

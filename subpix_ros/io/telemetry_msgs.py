@@ -78,14 +78,19 @@ def imu_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "base_link") -> b
 
 
 def sample_messages(s: TelemetrySample, frame_interval_s: float | None = None) -> list[tuple[str, str, bytes]]:
-    """(relative topic, type, CDR) of every telemetry message for one sample."""
+    """(relative topic, type, CDR) of every telemetry message for one sample.
+
+    A sample without attitude (no recent ATTITUDE message: ``roll_rad`` etc. None) has no
+    ``telemetry/imu`` message; the others are built as usual.
+    """
     stamp = int(round(s.t * 1e9))
     out = [
         ("telemetry/fix", FIX, fix_cdr(s, stamp)),
         ("telemetry/velocity", TWIST, velocity_cdr(s, stamp)),
         ("telemetry/height", FLOAT64, float64_cdr(s.height_agl_m)),
-        ("telemetry/imu", IMU, imu_cdr(s, stamp)),
     ]
+    if None not in (s.roll_rad, s.pitch_rad, s.yaw_rad):
+        out.append(("telemetry/imu", IMU, imu_cdr(s, stamp)))
     if frame_interval_s is not None:
         out.append(("telemetry/frame_interval", FLOAT64, float64_cdr(frame_interval_s)))
     return out

@@ -103,7 +103,7 @@ def test_record_then_replay_round_trip(sample_bags, tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["replay", "/nonexistent/bag"], "bag not found"),
     (["replay", "{bag}", "--topics", "/nope"], "not in bag"),
-    (["replay", "{corrupt}"], "cannot open bag"),
+    (["replay", "{corrupt}"], "is corrupt at byte offset 8: no MCAP header record"),
     (["replay", "{bag}", "--rate", "0"], "rate must be > 0"),
     (["replay", "{bag}", "--ack-timeout", "-1"], "--ack-timeout must be >= 0"),
 ])
@@ -115,6 +115,53 @@ def test_replay_errors_are_one_line(sample_bags, tmp_path, args, message):
     assert r.returncode != 0
     lines = [line for line in r.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and message in lines[0], r.stderr
+
+
+def _damaged_bag(tmp_path, n=45):
+    """A bag of ``n`` 256x256 images (3 chunks for 45) with bytes of its second chunk overwritten;
+    returns (bag, offset of that chunk, messages before it, messages after it)."""
+    import numpy as np
+
+    from subpix_ros.io import _mcap
+    from subpix_ros.io.bags import BagWriter
+
+    bag = tmp_path / "damaged.mcap"
+    with BagWriter(bag) as w:
+        for i in range(n):
+            img = np.random.default_rng(i).integers(0, 256, (256, 256)).astype(np.uint8)
+            w.write("/camera/image_raw", "sensor_msgs/msg/Image", 10**9 + i * 10**7,
+                    cdr.image_to_cdr(img, "mono8", 10**9 + i * 10**7, "cam"))
+    f, _ = _mcap.open_mcap(bag)
+    counts = [sum(c.counts.values()) for c in f.chunks]
+    c = f.chunks[1]
+    raw = bytearray(bag.read_bytes())
+    raw[c.offset + c.length // 2: c.offset + c.length // 2 + 64] = bytes(64)
+    bag.write_bytes(bytes(raw))
+    return bag, c.offset, counts[0], counts[2]
+
+
+def test_replay_stops_at_a_damaged_chunk(tmp_path):
+    """Issue 19 item 2: the first bad offset and the count read, one line, non-zero exit (was: the
+    damaged chunk's messages lost without a word, exit 0)."""
+    bag, offset, before, _ = _damaged_bag(tmp_path)
+    r = subprocess.run(subpix_cmd("replay", str(bag), "--delay", "0"), capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, r.stderr
+    assert f"corrupt at byte offset {offset}" in lines[0] and f"{before} message(s) could be read" in lines[0]
+    assert f"replayed {before} messages before it" in lines[0]
+
+
+def test_replay_skip_corrupt_reports_what_it_skipped(tmp_path):
+    bag, offset, before, after = _damaged_bag(tmp_path)
+    r = subprocess.run(subpix_cmd("replay", str(bag), "--delay", "0", "--skip-corrupt"), capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode != 0
+    assert f"replayed {before + after} messages" in r.stdout
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    lost = 45 - before - after
+    assert len(lines) == 1 and f"skipped 1 corrupt record(s) holding {lost} message(s)" in lines[0], r.stderr
+    assert f"byte offset {offset}" in lines[0]
 
 
 def test_replay_unknown_message_type(tmp_path):

@@ -1,0 +1,206 @@
+"""`subpix record` started before the publishers, as one starts `ros2 bag record` before a flight
+(issue 19, item 4): real processes over real DDS."""
+
+import os
+import signal
+import subprocess
+import time
+
+import pytest
+
+from conftest import subpix_cmd
+from subpix_ros.io.bags import bag_topics, read_messages
+
+TOPICS = ("/camera/image_raw", "/telemetry/velocity")
+
+
+def _ns():
+    """Topic names of this test alone (no stale publisher or subscriber of another test matches)."""
+    return f"/late_{os.getpid()}_{time.monotonic_ns() % 1_000_000}"
+
+
+def _replay(bag, ns, topics, wait=True):
+    args = [
+        "replay",
+        str(bag),
+        "--topics",
+        *topics,
+        "--remap",
+        *(f"{t}:={ns}{t}" for t in topics),
+        "--delay",
+        "0.5",
+    ]
+    if wait:
+        args += ["--wait-for", *topics]
+    return subprocess.run(subpix_cmd(*args), capture_output=True, text=True, timeout=90)
+
+
+def _wait(proc, timeout):
+    try:
+        return proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=15)
+        pytest.fail(f"recorder did not finish within {timeout} s: {out!r} {err!r}")
+
+
+def test_recorder_waits_for_a_publisher_that_starts_late(sample_bags, tmp_path):
+    """Recorder first, publisher 12 s later: every message recorded (was: exit after 10 s, 'no
+    publisher found')."""
+    bag = sample_bags / "subpixel"
+    original = {t: [m.raw for m in read_messages(bag, [t])] for t in TOPICS}
+    total = sum(len(v) for v in original.values())
+    ns, out = _ns(), tmp_path / "late.mcap"
+    rec = subprocess.Popen(
+        subpix_cmd("record", "-o", str(out), *(ns + t for t in TOPICS), "--count", str(total)),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        time.sleep(12.5)
+        assert rec.poll() is None, (
+            f"the recorder quit before the publisher started: {rec.communicate()}"
+        )
+        play = _replay(bag, ns, TOPICS)
+        assert play.returncode == 0, play.stderr
+        rec_out, err = _wait(rec, 30)
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+    assert rec.returncode == 0, err
+    assert f"recorded {total} messages" in rec_out
+    assert {t: [m.raw for m in read_messages(out, [ns + t])] for t in TOPICS} == original
+
+
+def test_recorder_subscribes_each_topic_when_it_appears_and_stops_cleanly_on_sigint(
+    sample_bags, tmp_path
+):
+    """Two topics published one after the other, a third never: both recorded, then SIGINT leaves a
+    complete bag (readable, every chunk checked) and a warning naming the missing topic."""
+    bag = sample_bags / "subpixel"
+    first, second = TOPICS
+    original = {t: [m.raw for m in read_messages(bag, [t])] for t in TOPICS}
+    ns, out = _ns(), tmp_path / "two.mcap"
+    rec = subprocess.Popen(
+        subpix_cmd("record", "-o", str(out), ns + first, ns + second, ns + "/never"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        play1 = _replay(bag, ns, [first])
+        assert play1.returncode == 0, play1.stderr
+        play2 = _replay(bag, ns, [second])
+        assert play2.returncode == 0, play2.stderr
+        time.sleep(1.0)
+        assert rec.poll() is None
+        rec.send_signal(signal.SIGINT)
+        rec_out, err = rec.communicate(timeout=20)
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+    assert rec.returncode == 0, err
+    assert f"no publisher appeared for {ns}/never" in err
+    assert {t.name: t.count for t in bag_topics(out)} == {ns + t: len(original[t]) for t in TOPICS}
+    assert {t: [m.raw for m in read_messages(out, [ns + t])] for t in TOPICS} == original
+
+
+def test_recorder_sigterm_leaves_a_complete_bag(sample_bags, tmp_path):
+    bag = sample_bags / "subpixel"
+    topic = TOPICS[1]
+    ns, out = _ns(), tmp_path / "term.mcap"
+    rec = subprocess.Popen(
+        subpix_cmd("record", "-o", str(out), ns + topic),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        play = _replay(bag, ns, [topic])
+        assert play.returncode == 0, play.stderr
+        time.sleep(1.0)
+        rec.send_signal(signal.SIGTERM)
+        rec_out, err = rec.communicate(timeout=20)
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+    assert rec.returncode == 0, err
+    assert [m.raw for m in read_messages(out)] == [m.raw for m in read_messages(bag, [topic])]
+
+
+def test_recorder_discover_timeout(tmp_path):
+    t0 = time.monotonic()
+    r = subprocess.run(
+        subpix_cmd(
+            "record", "-o", str(tmp_path / "x.mcap"), _ns() + "/nobody", "--discover-timeout", "1.5"
+        ),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode != 0
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert (
+        len(lines) == 1
+        and "no publisher found for topic(s)" in lines[0]
+        and "within 1.5 s" in lines[0]
+    )
+    assert time.monotonic() - t0 < 20
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path, rclpy_node):
+    """A transient-local publisher that published before the recorder started: the recorder
+    subscribes transient local (as the publisher offers) and gets its last messages, stores the
+    offered QoS in the bag, and `subpix replay` offers the topic transient local again."""
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rosbags.interfaces import QosDurability, QosReliability
+    from std_msgs.msg import String
+
+    topic = _ns() + "/latched"
+    latched = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    pub = rclpy_node.create_publisher(String, topic, latched)
+    for i in range(3):
+        pub.publish(String(data=f"state {i}"))
+    out = tmp_path / "latched.mcap"
+    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), topic, "--count", "3"),
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while rec.poll() is None and time.monotonic() < deadline:
+            rclpy.spin_once(rclpy_node, timeout_sec=0.05)
+        rec_out, err = _wait(rec, 5)
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+    assert rec.returncode == 0, err
+    from rclpy.serialization import deserialize_message
+
+    assert [deserialize_message(m.raw, String).data for m in read_messages(out)] == \
+        [f"state {i}" for i in range(3)]
+    (info,) = bag_topics(out)
+    assert [q.durability for q in info.qos] == [QosDurability.TRANSIENT_LOCAL]
+    assert info.qos[0].reliability == QosReliability.RELIABLE  # (depth is not discoverable: 0)
+    rclpy_node.destroy_publisher(pub)
+    # replayed: a transient-local subscriber that joins after the replay published still gets them
+    replay_topic = topic + "_again"
+    play = subprocess.Popen(subpix_cmd("replay", str(out), "--remap", f"{topic}:={replay_topic}",
+                                       "--delay", "0", "--ack-timeout", "6"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    got = []
+    try:
+        time.sleep(2.0)  # the replay of 3 messages is over by now; its publisher is still up
+        rclpy_node.create_subscription(String, replay_topic, lambda m: got.append(m.data),
+                                       QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                                                  durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        deadline = time.monotonic() + 10
+        while len(got) < 3 and time.monotonic() < deadline:
+            rclpy.spin_once(rclpy_node, timeout_sec=0.05)
+        play.communicate(timeout=30)
+    finally:
+        if play.poll() is None:
+            play.kill()
+    assert got == [f"state {i}" for i in range(3)]

@@ -11,6 +11,7 @@ NODES = {
     "reconstruction_node": "subpix_ros.nodes.reconstruction_node:main",
     "mosaic_node": "subpix_ros.nodes.mosaic_node:main",
     "pipeline": "subpix_ros.nodes.pipeline:main",
+    "monitor_node": "subpix_ros.nodes.monitor_node:main",
 }
 
 setup(
@@ -27,7 +28,8 @@ setup(
     ],
     # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in
     # a venv, from requirements.txt: never from install_requires.
-    install_requires=["setuptools", "numpy", "opencv-python-headless", "pymavlink", "pyserial", "rosbags", "PyYAML"],
+    install_requires=["setuptools", "numpy", "opencv-python-headless", "pymavlink", "pyserial", "rosbags", "PyYAML",
+                      "foxglove-sdk"],
     zip_safe=True,
     maintainer="subpix_ros developers",
     maintainer_email="dev@subpix-ros.org",

@@ -111,7 +111,7 @@ TOPICS: dict[str, str] = {
     "/mosaic": "foxglove.CompressedImage", "/super_resolved": "foxglove.CompressedImage",
     "/bicubic": "foxglove.CompressedImage", "/camera": "foxglove.CompressedImage",
     "/shift": "subpix.Shift", "/telemetry": "subpix.Telemetry", "/fix": "foxglove.LocationFix",
-    "/footprints": "foxglove.GeoJson", "/health": "subpix.Health", "/log": "foxglove.Log",
+    "/footprints": "foxglove.GeoJSON", "/health": "subpix.Health", "/log": "foxglove.Log",
 }
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 

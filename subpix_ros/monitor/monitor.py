@@ -30,12 +30,15 @@ and fixes always go and are charged to a token bucket of ``bandwidth_kbps``
 (at most ``burst_s`` seconds saved up). Optional messages wait for the bucket
 in strict priority: footprints, then the mosaic, then the super-resolved /
 bicubic pair, then the camera frame; a lower one goes only when no higher one
-waits. An image stream that had to wait longer than half its period (or
-0.25 s) steps one rung down :data:`~subpix_ros.monitor.budget.LEVELS` (JPEG
-quality first, then size); one sent at once three times with the bucket half
-full steps back up. Waiting also stretches its period: rates drop by
-themselves. So the camera degrades first, the mosaic last, and a stalled link
-sends the newest image when it can, never a queue of old ones.
+waits, or when it has waited four of its periods (at least 4 s). Each image
+stream is sized to its share of what the essentials leave (mosaic 0.45,
+super-resolved pair 0.30, camera 0.25 of it, shared among the streams fed;
+:meth:`Monitor.target_bytes`): an image over its target steps down the rungs
+of :data:`~subpix_ros.monitor.budget.LEVELS` (JPEG quality first, then size)
+until it fits, one under half of it steps back up. Below the last rung the
+bucket stretches the period: rates drop. So images degrade and the essentials
+never starve, and a stalled link sends the newest image when it can, never a
+queue of old ones.
 
 Slow clients: the server keeps at most ``backlog_messages`` outgoing messages
 per client and drops the oldest data message beyond that (foxglove-sdk's
@@ -113,6 +116,7 @@ TOPICS: dict[str, str] = {
     "/shift": "subpix.Shift", "/telemetry": "subpix.Telemetry", "/fix": "foxglove.LocationFix",
     "/footprints": "foxglove.GeoJSON", "/health": "subpix.Health", "/log": "foxglove.Log",
 }
+ESSENTIAL_TOPICS = ("/shift", "/telemetry", "/fix", "/footprints", "/health", "/log")
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 
 
@@ -248,8 +252,9 @@ class _Stream:
     pending_t: float = 0.0
     sent_seq: int = 0
     last_sent: float = -1e9
+    weight: float = 1.0  # share of the image budget
+    last_input: float = -1e9
     level: int = 0
-    good: int = 0
     sent: int = 0
 
 
@@ -291,9 +296,9 @@ class Monitor:
         self._telemetry: dict[str, float | None] = {}
         self.errors: list[str] = []
         self.streams = {
-            "mosaic": _Stream(("/mosaic",), 1, "mosaic_period_s"),
-            "sr": _Stream(("/super_resolved", "/bicubic"), 2, "sr_period_s"),
-            "camera": _Stream(("/camera",), 3, "camera_period_s"),
+            "mosaic": _Stream(("/mosaic",), 1, "mosaic_period_s", weight=0.45),
+            "sr": _Stream(("/super_resolved", "/bicubic"), 2, "sr_period_s", weight=0.30),
+            "camera": _Stream(("/camera",), 3, "camera_period_s", weight=0.25),
         }
         self._thread: threading.Thread | None = None
         self.outs: dict[str, _Out] = {}
@@ -440,6 +445,7 @@ class Monitor:
         with self._lock:
             s.item = item
             s.seq += 1
+            s.last_input = time.monotonic()
         self._wake.set()
 
     def on_shift(self, stamp_ns: int, u: float, v: float, u_std: float | None = None, v_std: float | None = None,
@@ -536,8 +542,10 @@ class Monitor:
             due = now - s.last_sent >= getattr(self.cfg, s.period_attr, 0.0)
             stale = s.pending is not None and seq != s.pending_seq and now - s.pending_t > 0.5
             if item is not None and seq != s.sent_seq and due and (s.pending is None or stale):
-                s.pending = self._encode(s, item)
-                s.pending_seq, s.pending_t = seq, now
+                if s.pending is None:
+                    s.pending_t = now  # waiting for the link since (kept when a newer input replaces it)
+                s.pending = self._encode_to_fit(s, item, now)
+                s.pending_seq = seq
         # the geo layer: a small optional message, first in line
         if self._geo_dirty and now - self._geo_sent >= self.cfg.geo_period_s:
             with self._lock:
@@ -545,26 +553,55 @@ class Monitor:
                 self._geo_dirty = False
             self._geo_sent = now
             self._essential_or_wait("/footprints", GeoJson(geojson=text).encode())
-        for s in sorted(self.streams.values(), key=lambda x: x.priority):
+        def order(x: _Stream) -> tuple[int, int]:
+            # strict priority, except that a stream kept waiting 4 periods (at least 4 s) goes first:
+            # the camera is starved of rate and quality first, but not for ever
+            period = getattr(self.cfg, x.period_attr, 0.0)
+            starved = x.pending is not None and now - x.pending_t > max(4.0, 4 * period)
+            return (0 if starved else 1, x.priority)
+
+        for s in sorted(self.streams.values(), key=order):
             if s.pending is None:
                 continue
             n = sum(wire_bytes(len(m)) for _, m in s.pending) * max(1, max(self.clients(t) for t in s.topics))
             if not self.bucket.allows(n, now):
                 break  # strict priority: nothing lower goes while this waits
-            wait = now - s.pending_t
             for topic, m in s.pending:
                 self._log(topic, m)
             s.pending, s.sent_seq, s.last_sent, s.sent = None, s.pending_seq, now, s.sent + 1
-            period = getattr(self.cfg, s.period_attr, 0.0)
-            if wait > max(0.25, 0.5 * period):
-                s.level, s.good = min(s.level + 1, len(LEVELS) - 1), 0
-            elif wait < 0.05 and self.bucket.level(now) > 0.5 * self.bucket.capacity:
-                s.good += 1
-                if s.good >= 3 and s.level > 0:
-                    s.level, s.good = s.level - 1, 0
 
     def _essential_or_wait(self, topic: str, payload: bytes) -> None:
         self._essential(topic, payload)
+
+    def target_bytes(self, s: _Stream, now: float) -> float:
+        """Bytes one message of stream ``s`` should take: its share of what the essentials leave.
+
+        ``share = max(0.1 B, B - essentials) * w_s / sum(w of streams fed in the last 10 s)``,
+        ``B`` the budget (bytes/s), ``essentials`` the measured bytes/s of health, log, shifts,
+        telemetry, fixes and footprints; one message is sized for ``max(period, 1 s)`` of its
+        share (divided among the clients subscribed): below that, images come less often
+        instead of smaller, and the token bucket sets their rate.
+        """
+        essential = sum(self.outs[t].meter.rate(now) for t in ESSENTIAL_TOPICS)
+        avail = max(0.1 * self.bucket.rate, self.bucket.rate - essential)
+        active = [x for x in self.streams.values() if x.item is not None and now - x.last_input < 10.0]
+        w = s.weight / max(1e-9, sum(x.weight for x in active) if s in active else s.weight)
+        clients = max(1, max(self.clients(t) for t in s.topics))
+        return avail * w * max(getattr(self.cfg, s.period_attr, 0.0), 1.0) / clients
+
+    def _encode_to_fit(self, s: _Stream, item, now: float) -> list:
+        """Encode at the stream's rung; step down the ladder while the message is 25 % over its
+        target, and one rung up for next time when it is under half of it."""
+        target = self.target_bytes(s, now)
+        msgs = self._encode(s, item)
+        size = sum(len(m) for _, m in msgs)
+        while size > 1.25 * target and s.level < len(LEVELS) - 1:
+            s.level += 1
+            msgs = self._encode(s, item)
+            size = sum(len(m) for _, m in msgs)
+        if size < 0.5 * target and s.level > 0:
+            s.level -= 1
+        return msgs
 
     def _encode(self, s: _Stream, item) -> list:
         lv = LEVELS[s.level]

@@ -80,21 +80,26 @@ class MonitorNode(StageNode):
         self._fix: tuple[float, float] | None = None
         self._last_camera_ns = 0
         self._timer = self.create_timer(1.0, self._publish_own_health)
-        if subscribe_inputs:
-            self._subscribe()
+        self._subscribe(subscribe_inputs)
 
-    def _subscribe(self) -> None:
+    def _subscribe(self, stage_inputs: bool) -> None:
+        """The mosaic, telemetry and /diagnostics always come over DDS; the camera, shifts and
+        super-resolved images too, unless the single-process pipeline hands them over in memory
+        (:meth:`handle_frame`, :meth:`handle_shift`, :meth:`handle_super_resolved`)."""
         tel = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT, history=qos_profile_sensor_data.history)
         if self.p("mosaic_compressed"):
             self.create_subscription(CompressedImage, "mosaic/compressed", self._guard(self._on_mosaic_c),
                                      latched_qos(), raw=True)
         else:
             self.create_subscription(Image, "mosaic", self._guard(self._on_mosaic), latched_qos(), raw=True)
-        self.create_subscription(Image, "aligned/reference", self._guard(self._on_reference), latched_qos(4), raw=True)
-        self.create_subscription(Image, "super_resolved", self._guard(self._on_sr), latched_qos(), raw=True)
-        self.create_subscription(Image, "image", self._guard(self._on_camera),
-                                 camera_qos(self.p("camera_reliable"), depth=1), raw=True)
-        self.create_subscription(Vector3Stamped, "shift", self._guard(self._on_shift), reliable_qos(100), raw=True)
+        if stage_inputs:
+            self.create_subscription(Image, "aligned/reference", self._guard(self._on_reference), latched_qos(4),
+                                     raw=True)
+            self.create_subscription(Image, "super_resolved", self._guard(self._on_sr), latched_qos(), raw=True)
+            self.create_subscription(Image, "image", self._guard(self._on_camera),
+                                     camera_qos(self.p("camera_reliable"), depth=1), raw=True)
+            self.create_subscription(Vector3Stamped, "shift", self._guard(self._on_shift), reliable_qos(100),
+                                     raw=True)
         self.create_subscription(Vector3Stamped, "telemetry/expected_shift", self._guard(self._on_expected), tel)
         self.create_subscription(Float64, "telemetry/frame_interval", self._guard(self._on_interval), tel)
         self.create_subscription(Float64, "telemetry/height", self._guard(self._on_height), tel)
@@ -142,24 +147,52 @@ class MonitorNode(StageNode):
         stamp = cdr.header_to_ns(header)  # the reference frame's stamp: the image lies on its grid
         with self._lock:
             ref = self._refs.get(stamp)
+        self._serve_sr(sr.copy(), ref, stamp)
+
+    def _serve_sr(self, sr, ref, stamp: int) -> None:
         bic, factor = None, None
         if ref is not None and sr.shape[0] % ref.shape[0] == 0:
             factor = sr.shape[0] // ref.shape[0]
             bic = cv2.resize(ref, (sr.shape[1], sr.shape[0]), interpolation=cv2.INTER_CUBIC)
             if bic.ndim != sr.ndim:
                 bic = cv2.cvtColor(bic, cv2.COLOR_GRAY2BGR) if bic.ndim == 2 else cv2.cvtColor(bic, cv2.COLOR_BGR2GRAY)
-        self.monitor.on_super_resolved(sr.copy(), bic, stamp, factor)
+        self.monitor.on_super_resolved(sr, bic, stamp, factor)
 
-    def _on_camera(self, raw: bytes) -> None:
-        # the camera may come at 30 Hz: decode only what the monitor can send (a few per period)
+    def _camera_due(self) -> bool:
+        # the camera may come at 30 Hz: take only what the monitor can send (a few per period)
         now = self.get_clock().now().nanoseconds
         if now - self._last_camera_ns < 0.25e9 * self.monitor.cfg.camera_period_s:
-            return
+            return False
         self._last_camera_ns = now
+        return True
+
+    def _on_camera(self, raw: bytes) -> None:
+        if not self._camera_due():
+            return
         img, header = cdr.cdr_to_image(raw)
-        stamp = cdr.header_to_ns(header)
-        self.monitor.on_camera(img.copy(), stamp)
+        self._serve_camera(img.copy(), cdr.header_to_ns(header))
+
+    def _serve_camera(self, img, stamp: int) -> None:
+        self.monitor.on_camera(img, stamp)
         self._footprint(img.shape[1], img.shape[0], stamp)
+
+    # ---------------------------------------------------------------- in memory (single-process pipeline)
+    def handle_frame(self, frame) -> None:
+        """A camera frame (``payloads.Frame``) handed over in memory; its array is not written to later."""
+        if self._camera_due():
+            self._serve_camera(frame.image, frame.stamp_ns)
+
+    def handle_shift(self, shift_and_frame) -> None:
+        """The shift stage's ``(payloads.Shift, Aligned)``: with its standard errors."""
+        s = shift_and_frame[0]
+        e = self._expected
+        self.monitor.on_shift(s.stamp_ns, s.u, s.v, s.u_std, s.v_std, True, e[0] if e else None,
+                              e[1] if e else None)
+
+    def handle_super_resolved(self, result) -> None:
+        """The reconstruction stage's ``(image, result, reference Frame, members)``."""
+        out, _, ref, _ = result
+        self._serve_sr(out, ref.image, ref.stamp_ns)
 
     def _footprint(self, w: int, h: int, stamp: int) -> None:
         if self._fix is None or self._height is None or not self._height > 0:

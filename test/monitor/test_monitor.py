@@ -166,7 +166,8 @@ def test_everything_served_is_recorded_to_mcap(tmp_path, frames, mosaic_image):
         feeder = Feeder(mon, frames, mosaic_image)
         time.sleep(4.0)
         feeder.stop()
-        time.sleep(0.5)
+        mon.set_bandwidth_kbps(1e6)  # what still waits for the link goes now: the client sees it too
+        time.sleep(1.0)
         served = {t: [r.payload for r in c.messages(t)] for t in TOPICS}
         c.close()
     with open(path, "rb") as f:

@@ -165,3 +165,50 @@ def test_monitor_node_refuses_an_exposed_host_without_tls():
     assert lines and "refusing to serve on '0.0.0.0' without TLS" in lines[-1], p.stderr
     with socket.socket() as s:  # nothing listens
         assert s.connect_ex(("127.0.0.1", port)) != 0
+
+
+def test_pipeline_with_monitor_serves_shifts_with_their_errors(sample_bags):
+    """`pipeline --monitor`: the monitor fed in memory; shifts carry the estimator's standard errors."""
+    port = free_port()
+    pipe = subprocess.Popen([sys.executable, "-m", "subpix_ros.nodes.pipeline", "--no-telemetry", "--monitor",
+                             "--ros-args", "--params-file", PARAMS, "-r", "image:=/camera/image_raw",
+                             "-p", f"monitor_node:port:={port}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    rclpy.init()
+    node = rclpy.create_node("monitor_pipeline_test")
+    shifts = {}
+    node.create_subscription(Vector3Stamped, "/shift", lambda r: shifts.update(
+        {cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]): cdr.cdr_to_vector3_stamped(r)[0][:2]}),
+        reliable_qos(100), raw=True)
+    a = None
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            a = FoxgloveClient(f"ws://127.0.0.1:{port}")
+            if a.wait(lambda: len(a.channels) == len(TOPICS), 3):
+                break
+            a.close()
+            assert pipe.poll() is None, pipe.stdout.read()
+        assert _spin(node, lambda: node.count_publishers("/shift") > 0, 30, [pipe])
+        _spin(node, lambda: False, 1.0, [pipe])
+        replay = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--rate", "0.5",
+                                             "--wait-for", "/camera/image_raw", "--wait-timeout", "60"))
+        assert _spin(node, lambda: replay.poll() is not None, 120, [pipe]) and replay.returncode == 0
+        _spin(node, lambda: len(shifts) >= 21 and len(a.messages("/shift")) >= len(shifts), 30, [pipe])
+        served = {}
+        for r in a.messages("/shift"):
+            d = a.decode("/shift", r.payload)
+            served[d["timestamp"]["sec"] * 10**9 + d["timestamp"]["nsec"]] = d
+        assert len(set(served) & set(shifts)) >= 15
+        for s in set(served) & set(shifts):
+            np.testing.assert_allclose((served[s]["u"], served[s]["v"]), shifts[s], atol=1e-12)
+            assert 0 < served[s]["u_std"] <= 0.1 and 0 < served[s]["v_std"] <= 0.1  # shift_node's max_std_px
+        assert a.wait(lambda: a.messages("/super_resolved") and a.messages("/camera") and a.messages("/mosaic"), 20)
+        sr = a.decode("/super_resolved", a.messages("/super_resolved")[-1].payload)
+        assert cv2.imdecode(np.frombuffer(sr.data, np.uint8), cv2.IMREAD_COLOR) is not None
+    finally:
+        if a is not None:
+            a.close()
+        node.destroy_node()
+        rclpy.shutdown()
+        stop_processes([pipe])

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Live monitor: CPU per camera frame at 1080p 10 Hz, and bytes per channel per second at a budget.
 
-A real Seneca frame (cut to 1920x1080) is fed to :class:`subpix_ros.monitor.Monitor` as the camera at
+A real Seneca frame (cut to 1920x1080) is fed to :class:`subpix_ros.monitor.Monitor` as the camera
+at
 10 Hz with a shift per frame, a 2048-px mosaic changing every second and a 3840x2160 super-resolved
 pair every 1.6 s, for ``--seconds``; a foxglove.sdk.v1 client in another process
 (``python -m subpix_ros.monitor.client``) subscribes to everything and reports what it received.
@@ -9,6 +10,7 @@ CPU is this process's (the feeder's calls, the monitor's sender thread, the SDK'
 divided by the camera frames fed. Reference in the same run: JPEG-encoding every full frame
 (q85), what serving the camera without the monitor's decimation would cost.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,12 +31,16 @@ from subpix_ros.monitor import Monitor, MonitorConfig  # noqa: E402
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0)
-    ap.add_argument("--kbps", type=float, default=2000.0, help="bandwidth_kbps (default: the node's default)")
+    ap.add_argument(
+        "--kbps", type=float, default=2000.0, help="bandwidth_kbps (default: the node's default)"
+    )
     ap.add_argument("--rate", type=float, default=10.0, help="camera rate, Hz")
     a = ap.parse_args()
 
     src = cv2.imread(str(ROOT / "data" / "seneca" / "IMG_0461.jpg"), cv2.IMREAD_COLOR)
-    frames = [np.ascontiguousarray(np.roll(src, 3 * i, axis=1)[135:1215, :][:, :1920]) for i in range(8)]
+    frames = [
+        np.ascontiguousarray(np.roll(src, 3 * i, axis=1)[135:1215, :][:, :1920]) for i in range(8)
+    ]
     frames = [cv2.resize(f, (1920, 1080)) if f.shape[:2] != (1080, 1920) else f for f in frames]
     mosaic = cv2.resize(src, (2048, 1536))
     sr = cv2.resize(frames[0], (3840, 2160), interpolation=cv2.INTER_CUBIC)
@@ -46,8 +52,12 @@ def main() -> int:
     ref_ms = 1000 * (time.process_time() - t) / (2 * len(frames))
 
     mon = Monitor(MonitorConfig(port=0, bandwidth_kbps=a.kbps))
-    client = subprocess.Popen([sys.executable, "-m", "subpix_ros.monitor.client", mon.url, str(a.seconds + 1)],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    client = subprocess.Popen(
+        [sys.executable, "-m", "subpix_ros.monitor.client", mon.url, str(a.seconds + 1)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     time.sleep(1.0)
     n = int(a.seconds * a.rate)
     call_s = 0.0
@@ -69,14 +79,23 @@ def main() -> int:
     out = client.communicate(timeout=30)[0]
     mon.close()
 
-    print(f"camera 1920x1080 at {a.rate:g} Hz for {a.seconds:g} s, bandwidth_kbps {a.kbps:g}, 1 client\n")
+    print(
+        f"camera 1920x1080 at {a.rate:g} Hz for {a.seconds:g} s, "
+        f"bandwidth_kbps {a.kbps:g}, 1 client\n"
+    )
     print("| what | ms per camera frame |\n|---|---|")
-    print(f"| monitor, whole process CPU (feeder calls + sender + server threads) | {1000 * cpu / n:.2f} |")
+    print(
+        "| monitor, whole process CPU (feeder calls + sender + server threads) | "
+        f"{1000 * cpu / n:.2f} |"
+    )
     print(f"| the feeder's on_camera + on_shift calls (wall) | {1000 * call_s / n:.3f} |")
     print(f"| reference: JPEG q85 of every full frame | {ref_ms:.2f} |")
     print("\nreceived by the client (python -m subpix_ros.monitor.client):\n")
     print(out)
-    print(f"monitor's own count: {stats['sent_kbps']} kbit/s sent (5 s window); rungs {stats['levels']}")
+    print(
+        f"monitor's own count: {stats['sent_kbps']} kbit/s sent (5 s window); "
+        f"rungs {stats['levels']}"
+    )
     return 0
 
 

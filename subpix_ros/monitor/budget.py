@@ -6,6 +6,7 @@ Foxglove message data frame times the number of clients subscribed to its
 channel), so the budget is the radio link's, whatever number of operators
 watch.
 """
+
 from __future__ import annotations
 
 import collections
@@ -87,7 +88,7 @@ class TokenBucket:
             self.tokens -= n
 
     def allows(self, n: int, now: float | None = None) -> bool:
-        """True if ``n`` bytes fit now (a message larger than the whole saving goes when it is full)."""
+        """True if ``n`` bytes fit now (one larger than the whole saving goes when it is full)."""
         with self._lock:
             self._refill(time.monotonic() if now is None else now)
             return self.tokens >= min(n, self.capacity) and self.tokens > 0
@@ -134,7 +135,13 @@ class QualityLevel:
 # Degradation of one image stream, best first: JPEG quality goes down before the size does
 # (a smaller image loses detail the operator may need; quality 60 costs little to the eye).
 LEVELS: tuple[QualityLevel, ...] = (
-    QualityLevel(85, 1.0), QualityLevel(70, 1.0), QualityLevel(55, 1.0), QualityLevel(55, 0.75),
-    QualityLevel(45, 0.6), QualityLevel(40, 0.5), QualityLevel(35, 0.4), QualityLevel(30, 0.3),
+    QualityLevel(85, 1.0),
+    QualityLevel(70, 1.0),
+    QualityLevel(55, 1.0),
+    QualityLevel(55, 0.75),
+    QualityLevel(45, 0.6),
+    QualityLevel(40, 0.5),
+    QualityLevel(35, 0.4),
+    QualityLevel(30, 0.3),
     QualityLevel(25, 0.25),
 )

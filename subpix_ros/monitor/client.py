@@ -1,9 +1,12 @@
-"""A small Foxglove WebSocket client (subprotocol ``foxglove.sdk.v1``): tests, benchmarks, a headless check.
+"""A small Foxglove WebSocket client (subprotocol ``foxglove.sdk.v1``).
+
+For the tests, the benchmarks and a headless check of a drone's monitor.
 
 Needs the ``websockets`` package (and ``protobuf`` for :meth:`FoxgloveClient.decode`);
 neither is needed to serve. ``python -m subpix_ros.monitor.client ws://HOST:8765``
 prints the advertised channels and the bytes per second received on each.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -29,7 +32,7 @@ class Received:
 
 @dataclass
 class FoxgloveClient:
-    """Connect in a background thread, subscribe to ``topics`` (None: every channel), keep what arrives.
+    """Connect in a background thread, subscribe to ``topics`` (None: all), keep what arrives.
 
     ``received[topic]`` lists :class:`Received`; ``channels[topic]`` is the advertised channel
     (id, encoding, schemaName, schema, schemaEncoding).
@@ -55,8 +58,13 @@ class FoxgloveClient:
         import websockets
 
         try:
-            async with websockets.connect(self.url, subprotocols=["foxglove.sdk.v1"], ssl=self.ssl_context,
-                                          max_size=None, open_timeout=10) as ws:
+            async with websockets.connect(
+                self.url,
+                subprotocols=["foxglove.sdk.v1"],
+                ssl=self.ssl_context,
+                max_size=None,
+                open_timeout=10,
+            ) as ws:
                 next_id = 1
                 while not self._stop.is_set():
                     try:
@@ -77,12 +85,16 @@ class FoxgloveClient:
                                     subs.append({"id": next_id, "channelId": ch["id"]})
                                     next_id += 1
                             if subs:
-                                await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+                                await ws.send(
+                                    json.dumps({"op": "subscribe", "subscriptions": subs})
+                                )
                     elif m and m[0] == 1:
                         sub, log_time = struct.unpack_from("<IQ", m, 1)
                         topic = self._sub_topic.get(sub, f"?{sub}")
                         with self._lock:
-                            self.received.setdefault(topic, []).append(Received(now, log_time, bytes(m[13:]), len(m)))
+                            self.received.setdefault(topic, []).append(
+                                Received(now, log_time, bytes(m[13:]), len(m))
+                            )
         except BaseException as exc:  # noqa: BLE001 - reported to the caller
             if not self._stop.is_set():
                 self.error = exc
@@ -108,7 +120,7 @@ class FoxgloveClient:
             return list(self.received.get(topic, []))
 
     def decode(self, topic: str, payload: bytes):
-        """JSON channels: a dict; protobuf channels: the message, built from the advertised schema."""
+        """JSON channels: a dict; protobuf: the message, built from the advertised schema."""
         ch = self.channels[topic]
         if ch["encoding"] == "json":
             return json.loads(payload)
@@ -136,7 +148,9 @@ def _message_class(name: str, schema_b64: str):
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if not argv:
-        print("usage: python -m subpix_ros.monitor.client ws://HOST:PORT [seconds]", file=sys.stderr)
+        print(
+            "usage: python -m subpix_ros.monitor.client ws://HOST:PORT [seconds]", file=sys.stderr
+        )
         return 2
     seconds = float(argv[1]) if len(argv) > 1 else 10.0
     c = FoxgloveClient(argv[0])
@@ -147,7 +161,10 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     for topic, ch in sorted(c.channels.items()):
         got = c.received.get(topic, [])
-        print(f"{topic:18s} {ch['schemaName']:28s} {len(got):6d} msgs {sum(r.wire for r in got) / seconds:10.0f} B/s")
+        print(
+            f"{topic:18s} {ch['schemaName']:28s} {len(got):6d} msgs "
+            f"{sum(r.wire for r in got) / seconds:10.0f} B/s"
+        )
     return 0
 
 

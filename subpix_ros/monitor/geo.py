@@ -2,6 +2,7 @@
 
 No ROS: plain numbers in, plain numbers and JSON out.
 """
+
 from __future__ import annotations
 
 import json
@@ -15,8 +16,16 @@ __all__ = ["EARTH_RADIUS_M", "footprint_lonlat", "feature_collection"]
 EARTH_RADIUS_M = 6378137.0  # WGS-84 equatorial radius: the local flat-earth step below
 
 
-def footprint_lonlat(lat_deg: float, lon_deg: float, height_m: float, heading_rad: float, width_px: int,
-                     height_px: int, focal_mm: float, pixel_um: float) -> list[tuple[float, float]]:
+def footprint_lonlat(
+    lat_deg: float,
+    lon_deg: float,
+    height_m: float,
+    heading_rad: float,
+    width_px: int,
+    height_px: int,
+    focal_mm: float,
+    pixel_um: float,
+) -> list[tuple[float, float]]:
     """Corners of a nadir frame's ground footprint, (lon, lat) degrees, closed ring.
 
     Parameters
@@ -61,8 +70,11 @@ def footprint_lonlat(lat_deg: float, lon_deg: float, height_m: float, heading_ra
     return corners
 
 
-def feature_collection(track: Sequence[tuple[float, float]], footprints: Sequence[Sequence[tuple[float, float]]],
-                       max_track_points: int = 500) -> str:
+def feature_collection(
+    track: Sequence[tuple[float, float]],
+    footprints: Sequence[Sequence[tuple[float, float]]],
+    max_track_points: int = 500,
+) -> str:
     """GeoJSON FeatureCollection: the track so far (LineString, decimated) and frame footprints.
 
     Parameters
@@ -85,9 +97,25 @@ def feature_collection(track: Sequence[tuple[float, float]], footprints: Sequenc
         pts = [pts[i] for i in idx]
     feats = []
     if len(pts) >= 2:
-        feats.append({"type": "Feature", "properties": {"name": "track"},
-                      "geometry": {"type": "LineString", "coordinates": [[round(x, 7), round(y, 7)] for x, y in pts]}})
+        feats.append(
+            {
+                "type": "Feature",
+                "properties": {"name": "track"},
+                "geometry": {
+                    "type": "LineString",
+                    "coordinates": [[round(x, 7), round(y, 7)] for x, y in pts],
+                },
+            }
+        )
     for i, ring in enumerate(footprints):
-        feats.append({"type": "Feature", "properties": {"name": f"frame {i}"},
-                      "geometry": {"type": "Polygon", "coordinates": [[[round(x, 7), round(y, 7)] for x, y in ring]]}})
+        feats.append(
+            {
+                "type": "Feature",
+                "properties": {"name": f"frame {i}"},
+                "geometry": {
+                    "type": "Polygon",
+                    "coordinates": [[[round(x, 7), round(y, 7)] for x, y in ring]],
+                },
+            }
+        )
     return json.dumps({"type": "FeatureCollection", "features": feats}, separators=(",", ":"))

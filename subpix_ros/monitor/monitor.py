@@ -12,24 +12,24 @@ Channels (``TOPICS``):
 ========================  ===================================  ==========================
 topic                     schema                               sent
 ========================  ===================================  ==========================
-``/mosaic``               foxglove.CompressedImage (JPEG)      when changed, >= mosaic_period_s apart
+``/mosaic``               foxglove.CompressedImage (JPEG)      changed, >= mosaic_period_s apart
 ``/super_resolved``       foxglove.CompressedImage (crop)      each new image, labelled
 ``/bicubic``              foxglove.CompressedImage (crop)      with it: same crop, bicubic
 ``/camera``               foxglove.CompressedImage             every camera_period_s
 ``/shift``                JSON subpix.Shift                    every shift (never throttled)
 ``/telemetry``            JSON subpix.Telemetry                every sample (never throttled)
 ``/fix``                  foxglove.LocationFix                 every fix (never throttled)
-``/footprints``           foxglove.GeoJson                     track + footprints, geo_period_s
-``/health``               JSON subpix.Health                   every health_period_s (never throttled)
+``/footprints``           foxglove.GeoJSON                     track + footprints, geo_period_s
+``/health``               JSON subpix.Health                   every health_period_s (always)
 ``/log``                  foxglove.Log                         warnings and errors (never throttled)
 ========================  ===================================  ==========================
 
 Link budget (priority order). The monitor counts the bytes each channel puts
-on the wire (frame bytes x clients subscribed). Health, log, shifts, telemetry
-and fixes always go and are charged to a token bucket of ``bandwidth_kbps``
-(at most ``burst_s`` seconds saved up). Optional messages wait for the bucket
-in strict priority: footprints, then the mosaic, then the super-resolved /
-bicubic pair, then the camera frame; a lower one goes only when no higher one
+on the wire (frame bytes x clients subscribed). Health, log, shifts, telemetry,
+fixes and the footprints (at most every ``geo_period_s``) always go and are
+charged to a token bucket of ``bandwidth_kbps`` (at most ``burst_s`` seconds
+saved up). Images wait for the bucket in strict priority: the mosaic, then the
+super-resolved / bicubic pair, then the camera frame; a lower one goes only when no higher one
 waits, or when it has waited four of its periods (at least 4 s). Each image
 stream is sized to its share of what the essentials leave (mosaic 0.45,
 super-resolved pair 0.30, camera 0.25 of it, shared among the streams fed;
@@ -49,6 +49,7 @@ Security: ``host`` 127.0.0.1 by default; any other address needs ``tls_cert``
 and ``tls_key`` (wss://) or ``allow_insecure``, else :class:`MonitorError`
 at start. No client-publish, parameter or service capability is offered.
 """
+
 from __future__ import annotations
 
 import json
@@ -74,47 +75,92 @@ __all__ = ["Monitor", "MonitorConfig", "MonitorError", "TOPICS", "LOOPBACK", "ch
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 SHIFT_SCHEMA = {
-    "title": "subpix.Shift", "type": "object",
+    "title": "subpix.Shift",
+    "type": "object",
     "properties": {
-        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}},
-        "u": {"type": "number", "description": "shift along rows, px (content moved from reference to frame)"},
+        "timestamp": {
+            "type": "object",
+            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+        },
+        "u": {
+            "type": "number",
+            "description": "shift along rows, px (content moved from reference to frame)",
+        },
         "v": {"type": "number", "description": "shift along columns, px"},
-        "u_std": {"type": ["number", "null"]}, "v_std": {"type": ["number", "null"]},
+        "u_std": {"type": ["number", "null"]},
+        "v_std": {"type": ["number", "null"]},
         "converged": {"type": "boolean"},
-        "expected_u": {"type": ["number", "null"], "description": "telemetry's expected shift, px (eq. 1)"},
+        "expected_u": {
+            "type": ["number", "null"],
+            "description": "telemetry's expected shift, px (eq. 1)",
+        },
         "expected_v": {"type": ["number", "null"]},
         "du": {"type": ["number", "null"], "description": "u - expected_u"},
         "dv": {"type": ["number", "null"], "description": "v - expected_v"},
     },
 }
 TELEMETRY_SCHEMA = {
-    "title": "subpix.Telemetry", "type": "object",
+    "title": "subpix.Telemetry",
+    "type": "object",
     "properties": {
-        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}},
+        "timestamp": {
+            "type": "object",
+            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+        },
         "frame_interval_s": {"type": ["number", "null"], "description": "METHODS eq. 1"},
-        "expected_u": {"type": ["number", "null"]}, "expected_v": {"type": ["number", "null"]},
-        "height_m": {"type": ["number", "null"]}, "speed_mps": {"type": ["number", "null"]},
+        "expected_u": {"type": ["number", "null"]},
+        "expected_v": {"type": ["number", "null"]},
+        "height_m": {"type": ["number", "null"]},
+        "speed_mps": {"type": ["number", "null"]},
     },
 }
 HEALTH_SCHEMA = {
-    "title": "subpix.Health", "type": "object",
+    "title": "subpix.Health",
+    "type": "object",
     "properties": {
-        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}},
-        "nodes": {"type": "array", "items": {"type": "object", "properties": {
-            "name": {"type": "string"}, "level": {"type": "string"}, "message": {"type": "string"},
-            "input_hz": {"type": "string"}, "output_hz": {"type": "string"}, "dropped": {"type": "string"},
-            "latency_p50_ms": {"type": "string"}, "queue_depth": {"type": "string"},
-            "last_error": {"type": "string"}}}},
-        "link": {"type": "object", "description": "the monitor's own link budget and bytes/s per channel"},
-        "values": {"type": "object", "description": "every key/value of every node, '<node>/<key>'"},
+        "timestamp": {
+            "type": "object",
+            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+        },
+        "nodes": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "name": {"type": "string"},
+                    "level": {"type": "string"},
+                    "message": {"type": "string"},
+                    "input_hz": {"type": "string"},
+                    "output_hz": {"type": "string"},
+                    "dropped": {"type": "string"},
+                    "latency_p50_ms": {"type": "string"},
+                    "queue_depth": {"type": "string"},
+                    "last_error": {"type": "string"},
+                },
+            },
+        },
+        "link": {
+            "type": "object",
+            "description": "the monitor's own link budget and bytes/s per channel",
+        },
+        "values": {
+            "type": "object",
+            "description": "every key/value of every node, '<node>/<key>'",
+        },
     },
 }
 
 TOPICS: dict[str, str] = {
-    "/mosaic": "foxglove.CompressedImage", "/super_resolved": "foxglove.CompressedImage",
-    "/bicubic": "foxglove.CompressedImage", "/camera": "foxglove.CompressedImage",
-    "/shift": "subpix.Shift", "/telemetry": "subpix.Telemetry", "/fix": "foxglove.LocationFix",
-    "/footprints": "foxglove.GeoJSON", "/health": "subpix.Health", "/log": "foxglove.Log",
+    "/mosaic": "foxglove.CompressedImage",
+    "/super_resolved": "foxglove.CompressedImage",
+    "/bicubic": "foxglove.CompressedImage",
+    "/camera": "foxglove.CompressedImage",
+    "/shift": "subpix.Shift",
+    "/telemetry": "subpix.Telemetry",
+    "/fix": "foxglove.LocationFix",
+    "/footprints": "foxglove.GeoJSON",
+    "/health": "subpix.Health",
+    "/log": "foxglove.Log",
 }
 ESSENTIAL_TOPICS = ("/shift", "/telemetry", "/fix", "/footprints", "/health", "/log")
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
@@ -173,8 +219,11 @@ def check_exposure(cfg: MonitorConfig) -> tuple[bytes | None, bytes | None]:
             pem.append(p.read_bytes())
         return pem[0], pem[1]
     if cfg.host not in LOOPBACK and not cfg.allow_insecure:
-        raise MonitorError(f"monitor: refusing to serve on {cfg.host!r} without TLS: set tls_cert and tls_key, "
-                           "or allow_insecure:=true on a trusted link, or keep host 127.0.0.1 and use an SSH tunnel")
+        raise MonitorError(
+            f"monitor: refusing to serve on {cfg.host!r} without TLS: set tls_cert and tls_key, "
+            "or allow_insecure:=true on a trusted link, or keep host 127.0.0.1 and use an SSH "
+            "tunnel"
+        )
     return None, None
 
 
@@ -211,16 +260,22 @@ def _shrink(image: np.ndarray, max_px: int) -> np.ndarray:
     s = max_px / max(h, w)
     if s >= 1.0:
         return image
-    return cv2.resize(image, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
+    return cv2.resize(
+        image, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA
+    )
 
 
 def _label(image: np.ndarray, text: str) -> np.ndarray:
-    out = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else np.ascontiguousarray(image)
+    out = (
+        cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else np.ascontiguousarray(image)
+    )
     scale = max(0.4, out.shape[1] / 900)
     th = max(1, round(scale * 2))
     (tw, tht), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, th)
     cv2.rectangle(out, (0, 0), (tw + 8, tht + base + 8), (0, 0, 0), -1)
-    cv2.putText(out, text, (4, tht + 4), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), th, cv2.LINE_AA)
+    cv2.putText(
+        out, text, (4, tht + 4), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), th, cv2.LINE_AA
+    )
     return out
 
 
@@ -313,34 +368,57 @@ class Monitor:
         if cfg.record_mcap:
             path = Path(cfg.record_mcap)
             if not path.parent.is_dir():
-                raise MonitorError(f"monitor: record_mcap directory {str(path.parent)!r} does not exist")
+                raise MonitorError(
+                    f"monitor: record_mcap directory {str(path.parent)!r} does not exist"
+                )
             self._mcap_ctx = foxglove.Context()
             self.mcap = foxglove.open_mcap(str(path), allow_overwrite=True, context=self._mcap_ctx)
             contexts.append(self._mcap_ctx)
 
         def js(schema):
-            return lambda topic, ctx: foxglove.Channel(topic, schema=schema, message_encoding="json", context=ctx)
+            return lambda topic, ctx: foxglove.Channel(
+                topic, schema=schema, message_encoding="json", context=ctx
+            )
 
         def typed(cls):
-            # the SDK's typed channel gives the schema (foxglove.<Type>, protobuf); messages are encoded
-            # once (``msg.encode()``) and the same bytes go to every context and are counted
+            # the SDK's typed channel gives the schema (foxglove.<Type>, protobuf); messages are
+            # encoded once (``msg.encode()``) and the same bytes go to every context and are
+            # counted
             schema = cls("/schema_of_" + cls.__name__, context=foxglove.Context()).schema()
-            return lambda topic, ctx: foxglove.Channel(topic, schema=schema, message_encoding="protobuf",
-                                                       context=ctx)
+            return lambda topic, ctx: foxglove.Channel(
+                topic, schema=schema, message_encoding="protobuf", context=ctx
+            )
 
-        makers = {"/mosaic": typed(CompressedImageChannel), "/super_resolved": typed(CompressedImageChannel),
-                  "/bicubic": typed(CompressedImageChannel), "/camera": typed(CompressedImageChannel),
-                  "/shift": js(SHIFT_SCHEMA), "/telemetry": js(TELEMETRY_SCHEMA),
-                  "/fix": typed(LocationFixChannel), "/footprints": typed(GeoJsonChannel),
-                  "/health": js(HEALTH_SCHEMA), "/log": typed(LogChannel)}
+        makers = {
+            "/mosaic": typed(CompressedImageChannel),
+            "/super_resolved": typed(CompressedImageChannel),
+            "/bicubic": typed(CompressedImageChannel),
+            "/camera": typed(CompressedImageChannel),
+            "/shift": js(SHIFT_SCHEMA),
+            "/telemetry": js(TELEMETRY_SCHEMA),
+            "/fix": typed(LocationFixChannel),
+            "/footprints": typed(GeoJsonChannel),
+            "/health": js(HEALTH_SCHEMA),
+            "/log": typed(LogChannel),
+        }
         self.outs = {t: _Out(t, makers[t], contexts) for t in TOPICS}
         self._by_ws_id = {o.ws_id: o for o in self.outs.values()}
         cert, key = self._tls
         try:
             self.server = foxglove.start_server(
-                name=cfg.name, host=cfg.host, port=cfg.port, capabilities=[], context=self._ws_ctx,
-                server_listener=self, message_backlog_size=int(cfg.backlog_messages), tls_cert=cert, tls_key=key)
-        except Exception as exc:  # noqa: BLE001 - one line for the operator, whatever the SDK raised
+                name=cfg.name,
+                host=cfg.host,
+                port=cfg.port,
+                capabilities=[],
+                context=self._ws_ctx,
+                server_listener=self,
+                message_backlog_size=int(cfg.backlog_messages),
+                tls_cert=cert,
+                tls_key=key,
+            )
+        except (
+            Exception
+        ) as exc:  # noqa: BLE001 - one line for the operator, whatever the SDK raised
             if self.mcap is not None:
                 self.mcap.close()
             raise MonitorError(f"monitor: cannot serve on {cfg.host}:{cfg.port}: {exc}") from exc
@@ -379,7 +457,7 @@ class Monitor:
         self.cfg.bandwidth_kbps = float(kbps)
         self.bucket.set_rate(kbps * 125.0)
 
-    # ------------------------------------------------------------------ server listener (SDK threads)
+    # ---------------------------------------------------------- server listener (SDK threads)
     def on_subscribe(self, client, channel) -> None:
         with self._lock:
             self._subs.setdefault(channel.id, set()).add(client.id)
@@ -390,6 +468,10 @@ class Monitor:
         with self._lock:
             self._subs.get(channel.id, set()).discard(client.id)
 
+    def _client_count(self) -> int:
+        with self._lock:
+            return len(set().union(*self._subs.values())) if self._subs else 0
+
     def clients(self, topic: str) -> int:
         with self._lock:
             return len(self._subs.get(self.outs[topic].ws_id, ()))
@@ -399,7 +481,9 @@ class Monitor:
         """Log ``msg`` on ``topic``; count and charge its wire bytes; return them."""
         out = self.outs[topic]
         payload = json.dumps(msg, separators=(",", ":")).encode() if isinstance(msg, dict) else msg
-        n = wire_bytes(len(payload if isinstance(payload, bytes) else payload.encode())) * self.clients(topic)
+        n = wire_bytes(
+            len(payload if isinstance(payload, bytes) else payload.encode())
+        ) * self.clients(topic)
         chans = out.channels if recorded else out.channels[:1]
         for ch in chans:
             ch.log(payload)
@@ -424,16 +508,25 @@ class Monitor:
 
     # ------------------------------------------------------------------ inputs
     def on_mosaic(self, bgr: np.ndarray, stamp_ns: int | None = None) -> None:
-        """The latest mosaic (H x W x 3 or H x W, uint8); sent when changed, >= mosaic_period_s apart."""
+        """The latest mosaic (H x W x 3 or H x W, uint8); sent when changed, every
+        mosaic_period_s at most."""
         self._put("mosaic", (_to_bgr(bgr), stamp_ns if stamp_ns is not None else time.time_ns()))
 
-    def on_super_resolved(self, sr_image: np.ndarray, bicubic_image: np.ndarray | None, stamp_ns: int,
-                          factor: int | None = None) -> None:
-        """A super-resolved image and the bicubic enlargement of its reference (same size), or None."""
+    def on_super_resolved(
+        self,
+        sr_image: np.ndarray,
+        bicubic_image: np.ndarray | None,
+        stamp_ns: int,
+        factor: int | None = None,
+    ) -> None:
+        """A super-resolved image and the bicubic enlargement of its reference (same size) or
+        None."""
         sr = _to_bgr(sr_image)
         bic = None if bicubic_image is None else _to_bgr(bicubic_image)
         if bic is not None and bic.shape[:2] != sr.shape[:2]:
-            raise ValueError(f"monitor: bicubic {bic.shape[:2]} and super-resolved {sr.shape[:2]} differ in size")
+            raise ValueError(
+                f"monitor: bicubic {bic.shape[:2]} and super-resolved {sr.shape[:2]} differ in size"
+            )
         self._put("sr", (sr, bic, stamp_ns, factor))
 
     def on_camera(self, image: np.ndarray, stamp_ns: int) -> None:
@@ -448,13 +541,31 @@ class Monitor:
             s.last_input = time.monotonic()
         self._wake.set()
 
-    def on_shift(self, stamp_ns: int, u: float, v: float, u_std: float | None = None, v_std: float | None = None,
-                 converged: bool = True, expected_u: float | None = None, expected_v: float | None = None) -> None:
-        """One shift estimate (px, rows/columns) with its standard errors and the telemetry's expectation."""
+    def on_shift(
+        self,
+        stamp_ns: int,
+        u: float,
+        v: float,
+        u_std: float | None = None,
+        v_std: float | None = None,
+        converged: bool = True,
+        expected_u: float | None = None,
+        expected_v: float | None = None,
+    ) -> None:
+        """One shift estimate (px, rows/columns), its standard errors, telemetry's expectation."""
         eu, ev = _num(expected_u), _num(expected_v)
-        msg = {"timestamp": _ts_json(stamp_ns), "u": float(u), "v": float(v), "u_std": _num(u_std),
-               "v_std": _num(v_std), "converged": bool(converged), "expected_u": eu, "expected_v": ev,
-               "du": None if eu is None else float(u) - eu, "dv": None if ev is None else float(v) - ev}
+        msg = {
+            "timestamp": _ts_json(stamp_ns),
+            "u": float(u),
+            "v": float(v),
+            "u_std": _num(u_std),
+            "v_std": _num(v_std),
+            "converged": bool(converged),
+            "expected_u": eu,
+            "expected_v": ev,
+            "du": None if eu is None else float(u) - eu,
+            "dv": None if ev is None else float(v) - ev,
+        }
         self._essential("/shift", msg)
 
     def on_telemetry(self, stamp_ns: int, **values: float | None) -> None:
@@ -467,11 +578,18 @@ class Monitor:
 
     def on_fix(self, lat: float, lon: float, alt: float, stamp_ns: int) -> None:
         """A GNSS fix (degrees, m): served as LocationFix, and added to the track."""
-        if not (math.isfinite(lat) and math.isfinite(lon) and -90 <= lat <= 90 and -180 <= lon <= 180):
+        if not (
+            math.isfinite(lat) and math.isfinite(lon) and -90 <= lat <= 90 and -180 <= lon <= 180
+        ):
             self.on_log(1, f"fix ignored: latitude {lat}, longitude {lon}")
             return
-        msg = LocationFix(timestamp=_ts(stamp_ns), frame_id="gnss", latitude=float(lat), longitude=float(lon),
-                          altitude=float(alt) if math.isfinite(alt) else 0.0)
+        msg = LocationFix(
+            timestamp=_ts(stamp_ns),
+            frame_id="gnss",
+            latitude=float(lat),
+            longitude=float(lon),
+            altitude=float(alt) if math.isfinite(alt) else 0.0,
+        )
         self._essential("/fix", msg.encode())
         with self._lock:
             if not self._track or self._track[-1] != (lon, lat):
@@ -479,14 +597,16 @@ class Monitor:
                 del self._track[:-20000]
                 self._geo_dirty = True
 
-    def on_footprint(self, corners_lonlat: Sequence[tuple[float, float]], stamp_ns: int | None = None) -> None:
+    def on_footprint(
+        self, corners_lonlat: Sequence[tuple[float, float]], stamp_ns: int | None = None
+    ) -> None:
         """A frame's ground footprint, closed (lon, lat) ring (see :func:`geo.footprint_lonlat`)."""
         ring = [(float(x), float(y)) for x, y in corners_lonlat]
         if len(ring) < 4 or not all(math.isfinite(x) and math.isfinite(y) for x, y in ring):
             raise ValueError("monitor: a footprint needs a closed ring of finite (lon, lat)")
         with self._lock:
             self._footprints.append(ring)
-            del self._footprints[:-max(1, self.cfg.max_footprints)]
+            del self._footprints[: -max(1, self.cfg.max_footprints)]
             self._geo_dirty = True
         self._wake.set()
 
@@ -502,18 +622,36 @@ class Monitor:
             msg = str(st.get("message", ""))
             with self._lock:
                 prev = self._health.get(name)
-                self._health[name] = {"level": level, "message": msg, "values": dict(st.get("values", {}))}
+                self._health[name] = {
+                    "level": level,
+                    "message": msg,
+                    "values": dict(st.get("values", {})),
+                }
             if level > 0 and (prev is None or prev["level"] < level or prev["message"] != msg):
                 self.on_log(level, msg, name=name)
 
-    def on_log(self, level: int | str, text: str, name: str = "subpix_ros", stamp_ns: int | None = None) -> None:
+    def on_log(
+        self, level: int | str, text: str, name: str = "subpix_ros", stamp_ns: int | None = None
+    ) -> None:
         """A log entry (level 0-3 as diagnostics, or debug/info/warning/error/fatal)."""
-        lv = {"debug": LogLevel.Debug, "info": LogLevel.Info, "warning": LogLevel.Warning, "warn": LogLevel.Warning,
-              "error": LogLevel.Error, "fatal": LogLevel.Fatal, 0: LogLevel.Info, 1: LogLevel.Warning,
-              2: LogLevel.Error, 3: LogLevel.Warning}.get(level.lower() if isinstance(level, str) else int(level),
-                                                          LogLevel.Unknown)
-        msg = Log(timestamp=_ts(time.time_ns() if stamp_ns is None else stamp_ns), level=lv, message=str(text),
-                  name=name)
+        lv = {
+            "debug": LogLevel.Debug,
+            "info": LogLevel.Info,
+            "warning": LogLevel.Warning,
+            "warn": LogLevel.Warning,
+            "error": LogLevel.Error,
+            "fatal": LogLevel.Fatal,
+            0: LogLevel.Info,
+            1: LogLevel.Warning,
+            2: LogLevel.Error,
+            3: LogLevel.Warning,
+        }.get(level.lower() if isinstance(level, str) else int(level), LogLevel.Unknown)
+        msg = Log(
+            timestamp=_ts(time.time_ns() if stamp_ns is None else stamp_ns),
+            level=lv,
+            message=str(text),
+            name=name,
+        )
         self._essential("/log", msg.encode())
 
     # ------------------------------------------------------------------ sender thread
@@ -543,18 +681,21 @@ class Monitor:
             stale = s.pending is not None and seq != s.pending_seq and now - s.pending_t > 0.5
             if item is not None and seq != s.sent_seq and due and (s.pending is None or stale):
                 if s.pending is None:
-                    s.pending_t = now  # waiting for the link since (kept when a newer input replaces it)
+                    s.pending_t = (
+                        now  # waiting for the link since (kept when a newer input replaces it)
+                    )
                 s.pending = self._encode_to_fit(s, item, now)
                 s.pending_seq = seq
-        # the geo layer: a small optional message, first in line
+        # the track and footprints: small, rate-limited by geo_period_s, charged like the essentials
         if self._geo_dirty and now - self._geo_sent >= self.cfg.geo_period_s:
             with self._lock:
                 text = feature_collection(self._track, self._footprints)
                 self._geo_dirty = False
             self._geo_sent = now
-            self._essential_or_wait("/footprints", GeoJson(geojson=text).encode())
+            self._essential("/footprints", GeoJson(geojson=text).encode())
+
         def order(x: _Stream) -> tuple[int, int]:
-            # strict priority, except that a stream kept waiting 4 periods (at least 4 s) goes first:
+            # strict priority, except that a stream kept waiting 4 periods (>= 4 s) goes first:
             # the camera is starved of rate and quality first, but not for ever
             period = getattr(self.cfg, x.period_attr, 0.0)
             starved = x.pending is not None and now - x.pending_t > max(4.0, 4 * period)
@@ -563,15 +704,14 @@ class Monitor:
         for s in sorted(self.streams.values(), key=order):
             if s.pending is None:
                 continue
-            n = sum(wire_bytes(len(m)) for _, m in s.pending) * max(1, max(self.clients(t) for t in s.topics))
+            n = sum(wire_bytes(len(m)) for _, m in s.pending) * max(
+                1, max(self.clients(t) for t in s.topics)
+            )
             if not self.bucket.allows(n, now):
                 break  # strict priority: nothing lower goes while this waits
             for topic, m in s.pending:
                 self._log(topic, m)
             s.pending, s.sent_seq, s.last_sent, s.sent = None, s.pending_seq, now, s.sent + 1
-
-    def _essential_or_wait(self, topic: str, payload: bytes) -> None:
-        self._essential(topic, payload)
 
     def target_bytes(self, s: _Stream, now: float) -> float:
         """Bytes one message of stream ``s`` should take: its share of what the essentials leave.
@@ -584,7 +724,9 @@ class Monitor:
         """
         essential = sum(self.outs[t].meter.rate(now) for t in ESSENTIAL_TOPICS)
         avail = max(0.1 * self.bucket.rate, self.bucket.rate - essential)
-        active = [x for x in self.streams.values() if x.item is not None and now - x.last_input < 10.0]
+        active = [
+            x for x in self.streams.values() if x.item is not None and now - x.last_input < 10.0
+        ]
         w = s.weight / max(1e-9, sum(x.weight for x in active) if s in active else s.weight)
         clients = max(1, max(self.clients(t) for t in s.topics))
         return avail * w * max(getattr(self.cfg, s.period_attr, 0.0), 1.0) / clients
@@ -607,12 +749,30 @@ class Monitor:
         lv = LEVELS[s.level]
         if s.topics == ("/mosaic",):
             img, stamp = item
-            return [("/mosaic", self._jpeg(_shrink(_to_u8(img), int(self.cfg.mosaic_max_px * lv.scale)), lv.quality,
-                                           stamp, "mosaic"))]
+            return [
+                (
+                    "/mosaic",
+                    self._jpeg(
+                        _shrink(_to_u8(img), int(self.cfg.mosaic_max_px * lv.scale)),
+                        lv.quality,
+                        stamp,
+                        "mosaic",
+                    ),
+                )
+            ]
         if s.topics == ("/camera",):
             img, stamp = item
-            return [("/camera", self._jpeg(_shrink(_to_u8(img), int(self.cfg.camera_max_px * lv.scale)), lv.quality,
-                                           stamp, "camera"))]
+            return [
+                (
+                    "/camera",
+                    self._jpeg(
+                        _shrink(_to_u8(img), int(self.cfg.camera_max_px * lv.scale)),
+                        lv.quality,
+                        stamp,
+                        "camera",
+                    ),
+                )
+            ]
         sr, bic, stamp, factor = item
         crop = max(32, int(self.cfg.sr_crop_px))
         h, w = sr.shape[:2]
@@ -621,39 +781,87 @@ class Monitor:
         f = f" x{factor}" if factor else ""
         where = f" rows {r0}-{min(h, r0 + crop)} cols {c0}-{min(w, c0 + crop)}"
         side = int(crop * lv.scale)
-        out = [("/super_resolved", self._jpeg(_label(_shrink(_to_u8(sr[win]), side), "super-resolved" + f + where),
-                                              lv.quality, stamp, "super_resolved"))]
+        out = [
+            (
+                "/super_resolved",
+                self._jpeg(
+                    _label(_shrink(_to_u8(sr[win]), side), "super-resolved" + f + where),
+                    lv.quality,
+                    stamp,
+                    "super_resolved",
+                ),
+            )
+        ]
         if bic is not None:
-            out.append(("/bicubic", self._jpeg(_label(_shrink(_to_u8(bic[win]), side), "bicubic" + f + where),
-                                               lv.quality, stamp, "super_resolved")))
+            out.append(
+                (
+                    "/bicubic",
+                    self._jpeg(
+                        _label(_shrink(_to_u8(bic[win]), side), "bicubic" + f + where),
+                        lv.quality,
+                        stamp,
+                        "super_resolved",
+                    ),
+                )
+            )
         return out
 
     @staticmethod
     def _jpeg(img: np.ndarray, quality: int, stamp_ns: int, frame_id: str) -> bytes:
-        ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(img), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+        ok, buf = cv2.imencode(
+            ".jpg", np.ascontiguousarray(img), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]
+        )
         if not ok:
             raise ValueError("JPEG encoding failed")
-        return CompressedImage(timestamp=_ts(stamp_ns), frame_id=frame_id, data=buf.tobytes(), format="jpeg").encode()
+        return CompressedImage(
+            timestamp=_ts(stamp_ns), frame_id=frame_id, data=buf.tobytes(), format="jpeg"
+        ).encode()
 
     # ------------------------------------------------------------------ health
     def link_stats(self) -> dict:
         """The budget (kbit/s), bytes/s per channel, total, and each image stream's rung."""
         per = {t: round(o.meter.rate(), 1) for t, o in self.outs.items()}
-        return {"budget_kbps": self.cfg.bandwidth_kbps, "sent_kbps": round(sum(per.values()) * 8 / 1000, 1),
-                "bytes_per_s": per,
-                "levels": {n: {"quality": LEVELS[s.level].quality, "scale": LEVELS[s.level].scale, "sent": s.sent}
-                           for n, s in self.streams.items()},
-                "clients": len(set().union(*self._subs.values())) if self._subs else 0,
-                "errors": list(self.errors[-3:])}
+        return {
+            "budget_kbps": self.cfg.bandwidth_kbps,
+            "sent_kbps": round(sum(per.values()) * 8 / 1000, 1),
+            "bytes_per_s": per,
+            "levels": {
+                n: {
+                    "quality": LEVELS[s.level].quality,
+                    "scale": LEVELS[s.level].scale,
+                    "sent": s.sent,
+                }
+                for n, s in self.streams.items()
+            },
+            "clients": self._client_count(),
+            "errors": list(self.errors[-3:]),
+        }
 
     def health_message(self) -> dict:
-        keys = {"input_hz": "input_hz", "output_hz": "output_hz", "dropped": "dropped_frames",
-                "latency_p50_ms": "latency_p50_ms", "queue_depth": "queue_depth", "last_error": "last_error"}
+        keys = {
+            "input_hz": "input_hz",
+            "output_hz": "output_hz",
+            "dropped": "dropped_frames",
+            "latency_p50_ms": "latency_p50_ms",
+            "queue_depth": "queue_depth",
+            "last_error": "last_error",
+        }
         with self._lock:
             nodes, values = [], {}
             for name, st in sorted(self._health.items()):
                 v = st["values"]
-                nodes.append({"name": name, "level": LEVEL_NAMES.get(st["level"], str(st["level"])),
-                              "message": st["message"], **{k: str(v.get(src, "")) for k, src in keys.items()}})
+                nodes.append(
+                    {
+                        "name": name,
+                        "level": LEVEL_NAMES.get(st["level"], str(st["level"])),
+                        "message": st["message"],
+                        **{k: str(v.get(src, "")) for k, src in keys.items()},
+                    }
+                )
                 values.update({f"{name}/{k}": str(x) for k, x in v.items()})
-        return {"timestamp": _ts_json(time.time_ns()), "nodes": nodes, "link": self.link_stats(), "values": values}
+        return {
+            "timestamp": _ts_json(time.time_ns()),
+            "nodes": nodes,
+            "link": self.link_stats(),
+            "values": values,
+        }

@@ -1,11 +1,19 @@
 """The monitor's plain parts: token bucket, wire bytes, footprints and GeoJSON, exposure rules."""
+
 import json
 import math
 
 import pytest
 
-from subpix_ros.monitor import (MonitorConfig, MonitorError, TokenBucket, check_exposure, feature_collection,
-                                footprint_lonlat, wire_bytes)
+from subpix_ros.monitor import (
+    MonitorConfig,
+    MonitorError,
+    TokenBucket,
+    check_exposure,
+    feature_collection,
+    footprint_lonlat,
+    wire_bytes,
+)
 from subpix_ros.monitor.geo import EARTH_RADIUS_M
 
 
@@ -34,8 +42,13 @@ def test_token_bucket_rate_burst_and_debt():
 
 
 def _metres(ring, lat0, lon0):
-    return [((lon - lon0) * math.pi / 180 * EARTH_RADIUS_M * math.cos(math.radians(lat0)),
-             (lat - lat0) * math.pi / 180 * EARTH_RADIUS_M) for lon, lat in ring]
+    return [
+        (
+            (lon - lon0) * math.pi / 180 * EARTH_RADIUS_M * math.cos(math.radians(lat0)),
+            (lat - lat0) * math.pi / 180 * EARTH_RADIUS_M,
+        )
+        for lon, lat in ring
+    ]
 
 
 def test_footprint_size_and_orientation():
@@ -44,11 +57,14 @@ def test_footprint_size_and_orientation():
     ring = footprint_lonlat(42.8, -76.7, 100.0, 0.0, 448, 300, 4.3, 3.08)
     assert ring[0] == ring[-1] and len(ring) == 5
     (x0, y0), (x1, y1), (x2, y2), _, _ = _metres(ring, 42.8, -76.7)
-    assert x1 - x0 == pytest.approx(448 * gsd, rel=1e-6) and y0 == pytest.approx(150 * gsd, rel=1e-6)
+    assert x1 - x0 == pytest.approx(448 * gsd, rel=1e-6) and y0 == pytest.approx(
+        150 * gsd, rel=1e-6
+    )
     assert y1 - y2 == pytest.approx(300 * gsd, rel=1e-6)
     # heading east: the image top points east, its left edge north
-    (x0, y0), (x1, y1), _, _, _ = _metres(footprint_lonlat(42.8, -76.7, 100.0, math.pi / 2, 448, 300, 4.3, 3.08),
-                                          42.8, -76.7)
+    (x0, y0), (x1, y1), _, _, _ = _metres(
+        footprint_lonlat(42.8, -76.7, 100.0, math.pi / 2, 448, 300, 4.3, 3.08), 42.8, -76.7
+    )
     assert x0 == pytest.approx(150 * gsd, rel=1e-6) and y0 == pytest.approx(224 * gsd, rel=1e-6)
     assert y1 == pytest.approx(-224 * gsd, rel=1e-6)
     with pytest.raises(ValueError):
@@ -61,7 +77,10 @@ def test_feature_collection_track_and_footprints():
     gj = json.loads(feature_collection(track, [ring, ring], max_track_points=100))
     line = gj["features"][0]["geometry"]
     assert line["type"] == "LineString" and len(line["coordinates"]) == 100
-    assert line["coordinates"][0] == [-76.7, 42.8] and line["coordinates"][-1] == [round(-76.7 + 1999e-5, 7), 42.8]
+    assert line["coordinates"][0] == [-76.7, 42.8] and line["coordinates"][-1] == [
+        round(-76.7 + 1999e-5, 7),
+        42.8,
+    ]
     assert [f["geometry"]["type"] for f in gj["features"][1:]] == ["Polygon", "Polygon"]
 
 

@@ -3,6 +3,7 @@
 A foxglove.sdk.v1 client (`websockets`) reads what Foxglove would; the frames are the sample
 bag's (data/bags/subpixel) and a real Seneca frame for the mosaic.
 """
+
 import json
 import ssl
 import subprocess
@@ -22,7 +23,10 @@ from subpix_ros.monitor.client import FoxgloveClient
 
 @pytest.fixture(scope="module")
 def frames(sample_bags):
-    return [cdr.cdr_to_image(m.raw)[0].copy() for m in read_messages(sample_bags / "subpixel", ["/camera/image_raw"])]
+    return [
+        cdr.cdr_to_image(m.raw)[0].copy()
+        for m in read_messages(sample_bags / "subpixel", ["/camera/image_raw"])
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +64,13 @@ class Feeder:
                 m = np.roll(self.mosaic, 7 * i, axis=1)  # a changed mosaic every 0.5 s
                 self.mon.on_mosaic(m, stamp)
             if i % 60 == 0:
-                sr = cv2.resize(self.frames[i % len(self.frames)], None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC)
+                sr = cv2.resize(
+                    self.frames[i % len(self.frames)],
+                    None,
+                    fx=2,
+                    fy=2,
+                    interpolation=cv2.INTER_CUBIC,
+                )
                 self.mon.on_super_resolved(sr, sr, stamp, 2)
                 self.mon.on_fix(42.8, -76.7 + i * 1e-6, 120.0, stamp)
             i += 1
@@ -73,8 +83,16 @@ class Feeder:
 
 @pytest.mark.parametrize("kbps", [300.0, 1200.0])
 def test_link_budget_holds_and_shifts_keep_full_rate(frames, mosaic_image, kbps):
-    mon = Monitor(MonitorConfig(port=0, bandwidth_kbps=kbps, camera_period_s=0.05, mosaic_period_s=0.5,
-                                mosaic_max_px=1024, camera_max_px=448))
+    mon = Monitor(
+        MonitorConfig(
+            port=0,
+            bandwidth_kbps=kbps,
+            camera_period_s=0.05,
+            mosaic_period_s=0.5,
+            mosaic_max_px=1024,
+            camera_max_px=448,
+        )
+    )
     try:
         client = _connect(mon.url)
         feeder = Feeder(mon, frames, mosaic_image)
@@ -85,17 +103,24 @@ def test_link_budget_holds_and_shifts_keep_full_rate(frames, mosaic_image, kbps)
         t_start = min(r.t for r in got)
         lo, hi = t_start + 4.0, t_start + 11.0  # after the start-up burst, while the feed runs
         rate = sum(r.wire for r in got if lo <= r.t < hi) / (hi - lo) * 8 / 1000
-        assert abs(rate / kbps - 1) <= 0.10, f"received {rate:.1f} kbit/s against a budget of {kbps}"
+        assert (
+            abs(rate / kbps - 1) <= 0.10
+        ), f"received {rate:.1f} kbit/s against a budget of {kbps}"
         # every shift fed arrived (never throttled), none lost
-        served = {client.decode("/shift", r.payload)["timestamp"]["nsec"] + 10**9 *
-                  client.decode("/shift", r.payload)["timestamp"]["sec"] for r in client.messages("/shift")}
+        served = {
+            client.decode("/shift", r.payload)["timestamp"]["nsec"]
+            + 10**9 * client.decode("/shift", r.payload)["timestamp"]["sec"]
+            for r in client.messages("/shift")
+        }
         fed = {s for _, s in feeder.shifts}
         assert fed == served, f"{len(fed - served)} of {len(fed)} shifts not served"
         stats = mon.link_stats()
         shift_times = [r.t for r in client.messages("/shift") if lo <= r.t < hi]
         assert len(shift_times) >= 0.95 * 30 * (hi - lo)
         # the images degraded (the camera first), the mosaic still went
-        assert stats["levels"]["camera"]["quality"] < 85 or stats["levels"]["camera"]["scale"] < 1, stats
+        assert (
+            stats["levels"]["camera"]["quality"] < 85 or stats["levels"]["camera"]["scale"] < 1
+        ), stats
         assert len(client.messages("/mosaic")) >= 2
         client.close()
     finally:
@@ -105,14 +130,18 @@ def test_link_budget_holds_and_shifts_keep_full_rate(frames, mosaic_image, kbps)
 def test_stalled_client_does_not_hold_back_the_others(frames, mosaic_image):
     import socket
 
-    mon = Monitor(MonitorConfig(port=0, bandwidth_kbps=4000, backlog_messages=16, camera_period_s=0.1))
+    mon = Monitor(
+        MonitorConfig(port=0, bandwidth_kbps=4000, backlog_messages=16, camera_period_s=0.1)
+    )
     try:
         # a client that handshakes, subscribes to everything, and then never reads
         stalled = socket.create_connection(("127.0.0.1", mon.port))
         stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-        stalled.sendall(b"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                        b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n"
-                        b"Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n")
+        stalled.sendall(
+            b"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+            b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n"
+            b"Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+        )
         good = _connect(mon.url)
         feeder = Feeder(mon, frames, mosaic_image)
         time.sleep(6.0)
@@ -133,7 +162,9 @@ def test_exposed_host_needs_tls_or_allow_insecure(tmp_path):
     with pytest.raises(MonitorError, match="set together"):
         Monitor(MonitorConfig(port=0, tls_cert=str(tmp_path / "c.pem")))
     with pytest.raises(MonitorError, match="not a readable file"):
-        Monitor(MonitorConfig(port=0, tls_cert=str(tmp_path / "c.pem"), tls_key=str(tmp_path / "k.pem")))
+        Monitor(
+            MonitorConfig(port=0, tls_cert=str(tmp_path / "c.pem"), tls_key=str(tmp_path / "k.pem"))
+        )
     with Monitor(MonitorConfig(host="0.0.0.0", port=0, allow_insecure=True)) as mon:
         c = _connect(f"ws://127.0.0.1:{mon.port}")
         assert c.server_info["capabilities"] == []
@@ -142,10 +173,31 @@ def test_exposed_host_needs_tls_or_allow_insecure(tmp_path):
 
 def test_tls_serves_wss_only(tmp_path):
     cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
-    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out", str(cert),
-                    "-days", "1", "-subj", "/CN=localhost", "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1"],
-                   check=True, capture_output=True)
-    with Monitor(MonitorConfig(host="0.0.0.0", port=0, tls_cert=str(cert), tls_key=str(key))) as mon:
+    subprocess.run(
+        [
+            "openssl",
+            "req",
+            "-x509",
+            "-newkey",
+            "rsa:2048",
+            "-nodes",
+            "-keyout",
+            str(key),
+            "-out",
+            str(cert),
+            "-days",
+            "1",
+            "-subj",
+            "/CN=localhost",
+            "-addext",
+            "subjectAltName=DNS:localhost,IP:127.0.0.1",
+        ],
+        check=True,
+        capture_output=True,
+    )
+    with Monitor(
+        MonitorConfig(host="0.0.0.0", port=0, tls_cert=str(cert), tls_key=str(key))
+    ) as mon:
         assert mon.url.startswith("wss://")
         ctx = ssl.create_default_context(cafile=str(cert))
         c = _connect(f"wss://127.0.0.1:{mon.port}", ssl_context=ctx)
@@ -161,23 +213,32 @@ def test_everything_served_is_recorded_to_mcap(tmp_path, frames, mosaic_image):
     from mcap.reader import make_reader
 
     path = tmp_path / "flight.mcap"
-    with Monitor(MonitorConfig(port=0, record_mcap=str(path), camera_period_s=0.1, mosaic_period_s=1.0)) as mon:
+    with Monitor(
+        MonitorConfig(port=0, record_mcap=str(path), camera_period_s=0.1, mosaic_period_s=1.0)
+    ) as mon:
         c = _connect(mon.url)
         feeder = Feeder(mon, frames, mosaic_image)
         time.sleep(4.0)
         feeder.stop()
-        mon.set_bandwidth_kbps(1e6)  # what still waits for the link goes now: the client sees it too
-        time.sleep(1.0)
+        mon.set_bandwidth_kbps(1e6)  # what still waits for the link goes now: the client sees it
+        deadline = time.monotonic() + 5.0  # every stream's last input sent (after its period)
+        while time.monotonic() < deadline and any(x.sent_seq != x.seq for x in mon.streams.values()):
+            time.sleep(0.05)
+        time.sleep(0.5)
         served = {t: [r.payload for r in c.messages(t)] for t in TOPICS}
         c.close()
     with open(path, "rb") as f:
         reader = make_reader(f)
-        schemas = {ch.topic: reader.get_summary().schemas[ch.schema_id].name
-                   for ch in reader.get_summary().channels.values()}
+        schemas = {
+            ch.topic: reader.get_summary().schemas[ch.schema_id].name
+            for ch in reader.get_summary().channels.values()
+        }
         recorded = {}
         for _, channel, message in reader.iter_messages():
             recorded.setdefault(channel.topic, []).append(message.data)
-    assert schemas == {t: TOPICS[t] for t in recorded}  # a channel is written with its first message
+    assert schemas == {
+        t: TOPICS[t] for t in recorded
+    }  # a channel is written with its first message
     for topic in ("/shift", "/camera", "/mosaic", "/fix", "/super_resolved", "/bicubic"):
         assert served[topic], topic
         assert recorded[topic] == served[topic], topic
@@ -202,7 +263,9 @@ def test_layout_panels_use_advertised_topics():
         return out
 
     used = {t for cfg in panels.values() for t in topics_of(cfg)}
-    assert used <= set(TOPICS), f"panels refer to topics the monitor does not advertise: {used - set(TOPICS)}"
+    assert used <= set(
+        TOPICS
+    ), f"panels refer to topics the monitor does not advertise: {used - set(TOPICS)}"
     assert {"/mosaic", "/super_resolved", "/bicubic", "/shift", "/fix", "/health"} <= used
 
     def leaves(node):
@@ -214,6 +277,8 @@ def test_layout_panels_use_advertised_topics():
 
     schema = {"/shift": SHIFT_SCHEMA, "/telemetry": TELEMETRY_SCHEMA, "/health": HEALTH_SCHEMA}
     for cfg in panels.values():
-        for path in [p["value"] for p in cfg.get("paths", [])] + ([cfg["topicPath"]] if "topicPath" in cfg else []):
+        for path in [p["value"] for p in cfg.get("paths", [])] + (
+            [cfg["topicPath"]] if "topicPath" in cfg else []
+        ):
             topic, field = path.split(".", 1)
             assert field in schema[topic]["properties"], path

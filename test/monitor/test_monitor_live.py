@@ -1,10 +1,11 @@
-"""monitor_node over real sockets: the sample flight replayed through the nodes, each its own process.
+"""monitor_node over real sockets: the sample flight replayed through the nodes.
 
 `subpix replay` -> registration/shift/reconstruction/mosaic nodes -> monitor_node, every one a
 separate process on real DDS; a foxglove.sdk.v1 WebSocket client (the `websockets` package)
 reads what the operator's Foxglove would, and this test process listens to `/shift` over rclpy
 to check the served shifts against the topic.
 """
+
 import json
 import os
 import signal
@@ -37,7 +38,15 @@ def free_port() -> int:
 
 
 def _node(name, *extra):
-    cmd = [sys.executable, "-m", f"subpix_ros.nodes.{name}", "--ros-args", "--params-file", PARAMS, *extra]
+    cmd = [
+        sys.executable,
+        "-m",
+        f"subpix_ros.nodes.{name}",
+        "--ros-args",
+        "--params-file",
+        PARAMS,
+        *extra,
+    ]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
@@ -60,15 +69,34 @@ def flight(sample_bags):
         _node("shift_node"),
         _node("reconstruction_node"),
         _node("mosaic_node", "-r", cam),
-        _node("monitor_node", "-r", cam, "-p", f"port:={port}", "-p", "mosaic_period_s:=0.5",
-              "-p", "camera_period_s:=0.5"),
+        _node(
+            "monitor_node",
+            "-r",
+            cam,
+            "-p",
+            f"port:={port}",
+            "-p",
+            "mosaic_period_s:=0.5",
+            "-p",
+            "camera_period_s:=0.5",
+        ),
     ]
     rclpy.init()
     node = rclpy.create_node("monitor_test")
     shifts = {}
-    node.create_subscription(Vector3Stamped, "/shift", lambda r: shifts.update(
-        {cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]): cdr.cdr_to_vector3_stamped(r)[0][:2]}),
-        reliable_qos(100), raw=True)
+    node.create_subscription(
+        Vector3Stamped,
+        "/shift",
+        lambda r: shifts.update(
+            {
+                cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]): cdr.cdr_to_vector3_stamped(r)[
+                    0
+                ][:2]
+            }
+        ),
+        reliable_qos(100),
+        raw=True,
+    )
     try:
         yield port, procs, node, shifts
     finally:
@@ -97,8 +125,18 @@ def test_monitor_serves_the_flight(flight, sample_bags):
 
     assert _spin(node, lambda: node.count_publishers("/shift") > 0, 30, procs)
     _spin(node, lambda: False, 1.0, procs)
-    replay = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--rate", "0.5",
-                                         "--wait-for", "/camera/image_raw", "--wait-timeout", "60"))
+    replay = subprocess.Popen(
+        subpix_cmd(
+            "replay",
+            str(sample_bags / "subpixel"),
+            "--rate",
+            "0.5",
+            "--wait-for",
+            "/camera/image_raw",
+            "--wait-timeout",
+            "60",
+        )
+    )
     assert _spin(node, lambda: replay.poll() is not None, 120, procs) and replay.returncode == 0
     _spin(node, lambda: len(shifts) >= 21 and len(a.messages("/shift")) >= len(shifts), 30, procs)
 
@@ -108,7 +146,9 @@ def test_monitor_serves_the_flight(flight, sample_bags):
         d = a.decode("/shift", r.payload)
         served[d["timestamp"]["sec"] * 10**9 + d["timestamp"]["nsec"]] = (d["u"], d["v"])
     common = set(served) & set(shifts)
-    assert len(common) >= 15, f"{len(served)} served, {len(shifts)} on /shift, {len(common)} in both"
+    assert (
+        len(common) >= 15
+    ), f"{len(served)} served, {len(shifts)} on /shift, {len(common)} in both"
     for s in common:
         np.testing.assert_allclose(served[s], shifts[s], atol=1e-12)
 
@@ -120,8 +160,10 @@ def test_monitor_serves_the_flight(flight, sample_bags):
     assert img is not None and min(img.shape[:2]) >= 64
 
     # a LocationFix from the bag's telemetry
-    fixes = [cdr.deserialize(x.raw, "sensor_msgs/msg/NavSatFix")
-             for x in read_messages(sample_bags / "subpixel", ["/telemetry/fix"])]
+    fixes = [
+        cdr.deserialize(x.raw, "sensor_msgs/msg/NavSatFix")
+        for x in read_messages(sample_bags / "subpixel", ["/telemetry/fix"])
+    ]
     assert a.wait(lambda: a.messages("/fix"), 10)
     f = a.decode("/fix", a.messages("/fix")[-1].payload)
     assert min(abs(f.latitude - x.latitude) + abs(f.longitude - x.longitude) for x in fixes) < 1e-9
@@ -129,8 +171,14 @@ def test_monitor_serves_the_flight(flight, sample_bags):
     # the super-resolved crop and its bicubic twin
     assert a.wait(lambda: a.messages("/super_resolved") and a.messages("/bicubic"), 20)
     # health: a row per pipeline node, from their /diagnostics
-    assert a.wait(lambda: any({"registration_node", "shift_node", "mosaic_node"} <= {
-        n["name"] for n in a.decode("/health", r.payload)["nodes"]} for r in a.messages("/health")), 10)
+    assert a.wait(
+        lambda: any(
+            {"registration_node", "shift_node", "mosaic_node"}
+            <= {n["name"] for n in a.decode("/health", r.payload)["nodes"]}
+            for r in a.messages("/health")
+        ),
+        10,
+    )
 
     # a second client, later, gets the latest mosaic at once
     last_mosaic = a.messages("/mosaic")[-1].payload
@@ -141,8 +189,11 @@ def test_monitor_serves_the_flight(flight, sample_bags):
     assert b.messages("/mosaic")[0].payload == last_mosaic
 
     # a client killed (no close handshake) disturbs neither the others nor the pipeline
-    killed = subprocess.Popen([sys.executable, "-m", "subpix_ros.monitor.client", url, "60"],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    killed = subprocess.Popen(
+        [sys.executable, "-m", "subpix_ros.monitor.client", url, "60"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
     time.sleep(2.0)
     killed.send_signal(signal.SIGKILL)
     killed.wait()
@@ -158,8 +209,21 @@ def test_monitor_serves_the_flight(flight, sample_bags):
 
 def test_monitor_node_refuses_an_exposed_host_without_tls():
     port = free_port()
-    p = subprocess.run([sys.executable, "-m", "subpix_ros.nodes.monitor_node", "--ros-args", "-p", "host:=0.0.0.0",
-                        "-p", f"port:={port}"], capture_output=True, text=True, timeout=60)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "subpix_ros.nodes.monitor_node",
+            "--ros-args",
+            "-p",
+            "host:=0.0.0.0",
+            "-p",
+            f"port:={port}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert p.returncode == 2
     lines = [line for line in p.stderr.splitlines() if line.strip()]
     assert lines and "refusing to serve on '0.0.0.0' without TLS" in lines[-1], p.stderr
@@ -168,18 +232,43 @@ def test_monitor_node_refuses_an_exposed_host_without_tls():
 
 
 def test_pipeline_with_monitor_serves_shifts_with_their_errors(sample_bags):
-    """`pipeline --monitor`: the monitor fed in memory; shifts carry the estimator's standard errors."""
+    """`pipeline --monitor`: the monitor fed in memory; shifts carry their standard errors."""
     port = free_port()
-    pipe = subprocess.Popen([sys.executable, "-m", "subpix_ros.nodes.pipeline", "--no-telemetry", "--monitor",
-                             "--ros-args", "--params-file", PARAMS, "-r", "image:=/camera/image_raw",
-                             "-p", f"monitor_node:port:={port}"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    pipe = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "subpix_ros.nodes.pipeline",
+            "--no-telemetry",
+            "--monitor",
+            "--ros-args",
+            "--params-file",
+            PARAMS,
+            "-r",
+            "image:=/camera/image_raw",
+            "-p",
+            f"monitor_node:port:={port}",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     rclpy.init()
     node = rclpy.create_node("monitor_pipeline_test")
     shifts = {}
-    node.create_subscription(Vector3Stamped, "/shift", lambda r: shifts.update(
-        {cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]): cdr.cdr_to_vector3_stamped(r)[0][:2]}),
-        reliable_qos(100), raw=True)
+    node.create_subscription(
+        Vector3Stamped,
+        "/shift",
+        lambda r: shifts.update(
+            {
+                cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]): cdr.cdr_to_vector3_stamped(r)[
+                    0
+                ][:2]
+            }
+        ),
+        reliable_qos(100),
+        raw=True,
+    )
     a = None
     try:
         deadline = time.monotonic() + 30
@@ -191,10 +280,24 @@ def test_pipeline_with_monitor_serves_shifts_with_their_errors(sample_bags):
             assert pipe.poll() is None, pipe.stdout.read()
         assert _spin(node, lambda: node.count_publishers("/shift") > 0, 30, [pipe])
         _spin(node, lambda: False, 1.0, [pipe])
-        replay = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--rate", "0.5",
-                                             "--wait-for", "/camera/image_raw", "--wait-timeout", "60"))
-        assert _spin(node, lambda: replay.poll() is not None, 120, [pipe]) and replay.returncode == 0
-        _spin(node, lambda: len(shifts) >= 21 and len(a.messages("/shift")) >= len(shifts), 30, [pipe])
+        replay = subprocess.Popen(
+            subpix_cmd(
+                "replay",
+                str(sample_bags / "subpixel"),
+                "--rate",
+                "0.5",
+                "--wait-for",
+                "/camera/image_raw",
+                "--wait-timeout",
+                "60",
+            )
+        )
+        assert (
+            _spin(node, lambda: replay.poll() is not None, 120, [pipe]) and replay.returncode == 0
+        )
+        _spin(
+            node, lambda: len(shifts) >= 21 and len(a.messages("/shift")) >= len(shifts), 30, [pipe]
+        )
         served = {}
         for r in a.messages("/shift"):
             d = a.decode("/shift", r.payload)
@@ -202,8 +305,14 @@ def test_pipeline_with_monitor_serves_shifts_with_their_errors(sample_bags):
         assert len(set(served) & set(shifts)) >= 15
         for s in set(served) & set(shifts):
             np.testing.assert_allclose((served[s]["u"], served[s]["v"]), shifts[s], atol=1e-12)
-            assert 0 < served[s]["u_std"] <= 0.1 and 0 < served[s]["v_std"] <= 0.1  # shift_node's max_std_px
-        assert a.wait(lambda: a.messages("/super_resolved") and a.messages("/camera") and a.messages("/mosaic"), 20)
+            # within shift_node's max_std_px
+            assert 0 < served[s]["u_std"] <= 0.1 and 0 < served[s]["v_std"] <= 0.1
+        assert a.wait(
+            lambda: a.messages("/super_resolved")
+            and a.messages("/camera")
+            and a.messages("/mosaic"),
+            20,
+        )
         sr = a.decode("/super_resolved", a.messages("/super_resolved")[-1].payload)
         assert cv2.imdecode(np.frombuffer(sr.data, np.uint8), cv2.IMREAD_COLOR) is not None
     finally:

@@ -1,4 +1,5 @@
 """monitor_node in this process over real DDS and a real socket: bad input, parameters."""
+
 import math
 import socket
 import time
@@ -31,7 +32,9 @@ def served():
 
     rclpy.init()
     port = _free_port()
-    node = MonitorNode(parameter_overrides=[Parameter("port", value=port), Parameter("bandwidth_kbps", value=1.0)])
+    node = MonitorNode(
+        parameter_overrides=[Parameter("port", value=port), Parameter("bandwidth_kbps", value=1.0)]
+    )
     h = rclpy.create_node("harness")
     ex = SingleThreadedExecutor()
     ex.add_node(node)
@@ -63,27 +66,55 @@ def test_bad_input_is_reported_and_the_node_keeps_serving(served):
     pubs = {
         "image": h.create_publisher(Image, "image", camera_qos(False)),
         "super_resolved": h.create_publisher(Image, "super_resolved", latched_qos()),
-        "mosaic/compressed": h.create_publisher(CompressedImage, "mosaic/compressed", latched_qos()),
+        "mosaic/compressed": h.create_publisher(
+            CompressedImage, "mosaic/compressed", latched_qos()
+        ),
         "shift": h.create_publisher(Vector3Stamped, "shift", reliable_qos(20)),
         "telemetry/fix": h.create_publisher(NavSatFix, "telemetry/fix", 10),
     }
     diag = []
-    h.create_subscription(DiagnosticArray, "/diagnostics",
-                          lambda m: diag.extend(s for s in m.status if s.name == "monitor_node"), 10)
-    assert _spin(ex, lambda: all(p.get_subscription_count() for p in pubs.values()) and len(client.channels) == 10, 10)
+    h.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: diag.extend(s for s in m.status if s.name == "monitor_node"),
+        10,
+    )
+    assert _spin(
+        ex,
+        lambda: all(p.get_subscription_count() for p in pubs.values())
+        and len(client.channels) == 10,
+        10,
+    )
     T = cdr.TYPESTORE.types
-    bad = T["sensor_msgs/msg/Image"](header=cdr.make_header(T0, "cam"), height=64, width=64, encoding="mono_8",
-                                     is_bigendian=0, step=64, data=np.zeros(64 * 64, np.uint8))
+    bad = T["sensor_msgs/msg/Image"](
+        header=cdr.make_header(T0, "cam"),
+        height=64,
+        width=64,
+        encoding="mono_8",
+        is_bigendian=0,
+        step=64,
+        data=np.zeros(64 * 64, np.uint8),
+    )
     pubs["image"].publish(cdr.serialize(bad, "sensor_msgs/msg/Image"))
-    pubs["super_resolved"].publish(cdr.image_to_cdr(np.zeros((64, 64), np.uint8), "mono8", T0, "sr")[:40])  # truncated
-    pubs["mosaic/compressed"].publish(cdr.serialize(T["sensor_msgs/msg/CompressedImage"](
-        header=cdr.make_header(T0, "m"), format="jpeg", data=np.frombuffer(b"not a jpeg", np.uint8)),
-        "sensor_msgs/msg/CompressedImage"))
+    truncated = cdr.image_to_cdr(np.zeros((64, 64), np.uint8), "mono8", T0, "sr")[:40]
+    pubs["super_resolved"].publish(truncated)
+    pubs["mosaic/compressed"].publish(
+        cdr.serialize(
+            T["sensor_msgs/msg/CompressedImage"](
+                header=cdr.make_header(T0, "m"),
+                format="jpeg",
+                data=np.frombuffer(b"not a jpeg", np.uint8),
+            ),
+            "sensor_msgs/msg/CompressedImage",
+        )
+    )
     fix = NavSatFix()
     fix.latitude, fix.longitude = math.nan, 10.0
     pubs["telemetry/fix"].publish(fix)
     pubs["shift"].publish(cdr.vector3_stamped_to_cdr((0.25, -0.5, 0.0), T0 + 5))
-    assert _spin(ex, lambda: len(client.messages("/log")) >= 3 and client.messages("/shift"), 10), client.received
+    assert _spin(
+        ex, lambda: len(client.messages("/log")) >= 3 and client.messages("/shift"), 10
+    ), client.received
     logs = [client.decode("/log", r.payload) for r in client.messages("/log")]
     text = " | ".join(x.message for x in logs)
     for topic in ("_on_camera", "_on_sr", "_on_mosaic_c"):

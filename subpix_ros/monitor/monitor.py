@@ -680,10 +680,8 @@ class Monitor:
             due = now - s.last_sent >= getattr(self.cfg, s.period_attr, 0.0)
             stale = s.pending is not None and seq != s.pending_seq and now - s.pending_t > 0.5
             if item is not None and seq != s.sent_seq and due and (s.pending is None or stale):
-                if s.pending is None:
-                    s.pending_t = (
-                        now  # waiting for the link since (kept when a newer input replaces it)
-                    )
+                if s.pending is None:  # waiting for the link since (kept when replaced by a newer)
+                    s.pending_t = now
                 s.pending = self._encode_to_fit(s, item, now)
                 s.pending_seq = seq
         # the track and footprints: small, rate-limited by geo_period_s, charged like the essentials

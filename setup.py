@@ -11,6 +11,7 @@ NODES = {
     "reconstruction_node": "subpix_ros.nodes.reconstruction_node:main",
     "mosaic_node": "subpix_ros.nodes.mosaic_node:main",
     "pipeline": "subpix_ros.nodes.pipeline:main",
+    "monitor_node": "subpix_ros.nodes.monitor_node:main",
 }
 
 setup(
@@ -20,14 +21,15 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
-        ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/config", glob("config/*.yaml") + ["config/foxglove_layout.json"]),
         # the bundled real sample data (CC0), so an installed package finds it (subpix_ros.data)
         ("share/" + package_name + "/data/seneca", glob("data/seneca/*.*")),
         ("share/" + package_name + "/data/crops", glob("data/crops/*.*")),
     ],
     # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in
     # a venv, from requirements.txt: never from install_requires.
-    install_requires=["setuptools", "numpy", "opencv-python-headless", "pymavlink", "pyserial", "rosbags", "PyYAML"],
+    install_requires=["setuptools", "numpy", "opencv-python-headless", "pymavlink", "pyserial", "rosbags", "PyYAML",
+                      "foxglove-sdk"],
     zip_safe=True,
     maintainer="subpix_ros developers",
     maintainer_email="dev@subpix-ros.org",

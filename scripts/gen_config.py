@@ -15,6 +15,7 @@ NODES = {
     "shift_node": "subpix_ros.nodes.shift_node:ShiftNode",
     "reconstruction_node": "subpix_ros.nodes.reconstruction_node:ReconstructionNode",
     "mosaic_node": "subpix_ros.nodes.mosaic_node:MosaicNode",
+    "monitor_node": "subpix_ros.nodes.monitor_node:MonitorNode",
 }
 
 

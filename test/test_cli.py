@@ -33,6 +33,6 @@ def test_console_scripts_point_at_real_mains():
     setup = (Path(__file__).resolve().parents[1] / "setup.py").read_text()
     targets = re.findall(r'"(\w+)": "([\w.]+):main"', setup)
     assert {t for t, _ in targets} == {"telemetry_node", "registration_node", "shift_node", "reconstruction_node",
-                                       "mosaic_node", "pipeline"}
+                                       "mosaic_node", "pipeline", "monitor_node"}
     for _, module in targets:
         assert callable(importlib.import_module(module).main)

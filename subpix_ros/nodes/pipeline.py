@@ -11,7 +11,9 @@ Parameters are per stage, as for the separate nodes (node names
 ``telemetry_node``, ``registration_node``, ``shift_node``,
 ``reconstruction_node``, ``mosaic_node``), so one params file serves both
 layouts. ``--no-telemetry`` leaves the telemetry stage out (e.g. when the
-telemetry comes from a bag).
+telemetry comes from a bag). ``--monitor`` adds ``monitor_node`` (live
+Foxglove view), fed the camera frames, shifts (with their standard errors)
+and super-resolved images in memory.
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ from typing import Sequence
 from subpix_ros.nodes.common import run_nodes
 
 
-def build(with_telemetry: bool = True):
+def build(with_telemetry: bool = True, with_monitor: bool = False):
     """Create and wire the stages; returns the list of nodes (rclpy must be initialised)."""
     from subpix_ros.nodes.mosaic_node import MosaicNode
     from subpix_ros.nodes.reconstruction_node import ReconstructionNode
@@ -36,6 +38,20 @@ def build(with_telemetry: bool = True):
     reg.listen("aligned", shift.handle_aligned)
     shift.listen("shift", recon.handle_shift)
     nodes = [reg, shift, recon, mosaic]
+    if with_monitor:
+        from subpix_ros.nodes.monitor_node import MonitorNode
+
+        mon = MonitorNode(subscribe_inputs=False)
+        camera = reg.handle_frame
+
+        def fan_out_monitor(frame):
+            camera(frame)
+            mon.handle_frame(frame)
+
+        reg.handle_frame = fan_out_monitor  # type: ignore[method-assign]
+        shift.listen("shift", mon.handle_shift)
+        recon.listen("super_resolved", mon.handle_super_resolved)
+        nodes.append(mon)
     if with_telemetry:
         from subpix_ros.nodes.telemetry_node import TelemetryNode
 
@@ -48,18 +64,27 @@ def build(with_telemetry: bool = True):
 def main(args: Sequence[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
     with_telemetry = "--no-telemetry" not in argv
-    argv = [a for a in argv if a != "--no-telemetry"]
+    with_monitor = "--monitor" in argv
+    argv = [a for a in argv if a not in ("--no-telemetry", "--monitor")]
     nodes: list = []
 
     def factory(i):
         def make():
             if not nodes:
-                nodes.extend(build(with_telemetry))
+                nodes.extend(build(with_telemetry, with_monitor))
             return nodes[i]
         return make
 
-    count = 5 if with_telemetry else 4
-    return run_nodes([factory(i) for i in range(count)], argv, threads=max(4, count))
+    count = (5 if with_telemetry else 4) + (1 if with_monitor else 0)
+    try:
+        return run_nodes([factory(i) for i in range(count)], argv, threads=max(4, count))
+    except Exception as exc:
+        from subpix_ros.monitor import MonitorError
+
+        if not isinstance(exc, MonitorError):
+            raise
+        print(str(exc), file=sys.stderr)  # the monitor's exposure rules: one line, exit status 2
+        return 2
 
 
 if __name__ == "__main__":

@@ -1,0 +1,422 @@
+"""monitor_node: the flight served live to Foxglove.
+
+A thin rclpy adapter of :class:`subpix_ros.monitor.Monitor`.
+
+Subscribes ``mosaic/compressed`` (or ``mosaic`` with ``mosaic_compressed:=false``),
+``super_resolved`` with ``aligned/reference`` (for the bicubic beside it),
+``image`` (kept, sent every ``camera_period_s``), ``shift``,
+``telemetry/expected_shift``, ``telemetry/frame_interval``, ``telemetry/fix``,
+``telemetry/height``, ``telemetry/velocity`` and ``/diagnostics``, and feeds the
+monitor, which serves one Foxglove WebSocket server (``ws://host:port``) within
+``bandwidth_kbps``. The server refuses to start on a non-loopback ``host``
+without ``tls_cert``/``tls_key`` or ``allow_insecure:=true``: the node then
+exits with that one line.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import threading
+
+import cv2
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import TwistStamped, Vector3Stamped
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CompressedImage, Image, NavSatFix
+from std_msgs.msg import Float64
+
+from subpix_ros.io import cdr
+from subpix_ros.monitor import Monitor, MonitorConfig, MonitorError
+from subpix_ros.monitor.geo import footprint_lonlat
+from subpix_ros.nodes.base import StageNode
+from subpix_ros.nodes.common import (
+    Param,
+    camera_qos,
+    latched_qos,
+    reliable_qos,
+    run_nodes,
+    stamp_to_ns,
+)
+
+# the parameters that are the Monitor's own settings (MonitorConfig fields of the same names)
+_MONITOR_PARAMS = (
+    Param(
+        "host",
+        "127.0.0.1",
+        "address the WebSocket server binds to; anything but loopback needs TLS or "
+        "allow_insecure",
+        read_only=True,
+    ),
+    Param("port", 8765, "WebSocket port (0: any free port, logged)", 0, 65535, read_only=True),
+    Param("tls_cert", "", "PEM certificate file: serve wss:// (with tls_key)", read_only=True),
+    Param("tls_key", "", "PEM PKCS#8 private key file matching tls_cert", read_only=True),
+    Param(
+        "allow_insecure",
+        False,
+        "serve plain ws:// on a non-loopback host (a trusted link only)",
+        read_only=True,
+    ),
+    Param(
+        "bandwidth_kbps",
+        2000.0,
+        "link budget (kbit/s) for everything served; images degrade to fit it",
+        8.0,
+        1000000.0,
+    ),
+    Param(
+        "burst_s",
+        0.5,
+        "largest burst above the budget, seconds of budget",
+        0.05,
+        10.0,
+        read_only=True,
+    ),
+    Param(
+        "backlog_messages",
+        64,
+        "messages queued per client before the oldest is dropped (stalled clients)",
+        4,
+        4096,
+        read_only=True,
+    ),
+    Param(
+        "mosaic_max_px", 1024, "largest side of the mosaic sent (px), before degradation", 64, 8192
+    ),
+    Param(
+        "mosaic_period_s",
+        2.0,
+        "the mosaic is sent when it changes, at most this often (s)",
+        0.1,
+        600.0,
+    ),
+    Param("sr_crop_px", 512, "side of the super-resolved / bicubic crops (output px)", 32, 8192),
+    Param(
+        "camera_max_px",
+        640,
+        "largest side of the camera frame sent (px), before degradation",
+        32,
+        8192,
+    ),
+    Param("camera_period_s", 1.0, "the newest camera frame is sent this often (s)", 0.05, 600.0),
+    Param("geo_period_s", 2.0, "track and footprints (GeoJSON) at most this often (s)", 0.1, 600.0),
+    Param("health_period_s", 1.0, "health table period (s)", 0.1, 60.0),
+    Param("max_footprints", 30, "frame footprints kept on the map", 0, 10000),
+    Param(
+        "record_mcap",
+        "",
+        "write everything served to this MCAP file (empty: no recording)",
+        read_only=True,
+    ),
+)
+
+
+class MonitorNode(StageNode):
+    PARAMS = _MONITOR_PARAMS + (
+        Param(
+            "mosaic_compressed",
+            True,
+            "subscribe to mosaic/compressed (JPEG) instead of mosaic (raw)",
+            read_only=True,
+        ),
+        Param(
+            "camera_reliable",
+            False,
+            "subscribe to the camera with reliable QoS instead of SensorDataQoS",
+        ),
+        Param("focal_length_mm", 4.3, "camera focal length (mm), for the footprints", 0.1, 2000.0),
+        Param(
+            "pixel_pitch_um",
+            1.54,
+            "detector pixel pitch of the images as published (um)",
+            0.1,
+            100.0,
+        ),
+        Param(
+            "camera_yaw_offset_deg",
+            0.0,
+            "compass angle of the image top relative to the course (deg)",
+            -180.0,
+            180.0,
+        ),
+    )
+
+    def __init__(self, *, subscribe_inputs: bool = True, name: str = "monitor_node", **kw) -> None:
+        super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
+        cfg = MonitorConfig.from_mapping({p: self.p(p) for p in (q.name for q in _MONITOR_PARAMS)})
+        # MonitorError (exposure, port in use) ends the process in main()
+        self.monitor = Monitor(cfg)
+        self.get_logger().info(
+            f"serving Foxglove on {self.monitor.url} within {cfg.bandwidth_kbps:g} kbit/s"
+            + (f", recording {cfg.record_mcap}" if cfg.record_mcap else "")
+        )
+        self._lock = threading.Lock()
+        # reference stamp -> image, for the bicubic beside the SR image
+        self._refs: dict[int, object] = {}
+        self._expected: tuple[float, float] | None = None
+        self._height: float | None = None
+        self._course: float | None = None
+        self._fix: tuple[float, float] | None = None
+        self._last_camera_ns = 0
+        self._timer = self.create_timer(1.0, self._publish_own_health)
+        self._subscribe(subscribe_inputs)
+
+    def _subscribe(self, stage_inputs: bool) -> None:
+        """The mosaic, telemetry and /diagnostics always come over DDS; the camera, shifts and
+        super-resolved images too, unless the single-process pipeline hands them over in memory
+        (:meth:`handle_frame`, :meth:`handle_shift`, :meth:`handle_super_resolved`)."""
+        tel = QoSProfile(
+            depth=20,
+            reliability=ReliabilityPolicy.BEST_EFFORT,
+            history=qos_profile_sensor_data.history,
+        )
+        if self.p("mosaic_compressed"):
+            self.create_subscription(
+                CompressedImage,
+                "mosaic/compressed",
+                self._guard(self._on_mosaic_c),
+                latched_qos(),
+                raw=True,
+            )
+        else:
+            self.create_subscription(
+                Image, "mosaic", self._guard(self._on_mosaic), latched_qos(), raw=True
+            )
+        if stage_inputs:
+            self.create_subscription(
+                Image,
+                "aligned/reference",
+                self._guard(self._on_reference),
+                latched_qos(4),
+                raw=True,
+            )
+            self.create_subscription(
+                Image, "super_resolved", self._guard(self._on_sr), latched_qos(), raw=True
+            )
+            self.create_subscription(
+                Image,
+                "image",
+                self._guard(self._on_camera),
+                camera_qos(self.p("camera_reliable"), depth=1),
+                raw=True,
+            )
+            self.create_subscription(
+                Vector3Stamped, "shift", self._guard(self._on_shift), reliable_qos(100), raw=True
+            )
+        self.create_subscription(
+            Vector3Stamped, "telemetry/expected_shift", self._guard(self._on_expected), tel
+        )
+        self.create_subscription(
+            Float64, "telemetry/frame_interval", self._guard(self._on_interval), tel
+        )
+        self.create_subscription(Float64, "telemetry/height", self._guard(self._on_height), tel)
+        self.create_subscription(
+            TwistStamped, "telemetry/velocity", self._guard(self._on_velocity), tel
+        )
+        self.create_subscription(NavSatFix, "telemetry/fix", self._guard(self._on_fix), tel)
+        self.create_subscription(
+            DiagnosticArray, "/diagnostics", self._guard(self._on_diagnostics), 50
+        )
+
+    def _guard(self, fn):
+        """Bad input: a diagnostic and a Log entry, the node keeps running."""
+
+        def call(msg) -> None:
+            try:
+                self.diag.rate("input").tick()
+                fn(msg)
+            except Exception as exc:  # noqa: BLE001
+                text = f"{fn.__name__}: {type(exc).__name__}: {exc}"
+                self.diag.error(text)
+                self.monitor.on_log(2, text, name=self.get_name())
+
+        return call
+
+    def _on_param_change(self, name: str, value) -> None:
+        super()._on_param_change(name, value)
+        if name == "bandwidth_kbps":
+            self.monitor.set_bandwidth_kbps(value)
+        elif hasattr(self.monitor.cfg, name):
+            setattr(self.monitor.cfg, name, value)
+
+    # ---------------------------------------------------------------- images
+    def _on_mosaic_c(self, raw: bytes) -> None:
+        img, header = cdr.cdr_to_compressed(raw)
+        self.monitor.on_mosaic(img, cdr.header_to_ns(header))
+
+    def _on_mosaic(self, raw: bytes) -> None:
+        img, header = cdr.cdr_to_image(raw, "bgr8")
+        self.monitor.on_mosaic(img.copy(), cdr.header_to_ns(header))
+
+    def _on_reference(self, raw: bytes) -> None:
+        img, header = cdr.cdr_to_image(raw)
+        with self._lock:
+            self._refs[cdr.header_to_ns(header)] = img.copy()
+            for k in sorted(self._refs)[:-4]:
+                del self._refs[k]
+
+    def _on_sr(self, raw: bytes) -> None:
+        sr, header = cdr.cdr_to_image(raw)
+        stamp = cdr.header_to_ns(header)  # the reference frame's stamp: the image lies on its grid
+        with self._lock:
+            ref = self._refs.get(stamp)
+        self._serve_sr(sr.copy(), ref, stamp)
+
+    def _serve_sr(self, sr, ref, stamp: int) -> None:
+        bic, factor = None, None
+        if ref is not None and sr.shape[0] % ref.shape[0] == 0:
+            factor = sr.shape[0] // ref.shape[0]
+            bic = cv2.resize(ref, (sr.shape[1], sr.shape[0]), interpolation=cv2.INTER_CUBIC)
+            if bic.ndim != sr.ndim:
+                bic = (
+                    cv2.cvtColor(bic, cv2.COLOR_GRAY2BGR)
+                    if bic.ndim == 2
+                    else cv2.cvtColor(bic, cv2.COLOR_BGR2GRAY)
+                )
+        self.monitor.on_super_resolved(sr, bic, stamp, factor)
+
+    def _camera_due(self) -> bool:
+        # the camera may come at 30 Hz: take only what the monitor can send (a few per period)
+        now = self.get_clock().now().nanoseconds
+        if now - self._last_camera_ns < 0.25e9 * self.monitor.cfg.camera_period_s:
+            return False
+        self._last_camera_ns = now
+        return True
+
+    def _on_camera(self, raw: bytes) -> None:
+        if not self._camera_due():
+            return
+        img, header = cdr.cdr_to_image(raw)
+        self._serve_camera(img.copy(), cdr.header_to_ns(header))
+
+    def _serve_camera(self, img, stamp: int) -> None:
+        self.monitor.on_camera(img, stamp)
+        self._footprint(img.shape[1], img.shape[0], stamp)
+
+    # ---------------------------------------------------- in memory (single-process pipeline)
+    def handle_frame(self, frame) -> None:
+        """A camera frame (``payloads.Frame``) handed over in memory (its array is not written
+        to later)."""
+        if self._camera_due():
+            self._serve_camera(frame.image, frame.stamp_ns)
+
+    def handle_shift(self, shift_and_frame) -> None:
+        """The shift stage's ``(payloads.Shift, Aligned)``: with its standard errors."""
+        s = shift_and_frame[0]
+        e = self._expected
+        self.monitor.on_shift(
+            s.stamp_ns, s.u, s.v, s.u_std, s.v_std, True, e[0] if e else None, e[1] if e else None
+        )
+
+    def handle_super_resolved(self, result) -> None:
+        """The reconstruction stage's ``(image, result, reference Frame, members)``."""
+        out, _, ref, _ = result
+        self._serve_sr(out, ref.image, ref.stamp_ns)
+
+    def _footprint(self, w: int, h: int, stamp: int) -> None:
+        if self._fix is None or self._height is None or not self._height > 0:
+            return
+        heading = (self._course or 0.0) + math.radians(self.p("camera_yaw_offset_deg"))
+        self.monitor.on_footprint(
+            footprint_lonlat(
+                self._fix[0],
+                self._fix[1],
+                self._height,
+                heading,
+                w,
+                h,
+                self.p("focal_length_mm"),
+                self.p("pixel_pitch_um"),
+            ),
+            stamp,
+        )
+
+    # ---------------------------------------------------------------- numbers
+    def _on_shift(self, raw: bytes) -> None:
+        vec, header = cdr.cdr_to_vector3_stamped(raw)
+        e = self._expected
+        # the shift topic carries screened estimates only (shift_node's max_std_px): converged;
+        # their standard errors are in shift_node's /diagnostics, not on the topic
+        self.monitor.on_shift(
+            cdr.header_to_ns(header),
+            float(vec[0]),
+            float(vec[1]),
+            None,
+            None,
+            True,
+            e[0] if e else None,
+            e[1] if e else None,
+        )
+
+    def _on_expected(self, msg: Vector3Stamped) -> None:
+        self._expected = (msg.vector.x, msg.vector.y)
+        self.monitor.on_telemetry(
+            stamp_to_ns(msg.header.stamp), expected_u=msg.vector.x, expected_v=msg.vector.y
+        )
+
+    def _on_interval(self, msg: Float64) -> None:
+        self.monitor.on_telemetry(self.get_clock().now().nanoseconds, frame_interval_s=msg.data)
+
+    def _on_height(self, msg: Float64) -> None:
+        self._height = float(msg.data)
+
+    def _on_velocity(self, msg: TwistStamped) -> None:
+        e, n = msg.twist.linear.x, msg.twist.linear.y  # ENU
+        speed = math.hypot(e, n)
+        if speed > 0.2:
+            self._course = math.atan2(e, n)
+        self.monitor.on_telemetry(
+            stamp_to_ns(msg.header.stamp), speed_mps=speed, height_m=self._height
+        )
+
+    def _on_fix(self, msg: NavSatFix) -> None:
+        if msg.status.status < 0 or not (
+            math.isfinite(msg.latitude) and math.isfinite(msg.longitude)
+        ):
+            return
+        self._fix = (msg.latitude, msg.longitude)
+        self.monitor.on_fix(
+            msg.latitude, msg.longitude, msg.altitude, stamp_to_ns(msg.header.stamp)
+        )
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        self.monitor.on_diagnostics(
+            {
+                "name": s.name,
+                "level": s.level[0] if isinstance(s.level, (bytes, bytearray)) else int(s.level),
+                "message": s.message,
+                "values": {kv.key: kv.value for kv in s.values},
+            }
+            for s in msg.status
+        )
+
+    def _publish_own_health(self) -> None:
+        link = self.monitor.link_stats()
+        self.diag.set(
+            sent_kbps=float(link["sent_kbps"]),
+            budget_kbps=float(link["budget_kbps"]),
+            clients=link["clients"],
+            **{f"{k}_quality": v["quality"] for k, v in link["levels"].items()},
+            **{f"{k}_sent": v["sent"] for k, v in link["levels"].items()},
+        )
+        if self.monitor.errors:
+            self.diag.warn(self.monitor.errors[-1])
+        else:
+            self.diag.ok()
+
+    def close(self) -> None:
+        super().close()
+        self.monitor.close()
+
+
+def main(args=None) -> int:
+    try:
+        return run_nodes([MonitorNode], args)
+    except MonitorError as exc:
+        print(str(exc), file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

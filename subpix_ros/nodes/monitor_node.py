@@ -309,10 +309,9 @@ class MonitorNode(StageNode):
             s.stamp_ns, s.u, s.v, s.u_std, s.v_std, True, e[0] if e else None, e[1] if e else None
         )
 
-    def handle_super_resolved(self, result) -> None:
-        """The reconstruction stage's ``(image, result, reference Frame, members)``."""
-        out, _, ref, _ = result
-        self._serve_sr(out, ref.image, ref.stamp_ns)
+    def handle_super_resolved(self, sr) -> None:
+        """The reconstruction stage's :class:`~subpix_ros.stages.SuperResolved`."""
+        self._serve_sr(sr.image, sr.reference.image, sr.reference.stamp_ns)
 
     def _footprint(self, w: int, h: int, stamp: int) -> None:
         if self._fix is None or self._height is None or not self._height > 0:

@@ -42,13 +42,7 @@ def build(with_telemetry: bool = True, with_monitor: bool = False):
         from subpix_ros.nodes.monitor_node import MonitorNode
 
         mon = MonitorNode(subscribe_inputs=False)
-        camera = reg.handle_frame
-
-        def fan_out_monitor(frame):
-            camera(frame)
-            mon.handle_frame(frame)
-
-        reg.handle_frame = fan_out_monitor  # type: ignore[method-assign]
+        reg.listen("frame", mon.handle_frame)
         shift.listen("shift", mon.handle_shift)
         recon.listen("super_resolved", mon.handle_super_resolved)
         nodes.append(mon)

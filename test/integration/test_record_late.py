@@ -185,22 +185,29 @@ def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path
     assert [q.durability for q in info.qos] == [QosDurability.TRANSIENT_LOCAL]
     assert info.qos[0].reliability == QosReliability.RELIABLE  # (depth is not discoverable: 0)
     rclpy_node.destroy_publisher(pub)
-    # replayed: a transient-local subscriber that joins after the replay published still gets them
+    # replayed: while the replay waits for a subscriber (--wait-for), its publisher is in the graph
+    # offering transient local, as recorded; then a transient-local subscriber gets the 3 messages
     replay_topic = topic + "_again"
     play = subprocess.Popen(subpix_cmd("replay", str(out), "--remap", f"{topic}:={replay_topic}",
-                                       "--delay", "0", "--ack-timeout", "6"),
+                                       "--wait-for", topic, "--wait-timeout", "30", "--delay", "0"),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     got = []
     try:
-        time.sleep(2.0)  # the replay of 3 messages is over by now; its publisher is still up
+        deadline = time.monotonic() + 30
+        offered = []
+        while not offered and time.monotonic() < deadline:
+            offered = rclpy_node.get_publishers_info_by_topic(replay_topic)
+            rclpy.spin_once(rclpy_node, timeout_sec=0.05)
+        assert [i.qos_profile.durability for i in offered] == [DurabilityPolicy.TRANSIENT_LOCAL]
         rclpy_node.create_subscription(String, replay_topic, lambda m: got.append(m.data),
                                        QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                                                   durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + 20
         while len(got) < 3 and time.monotonic() < deadline:
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)
         play.communicate(timeout=30)
     finally:
         if play.poll() is None:
             play.kill()
+    assert play.returncode == 0
     assert got == [f"state {i}" for i in range(3)]

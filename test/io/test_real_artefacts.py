@@ -152,73 +152,51 @@ def test_rosbag2_bag_of_unknown_types_replay_fails_in_one_line():
 
 @pytest.mark.parametrize("name", ["mcap_talker_v4", "sqlite3_talker_v4"])
 def test_rosbag2_talker_replays_to_another_process(name, rclpy_node):
-    """`subpix replay` of a bag rosbag2 wrote: the subscriber in this process gets every message,
-    byte for byte; /rosout is offered transient local as recorded, so a late transient-local
-    subscriber still gets its last messages."""
-    import rclpy
+    """`subpix replay` of a bag rosbag2 wrote: the subscribers in this process get every message,
+    byte for byte, and /rosout is offered transient local, as it was recorded (/topic volatile)."""
     import time
+
+    import rclpy
     from rcl_interfaces.msg import Log
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String
 
     bag = BAGS / name
     ns = f"/artefact_{name}_{time.monotonic_ns() % 1_000_000}"
-    got = []
-    rclpy_node.create_subscription(
-        String,
-        ns + "/topic",
-        lambda raw: got.append(bytes(raw)),
-        QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE),
-        raw=True,
-    )
-    play = subprocess.Popen(
-        subpix_cmd(
-            "replay",
-            str(bag),
-            "--topics",
-            "/topic",
-            "/rosout",
-            "--rate",
-            "20",
-            "--remap",
-            f"/topic:={ns}/topic",
-            f"/rosout:={ns}/rosout",
-            "--wait-for",
-            "/topic",
-            "--ack-timeout",
-            "5",
-        ),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    late = []
+    args = ["replay", str(bag), "--topics", "/topic", "/rosout", "--rate", "20", "--remap",
+            f"/topic:={ns}/topic", f"/rosout:={ns}/rosout", "--wait-for", "/topic", "/rosout",
+            "--wait-timeout", "30"]
+    play = subprocess.Popen(subpix_cmd(*args), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    got = {"/topic": [], "/rosout": []}
     try:
-        deadline = time.monotonic() + 40
-        while time.monotonic() < deadline and len(got) < 10:
+        # the replay waits for our subscribers (--wait-for): its publishers are in the graph
+        offered = {}
+        deadline = time.monotonic() + 30
+        while len(offered) < 2 and time.monotonic() < deadline:
+            for t in got:
+                infos = rclpy_node.get_publishers_info_by_topic(ns + t)
+                if infos:
+                    offered[t] = [i.qos_profile.durability for i in infos]
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)
-        # /rosout: subscribe only now, transient local, while the replay still holds its publisher
-        rclpy_node.create_subscription(
-            Log,
-            ns + "/rosout",
-            lambda raw: late.append(bytes(raw)),
-            QoSProfile(
-                depth=100,
-                reliability=ReliabilityPolicy.RELIABLE,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL,
-            ),
-            raw=True,
-        )
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and len(late) < 10 and play.poll() is None:
+        assert offered == {"/topic": [DurabilityPolicy.VOLATILE],
+                           "/rosout": [DurabilityPolicy.TRANSIENT_LOCAL]}
+        for t, cls, durability in (("/topic", String, DurabilityPolicy.VOLATILE),
+                                   ("/rosout", Log, DurabilityPolicy.TRANSIENT_LOCAL)):
+            rclpy_node.create_subscription(
+                cls, ns + t, lambda raw, t=t: got[t].append(bytes(raw)),
+                QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=durability), raw=True)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and sum(map(len, got.values())) < 20:
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)
         out, err = play.communicate(timeout=30)
     finally:
         if play.poll() is None:
             play.kill()
     assert play.returncode == 0, err
-    assert got == [m.raw for m in read_messages(bag, ["/topic"])]
-    assert late and late == [m.raw for m in read_messages(bag, ["/rosout"])][-len(late) :]
+    for t in got:
+        assert got[t] == [m.raw for m in read_messages(bag, [t])]
 
 
 # ----------------------------------------------------------------- ArduPilot telemetry logs

@@ -59,13 +59,11 @@ def pingpong(k: int, n: int) -> int:
 def start_layout(layout: str, env: dict) -> list[subprocess.Popen]:
     override = Path(tempfile.gettempdir()) / f"bench_pipeline_set{SET}_{os.getpid()}.yaml"
     override.write_text(f"registration_node:\n  ros__parameters:\n    max_frames_per_reference: {SET - 1}\n"
-                        f"reconstruction_node:\n  ros__parameters:\n    n_frames: {SET}\n")
+                        f"reconstruction_node:\n  ros__parameters:\n    n_frames: {SET}\n"
+                        f"    max_memory_mb: {float(env.get('SUBPIX_BENCH_MAX_MEMORY_MB') or 0.0)}\n")
     params = ["--params-file", str(ROOT / "config" / "bench.yaml"), "--params-file", str(override)]
     if layout == "single":
-        # --max-memory-mb: the pipeline with its reconstruction held to a budget (budget_pipeline.py)
-        exe = ([str(ROOT / "benchmarks" / "budget_pipeline.py")] if env.get("SUBPIX_BENCH_MAX_MEMORY_MB")
-               else ["-m", "subpix_ros.nodes.pipeline"])
-        cmds = [[sys.executable, *exe, "--no-telemetry", "--ros-args", "-r",
+        cmds = [[sys.executable, "-m", "subpix_ros.nodes.pipeline", "--no-telemetry", "--ros-args", "-r",
                  "image:=/camera/image_raw", *params]]
     else:
         # the mosaic takes the registration node's reference frames (keyframes, 1 in max_frames_per_reference+1)
@@ -172,7 +170,7 @@ def main() -> None:
     ap.add_argument("--layouts", nargs="+", default=["separate", "single"], choices=["separate", "single"])
     add_malloc_argument(ap, " in this process and the nodes")
     ap.add_argument("--max-memory-mb", type=float, default=None,
-                    help="single layout: reconstruction memory budget (benchmarks/budget_pipeline.py)")
+                    help="the reconstruction's max_memory_mb (default: unbounded)")
     args = ap.parse_args()
     if args.max_memory_mb:
         os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)
@@ -183,7 +181,7 @@ def main() -> None:
     frames = make_frames(48)
     rows = [run_layout(layout, frames, args.rate, args.seconds) for layout in args.layouts]
     print(f"\n1920x1080 bgr8 at {args.rate:g} Hz for {args.seconds:g} s, sets of {SET} frames, x2 super-resolution"
-          f"{'' if not args.max_memory_mb else f', max_memory_mb {args.max_memory_mb:g} (single)'} "
+          f"{'' if not args.max_memory_mb else f', max_memory_mb {args.max_memory_mb:g}'} "
           f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
     print("| layout   | frames in | in Hz | shifts out | SR out | frame->shift p50/p99 ms | set->SR p50/p99 ms "
           "| CPU s/frame | dropped (per node) |")

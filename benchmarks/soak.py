@@ -46,7 +46,7 @@ def main() -> None:
     ap.add_argument("--warmup-s", type=float, default=60.0)
     add_malloc_argument(ap, " in the pipeline process")
     ap.add_argument("--max-memory-mb", type=float, default=None,
-                    help="reconstruction memory budget (benchmarks/budget_pipeline.py)")
+                    help="the reconstruction's max_memory_mb (default: unbounded)")
     args = ap.parse_args()
     if args.max_memory_mb:
         os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)

@@ -52,7 +52,8 @@ PARAMS = (
         "max_memory_mb",
         0.0,
         "working-memory budget of one reconstruction (MB; 0: unbounded): a set that would need "
-        "more is reconstructed in tiles, then with fewer frames, then as the bicubic reference",
+        "more is reconstructed in tiles, then with fewer frames (not below min_frames), then as the "
+        "bicubic reference",
         0.0,
         1.0e6,
     ),

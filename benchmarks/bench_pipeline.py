@@ -59,7 +59,8 @@ def pingpong(k: int, n: int) -> int:
 def start_layout(layout: str, env: dict) -> list[subprocess.Popen]:
     override = Path(tempfile.gettempdir()) / f"bench_pipeline_set{SET}_{os.getpid()}.yaml"
     override.write_text(f"registration_node:\n  ros__parameters:\n    max_frames_per_reference: {SET - 1}\n"
-                        f"reconstruction_node:\n  ros__parameters:\n    n_frames: {SET}\n")
+                        f"reconstruction_node:\n  ros__parameters:\n    n_frames: {SET}\n"
+                        f"    max_memory_mb: {float(env.get('SUBPIX_BENCH_MAX_MEMORY_MB') or 0.0)}\n")
     params = ["--params-file", str(ROOT / "config" / "bench.yaml"), "--params-file", str(override)]
     if layout == "single":
         cmds = [[sys.executable, "-m", "subpix_ros.nodes.pipeline", "--no-telemetry", "--ros-args", "-r",
@@ -168,14 +169,19 @@ def main() -> None:
     ap.add_argument("--set", type=int, default=SET, help="frames per super-resolved image (default %(default)s)")
     ap.add_argument("--layouts", nargs="+", default=["separate", "single"], choices=["separate", "single"])
     add_malloc_argument(ap, " in this process and the nodes")
+    ap.add_argument("--max-memory-mb", type=float, default=None,
+                    help="the reconstruction's max_memory_mb (default: unbounded)")
     args = ap.parse_args()
+    if args.max_memory_mb:
+        os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)
     print(allocator_line(args.default_malloc))
     SET = max(2, args.set)
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(101, 199)))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     frames = make_frames(48)
     rows = [run_layout(layout, frames, args.rate, args.seconds) for layout in args.layouts]
-    print(f"\n1920x1080 bgr8 at {args.rate:g} Hz for {args.seconds:g} s, sets of {SET} frames, x2 super-resolution "
+    print(f"\n1920x1080 bgr8 at {args.rate:g} Hz for {args.seconds:g} s, sets of {SET} frames, x2 super-resolution"
+          f"{'' if not args.max_memory_mb else f', max_memory_mb {args.max_memory_mb:g}'} "
           f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
     print("| layout   | frames in | in Hz | shifts out | SR out | frame->shift p50/p99 ms | set->SR p50/p99 ms "
           "| CPU s/frame | dropped (per node) |")

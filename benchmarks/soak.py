@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_pipeline import make_frames, start_layout  # noqa: E402
+from bench_pipeline import cpu_seconds, make_frames, start_layout  # noqa: E402
 
 from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
@@ -45,7 +45,11 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--warmup-s", type=float, default=60.0)
     add_malloc_argument(ap, " in the pipeline process")
+    ap.add_argument("--max-memory-mb", type=float, default=None,
+                    help="the reconstruction's max_memory_mb (default: unbounded)")
     args = ap.parse_args()
+    if args.max_memory_mb:
+        os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)
     print(allocator_line(args.default_malloc))
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(101, 199)))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -84,6 +88,7 @@ def main() -> None:
         while time.monotonic() < deadline and not (pub.get_subscription_count() and node.count_publishers("/shift")):
             rclpy.spin_once(node, timeout_sec=0.1)
         t0 = time.monotonic()
+        cpu0 = cpu_seconds(proc.pid)
         next_mem = t0
         base = time.time_ns()
         for k in range(args.frames):
@@ -106,6 +111,7 @@ def main() -> None:
         while time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
         mem.append((time.monotonic() - t0, rss_mb(proc.pid)))
+        cpu = cpu_seconds(proc.pid) - cpu0
         alive = proc.poll() is None
     finally:
         node.destroy_node()
@@ -127,7 +133,8 @@ def main() -> None:
     floor_slope = float(np.polyfit(floors[:, 0], floors[:, 1], 1)[0]) if len(floors) > 2 else float("nan")
     lat_ms = np.array(lat) * 1000
     drops = {n.replace("_node", ""): d.get("dropped_frames", "?") for n, d in sorted(diag.items())}
-    print(f"\nsoak: single-process pipeline, 1920x1080 bgr8 at {args.rate:g} Hz, {args.frames} frames in {wall:.0f} s "
+    print(f"\nsoak: single-process pipeline, 1920x1080 bgr8 at {args.rate:g} Hz, {args.frames} frames in {wall:.0f} s"
+          f"{'' if not args.max_memory_mb else f', max_memory_mb {args.max_memory_mb:g}'} "
           f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
     print("| frames in | shifts out | SR out | frame->shift p50 / p99 ms | RSS after warm-up MB (median, first 1/5) | "
           "RSS end MB (median, last 1/5) | growth MB | trend MB/min | RSS max MB | crashed | dropped (per stage) |")
@@ -139,6 +146,7 @@ def main() -> None:
         print(f"RSS floor (lowest of each minute after warm-up), MB: first {floors[0, 1]:.0f}, last {floors[-1, 1]:.0f}, "
               f"trend {floor_slope:+.1f} MB/min over {len(floors)} minutes: "
               + ", ".join(f"{v:.0f}" for v in floors[:, 1]))
+    print(f"pipeline process CPU {cpu / args.frames:.3f} s per frame in")
     print("memory samples (s, MB): " + ", ".join(f"{t:.0f}:{v:.0f}" for t, v in m[:: max(1, len(m) // 20)]))
 
 

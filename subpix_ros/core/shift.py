@@ -220,7 +220,9 @@ def _as_working(image: np.ndarray, name: str) -> Tuple[np.ndarray, Optional[np.n
             return a, a != sat
         return a, None
     f = np.ascontiguousarray(a, dtype=np.float32)
-    if np.issubdtype(a.dtype, np.floating) and not cv2.checkRange(f, quiet=True)[0]:
+    # finite iff the sum is: OpenCV sums float32 in double (no overflow of finite values; NaN and
+    # inf propagate), one read of the frame and no temporary (cv2.checkRange took 3-6x longer)
+    if np.issubdtype(a.dtype, np.floating) and not np.isfinite(cv2.sumElems(f)[0]):
         valid = np.isfinite(f)
         return np.where(valid, f, np.float32(0.0)), valid
     return f, None
@@ -248,12 +250,12 @@ def _masks(mask: MaskArg, shape: Tuple[int, int]) -> Tuple[Optional[np.ndarray],
             m = np.asarray(m)
             if m.shape != shape:
                 raise ValueError(f"mask shape {m.shape} != image shape {shape}")
-            out.append(m.astype(bool))
+            out.append(m.astype(bool, copy=False))  # read only: a bool mask is not copied
         return out[0], out[1]
     m = np.asarray(mask)
     if m.shape != shape:
         raise ValueError(f"mask shape {m.shape} != image shape {shape}")
-    m = m.astype(bool)
+    m = m.astype(bool, copy=False)
     return m, m
 
 
@@ -1203,7 +1205,8 @@ def estimate_shift(
     if mm is not None and not mm.all():
         vm = mm if vm is None else (vm & mm)
     if method == "default":
-        box = common_valid_box([m for m in (vr, vm) if m is not None])
+        # one mask for both frames (the usual aligned pair) is looked at once
+        box = common_valid_box([m for m in ((vr,) if vr is vm else (vr, vm)) if m is not None])
         if box is not None:  # validity is a rectangle (an integer-crop alignment): crop to it, no mask needed
             r0, r1, c0, c1 = box
             R, M = R[r0:r1, c0:c1], M[r0:r1, c0:c1]

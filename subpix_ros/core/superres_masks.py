@@ -22,6 +22,8 @@ import numpy as np
 from subpix_ros.core.superres import SRResult, bicubic_upscale, reconstruct, reconstruct_colour
 from subpix_ros.core.validity import common_valid_box
 
+__all__ = ["reconstruct_aligned", "bicubic_outside"]
+
 MIN_SIDE = 32  # LR px: a smaller common rectangle is not worth the fast path
 
 
@@ -42,11 +44,11 @@ def reconstruct_aligned(frames: Sequence[np.ndarray], shifts: np.ndarray, factor
     res = solve([np.asarray(f)[r0:r1, c0:c1] for f in frames], shifts, factor, **kw)
     out = np.empty((factor * h, factor * w) + res.image.shape[2:], dtype=res.image.dtype)
     out[factor * r0:factor * r1, factor * c0:factor * c1] = res.image
-    _bicubic_outside(out, np.asarray(frames[0]), factor, box)
+    bicubic_outside(out, np.asarray(frames[0]), factor, box)
     return replace(res, image=out)
 
 
-def _bicubic_outside(out: np.ndarray, ref: np.ndarray, p: int, box: tuple[int, int, int, int]) -> None:
+def bicubic_outside(out: np.ndarray, ref: np.ndarray, p: int, box: tuple[int, int, int, int]) -> None:
     """Fill ``out`` outside the output box of ``box`` with the bicubic upscale of ``ref`` (in place).
 
     Only the strips are upscaled, each from the reference strip plus 4 LR px
@@ -69,3 +71,6 @@ def _bicubic_outside(out: np.ndarray, ref: np.ndarray, p: int, box: tuple[int, i
     strip(r1, h, 0, w)  # bottom
     strip(r0, r1, 0, c0)  # left
     strip(r0, r1, c1, w)  # right
+
+
+_bicubic_outside = bicubic_outside  # the former private name

@@ -127,6 +127,10 @@ class ReconstructionNode(StageNode):
             sets_incomplete=st.sets_incomplete,
             sets_flushed=st.sets_flushed,
             sets_dropped=st.sets_dropped,
+            frames_used=st.frames,
+            memory_estimate_mb=st.memory_estimate_mb,
+            memory_reduction=st.memory_reduction,
+            memory_reduced=st.memory_reduced,
         )
         if not sr.fell_back:
             self.diag.ok()

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from subpix_ros.core.superres_masks import reconstruct_aligned
+from subpix_ros.core.superres_budget import reconstruct_within_budget
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
 from subpix_ros.stages.stats import ReconstructionStats
@@ -48,6 +48,15 @@ PARAMS = (
         "re-estimate the shifts inside the reconstruction (off: the shift "
         "node's estimates, already at the accuracy limit and screened by its max_std_px, are used "
         "as they are)",
+    ),
+    Spec(
+        "max_memory_mb",
+        0.0,
+        "working-memory budget of one reconstruction (MB; 0: unbounded): a set that would need "
+        "more is reconstructed in tiles, then with fewer frames (not below min_frames), then as the "
+        "bicubic reference",
+        0.0,
+        1.0e6,
     ),
     Spec("time_tolerance_s", 0.001, "shift and frame stamps closer than this match", 0.0, 1.0),
     Spec(
@@ -305,11 +314,13 @@ class ReconstructionStage(Stage):
         if any(f.shape != ref.image.shape for f in frames):
             self.error("frames of one set differ in size: set dropped")
             return None
-        res = reconstruct_aligned(
+        res, plan = reconstruct_within_budget(
             frames,
             shifts,
             self.p("factor"),
             masks=masks,
+            max_memory_mb=self.p("max_memory_mb") or None,
+            min_frames=min(self.p("min_frames"), len(frames)),
             method=self.p("method"),
             geometry="auto" if self.p("check_geometry") else "translation",
             refine_shifts=self.p("refine_shifts"),
@@ -325,7 +336,11 @@ class ReconstructionStage(Stage):
         st.kept += 1
         st.times.add(1000 * dt)
         st.method, st.fell_back, st.fallback_reason = res.method, res.fell_back, res.reason
-        st.noise_sigma, st.frames = float(res.noise_sigma), len(frames)
+        st.noise_sigma, st.frames = float(res.noise_sigma), plan.n_frames
+        st.memory_estimate_mb = round(plan.estimate_mb, 1)
+        st.memory_reduction = ", ".join(plan.reductions)
+        if plan.reduced:
+            st.memory_reduced += 1
         if res.fell_back:
             st.fallbacks += 1
             self.warn(f"super-resolution fell back to {res.method}: {res.reason}")

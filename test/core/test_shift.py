@@ -371,6 +371,28 @@ def test_nan_and_saturated_pixels_are_ignored(set_b05):
     assert res.ok and abs(res.u - t[0]) < 0.01 and abs(res.v - t[1]) < 0.01
 
 
+def test_inf_pixels_are_ignored_like_a_mask(set_b05):
+    """+inf and -inf (alone, or both, whose sum is NaN) are invalid pixels, as the mask would make them."""
+    r, m, t, _ = set_b05[7]
+    rf, mf = r.astype(np.float32), m.astype(np.float32)
+    mask = np.ones(r.shape, bool)
+    mask[10:30, 10:40] = False
+    ref = estimate_shift(rf, mf, mask=(None, mask))
+    for fill in ([np.inf], [-np.inf], [np.inf, -np.inf]):
+        bad = mf.copy()
+        bad[10:30, 10:40] = fill[0]
+        bad[10:30, 10:40:2] = fill[-1]
+        res = estimate_shift(rf, bad)
+        assert res.ok and (res.u, res.v) == (ref.u, ref.v)
+    # the check itself: huge finite values are valid (their sum does not overflow), one NaN is not
+    from subpix_ros.core.shift import _as_working
+
+    big = np.full((64, 64), 3e38, np.float32)
+    assert _as_working(big, "big")[1] is None
+    big[3, 4] = np.nan
+    assert _as_working(big, "big")[1].sum() == 64 * 64 - 1
+
+
 def test_dtypes_uint16_and_float_agree(set_b05):
     r, m, t, _ = set_b05[3]
     a = estimate_shift(r, m)

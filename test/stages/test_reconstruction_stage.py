@@ -7,6 +7,8 @@ import pytest
 from conftest import SET_SHIFTS, rendered_set
 
 from subpix_ros.core.evaluate import gain_over_bicubic
+from subpix_ros.core.render import render_sequence
+from subpix_ros.core.superres_budget import estimate_peak_mb
 from subpix_ros.data import load_crop
 from subpix_ros.stages import Aligned, Frame, ReconstructionStage, Shift
 
@@ -212,3 +214,29 @@ def test_uint16_frames_give_a_uint16_image(seq):
         )
         out += stage.add(Shift(a.stamp_ns, -1, *map(float, seq.shifts[k]), 0.0, 0.01, 0.01), a)
     assert out[0].image.dtype == np.uint16 and out[0].image.max() > 255
+
+
+def test_max_memory_mb_tiles_or_drops_frames_and_says_so(seq):
+    """A small max_memory_mb still gives an image, with what was reduced in the stats."""
+    ref, pairs = _set(seq)
+    whole = ReconstructionStage(n_frames=8)
+    (full,) = [o for s, a in pairs for o in whole.add(s, a)]
+    assert whole.stats.memory_reduction == "" and whole.stats.memory_reduced == 0
+    # 256x256 frames (less than two 128 px tiles): the budget is met with fewer frames
+    budget = estimate_peak_mb(5, seq.frames[0].shape, 2, colour=False)
+    assert budget < whole.stats.memory_estimate_mb
+    stage = ReconstructionStage(n_frames=8, min_frames=4, max_memory_mb=budget)
+    (sr,) = [o for s, a in pairs for o in stage.add(s, a)]
+    st = stage.stats
+    assert sr.image.shape == full.image.shape and sr.image.dtype == np.uint8
+    assert st.frames == 5 and st.memory_reduction == "5 of 8 frames" and st.memory_reduced == 1
+    assert st.memory_estimate_mb <= budget + 0.05  # (rounded to 0.1 MB in the stats)
+    assert not sr.fell_back
+    p_sr, p_bic = gain_over_bicubic(sr.image, seq.frames[0], seq.truth, 2, 8)
+    assert p_sr - p_bic > 1.0  # fewer frames, still super-resolved
+    # nothing fits: the bicubic reference, reported as a fallback with the reason
+    tiny = ReconstructionStage(n_frames=8, max_memory_mb=1.0)
+    (sb,) = [o for s, a in pairs for o in tiny.add(s, a)]
+    assert sb.fell_back and "bicubic" in sb.reason and tiny.stats.fallbacks == 1
+    with pytest.raises(ValueError):
+        ReconstructionStage(max_memory_mb=-1.0)

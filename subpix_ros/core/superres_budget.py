@@ -1,0 +1,297 @@
+"""Super-resolution within a memory budget: fewer frames per set, or tiles with overlap.
+
+The Fourier-domain MAP reconstruction (:func:`subpix_ros.core.superres.reconstruct`)
+holds every frame of a set at once, in float64 and as single-precision
+spectra, and its working memory grows with the number of frames ``N`` and the
+frame area ``H W``. :func:`plan_reconstruction` predicts that working memory
+with :func:`estimate_peak_mb` and, when it exceeds ``max_memory_mb``, plans a
+reconstruction that fits:
+
+1. tiles first: the common valid rectangle of the set is cut into a grid of
+   tiles, each reconstructed with ``overlap`` extra LR px of context on every
+   inner side (the context is discarded), so only one tile's working memory
+   is alive at a time besides the stitched output; all frames still
+   contribute, so the resolution gain is kept;
+2. then fewer frames: once the tiles are at their minimum side
+   (``min_tile`` LR px without the overlap), the set is cut to its first
+   ``n`` frames (the reference is always frame 0), down to ``min_frames``;
+3. if even that does not fit, the reference is bicubic-upscaled (the output
+   image alone is what is left) and the result says why.
+
+:func:`reconstruct_within_budget` runs the plan through
+:func:`subpix_ros.core.superres_masks.reconstruct_aligned` and returns the
+result together with the plan, whose ``reductions`` say what was given up.
+
+Notes
+-----
+Memory model (working memory beyond the input frames, bytes, fitted with
+``tracemalloc`` on 1080p and 540x960 colour and mono sets of 4, 8 and 16 frames,
+factors 2 to 4, and rounded up so that every measured case lies below it;
+figures in docs/design-notes.md, "Onboard budget")::
+
+    M(N, H, W, p) = H W (21 N + c(p, colour)) + 28 MB
+
+with ``c = 115, 320, 620`` B per LR px for colour at p = 2, 3, 4 and
+``70, 180, 300`` for mono. A tile reconstruction costs ``M`` of its extent
+(tile plus overlap) plus the stitched output, ``H W p^2 C`` float32 values.
+OpenCV-internal scratch (not traced) comes on top, a few frame-sized buffers.
+
+Tiles differ from the whole-set reconstruction only where the per-set
+estimates differ: the spectrum prior is fitted per tile (on its central
+crop); the noise level is estimated on the first (central) tile and passed
+to the others so that the tiles agree. Within a tile the solution is the same
+eq. 9 solve; the tile borders use the reconstruction's consistent padding,
+whose effect fades within ``overlap`` px.
+
+References
+----------
+docs/METHODS.md (super-resolution, the MAP estimate of eq. 9);
+docs/design-notes.md ("Onboard budget": the measured memory model).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from subpix_ros.core.superres import SRResult, bicubic_upscale
+from subpix_ros.core.superres_masks import bicubic_outside, reconstruct_aligned
+from subpix_ros.core.validity import common_valid_box
+
+__all__ = ["BudgetPlan", "estimate_peak_mb", "plan_reconstruction", "reconstruct_within_budget"]
+
+#: B per LR px of the set's frame-independent working memory, (factor, colour) -> bytes.
+_FIXED_B = {(2, True): 115, (3, True): 320, (4, True): 620, (2, False): 70, (3, False): 180, (4, False): 300}
+_PER_FRAME_B = 21  # B per LR px per frame
+_BASE_MB = 28.0  # fixed overheads (caches, small arrays; small tiles measured up to +10 MB over the rest)
+
+
+def estimate_peak_mb(n_frames: int, shape: tuple[int, int], factor: int, colour: bool) -> float:
+    """Predicted working memory (MB, 1e6 B) of one MAP reconstruction of ``n_frames`` frames of ``shape``.
+
+    Parameters
+    ----------
+    n_frames : int
+        Frames in the set, the reference included.
+    shape : (int, int)
+        LR rows and columns reconstructed (the whole frame, or a tile with its overlap).
+    factor : int
+        Resolution factor, 2 to 4.
+    colour : bool
+        BGR frames (luminance reconstructed, chroma upscaled) rather than mono.
+
+    Returns
+    -------
+    float
+        ``M = H W (21 N + c(p, colour)) / 1e6 + 28`` (see the module notes).
+    """
+    p = int(min(max(factor, 2), 4))
+    hw = float(shape[0]) * float(shape[1])
+    return hw * (_PER_FRAME_B * n_frames + _FIXED_B[(p, bool(colour))]) / 1e6 + _BASE_MB
+
+
+def _output_mb(shape: tuple[int, int], factor: int, colour: bool) -> float:
+    """The stitched float32 HR output of a tiled reconstruction, MB."""
+    return float(shape[0]) * shape[1] * factor * factor * (3 if colour else 1) * 4 / 1e6
+
+
+@dataclass
+class BudgetPlan:
+    """How a set is reconstructed within ``max_memory_mb`` (see :func:`plan_reconstruction`).
+
+    ``n_frames``: frames used (the first ones of the set); ``grid``: tiles along
+    rows and columns ((1, 1): the whole frame at once); ``overlap``: context LR px
+    on each inner side of a tile; ``estimate_mb``: predicted working memory of
+    the plan; ``unbounded_mb``: of the whole set at once; ``bicubic``: nothing
+    fits, the reference is upscaled; ``reductions``: what was given up, in words
+    (empty: nothing).
+    """
+
+    n_frames: int
+    grid: tuple[int, int] = (1, 1)
+    overlap: int = 0
+    estimate_mb: float = 0.0
+    unbounded_mb: float = 0.0
+    max_memory_mb: float | None = None
+    bicubic: bool = False
+    reductions: list[str] = field(default_factory=list)
+
+    @property
+    def reduced(self) -> bool:
+        return bool(self.reductions)
+
+    def as_dict(self) -> dict:
+        return {"n_frames": self.n_frames, "grid": list(self.grid), "overlap": self.overlap,
+                "estimate_mb": round(self.estimate_mb, 1), "unbounded_mb": round(self.unbounded_mb, 1),
+                "max_memory_mb": self.max_memory_mb, "bicubic": self.bicubic, "reductions": list(self.reductions)}
+
+
+def _tiled_mb(n: int, shape: tuple[int, int], grid: tuple[int, int], overlap: int, factor: int,
+              colour: bool) -> float:
+    """Predicted working memory of a tiled plan: the largest tile with its overlap, plus the output."""
+    th = -(-shape[0] // grid[0]) + (2 * overlap if grid[0] > 1 else 0)
+    tw = -(-shape[1] // grid[1]) + (2 * overlap if grid[1] > 1 else 0)
+    return estimate_peak_mb(n, (min(th, shape[0]), min(tw, shape[1])), factor, colour) + \
+        _output_mb(shape, factor, colour)
+
+
+def plan_reconstruction(n_frames: int, shape: tuple[int, int], factor: int, max_memory_mb: float | None, *,
+                        colour: bool = True, min_frames: int = 2, overlap: int = 32,
+                        min_tile: int = 128) -> BudgetPlan:
+    """Plan a reconstruction of ``n_frames`` frames of ``shape`` (LR rows, cols) within ``max_memory_mb``.
+
+    Parameters
+    ----------
+    n_frames : int
+        Frames in the set (reference included), >= 2.
+    shape : (int, int)
+        LR size of the region reconstructed by the MAP solver.
+    factor : int
+        Resolution factor.
+    max_memory_mb : float or None
+        Budget for the working memory (MB, 1e6 B); None or <= 0: unbounded.
+    colour : bool
+        BGR rather than mono frames.
+    min_frames : int
+        Fewest frames a reduced set may keep (>= 2).
+    overlap : int
+        Context LR px around each tile (on inner sides).
+    min_tile : int
+        Smallest tile side (LR px, without the overlap) before frames are dropped.
+
+    Returns
+    -------
+    BudgetPlan
+        Tiles are preferred to dropping frames (they keep the information of
+        every frame); the grid is the one with the fewest tiles that fits,
+        nearly square tiles first.
+
+    Notes
+    -----
+    Predicted memory from :func:`estimate_peak_mb`; a plan is accepted when
+    ``estimate_mb <= max_memory_mb``.
+    """
+    if n_frames < 2:
+        raise ValueError(f"n_frames must be >= 2, got {n_frames}")
+    h, w = int(shape[0]), int(shape[1])
+    unbounded = estimate_peak_mb(n_frames, (h, w), factor, colour)
+    plan = BudgetPlan(n_frames, (1, 1), 0, unbounded, unbounded, max_memory_mb)
+    if max_memory_mb is None or max_memory_mb <= 0 or unbounded <= max_memory_mb:
+        return plan
+    min_frames = int(min(max(2, min_frames), n_frames))
+    max_r, max_c = max(1, h // min_tile), max(1, w // min_tile)
+    grids = sorted(((r, c) for r in range(1, max_r + 1) for c in range(1, max_c + 1) if (r, c) != (1, 1)),
+                   key=lambda g: (g[0] * g[1], abs(h / g[0] - w / g[1])))
+    for n in range(n_frames, min_frames - 1, -1):  # all frames first, then fewer
+        whole = estimate_peak_mb(n, (h, w), factor, colour)
+        options = [((1, 1), whole)] + [(g, _tiled_mb(n, (h, w), g, overlap, factor, colour)) for g in grids]
+        for g, mb in options:
+            if mb <= max_memory_mb:
+                red = []
+                if n < n_frames:
+                    red.append(f"{n} of {n_frames} frames")
+                if g != (1, 1):
+                    red.append(f"{g[0]}x{g[1]} tiles with {overlap} px overlap")
+                return BudgetPlan(n, g, overlap if g != (1, 1) else 0, mb, unbounded, max_memory_mb, False, red)
+    mb = _output_mb((h, w), factor, colour)
+    return BudgetPlan(1, (1, 1), 0, mb, unbounded, max_memory_mb, True,
+                      [f"bicubic upscale of the reference: no plan with >= {min_frames} frames and "
+                       f"{min_tile} px tiles fits {max_memory_mb:g} MB"])
+
+
+def _spans(n: int, parts: int) -> list[tuple[int, int]]:
+    """``parts`` contiguous spans covering 0..n (sizes differ by at most one)."""
+    edges = np.linspace(0, n, parts + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def reconstruct_within_budget(frames: Sequence[np.ndarray], shifts: np.ndarray, factor: int,
+                              masks: Sequence[np.ndarray] | None = None, *, max_memory_mb: float | None = None,
+                              min_frames: int = 2, overlap: int = 32, min_tile: int = 128,
+                              **kw) -> tuple[SRResult, BudgetPlan]:
+    """:func:`~subpix_ros.core.superres_masks.reconstruct_aligned` planned to fit ``max_memory_mb``.
+
+    Parameters
+    ----------
+    frames, shifts, factor, masks
+        As :func:`~subpix_ros.core.superres_masks.reconstruct_aligned` (frame 0 is the reference;
+        ``shifts`` (N, 2) ``(u, v)`` LR px: content at (r, c) in frame 0 is at (r + u, c + v) in frame n).
+    max_memory_mb : float or None
+        Working-memory budget (MB); None or <= 0: unbounded (the plain reconstruction).
+    min_frames, overlap, min_tile
+        As :func:`plan_reconstruction`.
+    **kw
+        Passed to the reconstruction (method, geometry, refine_shifts, noise_sigma, ...).
+
+    Returns
+    -------
+    (SRResult, BudgetPlan)
+        The result on the usual output grid (LR pixel i of frame 0 covers output
+        pixels ``factor*i .. factor*i + factor - 1``), and the plan it followed.
+        A tiled result reports the first tile's weights, shifts and noise level,
+        and ``fell_back`` with the reason if any tile fell back to bicubic.
+
+    Notes
+    -----
+    Tiles are cut from the rectangle valid in every frame (the whole frame
+    without masks); outside it the output is the bicubic upscale of the
+    reference, as in :func:`reconstruct_aligned`. Masks that are not a
+    rectangle cannot be tiled (the masked CG solver); such a set is only
+    reduced in frames.
+    """
+    if frames is None or len(frames) < 2:
+        raise ValueError("need at least 2 frames")
+    ref = np.asarray(frames[0])
+    colour = ref.ndim == 3
+    h, w = ref.shape[:2]
+    box = (0, h, 0, w) if masks is None else common_valid_box(masks)
+    region = (h, w) if box is None else (box[1] - box[0], box[3] - box[2])
+    plan = plan_reconstruction(len(frames), region, factor, max_memory_mb, colour=colour,
+                               min_frames=min_frames, overlap=overlap,
+                               min_tile=min_tile if box is not None else max(h, w) + 1)
+    if plan.bicubic:
+        # float32 for colour, as the colour reconstruction returns (and half the memory of float64)
+        up = bicubic_upscale(ref, factor) if not colour else cv2.resize(
+            ref.astype(np.float32), (w * factor, h * factor), interpolation=cv2.INTER_CUBIC)
+        res = SRResult(up, "bicubic", True, plan.reductions[0],
+                       weights=np.r_[1.0, np.zeros(len(frames) - 1)], shifts=np.asarray(shifts, float),
+                       shift_sigma=np.zeros(len(frames)), factor=factor)
+        return res, plan
+    n = plan.n_frames
+    frames_n = list(frames[:n])
+    shifts_n = np.asarray(shifts, dtype=np.float64)[:n]
+    masks_n = None if masks is None else list(masks[:n])
+    if plan.grid == (1, 1):
+        return reconstruct_aligned(frames_n, shifts_n, factor, masks=masks_n, **kw), plan
+    r0, r1, c0, c1 = box
+    p = factor
+    rows, cols = _spans(r1 - r0, plan.grid[0]), _spans(c1 - c0, plan.grid[1])
+    # the central tile first: its noise estimate is passed to the others, so the tiles agree
+    order = sorted(((i, j) for i in range(len(rows)) for j in range(len(cols))),
+                   key=lambda t: abs(t[0] - (len(rows) - 1) / 2) + abs(t[1] - (len(cols) - 1) / 2))
+    out = None
+    first: SRResult | None = None
+    fell = []
+    for i, j in order:
+        a0, a1 = rows[i][0] + r0, rows[i][1] + r0  # tile, LR px of the frame
+        b0, b1 = cols[j][0] + c0, cols[j][1] + c0
+        e0, e1 = max(r0, a0 - overlap), min(r1, a1 + overlap)  # with its context, inside the box
+        f0, f1 = max(c0, b0 - overlap), min(c1, b1 + overlap)
+        tkw = dict(kw)
+        if first is not None and tkw.get("noise_sigma") is None and np.isfinite(first.noise_sigma):
+            tkw["noise_sigma"] = float(first.noise_sigma)
+        res = reconstruct_aligned([np.asarray(f)[e0:e1, f0:f1] for f in frames_n], shifts_n, factor, **tkw)
+        if out is None:
+            out = np.empty((p * h, p * w) + res.image.shape[2:], np.float32 if colour else res.image.dtype)
+        out[p * a0:p * a1, p * b0:p * b1] = res.image[p * (a0 - e0):p * (a1 - e0), p * (b0 - f0):p * (b1 - f0)]
+        if res.fell_back:
+            fell.append(f"tile ({i}, {j}): {res.reason}")
+        if first is None:
+            first = replace(res, image=np.empty(0, np.float32))  # its figures, not its pixels
+        del res
+    if (r0, r1, c0, c1) != (0, h, 0, w):
+        bicubic_outside(out, ref, p, box)
+    reason = "; ".join(fell) if fell else first.reason
+    return replace(first, image=out, fell_back=bool(fell) or first.fell_back, reason=reason), plan

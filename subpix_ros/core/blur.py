@@ -263,6 +263,7 @@ def estimate_blur(
     max_edges: int = 8,
     noise_sigma: float | None = None,
     fallback: float = FALLBACK_SIGMA,
+    masks: Sequence[np.ndarray] | None = None,
 ) -> BlurEstimate:
     """Estimate the optics blur (Gaussian std, input px) from straight edges in the frames.
 
@@ -274,6 +275,8 @@ def estimate_blur(
     max_edges : edge ROIs searched in frame 0 (:func:`find_edge_rois`).
     noise_sigma : per-pixel noise std (DN); estimated from frame 0 if None.
     fallback : the value used when no edge passes the checks.
+    masks : optional bool array per frame (True = valid pixel); an ROI is measured in a frame only
+        where all its pixels are valid.
 
     Returns
     -------
@@ -309,11 +312,13 @@ def estimate_blur(
     why = []
     for (x, y, rw, rh) in rois:  # edges
         vals = []
-        for a, (u, v) in zip(arrs, sh):  # frames
+        for i, (a, (u, v)) in enumerate(zip(arrs, sh)):  # frames
             if not (np.isfinite(u) and np.isfinite(v)):
                 continue
             xx, yy = x + int(round(v)), y + int(round(u))
             if xx < 0 or yy < 0 or xx + rw > w or yy + rh > h:
+                continue
+            if masks is not None and not np.all(np.asarray(masks[i])[yy : yy + rh, xx : xx + rw]):
                 continue
             s, reason = _measure(a, (xx, yy, rw, rh), noise)
             if np.isfinite(s):
@@ -368,7 +373,7 @@ class BlurCalibration:
     ``setting`` is a ``blur_sigma`` setting (:func:`parse_blur_sigma`). With a
     number every set gets it (source "parameter"). With ``"auto"``,
     :func:`estimate_blur` runs on the first set and then on every
-    ``refresh_sets``-th set (the calibration costs more than a set's
+    ``refresh_sets``-th set (the calibration can cost as much as a set's
     reconstruction, so it is not repeated for every set); an edge estimate
     stays in use until a later set gives a new one (a set without edges in
     view does not discard it); until the first edge estimate the fallback is used.
@@ -380,16 +385,17 @@ class BlurCalibration:
         self.current: BlurEstimate | None = None
         self._sets = 0
 
-    def update(self, frames: Sequence[np.ndarray], shifts: np.ndarray | None = None) -> BlurEstimate:
-        """The blur for this set (mono frames), re-estimated when due."""
+    def update(self, frames: Sequence[np.ndarray], shifts: np.ndarray | None = None,
+               masks: Sequence[np.ndarray] | None = None) -> BlurEstimate:
+        """The blur for this set (mono frames; masks: valid pixels per frame or None), re-estimated when due."""
         if self.setting != "auto":
             if self.current is None:
                 self.current = BlurEstimate(float(self.setting), "parameter", reason="given")
             return self.current
-        due = self.current is None or self._sets % self.refresh_sets == 0 or self.current.source != "edges"
+        due = self.current is None or self._sets % self.refresh_sets == 0
         self._sets += 1
         if due:
-            new = estimate_blur(frames, shifts)
+            new = estimate_blur(frames, shifts, masks=masks)
             if new.source == "edges" or self.current is None or self.current.source != "edges":
                 self.current = new
         return self.current

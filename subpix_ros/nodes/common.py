@@ -62,6 +62,7 @@ class Param:
     max: float | int | None = None
     choices: Sequence[str] | None = None
     read_only: bool = False
+    validate: Callable[[Any], str | None] | None = None  # extra check: why a value is not acceptable, or None
 
     def descriptor(self) -> ParameterDescriptor:
         d = ParameterDescriptor(name=self.name, description=self.description, read_only=self.read_only)
@@ -88,6 +89,10 @@ class Param:
             return f"{self.name}: {value!r} is above the maximum {self.max}"
         if self.choices and value not in self.choices:
             return f"{self.name}: {value!r} is not one of {', '.join(self.choices)}"
+        if self.validate is not None:
+            bad = self.validate(value)
+            if bad:
+                return f"{self.name}: {bad}"
         return None
 
 

@@ -21,11 +21,20 @@ import numpy as np
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import Image
 
+from subpix_ros.core.blur import BLUR_SIGMA_MAX, BlurCalibration, parse_blur_sigma
 from subpix_ros.core.superres_masks import reconstruct_aligned
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode
 from subpix_ros.nodes.aligned_input import AlignedInput
 from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes
+
+
+def _blur_setting_error(value) -> str | None:
+    try:
+        parse_blur_sigma(value)
+    except ValueError as exc:
+        return str(exc)
+    return None
 
 
 class ReconstructionNode(StageNode):
@@ -35,6 +44,9 @@ class ReconstructionNode(StageNode):
         Param("min_frames", 4, "an incomplete set (frames dropped or without a shift) is still used if it has "
               "this many frames when the next reference starts", 2, 64),
         Param("method", "map", "reconstruction method", choices=("map", "windowed", "pinv", "bicubic")),
+        Param("blur_sigma", "auto", f"optics blur std of the model, input px: 'auto' (measured on straight edges "
+              f"in the frames, refreshed every 10 sets, biased low; a low fallback when none is in view) or a "
+              f"number in 0..{BLUR_SIGMA_MAX:g} (a lab calibration)", validate=_blur_setting_error),
         Param("check_geometry", False, "re-check inside the reconstruction whether frames differ by more than a "
               "translation (the registration node already warps out rotation and perspective beyond its threshold)"),
         Param("refine_shifts", False, "re-estimate the shifts inside the reconstruction (off: the shift node's "
@@ -51,6 +63,7 @@ class ReconstructionNode(StageNode):
         self._pending_shifts: list[pl.Shift] = []
         self.sets: dict[int, list[tuple[pl.Shift, pl.Aligned]]] = {}
         self.published = 0
+        self.blur = BlurCalibration(self.p("blur_sigma"))
         self.inputs = None
         if subscribe_inputs:
             self.inputs = AlignedInput(self, self._frame_ready, depth=20)
@@ -129,9 +142,12 @@ class ReconstructionNode(StageNode):
         if any(f.shape != ref.image.shape for f in frames):
             self.diag.error("frames of one set differ in size: set dropped")
             return
+        if parse_blur_sigma(self.p("blur_sigma")) != self.blur.setting:  # changed at run time
+            self.blur = BlurCalibration(self.p("blur_sigma"))
+        blur = self.blur.update([_mono(f) for f in frames], shifts, masks)
         res = reconstruct_aligned(frames, shifts, self.p("factor"), masks=masks, method=self.p("method"),
                                   geometry="auto" if self.p("check_geometry") else "translation",
-                                  refine_shifts=self.p("refine_shifts"))
+                                  refine_shifts=self.p("refine_shifts"), blur_sigma=blur)
         img = res.image
         if not np.all(np.isfinite(img)):
             self.diag.error("reconstruction produced non-finite pixels: not published")
@@ -148,11 +164,21 @@ class ReconstructionNode(StageNode):
         self.diag.stage_time("reconstruction_ms", 1000 * (time.monotonic() - t0))
         self.diag.set(method=res.method, fell_back=res.fell_back, fallback_reason=res.reason,
                       noise_sigma=float(res.noise_sigma), frames=len(frames),
+                      blur_sigma=float(res.blur_sigma), blur_source=res.blur_source, blur_reason=res.blur_reason,
                       images_published=self.published)
         if res.fell_back:
             self.diag.warn(f"super-resolution fell back to {res.method}: {res.reason}")
         else:
             self.diag.ok()
+
+
+def _mono(img: np.ndarray) -> np.ndarray:
+    """Luminance of a BGR frame (as reconstruct_colour computes it), a mono frame as it is."""
+    if img.ndim == 2:
+        return img
+    import cv2
+
+    return cv2.cvtColor(img.astype(np.float32), cv2.COLOR_BGR2GRAY)
 
 
 def main(args=None) -> int:

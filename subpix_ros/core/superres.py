@@ -37,8 +37,10 @@ Main entry point :func:`reconstruct`. Methods:
   forward model, the inputs are never resampled — warm-started from the
   Fourier solution.
 * ``"windowed"``: eq. 7 (normalised) as one separable filter
-  (``cv2.sepFilter2D``) on the interleaved grid; needs shifts on the k/p
-  grid (falls back otherwise).
+  (``cv2.sepFilter2D``) on the interleaved grid, then a Gaussian of
+  ``WINDOWED_SMOOTH_LR_PX`` LR px (the Gaussian regularisation eq. 9 turns
+  the windowed solution into); needs shifts on the k/p grid (falls back
+  otherwise).
 * ``"pinv"``: eq. 6, reference only (unstable; O(n^3)).
 * ``"bicubic"``: bicubic upscaling of the reference frame (the baseline).
 
@@ -80,6 +82,7 @@ __all__ = [
 ]
 
 METHODS = ("map", "windowed", "pinv", "bicubic")
+WINDOWED_SMOOTH_LR_PX = 0.35  # Gaussian std (LR px) applied to the windowed eq. 7 solution
 BLUR_AUTO = "auto"  # blur_sigma setting: estimate the blur from the frames (core/blur.py)
 MAX_FACTOR = 4
 
@@ -1536,6 +1539,9 @@ def _reconstruct(
         y, filled = interleave(arrs, offs, p, p, dtype=np.float32 if _small_ints(arrs) else np.float64)
         if method == "windowed":
             x = windowed_solution(y, p, p, w=p + 2 if window is None else window)
+            # eq. 9's Gaussian regularisation of the windowed solution: without it eq. 7 amplifies noise
+            # and aliasing below bicubic (x3, x4, and x2 at low blur; docs/design-notes.md)
+            x = cv2.GaussianBlur(x, (0, 0), WINDOWED_SMOOTH_LR_PX * p, borderType=cv2.BORDER_REFLECT_101)
         else:
             h2 = (y.shape[0] // p) * p - (p - 1)
             w2 = (y.shape[1] // p) * p - (p - 1)

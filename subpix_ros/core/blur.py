@@ -140,7 +140,7 @@ def find_edge_rois(frame: np.ndarray, max_rois: int = 12, min_angle_deg: float =
     """Candidate ROIs ``(x, y, w, h)`` around straight edges that suit the slanted-edge method.
 
     Straight segments come from OpenCV's line segment detector (LSD) on the
-    frame scaled to 8 bit. A segment qualifies when it lies ``min_angle_deg`` ..
+    frame scaled to 8 bit (at half size when its larger side exceeds 1024 px). A segment qualifies when it lies ``min_angle_deg`` ..
     ``max_angle_deg`` from the nearest pixel axis and is long enough that,
     over the ROI's length along it (80 % of the segment, at most 64 px), the
     edge crosses at least 4.5 px of the other axis (the 4x oversampling of
@@ -153,12 +153,16 @@ def find_edge_rois(frame: np.ndarray, max_rois: int = 12, min_angle_deg: float =
     h, w = f.shape
     if min(h, w) < 24:
         return []
-    lo, hi = np.percentile(f, [0.5, 99.5])
+    lo, hi = np.percentile(f[::4, ::4], [0.5, 99.5])
     img8 = np.clip((f - lo) * (255.0 / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
+    scale = 1.0
+    if max(h, w) > 1024:  # large frames: segments found at half size (LSD's cost), ROIs on the frame
+        img8 = cv2.resize(img8, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+        scale = 2.0
     segs = cv2.createLineSegmentDetector().detect(img8)[0]
     if segs is None:
         return []
-    segs = segs.reshape(-1, 4).astype(np.float64)
+    segs = segs.reshape(-1, 4).astype(np.float64) * scale
     dx, dy = segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]
     length = np.hypot(dx, dy)
     ang = np.degrees(np.arctan2(dy, dx)) % 180.0  # segment direction from +x
@@ -285,7 +289,8 @@ def estimate_blur(
 
     Notes
     -----
-    Each ROI is measured in every frame (moved by the frame's rounded shift:
+    Each ROI is measured in every frame (moved by the frame's rounded shift;
+    an ROI that fails in frame 0 is not tried further:
     other sub-pixel phases and noise) with :func:`slanted_edge_mtf` and
     :func:`edge_sigma`; measurements of edges that are not straight
     (``line_rms_px``), textured beside the edge, or of low contrast are
@@ -325,6 +330,8 @@ def estimate_blur(
                 vals.append(s)
             else:
                 why.append(reason)
+                if i == 0:  # not an edge to measure in the reference: not measured in the others
+                    break
         if len(vals) >= max(1, (n + 1) // 2):  # the edge passed in at least half the frames
             v = np.asarray(vals)
             se = max(1.25 * float(np.std(v)) / np.sqrt(v.size) if v.size > 1 else 0.05, 0.005)

@@ -20,8 +20,10 @@ its first cell), ``told`` (ours told the true blur), ``auto`` (ours with
 ``blur_sigma="auto"``, or the default ``blur_sigma`` where the code has no
 ``auto``), and the blur that ``auto`` used (``est``) with its source.
 
-Run: ``python benchmarks/bench_superres_blind.py [--quick] [--json out.json] [--only quality|timing]``.
+Run: ``python benchmarks/bench_superres_blind.py [--quick] [--json out.json]
+[--only quality|timing]``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -51,7 +53,7 @@ _AUTO = getattr(superres, "BLUR_AUTO", None)  # None: code from before issue 17 
 
 
 def tikhonov_cg(frames, shifts, p, lam, iters=60):
-    """argmin sum ||A_n x - y_n||^2 + lam ||grad x||^2 by scipy CG; A_n box integration, no optics."""
+    """argmin sum ||A_n x - y_n||^2 + lam ||grad x||^2 by scipy CG (A_n: box, no optics)."""
     from scipy.sparse.linalg import LinearOperator, cg
 
     h, w = frames[0].shape
@@ -68,7 +70,9 @@ def tikhonov_cg(frames, shifts, p, lam, iters=60):
 
     b = sum(op.adjoint(np.asarray(f, float) * op.valid) for op, f in zip(ops, frames)).ravel()
     x0 = bicubic_upscale(frames[0], p).ravel()
-    sol, _ = cg(LinearOperator((b.size, b.size), matvec=normal, dtype=np.float64), b, x0=x0, maxiter=iters)
+    sol, _ = cg(
+        LinearOperator((b.size, b.size), matvec=normal, dtype=np.float64), b, x0=x0, maxiter=iters
+    )
     return sol.reshape(shape)
 
 
@@ -119,11 +123,19 @@ def quality(quick: bool, json_out: str | None) -> None:
     lam = {}
     rows = []
     label_auto = "auto" if _AUTO else "default"
-    print(f"\nGain over bicubic (dB) per cell; 'none' = crop as it is, 'edge' = another crop with a roof in view; "
-          f"auto column = blur_sigma={_AUTO or 'default (' + str(inspect.signature(reconstruct).parameters['blur_sigma'].default) + ')'}")
-    hdr = (f"{'p':>1s} {'layout':6s} {'SNR':>3s} {'blur':>4s} {'extra':9s} | "
-           + " | ".join(f"{t:4s} {'ff':>3s} {'CG':>6s} {'told':>6s} {label_auto:>7s} {'est':>5s} {'src':5s}"
-                        for t in ("none", "edge")) + " | s")
+    default = inspect.signature(reconstruct).parameters["blur_sigma"].default
+    print(
+        "\nGain over bicubic (dB) per cell; 'none' = crop as it is, 'edge' = another crop with a "
+        f"roof in view; auto column = blur_sigma={_AUTO or f'default ({default})'}"
+    )
+    hdr = (
+        f"{'p':>1s} {'layout':6s} {'SNR':>3s} {'blur':>4s} {'extra':9s} | "
+        + " | ".join(
+            f"{t:4s} {'ff':>3s} {'CG':>6s} {'told':>6s} {label_auto:>7s} {'est':>5s} {'src':5s}"
+            for t in ("none", "edge")
+        )
+        + " | s"
+    )
     print(hdr)
     for k, cell in enumerate(cells(quick)):
         p = cell["p"]
@@ -135,8 +147,18 @@ def quality(quick: bool, json_out: str | None) -> None:
             off = ((768 - n_hr) // 2,) * 2
             sc = scene_crop(crops[crop], p, LR[p], MARGIN, off)
             shifts = shift_layout(cell["layout"], p, seed=100 + k)
-            fl = degrade(sc, p, shifts, cell["blur"], fill_factor=ff, snr_db=cell["snr"],
-                         jpeg_quality=cell["jpeg"], roof=roof, seed=k * 7 + j, margin=MARGIN)
+            fl = degrade(
+                sc,
+                p,
+                shifts,
+                cell["blur"],
+                fill_factor=ff,
+                snr_db=cell["snr"],
+                jpeg_quality=cell["jpeg"],
+                roof=roof,
+                seed=k * 7 + j,
+                margin=MARGIN,
+            )
             sh = est_shifts(fl.frames)
             kw = {}
             if cell["err"]:
@@ -147,22 +169,50 @@ def quality(quick: bool, json_out: str | None) -> None:
             keep = np.isfinite(sh).all(axis=1)
             frames = [f for f, ok in zip(fl.frames, keep) if ok]
             sh = sh[keep]
-            if p not in lam:  # tune the reference's weight once per factor (first cell, first scene)
-                lam[p] = max((gain(fl, tikhonov_cg(frames, sh, p, lm)), lm) for lm in (0.003, 0.01, 0.03, 0.1))[1]
+            if (
+                p not in lam
+            ):  # tune the reference's weight once per factor (first cell, first scene)
+                lam[p] = max(
+                    (gain(fl, tikhonov_cg(frames, sh, p, lm)), lm)
+                    for lm in (0.003, 0.01, 0.03, 0.1)
+                )[1]
             g_cg = gain(fl, tikhonov_cg(frames, sh, p, lam[p]))
             told = reconstruct(frames, sh, p, blur_sigma=cell["blur"], **kw)
             auto = run_auto(frames, sh, p, **kw)
             est = float(getattr(auto, "blur_sigma", np.nan))
             src = str(getattr(auto, "blur_source", "-"))
-            rec = dict(cell, k=k, crop=crop, roof=roof, fill=ff, cg=g_cg, told=gain(fl, told.image),
-                       auto=gain(fl, auto.image), est=est, source=src, auto_method=auto.method,
-                       auto_reason=auto.reason, lam=lam[p], n_frames=len(frames))
+            rec = dict(
+                cell,
+                k=k,
+                crop=crop,
+                roof=roof,
+                fill=ff,
+                cg=g_cg,
+                told=gain(fl, told.image),
+                auto=gain(fl, auto.image),
+                est=est,
+                source=src,
+                auto_method=auto.method,
+                auto_reason=auto.reason,
+                lam=lam[p],
+                n_frames=len(frames),
+            )
             rows.append(rec)
-            line.append(f"{'':4s} {ff:3.1f} {rec['cg']:+6.2f} {rec['told']:+6.2f} {rec['auto']:+7.2f} "
-                        f"{est:5.2f} {src[:5]:5s}")
-        extra = f"jpeg{cell['jpeg']}" if cell["jpeg"] else (f"err{cell['err']:.1f}px" if cell["err"] else "")
-        print(f"{p:1d} {cell['layout']:6s} {cell['snr']:3d} {cell['blur']:4.1f} {extra:9s} | " + " | ".join(line)
-              + f" | {time.perf_counter() - t0:4.1f}", flush=True)
+            line.append(
+                f"{'':4s} {ff:3.1f} {rec['cg']:+6.2f} {rec['told']:+6.2f} {rec['auto']:+7.2f} "
+                f"{est:5.2f} {src[:5]:5s}"
+            )
+        extra = (
+            f"jpeg{cell['jpeg']}"
+            if cell["jpeg"]
+            else (f"err{cell['err']:.1f}px" if cell["err"] else "")
+        )
+        print(
+            f"{p:1d} {cell['layout']:6s} {cell['snr']:3d} {cell['blur']:4.1f} {extra:9s} | "
+            + " | ".join(line)
+            + f" | {time.perf_counter() - t0:4.1f}",
+            flush=True,
+        )
     summarise(rows, label_auto)
     if json_out:
         Path(json_out).write_text(json.dumps(rows, indent=1))
@@ -177,27 +227,45 @@ def summarise(rows, label_auto):
     blur = np.array([r["blur"] for r in rows])
     snr = np.array([r["snr"] for r in rows])
     clean = np.array([r["jpeg"] is None and not r["err"] for r in rows])
-    print(f"\nSummary over {len(rows)} scene-cells (lambda of CG per factor: "
-          f"{ {r['p']: r['lam'] for r in rows} })")
-    print(f"  {label_auto}: min gain over bicubic {a.min():+.2f} dB (cells below bicubic: {(a < 0).sum()}); "
-          f"told the truth: min {told.min():+.2f} dB; CG: min {cg.min():+.2f} dB")
+    print(
+        f"\nSummary over {len(rows)} scene-cells (lambda of CG per factor: "
+        f"{ {r['p']: r['lam'] for r in rows} })"
+    )
+    print(
+        f"  {label_auto}: min gain over bicubic {a.min():+.2f} dB "
+        f"(cells below bicubic: {(a < 0).sum()}); "
+        f"told the truth: min {told.min():+.2f} dB; CG: min {cg.min():+.2f} dB"
+    )
     d = a - cg
-    print(f"  {label_auto} - CG: min {d.min():+.2f} dB, median {np.median(d):+.2f}; cells short of +1.0 dB: "
-          f"{(d < 1.0).sum()} of {d.size}")
+    print(
+        f"  {label_auto} - CG: min {d.min():+.2f} dB, median {np.median(d):+.2f}; "
+        "cells short of +1.0 dB: "
+        f"{(d < 1.0).sum()} of {d.size}"
+    )
     e = told[roof] - a[roof]
-    print(f"  edge in view: told - {label_auto}: max {e.max():+.2f} dB, median {np.median(e):+.2f}; "
-          f"cells beyond 1.0 dB: {(e > 1.0).sum()} of {e.size}")
+    print(
+        f"  edge in view: told - {label_auto}: max {e.max():+.2f} dB, median {np.median(e):+.2f}; "
+        f"cells beyond 1.0 dB: {(e > 1.0).sum()} of {e.size}"
+    )
     if np.isfinite(est).any():
         err = est - blur
         sel = roof & clean & (blur <= 0.7) & (snr == 40)
         if sel.any():
-            print(f"  blur estimate, edge scenes, blur <= 0.7, 40 dB: error min {err[sel].min():+.3f} max "
-                  f"{err[sel].max():+.3f} px; within 0.05 px: {(np.abs(err[sel]) <= 0.05).sum()} of {sel.sum()}")
-        print(f"  blur estimate above the truth by > 0.05 px: {(err > 0.05).sum()} of {err.size} scene-cells "
-              f"(max {err.max():+.3f} px)")
+            print(
+                "  blur estimate, edge scenes, blur <= 0.7, 40 dB: error min "
+                f"{err[sel].min():+.3f} max {err[sel].max():+.3f} px; within 0.05 px: "
+                f"{(np.abs(err[sel]) <= 0.05).sum()} of {sel.sum()}"
+            )
+        print(
+            f"  blur estimate above the truth by > 0.05 px: {(err > 0.05).sum()} of {err.size} "
+            "scene-cells "
+            f"(max {err.max():+.3f} px)"
+        )
         for src in sorted({r["source"] for r in rows}):
             s = np.array([r["source"] == src for r in rows])
-            print(f"    source {src}: {s.sum()} scene-cells, error median {np.median(err[s]):+.3f} px")
+            print(
+                f"    source {src}: {s.sum()} scene-cells, error median {np.median(err[s]):+.3f} px"
+            )
 
 
 def timing(repeats: int) -> None:
@@ -206,10 +274,21 @@ def timing(repeats: int) -> None:
     p = 2
     n_lr = 352  # the crop allows (352 + 16) * 2 = 736 HR px: frames for the reconstruction timing
     sc = scene_crop(hr, p, n_lr, MARGIN, (16, 16))
-    fl = degrade(sc, p, shift_layout("random", p, 8, seed=3), 0.5, fill_factor=0.9, snr_db=40, roof=True,
-                 margin=MARGIN)
+    fl = degrade(
+        sc,
+        p,
+        shift_layout("random", p, 8, seed=3),
+        0.5,
+        fill_factor=0.9,
+        snr_db=40,
+        roof=True,
+        margin=MARGIN,
+    )
     frames512 = [cv2.resize(f, (512, 512), interpolation=cv2.INTER_CUBIC) for f in fl.frames]
-    print(f"\nTiming (load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs), best / median of {repeats}")
+    print(
+        f"\nTiming (load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs), "
+        f"best / median of {repeats}"
+    )
     try:
         from subpix_ros.core.blur import estimate_blur
     except ImportError:
@@ -221,28 +300,41 @@ def timing(repeats: int) -> None:
             t = time.perf_counter()
             est = estimate_blur(frames512, sh)
             ts.append(time.perf_counter() - t)
-        print(f"  calibration estimate_blur, 8 frames 512x512: best {min(ts):.3f} s median {np.median(ts):.3f} s "
-              f"(sigma {est.sigma:.3f} px, source {est.source}, {est.n_edges} edges)")
+        print(
+            f"  calibration estimate_blur, 8 frames 512x512: best {min(ts):.3f} s "
+            f"median {np.median(ts):.3f} s "
+            f"(sigma {est.sigma:.3f} px, source {est.source}, {est.n_edges} edges)"
+        )
     sh = est_shifts(fl.frames)
-    for name, kw in (("fixed blur 0.4", dict(blur_sigma=0.4)), ("fixed blur 0.4, shifts as given",
-                                                                  dict(blur_sigma=0.4, refine_shifts=False))):
+    for name, kw in (
+        ("fixed blur 0.4", dict(blur_sigma=0.4)),
+        ("fixed blur 0.4, shifts as given", dict(blur_sigma=0.4, refine_shifts=False)),
+    ):
         ts = []
         for _ in range(repeats):
             t = time.perf_counter()
             reconstruct(fl.frames, sh, p, **kw)
             ts.append(time.perf_counter() - t)
-        print(f"  reconstruct {len(fl.frames)} frames {n_lr}x{n_lr} x{p}, {name:32s}: best {min(ts):.3f} s "
-              f"median {np.median(ts):.3f} s")
+        print(
+            f"  reconstruct {len(fl.frames)} frames {n_lr}x{n_lr} x{p}, {name:32s}: "
+            f"best {min(ts):.3f} s "
+            f"median {np.median(ts):.3f} s"
+        )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="a smaller grid of cells")
-    ap.add_argument("--json", default=None, help="write every scene-cell's figures to this JSON file")
+    ap.add_argument(
+        "--json", default=None, help="write every scene-cell's figures to this JSON file"
+    )
     ap.add_argument("--only", choices=["quality", "timing"], default=None)
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
-    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; OpenCV threads {cv2.getNumThreads()}")
+    print(
+        f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; "
+        f"OpenCV threads {cv2.getNumThreads()}"
+    )
     if args.only in (None, "quality"):
         quality(args.quick, args.json)
     if args.only in (None, "timing"):

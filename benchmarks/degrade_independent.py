@@ -34,6 +34,7 @@ a roof: the area average of the analytic roof over each HR pixel).
 Sign convention: a feature at (r, c) in frame 0 is at (r + u, c + v) in a
 frame with shift (u, v).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -45,7 +46,9 @@ from scipy.special import ndtr
 
 __all__ = ["Flight", "degrade", "shift_layout", "scene_crop", "ROOF_ANGLE_DEG"]
 
-ROOF_ANGLE_DEG = 10.0  # roof edges this far from the pixel axes (slanted-edge friendly, like a real roof)
+ROOF_ANGLE_DEG = (
+    10.0  # roof edges this far from the pixel axes (slanted-edge friendly, like a real roof)
+)
 
 
 @dataclass
@@ -64,8 +67,10 @@ class Flight:
     roof_rois: list = field(default_factory=list)  # (x, y, w, h) LR px of frame 0 around roof edges
 
 
-def shift_layout(kind: str, p: int, n: int | None = None, seed: int = 0) -> list[tuple[float, float]]:
-    """Shifts (LR px) of a flight: ``"grid"`` the p x p k/p grid, ``"random"`` n uniform in [-1, 1)^2.
+def shift_layout(
+    kind: str, p: int, n: int | None = None, seed: int = 0
+) -> list[tuple[float, float]]:
+    """Shifts (LR px): ``"grid"`` the p x p k/p grid, ``"random"`` n uniform in [-1, 1)^2.
 
     The first shift is (0, 0) (the reference)."""
     if kind == "grid":
@@ -77,7 +82,9 @@ def shift_layout(kind: str, p: int, n: int | None = None, seed: int = 0) -> list
     raise ValueError(f"unknown shift layout {kind!r}")
 
 
-def scene_crop(hr: np.ndarray, factor: int, lr: int, margin: int, offset: tuple[int, int] = (0, 0)) -> np.ndarray:
+def scene_crop(
+    hr: np.ndarray, factor: int, lr: int, margin: int, offset: tuple[int, int] = (0, 0)
+) -> np.ndarray:
     """The part of an HR image that :func:`degrade` needs for ``lr`` x ``lr`` LR frames."""
     n = (lr + 2 * margin) * factor
     r, c = offset
@@ -87,9 +94,17 @@ def scene_crop(hr: np.ndarray, factor: int, lr: int, margin: int, offset: tuple[
     return out
 
 
-def _axis_operator(n_lr: int, n_fine: int, ratio: int, margin: int, shift: float, sigma: float, fill: float,
-                   reach: int) -> sparse.csr_matrix:
-    """One axis's banded operator (n_lr, n_fine): LR pixel i = weighted sum of the fine samples (weights sum 1)."""
+def _axis_operator(
+    n_lr: int,
+    n_fine: int,
+    ratio: int,
+    margin: int,
+    shift: float,
+    sigma: float,
+    fill: float,
+    reach: int,
+) -> sparse.csr_matrix:
+    """One axis's banded operator (n_lr, n_fine): LR pixel i = weighted sum of fine samples."""
     sigma = max(float(sigma), 1e-4)
     centre = np.arange(n_lr) + margin - shift  # LR coordinate of the kernel centre per pixel
     first = np.floor((centre - reach + 0.5) * ratio - 0.5).astype(np.int64)
@@ -105,9 +120,14 @@ def _axis_operator(n_lr: int, n_fine: int, ratio: int, margin: int, shift: float
     return sparse.csr_matrix((w.ravel(), (rows, idx.ravel())), shape=(n_lr, n_fine))
 
 
-def _roof_coverage(n_fine: int, ratio: int, centre: tuple[float, float], size: tuple[float, float],
-                   angle_deg: float) -> np.ndarray:
-    """Fraction of each fine sample inside a rotated rectangle (LR px geometry), 1-sample linear ramp."""
+def _roof_coverage(
+    n_fine: int,
+    ratio: int,
+    centre: tuple[float, float],
+    size: tuple[float, float],
+    angle_deg: float,
+) -> np.ndarray:
+    """Fraction of each fine sample inside a rotated rectangle (LR px), 1-sample linear ramp."""
     t = (np.arange(n_fine, dtype=np.float32) + 0.5) / ratio - 0.5
     rr, cc = t[:, None] - centre[0], t[None, :] - centre[1]
     th = np.deg2rad(angle_deg)
@@ -163,7 +183,10 @@ def degrade(
     sh = np.asarray(shifts, dtype=np.float64).reshape(-1, 2)
     reach = int(np.ceil(0.5 + 4.5 * blur_sigma + 0.5))
     if np.abs(sh).max() + reach + 1 > margin:
-        raise ValueError(f"margin {margin} too small for shifts up to {np.abs(sh).max():.2f} px and blur {blur_sigma}")
+        raise ValueError(
+            f"margin {margin} too small for shifts up to {np.abs(sh).max():.2f} px and blur "
+            f"{blur_sigma}"
+        )
     fine = cv2.resize(hr, None, fx=oversample, fy=oversample, interpolation=cv2.INTER_LANCZOS4)
     n_fine = fine.shape[0]
     truth = hr.copy()
@@ -203,15 +226,26 @@ def degrade(
             ok, buf = cv2.imencode(".jpg", f8, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
             f8 = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
         frames.append(f8)
-    return Flight(frames=frames, shifts=sh - sh[0], truth=truth, factor=p, blur_sigma=float(blur_sigma),
-                  fill_factor=float(fill_factor), snr_db=float(snr_db), noise_sigma=sig_tot,
-                  jpeg_quality=jpeg_quality, roof_rois=rois)
+    return Flight(
+        frames=frames,
+        shifts=sh - sh[0],
+        truth=truth,
+        factor=p,
+        blur_sigma=float(blur_sigma),
+        fill_factor=float(fill_factor),
+        snr_db=float(snr_db),
+        noise_sigma=sig_tot,
+        jpeg_quality=jpeg_quality,
+        roof_rois=rois,
+    )
 
 
 def _roof_rois(c: float, size: tuple[float, float], n_lr: int) -> list[tuple[int, int, int, int]]:
     """ROIs (x, y, w, h) in frame-0 LR px around the middle of each of the roof's four edges."""
     th = np.deg2rad(ROOF_ANGLE_DEG)
-    along, normal = np.array([np.sin(th), np.cos(th)]), np.array([np.cos(th), -np.sin(th)])  # (row, col)
+    along, normal = np.array([np.sin(th), np.cos(th)]), np.array(
+        [np.cos(th), -np.sin(th)]
+    )  # (row, col)
     half = int(min(size) * 0.4)
     out = []
     for sgn in (1, -1):

@@ -17,6 +17,7 @@ Every estimate is biased low on purpose: the pooled edge value minus its
 standard error. :func:`resolve_blur` turns a ``blur_sigma`` setting into a
 :class:`BlurEstimate` saying which source gave the value.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -68,7 +69,9 @@ class BlurEstimate:
 
 
 def parse_blur_sigma(value) -> str | float:
-    """Validate a ``blur_sigma`` setting: ``"auto"`` or a number in [0, BLUR_SIGMA_MAX] (a string is parsed).
+    """Validate a ``blur_sigma`` setting: ``"auto"`` or a number in [0, BLUR_SIGMA_MAX].
+
+    A string is parsed ("auto" in any case, or a number).
 
     Returns ``"auto"`` or the float; raises ValueError with the reason otherwise.
     """
@@ -79,8 +82,10 @@ def parse_blur_sigma(value) -> str | float:
         try:
             value = float(v)
         except ValueError:
-            raise ValueError(f"blur_sigma must be 'auto' or a number of input px in 0..{BLUR_SIGMA_MAX}, "
-                             f"got {value!r}") from None
+            raise ValueError(
+                f"blur_sigma must be 'auto' or a number of input px in 0..{BLUR_SIGMA_MAX}, "
+                f"got {value!r}"
+            ) from None
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"blur_sigma must be 'auto' or a number, got {value!r}")
     v = float(value)
@@ -93,19 +98,24 @@ def _gaussian_box_mtf(freqs: np.ndarray, sigmas: np.ndarray, angle_deg: float) -
     """``exp(-2 pi^2 s^2 f^2) |sinc(f cos a) sinc(f sin a)|`` for every s (rows) and f (columns)."""
     th = np.deg2rad(angle_deg)
     box = np.abs(np.sinc(freqs * np.cos(th)) * np.sinc(freqs * np.sin(th)))
-    return np.exp(-2.0 * np.pi**2 * np.square(sigmas)[:, None] * np.square(freqs)[None, :]) * box[None, :]
+    return (
+        np.exp(-2.0 * np.pi**2 * np.square(sigmas)[:, None] * np.square(freqs)[None, :])
+        * box[None, :]
+    )
 
 
 _SIGMA_GRID = np.arange(0.0, 2.0001, 0.0025)
 
 
-def edge_sigma(freqs: np.ndarray, mtf: np.ndarray, angle_deg: float, f_lo: float = 0.05,
-               level: float = 0.15) -> float:
+def edge_sigma(
+    freqs: np.ndarray, mtf: np.ndarray, angle_deg: float, f_lo: float = 0.05, level: float = 0.15
+) -> float:
     """Gaussian optics std (px) whose MTF, times the pixel box, fits a measured edge MTF.
 
     Parameters
     ----------
-    freqs, mtf : the measured MTF along the edge normal (cycles/px), as :func:`slanted_edge_mtf` gives.
+    freqs, mtf : the measured MTF along the edge normal (cycles/px), as :func:`slanted_edge_mtf`
+        gives.
     angle_deg : the edge's angle from the pixel grid (the box's MTF along the normal depends on it).
     f_lo : lowest frequency used. level : frequencies where the model MTF is below this are left out
         (noise dominates there); the fit is repeated once with the band of its first answer.
@@ -113,7 +123,8 @@ def edge_sigma(freqs: np.ndarray, mtf: np.ndarray, angle_deg: float, f_lo: float
     Returns
     -------
     float
-        ``argmin_s sum_f (M(f) - exp(-2 pi^2 s^2 f^2) |sinc(f cos a) sinc(f sin a)|)^2`` on a 0.0025 px
+        ``argmin_s sum_f (M(f) - exp(-2 pi^2 s^2 f^2) |sinc(f cos a) sinc(f sin a)|)^2``
+        on a 0.0025 px
         grid in [0, 2].
 
     Notes
@@ -135,12 +146,18 @@ def edge_sigma(freqs: np.ndarray, mtf: np.ndarray, angle_deg: float, f_lo: float
     return best
 
 
-def find_edge_rois(frame: np.ndarray, max_rois: int = 12, min_angle_deg: float = 3.0,
-                   max_angle_deg: float = 38.0, margin: int = 10) -> list[tuple[int, int, int, int]]:
+def find_edge_rois(
+    frame: np.ndarray,
+    max_rois: int = 12,
+    min_angle_deg: float = 3.0,
+    max_angle_deg: float = 38.0,
+    margin: int = 10,
+) -> list[tuple[int, int, int, int]]:
     """Candidate ROIs ``(x, y, w, h)`` around straight edges that suit the slanted-edge method.
 
     Straight segments come from OpenCV's line segment detector (LSD) on the
-    frame scaled to 8 bit (at half size when its larger side exceeds 1024 px). A segment qualifies when it lies ``min_angle_deg`` ..
+    frame scaled to 8 bit (at half size when its larger side exceeds 1024
+    px). A segment qualifies when it lies ``min_angle_deg`` ..
     ``max_angle_deg`` from the nearest pixel axis and is long enough that,
     over the ROI's length along it (80 % of the segment, at most 64 px), the
     edge crosses at least 4.5 px of the other axis (the 4x oversampling of
@@ -156,7 +173,9 @@ def find_edge_rois(frame: np.ndarray, max_rois: int = 12, min_angle_deg: float =
     lo, hi = np.percentile(f[::4, ::4], [0.5, 99.5])
     img8 = np.clip((f - lo) * (255.0 / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
     scale = 1.0
-    if max(h, w) > 1024:  # large frames: segments found at half size (LSD's cost), ROIs on the frame
+    if (
+        max(h, w) > 1024
+    ):  # large frames: segments found at half size (LSD's cost), ROIs on the frame
         img8 = cv2.resize(img8, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
         scale = 2.0
     segs = cv2.createLineSegmentDetector().detect(img8)[0]
@@ -209,8 +228,13 @@ def _measure(frame: np.ndarray, roi: tuple[int, int, int, int], noise: float) ->
     return edge_sigma(r.freqs, r.mtf, r.angle_deg), ""
 
 
-def spectral_cap(frames: Sequence[np.ndarray], noise_sigma: float, alpha_min: float = ALPHA_MIN,
-                 max_frames: int = 4, crop: int = 256) -> float:
+def spectral_cap(
+    frames: Sequence[np.ndarray],
+    noise_sigma: float,
+    alpha_min: float = ALPHA_MIN,
+    max_frames: int = 4,
+    crop: int = 256,
+) -> float:
     """Largest blur (px) the frames' power spectrum allows; ``inf`` when it says nothing.
 
     Parameters
@@ -222,12 +246,14 @@ def spectral_cap(frames: Sequence[np.ndarray], noise_sigma: float, alpha_min: fl
     Returns
     -------
     float
-        The median over the bands ``b`` = [0.12, 0.2), [0.2, 0.28), [0.28, 0.36), [0.36, 0.44) cycles/px
+        The median over the bands ``b`` = [0.12, 0.2), [0.2, 0.28), [0.28, 0.36), [0.36, 0.44)
+        cycles/px
         of the sigma solving ``exp(-4 pi^2 s^2 (f_b^2 - f_0^2)) = R_b (f_b / f_0)^alpha_min / B_b``.
 
     Notes
     -----
-    With ``S_y(f) = G(f)^2 B(f) S_x(f) + n^2`` (G the Gaussian optics, B the squared pixel-box transfer
+    With ``S_y(f) = G(f)^2 B(f) S_x(f) + n^2`` (G the Gaussian optics, B the squared pixel-box
+    transfer
     ``sinc^2``), the ratio ``R_b = (S_y(f_b) - n^2) / (S_y(f_0) - n^2)`` of the Hann-windowed
     periodogram's ring means against the band [0.06, 0.12) (centre f_0) bounds the blur from above
     if ``S_x(f_b) / S_x(f_0) <= (f_b / f_0)^-alpha_min``. Aliasing only raises ``R_b`` (a lower cap,
@@ -256,7 +282,9 @@ def spectral_cap(frames: Sequence[np.ndarray], noise_sigma: float, alpha_min: fl
         if pb <= 0:
             continue
         g = pb / pw[0] * (fb / cen[0]) ** alpha_min * (np.sinc(cen[0]) / np.sinc(fb)) ** 2
-        caps.append(0.0 if g >= 1 else float(np.sqrt(-np.log(g) / (4 * np.pi**2 * (fb**2 - cen[0] ** 2)))))
+        caps.append(
+            0.0 if g >= 1 else float(np.sqrt(-np.log(g) / (4 * np.pi**2 * (fb**2 - cen[0] ** 2))))
+        )
     return float(np.median(caps)) if caps else float("inf")
 
 
@@ -275,7 +303,8 @@ def estimate_blur(
     ----------
     frames : N 2-D frames of one scene (mono; any numeric dtype), frame 0 the reference.
     shifts : (N, 2) shifts (u, v) of each frame relative to frame 0 (project convention: a feature
-        at (r, c) in frame 0 is at (r + u, c + v) in frame n), or None (frames aligned to the pixel).
+        at (r, c) in frame 0 is at (r + u, c + v) in frame n), or None (frames aligned to the
+        pixel).
     max_edges : edge ROIs searched in frame 0 (:func:`find_edge_rois`).
     noise_sigma : per-pixel noise std (DN); estimated from frame 0 if None.
     fallback : the value used when no edge passes the checks.
@@ -310,12 +339,14 @@ def estimate_blur(
         raise ValueError("estimate_blur needs 2-D (mono) frames")
     n = len(arrs)
     sh = np.zeros((n, 2)) if shifts is None else np.asarray(shifts, dtype=np.float64).reshape(n, 2)
-    noise = estimate_noise_sigma(arrs[0], max_size=256) if noise_sigma is None else float(noise_sigma)
+    noise = (
+        estimate_noise_sigma(arrs[0], max_size=256) if noise_sigma is None else float(noise_sigma)
+    )
     rois = find_edge_rois(arrs[0], max_rois=max_edges)
     h, w = arrs[0].shape
     per_edge = []
     why = []
-    for (x, y, rw, rh) in rois:  # edges
+    for x, y, rw, rh in rois:  # edges
         vals = []
         for i, (a, (u, v)) in enumerate(zip(arrs, sh)):  # frames
             if not (np.isfinite(u) and np.isfinite(v)):
@@ -338,32 +369,50 @@ def estimate_blur(
             per_edge.append((float(np.median(v)), se))
     if not per_edge:
         common = max(set(why), key=why.count) if why else "no straight edge found"
-        return BlurEstimate(fallback, "fallback", reason=f"no usable edge ({len(rois)} candidates: {common}); "
-                                                          f"fallback {fallback:.2f} px")
+        return BlurEstimate(
+            fallback,
+            "fallback",
+            reason=f"no usable edge ({len(rois)} candidates: {common}); "
+            f"fallback {fallback:.2f} px",
+        )
     vals = np.array([p[0] for p in per_edge])
     ses = np.array([p[1] for p in per_edge])
     cap = spectral_cap(arrs, noise)
     if vals.min() > cap:
-        return BlurEstimate(fallback, "fallback",
-                            reason=f"edges measured {vals.min():.2f} px or more, above what the frames' spectrum "
-                                   f"allows ({cap:.2f} px): edges soft in the scene; fallback {fallback:.2f} px")
+        return BlurEstimate(
+            fallback,
+            "fallback",
+            reason=f"edges measured {vals.min():.2f} px or more, above what the frames' spectrum "
+            f"allows ({cap:.2f} px): edges soft in the scene; fallback {fallback:.2f} px",
+        )
     keep = vals <= cap
     vals, ses = vals[keep], ses[keep]
     lo = int(np.argmin(vals))
     group = vals <= vals[lo] + 2.0 * np.hypot(ses, ses[lo])
     wts = 1.0 / ses[group] ** 2
     raw = float(np.sum(wts * vals[group]) / wts.sum())
-    unc = float(max(1.0 / np.sqrt(wts.sum()),
-                    np.std(vals[group]) / np.sqrt(group.sum()) if group.sum() > 1 else 0.0))
+    unc = float(
+        max(
+            1.0 / np.sqrt(wts.sum()),
+            np.std(vals[group]) / np.sqrt(group.sum()) if group.sum() > 1 else 0.0,
+        )
+    )
     sigma = max(0.0, raw - unc)
-    return BlurEstimate(sigma, "edges", uncertainty=unc, raw=raw, n_edges=int(group.sum()),
-                        reason=f"{int(group.sum())} of {len(per_edge)} measured edges pooled "
-                               f"({raw:.3f} +- {unc:.3f} px), minus one standard error")
+    return BlurEstimate(
+        sigma,
+        "edges",
+        uncertainty=unc,
+        raw=raw,
+        n_edges=int(group.sum()),
+        reason=f"{int(group.sum())} of {len(per_edge)} measured edges pooled "
+        f"({raw:.3f} +- {unc:.3f} px), minus one standard error",
+    )
 
 
-def resolve_blur(setting, frames: Sequence[np.ndarray], shifts: np.ndarray | None = None,
-                 **kw) -> BlurEstimate:
-    """A ``blur_sigma`` setting (``"auto"`` or a number, see :func:`parse_blur_sigma`) as a BlurEstimate.
+def resolve_blur(
+    setting, frames: Sequence[np.ndarray], shifts: np.ndarray | None = None, **kw
+) -> BlurEstimate:
+    """A ``blur_sigma`` setting (``"auto"`` or a number) as a :class:`BlurEstimate`.
 
     A number is used as given (source "parameter"); ``"auto"`` runs :func:`estimate_blur` on the
     frames (mono) with ``kw``.
@@ -392,9 +441,15 @@ class BlurCalibration:
         self.current: BlurEstimate | None = None
         self._sets = 0
 
-    def update(self, frames: Sequence[np.ndarray], shifts: np.ndarray | None = None,
-               masks: Sequence[np.ndarray] | None = None) -> BlurEstimate:
-        """The blur for this set (mono frames; masks: valid pixels per frame or None), re-estimated when due."""
+    def update(
+        self,
+        frames: Sequence[np.ndarray],
+        shifts: np.ndarray | None = None,
+        masks: Sequence[np.ndarray] | None = None,
+    ) -> BlurEstimate:
+        """The blur for this set (mono frames; masks: valid pixels per frame or None).
+
+        Re-estimated when due (see the class)."""
         if self.setting != "auto":
             if self.current is None:
                 self.current = BlurEstimate(float(self.setting), "parameter", reason="given")

@@ -1,4 +1,4 @@
-"""Super-resolution without being told the blur (issue 17): accuracy floors on the independent model.
+"""Super-resolution without being told the blur (issue 17): accuracy floors.
 
 Frames from ``benchmarks/degrade_independent.py`` (not core/render.py: Lanczos
 scene on an 8x finer grid, Gaussian optics x pixel aperture of fill factor
@@ -7,6 +7,7 @@ real Seneca crops, with or without a sharp-edged roof in view. A small grid
 of cells so this runs in seconds; benchmarks/bench_superres_blind.py has the
 whole table.
 """
+
 import numpy as np
 import pytest
 
@@ -15,7 +16,11 @@ from subpix_ros.core.blur import BlurCalibration, estimate_blur, parse_blur_sigm
 from subpix_ros.core.shift import estimate_shift
 from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct
 
-LR = {2: 96, 3: 96, 4: 96}  # a roof of 0.3 x 0.38 frame sides: edges long enough to measure (>= ~25 px)
+LR = {
+    2: 96,
+    3: 96,
+    4: 96,
+}  # a roof of 0.3 x 0.38 frame sides: edges long enough to measure (>= ~25 px)
 
 
 def flight(crops, crop, p, blur, layout="grid", roof=False, fill=1.0, snr=40, jpeg=None, seed=0):
@@ -23,8 +28,18 @@ def flight(crops, crop, p, blur, layout="grid", roof=False, fill=1.0, snr=40, jp
     n_hr = (lr + 16) * p
     off = ((768 - n_hr) // 2,) * 2
     sc = scene_crop(crops[crop], p, lr, 8, off)
-    return degrade(sc, p, shift_layout(layout, p, seed=seed), blur, fill_factor=fill, snr_db=snr,
-                   jpeg_quality=jpeg, roof=roof, seed=seed, margin=8)
+    return degrade(
+        sc,
+        p,
+        shift_layout(layout, p, seed=seed),
+        blur,
+        fill_factor=fill,
+        snr_db=snr,
+        jpeg_quality=jpeg,
+        roof=roof,
+        seed=seed,
+        margin=8,
+    )
 
 
 def gain(fl, img):
@@ -42,6 +57,7 @@ def est_shifts(frames):
 
 
 # ------------------------------------------------------------------ the windowed method (eq. 7)
+
 
 def test_windowed_runs_when_every_shift_is_not_positive(crops):
     # bug: interleave concatenated an empty list of holes ("need at least one array to concatenate")
@@ -66,6 +82,7 @@ def test_windowed_not_below_bicubic_at_x3_x4(crops, p, blur):
 
 # ------------------------------------------------------------------ the blur estimate
 
+
 @pytest.mark.parametrize("p", [2, 4])
 @pytest.mark.parametrize("blur", [0.2, 0.5, 0.7])
 def test_blur_from_edges_within_tolerance_and_never_above(crops, p, blur):
@@ -88,8 +105,10 @@ def test_blur_never_above_truth_without_sharp_edges(crops, crop, blur):
 
 def test_narrower_aperture_biases_low(crops):
     # fill factor 0.8: the pixel's MTF is higher than the model's full box, so the estimate is lower
-    est = [estimate_blur(flight(crops, "crop_road", 2, 0.5, roof=True, fill=f, seed=2).frames).sigma
-           for f in (1.0, 0.8)]
+    est = [
+        estimate_blur(flight(crops, "crop_road", 2, 0.5, roof=True, fill=f, seed=2).frames).sigma
+        for f in (1.0, 0.8)
+    ]
     assert est[1] < est[0] <= 0.55
 
 
@@ -108,10 +127,14 @@ def test_calibration_kept_across_sets_and_refreshed(crops):
     first = cal.update(without.frames, without.shifts)
     assert first.source == "fallback"
     assert cal.update(with_edge.frames, with_edge.shifts) is first  # not due: set 2 of 2
-    e = cal.update(with_edge.frames, with_edge.shifts)  # due: an edge estimate replaces the fallback
+    e = cal.update(
+        with_edge.frames, with_edge.shifts
+    )  # due: an edge estimate replaces the fallback
     assert e.source == "edges" and abs(e.sigma - 0.5) <= 0.05
     cal.update(without.frames, without.shifts)
-    assert cal.update(without.frames, without.shifts) is e  # no edges in view: the edge estimate stays
+    assert (
+        cal.update(without.frames, without.shifts) is e
+    )  # no edges in view: the edge estimate stays
     fixed = BlurCalibration("0.3")
     assert fixed.update(without.frames).sigma == 0.3 and fixed.current.source == "parameter"
 
@@ -119,8 +142,12 @@ def test_calibration_kept_across_sets_and_refreshed(crops):
 # ------------------------------------------------------------------ never below bicubic
 
 CELLS = [  # (factor, layout, blur, jpeg, shift error px)
-    (2, "grid", 0.2, None, 0.0), (2, "random", 0.9, None, 0.0), (4, "grid", 0.5, None, 0.0),
-    (2, "grid", 0.5, 90, 0.0), (2, "random", 0.2, None, 0.1), (3, "random", 0.3, None, 0.0),
+    (2, "grid", 0.2, None, 0.0),
+    (2, "random", 0.9, None, 0.0),
+    (4, "grid", 0.5, None, 0.0),
+    (2, "grid", 0.5, 90, 0.0),
+    (2, "random", 0.2, None, 0.1),
+    (3, "random", 0.3, None, 0.0),
 ]
 
 

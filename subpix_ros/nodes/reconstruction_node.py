@@ -10,7 +10,11 @@ set completes the node publishes ``super_resolved`` (sensor_msgs/Image,
 luminance is super-resolved and the chroma upsampled; header = the reference
 frame's, since the image lies on its grid). Output pixel grid:
 low-resolution pixel i of the reference covers output pixels
-factor*i .. factor*i + factor - 1.
+factor*i .. factor*i + factor - 1. The optics blur of the model is
+``blur_sigma``: a number (lab calibration) or ``auto``, measured on straight
+edges in the frames by one :class:`subpix_ros.core.blur.BlurCalibration` per
+node (first set, then every 10th); the value used and its source are in the
+diagnostics (``blur_sigma``, ``blur_source``, ``blur_reason``).
 """
 from __future__ import annotations
 

@@ -43,17 +43,38 @@ def gain(seq, img):
 def test_superres_with_shift_file_npy(frames, capsys):
     d, paths, shifts, seq = frames
     out = d / "out.npy"
-    assert run(superres_cli, ["superres", *paths, "--factor", "2", "--shifts", shifts, "-o", str(out)]) == 0
+    # the frames' blur (0.4 px, as rendered) given as a lab calibration would be
+    assert run(superres_cli, ["superres", *paths, "--factor", "2", "--shifts", shifts, "--blur-sigma", "0.4",
+                              "-o", str(out)]) == 0
     img = np.load(out)
     assert img.shape == seq.truth.shape and img.dtype == np.float64
     assert gain(seq, img) > 4.0
-    assert "method=map" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "method=map" in text and "blur_sigma=0.400 px (parameter" in text
+
+
+def test_superres_blur_auto_reports_estimate_and_source(frames, tmp_path, capsys):
+    # default --blur-sigma auto: these frames (a field crop) have no straight edge, so the low fallback is
+    # used, said so, and the image is still better than bicubic
+    d, paths, shifts, seq = frames
+    out = tmp_path / "auto.npy"
+    assert run(superres_cli, ["superres", *paths, "--shifts", shifts, "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "blur_sigma=0.200 px (fallback: no usable edge" in text
+    assert gain(seq, np.load(out)) > 1.0
+
+
+@pytest.mark.parametrize("bad", ["-0.1", "3.5", "nan", "sharp"])
+def test_superres_bad_blur_sigma(frames, tmp_path, bad):
+    _, paths, shifts, _ = frames
+    with pytest.raises(CliError, match="--blur-sigma"):
+        run(superres_cli, ["superres", *paths, "--shifts", shifts, "--blur-sigma", bad, "-o", str(tmp_path / "o.png")])
 
 
 def test_superres_auto_shifts_png_and_tiff(frames):
     d, paths, _, seq = frames
     png, tif = d / "auto.png", d / "auto.tiff"
-    assert run(superres_cli, ["superres", *paths, "-o", str(png)]) == 0
+    assert run(superres_cli, ["superres", *paths, "--blur-sigma", "0.4", "-o", str(png)]) == 0
     img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
     assert img.dtype == np.uint8 and img.shape == seq.truth.shape
     assert gain(seq, img.astype(float)) > 4.0

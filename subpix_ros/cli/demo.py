@@ -261,6 +261,10 @@ def run(args: argparse.Namespace) -> int:
     summary["stage_ms_subpixel"] = {n: _ms(diag_subpixel, n, k) for n, k in stage_keys.items() if n != "mosaic_node"}
     summary["stage_ms_seneca"] = {n: _ms(diag, n, k) for n, k in stage_keys.items() if n in ("registration_node", "mosaic_node")}
     summary["dropped_frames"] = {n: diag.get(n, {}).get("dropped_frames") for n in stage_keys}
+    rec = diag_subpixel.get("reconstruction_node", {})
+    if "blur_sigma" in rec:  # the blur the reconstruction used (blur_sigma: auto) and where it came from
+        summary["blur"] = {"sigma_px": float(rec["blur_sigma"]), "source": rec.get("blur_source", ""),
+                           "reason": rec.get("blur_reason", ""), "rendered_px": truth.get("blur_sigma_lr_px")}
     summary["elapsed_s"] = time.monotonic() - t_start
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     lines = []
@@ -270,6 +274,10 @@ def run(args: argparse.Namespace) -> int:
     lines.append(f"  super-resolved images (x{factor}): {len(srs)}; PSNR gain over bicubic of the reference frame: "
                  + ", ".join(f"{g['gain_db']:+.2f} dB ({g['psnr_sr_db']:.2f} vs {g['psnr_bicubic_db']:.2f})"
                              for g in gains))
+    if "blur" in summary:
+        b = summary["blur"]
+        lines.append(f"  optics blur used: {b['sigma_px']:.3f} px ({b['source']}: {b['reason']}); the flight was "
+                     f"rendered with {b['rendered_px']} px")
     lines.append(f"  seneca strip: 9 frames in, mosaic {summary.get('mosaic_px', 'not produced')}")
     lines.append("  time per stage (median), subpixel flight (ms, 448x448 in): " + ", ".join(
         f"{n.replace('_node', '')} {v}" for n, v in summary["stage_ms_subpixel"].items()))

@@ -66,6 +66,12 @@ class MTFResult:
     pixel_pitch_m: float | None = None
     mtf50_lp_mm: float | None = None
     mtf30_lp_mm: float | None = None
+    # edge quality (what core/blur.py screens edges by): RMS of the per-row edge positions about the
+    # fitted line (px), step height between the ESF's plateaus (intensity units), and the RMS of the
+    # pixels about the ESF beyond 2 px from the edge, relative to that step (texture beside the edge)
+    line_rms_px: float = float("nan")
+    contrast: float = float("nan")
+    texture: float = float("nan")
 
 
 def mtf_crossing(freqs: np.ndarray, mtf: np.ndarray, level: float) -> float:
@@ -212,6 +218,7 @@ def slanted_edge_mtf(
     resid = cent[good] - (a + b * rows[good])
     keep = np.abs(resid) < max(3 * np.std(resid), 1.0)  # drop rows where the centroid failed
     b, a = np.polyfit(rows[good][keep], cent[good][keep], 1)
+    line_rms = float(np.sqrt(np.mean((cent[good][keep] - (a + b * rows[good][keep])) ** 2)))
     angle = float(np.degrees(np.arctan(b)))
     # coverage of the sub-pixel phases: the edge must move >= 1 px over the rows used
     if abs(b) * img.shape[0] < OVERSAMPLE:
@@ -242,6 +249,11 @@ def slanted_edge_mtf(
     pos_in_bin = dist[sel] * OVERSAMPLE - np.floor(dist[sel] * OVERSAMPLE) - 0.5
     delta = np.bincount(idx, weights=pos_in_bin, minlength=2 * nb)[: 2 * nb] / np.maximum(cnt, 1)
     esf = esf - np.gradient(esf) * delta  # first-order move of each bin mean to its bin centre
+    # texture beside the edge: pixels more than 2 px from it about the ESF, relative to the step
+    far = np.abs(dist[sel]) > 2.0
+    n_pl = min(2 * OVERSAMPLE, esf.size // 4)
+    step = abs(float(esf[-n_pl:].mean() - esf[:n_pl].mean()))
+    texture = float(np.sqrt(np.mean((img[sel][far] - esf[idx[far]]) ** 2)) / max(step, 1e-12)) if far.any() else np.inf
     if esf[-OVERSAMPLE:].mean() < esf[:OVERSAMPLE].mean():
         esf = esf[::-1]  # dark-to-bright along +distance
     lsf = np.zeros_like(esf)
@@ -266,7 +278,8 @@ def slanted_edge_mtf(
     mtf50 = mtf_crossing(freqs, mtf, 0.5)
     mtf30 = mtf_crossing(freqs, mtf, 0.3)
     res = MTFResult(freqs=freqs, mtf=mtf, mtf50=mtf50, mtf30=mtf30, angle_deg=angle, transposed=transposed,
-                    esf=esf, lsf=lsfw, pixel_pitch_m=pixel_pitch_m)
+                    esf=esf, lsf=lsfw, pixel_pitch_m=pixel_pitch_m, line_rms_px=line_rms, contrast=step,
+                    texture=texture)
     if pixel_pitch_m is not None:
         if not pixel_pitch_m > 0:
             raise ValueError("pixel_pitch_m must be > 0")

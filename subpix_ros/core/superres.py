@@ -37,8 +37,10 @@ Main entry point :func:`reconstruct`. Methods:
   forward model, the inputs are never resampled — warm-started from the
   Fourier solution.
 * ``"windowed"``: eq. 7 (normalised) as one separable filter
-  (``cv2.sepFilter2D``) on the interleaved grid; needs shifts on the k/p
-  grid (falls back otherwise).
+  (``cv2.sepFilter2D``) on the interleaved grid, then a Gaussian of
+  ``WINDOWED_SMOOTH_LR_PX`` LR px (the Gaussian regularisation eq. 9 turns
+  the windowed solution into); needs shifts on the k/p grid (falls back
+  otherwise).
 * ``"pinv"``: eq. 6, reference only (unstable; O(n^3)).
 * ``"bicubic"``: bicubic upscaling of the reference frame (the baseline).
 
@@ -76,9 +78,12 @@ __all__ = [
     "estimate_noise_sigma",
     "psnr",
     "METHODS",
+    "BLUR_AUTO",
 ]
 
 METHODS = ("map", "windowed", "pinv", "bicubic")
+WINDOWED_SMOOTH_LR_PX = 0.35  # Gaussian std (LR px) applied to the windowed eq. 7 solution
+BLUR_AUTO = "auto"  # blur_sigma setting: estimate the blur from the frames (core/blur.py)
 MAX_FACTOR = 4
 
 
@@ -93,7 +98,9 @@ class SRResult:
     given). weights: per-frame relative weight at mid frequency (1 = a frame
     as good as the reference). shifts: the shifts used (refined if
     ``refine_shifts``), shift_sigma: per-frame registration error std (LR px)
-    the model assumed.
+    the model assumed. blur_sigma: the optics blur (LR px) the model used,
+    blur_source: where it came from ("parameter", "edges", "fallback"),
+    blur_reason: a one-line account (see :mod:`subpix_ros.core.blur`).
     """
 
     image: np.ndarray
@@ -105,6 +112,9 @@ class SRResult:
     shifts: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     shift_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
     factor: int = 1
+    blur_sigma: float = float("nan")
+    blur_source: str = ""
+    blur_reason: str = ""
 
 
 def psnr(image: np.ndarray, truth: np.ndarray, border: int = 0, peak: float = 255.0) -> float:
@@ -1419,6 +1429,47 @@ def reconstruct(
     shifts: np.ndarray | Sequence[Sequence[float]] | None,
     factor: int,
     *,
+    blur_sigma=0.4,
+    **kw,
+) -> SRResult:
+    """Reconstruct a factor-x super-resolved image from N >= 2 shifted LR frames.
+
+    ``blur_sigma``: the optics blur std in LR px (Gaussian PSF of the model):
+    a number (e.g. a lab calibration), ``"auto"`` (:data:`BLUR_AUTO`:
+    measured on straight edges in the frames, biased low, or a low fallback
+    without edges, :func:`subpix_ros.core.blur.estimate_blur`; only the
+    "map" method uses a blur), or a :class:`subpix_ros.core.blur.BlurEstimate`
+    (e.g. a flight's calibration, :class:`subpix_ros.core.blur.BlurCalibration`).
+    The value used and its source are in the result (``blur_sigma``,
+    ``blur_source``, ``blur_reason``). Other arguments: :func:`_reconstruct`.
+    """
+    from .blur import BlurEstimate, estimate_blur, parse_blur_sigma
+
+    if isinstance(blur_sigma, BlurEstimate):
+        est = blur_sigma
+    else:
+        v = parse_blur_sigma(blur_sigma)
+        if v == BLUR_AUTO:
+            if kw.get("method", "map") == "map" and frames is not None and len(frames) >= 2 \
+                    and all(np.ndim(f) == 2 for f in frames):
+                sh = None if shifts is None else np.asarray(shifts, dtype=np.float64)
+                if sh is not None and (sh.shape != (len(frames), 2) or not np.isfinite(sh).all()):
+                    sh = None  # malformed shifts: _reconstruct says why
+                est = estimate_blur(frames, sh)
+            else:  # the blur is not used (or the input is malformed: _reconstruct says why)
+                est = BlurEstimate(0.0, "unused", reason="the method does not model the blur")
+        else:
+            est = BlurEstimate(float(v), "parameter", reason="given")
+    res = _reconstruct(frames, shifts, factor, blur_sigma=est.sigma, **kw)
+    res.blur_sigma, res.blur_source, res.blur_reason = float(est.sigma), est.source, est.reason
+    return res
+
+
+def _reconstruct(
+    frames: Sequence[np.ndarray],
+    shifts: np.ndarray | Sequence[Sequence[float]] | None,
+    factor: int,
+    *,
     method: str = "map",
     masks: Sequence[np.ndarray] | None = None,
     shift_cov: np.ndarray | None = None,
@@ -1488,6 +1539,9 @@ def reconstruct(
         y, filled = interleave(arrs, offs, p, p, dtype=np.float32 if _small_ints(arrs) else np.float64)
         if method == "windowed":
             x = windowed_solution(y, p, p, w=p + 2 if window is None else window)
+            # eq. 9's Gaussian regularisation of the windowed solution: without it eq. 7 amplifies noise
+            # and aliasing below bicubic (x3, x4, and x2 at low blur; docs/design-notes.md)
+            x = cv2.GaussianBlur(x, (0, 0), WINDOWED_SMOOTH_LR_PX * p, borderType=cv2.BORDER_REFLECT_101)
         else:
             h2 = (y.shape[0] // p) * p - (p - 1)
             w2 = (y.shape[1] // p) * p - (p - 1)

@@ -230,6 +230,8 @@ def interleave(
             rr, cc = np.nonzero(cnt == 0)
         holes_r.append(first_r + p * rr)
         holes_c.append(first_c + q * cc)
+    if not holes_r:  # every phase plane covered by its frame (e.g. all shifts <= 0): nothing to fill
+        return y, filled
     hr, hc = np.concatenate(holes_r).astype(np.intp), np.concatenate(holes_c).astype(np.intp)
     if hr.size:
         # holes (missing phases, border strips): nearest filled sample along rows, then columns;

@@ -10,6 +10,8 @@ input subscriptions because the pipeline feeds it directly.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import time
 from collections import defaultdict
 from typing import Any, Callable, Sequence
@@ -22,8 +24,8 @@ from subpix_ros.stages.params import Spec
 
 
 def ros_params(specs: Sequence[Spec]) -> tuple[Param, ...]:
-    """A stage's parameter specs as node parameters (same names, defaults, ranges, descriptions)."""
-    return tuple(Param(s.name, s.default, s.description, s.min, s.max, s.choices, s.read_only)
+    """A stage's parameter specs as node parameters (same names, defaults, ranges, checks)."""
+    return tuple(Param(**{f.name: getattr(s, f.name) for f in dataclasses.fields(Spec)})
                  for s in specs)
 
 

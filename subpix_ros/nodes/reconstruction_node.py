@@ -11,8 +11,12 @@ flight) and at shutdown. For each set the node publishes ``super_resolved``
 (mono16 for mono16), bgr8 for colour input: luminance is super-resolved and
 the chroma upsampled; header = the reference frame's, since the image lies
 on its grid). Output pixel grid: low-resolution pixel i of the reference
-covers output pixels factor*i .. factor*i + factor - 1. Set assembly and the
-solve are :class:`~subpix_ros.stages.ReconstructionStage`'s.
+covers output pixels factor*i .. factor*i + factor - 1. The optics blur of
+the model is ``blur_sigma``: a number (lab calibration) or ``auto``, measured
+on straight edges in the frames (first set, then every 10th); the value used
+and its source are in the diagnostics (``blur_sigma``, ``blur_source``,
+``blur_reason``). Set assembly, the blur calibration and the solve are
+:class:`~subpix_ros.stages.ReconstructionStage`'s.
 """
 
 from __future__ import annotations
@@ -131,6 +135,9 @@ class ReconstructionNode(StageNode):
             memory_estimate_mb=st.memory_estimate_mb,
             memory_reduction=st.memory_reduction,
             memory_reduced=st.memory_reduced,
+            blur_sigma="n/a" if sr.blur_sigma is None else sr.blur_sigma,
+            blur_source=sr.blur_source or "n/a",
+            blur_reason=getattr(sr.result, "blur_reason", "") or "n/a",
         )
         if not sr.fell_back:
             self.diag.ok()

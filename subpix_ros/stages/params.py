@@ -7,7 +7,7 @@ ranges), so a params file serves a node and a stage alike.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 
 @dataclass
@@ -21,6 +21,7 @@ class Spec:
     max: float | int | None = None
     choices: Sequence[str] | None = None
     read_only: bool = False
+    validate: Callable[[Any], str | None] | None = None  # extra check: why a value is bad, or None
 
     def check(self, value: Any) -> str | None:
         """Return why ``value`` is not acceptable, or None."""
@@ -39,6 +40,10 @@ class Spec:
             return f"{self.name}: {value!r} is above the maximum {self.max}"
         if self.choices and value not in self.choices:
             return f"{self.name}: {value!r} is not one of {', '.join(self.choices)}"
+        if self.validate is not None:
+            bad = self.validate(value)
+            if bad:
+                return f"{self.name}: {bad}"
         return None
 
 

@@ -241,3 +241,39 @@ def test_registration_parameters_at_run_time(ctx):
     finally:
         node.close()
         node.destroy_node()
+
+
+def test_reconstruction_blur_sigma_parameter(ctx, crops):
+    # blur_sigma: "auto" (default) or a number in 0..3; bad values are rejected and the old value stays;
+    # the blur used and its source are in the diagnostics
+    from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
+    from subpix_ros.nodes.reconstruction_node import ReconstructionNode
+
+    node = ReconstructionNode(subscribe_inputs=False, parameter_overrides=[Parameter("blur_sigma", value="sharp")])
+    try:
+        assert node.p("blur_sigma") == "auto"  # rejected at start: default kept
+        for bad in ("5", "-0.2", "blurry"):
+            r = node.set_parameters([Parameter("blur_sigma", value=bad)])[0]
+            assert not r.successful and "blur_sigma" in r.reason and node.p("blur_sigma") == "auto"
+        fl = degrade(scene_crop(crops["crop_road"], 2, 96, 8, (280, 280)), 2, shift_layout("grid", 2), 0.5,
+                     roof=True, margin=8)
+        ref = pl.Frame(T0, fl.frames[0])
+        members = [(pl.Shift(T0 + i, T0, float(u), float(v), 0.0, 0.01, 0.01),
+                    pl.Aligned(T0 + i, f, np.ones(f.shape, bool), ref, np.eye(3)))
+                   for i, (f, (u, v)) in enumerate(zip(fl.frames[1:], fl.shifts[1:]), start=1)]
+        from subpix_ros.stages.reconstruction import FrameSet
+
+        got = []
+        node.listen("super_resolved", got.append)
+        node._process(FrameSet(ref, members, True, "complete"))
+        res = got[-1]
+        assert res.blur_source == "edges" and abs(res.blur_sigma - 0.5) <= 0.05
+        assert node.diag._status.values["blur_source"] == "edges"
+        assert node.set_parameters([Parameter("blur_sigma", value="0.35")])[0].successful
+        node._process(FrameSet(ref, members, True, "complete"))
+        res = got[-1]
+        assert res.blur_source == "parameter" and res.blur_sigma == 0.35
+        assert node.diag._status.values["blur_sigma"] == "0.35"
+    finally:
+        node.close()
+        node.destroy_node()

@@ -189,14 +189,27 @@ def test_stamps_beyond_the_tolerance_do_not_pair_and_non_finite_shifts_are_rejec
 
 
 def test_solver_options_go_to_the_reconstruction_and_other_keys_are_ignored(seq):
-    stage = ReconstructionStage(n_frames=4, method="map", queue_size=5, blur_sigma=0.8, other=1)
-    assert stage.solver_options == {"blur_sigma": 0.8} and stage.ignored == {"other": 1}
-    plain = ReconstructionStage(n_frames=4, method="map")  # blur_sigma 0.4, the core's default
+    stage = ReconstructionStage(n_frames=4, method="map", queue_size=5, reg=8.0, other=1)
+    assert stage.solver_options == {"reg": 8.0} and stage.ignored == {"other": 1}
+    plain = ReconstructionStage(n_frames=4, method="map")  # reg 1.0, the core's default
     _, pairs = _set(seq, n=4)
     a = [sr for s, al in pairs for sr in stage.add(s, al)]
     b = [sr for s, al in pairs for sr in plain.add(s, al)]
     assert len(a) == len(b) == 1 and not np.array_equal(a[0].image, b[0].image)
     assert stage.stats.last_warning == "parameters not used by the reconstruction: other"
+
+
+def test_blur_sigma_is_a_checked_parameter_and_reaches_the_result(seq):
+    with pytest.raises(ValueError, match="blur_sigma"):
+        ReconstructionStage(blur_sigma="blurry")
+    stage = ReconstructionStage(n_frames=4, method="map", blur_sigma="0.3")
+    _, pairs = _set(seq, n=4)
+    (sr,) = [sr for s, al in pairs for sr in stage.add(s, al)]
+    assert sr.blur_sigma == 0.3 and sr.blur_source == "parameter"
+    stage.configure(blur_sigma="auto")
+    _, pairs = _set(seq, t0=T0 + 10 * DT, n=4)
+    (sr,) = [sr for s, al in pairs for sr in stage.add(s, al)]
+    assert sr.blur_source in ("edges", "fallback") and sr.blur_sigma <= 0.45
 
 
 def test_uint16_frames_give_a_uint16_image(seq):

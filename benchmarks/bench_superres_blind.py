@@ -1,0 +1,345 @@
+"""Super-resolution when the camera's blur is not given (issue 17): gain over bicubic per cell.
+
+Frames come from the independent degradation model
+(``benchmarks/degrade_independent.py``, not the reconstruction's own
+``core/render.py``): real full-resolution Seneca crops, Gaussian optics and a
+pixel aperture of fill factor 0.8-1.0 integrated on an 8x finer grid,
+Poisson-Gaussian noise at the cell's SNR, 8 bit. Cells: true blur x SNR x
+factor x shift layout (``grid``: the p x p k/p grid; ``random``: max(8, p^2)
+frames uniform in [-1, 1) px); shifts are estimated from the frames
+(``core.shift.estimate_shift``) in every cell. Per cell two scenes: a real
+crop as it is ("none": whatever edges nature gives) and another crop with a
+sharp-edged roof in view ("edge"). Extra cells: JPEG quality 90 frames, and
+0.1 px of unmodelled shift error (estimated shifts plus N(0, 0.1^2) px, used
+as given: ``refine_shifts=False``, no covariance).
+
+Columns per scene: PSNR gain over bicubic of frame 0 (dB; interior,
+4 factor px cut) of CG (Tikhonov, scipy CG on the box-integration operator
+with no optics model, gradient regulariser; weight tuned once per factor on
+its first cell), ``told`` (ours told the true blur), ``auto`` (ours with
+``blur_sigma="auto"``, or the default ``blur_sigma`` where the code has no
+``auto``), and the blur that ``auto`` used (``est``) with its source.
+
+Run: ``python benchmarks/bench_superres_blind.py [--quick] [--json out.json]
+[--only quality|timing]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from degrade_independent import degrade, scene_crop, shift_layout  # noqa: E402
+
+from subpix_ros.core.shift import estimate_shift  # noqa: E402
+from subpix_ros.core import superres  # noqa: E402
+from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct  # noqa: E402
+from subpix_ros.core.superres_model import FrameOperator, translation_homography  # noqa: E402
+from subpix_ros.data import CROP_NAMES, load_crop  # noqa: E402
+
+LR = {2: 128, 3: 112, 4: 96}  # LR frame side per factor
+MARGIN = 8
+FILLS = (1.0, 0.9, 0.8)
+_AUTO = getattr(superres, "BLUR_AUTO", None)  # None: code from before issue 17 (no "auto")
+
+
+def tikhonov_cg(frames, shifts, p, lam, iters=60):
+    """argmin sum ||A_n x - y_n||^2 + lam ||grad x||^2 by scipy CG (A_n: box, no optics)."""
+    from scipy.sparse.linalg import LinearOperator, cg
+
+    h, w = frames[0].shape
+    shape = (h * p, w * p)
+    ops = [FrameOperator(translation_homography(*s), (h, w), shape, p, p, 0.0) for s in shifts]
+    lap = np.array([[0, -1, 0], [-1, 4, -1], [0, -1, 0]], float)
+
+    def normal(v):
+        x = np.asarray(v, dtype=np.float64).reshape(shape)
+        out = lam * cv2.filter2D(x, -1, lap, borderType=cv2.BORDER_REFLECT)
+        for op in ops:
+            out = out + op.adjoint(op.forward(x))
+        return out.ravel()
+
+    b = sum(op.adjoint(np.asarray(f, float) * op.valid) for op, f in zip(ops, frames)).ravel()
+    x0 = bicubic_upscale(frames[0], p).ravel()
+    sol, _ = cg(
+        LinearOperator((b.size, b.size), matvec=normal, dtype=np.float64), b, x0=x0, maxiter=iters
+    )
+    return sol.reshape(shape)
+
+
+def gain(fl, img):
+    b = 4 * fl.factor
+    return psnr(img, fl.truth, b) - psnr(bicubic_upscale(fl.frames[0], fl.factor), fl.truth, b)
+
+
+def est_shifts(frames):
+    out = []
+    for f in frames:
+        r = estimate_shift(frames[0], f)
+        out.append((r.u, r.v) if r.ok else (np.nan, np.nan))
+    return np.array(out)
+
+
+def run_auto(frames, shifts, p, **kw):
+    if _AUTO is None:
+        return reconstruct(frames, shifts, p, **kw)
+    return reconstruct(frames, shifts, p, blur_sigma=_AUTO, **kw)
+
+
+def cells(quick: bool):
+    blurs = (0.2, 0.5, 0.9) if quick else (0.2, 0.3, 0.5, 0.7, 0.9)
+    snrs = (40,) if quick else (30, 40, 50)
+    factors = (2, 4) if quick else (2, 3, 4)
+    out = []
+    for p in factors:
+        for layout in ("grid", "random"):
+            for snr in snrs:
+                for b in blurs:
+                    out.append(dict(p=p, layout=layout, snr=snr, blur=b, jpeg=None, err=0.0))
+    for layout in ("grid", "random"):  # JPEG frames and unmodelled shift error: x2, 40 dB
+        for b in ((0.3, 0.7) if quick else (0.2, 0.5, 0.9)):
+            out.append(dict(p=2, layout=layout, snr=40, blur=b, jpeg=90, err=0.0))
+            out.append(dict(p=2, layout=layout, snr=40, blur=b, jpeg=None, err=0.1))
+    return out
+
+
+def scenes_for(k: int):
+    """(crop name, roof) of the two scenes of cell k: a crop as it is and another with a roof."""
+    n = len(CROP_NAMES)
+    return [(CROP_NAMES[k % n], False), (CROP_NAMES[(k + 1) % n], True)]
+
+
+def quality(quick: bool, json_out: str | None) -> None:
+    crops = {c: load_crop(c) for c in CROP_NAMES}
+    lam = {}
+    rows = []
+    label_auto = "auto" if _AUTO else "default"
+    default = inspect.signature(reconstruct).parameters["blur_sigma"].default
+    print(
+        "\nGain over bicubic (dB) per cell; 'none' = crop as it is, 'edge' = another crop with a "
+        f"roof in view; auto column = blur_sigma={_AUTO or f'default ({default})'}"
+    )
+    hdr = (
+        f"{'p':>1s} {'layout':6s} {'SNR':>3s} {'blur':>4s} {'extra':9s} | "
+        + " | ".join(
+            f"{t:4s} {'ff':>3s} {'CG':>6s} {'told':>6s} {label_auto:>7s} {'est':>5s} {'src':5s}"
+            for t in ("none", "edge")
+        )
+        + " | s"
+    )
+    print(hdr)
+    for k, cell in enumerate(cells(quick)):
+        p = cell["p"]
+        t0 = time.perf_counter()
+        line = []
+        for j, (crop, roof) in enumerate(scenes_for(k)):
+            ff = FILLS[(k + j) % len(FILLS)]
+            n_hr = (LR[p] + 2 * MARGIN) * p
+            off = ((768 - n_hr) // 2,) * 2
+            sc = scene_crop(crops[crop], p, LR[p], MARGIN, off)
+            shifts = shift_layout(cell["layout"], p, seed=100 + k)
+            fl = degrade(
+                sc,
+                p,
+                shifts,
+                cell["blur"],
+                fill_factor=ff,
+                snr_db=cell["snr"],
+                jpeg_quality=cell["jpeg"],
+                roof=roof,
+                seed=k * 7 + j,
+                margin=MARGIN,
+            )
+            sh = est_shifts(fl.frames)
+            kw = {}
+            if cell["err"]:
+                noise = np.random.default_rng(500 + k).normal(0, cell["err"], sh.shape)
+                noise[0] = 0
+                sh = sh + noise
+                kw["refine_shifts"] = False
+            keep = np.isfinite(sh).all(axis=1)
+            frames = [f for f, ok in zip(fl.frames, keep) if ok]
+            sh = sh[keep]
+            if (
+                p not in lam
+            ):  # tune the reference's weight once per factor (first cell, first scene)
+                lam[p] = max(
+                    (gain(fl, tikhonov_cg(frames, sh, p, lm)), lm)
+                    for lm in (0.003, 0.01, 0.03, 0.1)
+                )[1]
+            g_cg = gain(fl, tikhonov_cg(frames, sh, p, lam[p]))
+            told = reconstruct(frames, sh, p, blur_sigma=cell["blur"], **kw)
+            auto = run_auto(frames, sh, p, **kw)
+            est = float(getattr(auto, "blur_sigma", np.nan))
+            src = str(getattr(auto, "blur_source", "-"))
+            rec = dict(
+                cell,
+                k=k,
+                crop=crop,
+                roof=roof,
+                fill=ff,
+                cg=g_cg,
+                told=gain(fl, told.image),
+                auto=gain(fl, auto.image),
+                est=est,
+                source=src,
+                auto_method=auto.method,
+                auto_reason=auto.reason,
+                lam=lam[p],
+                n_frames=len(frames),
+            )
+            rows.append(rec)
+            line.append(
+                f"{'':4s} {ff:3.1f} {rec['cg']:+6.2f} {rec['told']:+6.2f} {rec['auto']:+7.2f} "
+                f"{est:5.2f} {src[:5]:5s}"
+            )
+        extra = (
+            f"jpeg{cell['jpeg']}"
+            if cell["jpeg"]
+            else (f"err{cell['err']:.1f}px" if cell["err"] else "")
+        )
+        print(
+            f"{p:1d} {cell['layout']:6s} {cell['snr']:3d} {cell['blur']:4.1f} {extra:9s} | "
+            + " | ".join(line)
+            + f" | {time.perf_counter() - t0:4.1f}",
+            flush=True,
+        )
+    summarise(rows, label_auto)
+    if json_out:
+        Path(json_out).write_text(json.dumps(rows, indent=1))
+
+
+def summarise(rows, label_auto):
+    a = np.array([r["auto"] for r in rows])
+    cg = np.array([r["cg"] for r in rows])
+    told = np.array([r["told"] for r in rows])
+    roof = np.array([r["roof"] for r in rows])
+    est = np.array([r["est"] for r in rows])
+    blur = np.array([r["blur"] for r in rows])
+    snr = np.array([r["snr"] for r in rows])
+    clean = np.array([r["jpeg"] is None and not r["err"] for r in rows])
+    print(
+        f"\nSummary over {len(rows)} scene-cells (lambda of CG per factor: "
+        f"{ {r['p']: r['lam'] for r in rows} })"
+    )
+    print(
+        f"  {label_auto}: min gain over bicubic {a.min():+.2f} dB "
+        f"(cells below bicubic: {(a < 0).sum()}); "
+        f"told the truth: min {told.min():+.2f} dB; CG: min {cg.min():+.2f} dB"
+    )
+    d = a - cg
+    print(
+        f"  {label_auto} - CG: min {d.min():+.2f} dB, median {np.median(d):+.2f}; "
+        "cells short of +1.0 dB: "
+        f"{(d < 1.0).sum()} of {d.size}"
+    )
+    e = told[roof] - a[roof]
+    print(
+        f"  edge in view: told - {label_auto}: max {e.max():+.2f} dB, median {np.median(e):+.2f}; "
+        f"cells beyond 1.0 dB: {(e > 1.0).sum()} of {e.size}"
+    )
+    if np.isfinite(est).any():
+        err = est - blur
+        sel = roof & clean & (blur <= 0.7) & (snr == 40)
+        if sel.any():
+            print(
+                "  blur estimate, edge scenes, blur <= 0.7, 40 dB: error min "
+                f"{err[sel].min():+.3f} max {err[sel].max():+.3f} px; within 0.05 px: "
+                f"{(np.abs(err[sel]) <= 0.05).sum()} of {sel.sum()}"
+            )
+        print(
+            f"  blur estimate above the truth by > 0.05 px: {(err > 0.05).sum()} of {err.size} "
+            "scene-cells "
+            f"(max {err.max():+.3f} px)"
+        )
+        for src in sorted({r["source"] for r in rows}):
+            s = np.array([r["source"] == src for r in rows])
+            print(
+                f"    source {src}: {s.sum()} scene-cells, error median {np.median(err[s]):+.3f} px"
+            )
+
+
+def timing(repeats: int) -> None:
+    """Calibration on 8 frames of 512x512 and one set's reconstruction with a fixed blur vs auto."""
+    hr = load_crop("crop_road")
+    p = 2
+    n_lr = 352  # the crop allows (352 + 16) * 2 = 736 HR px: frames for the reconstruction timing
+    sc = scene_crop(hr, p, n_lr, MARGIN, (16, 16))
+    fl = degrade(
+        sc,
+        p,
+        shift_layout("random", p, 8, seed=3),
+        0.5,
+        fill_factor=0.9,
+        snr_db=40,
+        roof=True,
+        margin=MARGIN,
+    )
+    frames512 = [cv2.resize(f, (512, 512), interpolation=cv2.INTER_CUBIC) for f in fl.frames]
+    print(
+        f"\nTiming (load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs), "
+        f"best / median of {repeats}"
+    )
+    try:
+        from subpix_ros.core.blur import estimate_blur
+    except ImportError:
+        estimate_blur = None
+    if estimate_blur is not None:
+        sh = est_shifts(frames512)
+        ts = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            est = estimate_blur(frames512, sh)
+            ts.append(time.perf_counter() - t)
+        print(
+            f"  calibration estimate_blur, 8 frames 512x512: best {min(ts):.3f} s "
+            f"median {np.median(ts):.3f} s "
+            f"(sigma {est.sigma:.3f} px, source {est.source}, {est.n_edges} edges)"
+        )
+    sh = est_shifts(fl.frames)
+    for name, kw in (
+        ("fixed blur 0.4", dict(blur_sigma=0.4)),
+        ("fixed blur 0.4, shifts as given", dict(blur_sigma=0.4, refine_shifts=False)),
+    ):
+        ts = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            reconstruct(fl.frames, sh, p, **kw)
+            ts.append(time.perf_counter() - t)
+        print(
+            f"  reconstruct {len(fl.frames)} frames {n_lr}x{n_lr} x{p}, {name:32s}: "
+            f"best {min(ts):.3f} s "
+            f"median {np.median(ts):.3f} s"
+        )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="a smaller grid of cells")
+    ap.add_argument(
+        "--json", default=None, help="write every scene-cell's figures to this JSON file"
+    )
+    ap.add_argument("--only", choices=["quality", "timing"], default=None)
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args()
+    print(
+        f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; "
+        f"OpenCV threads {cv2.getNumThreads()}"
+    )
+    if args.only in (None, "quality"):
+        quality(args.quick, args.json)
+    if args.only in (None, "timing"):
+        timing(args.repeats)
+
+
+if __name__ == "__main__":
+    main()

@@ -32,7 +32,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from ..runtime import keep_freed_memory
+from ..runtime import RuntimeSetupError, configure_ros_environment, keep_freed_memory
 
 __all__ = [
     "Param",
@@ -458,9 +458,18 @@ class Diagnostics:
 def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None, threads: int | None = None) -> int:
     """Init rclpy, build the nodes, spin them on a MultiThreadedExecutor, shut down cleanly.
 
-    Freed frame buffers stay in the process's heap for reuse (:func:`subpix_ros.runtime.keep_freed_memory`).
+    Freed frame buffers stay in the process's heap for reuse (:func:`subpix_ros.runtime.keep_freed_memory`);
+    the ROS / DDS defaults of :func:`subpix_ros.runtime.configure_ros_environment` are applied before the
+    participant is created, or the process refuses to start with one line on stderr (exit status 2).
     """
     keep_freed_memory()
+    try:
+        configure_ros_environment()
+    except RuntimeSetupError as exc:
+        import sys
+
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     rclpy.init(args=args)
     nodes: list[Node] = []
     executor = MultiThreadedExecutor(num_threads=threads)

@@ -22,6 +22,7 @@ from subpix_ros.nodes.common import Param, camera_qos, latched_qos, run_nodes
 
 
 class MosaicNode(StageNode):
+    MAIN_INPUTS = ("image", "image/compressed")
     PARAMS = (
         Param("camera_reliable", False, "subscribe to the camera with reliable QoS instead of SensorDataQoS"),
         Param("publish_rate_hz", 1.0, "how often the mosaic is published (Hz)", 0.01, 30.0),

@@ -29,6 +29,7 @@ from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes
 
 
 class ReconstructionNode(StageNode):
+    MAIN_INPUTS = ("aligned",)
     PARAMS = (
         Param("factor", 2, "resolution factor", 2, 4),
         Param("n_frames", 8, "frames per super-resolved image (the reference included)", 2, 64),

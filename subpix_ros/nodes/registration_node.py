@@ -57,6 +57,7 @@ from subpix_ros.nodes.common import (Param, camera_qos, latched_qos, publish_if_
 
 
 class RegistrationNode(StageNode):
+    MAIN_INPUTS = ("image", "image/compressed")
     PARAMS = (
         Param("camera_reliable", False, "subscribe to the camera with reliable QoS instead of SensorDataQoS"),
         Param("queue_size", 2, "frames waiting for the worker; the oldest is dropped beyond this", 1, 100),

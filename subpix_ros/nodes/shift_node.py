@@ -31,6 +31,7 @@ def gray(image: np.ndarray) -> np.ndarray:
 
 
 class ShiftNode(StageNode):
+    MAIN_INPUTS = ("aligned",)
     PARAMS = (
         Param("queue_size", 4, "aligned frames waiting for the worker; the oldest is dropped beyond this", 1, 100),
         Param("method", "default", "estimator: default (iterative, at the accuracy limit) or seed (the paper's single solve)",

@@ -148,7 +148,8 @@ def one_run(args, env: dict, bag: Path, log: Path) -> dict:
     nodes = start_nodes(env, args.reliable, log)
     time.sleep(args.settle)
     t0 = time.monotonic()
-    r = subprocess.run(["subpix", "replay", str(bag), "--clock", *args.replay_args], env=env, capture_output=True,
+    renv = dict(env, **dict(e.split("=", 1) for e in args.replay_extra))
+    r = subprocess.run(["subpix", "replay", str(bag), "--clock", *args.replay_args], env=renv, capture_output=True,
                        text=True, timeout=120)
     replay_s = time.monotonic() - t0
     time.sleep(args.after)
@@ -168,6 +169,8 @@ def main() -> None:
     ap.add_argument("--settle", type=float, default=3.0, help="seconds between starting the nodes and the replay")
     ap.add_argument("--after", type=float, default=6.0, help="seconds after the replay before stopping")
     ap.add_argument("--extra", nargs="*", default=[], metavar="VAR=VALUE")
+    ap.add_argument("--replay-extra", nargs="*", default=[], metavar="VAR=VALUE",
+                    help="variables for the replay (the camera) only, e.g. SKIP_DEFAULT_XML=1")
     ap.add_argument("--kill-first", action="store_true", help="SIGKILL a first set of nodes before each run")
     ap.add_argument("--reliable", action="store_true", help="camera_reliable:=true")
     ap.add_argument("--domain", default=os.environ.get("SUBPIX_TEST_DOMAIN_ID", "44"))

@@ -11,10 +11,12 @@ nodes to finish. A listener process (same environment) counts what came out: the
 node's ``input_total`` from /diagnostics, shifts, super-resolved images.
 
 ``--extra VAR=VALUE`` adds a variable to the environment of every process (e.g. the settings of
-``scripts/env.sh``: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), ``--kill-first`` SIGKILLs a first set
-of the nodes before each run (stale ``/dev/shm/fastrtps_*`` files), ``--settle`` is the time
-between starting the nodes and the replay. ``--bag mono512`` replays an 8-frame 512x512 mono8
-bag (written to a temporary folder) instead of the README's ``data/bags/subpixel``.
+``scripts/env.sh``: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), ``--replay-extra`` to the
+replay's only (the camera process), ``--kill-first`` SIGKILLs a first set of the nodes before
+each run (stale ``/dev/shm/fastrtps_*`` files), ``--settle`` is the time between starting the
+nodes and the replay. ``--bag mono512`` replays an 8-frame 512x512 mono8 bag (written to a
+temporary folder) instead of the README's ``data/bags/subpixel``. Results:
+docs/design-notes.md, "Camera frames between processes".
 
 Printed: one line per run, then runs with frames delivered / runs.
 
@@ -37,7 +39,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 VENV = ROOT / ".venv"
-DROP_PREFIXES = ("ROS_", "RMW_", "AMENT_", "FASTRTPS_", "FASTDDS_", "COLCON_", "CYCLONEDDS_", "ZENOH_")
+DROP_PREFIXES = ("ROS_", "RMW_", "AMENT_", "FASTRTPS_", "FASTDDS_", "COLCON_", "CYCLONEDDS_",
+                 "ZENOH_")
 
 LISTENER = r"""
 import json, signal, sys
@@ -61,14 +64,13 @@ rel = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=Reliabi
 lat = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
 node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 100)
-node.create_subscription(Vector3Stamped, "/shift", lambda r: out.__setitem__("shifts", out["shifts"] + 1),
-                         rel, raw=True)
-node.create_subscription(Image, "/super_resolved",
-                         lambda r: out.__setitem__("super_resolved", out["super_resolved"] + 1), lat, raw=True)
 from sensor_msgs.msg import TimeReference
 def count(key):
     return lambda r: out.__setitem__(key, out[key] + 1)
-node.create_subscription(TimeReference, "/aligned/reference_stamp", count("registered"), rel, raw=True)
+node.create_subscription(Vector3Stamped, "/shift", count("shifts"), rel, raw=True)
+node.create_subscription(Image, "/super_resolved", count("super_resolved"), lat, raw=True)
+node.create_subscription(TimeReference, "/aligned/reference_stamp", count("registered"), rel,
+                         raw=True)
 node.create_subscription(Image, "/aligned/reference", count("registered"), lat, raw=True)
 print("listening", flush=True)
 try:
@@ -91,7 +93,7 @@ def plain_env(extra: dict[str, str], domain: str) -> dict[str, str]:
 
 
 def write_mono512(folder: Path) -> Path:
-    """An 8-frame 512x512 mono8 bag on /camera/image_raw at 10 Hz (a real crop drifting 0.4 px/frame)."""
+    """8 frames 512x512 mono8 on /camera/image_raw at 10 Hz (a real crop drifting 0.4 px/frame)."""
     import cv2
     import numpy as np
 
@@ -113,7 +115,8 @@ def write_mono512(folder: Path) -> Path:
 
 def start_nodes(env: dict, reliable: bool, log: Path) -> list[subprocess.Popen]:
     extra = ["-p", "camera_reliable:=true"] if reliable else []
-    cmds = [["registration_node", "--ros-args", "-r", "image:=/camera/image_raw", "-p", "use_sim_time:=true", *extra],
+    cmds = [["registration_node", "--ros-args", "-r", "image:=/camera/image_raw",
+             "-p", "use_sim_time:=true", *extra],
             ["shift_node", "--ros-args", "-p", "use_sim_time:=true"],
             ["reconstruction_node", "--ros-args", "-p", "use_sim_time:=true"]]
     fh = open(log, "a")
@@ -133,7 +136,8 @@ def stop(procs, sig=signal.SIGINT, timeout=10.0) -> None:
 
 
 def shm_files() -> int:
-    return sum(1 for n in os.listdir("/dev/shm") if n.startswith(("fastrtps_", "fast_datasharing", "sem.fastrtps")))
+    prefixes = ("fastrtps_", "fast_datasharing", "sem.fastrtps")
+    return sum(1 for n in os.listdir("/dev/shm") if n.startswith(prefixes))
 
 
 def one_run(args, env: dict, bag: Path, log: Path) -> dict:
@@ -142,36 +146,40 @@ def one_run(args, env: dict, bag: Path, log: Path) -> dict:
         time.sleep(args.settle)
         stop(first, signal.SIGKILL)
     shm_before = shm_files()
-    listener = subprocess.Popen([str(VENV / "bin" / "python"), "-c", LISTENER], env=env, stdout=subprocess.PIPE,
-                                stderr=subprocess.DEVNULL, text=True)
+    listener = subprocess.Popen([str(VENV / "bin" / "python"), "-c", LISTENER], env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     assert listener.stdout.readline().strip() == "listening"
     nodes = start_nodes(env, args.reliable, log)
     time.sleep(args.settle)
     t0 = time.monotonic()
     renv = dict(env, **dict(e.split("=", 1) for e in args.replay_extra))
-    r = subprocess.run(["subpix", "replay", str(bag), "--clock", *args.replay_args], env=renv, capture_output=True,
-                       text=True, timeout=120)
+    r = subprocess.run(["subpix", "replay", str(bag), "--clock", *args.replay_args], env=renv,
+                       capture_output=True, text=True, timeout=120)
     replay_s = time.monotonic() - t0
     time.sleep(args.after)
     stop(nodes)
     listener.send_signal(signal.SIGINT)
     out, _ = listener.communicate(timeout=20)
     res = json.loads(out.strip().splitlines()[-1])
-    res.update(replay_rc=r.returncode, replay=(r.stdout + r.stderr).strip().splitlines()[-1:], replay_s=replay_s,
-               shm_before=shm_before)
+    res.update(replay_rc=r.returncode, replay=(r.stdout + r.stderr).strip().splitlines()[-1:],
+               replay_s=replay_s, shm_before=shm_before)
     return res
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=7)
-    ap.add_argument("--bag", default="subpixel", help="subpixel (README) or mono512 (8 frames 512x512 mono8)")
-    ap.add_argument("--settle", type=float, default=3.0, help="seconds between starting the nodes and the replay")
-    ap.add_argument("--after", type=float, default=6.0, help="seconds after the replay before stopping")
+    ap.add_argument("--bag", default="subpixel",
+                    help="subpixel (README) or mono512 (8 frames 512x512 mono8)")
+    ap.add_argument("--settle", type=float, default=3.0,
+                    help="seconds between starting the nodes and the replay")
+    ap.add_argument("--after", type=float, default=6.0,
+                    help="seconds after the replay before stopping")
     ap.add_argument("--extra", nargs="*", default=[], metavar="VAR=VALUE")
     ap.add_argument("--replay-extra", nargs="*", default=[], metavar="VAR=VALUE",
                     help="variables for the replay (the camera) only, e.g. SKIP_DEFAULT_XML=1")
-    ap.add_argument("--kill-first", action="store_true", help="SIGKILL a first set of nodes before each run")
+    ap.add_argument("--kill-first", action="store_true",
+                    help="SIGKILL a first set of nodes before each run")
     ap.add_argument("--reliable", action="store_true", help="camera_reliable:=true")
     ap.add_argument("--domain", default=os.environ.get("SUBPIX_TEST_DOMAIN_ID", "44"))
     ap.add_argument("--replay-args", nargs="*", default=[], help="more arguments for subpix replay")
@@ -181,7 +189,8 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="bench_delivery_"))
     bag = ROOT / "data" / "bags" / "subpixel" if args.bag == "subpixel" else write_mono512(tmp)
     log = tmp / "nodes.log"
-    print(f"bag {args.bag}, settle {args.settle} s, extra {extra or '-'}, kill-first {args.kill_first}, "
+    print(f"bag {args.bag}, settle {args.settle} s, extra {extra or '-'}, "
+          f"kill-first {args.kill_first}, "
           f"reliable {args.reliable}; node logs in {log}")
     delivered = 0
     for k in range(args.runs):
@@ -191,8 +200,9 @@ def main() -> None:
         diag = res["diag"].get("registration_node", {})
         print(f"run {k + 1}: registration input {res['input_total']:3d} (diag), frames registered "
               f"{res['registered']:3d}, shifts {res['shifts']:3d}, super-resolved "
-              f"{res['super_resolved']}, diag {diag.get('level')} {diag.get('message', '')[:100]!r}, "
-              f"shm files before {res['shm_before']}, replay {res['replay_s']:.1f} s {res['replay']}", flush=True)
+              f"{res['super_resolved']}, diag {diag.get('level')} "
+              f"{diag.get('message', '')[:100]!r}, shm files before {res['shm_before']}, "
+              f"replay {res['replay_s']:.1f} s {res['replay']}", flush=True)
     print(f"runs with frames delivered: {delivered}/{args.runs}")
 
 

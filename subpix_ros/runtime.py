@@ -49,8 +49,9 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["keep_freed_memory", "allocator_line", "add_malloc_argument", "MMAP_THRESHOLD", "TRIM_THRESHOLD", "OPT_OUT",
-           "configure_ros_environment", "fastdds_profile", "PROFILE_VARS", "RuntimeSetupError"]
+__all__ = ["keep_freed_memory", "allocator_line", "add_malloc_argument", "MMAP_THRESHOLD",
+           "TRIM_THRESHOLD", "OPT_OUT", "configure_ros_environment", "fastdds_profile",
+           "PROFILE_VARS", "RuntimeSetupError"]
 
 #: glibc's ``mallopt`` parameter numbers (malloc.h).
 _M_TRIM_THRESHOLD = -1
@@ -140,9 +141,14 @@ class RuntimeSetupError(RuntimeError):
 
 
 def fastdds_profile() -> Path | None:
-    """The package's Fast DDS profile: the checkout's ``config/`` (venv / editable install), else
-    ``share/subpix_ros/config`` of an installed package (next to the interpreter's prefix or on the
-    ament index). None if none is found."""
+    """The package's Fast DDS profile, or None if none is found.
+
+    Returns
+    -------
+    pathlib.Path or None
+        ``config/fastdds_profile.xml`` of the checkout (venv / editable install), else of
+        ``share/subpix_ros`` next to the interpreter's prefix or on ``AMENT_PREFIX_PATH``.
+    """
     candidates = [Path(__file__).resolve().parents[1] / "config" / _PROFILE_NAME,
                   Path(sys.prefix) / "share" / "subpix_ros" / "config" / _PROFILE_NAME]
     for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
@@ -152,35 +158,49 @@ def fastdds_profile() -> Path | None:
 
 
 def configure_ros_environment(environ=None) -> list[str]:
-    """Defaults for a plainly activated venv, set before rclpy creates a participant; returns what was set.
+    """Defaults for a plainly activated venv, set before rclpy creates a participant.
 
-    * The package's Fast DDS profile (``FASTRTPS_DEFAULT_PROFILES_FILE``), when the RMW is Fast DDS
-      (``RMW_IMPLEMENTATION`` unset or ``rmw_fastrtps_*``) and the operator chose no profile of their
-      own (neither variable of :data:`PROFILE_VARS` set, no ``SKIP_DEFAULT_XML=1``, no Fast DDS
-      default profile file in the working directory). Without it a best-effort subscriber loses
-      camera frames larger than Fast DDS's 512 KiB shared-memory segment (design notes).
+    Parameters
+    ----------
+    environ : mapping, optional
+        The environment to complete (default ``os.environ``).
+
+    Returns
+    -------
+    list of str
+        What was set, as ``VAR=value`` lines.
+
+    Notes
+    -----
+    * The package's Fast DDS profile (``FASTRTPS_DEFAULT_PROFILES_FILE``), when the RMW is Fast
+      DDS (``RMW_IMPLEMENTATION`` unset or ``rmw_fastrtps_*``) and the operator chose no profile
+      of their own (neither variable of :data:`PROFILE_VARS` set, no ``SKIP_DEFAULT_XML=1``, no
+      Fast DDS default profile file in the working directory). Without it a best-effort
+      subscriber loses camera frames larger than Fast DDS's 512 KiB shared-memory segment
+      (docs/design-notes.md, "Camera frames between processes").
     * The venv's ament prefix (``<venv>/subpix_prefix``, made by ``make venv``) on
-      ``AMENT_PREFIX_PATH``, so ``get_package_share_directory('subpix_ros')`` and ``ros2`` tools
-      started from this process find the package.
+      ``AMENT_PREFIX_PATH``, so ``get_package_share_directory('subpix_ros')`` and ``ros2``
+      tools started from this process find the package.
 
-    Raises :class:`RuntimeSetupError` when the profile the operator named does not exist (Fast DDS
-    would ignore it with a log line only). ``environ`` defaults to ``os.environ``.
+    Raises :class:`RuntimeSetupError` when the profile the operator named does not exist (Fast
+    DDS would go on with its defaults after a log line).
     """
     env = os.environ if environ is None else environ
     done: list[str] = []
     chosen = [v for v in PROFILE_VARS if env.get(v)]
     for var in chosen:
         if not Path(env[var]).is_file():
-            raise RuntimeSetupError(f"{var}={env[var]} names no file (unset it to use subpix_ros's Fast DDS "
-                                    f"profile)")
+            raise RuntimeSetupError(f"{var}={env[var]} names no file (unset it to use "
+                                    f"subpix_ros's Fast DDS profile)")
     rmw = env.get("RMW_IMPLEMENTATION", "")
     own = (chosen or env.get("SKIP_DEFAULT_XML", "") not in ("", "0")
            or any(Path(n).is_file() for n in _CWD_PROFILES))
     if not own and (not rmw or rmw in _FASTDDS_RMWS):
         profile = fastdds_profile()
         if profile is None:
-            raise RuntimeSetupError(f"subpix_ros's Fast DDS profile {_PROFILE_NAME} not found (reinstall the "
-                                    f"package, or set FASTRTPS_DEFAULT_PROFILES_FILE)")
+            raise RuntimeSetupError(f"subpix_ros's Fast DDS profile {_PROFILE_NAME} not found "
+                                    f"(reinstall the package, or set "
+                                    f"FASTRTPS_DEFAULT_PROFILES_FILE)")
         env[PROFILE_VARS[0]] = str(profile)
         done.append(f"{PROFILE_VARS[0]}={profile}")
     prefix = Path(sys.prefix) / "subpix_prefix"

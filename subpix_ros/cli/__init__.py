@@ -59,7 +59,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        configure_ros_environment()  # before any subcommand creates a DDS participant (subpix_ros.runtime)
+        configure_ros_environment()  # before a subcommand creates a DDS participant (runtime)
     except RuntimeSetupError as exc:
         print(f"subpix {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -113,11 +113,12 @@ class Player:
         return False
 
     def wait_for_any_subscriber(self, timeout_s: float = 15.0) -> bool:
-        """Block until some replayed topic (not ``/clock``) has a matched subscriber; False on timeout.
+        """Block until some replayed topic (not ``/clock``) has a matched subscriber.
 
-        The default of ``subpix replay``: publishers are matched with subscribers already running only
-        after discovery, which took 0.01-1.1 s here, so a short bag replayed at once was lost whole
-        (docs/design-notes.md, "Camera frames between processes")."""
+        Returns False on timeout. The default of ``subpix replay``: a new publisher is matched
+        with subscribers already running only after discovery, so a short bag replayed at once
+        can be over before anyone receives it (docs/design-notes.md, "Camera frames between
+        processes")."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline and not self._stop.is_set():
             if any(pub.get_subscription_count() > 0 for pub in self.publishers.values()):

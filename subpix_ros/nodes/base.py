@@ -19,8 +19,9 @@ from subpix_ros.nodes.common import Diagnostics, DropOldestWorker, Param, declar
 
 #: Declared by every stage with a main input (``MAIN_INPUTS``), after its own parameters.
 INPUT_PARAMS: tuple[Param, ...] = (
-    Param("input_timeout_s", 5.0, "main input (camera or aligned frames) silent this long, with or without a "
-          "publisher: diagnostics WARN naming the topic and the publishers seen with their QoS", 0.5, 3600.0),
+    Param("input_timeout_s", 5.0, "main input (camera or aligned frames) silent this long, with "
+          "or without a publisher: diagnostics WARN naming the topic and the publishers seen with "
+          "their QoS", 0.5, 3600.0),
 )
 
 

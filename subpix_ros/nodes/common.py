@@ -33,7 +33,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from ..runtime import RuntimeSetupError, configure_ros_environment, keep_freed_memory
+from ..runtime import (RuntimeSetupError, configure_ros_environment,
+                       keep_freed_memory)
 
 __all__ = [
     "Param",
@@ -348,24 +349,28 @@ class Diagnostics:
         self._latencies: collections.deque[float] = collections.deque(maxlen=self.HISTORY)
         self._durations: dict[str, collections.deque[float]] = {}
         self._watch: tuple[tuple[str, ...], Callable[[], float], float] | None = None
-        self._episode: str | None = None  # the input problem being reported, logged once when it began
+        self._watch_meter = "input"
+        self._episode: str | None = None  # the input problem being reported (logged when it began)
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        # Wall (steady) time, not the node's clock: with use_sim_time and no /clock (the replay ended or
-        # never started) a node must still report, above all that nothing arrives.
-        self.timer = node.create_timer(period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        # Wall (steady) time, not the node's clock: with use_sim_time and no /clock (the replay
+        # ended or never started) a node must still report, above all that nothing arrives.
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.timer = node.create_timer(period_s, self.publish, clock=steady)
 
     def rate(self, name: str) -> RateMeter:
         return self.rates.setdefault(name, RateMeter())
 
-    def watch_inputs(self, topics: Sequence[str], timeout_s: Callable[[], float], meter: str = "input") -> None:
-        """Report a silent main input: WARN when nothing ticked ``meter`` for ``timeout_s()`` seconds.
+    def watch_inputs(self, topics: Sequence[str], timeout_s: Callable[[], float],
+                     meter: str = "input") -> None:
+        """Report a silent main input: WARN when nothing ticked ``meter`` for ``timeout_s()`` s.
 
-        ``topics`` (relative names are resolved with the node's remappings) are one input, e.g. a camera's
-        ``image`` and ``image/compressed``. Checked at every publication (1 Hz, wall time): with no
-        publisher on any of them for the timeout the status says ``no publisher on /x``; with
-        publishers but nothing received it names them with their QoS (reliability, durability), as
-        the ROS graph reports them. The status stays WARN while the silence lasts; the log has one
-        line when it begins and one when messages arrive again.
+        ``topics`` (relative names are resolved with the node's remappings) are one input, e.g.
+        a camera's ``image`` and ``image/compressed``. Checked at every publication (1 Hz, wall
+        time): with no publisher on any of them for the timeout the status says
+        ``no publisher on /x``; with publishers but nothing received it names them with their
+        QoS (reliability, durability), as the ROS graph reports them. The status stays WARN
+        while the silence lasts; the log has one line when it begins and one when messages
+        arrive again.
         """
         self._watch = (tuple(topics), timeout_s, time.monotonic())
         self._watch_meter = meter
@@ -378,26 +383,30 @@ class Diagnostics:
             out.append(f"{name} ({qos.reliability.name.lower()}, {qos.durability.name.lower()})")
         return sorted(out)
 
+    def _input_problem(self, silent: float, limit: float, heard: bool) -> str:
+        topics = self._watch[0]
+        names = [self.node.resolve_topic_name(t) for t in topics]
+        seen = {t: self._publishers(t) for t in names}
+        if not any(seen.values()):
+            return f"no publisher on {' or '.join(names)}"
+        what = "; ".join(f"{t}: {len(p)} publisher(s) {', '.join(p)}" for t, p in seen.items() if p)
+        word = "nothing received since the last message" if heard else "nothing received"
+        return (f"{word} on {' or '.join(names)} for over {limit:g} s (input_timeout_s) "
+                f"from {what}")
+
     def check_inputs(self, now: float | None = None) -> str | None:
         """The input problem now (and report it), or None; called at every publication."""
         if self._watch is None:
             return None
-        topics, timeout_s, since = self._watch
+        _, timeout_s, since = self._watch
         now = time.monotonic() if now is None else now
         meter = self.rates.get(self._watch_meter)
-        last = meter.last if meter is not None and meter.last is not None else None
+        last = meter.last if meter is not None else None
         silent = now - (last if last is not None else since)
         limit = float(timeout_s())
         problem = None
         if silent >= limit:
-            names = [self.node.resolve_topic_name(t) for t in topics]
-            seen = {t: self._publishers(t) for t in names}
-            if not any(seen.values()):
-                problem = f"no publisher on {' or '.join(names)}"
-            else:
-                what = "; ".join(f"{t}: {len(p)} publisher(s) {', '.join(p)}" for t, p in seen.items() if p)
-                word = "nothing received" if last is None else "nothing received since the last message"
-                problem = f"{word} on {' or '.join(names)} for over {limit:g} s (input_timeout_s) from {what}"
+            problem = self._input_problem(silent, limit, last is not None)
             self.set(input_silent_s=round(silent, 1))
         else:
             self.set(input_silent_s=0.0)
@@ -410,7 +419,8 @@ class Diagnostics:
         self._episode = problem
         if first:
             self._report(WARN, problem, log=False)
-            self.node.get_logger().warning(problem)  # once per episode: not throttled with other warnings
+            # once per episode, not throttled together with the node's other warnings
+            self.node.get_logger().warning(problem)
         else:
             self._hold(WARN, problem)
         return problem
@@ -526,7 +536,7 @@ class Diagnostics:
     def publish(self) -> None:
         try:
             self.check_inputs()
-        except Exception as exc:  # noqa: BLE001 - the graph query fails while the context shuts down
+        except Exception as exc:  # noqa: BLE001 - the graph query fails during shutdown
             self.node.get_logger().debug(f"input check skipped: {exc}")
         msg = DiagnosticArray()
         msg.header.stamp = self.node.get_clock().now().to_msg()
@@ -538,9 +548,10 @@ class Diagnostics:
 def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None, threads: int | None = None) -> int:
     """Init rclpy, build the nodes, spin them on a MultiThreadedExecutor, shut down cleanly.
 
-    Freed frame buffers stay in the process's heap for reuse (:func:`subpix_ros.runtime.keep_freed_memory`);
-    the ROS / DDS defaults of :func:`subpix_ros.runtime.configure_ros_environment` are applied before the
-    participant is created, or the process refuses to start with one line on stderr (exit status 2).
+    Freed frame buffers stay in the process's heap for reuse
+    (:func:`subpix_ros.runtime.keep_freed_memory`); the ROS / DDS defaults of
+    :func:`subpix_ros.runtime.configure_ros_environment` are applied before the participant is
+    created, or the process refuses to start with one line on stderr (exit status 2).
     """
     keep_freed_memory()
     try:

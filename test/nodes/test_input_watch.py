@@ -30,7 +30,8 @@ def ros():
 
 
 def _start(module, *ros_args):
-    return subprocess.Popen([sys.executable, "-m", f"subpix_ros.nodes.{module}", "--ros-args", *ros_args],
+    cmd = [sys.executable, "-m", f"subpix_ros.nodes.{module}", "--ros-args", *ros_args]
+    return subprocess.Popen(cmd,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
@@ -62,14 +63,16 @@ def _log(proc):
 
 
 def test_silent_camera_is_reported_with_its_publishers_and_qos(ros):
-    """No publisher: WARN 'no publisher on /x'; a publisher that sends nothing: WARN naming it and its QoS;
-    each logged once while it lasts; frames arriving end it. (Old code: status 'ok', nothing logged.)"""
-    proc = _start("registration_node", "-r", "image:=/watch/camera", "-r", "__node:=watched_registration",
-                  "-p", "input_timeout_s:=1.0", "-p", "use_sim_time:=true")  # no /clock: diagnostics still run
+    """No publisher: WARN 'no publisher on /x'; a publisher that sends nothing: WARN naming it
+    and its QoS; each logged once while it lasts; frames arriving end it. (Old code: status 'ok',
+    nothing logged; with use_sim_time and no /clock no diagnostics at all.)"""
+    proc = _start("registration_node", "-r", "image:=/watch/camera",
+                  "-r", "__node:=watched_registration", "-p", "input_timeout_s:=1.0",
+                  "-p", "use_sim_time:=true")  # and no /clock: diagnostics must still run
     status = Status(ros, "watched_registration")
     try:
-        assert _spin_until(ros, lambda: status.latest is not None and status.latest[0] == WARN, 30, proc), \
-            f"no WARN; latest status {status.latest}"
+        warned = lambda: status.latest is not None and status.latest[0] == WARN  # noqa: E731
+        assert _spin_until(ros, warned, 30, proc), f"no WARN; latest status {status.latest}"
         level, message, values = status.latest
         assert message == "no publisher on /watch/camera or /image/compressed", message
         assert float(values["input_silent_s"]) >= 1.0
@@ -77,13 +80,16 @@ def test_silent_camera_is_reported_with_its_publishers_and_qos(ros):
         cam = rclpy.create_node("silent_camera")
         try:
             pub = cam.create_publisher(Image, "/watch/camera", reliable_qos(5))
-            assert _spin_until(ros, lambda: "silent_camera" in status.latest[1], 30, proc), status.latest
+            named = lambda: "silent_camera" in status.latest[1]  # noqa: E731
+            assert _spin_until(ros, named, 30, proc), status.latest
             level, message, _ = status.latest
             assert level == WARN
-            assert message.startswith("nothing received on /watch/camera or /image/compressed for over 1 s "
-                                      "(input_timeout_s) from /watch/camera: 1 publisher(s) "
-                                      "/silent_camera (reliable, volatile)"), message
-            _spin_until(ros, lambda: False, 3.0, proc)  # the silence goes on: still WARN, no second log line
+            assert message.startswith(
+                "nothing received on /watch/camera or /image/compressed for over 1 s "
+                "(input_timeout_s) from /watch/camera: 1 publisher(s) "
+                "/silent_camera (reliable, volatile)"), message
+            # the silence goes on: still WARN, no second log line
+            _spin_until(ros, lambda: False, 3.0, proc)
             assert status.latest[0] == WARN and status.latest[1] == message
             frame = np.tile(np.arange(64, dtype=np.uint8), (64, 1))
             t_end = time.monotonic() + 30
@@ -105,8 +111,8 @@ def test_shift_node_without_aligned_frames_warns(ros):
     proc = _start("shift_node", "-r", "__ns:=/watchns", "-p", "input_timeout_s:=1.0")
     status = Status(ros, "shift_node")
     try:
-        assert _spin_until(ros, lambda: status.latest is not None and status.latest[0] == WARN, 30, proc), \
-            status.latest
+        warned = lambda: status.latest is not None and status.latest[0] == WARN  # noqa: E731
+        assert _spin_until(ros, warned, 30, proc), status.latest
         assert status.latest[1] == "no publisher on /watchns/aligned"
     finally:
         _log(proc)

@@ -147,7 +147,10 @@ def test_readme_running_the_nodes_in_a_plain_venv(tmp_path):
     try:
         for cmd in run:  # in the README's order: the looping replay first, then the nodes
             start(cmd)
-        assert listener.wait(lambda s: s["shifts"] >= 1 and s["super_resolved"] >= 1, 180), report()
+        out = lambda s: s["shifts"] >= 1 and s["super_resolved"] >= 1  # noqa: E731
+        assert listener.wait(out, 180), report()
+        # and the registration node's count of camera frames (its /diagnostics) is here
+        assert listener.wait(lambda s: s["reg_input"] is not None, 30), report()
         for name, p in procs.items():
             assert p.poll() is None, f"{name} exited with {p.returncode}: {report()}"
 

@@ -188,3 +188,18 @@ def test_a_node_in_a_plain_venv_loads_the_profile():
     finally:
         p.send_signal(2)
         p.wait(20)
+
+
+def test_the_venvs_ament_prefix_is_added(tmp_path, monkeypatch):
+    # `make venv` indexes the package under <venv>/subpix_prefix: get_package_share_directory finds
+    # it in a plain venv once an entry point has run configure_ros_environment.
+    from pathlib import Path
+
+    monkeypatch.chdir(tmp_path)
+    prefix = Path(sys.prefix) / "subpix_prefix"
+    assert (prefix / "share" / "ament_index").is_dir(), "run `make venv`"
+    env = {"AMENT_PREFIX_PATH": "/opt/other"}
+    configure_ros_environment(env)
+    assert env["AMENT_PREFIX_PATH"] == f"{prefix}{os.pathsep}/opt/other"
+    configure_ros_environment(env)  # not twice
+    assert env["AMENT_PREFIX_PATH"] == f"{prefix}{os.pathsep}/opt/other"

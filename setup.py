@@ -21,7 +21,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
-        ("share/" + package_name + "/config", glob("config/*.yaml") + ["config/foxglove_layout.json"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml") + glob("config/*.xml")
+         + ["config/foxglove_layout.json"]),
         # the bundled real sample data (CC0), so an installed package finds it (subpix_ros.data)
         ("share/" + package_name + "/data/seneca", glob("data/seneca/*.*")),
         ("share/" + package_name + "/data/crops", glob("data/crops/*.*")),

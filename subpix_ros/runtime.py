@@ -33,6 +33,13 @@ It is a no-op where glibc's ``mallopt`` is missing (musl, macOS, Windows),
 and an operator's own ``MALLOC_MMAP_THRESHOLD_`` / ``MALLOC_TRIM_THRESHOLD_``
 or ``GLIBC_TUNABLES=glibc.malloc.*`` environment settings win, and
 ``SUBPIX_DEFAULT_MALLOC=1`` opts out: nothing is changed then.
+
+:func:`configure_ros_environment` (also called by every entry point, before
+rclpy creates a DDS participant) gives a plainly activated venv what the
+nodes need to exchange camera frames: the package's Fast DDS profile
+(``config/fastdds_profile.xml``, a shared-memory segment that holds whole
+frames; see docs/design-notes.md, "Camera frames between processes") and the
+venv's ament prefix. Settings the operator made are kept.
 """
 from __future__ import annotations
 
@@ -40,8 +47,11 @@ import ctypes
 import ctypes.util
 import os
 import sys
+from pathlib import Path
 
-__all__ = ["keep_freed_memory", "allocator_line", "add_malloc_argument", "MMAP_THRESHOLD", "TRIM_THRESHOLD", "OPT_OUT"]
+__all__ = ["keep_freed_memory", "allocator_line", "add_malloc_argument", "MMAP_THRESHOLD",
+           "TRIM_THRESHOLD", "OPT_OUT", "configure_ros_environment", "fastdds_profile",
+           "PROFILE_VARS", "RuntimeSetupError"]
 
 #: glibc's ``mallopt`` parameter numbers (malloc.h).
 _M_TRIM_THRESHOLD = -1
@@ -115,3 +125,87 @@ def allocator_line(default_malloc: bool = False) -> str:
                 f"(mmap threshold {MMAP_THRESHOLD >> 20} MiB, trim threshold {TRIM_THRESHOLD >> 20} MiB; "
                 f"--default-malloc for glibc's defaults)")
     return "allocator: unchanged (not glibc, or SUBPIX_DEFAULT_MALLOC, MALLOC_* or GLIBC_TUNABLES set in the environment)"
+
+
+# --------------------------------------------------------------------------- ROS / DDS environment
+#: Fast DDS reads its XML profiles from the first of these that is set (FASTDDS_* from Fast DDS 3).
+PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
+#: What Fast DDS loads by itself from the working directory when no variable is set.
+_CWD_PROFILES = ("DEFAULT_FASTRTPS_PROFILES.xml", "DEFAULT_FASTDDS_PROFILES.xml")
+_PROFILE_NAME = "fastdds_profile.xml"
+_FASTDDS_RMWS = ("rmw_fastrtps_cpp", "rmw_fastrtps_dynamic_cpp")
+
+
+class RuntimeSetupError(RuntimeError):
+    """The process cannot run as configured; the message is one line saying what is missing."""
+
+
+def fastdds_profile() -> Path | None:
+    """The package's Fast DDS profile, or None if none is found.
+
+    Returns
+    -------
+    pathlib.Path or None
+        ``config/fastdds_profile.xml`` of the checkout (venv / editable install), else of
+        ``share/subpix_ros`` next to the interpreter's prefix or on ``AMENT_PREFIX_PATH``.
+    """
+    candidates = [Path(__file__).resolve().parents[1] / "config" / _PROFILE_NAME,
+                  Path(sys.prefix) / "share" / "subpix_ros" / "config" / _PROFILE_NAME]
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        if prefix:
+            candidates.append(Path(prefix) / "share" / "subpix_ros" / "config" / _PROFILE_NAME)
+    return next((c for c in candidates if c.is_file()), None)
+
+
+def configure_ros_environment(environ=None) -> list[str]:
+    """Defaults for a plainly activated venv, set before rclpy creates a participant.
+
+    Parameters
+    ----------
+    environ : mapping, optional
+        The environment to complete (default ``os.environ``).
+
+    Returns
+    -------
+    list of str
+        What was set, as ``VAR=value`` lines.
+
+    Notes
+    -----
+    * The package's Fast DDS profile (``FASTRTPS_DEFAULT_PROFILES_FILE``), when the RMW is Fast
+      DDS (``RMW_IMPLEMENTATION`` unset or ``rmw_fastrtps_*``) and the operator chose no profile
+      of their own (neither variable of :data:`PROFILE_VARS` set, no ``SKIP_DEFAULT_XML=1``, no
+      Fast DDS default profile file in the working directory). Without it a best-effort
+      subscriber loses camera frames larger than Fast DDS's 512 KiB shared-memory segment
+      (docs/design-notes.md, "Camera frames between processes").
+    * The venv's ament prefix (``<venv>/subpix_prefix``, made by ``make venv``) on
+      ``AMENT_PREFIX_PATH``, so ``get_package_share_directory('subpix_ros')`` and ``ros2``
+      tools started from this process find the package.
+
+    Raises :class:`RuntimeSetupError` when the profile the operator named does not exist (Fast
+    DDS would go on with its defaults after a log line).
+    """
+    env = os.environ if environ is None else environ
+    done: list[str] = []
+    chosen = [v for v in PROFILE_VARS if env.get(v)]
+    for var in chosen:
+        if not Path(env[var]).is_file():
+            raise RuntimeSetupError(f"{var}={env[var]} names no file (unset it to use "
+                                    f"subpix_ros's Fast DDS profile)")
+    rmw = env.get("RMW_IMPLEMENTATION", "")
+    own = (chosen or env.get("SKIP_DEFAULT_XML", "") not in ("", "0")
+           or any(Path(n).is_file() for n in _CWD_PROFILES))
+    if not own and (not rmw or rmw in _FASTDDS_RMWS):
+        profile = fastdds_profile()
+        if profile is None:
+            raise RuntimeSetupError(f"subpix_ros's Fast DDS profile {_PROFILE_NAME} not found "
+                                    f"(reinstall the package, or set "
+                                    f"FASTRTPS_DEFAULT_PROFILES_FILE)")
+        env[PROFILE_VARS[0]] = str(profile)
+        done.append(f"{PROFILE_VARS[0]}={profile}")
+    prefix = Path(sys.prefix) / "subpix_prefix"
+    paths = [p for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    if (prefix / "share" / "ament_index").is_dir() and str(prefix) not in paths:
+        env["AMENT_PREFIX_PATH"] = os.pathsep.join([str(prefix), *paths])
+        done.append(f"AMENT_PREFIX_PATH+={prefix}")
+    return done

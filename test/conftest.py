@@ -31,6 +31,10 @@ def ros_isolation():
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     os.environ["PYTHONUNBUFFERED"] = "1"
+    # the package's Fast DDS profile, as every entry point loads it (camera frames published from this process)
+    from subpix_ros.runtime import configure_ros_environment
+
+    configure_ros_environment()
     yield
 
 

@@ -82,3 +82,124 @@ def test_unrelated_tunables_do_not_block_it():
 def test_bad_thresholds_raise(kw):
     with pytest.raises(ValueError):
         keep_freed_memory(**kw)
+
+
+# ------------------------------------------------------------- ROS / DDS environment (issue 19)
+from subpix_ros.runtime import (RuntimeSetupError, configure_ros_environment,  # noqa: E402
+                                fastdds_profile)
+
+MISSING = "names no file (unset it to use subpix_ros's Fast DDS profile)"
+
+
+def test_the_package_profile_is_set_in_a_plain_environment(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    env = {"PATH": "/usr/bin"}
+    configure_ros_environment(env)
+    assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(fastdds_profile())
+    text = fastdds_profile().read_text()
+    assert "<segment_size>67108864</segment_size>" in text and 'is_default_profile="true"' in text
+
+
+@pytest.mark.parametrize("env", [{"FASTRTPS_DEFAULT_PROFILES_FILE": "{own}"},
+                                 {"FASTDDS_DEFAULT_PROFILES_FILE": "{own}"},
+                                 {"SKIP_DEFAULT_XML": "1"},
+                                 {"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}])
+def test_the_operators_choice_is_kept(tmp_path, monkeypatch, env):
+    monkeypatch.chdir(tmp_path)
+    own = tmp_path / "mine.xml"
+    own.write_text("<profiles/>")
+    env = {k: v.format(own=own) for k, v in env.items()}
+    before = dict(env)
+    configure_ros_environment(env)
+    assert {k: v for k, v in env.items() if k != "AMENT_PREFIX_PATH"} == before
+
+
+def test_a_default_profile_in_the_working_directory_is_kept(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "DEFAULT_FASTRTPS_PROFILES.xml").write_text("<profiles/>")
+    env = {}
+    configure_ros_environment(env)
+    assert "FASTRTPS_DEFAULT_PROFILES_FILE" not in env
+
+
+def test_a_named_profile_that_does_not_exist_refuses(tmp_path):
+    with pytest.raises(RuntimeSetupError,
+                       match="FASTRTPS_DEFAULT_PROFILES_FILE=/nonexistent/x.xml names no file"):
+        configure_ros_environment({"FASTRTPS_DEFAULT_PROFILES_FILE": "/nonexistent/x.xml"})
+
+
+def _plain_env(**extra):
+    """As `source .venv/bin/activate` leaves it: no ROS / DDS variable but the domain id."""
+    drop = ("ROS_", "RMW_", "AMENT_", "FASTRTPS_", "FASTDDS_")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(drop)}
+    venv = os.path.dirname(os.path.dirname(sys.executable))
+    env.update(VIRTUAL_ENV=venv, PATH=f"{venv}/bin:{env.get('PATH', '')}",
+               ROS_DOMAIN_ID=os.environ.get("SUBPIX_TEST_DOMAIN_ID", "0"), **extra)
+    return env
+
+
+@pytest.mark.parametrize("module", ["registration_node", "shift_node", "reconstruction_node",
+                                    "mosaic_node", "telemetry_node", "pipeline"])
+def test_every_node_entry_point_refuses_a_missing_profile_with_one_line(module):
+    env = _plain_env(FASTRTPS_DEFAULT_PROFILES_FILE="/nonexistent/p.xml")
+    r = subprocess.run([sys.executable, "-m", f"subpix_ros.nodes.{module}"], capture_output=True,
+                       text=True, timeout=60, env=env)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().splitlines() == [
+        f"error: FASTRTPS_DEFAULT_PROFILES_FILE=/nonexistent/p.xml {MISSING}"]
+
+
+def test_subpix_refuses_a_missing_profile_with_one_line():
+    env = _plain_env(FASTDDS_DEFAULT_PROFILES_FILE="/nonexistent/p.xml")
+    r = subprocess.run([sys.executable, "-m", "subpix_ros.cli", "replay", "x"], capture_output=True,
+                       text=True, timeout=60, env=env)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [
+        f"subpix replay: error: FASTDDS_DEFAULT_PROFILES_FILE=/nonexistent/p.xml {MISSING}"]
+
+
+def _new_segments(before):
+    """Sizes of the Fast DDS shared-memory segments created since ``before`` (not port files)."""
+    sizes = []
+    for n in set(os.listdir("/dev/shm")) - before:
+        if n.startswith("fastrtps_") and not n.startswith("fastrtps_port") and "_el" not in n:
+            try:
+                sizes.append(os.stat(f"/dev/shm/{n}").st_size)
+            except FileNotFoundError:
+                pass
+    return sizes
+
+
+def test_a_node_in_a_plain_venv_loads_the_profile():
+    # The node's Fast DDS read FASTRTPS_DEFAULT_PROFILES_FILE: shown by the segment it maps in
+    # /dev/shm (64 MiB, not Fast DDS's 512 KiB), which exists while the node runs.
+    import time
+
+    before = set(os.listdir("/dev/shm"))
+    p = subprocess.Popen([sys.executable, "-m", "subpix_ros.nodes.shift_node"], env=_plain_env(),
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        sizes = []
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not any(s >= 64 << 20 for s in sizes):
+            time.sleep(0.5)
+            sizes = _new_segments(before)
+        assert any(s >= 64 << 20 for s in sizes), f"segments of the new process: {sizes}"
+    finally:
+        p.send_signal(2)
+        p.wait(20)
+
+
+def test_the_venvs_ament_prefix_is_added(tmp_path, monkeypatch):
+    # `make venv` indexes the package under <venv>/subpix_prefix: get_package_share_directory finds
+    # it in a plain venv once an entry point has run configure_ros_environment.
+    from pathlib import Path
+
+    monkeypatch.chdir(tmp_path)
+    prefix = Path(sys.prefix) / "subpix_prefix"
+    assert (prefix / "share" / "ament_index").is_dir(), "run `make venv`"
+    env = {"AMENT_PREFIX_PATH": "/opt/other"}
+    configure_ros_environment(env)
+    assert env["AMENT_PREFIX_PATH"] == f"{prefix}{os.pathsep}/opt/other"
+    configure_ros_environment(env)  # not twice
+    assert env["AMENT_PREFIX_PATH"] == f"{prefix}{os.pathsep}/opt/other"

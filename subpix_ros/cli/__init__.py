@@ -13,7 +13,7 @@ import importlib
 import sys
 from typing import Sequence
 
-from ..runtime import keep_freed_memory
+from ..runtime import RuntimeSetupError, configure_ros_environment, keep_freed_memory
 
 # Subcommand modules, in the order ``subpix --help`` lists them.
 MODULES = (
@@ -58,6 +58,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     keep_freed_memory()  # frame buffers reused, not re-faulted per frame (subpix_ros.runtime)
     parser = build_parser()
     args = parser.parse_args(argv)
+    try:
+        configure_ros_environment()  # before a subcommand creates a DDS participant (runtime)
+    except RuntimeSetupError as exc:
+        print(f"subpix {args.command}: error: {exc}", file=sys.stderr)
+        return 2
     try:
         return int(args.func(args) or 0)
     except CliError as exc:

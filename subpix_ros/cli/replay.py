@@ -23,8 +23,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--clock", action="store_true", help="also publish /clock (bag time) for use_sim_time nodes")
     p.add_argument("--remap", nargs="+", default=[], metavar="FROM:=TO", help="publish topic FROM under TO")
     p.add_argument("--wait-for", nargs="+", default=[], metavar="TOPIC",
-                   help="before starting, wait until these topics have a subscriber")
-    p.add_argument("--wait-timeout", type=float, default=15.0, help="seconds to wait for --wait-for (default 15)")
+                   help="before starting, wait until these topics have a subscriber (error if "
+                   "not within --wait-timeout); without it, wait until any replayed topic has "
+                   "one (replay anyway after --wait-timeout), since a subscriber still being "
+                   "discovered would miss the first messages")
+    p.add_argument("--no-wait", action="store_true",
+                   help="start at once, matched subscribers or not")
+    p.add_argument("--wait-timeout", type=float, default=15.0,
+                   help="seconds to wait for subscribers (default 15)")
     p.add_argument("--delay", type=float, default=0.5, help="seconds to wait before the first message (discovery)")
     p.add_argument("--ack-timeout", type=float, default=10.0,
                    help="after the last message, wait up to this many seconds until every reliable subscriber has "
@@ -60,6 +66,10 @@ def run(args: argparse.Namespace) -> int:
                 raise CliError(f"--wait-for topic(s) not replayed: {', '.join(unknown)}")
             if args.wait_for and not player.wait_for_subscribers(args.wait_for, args.wait_timeout):
                 raise CliError(f"no subscriber on {', '.join(args.wait_for)} within {args.wait_timeout:.0f} s")
+            waits = not args.wait_for and not args.no_wait
+            if waits and not player.wait_for_any_subscriber(args.wait_timeout):
+                print(f"subpix replay: no subscriber on any replayed topic within "
+                      f"{args.wait_timeout:g} s: replaying anyway", file=sys.stderr)
             time.sleep(max(0.0, args.delay))
             interrupted = False
             corrupt = None

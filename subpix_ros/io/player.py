@@ -126,6 +126,20 @@ class Player:
             time.sleep(0.05)
         return False
 
+    def wait_for_any_subscriber(self, timeout_s: float = 15.0) -> bool:
+        """Block until some replayed topic (not ``/clock``) has a matched subscriber.
+
+        Returns False on timeout. The default of ``subpix replay``: a new publisher is matched
+        with subscribers already running only after discovery, so a short bag replayed at once
+        can be over before anyone receives it (docs/design-notes.md, "Camera frames between
+        processes")."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and not self._stop.is_set():
+            if any(pub.get_subscription_count() > 0 for pub in self.publishers.values()):
+                return True
+            time.sleep(0.05)
+        return False
+
     def _publish_clock(self, bag_ns: int) -> None:
         if self._clock_pub is not None:
             msg = self._clock_cls()

@@ -29,14 +29,33 @@ def ros_params(specs: Sequence[Spec]) -> tuple[Param, ...]:
                  for s in specs)
 
 
+#: Declared by every stage with a main input (``MAIN_INPUTS``), after its own parameters.
+INPUT_PARAMS: tuple[Param, ...] = (
+    Param("input_timeout_s", 5.0, "main input (camera or aligned frames) silent this long, with "
+          "or without a publisher: diagnostics WARN naming the topic and the publishers seen with "
+          "their QoS", 0.5, 3600.0),
+)
+
+
 class StageNode(Node):
     PARAMS: Sequence[Param] = ()
+    #: The topics of the node's main input (one input: any of them counts), watched for silence
+    #: (Diagnostics.watch_inputs) when the node subscribes its inputs itself.
+    MAIN_INPUTS: Sequence[str] = ()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.MAIN_INPUTS:
+            own = {p.name for p in cls.PARAMS}
+            cls.PARAMS = tuple(cls.PARAMS) + tuple(p for p in INPUT_PARAMS if p.name not in own)
 
     def __init__(self, name: str, *, subscribe_inputs: bool = True, **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
         self.subscribe_inputs = subscribe_inputs
         self.diag = Diagnostics(self)
         self.params = declare_params(self, self.PARAMS, self._on_param_change)
+        if subscribe_inputs and self.MAIN_INPUTS:
+            self.diag.watch_inputs(self.MAIN_INPUTS, lambda: self.p("input_timeout_s"))
         self._listeners: dict[str, list[Callable[[Any], None]]] = defaultdict(list)
         self._last_stamp_ns: int | None = None
         self.worker: DropOldestWorker | None = None

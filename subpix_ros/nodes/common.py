@@ -26,13 +26,14 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from ..runtime import keep_freed_memory
+from ..runtime import RuntimeSetupError, configure_ros_environment, keep_freed_memory
 from ..stages.params import Spec
 
 __all__ = [
@@ -192,8 +193,11 @@ class RateMeter:
         self._t: collections.deque[float] = collections.deque(maxlen=10_000)
         self.total = 0
 
+        self.last: float | None = None  # time.monotonic() of the latest event
+
     def tick(self, now: float | None = None) -> None:
-        self._t.append(time.monotonic() if now is None else now)
+        self.last = time.monotonic() if now is None else now
+        self._t.append(self.last)
         self.total += 1
 
     def rate(self, now: float | None = None) -> float:
@@ -326,11 +330,82 @@ class Diagnostics:
         self.worker: DropOldestWorker | None = None
         self._latencies: collections.deque[float] = collections.deque(maxlen=self.HISTORY)
         self._durations: dict[str, collections.deque[float]] = {}
+        self._watch: tuple[tuple[str, ...], Callable[[], float], float] | None = None
+        self._watch_meter = "input"
+        self._episode: str | None = None  # the input problem being reported (logged when it began)
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.timer = node.create_timer(period_s, self.publish)
+        # Wall (steady) time, not the node's clock: with use_sim_time and no /clock (the replay
+        # ended or never started) a node must still report, above all that nothing arrives.
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.timer = node.create_timer(period_s, self.publish, clock=steady)
 
     def rate(self, name: str) -> RateMeter:
         return self.rates.setdefault(name, RateMeter())
+
+    def watch_inputs(self, topics: Sequence[str], timeout_s: Callable[[], float],
+                     meter: str = "input") -> None:
+        """Report a silent main input: WARN when nothing ticked ``meter`` for ``timeout_s()`` s.
+
+        ``topics`` (relative names are resolved with the node's remappings) are one input, e.g.
+        a camera's ``image`` and ``image/compressed``. Checked at every publication (1 Hz, wall
+        time): with no publisher on any of them for the timeout the status says
+        ``no publisher on /x``; with publishers but nothing received it names them with their
+        QoS (reliability, durability), as the ROS graph reports them. The status stays WARN
+        while the silence lasts; the log has one line when it begins and one when messages
+        arrive again.
+        """
+        self._watch = (tuple(topics), timeout_s, time.monotonic())
+        self._watch_meter = meter
+
+    def _publishers(self, topic: str) -> list[str]:
+        out = []
+        for info in self.node.get_publishers_info_by_topic(topic):
+            qos = info.qos_profile
+            name = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+            out.append(f"{name} ({qos.reliability.name.lower()}, {qos.durability.name.lower()})")
+        return sorted(out)
+
+    def _input_problem(self, silent: float, limit: float, heard: bool) -> str:
+        topics = self._watch[0]
+        names = [self.node.resolve_topic_name(t) for t in topics]
+        seen = {t: self._publishers(t) for t in names}
+        if not any(seen.values()):
+            return f"no publisher on {' or '.join(names)}"
+        what = "; ".join(f"{t}: {len(p)} publisher(s) {', '.join(p)}" for t, p in seen.items() if p)
+        word = "nothing received since the last message" if heard else "nothing received"
+        return (f"{word} on {' or '.join(names)} for over {limit:g} s (input_timeout_s) "
+                f"from {what}")
+
+    def check_inputs(self, now: float | None = None) -> str | None:
+        """The input problem now (and report it), or None; called at every publication."""
+        if self._watch is None:
+            return None
+        _, timeout_s, since = self._watch
+        now = time.monotonic() if now is None else now
+        meter = self.rates.get(self._watch_meter)
+        last = meter.last if meter is not None else None
+        silent = now - (last if last is not None else since)
+        limit = float(timeout_s())
+        problem = None
+        if silent >= limit:
+            problem = self._input_problem(silent, limit, last is not None)
+            self.set(input_silent_s=round(silent, 1))
+        else:
+            self.set(input_silent_s=0.0)
+        if problem is None:
+            if self._episode is not None:
+                self.node.get_logger().info(f"input arriving again after: {self._episode}")
+            self._episode = None
+            return None
+        first = problem != self._episode
+        self._episode = problem
+        if first:
+            self._report(WARN, problem, log=False)
+            # once per episode, not throttled together with the node's other warnings
+            self.node.get_logger().warning(problem)
+        else:
+            self._hold(WARN, problem)
+        return problem
 
     def attach(self, worker: DropOldestWorker) -> None:
         self.worker = worker
@@ -369,7 +444,15 @@ class Diagnostics:
     def error(self, message: str) -> None:
         self._report(ERROR, message)
 
-    def _report(self, level: int, message: str) -> None:
+    def _hold(self, level: int, message: str) -> None:
+        """Keep reporting a condition already logged and counted (no new log line, no count)."""
+        with self._lock:
+            self._status.level = max(self._status.level, level)
+            if self._status.level == level:
+                self._status.message = message
+            self._status.last_error_time = time.monotonic()
+
+    def _report(self, level: int, message: str, log: bool = True) -> None:
         with self._lock:
             now = time.monotonic()
             held = now - self._status.last_error_time <= self.hold_s
@@ -384,6 +467,8 @@ class Diagnostics:
                 self._status.errors += 1
             else:
                 self._status.warnings += 1
+        if not log:
+            return
         log = self.node.get_logger()
         # rclpy keys throttling by call site, and one call site may not change severity
         if level == ERROR:
@@ -431,6 +516,10 @@ class Diagnostics:
         return st
 
     def publish(self) -> None:
+        try:
+            self.check_inputs()
+        except Exception as exc:  # noqa: BLE001 - the graph query fails during shutdown
+            self.node.get_logger().debug(f"input check skipped: {exc}")
         msg = DiagnosticArray()
         msg.header.stamp = self.node.get_clock().now().to_msg()
         msg.status = [self.snapshot()]
@@ -441,9 +530,19 @@ class Diagnostics:
 def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None, threads: int | None = None) -> int:
     """Init rclpy, build the nodes, spin them on a MultiThreadedExecutor, shut down cleanly.
 
-    Freed frame buffers stay in the process's heap for reuse (:func:`subpix_ros.runtime.keep_freed_memory`).
+    Freed frame buffers stay in the process's heap for reuse
+    (:func:`subpix_ros.runtime.keep_freed_memory`); the ROS / DDS defaults of
+    :func:`subpix_ros.runtime.configure_ros_environment` are applied before the participant is
+    created, or the process refuses to start with one line on stderr (exit status 2).
     """
     keep_freed_memory()
+    try:
+        configure_ros_environment()
+    except RuntimeSetupError as exc:
+        import sys
+
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     rclpy.init(args=args)
     nodes: list[Node] = []
     executor = MultiThreadedExecutor(num_threads=threads)

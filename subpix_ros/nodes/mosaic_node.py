@@ -22,6 +22,7 @@ from subpix_ros.stages import MosaicStage
 
 
 class MosaicNode(StageNode):
+    MAIN_INPUTS = ("image", "image/compressed")
     PARAMS = (
         Param(
             "camera_reliable",

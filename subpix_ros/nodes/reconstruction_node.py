@@ -38,6 +38,7 @@ IDLE_CHECK_S = 0.2  # how often the idle flush is checked (wall time)
 
 
 class ReconstructionNode(StageNode):
+    MAIN_INPUTS = ("aligned",)
     PARAMS = (
         *ros_params(ReconstructionStage.PARAMS),
         Param(

@@ -50,6 +50,7 @@ from subpix_ros.stages import Aligned, NewReference, RegistrationStage, Skipped
 
 
 class RegistrationNode(StageNode):
+    MAIN_INPUTS = ("image", "image/compressed")
     PARAMS = (
         Param(
             "camera_reliable",

@@ -23,6 +23,7 @@ from subpix_ros.stages import Shift, ShiftStage
 
 
 class ShiftNode(StageNode):
+    MAIN_INPUTS = ("aligned",)
     PARAMS = (
         Param(
             "queue_size",

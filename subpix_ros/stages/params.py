@@ -48,7 +48,9 @@ class Spec:
 
 
 # parameters of the nodes' transport (queues, QoS, publishing), not of a stage's policy
-NODE_ONLY = frozenset({"camera_reliable", "queue_size", "publish_rate_hz", "jpeg_quality"})
+NODE_ONLY = frozenset(
+    {"camera_reliable", "queue_size", "publish_rate_hz", "jpeg_quality", "input_timeout_s"}
+)
 
 
 def resolve(

@@ -96,7 +96,8 @@ def test_record_then_replay_round_trip(sample_bags, tmp_path):
     recorded = {t: [m.raw for m in read_messages(out, [ns + t])] for t in topics}
     assert recorded == original
     # and what we recorded replays
-    again = subprocess.run(subpix_cmd("replay", str(out), "--delay", "0"), capture_output=True, text=True, timeout=60)
+    again = subprocess.run(subpix_cmd("replay", str(out), "--delay", "0", "--no-wait"),
+                           capture_output=True, text=True, timeout=60)
     assert again.returncode == 0 and "replayed" in again.stdout
 
 
@@ -253,3 +254,37 @@ def test_replay_gives_up_on_a_subscriber_that_stays_stalled_and_says_so(sample_b
     assert play.returncode == 0 and "replayed 24 messages" in out
     assert "not every reliable subscriber acknowledged every message within 2 s" in err, err
     assert 2.0 <= waited < 15.0
+
+
+def test_replay_waits_for_a_subscriber_by_default(sample_bags, rclpy_node):
+    """Without --wait-for the replay still holds its first message until some replayed topic is
+    matched (issue 19: an 8-frame bag replayed at once was lost whole while discovery was going
+    on). Old code: the bag was over before the subscriber came."""
+    from sensor_msgs.msg import Image
+
+    bag = sample_bags / "subpixel"
+    n = sum(1 for _ in read_messages(bag, ["/camera/image_raw"]))
+    topic = f"/waits_{os.getpid()}_{time.monotonic_ns() % 1_000_000}/image"
+    proc = subprocess.Popen(subpix_cmd("replay", str(bag), "--topics", "/camera/image_raw",
+                                       "--remap", f"/camera/image_raw:={topic}"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(6.0)  # the subscriber comes late (the bag lasts 2.4 s)
+        assert proc.poll() is None, proc.communicate()
+        got = _collect(rclpy_node, topic, Image, n, timeout=60)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert len(got) == n, (len(got), out, err)
+
+
+def test_replay_without_subscriber_goes_ahead_after_the_wait(sample_bags):
+    r = subprocess.run(subpix_cmd("replay", str(sample_bags / "subpixel"), "--topics",
+                                  "/camera/image_raw", "--remap",
+                                  f"/camera/image_raw:=/nobody_{os.getpid()}",
+                                  "--wait-timeout", "1"),
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "no subscriber on any replayed topic within 1 s: replaying anyway" in r.stderr
+    assert "replayed 24 messages" in r.stdout

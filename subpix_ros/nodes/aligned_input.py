@@ -43,12 +43,13 @@ class AlignedInput:
             latched_qos(ReferenceCache.MAXLEN),
             raw=True,
         )
-        # links are tiny: a deep queue, so a busy node never loses one (its frame would wait)
+        # links are tiny: a deep queue, so a busy node never loses one (its frame would wait);
+        # transient local as published, so links sent before this reader matched still come
         self.link_sub = node.create_subscription(
             TimeReference,
             "aligned/reference_stamp",
             self._on_link,
-            reliable_qos(max(depth, 100)),
+            latched_qos(max(depth, 100)),
             raw=True,
         )
         node.create_subscription(Image, "aligned", self._on_aligned, q, raw=True)

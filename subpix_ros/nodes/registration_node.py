@@ -49,6 +49,9 @@ from subpix_ros.nodes.common import (
 from subpix_ros.stages import Aligned, NewReference, RegistrationStage, Skipped
 
 
+LINK_HISTORY = 100  # aligned/reference_stamp messages a late-joining consumer still gets
+
+
 class RegistrationNode(StageNode):
     MAIN_INPUTS = ("image", "image/compressed")
     PARAMS = (
@@ -81,9 +84,11 @@ class RegistrationNode(StageNode):
         self.pub_mask = self.create_publisher(Image, "aligned/mask", reliable_qos(10))
         self.pub_h = self.create_publisher(Float64MultiArray, "homography", reliable_qos(10))
         self.pub_ref = self.create_publisher(Image, "aligned/reference", latched_qos())
-        # each aligned frame's reference, by stamp (consumers need not infer it from arrival order)
+        # each aligned frame's reference, by stamp (consumers need not infer it from arrival order);
+        # transient local, the last 100 kept: a consumer whose link reader matches after its frame
+        # reader still gets the links of the frames it received
         self.pub_link = self.create_publisher(
-            TimeReference, "aligned/reference_stamp", reliable_qos(10)
+            TimeReference, "aligned/reference_stamp", latched_qos(LINK_HISTORY)
         )
         self.make_worker(self._process, self.p("queue_size"))
         if subscribe_inputs:

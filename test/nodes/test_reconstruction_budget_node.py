@@ -34,7 +34,7 @@ def test_max_memory_mb_reduces_the_set_and_reports_it_in_diagnostics(ctx, crops)
     h.create_subscription(DiagnosticArray, "/diagnostics",
                           lambda m: diags.extend(s for s in m.status if s.name == node.get_name()), 10)
     ref_pub = h.create_publisher(Image, "/aligned/reference", latched_qos())
-    link = h.create_publisher(TimeReference, "/aligned/reference_stamp", reliable_qos(20))
+    link = h.create_publisher(TimeReference, "/aligned/reference_stamp", latched_qos(20))
     img_pub = h.create_publisher(Image, "/aligned", reliable_qos(20))
     mask_pub = h.create_publisher(Image, "/aligned/mask", reliable_qos(20))
     shift_pub = h.create_publisher(Vector3Stamped, "/shift", reliable_qos(20))

@@ -42,7 +42,7 @@ def test_an_incomplete_last_set_is_reconstructed_after_flush_after_s(ctx, crops)
         10,
     )
     ref_pub = h.create_publisher(Image, "/aligned/reference", latched_qos())
-    link = h.create_publisher(TimeReference, "/aligned/reference_stamp", reliable_qos(20))
+    link = h.create_publisher(TimeReference, "/aligned/reference_stamp", latched_qos(20))
     img_pub = h.create_publisher(Image, "/aligned", reliable_qos(20))
     mask_pub = h.create_publisher(Image, "/aligned/mask", reliable_qos(20))
     shift_pub = h.create_publisher(Vector3Stamped, "/shift", reliable_qos(20))

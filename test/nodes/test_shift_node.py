@@ -139,7 +139,7 @@ def test_aligned_frames_follow_their_reference_link_in_any_arrival_order(ctx, cr
     from sensor_msgs.msg import TimeReference
 
     node, got, img, full, h, pubs, diags = _recording_shift_node(crops)
-    link = h.create_publisher(TimeReference, "/aligned/reference_stamp", reliable_qos(20))
+    link = h.create_publisher(TimeReference, "/aligned/reference_stamp", latched_qos(20))
     t0 = 1_700_000_000_000_000_000
 
     def frame(k, ref):

@@ -27,7 +27,8 @@ setup(
     ],
     # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in
     # a venv, from requirements.txt: never from install_requires.
-    install_requires=["setuptools", "numpy", "opencv-python-headless", "pymavlink", "pyserial", "rosbags", "PyYAML"],
+    install_requires=["setuptools", "numpy", "opencv-python-headless", "pymavlink", "pyserial", "rosbags", "PyYAML",
+                      "matplotlib", "tqdm"],
     zip_safe=True,
     maintainer="subpix_ros developers",
     maintainer_email="dev@subpix-ros.org",

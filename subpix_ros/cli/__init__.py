@@ -18,6 +18,8 @@ from ..runtime import keep_freed_memory
 # Subcommand modules, in the order ``subpix --help`` lists them.
 MODULES = (
     "demo",
+    "process",
+    "report",
     "replay",
     "record",
     "shift",

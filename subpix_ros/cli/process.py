@@ -12,7 +12,9 @@ frames.csv, telemetry.csv, summary.json, timing.json and report.html.
 The same bag and parameters give byte-identical products (timing.json and
 report.html carry the processing times). A folder is renamed into place only
 when complete; a re-run skips complete bags (--force redoes them). A bag that
-cannot be processed gets one line and the exit status is 1 at the end.
+cannot be processed (or only in part: no images, a corrupt chunk, frames of
+another size) gets one line and the exit status is 1 at the end; a bag
+without telemetry is processed (every frame kept) and the report says so.
 """
 from __future__ import annotations
 
@@ -67,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     progress = Progress(stream=sys.stderr, quiet=args.quiet)
     results = run_batch(args.bags, out, params, jobs=args.jobs, camera_topic=args.camera_topic,
                         telemetry=args.telemetry, force=args.force, progress=progress)
-    failed = [r for r in results if r.status == "failed"]
+    failed = [r for r in results if r.status in ("failed", "partial")]
     lines = [r.line for r in results]
     (out / "batch_summary.json").write_text(json.dumps(
         [{"bag": r.bag, "name": r.name, "status": r.status, "line": r.line, "out": r.out} for r in results],
@@ -78,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
             if r.out and r.status != "failed":
                 print(f"  report: {Path(r.out) / 'report.html'}")
     if failed:
-        print(f"subpix process: {len(failed)} of {len(results)} bag(s) failed", file=sys.stderr)
+        print(f"subpix process: {len(failed)} of {len(results)} bag(s) failed or only partly usable: "
+              f"{', '.join(r.name for r in failed)}", file=sys.stderr)
         return 1
     return 0

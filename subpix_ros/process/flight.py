@@ -44,7 +44,7 @@ from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample
 from subpix_ros.core.timing import expected_shift_px, frame_interval
 from subpix_ros.io.bags import BagError
 from subpix_ros.process.inputs import Flight, InputError, bag_name, open_flight
-from subpix_ros.process.products import ProductWriter, is_complete
+from subpix_ros.process.products import ProductWriter, is_complete, rounded
 
 # The registration node's defaults of the parameters used here for the expected shift
 # (test/process/test_flight.py checks they equal RegistrationNode.PARAMS).
@@ -67,13 +67,14 @@ def reason_key(reason: str) -> str:
 
 
 def _clean(o: Any) -> Any:
-    """JSON-safe copy: non-finite floats -> None, numpy scalars -> Python."""
+    """JSON-safe copy: floats to 10 significant digits (:func:`rounded`), non-finite -> None,
+    numpy scalars -> Python."""
     if isinstance(o, dict):
         return {str(k): _clean(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
         return [_clean(v) for v in o]
     if isinstance(o, (np.floating, float)):
-        return float(o) if math.isfinite(float(o)) else None
+        return rounded(o) if math.isfinite(float(o)) else None
     if isinstance(o, np.integer):
         return int(o)
     if isinstance(o, np.bool_):
@@ -184,8 +185,8 @@ class _Collector:
 
     def on_shift(self, s: Any) -> None:
         row = self.shifts.setdefault(int(s.stamp_ns), {"stamp_ns": int(s.stamp_ns)})
-        row.update(reference_stamp_ns=int(s.reference_stamp_ns), u_px=float(s.u), v_px=float(s.v),
-                   u_std_px=float(s.u_std), v_std_px=float(s.v_std), converged=True, reason="")
+        row.update(reference_stamp_ns=int(s.reference_stamp_ns), u_px=rounded(s.u), v_px=rounded(s.v),
+                   u_std_px=rounded(s.u_std), v_std_px=rounded(s.v_std), converged=True, reason="")
         self.w.shift(s.stamp_ns, s.u, s.v, s.z, getattr(s, "frame_id", ""))
 
     def on_super_resolved(self, sr: Any) -> None:
@@ -198,7 +199,7 @@ class _Collector:
         self.w.image("/super_resolved", img, stamp, getattr(ref, "frame_id", ""))
         members = []
         for s, a in getattr(sr, "members", []) or []:
-            members.append({"stamp_ns": int(s.stamp_ns), "u_px": float(s.u), "v_px": float(s.v)})
+            members.append({"stamp_ns": int(s.stamp_ns), "u_px": rounded(s.u), "v_px": rounded(s.v)})
         self.sets.append({"reference_stamp_ns": stamp, "frames": 1 + len(members), "members": members,
                           "method": str(getattr(sr, "method", "")), "fell_back": bool(getattr(sr, "fell_back", False)),
                           "reason": str(getattr(sr, "reason", "") or ""),
@@ -357,6 +358,10 @@ def process_bag(bag: str | Path, out_root: str | Path, params: dict[str, dict] |
         return BagResult(str(bag), name, "failed", f"{name}: failed: {exc}", problems=[str(exc)])
     out_root.mkdir(parents=True, exist_ok=True)
     writer = ProductWriter(out_root, name)
+    import cv2
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # OpenCV's thread pool makes the last bits of the results vary from run to run
     try:
         res = _run(flight, writer, params, progress)
         res.wall_s = time.monotonic() - t_wall
@@ -380,6 +385,8 @@ def process_bag(bag: str | Path, out_root: str | Path, params: dict[str, dict] |
         writer.abort()
         text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
         return BagResult(str(bag), name, "failed", f"{name}: failed: {text}", problems=[text])
+    finally:
+        cv2.setNumThreads(threads)
 
 
 def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) -> BagResult:
@@ -414,6 +421,7 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
         timer.wrap(sname, obj)
     samples: list[TelemetrySample] = []
     dropped: Counter = Counter()
+    examples: dict[str, str] = {}  # the first full reason of each kind
     size: tuple | None = None
     first_ns = last_ns = None
     next_diag = None
@@ -433,6 +441,7 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                 stamp, why = item
                 col.frames.append(_FrameRec(len(col.frames), int(stamp), "dropped", why))
                 dropped[reason_key(why)] += 1
+                examples.setdefault(reason_key(why), why)
             else:
                 frame = item
                 rec = _FrameRec(len(col.frames), int(frame.stamp_ns))
@@ -447,6 +456,7 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                     rec.reason = (f"frame size {_shape_text(shape)} differs from the flight's "
                                   f"{_shape_text(size)}")
                     dropped[reason_key(rec.reason)] += 1
+                    examples.setdefault(reason_key(rec.reason), rec.reason)
                 else:
                     first_ns = rec.stamp_ns if first_ns is None else first_ns
                     last_ns = rec.stamp_ns
@@ -475,7 +485,7 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
     except Exception as exc:  # noqa: BLE001
         col.on_error(f"flush: {type(exc).__name__}: {exc}")
     if dropped:
-        problems.extend(f"{n} frame(s) dropped: {k}" for k, n in sorted(dropped.items()))
+        problems.extend(f"{n} frame(s) dropped: {examples[k]}" for k, n in sorted(dropped.items()))
     if col.errors:
         problems.append(f"{len(col.errors)} stage error(s), last: {col.errors[-1]}")
 
@@ -530,6 +540,9 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
     }
     if not col.sets and flight.frames_total:
         problems.append("no super-resolved image: no set reached min_frames")
+    if status == "ok" and (not flight.frames_total or dropped or col.errors):
+        status = "partial"  # part of the input (or all of it) could not be used
+    summary["status"] = status
     w.json("summary.json", _clean(summary))
     flight_s = summary["flight"]["duration_s"]
     line = (f"{flight.name}: {status}: {done} frames in, {summary['frames']['kept']} kept, "
@@ -613,17 +626,17 @@ def _shift_rows(col: _Collector, buf: TelemetryBuffer, rp: dict) -> list[dict]:
         if h is not None and row.get("converged"):
             total = _total_shift(h, prior, row["u_px"], row["v_px"], col.shape)
             if total is not None:
-                row["u_total_px"], row["v_total_px"] = total
+                row["u_total_px"], row["v_total_px"] = rounded(total[0]), rounded(total[1])
         if ref is not None and len(buf):
             t_ref, t = ref * 1e-9, stamp * 1e-9
             r0, r1 = _image_rate(buf, t_ref, rp), _image_rate(buf, t, rp)
             if r0 is not None and r1 is not None:  # mean image velocity over the interval (trapezoid)
                 dt = t - t_ref
-                row["u_expected_px"] = 0.5 * (r0[0] + r1[0]) * dt
-                row["v_expected_px"] = 0.5 * (r0[1] + r1[1]) * dt
-                if "u_total_px" in row:
-                    row["u_residual_px"] = row["u_total_px"] - row["u_expected_px"]
-                    row["v_residual_px"] = row["v_total_px"] - row["v_expected_px"]
+                row["u_expected_px"] = rounded(0.5 * (r0[0] + r1[0]) * dt)
+                row["v_expected_px"] = rounded(0.5 * (r0[1] + r1[1]) * dt)
+                if "u_total_px" in row:  # from the rounded values: the same digits in every process
+                    row["u_residual_px"] = rounded(row["u_total_px"] - row["u_expected_px"])
+                    row["v_residual_px"] = rounded(row["v_total_px"] - row["v_expected_px"])
         rows.append(row)
     return rows
 

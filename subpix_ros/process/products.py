@@ -45,6 +45,17 @@ _DIAG_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 _FLOAT64 = "std_msgs/msg/Float64"
 
 
+def rounded(x: float) -> float:
+    """``x`` to 10 significant digits: the products' precision.
+
+    The last bits of the estimates differ between processes (memory alignment
+    picks different SIMD/BLAS kernels), so the products carry 10 significant
+    digits, far above that noise and below any accuracy that matters.
+    """
+    x = float(x)
+    return float(f"{x:.10g}") if np.isfinite(x) else x
+
+
 def is_complete(folder: Path) -> bool:
     """A product folder is complete if it exists with a readable summary.json (it was renamed into place)."""
     try:
@@ -60,7 +71,7 @@ def _fmt(x: Any) -> str:
     if isinstance(x, (bool, np.bool_)):
         return "1" if x else "0"
     if isinstance(x, (float, np.floating)):
-        return "" if not np.isfinite(x) else f"{float(x):.6g}"
+        return "" if not np.isfinite(x) else f"{float(x):.10g}"
     return str(x)
 
 
@@ -93,10 +104,12 @@ class ProductWriter:
 
     # ---------------------------------------------------------------- results.mcap
     def shift(self, stamp_ns: int, u: float, v: float, z: float, frame_id: str = "") -> None:
-        self.bag.write("/shift", cdr.VECTOR3_STAMPED, stamp_ns, cdr.vector3_stamped_to_cdr((u, v, z), stamp_ns, frame_id))
+        vec = (rounded(u), rounded(v), rounded(z))
+        self.bag.write("/shift", cdr.VECTOR3_STAMPED, stamp_ns, cdr.vector3_stamped_to_cdr(vec, stamp_ns, frame_id))
 
     def homography(self, stamp_ns: int, h: np.ndarray) -> None:
-        raw = cdr.float64_array_to_cdr(np.asarray(h, np.float64).reshape(3, 3), ["rows", "cols"])
+        hh = np.array([rounded(x) for x in np.asarray(h, np.float64).ravel()]).reshape(3, 3)
+        raw = cdr.float64_array_to_cdr(hh, ["rows", "cols"])
         self.bag.write("/homography", cdr.FLOAT64_MULTI_ARRAY, stamp_ns, raw)
 
     def reference_link(self, stamp_ns: int, reference_ns: int, frame_id: str = "") -> None:
@@ -109,7 +122,7 @@ class ProductWriter:
         self.bag.write(topic, cdr.IMAGE, stamp_ns, cdr.image_to_cdr(np.ascontiguousarray(image), enc, stamp_ns, frame_id))
 
     def frame_interval(self, stamp_ns: int, interval_s: float) -> None:
-        raw = cdr.serialize(_T[_FLOAT64](data=float(interval_s)), _FLOAT64)
+        raw = cdr.serialize(_T[_FLOAT64](data=rounded(interval_s)), _FLOAT64)
         self.bag.write("/telemetry/frame_interval", _FLOAT64, stamp_ns, raw)
 
     def diagnostics(self, stamp_ns: int, statuses: dict[str, tuple[int, str, dict[str, Any]]]) -> None:

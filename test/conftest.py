@@ -46,6 +46,23 @@ def sample_bags(tmp_path_factory):
     return bags
 
 
+@pytest.fixture(scope="session")
+def flight(sample_bags):
+    """The 24 frames of the rendered subpixel flight as stage Frames, and its truth (stamp -> (u, v))."""
+    import json
+
+    from subpix_ros.io import cdr
+    from subpix_ros.io.bags import read_messages
+    from subpix_ros.stages import Frame
+
+    frames = []
+    for m in read_messages(sample_bags / "subpixel", ["/camera/image_raw"]):
+        img, header = cdr.cdr_to_image(m.raw)
+        frames.append(Frame(cdr.header_to_ns(header), img, header.frame_id))
+    truth = json.loads((sample_bags / "subpixel" / "truth.json").read_text())
+    return frames, {f["stamp_ns"]: (f["u"], f["v"]) for f in truth["frames"]}
+
+
 @pytest.fixture
 def rclpy_node():
     """An initialised rclpy context with one node in this (the test) process."""
@@ -74,3 +91,46 @@ class ImageMsg:
     step: int
     data: object
     header: object = None
+
+
+@pytest.fixture
+def ctx():
+    """rclpy initialised for one test (the nodes under test live in this process)."""
+    import rclpy
+
+    rclpy.init()
+    yield
+    rclpy.shutdown()
+
+
+def spin(nodes, until, timeout=10.0, executor=None, procs=()):
+    """Spin ``nodes`` (a node or a list) until ``until()`` or ``timeout`` s; returns ``until()``.
+
+    ``executor``: an executor class or factory (default: SingleThreadedExecutor for a list,
+    ``rclpy.spin_once`` for one node); ``procs``: subprocesses that must stay alive meanwhile.
+    """
+    import time
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    single = not isinstance(nodes, (list, tuple))
+    ex = None
+    if not single or executor is not None:
+        ex = (executor or SingleThreadedExecutor)()
+        for n in ([nodes] if single else nodes):
+            ex.add_node(n)
+    deadline = time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline and not until():
+            if ex is None:
+                rclpy.spin_once(nodes, timeout_sec=0.05)
+            else:
+                ex.spin_once(timeout_sec=0.05)
+            for p in procs:
+                assert p.poll() is None, f"{p.args[2]} died:\n{p.stdout.read()}"
+    finally:
+        if ex is not None:
+            for n in ([nodes] if single else nodes):
+                ex.remove_node(n)
+    return until()

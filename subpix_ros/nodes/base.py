@@ -1,6 +1,8 @@
 """Base class of the subpix_ros processing nodes.
 
-A :class:`StageNode` publishes its outputs to ROS topics and, in the
+A :class:`StageNode` is a thin adapter around a ROS-free stage
+(``subpix_ros.stages``): parameters, decoding, ``stage.add``, publishing and
+/diagnostics from the stage's statistics. It publishes its outputs to ROS topics and, in the
 single-process ``pipeline``, also hands them to in-process listeners
 (:meth:`listen` / :meth:`emit`), so stages inside one process exchange
 objects, not DDS messages. ``subscribe_inputs=False`` makes a node skip its
@@ -15,6 +17,14 @@ from typing import Any, Callable, Sequence
 from rclpy.node import Node
 
 from subpix_ros.nodes.common import Diagnostics, DropOldestWorker, Param, declare_params, qos_event_callbacks
+from subpix_ros.stages.base import Stage
+from subpix_ros.stages.params import Spec
+
+
+def ros_params(specs: Sequence[Spec]) -> tuple[Param, ...]:
+    """A stage's parameter specs as node parameters (same names, defaults, ranges, descriptions)."""
+    return tuple(Param(s.name, s.default, s.description, s.min, s.max, s.choices, s.read_only)
+                 for s in specs)
 
 
 class StageNode(Node):
@@ -28,6 +38,16 @@ class StageNode(Node):
         self._listeners: dict[str, list[Callable[[Any], None]]] = defaultdict(list)
         self._last_stamp_ns: int | None = None
         self.worker: DropOldestWorker | None = None
+        self.stage: Stage | None = None
+
+    def make_stage(self, cls: type[Stage]) -> Stage:
+        """The node's stage, built from its current parameters; its problems go to /diagnostics."""
+        self.stage = cls.from_params({name: self.p(name) for name in self.params})
+        self.stage.on_problem = self._stage_problem
+        return self.stage
+
+    def _stage_problem(self, level: str, message: str) -> None:
+        (self.diag.error if level == "error" else self.diag.warn)(message)
 
     # ---------------------------------------------------------------- parameters
     def p(self, name: str) -> Any:
@@ -35,6 +55,8 @@ class StageNode(Node):
 
     def _on_param_change(self, name: str, value: Any) -> None:
         self.get_logger().info(f"parameter {name} = {value!r}")
+        if self.stage is not None and (name in self.stage.params or name in self.stage.extra):
+            self.stage.configure(**{name: value})  # already checked against the same range
 
     # ---------------------------------------------------------------- in-process hand-off
     def listen(self, kind: str, callback: Callable[[Any], None]) -> None:
@@ -69,7 +91,11 @@ class StageNode(Node):
         return False
 
     def reset(self) -> None:
-        """Forget per-stream state (overridden by stages that keep any)."""
+        """Forget per-stream state: the stage's and the queued work (extended by nodes that keep more)."""
+        if self.stage is not None:
+            self.stage.reset()
+        if self.worker is not None:
+            self.worker.clear()
 
     def latency_since(self, received: float) -> None:
         self.diag.latency(time.monotonic() - received)

@@ -1,67 +1,20 @@
 """What the nodes hand each other, in memory (pipeline) or as ROS messages.
 
-In the single-process ``pipeline`` these objects pass between stages
-directly; between processes they travel as the documented ROS messages, and
-the ``*_from_cdr`` / ``*_to_cdr`` helpers here convert (fast raw-CDR path).
+The payloads (:class:`Frame`, :class:`Aligned`, :class:`Shift`) are the
+stages' (``subpix_ros.stages.types``), re-exported here. In the
+single-process ``pipeline`` they pass between stages directly; between
+processes they travel as the documented ROS messages, and the ``*_from_cdr``
+/ ``*_to_cdr`` helpers here convert (fast raw-CDR path).
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from subpix_ros.io import cdr
 from subpix_ros.io.images import image_to_numpy
-
-
-@dataclass
-class Frame:
-    """One camera frame: pixels as received (mono HxW or BGR HxWx3)."""
-
-    stamp_ns: int
-    image: np.ndarray
-    frame_id: str = ""
-    received: float = field(default_factory=time.monotonic)
-
-    @property
-    def stamp_s(self) -> float:
-        return self.stamp_ns * 1e-9
-
-
-@dataclass
-class Aligned:
-    """A frame brought onto its reference frame's grid to pixel accuracy.
-
-    ``mask`` is True where the pixel came from the moving frame; ``reference``
-    the frame it is aligned to; ``homography`` maps the original moving
-    frame's pixel coordinates (x = column, y = row) to the reference's;
-    ``prior`` the sub-pixel (u, v) the homography predicts is left in.
-    """
-
-    stamp_ns: int
-    image: np.ndarray
-    mask: np.ndarray
-    reference: Frame
-    homography: np.ndarray
-    prior: tuple[float, float] | None = None
-    frame_id: str = ""
-    received: float = field(default_factory=time.monotonic)
-
-
-@dataclass
-class Shift:
-    """Sub-pixel shift of an aligned frame against its reference (project convention)."""
-
-    stamp_ns: int
-    reference_stamp_ns: int
-    u: float
-    v: float
-    z: float
-    u_std: float
-    v_std: float
-    frame_id: str = ""
-    received: float = field(default_factory=time.monotonic)
+from subpix_ros.stages.types import Aligned, Frame, Shift  # noqa: F401 - re-exported
 
 
 # ---------------------------------------------------------------- messages -> payloads

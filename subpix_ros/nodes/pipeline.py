@@ -32,14 +32,7 @@ def build(with_telemetry: bool = True):
     shift = ShiftNode(subscribe_inputs=False)
     recon = ReconstructionNode(subscribe_inputs=False)
     mosaic = MosaicNode(subscribe_inputs=False)
-    # camera -> registration (subscribed) and mosaic (in memory)
-    original = reg.handle_frame
-
-    def fan_out(frame):
-        original(frame)
-        mosaic.handle_frame(frame)
-
-    reg.handle_frame = fan_out  # type: ignore[method-assign]
+    reg.listen("frame", mosaic.handle_frame)  # camera -> registration (subscribed) and mosaic (in memory)
     reg.listen("aligned", shift.handle_aligned)
     shift.listen("shift", recon.handle_shift)
     nodes = [reg, shift, recon, mosaic]

@@ -4,12 +4,11 @@ import subprocess
 import sys
 import time
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import Image
 
-from conftest import ROOT, subpix_cmd
+from conftest import ROOT, spin, subpix_cmd
 from subpix_ros.cli._ros import stop_processes as _stop
 from subpix_ros.io import cdr
 from subpix_ros.io.bags import read_messages
@@ -23,13 +22,6 @@ def _node(name, *extra):
                              *extra], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
-def _spin(node, until, timeout):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and not until():
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return until()
-
-
 def test_shift_node_killed_and_restarted_rebuilds_from_next_frames(rclpy_node, sample_bags):
     node = rclpy_node
     shifts, aligned = [], []
@@ -40,11 +32,11 @@ def test_shift_node_killed_and_restarted_rebuilds_from_next_frames(rclpy_node, s
     shift = _node("shift_node")
     procs = [reg, shift]
     try:
-        assert _spin(node, lambda: node.count_publishers("/shift") and node.count_publishers("/aligned"), 30)
+        assert spin(node, lambda: node.count_publishers("/shift") and node.count_publishers("/aligned"), 30)
         replay = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--rate", "0.05", "--topics",
                                              "/camera/image_raw", "--wait-for", "/camera/image_raw"))
         procs.append(replay)
-        assert _spin(node, lambda: len(shifts) >= 3, 60)
+        assert spin(node, lambda: len(shifts) >= 3, 60)
         shift.kill()  # SIGKILL mid-stream: no clean-up
         shift.wait(5)
         killed_at = time.monotonic()
@@ -52,9 +44,9 @@ def test_shift_node_killed_and_restarted_rebuilds_from_next_frames(rclpy_node, s
         restarted = _node("shift_node")
         procs.append(restarted)
         # the restarted node gets the latched reference and the next aligned frames
-        assert _spin(node, lambda: any(t > killed_at for t, _ in shifts), 90)
-        assert _spin(node, lambda: replay.poll() is not None, 120)
-        _spin(node, lambda: False, 3)
+        assert spin(node, lambda: any(t > killed_at for t, _ in shifts), 90)
+        assert spin(node, lambda: replay.poll() is not None, 120)
+        spin(node, lambda: False, 3)
     finally:
         _stop(procs)
     assert len(aligned) > n_aligned  # registration carried on while shift_node was down
@@ -73,11 +65,11 @@ def test_looped_bag_resets_state_on_time_jump(rclpy_node, sample_bags):
     first = next(read_messages(sample_bags / "subpixel", ["/camera/image_raw"])).timestamp_ns
     replay = None
     try:
-        assert _spin(node, lambda: node.count_publishers("/aligned/reference"), 30)
+        assert spin(node, lambda: node.count_publishers("/aligned/reference"), 30)
         replay = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--rate", "1", "--loop",
                                              "--topics", "/camera/image_raw", "--wait-for", "/camera/image_raw"))
-        assert _spin(node, lambda: refs.count(first) >= 2, 90)  # frame 0 starts a new reference on the second pass
-        assert _spin(node, lambda: any("time jumped back" in d for d in diag), 10)
+        assert spin(node, lambda: refs.count(first) >= 2, 90)  # frame 0 starts a new reference on the second pass
+        assert spin(node, lambda: any("time jumped back" in d for d in diag), 10)
     finally:
         _stop([p for p in (reg, replay) if p is not None])
 
@@ -90,10 +82,10 @@ def test_use_sim_time_follows_replay_clock(rclpy_node, sample_bags):
     shift = _node("shift_node", "-p", "use_sim_time:=true")
     replay = None
     try:
-        assert _spin(node, lambda: node.count_publishers("/diagnostics"), 30)
+        assert spin(node, lambda: node.count_publishers("/diagnostics"), 30)
         replay = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--clock", "--rate", "0.2",
                                              "--topics", "/camera/image_raw", "--wait-for", "/clock"))
         # a sim-time node's 1 Hz timer runs on bag time: its diagnostics carry the bag's 2024 stamps
-        assert _spin(node, lambda: any(1_716_999_000 < s < 1_717_001_000 for s in stamps), 60)
+        assert spin(node, lambda: any(1_716_999_000 < s < 1_717_001_000 for s in stamps), 60)
     finally:
         _stop([p for p in (shift, replay) if p is not None])

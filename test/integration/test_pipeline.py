@@ -6,7 +6,6 @@ another, and this test process listens to the public topics.
 import json
 import subprocess
 import sys
-import time
 
 import cv2
 import numpy as np
@@ -16,7 +15,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import CompressedImage, Image
 
-from conftest import ROOT, subpix_cmd
+from conftest import ROOT, spin, subpix_cmd
 from subpix_ros.cli._ros import stop_processes as _stop
 from subpix_ros.core.evaluate import gain_over_bicubic, truth_on_grid, wrapped_error
 from subpix_ros.io import cdr
@@ -65,27 +64,18 @@ class Outputs:
                          sorted(self.diag.items()))
 
 
-def _spin(node, until, timeout, procs=()):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and not until():
-        rclpy.spin_once(node, timeout_sec=0.05)
-        for p in procs:
-            assert p.poll() is None, f"{p.args[2]} died:\n{p.stdout.read()}"
-    return until()
-
-
 def _replay_subpixel(node, out, bags, procs, rate="0.5"):
     # the outputs' publishers must be discovered here before the flight starts
     topics = ("/aligned/reference", "/shift", "/super_resolved")
-    assert _spin(node, lambda: all(node.count_publishers(t) for t in topics), 30, procs)
-    _spin(node, lambda: False, 1.0, procs)
+    assert spin(node, lambda: all(node.count_publishers(t) for t in topics), 30, procs=procs)
+    spin(node, lambda: False, 1.0, procs=procs)
     replay = subprocess.Popen(subpix_cmd("replay", str(bags / "subpixel"), "--rate", rate, "--topics",
                                          "/camera/image_raw", "--wait-for", "/camera/image_raw", "--wait-timeout", "60"))
-    assert _spin(node, lambda: replay.poll() is not None, 120, procs)
+    assert spin(node, lambda: replay.poll() is not None, 120, procs=procs)
     assert replay.returncode == 0
     # All 21 shifts AND 3 images, not the images alone: the executor takes one message per subscription
     # per wait, so shifts published before the last image can still be queued here when it is taken.
-    _spin(node, lambda: len(out.sr) >= 3 and len(out.shifts) >= 21, 60, procs)
+    spin(node, lambda: len(out.sr) >= 3 and len(out.shifts) >= 21, 60, procs=procs)
 
 
 def _check_subpixel(out, bags):
@@ -200,14 +190,14 @@ def test_seneca_bag_produces_a_mosaic(ros, sample_bags):
         r = subprocess.run(subpix_cmd("replay", str(sample_bags / "seneca"), "--rate", "5", "--topics",
                                       "/camera/image_raw", "--wait-for", "/camera/image_raw"), timeout=120)
         assert r.returncode == 0
-        assert _spin(ros, lambda: 9 in added, 60.0, procs)  # every frame of the strip is in the mosaic
-        _spin(ros, lambda: False, 2.0, procs)  # and its last publication arrives
+        assert spin(ros, lambda: 9 in added, 60.0, procs=procs)  # every frame of the strip is in the mosaic
+        spin(ros, lambda: False, 2.0, procs=procs)  # and its last publication arrives
         # a late joiner (transient local) still gets the latest mosaic at once
         late = rclpy.create_node("late_operator")
         got = []
         late.create_subscription(Image, "/mosaic", lambda raw: got.append(cdr.cdr_to_image(raw)[0]), latched_qos(),
                                  raw=True)
-        _spin(late, lambda: bool(got), 10.0, procs)
+        spin(late, lambda: bool(got), 10.0, procs=procs)
         late.destroy_node()
     finally:
         _stop(procs)

@@ -3,7 +3,6 @@ running, nothing garbage is published, valid data beside bad data is not lost.""
 import time
 
 import numpy as np
-import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistStamped, Vector3Stamped
@@ -18,13 +17,6 @@ from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.common import latched_qos, reliable_qos
 
 T0 = 1_700_000_000_000_000_000
-
-
-@pytest.fixture
-def ctx():
-    rclpy.init()
-    yield
-    rclpy.shutdown()
 
 
 class Harness:

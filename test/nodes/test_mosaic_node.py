@@ -3,20 +3,11 @@ import time
 
 import cv2
 import numpy as np
-import pytest
 
-import rclpy
 from rclpy.parameter import Parameter
 
 from subpix_ros.data import seneca_frame_paths
 from subpix_ros.nodes import payloads as pl
-
-
-@pytest.fixture
-def ctx():
-    rclpy.init()
-    yield
-    rclpy.shutdown()
 
 
 def _frame(img, stamp_ns):

@@ -8,29 +8,11 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
+from conftest import spin
 from subpix_ros.core.render import render_sequence
 from subpix_ros.io import cdr
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.common import latched_qos, reliable_qos
-
-
-@pytest.fixture
-def ctx():
-    rclpy.init()
-    yield
-    rclpy.shutdown()
-
-
-def _spin(nodes, until, timeout=10.0, executor=SingleThreadedExecutor):
-    ex = executor()
-    for n in nodes:
-        ex.add_node(n)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and not until():
-        ex.spin_once(timeout_sec=0.05)
-    for n in nodes:
-        ex.remove_node(n)
-    return until()
 
 
 def _harness(node):
@@ -46,7 +28,7 @@ def _harness(node):
                           lambda m: diags.extend(s for s in m.status if s.name == node.get_name()), 10)
     pubs = {t: h.create_publisher(Image, t, latched_qos() if t == "/aligned/reference" else reliable_qos(20))
             for t in ("/aligned/reference", "/aligned", "/aligned/mask")}
-    _spin([node, h], lambda: all(p.get_subscription_count() for p in pubs.values()), 10)
+    spin([node, h], lambda: all(p.get_subscription_count() for p in pubs.values()), 10)
     return h, pubs, got, diags
 
 
@@ -77,7 +59,7 @@ def test_shift_published_for_aligned_frames(ctx, crops):
     try:
         t0 = 1_700_000_000_000_000_000
         pubs["/aligned/reference"].publish(pl.image_cdr(seq.frames[0], t0))
-        assert _spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 20)
+        assert spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 20)
         full = np.ones(seq.frames[0].shape, bool)
         for k in (1,):
             pubs["/aligned"].publish(pl.image_cdr(seq.frames[k], t0 + k * 10**8))
@@ -85,11 +67,11 @@ def test_shift_published_for_aligned_frames(ctx, crops):
         # a textureless frame: nothing published, the reason in diagnostics
         flat = np.full_like(seq.frames[0], 128)
         pubs["/aligned/reference"].publish(pl.image_cdr(flat, t0 + 2 * 10**8))
-        assert _spin([node, h], lambda: len(node.inputs.refs.refs) == 2, 20)
+        assert spin([node, h], lambda: len(node.inputs.refs.refs) == 2, 20)
         pubs["/aligned"].publish(pl.image_cdr(flat, t0 + 3 * 10**8))
         pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + 3 * 10**8))
-        assert _spin([node, h], lambda: len(got) >= 1 and node.failed >= 1, 40)
-        _spin([node, h], lambda: any("shift not" in s.message for s in diags), 3)
+        assert spin([node, h], lambda: len(got) >= 1 and node.failed >= 1, 40)
+        spin([node, h], lambda: any("shift not" in s.message for s in diags), 3)
     finally:
         node.close()
         node.destroy_node()
@@ -128,13 +110,13 @@ def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_take
     t0 = 1_700_000_000_000_000_000
     try:
         pubs["/aligned/reference"].publish(pl.image_cdr(img, t0))
-        assert _spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 20)
+        assert spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 20)
         # reference 8 and its frame 9 both queued before the node spins
         pubs["/aligned/reference"].publish(pl.image_cdr(img, t0 + 8))
         pubs["/aligned"].publish(pl.image_cdr(img, t0 + 9))
         pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + 9))
         time.sleep(0.5)  # all three delivered to the node's readers
-        assert _spin([node, h], lambda: len(got) == 1, 20, kind)
+        assert spin([node, h], lambda: len(got) == 1, 20, kind)
         # references 16 and 24 back to back, then frame 17 (of 16) and frame 25 (of 24)
         pubs["/aligned/reference"].publish(pl.image_cdr(img, t0 + 16))
         pubs["/aligned/reference"].publish(pl.image_cdr(img, t0 + 24))
@@ -142,7 +124,7 @@ def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_take
             pubs["/aligned"].publish(pl.image_cdr(img, t0 + k))
             pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + k))
         time.sleep(0.5)
-        assert _spin([node, h], lambda: len(got) == 3, 20, kind)
+        assert spin([node, h], lambda: len(got) == 3, 20, kind)
     finally:
         node.close()
         node.destroy_node()
@@ -167,24 +149,24 @@ def test_aligned_frames_follow_their_reference_link_in_any_arrival_order(ctx, cr
         pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + k))
 
     try:
-        assert _spin([node, h], lambda: link.get_subscription_count() and node.inputs.link_sub.get_publisher_count(), 10)
+        assert spin([node, h], lambda: link.get_subscription_count() and node.inputs.link_sub.get_publisher_count(), 10)
         pubs["/aligned/reference"].publish(pl.image_cdr(img, t0))
-        assert _spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 20)
+        assert spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 20)
         frame(9, 8)  # reference 8 not published yet
-        _spin([node, h], lambda: False, 1.0)
+        spin([node, h], lambda: False, 1.0)
         assert got == []  # held, not paired with reference 0
         pubs["/aligned/reference"].publish(pl.image_cdr(img, t0 + 8))
-        assert _spin([node, h], lambda: len(got) == 1, 20)
+        assert spin([node, h], lambda: len(got) == 1, 20)
         frame(10, None)  # the link comes after the frame
-        _spin([node, h], lambda: False, 1.0)
+        spin([node, h], lambda: False, 1.0)
         assert len(got) == 1
         link.publish(pl.reference_link_cdr(t0 + 10, t0 + 8))
-        assert _spin([node, h], lambda: len(got) == 2, 20)
+        assert spin([node, h], lambda: len(got) == 2, 20)
         # frame 11's link is lost; frame 12's link shows it will never come: 11 is skipped, said so
         frame(11, None)
         frame(12, 8)
-        assert _spin([node, h], lambda: len(got) == 3, 20)
-        assert _spin([node, h], lambda: any("never came" in d.message for d in diags), 5)
+        assert spin([node, h], lambda: len(got) == 3, 20)
+        assert spin([node, h], lambda: any("never came" in d.message for d in diags), 5)
         assert not node.inputs.unlinked
     finally:
         node.close()

@@ -7,12 +7,12 @@ import time
 
 import numpy as np
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Float64
 
+from conftest import spin
 from subpix_ros.core.telemetry import TelemetrySample, trajectory_from_frames_csv
 from subpix_ros.io.mavlink import MavlinkSender, encode_samples
 from subpix_ros.nodes.common import reliable_qos
@@ -39,13 +39,6 @@ class Sink:
                                  lambda m: self.diag.extend(s for s in m.status if s.name == "telemetry_node"), 50)
 
 
-def _spin(node, until, timeout):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and not until():
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return until()
-
-
 def _start(*params):
     args = [sys.executable, "-m", "subpix_ros.nodes.telemetry_node", "--ros-args"]
     for p in params:
@@ -68,7 +61,7 @@ def test_udp_mavlink_to_ros_topics_and_link_loss(rclpy_node):
         packets = encode_samples(samples, boot_time=t0)
         # keep sending until the node is up and its messages arrive
         i = 0
-        while not _spin(rclpy_node, lambda: len(sink.interval) >= 3, 0.1) and i < len(packets):
+        while not spin(rclpy_node, lambda: len(sink.interval) >= 3, 0.1) and i < len(packets):
             for _ in range(8):
                 sender.send(packets[i % len(packets)][1])
                 i += 1
@@ -82,7 +75,7 @@ def test_udp_mavlink_to_ros_topics_and_link_loss(rclpy_node):
         # eq. 1 by hand: t = a H cos(0) / (p f V) = 1.54e-6 * 58.4 / (2 * 4.3e-3 * 8.0622577) s
         assert sink.interval[-1].data == pytest.approx(1.54e-6 * 58.4 / (2 * 4.3e-3 * 8.0622577), rel=1e-4)
         # link loss: stop sending; the node says so in /diagnostics within the timeout + 1 s report period
-        assert _spin(rclpy_node, lambda: any("link lost" in s.message for s in sink.diag), 6.0)
+        assert spin(rclpy_node, lambda: any("link lost" in s.message for s in sink.diag), 6.0)
         assert proc.poll() is None  # and keeps running
     finally:
         sender.close()
@@ -97,7 +90,7 @@ def test_tlog_replay_matches_the_flight(rclpy_node, sample_bags):
                   "tlog_start_delay_s:=3.0")
     sink = Sink(rclpy_node)
     try:
-        assert _spin(rclpy_node, lambda: len(sink.fix) >= 361, 60.0), len(sink.fix)
+        assert spin(rclpy_node, lambda: len(sink.fix) >= 361, 60.0), len(sink.fix)
     finally:
         proc.terminate()
         proc.wait(10)
@@ -126,7 +119,7 @@ def test_bad_connection_parameter_is_reported_and_node_keeps_running(rclpy_node,
     proc = _start(f"connection:={connection}")
     sink = Sink(rclpy_node)
     try:
-        assert _spin(rclpy_node, lambda: any(expect in s.message or any(expect in kv.value for kv in s.values)
+        assert spin(rclpy_node, lambda: any(expect in s.message or any(expect in kv.value for kv in s.values)
                                              for s in sink.diag), 20.0)
         assert proc.poll() is None
     finally:

@@ -1,0 +1,206 @@
+"""Aligned frames reassembled from their parts: the frame, its mask, its reference and the link.
+
+Between processes an aligned frame travels as four messages (``aligned``,
+``aligned/mask``, ``aligned/reference`` and ``aligned/reference_stamp``, the
+link naming the frame's reference). :class:`AlignedAssembler` puts them back
+together into :class:`~subpix_ros.stages.types.Aligned` whatever order they
+arrive in: a frame goes with the reference its link names, and waits
+(bounded) for a link or a reference not there yet. Without a link publisher
+(an older registration node, a hand-made stream) a frame belongs to the
+latest reference whose stamp is not later than its own.
+"""
+
+from __future__ import annotations
+
+import collections
+from typing import Callable
+
+import numpy as np
+
+from subpix_ros.stages.types import Aligned, Frame
+
+
+class StampMatcher:
+    """Pair messages of two streams by exact header stamp (bounded memory)."""
+
+    def __init__(self, maxlen: int = 32) -> None:
+        self.a: collections.OrderedDict[int, object] = collections.OrderedDict()
+        self.b: collections.OrderedDict[int, object] = collections.OrderedDict()
+        self.maxlen = maxlen
+
+    def _put(self, mine, other, stamp, item):
+        if stamp in other:
+            return other.pop(stamp)
+        mine[stamp] = item
+        while len(mine) > self.maxlen:
+            mine.popitem(last=False)
+        return None
+
+    def add_a(self, stamp: int, item):
+        b = self._put(self.a, self.b, stamp, item)
+        return None if b is None else (item, b)
+
+    def add_b(self, stamp: int, item):
+        a = self._put(self.b, self.a, stamp, item)
+        return None if a is None else (a, item)
+
+    def clear(self) -> None:
+        self.a.clear()
+        self.b.clear()
+
+
+class ReferenceCache:
+    """References by stamp; an aligned frame belongs to the latest not later than it."""
+
+    MAXLEN = 8
+
+    def __init__(self, maxlen: int = MAXLEN) -> None:
+        self.refs: collections.OrderedDict[int, Frame] = collections.OrderedDict()
+        self.maxlen = maxlen
+
+    def add(self, frame: Frame) -> None:
+        self.refs[frame.stamp_ns] = frame
+        self.refs = collections.OrderedDict(sorted(self.refs.items())[-self.maxlen :])
+
+    def get(self, stamp_ns: int) -> Frame | None:
+        """The reference of exactly this stamp, if it has arrived."""
+        return self.refs.get(stamp_ns)
+
+    def for_stamp(self, stamp_ns: int) -> Frame | None:
+        earlier = [s for s in self.refs if s <= stamp_ns]
+        return self.refs[max(earlier)] if earlier else None
+
+    def clear(self) -> None:
+        self.refs.clear()
+
+
+class AlignedAssembler:
+    """Frames, masks, references and links in any order -> :class:`Aligned`, to ``deliver``.
+
+    ``has_link_publisher()`` says whether links are on the way (a frame without
+    one then waits for it); ``warn`` receives the problems an operator should see.
+    """
+
+    MAX_PENDING = 16  # frames held for a link or for a reference (two sets of 8), each map
+
+    def __init__(
+        self,
+        deliver: Callable[[Aligned], None],
+        has_link_publisher: Callable[[], bool],
+        warn: Callable[[str], None],
+        error: Callable[[str], None],
+    ) -> None:
+        self.deliver = deliver
+        self.has_link_publisher = has_link_publisher
+        self.warn = warn
+        self.error = error
+        self.refs = ReferenceCache()
+        self.matcher = StampMatcher()
+        self.links: collections.OrderedDict[int, int] = (
+            collections.OrderedDict()
+        )  # frame -> reference
+        self.unlinked: collections.OrderedDict[int, tuple] = (
+            collections.OrderedDict()
+        )  # awaiting a link
+        self.waiting: collections.OrderedDict[tuple[int, int], tuple] = (
+            collections.OrderedDict()
+        )  # a ref
+        self.newest_link = -1  # stamp of the latest frame whose link arrived
+
+    def add_reference(self, f: Frame) -> None:
+        self.refs.add(f)
+        for key in [k for k in self.waiting if k[0] == f.stamp_ns]:  # its frames that came first
+            self._deliver(*self.waiting.pop(key), f)
+
+    def add_link(self, stamp: int, ref_stamp: int) -> None:
+        if stamp in self.unlinked:
+            self._with_reference(*self.unlinked.pop(stamp), ref_stamp)
+        else:
+            bounded_put(self.links, stamp, ref_stamp, 8 * self.MAX_PENDING)
+        # Links come in frame order (one writer, reliable): a frame older than the newest link and
+        # still without its own lost it (e.g. published before the link reader was matched); it
+        # would wait for ever. (The newest is the last to arrive, so a bag replayed from its start
+        # again resets it.)
+        self.newest_link = stamp
+        lost = [t for t in self.unlinked if t < stamp]
+        for t in lost:
+            del self.unlinked[t]
+        if lost:
+            self._link_lost(len(lost))
+
+    def _link_lost(self, n: int) -> None:
+        self.warn(f"{n} aligned frame(s) whose aligned/reference_stamp never came: skipped")
+
+    def add_frame(self, f: Frame) -> None:
+        pair = self.matcher.add_a(f.stamp_ns, f)
+        if pair:
+            self._pair(*pair)
+
+    def add_mask(self, m: Frame) -> None:
+        if m.image.ndim != 2:
+            self.error("bad mask image: not mono8")
+            return
+        pair = self.matcher.add_b(m.stamp_ns, m.image > 0)
+        if pair:
+            self._pair(*pair)
+
+    def _pair(self, frame: Frame, mask: np.ndarray) -> None:
+        if mask.shape != frame.image.shape[:2]:
+            self.error(f"mask shape {mask.shape} does not match image {frame.image.shape[:2]}")
+            return
+        if frame.stamp_ns in self.links:
+            self._with_reference(frame, mask, self.links.pop(frame.stamp_ns))
+        elif (
+            frame.stamp_ns < self.newest_link
+        ):  # a later frame's link came first: this one's is lost
+            self._link_lost(1)
+        elif self.has_link_publisher():  # its link is on the way
+            if bounded_put(self.unlinked, frame.stamp_ns, (frame, mask), self.MAX_PENDING):
+                self.warn("aligned frames without their aligned/reference_stamp: oldest dropped")
+        else:  # no link publisher: the latest reference not later than the frame
+            ref = self.refs.for_stamp(frame.stamp_ns)
+            if ref is None:
+                self.warn("aligned frame without a reference yet: skipped")
+                return
+            self._deliver(frame, mask, ref)
+
+    def _with_reference(self, frame: Frame, mask: np.ndarray, ref_stamp: int) -> None:
+        ref = self.refs.get(ref_stamp)
+        if ref is not None:
+            self._deliver(frame, mask, ref)
+        elif bounded_put(
+            self.waiting, (ref_stamp, frame.stamp_ns), (frame, mask), self.MAX_PENDING
+        ):
+            self.warn("aligned frames whose reference never arrived: oldest dropped")
+
+    def _deliver(self, frame: Frame, mask: np.ndarray, ref: Frame) -> None:
+        self.deliver(
+            Aligned(
+                frame.stamp_ns,
+                frame.image,
+                mask,
+                ref,
+                np.eye(3),
+                None,
+                frame.frame_id,
+                frame.received,
+            )
+        )
+
+    def clear(self) -> None:
+        self.refs.clear()
+        self.matcher.clear()
+        self.links.clear()
+        self.unlinked.clear()
+        self.waiting.clear()
+        self.newest_link = -1
+
+
+def bounded_put(store: collections.OrderedDict, key, value, maxlen: int) -> bool:
+    """``store[key] = value``, dropping the oldest beyond ``maxlen``; True if any was dropped."""
+    store[key] = value
+    dropped = False
+    while len(store) > maxlen:
+        store.popitem(last=False)
+        dropped = True
+    return dropped

@@ -1,0 +1,337 @@
+"""ReconstructionStage: sets of shifted, aligned frames to super-resolved images.
+
+A set is the reference frame plus the next ``n_frames - 1`` aligned frames of
+that reference that have a shift. An incomplete set (frames dropped or
+without a shift) is still used if it has ``min_frames`` or more frames when
+the next reference starts, when no input has come for ``flush_after_s``
+(:meth:`ReconstructionStage.tick`, wall time, or stream time from a later
+stamp), or at the end of the stream (:meth:`ReconstructionStage.flush`).
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from subpix_ros.core.superres_masks import reconstruct_aligned
+from subpix_ros.stages.base import Stage
+from subpix_ros.stages.params import Spec
+from subpix_ros.stages.stats import ReconstructionStats
+from subpix_ros.stages.types import Aligned, Shift, SuperResolved, _to_dtype
+
+PARAMS = (
+    Spec("factor", 2, "resolution factor", 2, 4),
+    Spec("n_frames", 8, "frames per super-resolved image (the reference included)", 2, 64),
+    Spec(
+        "min_frames",
+        4,
+        "an incomplete set (frames dropped or without a shift) is still used if it has "
+        "this many frames when the next reference starts",
+        2,
+        64,
+    ),
+    Spec("method", "map", "reconstruction method", choices=("map", "windowed", "pinv", "bicubic")),
+    Spec(
+        "check_geometry",
+        False,
+        "re-check inside the reconstruction whether frames differ by more "
+        "than a translation (the registration node already warps out rotation and perspective "
+        "beyond its threshold)",
+    ),
+    Spec(
+        "refine_shifts",
+        False,
+        "re-estimate the shifts inside the reconstruction (off: the shift "
+        "node's estimates, already at the accuracy limit and screened by its max_std_px, are used "
+        "as they are)",
+    ),
+    Spec("time_tolerance_s", 0.001, "shift and frame stamps closer than this match", 0.0, 1.0),
+    Spec(
+        "flush_after_s",
+        2.0,
+        "an incomplete set of min_frames or more is reconstructed when no new "
+        "frame has come for this long (stream time, or wall time once the stream stops)",
+        0.1,
+        600.0,
+    ),
+)
+
+
+@dataclass
+class FrameSet:
+    """A set ready to reconstruct: the reference, its (shift, aligned) members, why it closed."""
+
+    reference: object  # Frame
+    members: list[tuple[Shift, Aligned]]
+    complete: bool
+    why: str  # "complete", "next reference", "idle", "end of stream"
+
+    @property
+    def n_frames(self) -> int:
+        return 1 + len(self.members)
+
+
+class ShiftFrameMatcher:
+    """Pair shifts with aligned frames by stamp (within a tolerance), in any arrival order."""
+
+    KEEP = 64  # unmatched shifts and frames kept, each
+
+    def __init__(self, tolerance_ns: int) -> None:
+        self.tolerance_ns = tolerance_ns
+        self.frames: dict[int, Aligned] = {}
+        self.shifts: list[Shift] = []
+
+    def add_frame(self, a: Aligned) -> list[tuple[Shift, Aligned]]:
+        self.frames[a.stamp_ns] = a
+        return self._match()
+
+    def add_shift(self, s: Shift) -> list[tuple[Shift, Aligned]]:
+        self.shifts.append(s)
+        return self._match()
+
+    def _match(self) -> list[tuple[Shift, Aligned]]:
+        pairs, still = [], []
+        for s in self.shifts:
+            stamp = min(self.frames, key=lambda t: abs(t - s.stamp_ns), default=None)
+            if stamp is not None and abs(stamp - s.stamp_ns) <= self.tolerance_ns:
+                a = self.frames.pop(stamp)
+                s.reference_stamp_ns = a.reference.stamp_ns
+                pairs.append((s, a))
+            else:
+                still.append(s)
+        self.shifts = still[-self.KEEP :]
+        if len(self.frames) > self.KEEP:
+            for t in sorted(self.frames)[: -self.KEEP]:
+                del self.frames[t]
+        return pairs
+
+    def clear(self) -> None:
+        self.frames.clear()
+        self.shifts.clear()
+
+
+class ReconstructionStage(Stage):
+    """Set assembly, stamp matching and super-resolution, without ROS.
+
+    ``add(shift, aligned)`` returns the images of the sets it completed (or
+    cut short: the next reference started); ``add_shift`` / ``add_aligned``
+    take the two halves separately and pair them by stamp; ``tick(now_s)``
+    reconstructs sets idle for ``flush_after_s``; ``flush()`` every set with
+    ``min_frames`` or more at the end of the stream. Parameters not known
+    here are passed to :func:`~subpix_ros.core.superres_masks.reconstruct_aligned`.
+
+    For a worker thread, :meth:`assemble` (cheap) and :meth:`reconstruct`
+    (the solve) can be called separately.
+    """
+
+    PARAMS = PARAMS
+    STATS = ReconstructionStats
+    CLOSED_KEEP = 64  # references whose set was flushed: late members do not start a new set
+
+    def __init__(self, clock=time.monotonic, **params) -> None:
+        super().__init__(**params)
+        self.clock = clock
+        self.sets: dict[int, list[tuple[Shift, Aligned]]] = {}
+        self.matcher = ShiftFrameMatcher(self._tolerance_ns())
+        self._closed: collections.OrderedDict[int, None] = collections.OrderedDict()
+        self._last_input_wall: float | None = None
+        self._last_stamp_in: dict[int, int] = {}  # reference -> its newest member's stamp
+
+    def _tolerance_ns(self) -> int:
+        return int(self.p("time_tolerance_s") * 1e9)
+
+    def configure(self, **changes) -> None:
+        super().configure(**changes)
+        self.matcher.tolerance_ns = self._tolerance_ns()
+
+    def reset(self) -> None:
+        super().reset()
+        self.sets.clear()
+        self.matcher.clear()
+        self._closed.clear()
+        self._last_stamp_in.clear()
+        self.stats.pending_sets = 0
+
+    # ---------------------------------------------------------------- assembly
+    def add_aligned(self, a: Aligned) -> list[SuperResolved]:
+        """An aligned frame whose shift may come before or after it."""
+        return self._run(self.offer_aligned(a))
+
+    def add_shift(self, s: Shift) -> list[SuperResolved]:
+        """A shift whose aligned frame may come before or after it (non-finite: rejected)."""
+        return self._run(self.offer_shift(s))
+
+    def add(self, shift: Shift, aligned: Aligned) -> list[SuperResolved]:
+        """One (shift, aligned frame) pair: the images of the sets this closes."""
+        return self._run(self.assemble(shift, aligned))
+
+    def offer_aligned(self, a: Aligned) -> list[FrameSet]:
+        return [fs for pair in self.match_aligned(a) for fs in self.assemble(*pair)]
+
+    def offer_shift(self, s: Shift) -> list[FrameSet]:
+        return [fs for pair in self.match_shift(s) for fs in self.assemble(*pair)]
+
+    def match_aligned(self, a: Aligned) -> list[tuple[Shift, Aligned]]:
+        """The (shift, frame) pairs an aligned frame completes (within ``time_tolerance_s``)."""
+        self._last_input_wall = self.clock()
+        return self.matcher.add_frame(a)
+
+    def match_shift(self, s: Shift) -> list[tuple[Shift, Aligned]]:
+        """The (shift, frame) pairs a shift completes; a non-finite shift is rejected (error)."""
+        self._last_input_wall = self.clock()
+        if not (np.isfinite(s.u) and np.isfinite(s.v)):
+            self.error("shift message with non-finite u/v ignored")
+            return []
+        return self.matcher.add_shift(s)
+
+    def assemble(self, s: Shift, a: Aligned) -> list[FrameSet]:
+        """Add a pair to its reference's set: the sets this closes (the solve not done yet)."""
+        self.stats.frames_in += 1
+        self._last_input_wall = self.clock()
+        self.check_time(s.stamp_ns)
+        key = a.reference.stamp_ns
+        if key in self._closed:  # its set was flushed incomplete: no second image of the rest
+            self.stats.skip("late")
+            self.warn(
+                f"frame {s.stamp_ns / 1e9:.3f} s came after the incomplete set of reference "
+                f"{key / 1e9:.3f} s was flushed: skipped"
+            )
+            return []
+        ready = []
+        # a newer reference started: older sets can no longer grow (frames were dropped or had no
+        # shift); reconstruct one that still has min_frames, else say why it is dropped
+        for old in sorted(k for k in self.sets if k < key):
+            ready += self._close(old, "next reference")
+        members = self.sets.setdefault(key, [])
+        members.append((s, a))
+        self._last_stamp_in[key] = max(s.stamp_ns, self._last_stamp_in.get(key, s.stamp_ns))
+        if len(members) + 1 >= self.p("n_frames"):
+            ready += self._close(key, "complete")
+        self.stats.pending_sets = len(self.sets)
+        return ready
+
+    def _close(self, key: int, why: str) -> list[FrameSet]:
+        members = self.sets.pop(key)
+        self._last_stamp_in.pop(key, None)
+        if why in ("idle", "end of stream"):
+            self._closed[key] = None
+            while len(self._closed) > self.CLOSED_KEEP:
+                self._closed.popitem(last=False)
+        self.stats.pending_sets = len(self.sets)
+        n = len(members) + 1
+        complete = n >= self.p("n_frames")
+        if not complete and n < self.p("min_frames"):
+            self.stats.sets_dropped += 1
+            self.stats.dropped += len(members)
+            self.warn(
+                f"set of reference {key / 1e9:.3f} s dropped: {n} frames "
+                f"< min_frames {self.p('min_frames')}"
+            )
+            return []
+        if complete:
+            self.stats.sets_complete += 1
+        else:
+            self.stats.sets_incomplete += 1
+            if why in ("idle", "end of stream"):
+                self.stats.sets_flushed += 1
+        return [FrameSet(members[0][1].reference, members, complete, why)]
+
+    def idle_sets(
+        self, now_s: float | None = None, *, stamp_ns: int | None = None
+    ) -> list[FrameSet]:
+        """Close the sets no input has come to for ``flush_after_s``.
+
+        Wall time: ``now_s`` (the stage's ``clock``, default ``time.monotonic``,
+        read when neither argument is given) against the last input's
+        arrival; stream time: ``stamp_ns`` (a later frame's stamp) against
+        each set's newest member. A set below ``min_frames`` stays open (it
+        may still grow, or the next reference drops it).
+        """
+        wait = self.p("flush_after_s")
+        if now_s is None and stamp_ns is None:
+            now_s = self.clock()
+        wall_idle = (
+            now_s is not None
+            and self._last_input_wall is not None
+            and now_s - self._last_input_wall >= wait
+        )
+        ready = []
+        for key in sorted(self.sets):
+            stream_idle = stamp_ns is not None and stamp_ns - self._last_stamp_in[key] >= wait * 1e9
+            if (wall_idle or stream_idle) and len(self.sets[key]) + 1 >= self.p("min_frames"):
+                ready += self._close(key, "idle")
+        return ready
+
+    def tick(
+        self, now_s: float | None = None, *, stamp_ns: int | None = None
+    ) -> list[SuperResolved]:
+        """The images of the sets idle for ``flush_after_s`` (see :meth:`idle_sets`)."""
+        return self._run(self.idle_sets(now_s, stamp_ns=stamp_ns))
+
+    def flush_sets(self) -> list[FrameSet]:
+        """End of stream: close every open set (below ``min_frames``: dropped, with a warning)."""
+        ready = []
+        for key in sorted(self.sets):
+            ready += self._close(key, "end of stream")
+        return ready
+
+    def flush(self) -> list[SuperResolved]:
+        return self._run(self.flush_sets())
+
+    def _run(self, sets: list[FrameSet]) -> list[SuperResolved]:
+        return [sr for sr in map(self.reconstruct, sets) if sr is not None]
+
+    # ---------------------------------------------------------------- solve
+    def reconstruct(self, fs: FrameSet) -> SuperResolved | None:
+        """Super-resolve one set (None, with an error, when it cannot be)."""
+        ref, members = fs.reference, fs.members
+        t0 = time.monotonic()
+        frames = [ref.image] + [a.image for _, a in members]
+        masks = [np.ones(ref.image.shape[:2], bool)] + [a.mask for _, a in members]
+        shifts = np.array([[0.0, 0.0]] + [[s.u, s.v] for s, _ in members])
+        if any(f.shape != ref.image.shape for f in frames):
+            self.error("frames of one set differ in size: set dropped")
+            return None
+        res = reconstruct_aligned(
+            frames,
+            shifts,
+            self.p("factor"),
+            masks=masks,
+            method=self.p("method"),
+            geometry="auto" if self.p("check_geometry") else "translation",
+            refine_shifts=self.p("refine_shifts"),
+            **self.extra,
+        )
+        if not np.all(np.isfinite(res.image)):
+            self.error("reconstruction produced non-finite pixels: not published")
+            return None
+        dtype = np.uint16 if ref.image.dtype == np.uint16 else np.uint8
+        out = _to_dtype(res.image, dtype)
+        dt = time.monotonic() - t0
+        st = self.stats
+        st.kept += 1
+        st.times.add(1000 * dt)
+        st.method, st.fell_back, st.fallback_reason = res.method, res.fell_back, res.reason
+        st.noise_sigma, st.frames = float(res.noise_sigma), len(frames)
+        if res.fell_back:
+            st.fallbacks += 1
+            self.warn(f"super-resolution fell back to {res.method}: {res.reason}")
+        blur = getattr(res, "blur_sigma", None)
+        return SuperResolved(
+            out,
+            ref,
+            members,
+            res.method,
+            res.fell_back,
+            res.reason,
+            self.p("factor"),
+            None if blur is None else float(blur),
+            getattr(res, "blur_source", None),
+            dt,
+            fs.complete,
+            float(res.noise_sigma),
+            res,
+        )

@@ -1,0 +1,134 @@
+"""Typed statistics of a stage (the nodes turn them into DiagnosticStatus values)."""
+
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass, field, fields
+
+
+class StageTimes:
+    """Durations of a stage's step (ms): the last, median, maximum of the last ``history``."""
+
+    def __init__(self, history: int = 200) -> None:
+        self._d: collections.deque[float] = collections.deque(maxlen=history)
+
+    def add(self, ms: float) -> None:
+        self._d.append(float(ms))
+
+    def clear(self) -> None:
+        self._d.clear()
+
+    @property
+    def last(self) -> float | None:
+        return self._d[-1] if self._d else None
+
+    @property
+    def p50(self) -> float | None:
+        return sorted(self._d)[len(self._d) // 2] if self._d else None
+
+    @property
+    def max(self) -> float | None:
+        return max(self._d) if self._d else None
+
+    def as_dict(self) -> dict:
+        return {"last": self.last, "p50": self.p50, "max": self.max, "n": len(self._d)}
+
+
+@dataclass
+class StageStats:
+    """Counters every stage keeps.
+
+    ``frames_in``: inputs offered; ``kept``: inputs used; ``skipped_by_reason``:
+    inputs left out by design, per reason; ``dropped``: inputs lost (not by
+    design: a set cut short, an input that never found its partner);
+    ``fallbacks``: a cheaper or safer path taken; ``errors`` and
+    ``last_error``; ``warnings`` and ``last_warning``; ``resets`` when time
+    jumped back; ``times``: the stage's step durations (ms).
+    """
+
+    frames_in: int = 0
+    kept: int = 0
+    skipped_by_reason: dict[str, int] = field(default_factory=dict)
+    dropped: int = 0
+    fallbacks: int = 0
+    errors: int = 0
+    last_error: str = ""
+    warnings: int = 0
+    last_warning: str = ""
+    resets: int = 0
+    times: StageTimes = field(default_factory=StageTimes)
+
+    @property
+    def skipped(self) -> int:
+        return sum(self.skipped_by_reason.values())
+
+    def skip(self, reason: str) -> None:
+        self.skipped_by_reason[reason] = self.skipped_by_reason.get(reason, 0) + 1
+
+    def as_dict(self) -> dict:
+        out = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            out[f.name] = (
+                v.as_dict()
+                if isinstance(v, StageTimes)
+                else (dict(v) if isinstance(v, dict) else v)
+            )
+        out["skipped"] = self.skipped
+        return out
+
+
+@dataclass
+class RegistrationStats(StageStats):
+    """Registration: ``fallbacks`` counts tracking fallbacks to the full search."""
+
+    tracked: int = 0
+    references: int = 0
+    references_predicted: int = 0
+    registration_failures: int = 0
+    reference_stamp_ns: int | None = None
+    reference_reason: str = ""
+    last_selection: str = ""
+    last_tracking_fallback: str = ""
+    inliers: int | None = None
+    rms_px: float | None = None
+    rms_along_px: float | None = None
+    rms_cross_px: float | None = None
+    warped: bool | None = None
+
+
+@dataclass
+class ShiftStats(StageStats):
+    """Shift estimation: ``kept`` counts published shifts, ``skipped_by_reason`` the rest."""
+
+    u: float | None = None
+    v: float | None = None
+    u_std: float | None = None
+    v_std: float | None = None
+    cond: float | None = None
+    pixels: int | None = None
+    iterations: int | None = None
+
+
+@dataclass
+class ReconstructionStats(StageStats):
+    """Reconstruction: ``kept`` counts images made; ``fallbacks`` the images that fell back."""
+
+    sets_complete: int = 0
+    sets_incomplete: int = 0
+    sets_flushed: int = 0
+    sets_dropped: int = 0
+    pending_sets: int = 0
+    method: str = ""
+    fell_back: bool | None = None
+    fallback_reason: str = ""
+    noise_sigma: float | None = None
+    frames: int | None = None
+
+
+@dataclass
+class MosaicStats(StageStats):
+    """Mosaic: ``kept`` counts frames added; ``skipped_by_reason['min_interval']`` the gate."""
+
+    in_canvas: int = 0  # frames in the current canvas (a reset starts a new one)
+    seam_residual_px: float | None = None

@@ -1,0 +1,148 @@
+"""What the stages hand each other: frames, aligned frames, shifts, super-resolved images.
+
+The same objects pass between the stages of :class:`~subpix_ros.stages.Pipeline`,
+between the nodes of the single-process ``pipeline``, and (converted by
+``subpix_ros.nodes.payloads``) travel as the documented ROS messages between
+processes.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+@dataclass
+class Frame:
+    """One camera frame: pixels as received (mono HxW or BGR HxWx3)."""
+
+    stamp_ns: int
+    image: np.ndarray
+    frame_id: str = ""
+    received: float = field(default_factory=time.monotonic)
+
+    @property
+    def stamp_s(self) -> float:
+        return self.stamp_ns * 1e-9
+
+
+@dataclass
+class Aligned:
+    """A frame brought onto its reference frame's grid to pixel accuracy.
+
+    ``mask`` is True where the pixel came from the moving frame; ``reference``
+    the frame it is aligned to; ``homography`` maps the original moving
+    frame's pixel coordinates (x = column, y = row) to the reference's;
+    ``prior`` the sub-pixel (u, v) the homography predicts is left in.
+    """
+
+    stamp_ns: int
+    image: np.ndarray
+    mask: np.ndarray
+    reference: Frame
+    homography: np.ndarray
+    prior: tuple[float, float] | None = None
+    frame_id: str = ""
+    received: float = field(default_factory=time.monotonic)
+
+
+@dataclass
+class Shift:
+    """Sub-pixel shift of an aligned frame against its reference (project convention).
+
+    Content at (r, c) in the reference appears at (r + u, c + v) in the
+    aligned frame; ``z`` is the intensity offset.
+    """
+
+    stamp_ns: int
+    reference_stamp_ns: int
+    u: float
+    v: float
+    z: float
+    u_std: float
+    v_std: float
+    frame_id: str = ""
+    received: float = field(default_factory=time.monotonic)
+
+
+@dataclass
+class NewReference:
+    """Registration started a new reference set with ``frame`` (``reason``: why)."""
+
+    frame: Frame
+    reason: str
+    predicted: bool = False  # started from the predicted overlap, without a registration attempt
+
+    @property
+    def stamp_ns(self) -> int:
+        return self.frame.stamp_ns
+
+
+@dataclass
+class Skipped:
+    """An input a stage did not use: ``reason`` is a short key, ``detail`` the full text."""
+
+    stamp_ns: int
+    reason: str
+    detail: str = ""
+
+
+@dataclass
+class SuperResolved:
+    """One super-resolved image and what it was made from.
+
+    ``image`` is ``factor`` x the reference's size, of the input's type
+    (uint16 for uint16 input, else uint8); ``bicubic`` the reference
+    upsampled bicubically to the same size (computed on first access);
+    ``members`` the (shift, aligned frame) pairs besides the reference.
+    Output pixel grid: low-resolution pixel i of the reference covers output
+    pixels factor*i .. factor*i + factor - 1.
+    """
+
+    image: np.ndarray
+    reference: Frame
+    members: list[tuple[Shift, Aligned]]
+    method: str
+    fell_back: bool
+    reason: str
+    factor: int
+    blur_sigma: float | None = None
+    blur_source: str | None = None
+    time_s: float = 0.0
+    complete: bool = True  # False: an incomplete set (flushed or cut short by the next reference)
+    noise_sigma: float = float("nan")
+    result: Any = None  # the core's SRResult
+    _bicubic: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def stamp_ns(self) -> int:
+        return self.reference.stamp_ns
+
+    @property
+    def n_frames(self) -> int:
+        return 1 + len(self.members)
+
+    @property
+    def bicubic(self) -> np.ndarray:
+        if self._bicubic is None:
+            import cv2
+
+            ref = self.reference.image
+            h, w = ref.shape[:2]
+            up = cv2.resize(
+                ref.astype(np.float32),
+                (w * self.factor, h * self.factor),
+                interpolation=cv2.INTER_CUBIC,
+            )
+            self._bicubic = _to_dtype(up, self.image.dtype)
+        return self._bicubic
+
+
+def _to_dtype(img: np.ndarray, dtype) -> np.ndarray:
+    """Round and clip a float image to ``dtype`` (uint8 or uint16)."""
+    out = np.rint(img)  # in place from here: a 4K colour image is 25 M values
+    np.clip(out, 0, np.iinfo(dtype).max, out=out)
+    return out.astype(dtype)

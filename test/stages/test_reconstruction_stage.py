@@ -1,0 +1,222 @@
+"""ReconstructionStage policy without ROS: set assembly, stamp matching, flushes, time jumps."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from subpix_ros.core.evaluate import gain_over_bicubic
+from subpix_ros.core.render import render_sequence
+from subpix_ros.data import load_crop
+from subpix_ros.stages import Aligned, Frame, ReconstructionStage, Shift
+
+T0 = 5_000_000_000
+DT = 100_000_000
+SHIFTS = [
+    (0.0, 0.0),
+    (0.5, 0.0),
+    (0.0, 0.5),
+    (0.5, 0.5),
+    (0.25, 0.75),
+    (0.75, 0.25),
+    (0.3, 0.6),
+    (0.6, 0.3),
+]
+
+
+@pytest.fixture(scope="module")
+def seq():
+    """Eight frames of a real crop rendered at known sub-pixel shifts (factor 2, 40 dB)."""
+    return render_sequence(load_crop("crop_trees")[:256, :256], 2, SHIFTS, 0.4, snr_db=40, seed=5)
+
+
+def _set(seq, ref_k=0, t0=T0, n=None, jitter_ns=0):
+    """(reference Frame, [(Shift, Aligned)]) of the rendered frames, the reference at ``t0``."""
+    n = len(SHIFTS) if n is None else n
+    ref = Frame(t0, seq.frames[ref_k])
+    pairs = []
+    for k in range(1, n):
+        stamp = t0 + k * DT
+        a = Aligned(stamp, seq.frames[k], np.ones(seq.frames[k].shape, bool), ref, np.eye(3))
+        u, v = seq.shifts[k] - seq.shifts[ref_k]
+        pairs.append((Shift(stamp + jitter_ns, -1, float(u), float(v), 0.0, 0.01, 0.01), a))
+    return ref, pairs
+
+
+class Clock:
+    """A settable clock for the stage's wall-time idle flush."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_a_complete_set_gives_an_image_better_than_bicubic(seq):
+    stage = ReconstructionStage(n_frames=8)
+    ref, pairs = _set(seq)
+    out = [stage.add(s, a) for s, a in pairs]
+    assert [len(o) for o in out] == [0] * 6 + [1]
+    sr = out[-1][0]
+    assert sr.complete and sr.n_frames == 8 and sr.stamp_ns == T0 and sr.method.startswith("map")
+    assert (
+        sr.image.shape == (2 * ref.image.shape[0], 2 * ref.image.shape[1])
+        and sr.image.dtype == np.uint8
+    )
+    assert sr.bicubic.shape == sr.image.shape
+    p_sr, p_bic = gain_over_bicubic(sr.image, ref.image, seq.truth, 2, border=16)
+    assert p_sr - p_bic > 1.0, (p_sr, p_bic)
+    assert stage.stats.sets_complete == 1 and stage.stats.kept == 1 and not stage.sets
+
+
+def test_the_next_reference_closes_an_incomplete_set_or_drops_it_below_min_frames(seq):
+    problems = []
+    stage = ReconstructionStage(n_frames=8, min_frames=4, method="bicubic")
+    stage.on_problem = lambda level, msg: problems.append(msg)
+    _, pairs = _set(seq, n=5)  # 4 aligned frames: 5 with the reference
+    assert all(stage.add(s, a) == [] for s, a in pairs)
+    _, later = _set(seq, t0=T0 + 10 * DT, n=3)
+    out = stage.add(*later[0])
+    assert len(out) == 1 and not out[0].complete and out[0].n_frames == 5 and out[0].stamp_ns == T0
+    stage.add(*later[1])  # a set of 3 frames (< min_frames): the next reference drops it, said so
+    _, third = _set(seq, t0=T0 + 20 * DT, n=2)
+    assert stage.add(*third[0]) == []
+    assert stage.stats.sets_dropped == 1 and any(
+        "dropped: 3 frames < min_frames 4" in m for m in problems
+    )
+    assert stage.stats.sets_incomplete == 1
+
+
+def test_end_of_stream_flush(seq):
+    stage = ReconstructionStage(n_frames=8, min_frames=4, method="bicubic")
+    _, pairs = _set(seq, n=7)  # the 8-frame flight with one frame lost
+    assert all(stage.add(s, a) == [] for s, a in pairs)
+    out = stage.flush()
+    assert len(out) == 1 and out[0].n_frames == 7 and not out[0].complete
+    assert stage.stats.sets_flushed == 1 and stage.flush() == []
+    # a set below min_frames is not flushed: dropped with a reason
+    _, few = _set(seq, t0=T0 + 50 * DT, n=3)
+    for s, a in few:
+        stage.add(s, a)
+    assert stage.flush() == [] and stage.stats.sets_dropped == 1
+
+
+def test_idle_flush_after_flush_after_s_of_wall_time(seq):
+    clock = Clock()
+    stage = ReconstructionStage(
+        n_frames=8, min_frames=4, method="bicubic", flush_after_s=2.0, clock=clock
+    )
+    _, pairs = _set(seq, n=7)
+    for s, a in pairs:
+        stage.add(s, a)
+        clock.now += 0.1
+    clock.now += 1.5  # 1.6 s since the last frame
+    assert stage.tick() == []
+    clock.now += 0.5
+    out = stage.tick()
+    assert len(out) == 1 and out[0].n_frames == 7 and not out[0].complete
+    assert stage.tick() == [] and stage.stats.sets_flushed == 1
+    # a frame of that reference arriving after the flush makes no second image of the rest
+    late = Aligned(
+        T0 + 9 * DT,
+        seq.frames[1],
+        np.ones(seq.frames[1].shape, bool),
+        pairs[0][1].reference,
+        np.eye(3),
+    )
+    assert stage.add(Shift(late.stamp_ns, -1, 0.5, 0.0, 0.0, 0.01, 0.01), late) == []
+    assert stage.stats.skipped_by_reason == {"late": 1} and not stage.sets
+
+
+def test_idle_flush_on_stream_time_and_a_small_set_waits(seq):
+    stage = ReconstructionStage(n_frames=8, min_frames=4, method="bicubic", flush_after_s=2.0)
+    _, pairs = _set(seq, n=3)  # 3 frames < min_frames: stays open, may still grow
+    for s, a in pairs:
+        stage.add(s, a)
+    last = pairs[-1][0].stamp_ns
+    assert stage.tick(stamp_ns=last + 3_000_000_000) == [] and stage.sets
+    _, more = _set(seq, n=6)
+    for s, a in more[2:]:
+        stage.add(s, a)
+    last = more[-1][0].stamp_ns
+    assert stage.tick(stamp_ns=last + 1_900_000_000) == []
+    out = stage.tick(stamp_ns=last + 2_000_000_000)
+    assert len(out) == 1 and out[0].n_frames == 6
+
+
+def test_time_jumping_back_forgets_the_open_sets(seq):
+    problems = []
+    stage = ReconstructionStage(n_frames=8, min_frames=4, method="bicubic")
+    stage.on_problem = lambda level, msg: problems.append(msg)
+    _, pairs = _set(seq, t0=T0 + 100 * DT, n=6)
+    for s, a in pairs:
+        stage.add(s, a)
+    _, again = _set(seq, n=8)  # the bag from its start: earlier stamps
+    out = [o for s, a in again for o in stage.add(s, a)]
+    assert (
+        len(out) == 1 and out[0].stamp_ns == T0 and out[0].n_frames == 8
+    )  # the old set is not mixed in
+    assert stage.stats.resets == 1 and any("time jumped back" in m for m in problems)
+    assert stage.flush() == []
+
+
+def test_shifts_and_frames_pair_by_stamp_in_any_arrival_order(seq):
+    """Shifts (stamped within time_tolerance_s of their frame) and aligned frames, each stream in
+    its
+    own order (one topic each), interleaved every way: every order gives the same set and image."""
+    _, pairs = _set(seq, n=5, jitter_ns=300_000)  # 0.3 ms off: within the 1 ms tolerance
+    images = []
+    # every interleaving of the 4 shifts and the 4 frames: where the shifts go among 8 arrivals
+    orders = list(itertools.combinations(range(8), 4))
+    assert len(orders) == 70
+    for shift_slots in orders:
+        stage = ReconstructionStage(n_frames=5, method="map")
+        shifts, frames = iter(s for s, _ in pairs), iter(a for _, a in pairs)
+        out = []
+        for slot in range(8):
+            out += (
+                stage.add_shift(next(shifts))
+                if slot in shift_slots
+                else stage.add_aligned(next(frames))
+            )
+        assert len(out) == 1, shift_slots
+        assert sorted(s.stamp_ns for s, _ in out[0].members) == [s.stamp_ns for s, _ in pairs]
+        assert all(s.reference_stamp_ns == T0 for s, _ in out[0].members)
+        images.append(out[0].image)
+    assert all(np.array_equal(images[0], im) for im in images[1:])
+
+
+def test_stamps_beyond_the_tolerance_do_not_pair_and_non_finite_shifts_are_rejected(seq):
+    stage = ReconstructionStage(n_frames=3, method="bicubic")
+    _, pairs = _set(seq, n=3, jitter_ns=2_000_000)  # 2 ms: beyond 1 ms
+    for s, a in pairs:
+        assert stage.add_aligned(a) == [] and stage.add_shift(s) == []
+    assert stage.stats.frames_in == 0
+    bad = Shift(pairs[0][1].stamp_ns, -1, float("nan"), 0.0, 0.0, 0.0, 0.0)
+    assert stage.add_shift(bad) == [] and stage.stats.errors == 1
+
+
+def test_unknown_options_go_to_the_reconstruction(seq):
+    stage = ReconstructionStage(n_frames=3, method="map", queue_size=5, no_such_option=1.0)
+    assert stage.extra == {"no_such_option": 1.0}  # queue_size: the node's, dropped
+    _, pairs = _set(seq, n=3)
+    stage.add(*pairs[0])
+    with pytest.raises(TypeError, match="no_such_option"):
+        stage.add(*pairs[1])
+
+
+def test_uint16_frames_give_a_uint16_image(seq):
+    stage = ReconstructionStage(n_frames=4, method="bicubic")
+    ref = Frame(T0, seq.frames[0].astype(np.uint16) * 200)
+    out = []
+    for k in range(1, 4):
+        a = Aligned(
+            T0 + k * DT,
+            seq.frames[k].astype(np.uint16) * 200,
+            np.ones(seq.frames[k].shape, bool),
+            ref,
+            np.eye(3),
+        )
+        out += stage.add(Shift(a.stamp_ns, -1, *map(float, seq.shifts[k]), 0.0, 0.01, 0.01), a)
+    assert out[0].image.dtype == np.uint16 and out[0].image.max() > 255

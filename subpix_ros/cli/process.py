@@ -46,13 +46,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from subpix_ros.process.batch import Progress, run_batch
-    from subpix_ros.process.flight import load_params
+    from subpix_ros.process.flight import check_params, load_params
     from subpix_ros.process.inputs import InputError, bag_name
 
     if args.jobs < 1:
         raise CliError(f"--jobs must be >= 1, got {args.jobs}")
     try:
         params = load_params(args.params)
+        check_params(params)
     except InputError as exc:
         raise CliError(str(exc)) from None
     names: dict[str, str] = {}

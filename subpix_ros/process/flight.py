@@ -46,11 +46,9 @@ from subpix_ros.io.bags import BagError
 from subpix_ros.process.inputs import Flight, InputError, bag_name, open_flight
 from subpix_ros.process.products import ProductWriter, is_complete, rounded
 
-# The registration node's defaults of the parameters used here for the expected shift
-# (test/process/test_flight.py checks they equal RegistrationNode.PARAMS).
-REGISTRATION_DEFAULTS = {"focal_length_mm": 4.3, "pixel_pitch_um": 1.54, "camera_yaw_offset_deg": 0.0,
-                         "telemetry_time_offset_s": 0.0, "telemetry_timeout_s": 1.0, "p": 2.0,
-                         "min_speed_mps": 0.02}
+# The registration stage's parameters that the expected shift and frame interval use.
+EXPECTED_SHIFT_PARAMS = ("focal_length_mm", "pixel_pitch_um", "camera_yaw_offset_deg", "telemetry_time_offset_s",
+                         "telemetry_timeout_s", "p", "min_speed_mps")
 DIAGNOSTICS_PERIOD_NS = 1_000_000_000
 SHIFT_COLUMNS = ("stamp_ns", "reference_stamp_ns", "u_px", "v_px", "u_std_px", "v_std_px", "converged",
                  "reason", "u_total_px", "v_total_px", "u_expected_px", "v_expected_px", "u_residual_px",
@@ -92,7 +90,7 @@ def _stats_dict(st: Any) -> dict:
     return dict(getattr(st, "__dict__", {}))
 
 
-_TIME_KEY = re.compile(r"(_ms|_s|time|ms_)", re.I)
+_TIME_KEY = re.compile(r"(^times$|_ms$|time_s$)")  # stage figures that are processing times
 
 
 @dataclass
@@ -128,8 +126,10 @@ class _FrameRec:
 class _Collector:
     """Receives the pipeline's events for the frame being added and turns them into records/products."""
 
-    def __init__(self, writer: ProductWriter, reg_params: dict) -> None:
+    def __init__(self, writer: ProductWriter, reg_params: dict, reg_stats: Any = None) -> None:
         self.w = writer
+        self.reg_stats = reg_stats
+        self._tracked = self._fallbacks = 0
         self.reg_params = reg_params
         self.frames: list[_FrameRec] = []
         self.current: _FrameRec | None = None
@@ -143,6 +143,8 @@ class _Collector:
         self.ref_of: dict[int, int] = {}
         self.dtype: str | None = None
         self.shape: tuple = (0, 0)
+        self.warnings: Counter = Counter()
+        self.warning_examples: dict[str, str] = {}
 
     # --------------------------------------------------------- pipeline callbacks
     def on_reference(self, ev: Any) -> None:
@@ -164,17 +166,26 @@ class _Collector:
         self.w.reference_link(a.stamp_ns, ref, getattr(a, "frame_id", ""))
         if rec is not None and rec.stamp_ns == int(a.stamp_ns):
             rec.status, rec.reference_stamp_ns = "aligned", ref
-            for key in ("inliers", "rms_px", "rms_along_px", "rms_cross_px", "tracked"):
-                val = getattr(a, key, None)
-                if val is not None:
-                    setattr(rec, key, val)
+            st = self.reg_stats  # the registration stage's figures of the frame just aligned
+            if st is not None:
+                rec.inliers, rec.rms_px = st.inliers, st.rms_px
+                rec.rms_along_px, rec.rms_cross_px = st.rms_along_px, st.rms_cross_px
+                tracked, fallbacks = st.tracked, st.fallbacks
+                if tracked > self._tracked:
+                    rec.tracked = True
+                elif fallbacks > self._fallbacks:
+                    rec.tracked = False
+                self._tracked, self._fallbacks = tracked, fallbacks
         self.shifts[int(a.stamp_ns)] = {"stamp_ns": int(a.stamp_ns), "reference_stamp_ns": ref,
                                         "converged": False, "reason": "no shift reported"}
 
-    def on_skipped(self, sk: Any) -> None:
+    def on_skipped(self, item: Any) -> None:
+        stage, sk = item if isinstance(item, tuple) else ("", item)
         rec = self.current
         reason = str(getattr(sk, "reason", sk))
-        stage = str(getattr(sk, "stage", "") or "")
+        detail = str(getattr(sk, "detail", "") or "")
+        if detail:
+            reason = f"{reason}: {detail}"
         stamp = getattr(sk, "stamp_ns", None)
         stamp = rec.stamp_ns if stamp is None and rec is not None else stamp
         if stamp is not None and int(stamp) in self.shifts and (not stage or "shift" in stage):
@@ -183,7 +194,8 @@ class _Collector:
         if rec is not None and (stamp is None or int(stamp) == rec.stamp_ns):
             rec.status, rec.reason = "skipped", reason
 
-    def on_shift(self, s: Any) -> None:
+    def on_shift(self, item: Any) -> None:
+        s = item[0] if isinstance(item, tuple) else item
         row = self.shifts.setdefault(int(s.stamp_ns), {"stamp_ns": int(s.stamp_ns)})
         row.update(reference_stamp_ns=int(s.reference_stamp_ns), u_px=rounded(s.u), v_px=rounded(s.v),
                    u_std_px=rounded(s.u_std), v_std_px=rounded(s.v_std), converged=True, reason="")
@@ -209,8 +221,16 @@ class _Collector:
                           "shape": list(img.shape), "dtype": str(img.dtype)})
         self.sr_images.append((stamp, img, ref))
 
+    def on_warning(self, item: Any) -> None:
+        stage, msg = item if isinstance(item, tuple) else ("", item)
+        key = f"{stage}: {reason_key(msg)}" if stage else reason_key(msg)
+        self.warnings[key] += 1
+        self.warning_examples.setdefault(key, f"{stage}: {msg}" if stage else str(msg))
+
     def on_error(self, err: Any) -> None:
-        text = " ".join(str(getattr(err, "message", err)).split())[:200]
+        if isinstance(err, tuple):
+            err = f"{err[0]}: {err[1]}"
+        text = " ".join(str(err).split())[:200]
         self.errors.append(text)
         rec = self.current
         if rec is not None and rec.status in ("in",):
@@ -233,22 +253,6 @@ def _load_truth(bag: Path) -> tuple[dict[int, tuple[float, float]], np.ndarray |
         return shifts, cv2.imread(str(th), cv2.IMREAD_UNCHANGED), int(truth["factor"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
-
-
-def _stage_objects(pipe: Any) -> dict[str, Any]:
-    """The pipeline's stage objects by name, where it exposes them."""
-    found = {}
-    for name in ("registration", "shift", "reconstruction", "mosaic"):
-        for attr in (name, f"{name}_stage", f"_{name}"):
-            obj = getattr(pipe, attr, None)
-            if obj is not None and hasattr(obj, "add"):
-                found[name] = obj
-                break
-    stages = getattr(pipe, "stages", None)
-    if isinstance(stages, dict):
-        for k, v in stages.items():
-            found.setdefault(str(k).replace("_node", ""), v)
-    return found
 
 
 class _Timer:
@@ -307,13 +311,25 @@ def load_params(path: str | Path | None) -> dict[str, dict]:
 
 
 # Parameters that only concern DDS transport (QoS, queues, publication rate): meaningless in-process.
-_TRANSPORT = {"camera_reliable", "queue_size", "publish_rate_hz", "jpeg_quality", "time_tolerance_s"}
+_TRANSPORT = {"camera_reliable", "queue_size", "publish_rate_hz", "jpeg_quality"}
 
 
 def pipeline_params(params: dict[str, dict]) -> dict[str, dict]:
     """The parameters the stage pipeline takes: the four processing nodes, transport-only keys left out."""
     keep = ("registration_node", "shift_node", "reconstruction_node", "mosaic_node")
     return {n: {k: v for k, v in params.get(n, {}).items() if k not in _TRANSPORT} for n in keep}
+
+
+def check_params(params: dict[str, dict]) -> None:
+    """Raise :class:`InputError` (one line) if a stage rejects a parameter."""
+    from subpix_ros.stages import MosaicStage, Pipeline
+
+    pp = pipeline_params(params)
+    try:
+        Pipeline(pp, with_mosaic=False)
+        MosaicStage.from_params(pp["mosaic_node"])
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"bad parameter: {exc}") from None
 
 
 def process_bag(bag: str | Path, out_root: str | Path, params: dict[str, dict] | None = None, *,
@@ -390,11 +406,9 @@ def process_bag(bag: str | Path, out_root: str | Path, params: dict[str, dict] |
 
 
 def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) -> BagResult:
-    from subpix_ros.stages import Pipeline
+    from subpix_ros.stages import MosaicStage, Pipeline
 
     pparams = pipeline_params(params)
-    reg_params = dict(REGISTRATION_DEFAULTS)
-    reg_params.update({k: v for k, v in pparams["registration_node"].items() if k in REGISTRATION_DEFAULTS})
     problems: list[str] = []
     if flight.camera_note:
         problems.append(flight.camera_note)
@@ -410,15 +424,26 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
     elif flight.telemetry_note:
         problems.append(f"telemetry: {flight.telemetry_note}")
 
-    pipe = Pipeline(pparams)
-    col = _Collector(w, reg_params)
+    # The mosaic runs beside the pipeline (not inside it) so that a 16-bit flight's frames reach it
+    # as 8-bit previews (the core mosaic draws uint8).
+    pipe = Pipeline(pparams, with_mosaic=False)
+    mosaic = MosaicStage.from_params(pparams["mosaic_node"])
+    reg_params = {k: pipe.registration.p(k) for k in EXPECTED_SHIFT_PARAMS}
+    col = _Collector(w, reg_params, pipe.registration.stats)
     for kind, cb in (("reference", col.on_reference), ("aligned", col.on_aligned), ("skipped", col.on_skipped),
-                     ("shift", col.on_shift), ("super_resolved", col.on_super_resolved), ("error", col.on_error)):
+                     ("shift", col.on_shift), ("super_resolved", col.on_super_resolved), ("error", col.on_error),
+                     ("warning", col.on_warning)):
         pipe.on(kind, cb)
+    mosaic.on_problem = lambda level, msg: (col.on_error if level == "error" else col.on_warning)(("mosaic_node", msg))
     timer = _Timer()
-    stages = _stage_objects(pipe)
+    stages = {"registration": pipe.registration, "shift": pipe.shift, "reconstruction": pipe.reconstruction,
+              "mosaic": mosaic}
     for sname, obj in stages.items():
         timer.wrap(sname, obj)
+
+    def all_stats() -> dict:
+        return {**_pipe_stats(pipe), "mosaic_node": mosaic.stats}
+
     samples: list[TelemetrySample] = []
     dropped: Counter = Counter()
     examples: dict[str, str] = {}  # the first full reason of each kind
@@ -463,6 +488,10 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                     col.current = rec
                     t0 = time.perf_counter()
                     try:
+                        rec.mosaic = bool(mosaic.add(_preview(frame)))
+                    except Exception as exc:  # noqa: BLE001 - the mosaic is a preview: the frame goes on
+                        col.on_warning(("mosaic_node", f"{type(exc).__name__}: {exc}"))
+                    try:
                         pipe.add(frame)
                     except Exception as exc:  # noqa: BLE001 - a stage failure drops the frame, not the flight
                         col.on_error(f"{type(exc).__name__}: {exc}")
@@ -472,7 +501,7 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                     col.current = None
                     if next_diag is None or rec.stamp_ns >= next_diag:
                         next_diag = rec.stamp_ns + DIAGNOSTICS_PERIOD_NS
-                        w.diagnostics(rec.stamp_ns, _diag_statuses(pipe))
+                        w.diagnostics(rec.stamp_ns, _diag_statuses(all_stats()))
             if progress is not None:
                 progress(done, total)
     except BagError as exc:
@@ -506,14 +535,14 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
             iv = _interval_at(buf, rec.stamp_ns * 1e-9, reg_params)
             if iv is not None:
                 w.frame_interval(rec.stamp_ns, iv)
-    mosaic_info = _mosaic(pipe, stages, w, last_ns)
+    mosaic_info = _mosaic(mosaic, w, last_ns)
     if last_ns is not None:
-        w.diagnostics(last_ns, _diag_statuses(pipe))
+        w.diagnostics(last_ns, _diag_statuses(all_stats()))
     truth = _load_truth(flight.path)
     if truth is not None:
         _score_sets(col, truth)
     st = {k: _clean({kk: vv for kk, vv in _stats_dict(v).items() if not _TIME_KEY.search(kk)})
-          for k, v in _pipe_stats(pipe).items()}
+          for k, v in all_stats().items()}
     statuses = Counter(r.status for r in col.frames)
     skipped = Counter(reason_key(r.reason) for r in col.frames if r.status == "skipped")
     summary = {
@@ -535,6 +564,7 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
         "sets": col.sets,
         "mosaic": mosaic_info,
         "stages": st,
+        "warnings": {col.warning_examples[k]: n for k, n in sorted(col.warnings.items())},
         "parameters": _clean(pparams),
         "broke_off": broke_off,
     }
@@ -559,7 +589,7 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                                            "max": float(a.max()) if a.size else None},
         "stages": timer.summary(),
         "stage_stats_ms": {k: {kk: vv for kk, vv in _stats_dict(v).items() if _TIME_KEY.search(kk)}
-                           for k, v in _pipe_stats(pipe).items()},
+                           for k, v in all_stats().items()},
         "flight_s": flight_s,
     }
     return res
@@ -580,9 +610,9 @@ def _pipe_stats(pipe: Any) -> dict:
     return dict(st) if isinstance(st, dict) else {}
 
 
-def _diag_statuses(pipe: Any) -> dict[str, tuple[int, str, dict]]:
+def _diag_statuses(stats: dict) -> dict[str, tuple[int, str, dict]]:
     out = {}
-    for name, st in _pipe_stats(pipe).items():
+    for name, st in stats.items():
         d = {k: v for k, v in _stats_dict(st).items() if not _TIME_KEY.search(k)}
         flat = {}
         for k, v in d.items():
@@ -669,12 +699,20 @@ def _telemetry_row(s: TelemetrySample) -> dict:
             "heading_deg": None if s.yaw_rad is None else math.degrees(s.yaw_rad) % 360.0}
 
 
-def _mosaic(pipe: Any, stages: dict, w: ProductWriter, last_ns: int | None) -> dict:
-    """mosaic.png and the frame footprints on it (canvas px) where the mosaic stage exposes them."""
-    stage = stages.get("mosaic")
-    canvas = None
-    if stage is not None and hasattr(stage, "canvas"):
-        canvas = stage.canvas()
+def _preview(frame: Any) -> Any:
+    """The frame as the mosaic draws it: 8 bit (16-bit frames scaled by 255/65535)."""
+    img = frame.image
+    if img.dtype == np.uint8:
+        return frame
+    from subpix_ros.stages import Frame
+
+    img8 = np.clip(np.rint(img.astype(np.float32) * (255.0 / 65535.0)), 0, 255).astype(np.uint8)
+    return Frame(frame.stamp_ns, img8, frame.frame_id, frame.received)
+
+
+def _mosaic(stage: Any, w: ProductWriter, last_ns: int | None) -> dict:
+    """mosaic.png and the frame footprints on it (canvas px)."""
+    canvas = stage.canvas()
     if canvas is None or getattr(canvas, "size", 0) == 0:
         return {"written": False}
     w.png("mosaic.png", canvas)
@@ -693,9 +731,6 @@ def _mosaic(pipe: Any, stages: dict, w: ProductWriter, last_ns: int | None) -> d
                 info["footprints"].append(np.round(core.to_canvas(i, corners), 1).tolist())
             except Exception:  # noqa: BLE001
                 continue
-    stamps = getattr(stage, "stamps", None)
-    if stamps is not None:
-        info["stamps_ns"] = [int(s) for s in stamps]
     return info
 
 

@@ -4,8 +4,10 @@ Each bag runs :func:`subpix_ros.process.flight.process_bag` (one pipeline per
 process); a bag that fails is reported by one line and the others go on.
 Worker processes are started with ``spawn`` (no fork of a process that holds
 OpenCV thread pools) and live for one bag each (``max_tasks_per_child=1``),
-so each bag's peak memory in its ``timing.json`` is its own. Each bag runs
-with one OpenCV thread (:func:`process_bag`), so parallelism is across bags.
+so each bag's peak memory in its ``timing.json`` is its own; each worker
+gets the machine's cores divided by ``jobs`` as OpenCV threads. The products
+do not depend on the thread count (they carry 10 significant digits:
+:func:`subpix_ros.process.products.rounded`).
 
 Progress: a tqdm bar per bag on a terminal (frames done / total, frames/s,
 ETA), plain lines every ``PLAIN_PERIOD_S`` seconds otherwise, nothing with
@@ -13,6 +15,7 @@ ETA), plain lines every ``PLAIN_PERIOD_S`` seconds otherwise, nothing with
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -75,10 +78,14 @@ class Progress:
             print(line, file=self.stream, flush=True)
 
 
-def _worker(bag: str, out: str, params: dict, camera_topic, telemetry, force: bool, queue) -> BagResult:
+def _worker(bag: str, out: str, params: dict, camera_topic, telemetry, force: bool, threads: int,
+            queue) -> BagResult:
+    import cv2
+
     from subpix_ros.runtime import keep_freed_memory
 
     keep_freed_memory()
+    cv2.setNumThreads(threads)
     from subpix_ros.process.inputs import bag_name
 
     name = bag_name(bag)
@@ -130,9 +137,10 @@ def run_batch(bags: Sequence[str | Path], out: str | Path, params: dict, *, jobs
     ctx = mp.get_context("spawn")
     manager = ctx.Manager()
     queue = manager.Queue()
+    threads = max(1, (os.cpu_count() or 1) // jobs)
     pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, max_tasks_per_child=1)
     try:
-        futs = {pool.submit(_worker, b, str(out), params, camera_topic, telemetry, force, queue): i
+        futs = {pool.submit(_worker, b, str(out), params, camera_topic, telemetry, force, threads, queue): i
                 for i, b in enumerate(bags)}
         pending = set(futs)
         while pending:

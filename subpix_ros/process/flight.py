@@ -32,7 +32,9 @@ from __future__ import annotations
 import math
 import re
 import resource
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -144,6 +146,7 @@ class _Collector:
         self.dtype: str | None = None
         self.shape: tuple = (0, 0)
         self.warnings: Counter = Counter()
+        self.lock = threading.Lock()
         self.warning_examples: dict[str, str] = {}
 
     # --------------------------------------------------------- pipeline callbacks
@@ -224,8 +227,9 @@ class _Collector:
     def on_warning(self, item: Any) -> None:
         stage, msg = item if isinstance(item, tuple) else ("", item)
         key = f"{stage}: {reason_key(msg)}" if stage else reason_key(msg)
-        self.warnings[key] += 1
-        self.warning_examples.setdefault(key, f"{stage}: {msg}" if stage else str(msg))
+        with self.lock:  # the mosaic thread warns too
+            self.warnings[key] += 1
+            self.warning_examples.setdefault(key, f"{stage}: {msg}" if stage else str(msg))
 
     def on_error(self, err: Any) -> None:
         if isinstance(err, tuple):
@@ -374,12 +378,9 @@ def process_bag(bag: str | Path, out_root: str | Path, params: dict[str, dict] |
         return BagResult(str(bag), name, "failed", f"{name}: failed: {exc}", problems=[str(exc)])
     out_root.mkdir(parents=True, exist_ok=True)
     writer = ProductWriter(out_root, name)
-    import cv2
-
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)  # OpenCV's thread pool makes the last bits of the results vary from run to run
     try:
         res = _run(flight, writer, params, progress)
+        writer.close_bag()  # every queued write done
         res.wall_s = time.monotonic() - t_wall
         timing = res.__dict__.pop("_timing")
         timing.update(wall_s=res.wall_s, cpu_s=time.process_time() - cpu0,
@@ -401,8 +402,6 @@ def process_bag(bag: str | Path, out_root: str | Path, params: dict[str, dict] |
         writer.abort()
         text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
         return BagResult(str(bag), name, "failed", f"{name}: failed: {text}", problems=[text])
-    finally:
-        cv2.setNumThreads(threads)
 
 
 def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) -> BagResult:
@@ -434,7 +433,21 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                      ("shift", col.on_shift), ("super_resolved", col.on_super_resolved), ("error", col.on_error),
                      ("warning", col.on_warning)):
         pipe.on(kind, cb)
-    mosaic.on_problem = lambda level, msg: (col.on_error if level == "error" else col.on_warning)(("mosaic_node", msg))
+    # The mosaic runs on its own thread (it needs nothing from the other stages), frames in order;
+    # its problems are warnings: a frame missing from the preview loses no product.
+    mosaic.on_problem = lambda level, msg: col.on_warning(("mosaic_node", msg))
+    mosaic_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="subpix-mosaic")
+    mosaic_jobs: list[tuple[_FrameRec, Any]] = []
+
+    def mosaic_wait() -> None:
+        for r, fut in mosaic_jobs:
+            try:
+                r.mosaic = bool(fut.result())
+            except Exception as exc:  # noqa: BLE001 - the mosaic is a preview: the frame goes on
+                r.mosaic = False
+                col.on_warning(("mosaic_node", f"{type(exc).__name__}: {exc}"))
+        mosaic_jobs.clear()
+
     timer = _Timer()
     stages = {"registration": pipe.registration, "shift": pipe.shift, "reconstruction": pipe.reconstruction,
               "mosaic": mosaic}
@@ -487,10 +500,7 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                     last_ns = rec.stamp_ns
                     col.current = rec
                     t0 = time.perf_counter()
-                    try:
-                        rec.mosaic = bool(mosaic.add(_preview(frame)))
-                    except Exception as exc:  # noqa: BLE001 - the mosaic is a preview: the frame goes on
-                        col.on_warning(("mosaic_node", f"{type(exc).__name__}: {exc}"))
+                    mosaic_jobs.append((rec, mosaic_pool.submit(mosaic.add, _preview(frame))))
                     try:
                         pipe.add(frame)
                     except Exception as exc:  # noqa: BLE001 - a stage failure drops the frame, not the flight
@@ -501,6 +511,7 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                     col.current = None
                     if next_diag is None or rec.stamp_ns >= next_diag:
                         next_diag = rec.stamp_ns + DIAGNOSTICS_PERIOD_NS
+                        mosaic_wait()  # the figures as of this frame, whatever the threads' timing
                         w.diagnostics(rec.stamp_ns, _diag_statuses(all_stats()))
             if progress is not None:
                 progress(done, total)
@@ -509,6 +520,8 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
         status = "partial"
         problems.append(f"bag breaks off after {done} of {total} frames: {exc}")
     col.current = None
+    mosaic_wait()
+    mosaic_pool.shutdown(wait=True)
     try:
         pipe.flush()
     except Exception as exc:  # noqa: BLE001

@@ -28,6 +28,8 @@ import io
 import json
 import os
 import shutil
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -48,9 +50,11 @@ _FLOAT64 = "std_msgs/msg/Float64"
 def rounded(x: float) -> float:
     """``x`` to 10 significant digits: the products' precision.
 
-    The last bits of the estimates differ between processes (memory alignment
-    picks different SIMD/BLAS kernels), so the products carry 10 significant
-    digits, far above that noise and below any accuracy that matters.
+    The last bits of the estimates differ between runs and processes (OpenCV's
+    thread pool, SIMD/BLAS kernels chosen by memory alignment), so the products
+    carry 10 significant digits, far above that noise and below any accuracy
+    that matters; with them the products are byte-identical whatever the
+    number of threads or jobs (test/process/test_cli_process.py).
     """
     x = float(x)
     return float(f"{x:.10g}") if np.isfinite(x) else x
@@ -101,29 +105,62 @@ class ProductWriter:
         (self.tmp / "bicubic").mkdir()
         self.bag = BagWriter(self.tmp / "results.mcap")
         self._closed = False
+        # Encoding and writing (PNG, the results bag) run on one background thread, in call order
+        # (so results.mcap is the same every run), at most 16 calls ahead of the pipeline.
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="subpix-products")
+        self._room = threading.BoundedSemaphore(16)
+        self._error: BaseException | None = None
+
+    def _later(self, fn, *args) -> None:
+        if self._error is not None:
+            raise self._error
+        self._room.acquire()
+
+        def run() -> None:
+            try:
+                if self._error is None:
+                    fn(*args)
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread
+                self._error = exc
+            finally:
+                self._room.release()
+
+        self._pool.submit(run)
+
+    def wait(self) -> None:
+        """Block until every queued write is done; re-raise the first error of one."""
+        self._pool.shutdown(wait=True)
+        if self._error is not None:
+            raise self._error
 
     # ---------------------------------------------------------------- results.mcap
     def shift(self, stamp_ns: int, u: float, v: float, z: float, frame_id: str = "") -> None:
         vec = (rounded(u), rounded(v), rounded(z))
-        self.bag.write("/shift", cdr.VECTOR3_STAMPED, stamp_ns, cdr.vector3_stamped_to_cdr(vec, stamp_ns, frame_id))
+        raw = cdr.vector3_stamped_to_cdr(vec, stamp_ns, frame_id)
+        self._later(self.bag.write, "/shift", cdr.VECTOR3_STAMPED, stamp_ns, raw)
 
     def homography(self, stamp_ns: int, h: np.ndarray) -> None:
         hh = np.array([rounded(x) for x in np.asarray(h, np.float64).ravel()]).reshape(3, 3)
         raw = cdr.float64_array_to_cdr(hh, ["rows", "cols"])
-        self.bag.write("/homography", cdr.FLOAT64_MULTI_ARRAY, stamp_ns, raw)
+        self._later(self.bag.write, "/homography", cdr.FLOAT64_MULTI_ARRAY, stamp_ns, raw)
 
     def reference_link(self, stamp_ns: int, reference_ns: int, frame_id: str = "") -> None:
         raw = cdr.time_reference_to_cdr(stamp_ns, reference_ns, frame_id, "subpix_ros reference frame")
-        self.bag.write("/aligned/reference_stamp", "sensor_msgs/msg/TimeReference", stamp_ns, raw)
+        self._later(self.bag.write, "/aligned/reference_stamp", "sensor_msgs/msg/TimeReference", stamp_ns, raw)
 
     def image(self, topic: str, image: np.ndarray, stamp_ns: int, frame_id: str = "") -> None:
         enc = {(np.dtype(np.uint8), 2): "mono8", (np.dtype(np.uint8), 3): "bgr8",
                (np.dtype(np.uint16), 2): "mono16", (np.dtype(np.uint16), 3): "bgr16"}[(image.dtype, image.ndim)]
-        self.bag.write(topic, cdr.IMAGE, stamp_ns, cdr.image_to_cdr(np.ascontiguousarray(image), enc, stamp_ns, frame_id))
+
+        def write() -> None:
+            raw = cdr.image_to_cdr(np.ascontiguousarray(image), enc, stamp_ns, frame_id)
+            self.bag.write(topic, cdr.IMAGE, stamp_ns, raw)
+
+        self._later(write)
 
     def frame_interval(self, stamp_ns: int, interval_s: float) -> None:
         raw = cdr.serialize(_T[_FLOAT64](data=rounded(interval_s)), _FLOAT64)
-        self.bag.write("/telemetry/frame_interval", _FLOAT64, stamp_ns, raw)
+        self._later(self.bag.write, "/telemetry/frame_interval", _FLOAT64, stamp_ns, raw)
 
     def diagnostics(self, stamp_ns: int, statuses: dict[str, tuple[int, str, dict[str, Any]]]) -> None:
         """``statuses``: name -> (level 0 OK / 1 WARN / 2 ERROR, message, key values)."""
@@ -132,7 +169,7 @@ class ProductWriter:
                          values=[KV(key=str(k), value=_fmt(v)) for k, v in sorted(vals.items())])
                   for name, (lvl, msg, vals) in sorted(statuses.items())]
         msg = _T[_DIAG_ARRAY](header=cdr.make_header(stamp_ns, ""), status=status)
-        self.bag.write("/diagnostics", _DIAG_ARRAY, stamp_ns, cdr.serialize(msg, _DIAG_ARRAY))
+        self._later(self.bag.write, "/diagnostics", _DIAG_ARRAY, stamp_ns, cdr.serialize(msg, _DIAG_ARRAY))
 
     # ---------------------------------------------------------------- files
     def png(self, rel: str, image: np.ndarray) -> None:
@@ -140,8 +177,12 @@ class ProductWriter:
 
         path = self.tmp / rel
         path.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(path), image):
-            raise OSError(f"cannot write {rel}")
+
+        def write() -> None:
+            if not cv2.imwrite(str(path), image):
+                raise OSError(f"cannot write {rel}")
+
+        self._later(write)
 
     def csv(self, rel: str, columns: Sequence[str], rows: Sequence[dict]) -> None:
         write_csv(self.tmp / rel, columns, rows)
@@ -152,7 +193,10 @@ class ProductWriter:
     def close_bag(self) -> None:
         if not self._closed:
             self._closed = True
-            self.bag.close()
+            try:
+                self.wait()
+            finally:
+                self.bag.close()
 
     def commit(self, force: bool) -> Path:
         """Rename the finished folder into place (replacing an old one only with ``force``)."""

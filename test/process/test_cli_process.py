@@ -277,3 +277,29 @@ def test_report_command_rewrites_reports(processed, tmp_path):
     r = subprocess.run([sys.executable, "-m", "subpix_ros.cli", "report", str(tmp_path / "empty")],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 1 and r.stderr.count("\n") == 1
+
+
+def test_mono16_flight_gives_16_bit_products(sample_bags, tmp_path):
+    """A 16-bit camera: super-resolved and bicubic PNGs stay 16-bit, the mosaic preview is 8-bit."""
+    _, frames, tel = _sample(sample_bags)
+    mono = []
+    for m in frames:
+        img, _ = cdr_to_image(m.raw)
+        y = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_BGR2GRAY).astype(np.uint16) * 257
+        mono.append(type(m)(m.topic, m.msgtype, m.timestamp_ns, image_to_cdr(y, "mono16", m.timestamp_ns, "camera")))
+    bag = _write(tmp_path / "mono16", sorted(mono + tel, key=lambda m: m.timestamp_ns))
+    r = _run(str(bag), "-o", str(tmp_path / "out"), "--params", DEMO, "--quiet")
+    assert r.returncode == 0, r.stderr
+    d = tmp_path / "out" / "mono16"
+    s = _summary(d)
+    assert s["camera"]["dtype"] == "uint16" and len(s["sets"]) >= 2
+    for st in s["sets"]:
+        sr = cv2.imread(str(d / st["superres"]), cv2.IMREAD_UNCHANGED)
+        bic = cv2.imread(str(d / st["bicubic"]), cv2.IMREAD_UNCHANGED)
+        assert sr.dtype == bic.dtype == np.uint16 and sr.shape == bic.shape == (896, 896)
+        assert sr.max() > 255 * 4  # the 16-bit range is used, not 8-bit values in a 16-bit file
+    mos = cv2.imread(str(d / "mosaic.png"), cv2.IMREAD_UNCHANGED)
+    assert mos.dtype == np.uint8 and s["mosaic"]["written"]
+    srs = list(read_messages(d / "results.mcap", ["/super_resolved"]))
+    img, _ = cdr_to_image(srs[0].raw)
+    assert img.dtype == np.uint16

@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from subpix_ros.process.batch import Progress, run_batch
+    from subpix_ros.process.batch import Progress, interrupt_on_signals, run_batch
     from subpix_ros.process.flight import check_params, load_params
     from subpix_ros.process.inputs import InputError, bag_name
 
@@ -67,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise CliError(f"cannot create {out}: {exc.strerror}") from None
+    interrupt_on_signals()  # Ctrl-C or a kill: unfinished folders removed, exit status 130
     progress = Progress(stream=sys.stderr, quiet=args.quiet)
     results = run_batch(args.bags, out, params, jobs=args.jobs, camera_topic=args.camera_topic,
                         telemetry=args.telemetry, force=args.force, progress=progress)

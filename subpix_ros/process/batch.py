@@ -78,12 +78,25 @@ class Progress:
             print(line, file=self.stream, flush=True)
 
 
+def _raise_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def interrupt_on_signals() -> None:
+    """SIGINT and SIGTERM raise KeyboardInterrupt (a clean stop), even where SIGINT was ignored."""
+    import signal
+
+    signal.signal(signal.SIGINT, _raise_interrupt)
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+
+
 def _worker(bag: str, out: str, params: dict, camera_topic, telemetry, force: bool, threads: int,
             queue) -> BagResult:
     import cv2
 
     from subpix_ros.runtime import keep_freed_memory
 
+    interrupt_on_signals()
     keep_freed_memory()
     cv2.setNumThreads(threads)
     from subpix_ros.process.inputs import bag_name
@@ -158,6 +171,13 @@ def run_batch(bags: Sequence[str | Path], out: str | Path, params: dict, *, jobs
                 done(i, r)
         _drain(queue, progress)
     except KeyboardInterrupt:
+        # Ctrl-C on a terminal reaches the workers too; a signal to this process alone does not:
+        # stop them (each removes its unfinished folder) before leaving.
+        for proc in list(getattr(pool, "_processes", {}).values()):
+            try:
+                proc.terminate()
+            except OSError:
+                pass
         pool.shutdown(wait=True, cancel_futures=True)
         manager.shutdown()
         raise

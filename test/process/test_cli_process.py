@@ -162,6 +162,20 @@ def test_ctrl_c_leaves_nothing_that_looks_complete(sample_bags, tmp_path):
     assert not [q for q in tmp_path.iterdir() if q.name.startswith(".")]
 
 
+def test_kill_with_jobs_stops_the_workers_and_removes_their_folders(sample_bags, tmp_path):
+    p = subprocess.Popen(process_cmd(str(sample_bags / "subpixel"), str(sample_bags / "seneca"), "-o", str(tmp_path),
+                                     "--params", DEMO, "--jobs", "2"),
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    line = p.stderr.readline()
+    assert "frames" in line, line
+    p.send_signal(signal.SIGTERM)  # to the parent alone: it must stop its workers itself
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert "Traceback" not in err
+    time.sleep(1.0)
+    assert [q.name for q in tmp_path.iterdir()] == []
+
+
 # --------------------------------------------------------------------------- bad input
 def test_bad_bags_get_one_line_each_and_the_rest_is_processed(sample_bags, tmp_path):
     msgs, frames, tel = _sample(sample_bags)

@@ -11,6 +11,7 @@ stamp), or at the end of the stream (:meth:`ReconstructionStage.flush`).
 from __future__ import annotations
 
 import collections
+import inspect
 import time
 from dataclasses import dataclass
 
@@ -121,7 +122,8 @@ class ReconstructionStage(Stage):
     take the two halves separately and pair them by stamp; ``tick(now_s)``
     reconstructs sets idle for ``flush_after_s``; ``flush()`` every set with
     ``min_frames`` or more at the end of the stream. Parameters not known
-    here are passed to :func:`~subpix_ros.core.superres_masks.reconstruct_aligned`.
+    here that the core's ``reconstruct`` takes as keywords (e.g. ``blur_sigma``)
+    are passed to it; any other (a node's own) is ignored (``ignored``).
 
     For a worker thread, :meth:`assemble` (cheap) and :meth:`reconstruct`
     (the solve) can be called separately.
@@ -134,6 +136,8 @@ class ReconstructionStage(Stage):
     def __init__(self, clock=time.monotonic, **params) -> None:
         super().__init__(**params)
         self.clock = clock
+        self.solver_options, self.ignored = _solver_options(self.extra)
+        self._told_ignored = False
         self.sets: dict[int, list[tuple[Shift, Aligned]]] = {}
         self.matcher = ShiftFrameMatcher(self._tolerance_ns())
         self._closed: collections.OrderedDict[int, None] = collections.OrderedDict()
@@ -146,6 +150,7 @@ class ReconstructionStage(Stage):
     def configure(self, **changes) -> None:
         super().configure(**changes)
         self.matcher.tolerance_ns = self._tolerance_ns()
+        self.solver_options, self.ignored = _solver_options(self.extra)
 
     def reset(self) -> None:
         super().reset()
@@ -288,6 +293,11 @@ class ReconstructionStage(Stage):
     def reconstruct(self, fs: FrameSet) -> SuperResolved | None:
         """Super-resolve one set (None, with an error, when it cannot be)."""
         ref, members = fs.reference, fs.members
+        if self.ignored and not self._told_ignored:
+            self._told_ignored = True
+            self.warn(
+                f"parameters not used by the reconstruction: {', '.join(sorted(self.ignored))}"
+            )
         t0 = time.monotonic()
         frames = [ref.image] + [a.image for _, a in members]
         masks = [np.ones(ref.image.shape[:2], bool)] + [a.mask for _, a in members]
@@ -303,7 +313,7 @@ class ReconstructionStage(Stage):
             method=self.p("method"),
             geometry="auto" if self.p("check_geometry") else "translation",
             refine_shifts=self.p("refine_shifts"),
-            **self.extra,
+            **self.solver_options,
         )
         if not np.all(np.isfinite(res.image)):
             self.error("reconstruction produced non-finite pixels: not published")
@@ -335,3 +345,24 @@ class ReconstructionStage(Stage):
             float(res.noise_sigma),
             res,
         )
+
+
+_SET_HERE = {"method", "masks", "geometry", "refine_shifts"}  # given by the stage itself
+
+
+def _solver_options(extra: dict) -> tuple[dict, dict]:
+    """``(options, ignored)``: the parameters not known here that the solver takes, and the rest.
+
+    Options the core's :func:`~subpix_ros.core.superres.reconstruct` accepts as keywords (e.g.
+    ``blur_sigma``) go to it; any other key (a node's own parameter) is ignored.
+    """
+    from subpix_ros.core.superres import reconstruct
+
+    params = inspect.signature(reconstruct).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return dict(extra), {}
+    taken = {k for k, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY} - _SET_HERE
+    return (
+        {k: v for k, v in extra.items() if k in taken},
+        {k: v for k, v in extra.items() if k not in taken},
+    )

@@ -94,3 +94,37 @@ def test_an_incomplete_last_set_is_reconstructed_after_flush_after_s(ctx, crops)
         2 * seq.frames[0].shape[1],
     )
     assert len(got) == 1 and node.stage.stats.sets_flushed == 1 and node.stage.stats.frames == 7
+
+
+def test_close_publishes_the_open_set_first(ctx, crops):
+    """Shutdown (close() while ROS is up, e.g. a node destroyed by its owner): the open set of
+    >= min_frames is reconstructed and published before the node goes."""
+    from subpix_ros.nodes.reconstruction_node import ReconstructionNode
+
+    seq = render_sequence(crops["crop_trees"][:256, :256], 2, SHIFTS, 0.4, snr_db=40, seed=5)
+    node = ReconstructionNode(
+        subscribe_inputs=False,
+        parameter_overrides=[Parameter("flush_after_s", value=600.0)],  # no idle flush here
+    )
+    h = rclpy.create_node("harness")
+    got = []
+    h.create_subscription(
+        Image, "/super_resolved", lambda r: got.append(cdr.cdr_to_image(r)), latched_qos(), raw=True
+    )
+    ref = pl.Frame(T0, seq.frames[0])
+    full = np.ones(seq.frames[0].shape, bool)
+    try:
+        for k in range(1, 5):  # 5 frames with the reference: >= min_frames 4, < n_frames 8
+            stamp = T0 + k * 33_333_333
+            a = pl.Aligned(stamp, seq.frames[k], full, ref, np.eye(3))
+            node.handle_shift((pl.Shift(stamp, T0, *SHIFTS[k], 0.0, 0.01, 0.01), a))
+        spin([node, h], lambda: False, 1.0)
+        assert got == [] and len(node.sets[T0]) == 4
+        node.close()
+        assert spin([h], lambda: bool(got), 10), "the open set was not published at close()"
+    finally:
+        node.destroy_node()
+        h.destroy_node()
+    image, header = got[0]
+    assert cdr.header_to_ns(header) == T0 and len(got) == 1
+    assert node.stage.stats.frames == 5 and node.stage.stats.sets_flushed == 1

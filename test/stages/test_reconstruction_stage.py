@@ -197,13 +197,15 @@ def test_stamps_beyond_the_tolerance_do_not_pair_and_non_finite_shifts_are_rejec
     assert stage.add_shift(bad) == [] and stage.stats.errors == 1
 
 
-def test_unknown_options_go_to_the_reconstruction(seq):
-    stage = ReconstructionStage(n_frames=3, method="map", queue_size=5, no_such_option=1.0)
-    assert stage.extra == {"no_such_option": 1.0}  # queue_size: the node's, dropped
-    _, pairs = _set(seq, n=3)
-    stage.add(*pairs[0])
-    with pytest.raises(TypeError, match="no_such_option"):
-        stage.add(*pairs[1])
+def test_solver_options_go_to_the_reconstruction_and_other_keys_are_ignored(seq):
+    stage = ReconstructionStage(n_frames=4, method="map", queue_size=5, blur_sigma=0.8, other=1)
+    assert stage.solver_options == {"blur_sigma": 0.8} and stage.ignored == {"other": 1}
+    plain = ReconstructionStage(n_frames=4, method="map")  # blur_sigma 0.4, the core's default
+    _, pairs = _set(seq, n=4)
+    a = [sr for s, al in pairs for sr in stage.add(s, al)]
+    b = [sr for s, al in pairs for sr in plain.add(s, al)]
+    assert len(a) == len(b) == 1 and not np.array_equal(a[0].image, b[0].image)
+    assert stage.stats.last_warning == "parameters not used by the reconstruction: other"
 
 
 def test_uint16_frames_give_a_uint16_image(seq):

@@ -317,3 +317,29 @@ def test_mono16_flight_gives_16_bit_products(sample_bags, tmp_path):
     srs = list(read_messages(d / "results.mcap", ["/super_resolved"]))
     img, _ = cdr_to_image(srs[0].raw)
     assert img.dtype == np.uint16
+
+
+def test_progress_bars_on_a_terminal_plain_lines_otherwise():
+    import io
+
+    from subpix_ros.process.batch import Progress
+
+    tty = io.StringIO()
+    p = Progress(stream=tty, tty=True)
+    for k in range(1, 11):
+        p.update("flight", k, 10)
+    p.finish("flight", "flight: ok")
+    text = tty.getvalue()
+    assert "flight" in text and "10/10" in text and "frame/s" in text and "\r" in text  # a tqdm bar
+    plain = io.StringIO()
+    p = Progress(stream=plain, tty=False)
+    for k in range(1, 11):
+        p.update("flight", k, 10)
+    lines = plain.getvalue().splitlines()
+    assert lines[0].startswith("flight: 1/10 frames") and lines[-1].startswith("flight: 10/10 frames (100 %)")
+    assert len(lines) == 2 and "\r" not in plain.getvalue()  # first and last only (period 5 s)
+    quiet = io.StringIO()
+    p = Progress(stream=quiet, quiet=True)
+    p.update("flight", 1, 10)
+    p.finish("flight", "flight: ok")
+    assert quiet.getvalue() == ""

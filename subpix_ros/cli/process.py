@@ -16,6 +16,7 @@ cannot be processed (or only in part: no images, a corrupt chunk, frames of
 another size) gets one line and the exit status is 1 at the end; a bag
 without telemetry is processed (every frame kept) and the report says so.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,18 +28,36 @@ from subpix_ros.cli import CliError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("process", help="flight bags -> products and a flight report (no DDS)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = sub.add_parser(
+        "process",
+        help="flight bags -> products and a flight report (no DDS)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("bags", nargs="+", metavar="BAG", help="rosbag2 bag folder, .mcap or .db3")
     p.add_argument("-o", "--out", required=True, metavar="OUTDIR", help="output folder")
-    p.add_argument("--params", default=None, metavar="FILE.yaml",
-                   help="stage parameters (config/*.yaml layout: node: ros__parameters: ...); default: the "
-                        "nodes' defaults")
-    p.add_argument("--jobs", type=int, default=1, metavar="N", help="bags processed in parallel (default 1)")
-    p.add_argument("--camera-topic", default=None, metavar="T",
-                   help="image topic (default /camera/image_raw, else the bag's image topic)")
-    p.add_argument("--telemetry", choices=("tlog", "topics"), default=None,
-                   help="telemetry source (default: the bag's /telemetry/* topics, else a .tlog beside the bag)")
+    p.add_argument(
+        "--params",
+        default=None,
+        metavar="FILE.yaml",
+        help="stage parameters (config/*.yaml layout: node: ros__parameters: ...); default: the "
+        "nodes' defaults",
+    )
+    p.add_argument(
+        "--jobs", type=int, default=1, metavar="N", help="bags processed in parallel (default 1)"
+    )
+    p.add_argument(
+        "--camera-topic",
+        default=None,
+        metavar="T",
+        help="image topic (default /camera/image_raw, else the bag's image topic)",
+    )
+    p.add_argument(
+        "--telemetry",
+        choices=("tlog", "topics"),
+        default=None,
+        help="telemetry source (default: the bag's /telemetry/* topics, else a .tlog beside it)",
+    )
     p.add_argument("--force", action="store_true", help="redo bags whose products are complete")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
@@ -69,20 +88,38 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"cannot create {out}: {exc.strerror}") from None
     interrupt_on_signals()  # Ctrl-C or a kill: unfinished folders removed, exit status 130
     progress = Progress(stream=sys.stderr, quiet=args.quiet)
-    results = run_batch(args.bags, out, params, jobs=args.jobs, camera_topic=args.camera_topic,
-                        telemetry=args.telemetry, force=args.force, progress=progress)
+    results = run_batch(
+        args.bags,
+        out,
+        params,
+        jobs=args.jobs,
+        camera_topic=args.camera_topic,
+        telemetry=args.telemetry,
+        force=args.force,
+        progress=progress,
+    )
     failed = [r for r in results if r.status in ("failed", "partial")]
     lines = [r.line for r in results]
-    (out / "batch_summary.json").write_text(json.dumps(
-        [{"bag": r.bag, "name": r.name, "status": r.status, "line": r.line, "out": r.out} for r in results],
-        indent=1) + "\n")
+    (out / "batch_summary.json").write_text(
+        json.dumps(
+            [
+                {"bag": r.bag, "name": r.name, "status": r.status, "line": r.line, "out": r.out}
+                for r in results
+            ],
+            indent=1,
+        )
+        + "\n"
+    )
     if not args.quiet:
         print("\n".join(["summary:"] + [f"  {ln}" for ln in lines]))
         for r in results:
             if r.out and r.status != "failed":
                 print(f"  report: {Path(r.out) / 'report.html'}")
     if failed:
-        print(f"subpix process: {len(failed)} of {len(results)} bag(s) failed or only partly usable: "
-              f"{', '.join(r.name for r in failed)}", file=sys.stderr)
+        print(
+            f"subpix process: {len(failed)} of {len(results)} bag(s) failed or only partly usable: "
+            f"{', '.join(r.name for r in failed)}",
+            file=sys.stderr,
+        )
         return 1
     return 0

@@ -13,6 +13,7 @@ Progress: a tqdm bar per bag on a terminal (frames done / total, frames/s,
 ETA), plain lines every ``PLAIN_PERIOD_S`` seconds otherwise, nothing with
 ``quiet``.
 """
+
 from __future__ import annotations
 
 import os
@@ -51,8 +52,15 @@ class Progress:
                     self._slots.append(name)
                 else:
                     self._slots[slot] = name
-                bar = tqdm(total=total or None, desc=name, unit="frame", file=self.stream, position=slot,
-                           leave=True, dynamic_ncols=True)
+                bar = tqdm(
+                    total=total or None,
+                    desc=name,
+                    unit="frame",
+                    file=self.stream,
+                    position=slot,
+                    leave=True,
+                    dynamic_ncols=True,
+                )
                 self._bars[name] = bar
             bar.update(done - bar.n)
             return
@@ -67,7 +75,11 @@ class Progress:
             el = now - self._t0[name]
             rate = done / el if el > 0 else 0.0
             pct = f" ({100.0 * done / total:.0f} %)" if total else ""
-            print(f"{name}: {done}/{total or '?'} frames{pct}, {rate:.1f} frames/s", file=self.stream, flush=True)
+            print(
+                f"{name}: {done}/{total or '?'} frames{pct}, {rate:.1f} frames/s",
+                file=self.stream,
+                flush=True,
+            )
 
     def finish(self, name: str, line: str) -> None:
         bar = self._bars.pop(name, None)
@@ -90,8 +102,9 @@ def interrupt_on_signals() -> None:
     signal.signal(signal.SIGTERM, _raise_interrupt)
 
 
-def _worker(bag: str, out: str, params: dict, camera_topic, telemetry, force: bool, threads: int,
-            queue) -> BagResult:
+def _worker(
+    bag: str, out: str, params: dict, camera_topic, telemetry, force: bool, threads: int, queue
+) -> BagResult:
     import cv2
 
     from subpix_ros.runtime import keep_freed_memory
@@ -114,16 +127,31 @@ def _worker(bag: str, out: str, params: dict, camera_topic, telemetry, force: bo
                 pass
 
     try:
-        return process_bag(bag, out, params, camera_topic=camera_topic, telemetry=telemetry, force=force,
-                           progress=progress)
+        return process_bag(
+            bag,
+            out,
+            params,
+            camera_topic=camera_topic,
+            telemetry=telemetry,
+            force=force,
+            progress=progress,
+        )
     except KeyboardInterrupt:
         return BagResult(bag, name, "failed", f"{name}: interrupted")
 
 
-def run_batch(bags: Sequence[str | Path], out: str | Path, params: dict, *, jobs: int = 1,
-              camera_topic: str | None = None, telemetry: str | None = None, force: bool = False,
-              progress: Progress | None = None,
-              on_result: Callable[[BagResult], None] | None = None) -> list[BagResult]:
+def run_batch(
+    bags: Sequence[str | Path],
+    out: str | Path,
+    params: dict,
+    *,
+    jobs: int = 1,
+    camera_topic: str | None = None,
+    telemetry: str | None = None,
+    force: bool = False,
+    progress: Progress | None = None,
+    on_result: Callable[[BagResult], None] | None = None,
+) -> list[BagResult]:
     """Process ``bags`` into ``out``; returns one result per bag in the order given."""
     progress = progress or Progress(quiet=True)
     bags = [str(b) for b in bags]
@@ -140,8 +168,15 @@ def run_batch(bags: Sequence[str | Path], out: str | Path, params: dict, *, jobs
             from subpix_ros.process.inputs import bag_name
 
             name = bag_name(b)
-            r = process_bag(b, out, params, camera_topic=camera_topic, telemetry=telemetry, force=force,
-                            progress=lambda d, t, n=name: progress.update(n, d, t))
+            r = process_bag(
+                b,
+                out,
+                params,
+                camera_topic=camera_topic,
+                telemetry=telemetry,
+                force=force,
+                progress=lambda d, t, n=name: progress.update(n, d, t),
+            )
             done(i, r)
         return [results[i] for i in range(len(bags))]
 
@@ -153,8 +188,12 @@ def run_batch(bags: Sequence[str | Path], out: str | Path, params: dict, *, jobs
     threads = max(1, (os.cpu_count() or 1) // jobs)
     pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, max_tasks_per_child=1)
     try:
-        futs = {pool.submit(_worker, b, str(out), params, camera_topic, telemetry, force, threads, queue): i
-                for i, b in enumerate(bags)}
+        futs = {
+            pool.submit(
+                _worker, b, str(out), params, camera_topic, telemetry, force, threads, queue
+            ): i
+            for i, b in enumerate(bags)
+        }
         pending = set(futs)
         while pending:
             finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
@@ -167,7 +206,12 @@ def run_batch(bags: Sequence[str | Path], out: str | Path, params: dict, *, jobs
                     from subpix_ros.process.inputs import bag_name
 
                     name = bag_name(bags[i])
-                    r = BagResult(bags[i], name, "failed", f"{name}: failed: worker died: {type(exc).__name__}: {exc}")
+                    r = BagResult(
+                        bags[i],
+                        name,
+                        "failed",
+                        f"{name}: failed: worker died: {type(exc).__name__}: {exc}",
+                    )
                 done(i, r)
         _drain(queue, progress)
     except KeyboardInterrupt:

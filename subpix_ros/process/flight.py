@@ -27,6 +27,7 @@ opened, has no image topic or no telemetry, breaks off (corrupt chunk) or
 has frames of mixed sizes is described by one line in ``summary.json``
 (``status``, ``problems``) and products are made from whatever is usable.
 """
+
 from __future__ import annotations
 
 import math
@@ -49,16 +50,55 @@ from subpix_ros.process.inputs import Flight, InputError, bag_name, open_flight
 from subpix_ros.process.products import ProductWriter, is_complete, rounded
 
 # The registration stage's parameters that the expected shift and frame interval use.
-EXPECTED_SHIFT_PARAMS = ("focal_length_mm", "pixel_pitch_um", "camera_yaw_offset_deg", "telemetry_time_offset_s",
-                         "telemetry_timeout_s", "p", "min_speed_mps")
+EXPECTED_SHIFT_PARAMS = (
+    "focal_length_mm",
+    "pixel_pitch_um",
+    "camera_yaw_offset_deg",
+    "telemetry_time_offset_s",
+    "telemetry_timeout_s",
+    "p",
+    "min_speed_mps",
+)
 DIAGNOSTICS_PERIOD_NS = 1_000_000_000
-SHIFT_COLUMNS = ("stamp_ns", "reference_stamp_ns", "u_px", "v_px", "u_std_px", "v_std_px", "converged",
-                 "reason", "u_total_px", "v_total_px", "u_expected_px", "v_expected_px", "u_residual_px",
-                 "v_residual_px")
-FRAME_COLUMNS = ("index", "stamp_ns", "status", "reason", "reference_stamp_ns", "inliers", "rms_px",
-                 "rms_along_px", "rms_cross_px", "tracked", "mosaic")
-TELEMETRY_COLUMNS = ("t_s", "lat_deg", "lon_deg", "alt_msl_m", "height_agl_m", "ground_speed_mps",
-                     "course_deg", "heading_deg")
+SHIFT_COLUMNS = (
+    "stamp_ns",
+    "reference_stamp_ns",
+    "u_px",
+    "v_px",
+    "u_std_px",
+    "v_std_px",
+    "converged",
+    "reason",
+    "u_total_px",
+    "v_total_px",
+    "u_expected_px",
+    "v_expected_px",
+    "u_residual_px",
+    "v_residual_px",
+)
+FRAME_COLUMNS = (
+    "index",
+    "stamp_ns",
+    "status",
+    "reason",
+    "reference_stamp_ns",
+    "inliers",
+    "rms_px",
+    "rms_along_px",
+    "rms_cross_px",
+    "tracked",
+    "mosaic",
+)
+TELEMETRY_COLUMNS = (
+    "t_s",
+    "lat_deg",
+    "lon_deg",
+    "alt_msl_m",
+    "height_agl_m",
+    "ground_speed_mps",
+    "course_deg",
+    "heading_deg",
+)
 
 
 def reason_key(reason: str) -> str:
@@ -126,7 +166,7 @@ class _FrameRec:
 
 
 class _Collector:
-    """Receives the pipeline's events for the frame being added and turns them into records/products."""
+    """Turns the pipeline's events for the frame being added into records and products."""
 
     def __init__(self, writer: ProductWriter, reg_params: dict, reg_stats: Any = None) -> None:
         self.w = writer
@@ -164,7 +204,9 @@ class _Collector:
         ref = int(a.reference.stamp_ns)
         self.ref_of[int(a.stamp_ns)] = ref
         self.homographies[int(a.stamp_ns)] = np.asarray(a.homography, np.float64).reshape(3, 3)
-        self.priors[int(a.stamp_ns)] = tuple(a.prior) if getattr(a, "prior", None) is not None else None
+        self.priors[int(a.stamp_ns)] = (
+            tuple(a.prior) if getattr(a, "prior", None) is not None else None
+        )
         self.w.homography(a.stamp_ns, a.homography)
         self.w.reference_link(a.stamp_ns, ref, getattr(a, "frame_id", ""))
         if rec is not None and rec.stamp_ns == int(a.stamp_ns):
@@ -179,8 +221,12 @@ class _Collector:
                 elif fallbacks > self._fallbacks:
                     rec.tracked = False
                 self._tracked, self._fallbacks = tracked, fallbacks
-        self.shifts[int(a.stamp_ns)] = {"stamp_ns": int(a.stamp_ns), "reference_stamp_ns": ref,
-                                        "converged": False, "reason": "no shift reported"}
+        self.shifts[int(a.stamp_ns)] = {
+            "stamp_ns": int(a.stamp_ns),
+            "reference_stamp_ns": ref,
+            "converged": False,
+            "reason": "no shift reported",
+        }
 
     def on_skipped(self, item: Any) -> None:
         stage, sk = item if isinstance(item, tuple) else ("", item)
@@ -200,8 +246,15 @@ class _Collector:
     def on_shift(self, item: Any) -> None:
         s = item[0] if isinstance(item, tuple) else item
         row = self.shifts.setdefault(int(s.stamp_ns), {"stamp_ns": int(s.stamp_ns)})
-        row.update(reference_stamp_ns=int(s.reference_stamp_ns), u_px=rounded(s.u), v_px=rounded(s.v),
-                   u_std_px=rounded(s.u_std), v_std_px=rounded(s.v_std), converged=True, reason="")
+        row.update(
+            reference_stamp_ns=int(s.reference_stamp_ns),
+            u_px=rounded(s.u),
+            v_px=rounded(s.v),
+            u_std_px=rounded(s.u_std),
+            v_std_px=rounded(s.v_std),
+            converged=True,
+            reason="",
+        )
         self.w.shift(s.stamp_ns, s.u, s.v, s.z, getattr(s, "frame_id", ""))
 
     def on_super_resolved(self, sr: Any) -> None:
@@ -214,14 +267,25 @@ class _Collector:
         self.w.image("/super_resolved", img, stamp, getattr(ref, "frame_id", ""))
         members = []
         for s, a in getattr(sr, "members", []) or []:
-            members.append({"stamp_ns": int(s.stamp_ns), "u_px": rounded(s.u), "v_px": rounded(s.v)})
-        self.sets.append({"reference_stamp_ns": stamp, "frames": 1 + len(members), "members": members,
-                          "method": str(getattr(sr, "method", "")), "fell_back": bool(getattr(sr, "fell_back", False)),
-                          "reason": str(getattr(sr, "reason", "") or ""),
-                          "blur_sigma": getattr(sr, "blur_sigma", None),
-                          "blur_source": getattr(sr, "blur_source", None),
-                          "superres": f"superres/{stamp}.png", "bicubic": f"bicubic/{stamp}.png",
-                          "shape": list(img.shape), "dtype": str(img.dtype)})
+            members.append(
+                {"stamp_ns": int(s.stamp_ns), "u_px": rounded(s.u), "v_px": rounded(s.v)}
+            )
+        self.sets.append(
+            {
+                "reference_stamp_ns": stamp,
+                "frames": 1 + len(members),
+                "members": members,
+                "method": str(getattr(sr, "method", "")),
+                "fell_back": bool(getattr(sr, "fell_back", False)),
+                "reason": str(getattr(sr, "reason", "") or ""),
+                "blur_sigma": getattr(sr, "blur_sigma", None),
+                "blur_source": getattr(sr, "blur_source", None),
+                "superres": f"superres/{stamp}.png",
+                "bicubic": f"bicubic/{stamp}.png",
+                "shape": list(img.shape),
+                "dtype": str(img.dtype),
+            }
+        )
         self.sr_images.append((stamp, img, ref))
 
     def on_warning(self, item: Any) -> None:
@@ -286,14 +350,18 @@ class _Timer:
         for name, v in self.ms.items():
             if v:
                 a = np.asarray(v)
-                out[name] = {"calls": int(a.size), "median_ms": float(np.median(a)),
-                             "p99_ms": float(np.percentile(a, 99)), "max_ms": float(a.max()),
-                             "total_s": float(a.sum() / 1000.0)}
+                out[name] = {
+                    "calls": int(a.size),
+                    "median_ms": float(np.median(a)),
+                    "p99_ms": float(np.percentile(a, 99)),
+                    "max_ms": float(a.max()),
+                    "total_s": float(a.sum() / 1000.0),
+                }
         return out
 
 
 def load_params(path: str | Path | None) -> dict[str, dict]:
-    """Stage parameters keyed by node name from a config/*.yaml (``node: ros__parameters: {...}``)."""
+    """Stage parameters by node name from a config/*.yaml (``node: ros__parameters: {...}``)."""
     if path is None:
         return {}
     import yaml
@@ -301,7 +369,9 @@ def load_params(path: str | Path | None) -> dict[str, dict]:
     try:
         data = yaml.safe_load(Path(path).read_text()) or {}
     except (OSError, yaml.YAMLError) as exc:
-        raise InputError(f"cannot read parameters {path}: {' '.join(str(exc).split())[:200]}") from None
+        raise InputError(
+            f"cannot read parameters {path}: {' '.join(str(exc).split())[:200]}"
+        ) from None
     if not isinstance(data, dict):
         raise InputError(f"parameters {path}: expected a mapping of node names")
     out: dict[str, dict] = {}
@@ -314,12 +384,12 @@ def load_params(path: str | Path | None) -> dict[str, dict]:
     return out
 
 
-# Parameters that only concern DDS transport (QoS, queues, publication rate): meaningless in-process.
+# Parameters of the DDS transport only (QoS, queues, publication rate): meaningless in-process.
 _TRANSPORT = {"camera_reliable", "queue_size", "publish_rate_hz", "jpeg_quality"}
 
 
 def pipeline_params(params: dict[str, dict]) -> dict[str, dict]:
-    """The parameters the stage pipeline takes: the four processing nodes, transport-only keys left out."""
+    """The stage pipeline's parameters: the four processing nodes, transport keys left out."""
     keep = ("registration_node", "shift_node", "reconstruction_node", "mosaic_node")
     return {n: {k: v for k, v in params.get(n, {}).items() if k not in _TRANSPORT} for n in keep}
 
@@ -336,9 +406,16 @@ def check_params(params: dict[str, dict]) -> None:
         raise InputError(f"bad parameter: {exc}") from None
 
 
-def process_bag(bag: str | Path, out_root: str | Path, params: dict[str, dict] | None = None, *,
-                camera_topic: str | None = None, telemetry: str | None = None, force: bool = False,
-                progress: Callable[[int, int], None] | None = None) -> BagResult:
+def process_bag(
+    bag: str | Path,
+    out_root: str | Path,
+    params: dict[str, dict] | None = None,
+    *,
+    camera_topic: str | None = None,
+    telemetry: str | None = None,
+    force: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> BagResult:
     """Process one flight bag into ``out_root/<bag name>/``; never raises for bad input.
 
     Parameters
@@ -369,8 +446,13 @@ def process_bag(bag: str | Path, out_root: str | Path, params: dict[str, dict] |
     out_root = Path(out_root)
     final = out_root / name
     if is_complete(final) and not force:
-        return BagResult(str(bag), name, "skipped", f"{name}: skipped, complete products in {final} (--force redoes)",
-                         str(final))
+        return BagResult(
+            str(bag),
+            name,
+            "skipped",
+            f"{name}: skipped, complete products in {final} (--force redoes)",
+            str(final),
+        )
     params = params or {}
     try:
         flight = open_flight(bag, camera_topic, telemetry)
@@ -383,9 +465,14 @@ def process_bag(bag: str | Path, out_root: str | Path, params: dict[str, dict] |
         writer.close_bag()  # every queued write done
         res.wall_s = time.monotonic() - t_wall
         timing = res.__dict__.pop("_timing")
-        timing.update(wall_s=res.wall_s, cpu_s=time.process_time() - cpu0,
-                      realtime_factor=(res.flight_s / res.wall_s) if res.wall_s > 0 and res.flight_s > 0 else None,
-                      peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+        timing.update(
+            wall_s=res.wall_s,
+            cpu_s=time.process_time() - cpu0,
+            realtime_factor=(
+                (res.flight_s / res.wall_s) if res.wall_s > 0 and res.flight_s > 0 else None
+            ),
+            peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        )
         writer.json("timing.json", _clean(timing))
         try:
             from subpix_ros.process.report import write_report
@@ -412,14 +499,18 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
     if flight.camera_note:
         problems.append(flight.camera_note)
     if flight.camera_topic is None:
-        problems.append(f"no images: the bag has no sensor_msgs/Image or CompressedImage topic "
-                        f"(topics: {', '.join(sorted(flight.topics)) or 'none'})")
+        problems.append(
+            f"no images: the bag has no sensor_msgs/Image or CompressedImage topic "
+            f"(topics: {', '.join(sorted(flight.topics)) or 'none'})"
+        )
     elif flight.frames_total == 0:
         problems.append(f"no images: camera topic {flight.camera_topic} has no messages")
     if not flight.has_telemetry:
-        problems.append("no telemetry (no /telemetry/* topics, no .tlog beside the bag"
-                        + (f": {flight.telemetry_note}" if flight.telemetry_note else "")
-                        + "): every frame kept, no expected shift, no GPS track")
+        problems.append(
+            "no telemetry (no /telemetry/* topics, no .tlog beside the bag"
+            + (f": {flight.telemetry_note}" if flight.telemetry_note else "")
+            + "): every frame kept, no expected shift, no GPS track"
+        )
     elif flight.telemetry_note:
         problems.append(f"telemetry: {flight.telemetry_note}")
 
@@ -429,9 +520,15 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
     mosaic = MosaicStage.from_params(pparams["mosaic_node"])
     reg_params = {k: pipe.registration.p(k) for k in EXPECTED_SHIFT_PARAMS}
     col = _Collector(w, reg_params, pipe.registration.stats)
-    for kind, cb in (("reference", col.on_reference), ("aligned", col.on_aligned), ("skipped", col.on_skipped),
-                     ("shift", col.on_shift), ("super_resolved", col.on_super_resolved), ("error", col.on_error),
-                     ("warning", col.on_warning)):
+    for kind, cb in (
+        ("reference", col.on_reference),
+        ("aligned", col.on_aligned),
+        ("skipped", col.on_skipped),
+        ("shift", col.on_shift),
+        ("super_resolved", col.on_super_resolved),
+        ("error", col.on_error),
+        ("warning", col.on_warning),
+    ):
         pipe.on(kind, cb)
     # The mosaic runs on its own thread (it needs nothing from the other stages), frames in order;
     # its problems are warnings: a frame missing from the preview loses no product.
@@ -449,8 +546,12 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
         mosaic_jobs.clear()
 
     timer = _Timer()
-    stages = {"registration": pipe.registration, "shift": pipe.shift, "reconstruction": pipe.reconstruction,
-              "mosaic": mosaic}
+    stages = {
+        "registration": pipe.registration,
+        "shift": pipe.shift,
+        "reconstruction": pipe.reconstruction,
+        "mosaic": mosaic,
+    }
     for sname, obj in stages.items():
         timer.wrap(sname, obj)
 
@@ -491,8 +592,10 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                     col.shape = frame.image.shape[:2]
                 if shape != size:
                     rec.status = "dropped"
-                    rec.reason = (f"frame size {_shape_text(shape)} differs from the flight's "
-                                  f"{_shape_text(size)}")
+                    rec.reason = (
+                        f"frame size {_shape_text(shape)} differs from the flight's "
+                        f"{_shape_text(size)}"
+                    )
                     dropped[reason_key(rec.reason)] += 1
                     examples.setdefault(reason_key(rec.reason), rec.reason)
                 else:
@@ -503,7 +606,9 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                     mosaic_jobs.append((rec, mosaic_pool.submit(mosaic.add, _preview(frame))))
                     try:
                         pipe.add(frame)
-                    except Exception as exc:  # noqa: BLE001 - a stage failure drops the frame, not the flight
+                    except (
+                        Exception
+                    ) as exc:  # noqa: BLE001 - a stage failure drops the frame, not the flight
                         col.on_error(f"{type(exc).__name__}: {exc}")
                     add_ms.append(1000.0 * (time.perf_counter() - t0))
                     if rec.status == "in":
@@ -532,8 +637,9 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
         problems.append(f"{len(col.errors)} stage error(s), last: {col.errors[-1]}")
 
     # ---- per-frame products
-    buf = TelemetryBuffer(max_age_s=1e9, stale_after_s=float(reg_params["telemetry_timeout_s"]),
-                          max_samples=10**8)
+    buf = TelemetryBuffer(
+        max_age_s=1e9, stale_after_s=float(reg_params["telemetry_timeout_s"]), max_samples=10**8
+    )
     for s in samples:
         buf.add(s)
     rows = _shift_rows(col, buf, reg_params)
@@ -554,25 +660,46 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
     truth = _load_truth(flight.path)
     if truth is not None:
         _score_sets(col, truth)
-    st = {k: _clean({kk: vv for kk, vv in _stats_dict(v).items() if not _TIME_KEY.search(kk)})
-          for k, v in all_stats().items()}
+    st = {
+        k: _clean({kk: vv for kk, vv in _stats_dict(v).items() if not _TIME_KEY.search(kk)})
+        for k, v in all_stats().items()
+    }
     statuses = Counter(r.status for r in col.frames)
     skipped = Counter(reason_key(r.reason) for r in col.frames if r.status == "skipped")
     summary = {
-        "bag": flight.name, "bag_path": str(flight.path), "status": status,
+        "bag": flight.name,
+        "bag_path": str(flight.path),
+        "status": status,
         "problems": problems,
-        "camera": {"topic": flight.camera_topic, "type": flight.camera_type,
-                   "size": _shape_text(size) if size else None, "dtype": col.dtype},
-        "telemetry": {"source": flight.telemetry_source, "samples": len(samples), "note": flight.telemetry_note},
-        "flight": {"first_stamp_ns": first_ns, "last_stamp_ns": last_ns,
-                   "duration_s": (last_ns - first_ns) * 1e-9 if first_ns is not None else 0.0},
-        "frames": {"in": done, "total_in_bag": total,
-                   "kept": statuses["aligned"] + statuses["reference"] + statuses["kept"],
-                   "references": statuses["reference"], "aligned": statuses["aligned"],
-                   "skipped": statuses["skipped"], "skipped_by_reason": dict(sorted(skipped.items())),
-                   "dropped": statuses["dropped"], "dropped_by_reason": dict(sorted(dropped.items())),
-                   "shifts": sum(1 for r in rows if r.get("converged")),
-                   "shifts_not_converged": sum(1 for r in rows if not r.get("converged"))},
+        "camera": {
+            "topic": flight.camera_topic,
+            "type": flight.camera_type,
+            "size": _shape_text(size) if size else None,
+            "dtype": col.dtype,
+        },
+        "telemetry": {
+            "source": flight.telemetry_source,
+            "samples": len(samples),
+            "note": flight.telemetry_note,
+        },
+        "flight": {
+            "first_stamp_ns": first_ns,
+            "last_stamp_ns": last_ns,
+            "duration_s": (last_ns - first_ns) * 1e-9 if first_ns is not None else 0.0,
+        },
+        "frames": {
+            "in": done,
+            "total_in_bag": total,
+            "kept": statuses["aligned"] + statuses["reference"] + statuses["kept"],
+            "references": statuses["reference"],
+            "aligned": statuses["aligned"],
+            "skipped": statuses["skipped"],
+            "skipped_by_reason": dict(sorted(skipped.items())),
+            "dropped": statuses["dropped"],
+            "dropped_by_reason": dict(sorted(dropped.items())),
+            "shifts": sum(1 for r in rows if r.get("converged")),
+            "shifts_not_converged": sum(1 for r in rows if not r.get("converged")),
+        },
         "references": col.references,
         "sets": col.sets,
         "mosaic": mosaic_info,
@@ -588,21 +715,35 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
     summary["status"] = status
     w.json("summary.json", _clean(summary))
     flight_s = summary["flight"]["duration_s"]
-    line = (f"{flight.name}: {status}: {done} frames in, {summary['frames']['kept']} kept, "
-            f"{summary['frames']['skipped']} skipped, {summary['frames']['dropped']} dropped, "
-            f"{summary['frames']['shifts']} shifts, {len(col.sets)} super-resolved")
+    line = (
+        f"{flight.name}: {status}: {done} frames in, {summary['frames']['kept']} kept, "
+        f"{summary['frames']['skipped']} skipped, {summary['frames']['dropped']} dropped, "
+        f"{summary['frames']['shifts']} shifts, {len(col.sets)} super-resolved"
+    )
     if problems:
         line += f"; {problems[0]}" + (f" (+{len(problems) - 1} more)" if len(problems) > 1 else "")
-    res = BagResult(str(flight.path), flight.name, status, line, frames_in=done, flight_s=flight_s,
-                    problems=problems)
+    res = BagResult(
+        str(flight.path),
+        flight.name,
+        status,
+        line,
+        frames_in=done,
+        flight_s=flight_s,
+        problems=problems,
+    )
     a = np.asarray(add_ms) if add_ms else np.zeros(0)
     res.__dict__["_timing"] = {
-        "frames": int(a.size), "frame_ms": {"median": float(np.median(a)) if a.size else None,
-                                           "p99": float(np.percentile(a, 99)) if a.size else None,
-                                           "max": float(a.max()) if a.size else None},
+        "frames": int(a.size),
+        "frame_ms": {
+            "median": float(np.median(a)) if a.size else None,
+            "p99": float(np.percentile(a, 99)) if a.size else None,
+            "max": float(a.max()) if a.size else None,
+        },
         "stages": timer.summary(),
-        "stage_stats_ms": {k: {kk: vv for kk, vv in _stats_dict(v).items() if _TIME_KEY.search(kk)}
-                           for k, v in all_stats().items()},
+        "stage_stats_ms": {
+            k: {kk: vv for kk, vv in _stats_dict(v).items() if _TIME_KEY.search(kk)}
+            for k, v in all_stats().items()
+        },
         "flight_s": flight_s,
     }
     return res
@@ -642,10 +783,19 @@ def _image_rate(buf: TelemetryBuffer, t: float, rp: dict) -> tuple[float, float]
     s, _ = buf.at(t + float(rp["telemetry_time_offset_s"]))
     if s is None or s.ground_speed_mps < float(rp["min_speed_mps"]) or s.height_agl_m <= 0:
         return None
-    heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(float(rp["camera_yaw_offset_deg"]))
+    heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(
+        float(rp["camera_yaw_offset_deg"])
+    )
     try:
-        return expected_shift_px(s.ground_speed_mps, s.course_rad, s.height_agl_m, float(rp["focal_length_mm"]) * 1e-3,
-                                 float(rp["pixel_pitch_um"]) * 1e-6, 1.0, heading)
+        return expected_shift_px(
+            s.ground_speed_mps,
+            s.course_rad,
+            s.height_agl_m,
+            float(rp["focal_length_mm"]) * 1e-3,
+            float(rp["pixel_pitch_um"]) * 1e-6,
+            1.0,
+            heading,
+        )
     except ValueError:
         return None
 
@@ -654,8 +804,13 @@ def _interval_at(buf: TelemetryBuffer, t: float, rp: dict) -> float | None:
     s, _ = buf.at(t + float(rp["telemetry_time_offset_s"]))
     if s is None:
         return None
-    iv = frame_interval(float(rp["pixel_pitch_um"]) * 1e-6, s.height_agl_m, float(rp["focal_length_mm"]) * 1e-3,
-                        s.ground_speed_mps, float(rp["p"]))
+    iv = frame_interval(
+        float(rp["pixel_pitch_um"]) * 1e-6,
+        s.height_agl_m,
+        float(rp["focal_length_mm"]) * 1e-3,
+        s.ground_speed_mps,
+        float(rp["p"]),
+    )
     return iv.interval_s if iv.ok else None
 
 
@@ -673,7 +828,9 @@ def _shift_rows(col: _Collector, buf: TelemetryBuffer, rp: dict) -> list[dict]:
         if ref is not None and len(buf):
             t_ref, t = ref * 1e-9, stamp * 1e-9
             r0, r1 = _image_rate(buf, t_ref, rp), _image_rate(buf, t, rp)
-            if r0 is not None and r1 is not None:  # mean image velocity over the interval (trapezoid)
+            if (
+                r0 is not None and r1 is not None
+            ):  # mean image velocity over the interval (trapezoid)
                 dt = t - t_ref
                 row["u_expected_px"] = rounded(0.5 * (r0[0] + r1[0]) * dt)
                 row["v_expected_px"] = rounded(0.5 * (r0[1] + r1[1]) * dt)
@@ -706,10 +863,16 @@ def _total_shift(h: np.ndarray, prior, u: float, v: float, shape) -> tuple[float
 
 
 def _telemetry_row(s: TelemetrySample) -> dict:
-    return {"t_s": f"{s.t:.3f}", "lat_deg": f"{s.lat_deg:.7f}", "lon_deg": f"{s.lon_deg:.7f}",
-            "alt_msl_m": s.alt_msl_m, "height_agl_m": s.height_agl_m, "ground_speed_mps": s.ground_speed_mps,
-            "course_deg": math.degrees(s.course_rad),
-            "heading_deg": None if s.yaw_rad is None else math.degrees(s.yaw_rad) % 360.0}
+    return {
+        "t_s": f"{s.t:.3f}",
+        "lat_deg": f"{s.lat_deg:.7f}",
+        "lon_deg": f"{s.lon_deg:.7f}",
+        "alt_msl_m": s.alt_msl_m,
+        "height_agl_m": s.height_agl_m,
+        "ground_speed_mps": s.ground_speed_mps,
+        "course_deg": math.degrees(s.course_rad),
+        "heading_deg": None if s.yaw_rad is None else math.degrees(s.yaw_rad) % 360.0,
+    }
 
 
 def _preview(frame: Any) -> Any:
@@ -731,7 +894,11 @@ def _mosaic(stage: Any, w: ProductWriter, last_ns: int | None) -> dict:
     w.png("mosaic.png", canvas)
     if last_ns is not None:
         w.image("/mosaic", canvas, last_ns, "mosaic")
-    info: dict = {"written": True, "size": [int(canvas.shape[1]), int(canvas.shape[0])], "footprints": []}
+    info: dict = {
+        "written": True,
+        "size": [int(canvas.shape[1]), int(canvas.shape[0])],
+        "footprints": [],
+    }
     core = getattr(stage, "mosaic", None)
     geos = getattr(core, "geometries", None)
     if core is not None and geos is not None:

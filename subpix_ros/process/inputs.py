@@ -18,6 +18,7 @@ the latest ``telemetry/height`` (Float64, m above ground), the heading of the
 latest ``telemetry/imu`` orientation and the latest ``telemetry/fix``
 position (for the GPS track of the report).
 """
+
 from __future__ import annotations
 
 import math
@@ -65,7 +66,7 @@ def find_tlog(path: str | Path) -> Path | None:
 
 
 def read_tlog(path: str | Path) -> tuple[list[TelemetrySample], str]:
-    """Every accepted sample of a ``.tlog`` (as fast as it reads) and a note on what was rejected."""
+    """Every accepted sample of a ``.tlog`` (read at full speed) and a note on the rejected."""
     from subpix_ros.io.mavlink import MavlinkReader
 
     samples: list[TelemetrySample] = []
@@ -126,7 +127,10 @@ class Flight:
                 try:
                     frame = decode(m.raw, received=0.0)
                 except Exception as exc:  # noqa: BLE001 - a bad frame is counted, not fatal
-                    yield "bad_frame", (m.timestamp_ns, f"undecodable image: {' '.join(str(exc).split())[:160]}")
+                    yield "bad_frame", (
+                        m.timestamp_ns,
+                        f"undecodable image: {' '.join(str(exc).split())[:160]}",
+                    )
                     continue
                 while i < len(pending) and pending[i].t <= frame.stamp_s:
                     yield "telemetry", pending[i]
@@ -163,7 +167,7 @@ class Flight:
 
 
 class _TopicTelemetry:
-    """Rebuilds TelemetrySamples from the telemetry node's topics (as the registration node does)."""
+    """TelemetrySamples from the telemetry node's topics (as the registration node builds them)."""
 
     def __init__(self) -> None:
         self.height: float | None = None
@@ -185,12 +189,21 @@ class _TopicTelemetry:
             msg = cdr.deserialize(raw, TELEMETRY_TOPICS[topic])
             v = msg.twist.linear
             lat, lon, alt = self.fix
-            return sample_from_enu(cdr.header_to_ns(msg.header) * 1e-9, (v.x, v.y, v.z), self.height,
-                                   lat_deg=lat, lon_deg=lon, alt_msl_m=alt, heading_rad=self.heading)
+            return sample_from_enu(
+                cdr.header_to_ns(msg.header) * 1e-9,
+                (v.x, v.y, v.z),
+                self.height,
+                lat_deg=lat,
+                lon_deg=lon,
+                alt_msl_m=alt,
+                heading_rad=self.heading,
+            )
         return None
 
 
-def open_flight(path: str | Path, camera_topic: str | None = None, telemetry: str | None = None) -> Flight:
+def open_flight(
+    path: str | Path, camera_topic: str | None = None, telemetry: str | None = None
+) -> Flight:
     """Inspect bag ``path``: camera topic, frame count and telemetry source.
 
     ``camera_topic`` None picks the bag's image topic (``/camera/image_raw``
@@ -211,8 +224,10 @@ def open_flight(path: str | Path, camera_topic: str | None = None, telemetry: st
     note = ""
     if camera_topic:
         if camera_topic not in topics:
-            raise InputError(f"camera topic {camera_topic} not in bag {p} (image topics: "
-                             f"{', '.join(sorted(images)) or 'none'})")
+            raise InputError(
+                f"camera topic {camera_topic} not in bag {p} (image topics: "
+                f"{', '.join(sorted(images)) or 'none'})"
+            )
         if topics[camera_topic][0] not in (IMAGE, COMPRESSED):
             raise InputError(f"topic {camera_topic} is {topics[camera_topic][0]}, not an image")
         cam = camera_topic
@@ -221,11 +236,22 @@ def open_flight(path: str | Path, camera_topic: str | None = None, telemetry: st
     elif images:
         cam = sorted(images, key=lambda n: (-images[n][1], n))[0]
         if len(images) > 1:
-            note = f"camera topic {cam} chosen of {', '.join(sorted(images))} (--camera-topic to choose)"
+            note = (
+                f"camera topic {cam} chosen of {', '.join(sorted(images))} "
+                "(--camera-topic to choose)"
+            )
     else:
         cam = None
-    flight = Flight(p, bag_name(p), cam, topics[cam][0] if cam else None, topics[cam][1] if cam else 0,
-                    topics, "none", camera_note=note)
+    flight = Flight(
+        p,
+        bag_name(p),
+        cam,
+        topics[cam][0] if cam else None,
+        topics[cam][1] if cam else 0,
+        topics,
+        "none",
+        camera_note=note,
+    )
     has_topics = "/telemetry/velocity" in topics and "/telemetry/height" in topics
     if telemetry == "topics" or (telemetry is None and has_topics):
         if not has_topics:
@@ -235,14 +261,17 @@ def open_flight(path: str | Path, camera_topic: str | None = None, telemetry: st
         tlog = find_tlog(p)
         if tlog is None:
             if telemetry == "tlog":
-                raise InputError(f"no .tlog beside bag {p} (looked for {p.parent / (bag_name(p) + '.tlog')})")
+                raise InputError(
+                    f"no .tlog beside bag {p} (looked for {p.parent / (bag_name(p) + '.tlog')})"
+                )
         else:
             flight.tlog_samples, flight.telemetry_note = read_tlog(tlog)
             flight.telemetry_source = f"tlog {tlog.name}"
             if not flight.tlog_samples:
                 flight.telemetry_source = "none"
                 flight.telemetry_note = f"{tlog.name} has no usable telemetry sample" + (
-                    f" ({flight.telemetry_note})" if flight.telemetry_note else "")
+                    f" ({flight.telemetry_note})" if flight.telemetry_note else ""
+                )
     else:
         raise InputError(f"unknown telemetry source {telemetry!r} (tlog or topics)")
     return flight

@@ -21,6 +21,7 @@ Products (byte-identical for the same bag and parameters):
 ``timing.json`` (processing time, stage times, memory) and ``report.html``
 (which shows them) are the only files that change between runs.
 """
+
 from __future__ import annotations
 
 import csv
@@ -38,8 +39,17 @@ import numpy as np
 from subpix_ros.io import cdr
 from subpix_ros.io.bags import BagWriter
 
-DETERMINISTIC = ("results.mcap", "superres", "bicubic", "mosaic.png", "shifts.csv", "frames.csv",
-                 "telemetry.csv", "summary.json", "mosaic.json")
+DETERMINISTIC = (
+    "results.mcap",
+    "superres",
+    "bicubic",
+    "mosaic.png",
+    "shifts.csv",
+    "frames.csv",
+    "telemetry.csv",
+    "summary.json",
+    "mosaic.json",
+)
 TIMING_FILES = ("timing.json", "report.html")
 
 _T = cdr.TYPESTORE.types
@@ -61,7 +71,7 @@ def rounded(x: float) -> float:
 
 
 def is_complete(folder: Path) -> bool:
-    """A product folder is complete if it exists with a readable summary.json (it was renamed into place)."""
+    """A product folder is complete if it has a readable summary.json (renamed into place)."""
     try:
         json.loads((folder / "summary.json").read_text())
         return True
@@ -94,7 +104,7 @@ def read_csv(path: Path) -> list[dict[str, str]]:
 
 
 class ProductWriter:
-    """Writes one flight's products into a temporary folder; :meth:`commit` renames it into place."""
+    """Writes one flight's products into a temporary folder; :meth:`commit` moves it in place."""
 
     def __init__(self, out_root: Path, name: str) -> None:
         self.final = Path(out_root) / name
@@ -145,12 +155,24 @@ class ProductWriter:
         self._later(self.bag.write, "/homography", cdr.FLOAT64_MULTI_ARRAY, stamp_ns, raw)
 
     def reference_link(self, stamp_ns: int, reference_ns: int, frame_id: str = "") -> None:
-        raw = cdr.time_reference_to_cdr(stamp_ns, reference_ns, frame_id, "subpix_ros reference frame")
-        self._later(self.bag.write, "/aligned/reference_stamp", "sensor_msgs/msg/TimeReference", stamp_ns, raw)
+        raw = cdr.time_reference_to_cdr(
+            stamp_ns, reference_ns, frame_id, "subpix_ros reference frame"
+        )
+        self._later(
+            self.bag.write,
+            "/aligned/reference_stamp",
+            "sensor_msgs/msg/TimeReference",
+            stamp_ns,
+            raw,
+        )
 
     def image(self, topic: str, image: np.ndarray, stamp_ns: int, frame_id: str = "") -> None:
-        enc = {(np.dtype(np.uint8), 2): "mono8", (np.dtype(np.uint8), 3): "bgr8",
-               (np.dtype(np.uint16), 2): "mono16", (np.dtype(np.uint16), 3): "bgr16"}[(image.dtype, image.ndim)]
+        enc = {
+            (np.dtype(np.uint8), 2): "mono8",
+            (np.dtype(np.uint8), 3): "bgr8",
+            (np.dtype(np.uint16), 2): "mono16",
+            (np.dtype(np.uint16), 3): "bgr16",
+        }[(image.dtype, image.ndim)]
 
         def write() -> None:
             raw = cdr.image_to_cdr(np.ascontiguousarray(image), enc, stamp_ns, frame_id)
@@ -162,14 +184,25 @@ class ProductWriter:
         raw = cdr.serialize(_T[_FLOAT64](data=rounded(interval_s)), _FLOAT64)
         self._later(self.bag.write, "/telemetry/frame_interval", _FLOAT64, stamp_ns, raw)
 
-    def diagnostics(self, stamp_ns: int, statuses: dict[str, tuple[int, str, dict[str, Any]]]) -> None:
+    def diagnostics(
+        self, stamp_ns: int, statuses: dict[str, tuple[int, str, dict[str, Any]]]
+    ) -> None:
         """``statuses``: name -> (level 0 OK / 1 WARN / 2 ERROR, message, key values)."""
         KV, Status = _T["diagnostic_msgs/msg/KeyValue"], _T["diagnostic_msgs/msg/DiagnosticStatus"]
-        status = [Status(level=int(lvl), name=name, message=str(msg)[:300], hardware_id="subpix process",
-                         values=[KV(key=str(k), value=_fmt(v)) for k, v in sorted(vals.items())])
-                  for name, (lvl, msg, vals) in sorted(statuses.items())]
+        status = [
+            Status(
+                level=int(lvl),
+                name=name,
+                message=str(msg)[:300],
+                hardware_id="subpix process",
+                values=[KV(key=str(k), value=_fmt(v)) for k, v in sorted(vals.items())],
+            )
+            for name, (lvl, msg, vals) in sorted(statuses.items())
+        ]
         msg = _T[_DIAG_ARRAY](header=cdr.make_header(stamp_ns, ""), status=status)
-        self._later(self.bag.write, "/diagnostics", _DIAG_ARRAY, stamp_ns, cdr.serialize(msg, _DIAG_ARRAY))
+        self._later(
+            self.bag.write, "/diagnostics", _DIAG_ARRAY, stamp_ns, cdr.serialize(msg, _DIAG_ARRAY)
+        )
 
     # ---------------------------------------------------------------- files
     def png(self, rel: str, image: np.ndarray) -> None:
@@ -188,7 +221,9 @@ class ProductWriter:
         write_csv(self.tmp / rel, columns, rows)
 
     def json(self, rel: str, data: Any) -> None:
-        (self.tmp / rel).write_text(json.dumps(data, indent=1, sort_keys=True, default=_json_default) + "\n")
+        (self.tmp / rel).write_text(
+            json.dumps(data, indent=1, sort_keys=True, default=_json_default) + "\n"
+        )
 
     def close_bag(self) -> None:
         if not self._closed:

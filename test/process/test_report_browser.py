@@ -8,6 +8,7 @@ appear on Chromium's stderr as `:CONSOLE` log lines with `--enable-logging=stder
 report has no script, so any console line is a failure. The screenshot is kept in
 out/test-artefacts/.
 """
+
 import shutil
 import subprocess
 from pathlib import Path
@@ -18,8 +19,15 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 ARTEFACTS = ROOT / "out" / "test-artefacts"
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-         "--disable-component-update", "--disable-sync", "--no-first-run"]
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
 PROBE = """<script>
 window.addEventListener('load', function () {
   var imgs = Array.prototype.slice.call(document.images);
@@ -35,13 +43,19 @@ window.addEventListener('load', function () {
 @pytest.fixture(scope="module")
 def chromium():
     exe = shutil.which("chromium") or shutil.which("chromium-browser")
-    assert exe, "chromium not found: `make test` installs Debian's chromium package (Makefile target `browser`)"
+    assert (
+        exe
+    ), "chromium not found: `make test` installs Debian's chromium (Makefile target `browser`)"
     return exe
 
 
 def _browse(exe, url, profile, *extra, timeout=120):
-    return subprocess.run([exe, *FLAGS, f"--user-data-dir={profile}", *extra, url], capture_output=True,
-                          text=True, timeout=timeout)
+    return subprocess.run(
+        [exe, *FLAGS, f"--user-data-dir={profile}", *extra, url],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def test_sample_flight_report_renders_in_chromium(processed, chromium, tmp_path):
@@ -51,8 +65,15 @@ def test_sample_flight_report_renders_in_chromium(processed, chromium, tmp_path)
     assert n_img >= 6 and "<script" not in text
     probed = tmp_path / "report_probe.html"
     probed.write_text(text.replace("</body>", PROBE + "</body>"))
-    r = _browse(chromium, probed.as_uri(), tmp_path / "profile", "--enable-logging=stderr", "--v=0",
-                "--virtual-time-budget=10000", "--dump-dom")
+    r = _browse(
+        chromium,
+        probed.as_uri(),
+        tmp_path / "profile",
+        "--enable-logging=stderr",
+        "--v=0",
+        "--virtual-time-budget=10000",
+        "--dump-dom",
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     assert f"IMAGES {n_img} BROKEN 0" in r.stdout, r.stdout[-500:]
     console = [ln for ln in r.stderr.splitlines() if ":CONSOLE" in ln]
@@ -61,8 +82,15 @@ def test_sample_flight_report_renders_in_chromium(processed, chromium, tmp_path)
     ARTEFACTS.mkdir(parents=True, exist_ok=True)
     shot = ARTEFACTS / "report_subpixel.png"
     shot.unlink(missing_ok=True)
-    r = _browse(chromium, report.as_uri(), tmp_path / "profile2", "--hide-scrollbars", "--window-size=1200,5200",
-                "--virtual-time-budget=10000", f"--screenshot={shot}")
+    r = _browse(
+        chromium,
+        report.as_uri(),
+        tmp_path / "profile2",
+        "--hide-scrollbars",
+        "--window-size=1200,5200",
+        "--virtual-time-budget=10000",
+        f"--screenshot={shot}",
+    )
     assert r.returncode == 0 and shot.is_file(), r.stderr[-2000:]
     img = cv2.imread(str(shot))
     assert img is not None and img.shape[:2] == (5200, 1200)
@@ -72,9 +100,19 @@ def test_sample_flight_report_renders_in_chromium(processed, chromium, tmp_path)
 def test_probe_detects_a_broken_image_and_a_console_error(chromium, tmp_path):
     """The check above can fail: a page with an undecodable image and a script error is caught."""
     page = tmp_path / "bad.html"
-    page.write_text("<html><body><img src='data:image/png;base64,AAAA'><script>nothere();</script>"
-                    + PROBE + "</body></html>")
-    r = _browse(chromium, page.as_uri(), tmp_path / "profile", "--enable-logging=stderr", "--v=0",
-                "--virtual-time-budget=5000", "--dump-dom")
+    page.write_text(
+        "<html><body><img src='data:image/png;base64,AAAA'><script>nothere();</script>"
+        + PROBE
+        + "</body></html>"
+    )
+    r = _browse(
+        chromium,
+        page.as_uri(),
+        tmp_path / "profile",
+        "--enable-logging=stderr",
+        "--v=0",
+        "--virtual-time-budget=5000",
+        "--dump-dom",
+    )
     assert "IMAGES 1 BROKEN 1" in r.stdout
     assert any(":CONSOLE" in ln and "nothere" in ln for ln in r.stderr.splitlines())

@@ -48,7 +48,8 @@ def sample_bags(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def flight(sample_bags):
-    """The 24 frames of the rendered subpixel flight as stage Frames, and its truth (stamp -> (u, v))."""
+    """The 24 frames of the rendered subpixel flight as stage Frames, and its truth
+    (stamp -> (u, v))."""
     import json
 
     from subpix_ros.io import cdr
@@ -61,6 +62,35 @@ def flight(sample_bags):
         frames.append(Frame(cdr.header_to_ns(header), img, header.frame_id))
     truth = json.loads((sample_bags / "subpixel" / "truth.json").read_text())
     return frames, {f["stamp_ns"]: (f["u"], f["v"]) for f in truth["frames"]}
+
+
+# eight sub-pixel shifts (rows, cols; LR px) that sample a factor-2 grid well: a set of eight frames
+SET_SHIFTS = [(0.0, 0.0), (0.5, 0.0), (0.0, 0.5), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25),
+              (0.3, 0.6), (0.6, 0.3)]
+
+
+def rendered_set(crop, seed=5):
+    """Eight frames of a real crop (its top-left 256 x 256) rendered at :data:`SET_SHIFTS`
+    (factor 2, blur 0.4 LR px, 40 dB)."""
+    from subpix_ros.core.render import render_sequence
+
+    return render_sequence(crop[:256, :256], 2, SET_SHIFTS, 0.4, snr_db=40, seed=seed)
+
+
+def scene_frames(offsets, w=960, h=720):
+    """Frames of a real Seneca scene whose content moves by ``offsets[k]`` = (rows, cols) px
+    relative to frame 0 (BGR, ``w`` x ``h``)."""
+    import cv2
+    import numpy as np
+
+    from subpix_ros.data import seneca_frame_paths
+
+    scene = cv2.imread(str(seneca_frame_paths()[4]), cv2.IMREAD_COLOR)
+    out = []
+    for u, v in offsets:
+        m = np.float32([[1, 0, -200 + v], [0, 1, -200 + u]])
+        out.append(cv2.warpAffine(scene, m, (w, h), flags=cv2.INTER_LINEAR))
+    return out
 
 
 @pytest.fixture

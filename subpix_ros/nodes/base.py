@@ -97,6 +97,15 @@ class StageNode(Node):
         if self.worker is not None:
             self.worker.clear()
 
+    def output(self, kind: str, payload: Any, received: float, time_key: str, **values: Any) -> None:
+        """After publishing: in-process listeners of ``kind``, output rate, latency since
+        ``received``, the stage's last time as ``time_key`` and ``values`` on /diagnostics."""
+        self.emit(kind, payload)
+        self.diag.rate("output").tick()
+        self.latency_since(received)
+        self.diag.stage_time(time_key, self.stage.stats.times.last)
+        self.diag.set(**values)
+
     def latency_since(self, received: float) -> None:
         self.diag.latency(time.monotonic() - received)
 

@@ -33,6 +33,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from ..runtime import keep_freed_memory
+from ..stages.params import Spec
 
 __all__ = [
     "Param",
@@ -52,16 +53,12 @@ __all__ = [
 
 # --------------------------------------------------------------------------- parameters
 @dataclass
-class Param:
-    """One declared parameter: default, description and (for numbers) a range."""
+class Param(Spec):
+    """One declared parameter: default, description and (for numbers) a range.
 
-    name: str
-    default: Any
-    description: str
-    min: float | int | None = None
-    max: float | int | None = None
-    choices: Sequence[str] | None = None
-    read_only: bool = False
+    The fields and :meth:`check` are :class:`subpix_ros.stages.params.Spec`'s (a stage's
+    parameters are Specs; the node declares them as Params); this adds the ROS descriptor.
+    """
 
     def descriptor(self) -> ParameterDescriptor:
         d = ParameterDescriptor(name=self.name, description=self.description, read_only=self.read_only)
@@ -75,20 +72,6 @@ class Param:
         if self.choices:
             d.additional_constraints = "one of: " + ", ".join(self.choices)
         return d
-
-    def check(self, value: Any) -> str | None:
-        """Return why ``value`` is not acceptable, or None."""
-        if type(value) is not type(self.default) and not (
-            isinstance(self.default, float) and isinstance(value, int) and not isinstance(value, bool)
-        ):
-            return f"{self.name}: expected {type(self.default).__name__}, got {type(value).__name__} {value!r}"
-        if self.min is not None and value < self.min:
-            return f"{self.name}: {value!r} is below the minimum {self.min}"
-        if self.max is not None and value > self.max:
-            return f"{self.name}: {value!r} is above the maximum {self.max}"
-        if self.choices and value not in self.choices:
-            return f"{self.name}: {value!r} is not one of {', '.join(self.choices)}"
-        return None
 
 
 def declare_params(node: Node, params: Iterable[Param], on_change: Callable[[str, Any], None] | None = None) -> dict[str, Param]:

@@ -110,16 +110,14 @@ class ReconstructionNode(StageNode):
         sr = self.stage.reconstruct(fs)
         if sr is None:
             return
-        ref = (
-            sr.reference
-        )  # the image is on the reference frame's grid: it carries the reference's stamp
+        ref = sr.reference  # the image is on the reference's grid: it carries the reference's stamp
         self.pub.publish(pl.image_cdr(sr.image, ref.stamp_ns, ref.frame_id))
-        self.emit("super_resolved", sr)
-        self.diag.rate("output").tick()
-        self.latency_since(ref.received)
         st = self.stage.stats
-        self.diag.stage_time("reconstruction_ms", st.times.last)
-        self.diag.set(
+        self.output(
+            "super_resolved",
+            sr,
+            ref.received,
+            "reconstruction_ms",
             method=sr.method,
             fell_back=sr.fell_back,
             fallback_reason=sr.reason,

@@ -191,12 +191,12 @@ class RegistrationNode(StageNode):
             self.pub_mask, lambda: pl.mask_cdr(out.mask, out.stamp_ns, out.frame_id)
         )
         self.pub_h.publish(pl.homography_cdr(out.homography))
-        self.emit("aligned", out)
-        self.diag.rate("output").tick()
-        self.latency_since(out.received)
         st = self.stage.stats
-        self.diag.stage_time("registration_ms", st.times.last)
-        self.diag.set(
+        self.output(
+            "aligned",
+            out,
+            out.received,
+            "registration_ms",
             inliers=st.inliers,
             rms_px=st.rms_px,
             frames_kept=st.kept,

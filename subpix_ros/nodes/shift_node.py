@@ -60,11 +60,11 @@ class ShiftNode(StageNode):
             self.diag.set(shift_failures=st.skipped)
             return
         self.pub.publish(pl.shift_cdr(s))
-        self.emit("shift", (s, a))
-        self.diag.rate("output").tick()
-        self.latency_since(a.received)
-        self.diag.stage_time("estimate_ms", st.times.last)
-        self.diag.set(
+        self.output(
+            "shift",
+            (s, a),
+            a.received,
+            "estimate_ms",
             u=st.u,
             v=st.v,
             u_std=st.u_std,

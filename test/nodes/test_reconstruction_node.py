@@ -4,28 +4,17 @@ import time
 
 import numpy as np
 import rclpy
-from conftest import spin
+from conftest import SET_SHIFTS, rendered_set, spin
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image, TimeReference
 
-from subpix_ros.core.render import render_sequence
 from subpix_ros.io import cdr
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.common import latched_qos, reliable_qos
 
 T0 = 1_700_000_000_000_000_000
-SHIFTS = [
-    (0.0, 0.0),
-    (0.5, 0.0),
-    (0.0, 0.5),
-    (0.5, 0.5),
-    (0.25, 0.75),
-    (0.75, 0.25),
-    (0.3, 0.6),
-    (0.6, 0.3),
-]
 
 
 def test_an_incomplete_last_set_is_reconstructed_after_flush_after_s(ctx, crops):
@@ -35,7 +24,7 @@ def test_an_incomplete_last_set_is_reconstructed_after_flush_after_s(ctx, crops)
     node reconstructs the 7 frames it has (>= min_frames). The old node waited for ever."""
     from subpix_ros.nodes.reconstruction_node import ReconstructionNode
 
-    seq = render_sequence(crops["crop_trees"][:256, :256], 2, SHIFTS, 0.4, snr_db=40, seed=5)
+    seq = rendered_set(crops["crop_trees"])
     node = ReconstructionNode(parameter_overrides=[Parameter("method", value="map")])
     h = rclpy.create_node("harness")
     got, diags = [], []
@@ -70,7 +59,7 @@ def test_an_incomplete_last_set_is_reconstructed_after_flush_after_s(ctx, crops)
             link.publish(pl.reference_link_cdr(stamp, T0))
             img_pub.publish(pl.image_cdr(seq.frames[k], stamp))
             mask_pub.publish(pl.mask_cdr(full, stamp))
-            shift_pub.publish(pl.shift_cdr(pl.Shift(stamp, T0, *SHIFTS[k], 0.0, 0.01, 0.01)))
+            shift_pub.publish(pl.shift_cdr(pl.Shift(stamp, T0, *SET_SHIFTS[k], 0.0, 0.01, 0.01)))
         assert spin([node, h], lambda: len(node.sets.get(T0, ())) == 6, 10)
         t_last = time.monotonic()
         assert spin([node, h], lambda: bool(got), 30), (
@@ -101,7 +90,7 @@ def test_close_publishes_the_open_set_first(ctx, crops):
     >= min_frames is reconstructed and published before the node goes."""
     from subpix_ros.nodes.reconstruction_node import ReconstructionNode
 
-    seq = render_sequence(crops["crop_trees"][:256, :256], 2, SHIFTS, 0.4, snr_db=40, seed=5)
+    seq = rendered_set(crops["crop_trees"])
     node = ReconstructionNode(
         subscribe_inputs=False,
         parameter_overrides=[Parameter("flush_after_s", value=600.0)],  # no idle flush here
@@ -117,7 +106,7 @@ def test_close_publishes_the_open_set_first(ctx, crops):
         for k in range(1, 5):  # 5 frames with the reference: >= min_frames 4, < n_frames 8
             stamp = T0 + k * 33_333_333
             a = pl.Aligned(stamp, seq.frames[k], full, ref, np.eye(3))
-            node.handle_shift((pl.Shift(stamp, T0, *SHIFTS[k], 0.0, 0.01, 0.01), a))
+            node.handle_shift((pl.Shift(stamp, T0, *SET_SHIFTS[k], 0.0, 0.01, 0.01), a))
         spin([node, h], lambda: False, 1.0)
         assert got == [] and len(node.sets[T0]) == 4
         node.close()

@@ -1,23 +1,12 @@
 """registration_node in this process: video-rate tracking from the constant-velocity prediction, and its fallback."""
 import time
 
-import cv2
 import numpy as np
 
 from rclpy.parameter import Parameter
 
-from subpix_ros.data import seneca_frame_paths
+from conftest import scene_frames
 from subpix_ros.nodes import payloads as pl
-
-
-def _frames(offsets, w=960, h=720):
-    """Frames of a real scene whose content moves by ``offsets[k]`` = (rows, cols) px relative to frame 0."""
-    scene = cv2.imread(str(seneca_frame_paths()[4]), cv2.IMREAD_COLOR)
-    out = []
-    for u, v in offsets:
-        m = np.float32([[1, 0, -200 + v], [0, 1, -200 + u]])
-        out.append(cv2.warpAffine(scene, m, (w, h), flags=cv2.INTER_LINEAR))
-    return out
 
 
 def _run(node, frames, ticks):
@@ -43,7 +32,7 @@ def test_tracking_follows_constant_velocity_and_falls_back_on_a_jump(ctx):
         Parameter("selection", value="all"), Parameter("distortion", value=False), Parameter("n_points", value=300),
         Parameter("max_frames_per_reference", value=20)])
     try:
-        got = _run(node, _frames(offsets), ticks)
+        got = _run(node, scene_frames(offsets), ticks)
         assert len(got) == 8  # frame 0 is the reference, every other frame aligned
         # frame 1: no motion known yet (full search, no prior); frames 2-6 and the one after the gap follow the
         # prediction; the last jumps 40 px off it: tracking fails and the full search takes over
@@ -75,7 +64,7 @@ def test_predicted_loss_of_overlap_starts_a_new_reference_without_a_failed_searc
         Parameter("selection", value="all"), Parameter("distortion", value=False), Parameter("n_points", value=300),
         Parameter("max_frames_per_reference", value=20)])
     try:
-        got = _run(node, _frames(offsets, w=640, h=480), [0, 1, 2, 3])
+        got = _run(node, scene_frames(offsets, w=640, h=480), [0, 1, 2, 3])
         assert node.references_predicted == 1 and node.failures == 0, (node.references_predicted, node.failures)
         assert len(got) == 2  # frames 1 and 3; frames 0 and 2 are references
         assert got[1].reference.stamp_ns == 1_000_000_000 + 2 * 100_000_000

@@ -4,35 +4,25 @@ import itertools
 
 import numpy as np
 import pytest
+from conftest import SET_SHIFTS, rendered_set
 
 from subpix_ros.core.evaluate import gain_over_bicubic
-from subpix_ros.core.render import render_sequence
 from subpix_ros.data import load_crop
 from subpix_ros.stages import Aligned, Frame, ReconstructionStage, Shift
 
 T0 = 5_000_000_000
 DT = 100_000_000
-SHIFTS = [
-    (0.0, 0.0),
-    (0.5, 0.0),
-    (0.0, 0.5),
-    (0.5, 0.5),
-    (0.25, 0.75),
-    (0.75, 0.25),
-    (0.3, 0.6),
-    (0.6, 0.3),
-]
 
 
 @pytest.fixture(scope="module")
 def seq():
     """Eight frames of a real crop rendered at known sub-pixel shifts (factor 2, 40 dB)."""
-    return render_sequence(load_crop("crop_trees")[:256, :256], 2, SHIFTS, 0.4, snr_db=40, seed=5)
+    return rendered_set(load_crop("crop_trees"))
 
 
 def _set(seq, ref_k=0, t0=T0, n=None, jitter_ns=0):
     """(reference Frame, [(Shift, Aligned)]) of the rendered frames, the reference at ``t0``."""
-    n = len(SHIFTS) if n is None else n
+    n = len(SET_SHIFTS) if n is None else n
     ref = Frame(t0, seq.frames[ref_k])
     pairs = []
     for k in range(1, n):

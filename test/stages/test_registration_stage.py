@@ -3,13 +3,17 @@
 import math
 
 import numpy as np
-from stage_data import scene_frames, stamp
+from conftest import scene_frames
 
 from subpix_ros.core.telemetry import sample_from_enu
 from subpix_ros.data import load_crop
 from subpix_ros.stages import Aligned, Frame, NewReference, RegistrationStage, Skipped
 
 FAST = dict(selection="all", distortion=False, n_points=300)
+
+
+def stamp(k, t0=1_000_000_000, dt=100_000_000):
+    return t0 + k * dt
 
 
 def _run(stage, frames):
@@ -63,7 +67,9 @@ def test_a_failed_registration_starts_a_new_reference_with_its_reason(flight):
 def test_predicted_loss_of_overlap_starts_a_new_reference_without_a_search():
     offsets = [(0.0, -280.0 * k) for k in range(4)]
     stage = RegistrationStage(max_frames_per_reference=20, **FAST)
-    out = _run(stage, [Frame(stamp(k), img) for k, img in enumerate(scene_frames(offsets))])
+    out = _run(
+        stage, [Frame(stamp(k), img) for k, img in enumerate(scene_frames(offsets, w=640, h=480))]
+    )
     assert [type(r).__name__ for r in out] == ["NewReference", "Aligned", "NewReference", "Aligned"]
     assert out[2].predicted and "predicted overlap" in out[2].reason
     assert stage.stats.references_predicted == 1 and stage.stats.registration_failures == 0
@@ -77,7 +83,9 @@ def test_tracking_fallback_is_counted():
         6 * step + [25.0, 31.0]
     ]  # the last jumps off the prediction
     stage = RegistrationStage(max_frames_per_reference=20, **FAST)
-    out = _run(stage, [Frame(stamp(k), img) for k, img in zip(ticks, scene_frames(offsets))])
+    out = _run(
+        stage, [Frame(stamp(k), img) for k, img in zip(ticks, scene_frames(offsets, w=640, h=480))]
+    )
     assert all(isinstance(r, Aligned) for r in out[1:]), out
     # frame 1: no motion yet (full search); 2-4 tracked; the jump: tracking fails, full search
     assert stage.stats.tracked == 3 and stage.stats.fallbacks == 1, stage.stats

@@ -31,6 +31,7 @@ has frames of mixed sizes is described by one line in ``summary.json``
 from __future__ import annotations
 
 import math
+import queue
 import re
 import resource
 import threading
@@ -39,7 +40,7 @@ from concurrent.futures import ThreadPoolExecutor
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -360,6 +361,46 @@ class _Timer:
         return out
 
 
+def prefetch(events: Iterator, depth: int = 4) -> Iterator:
+    """``events`` read (and decoded) on a background thread, up to ``depth`` items ahead, in order.
+
+    Reading the bag and decoding images (JPEG/PNG of a CompressedImage camera) then overlaps
+    the stages' work. An exception of the reader (a corrupt bag) is raised here, in order.
+    """
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    end = object()
+
+    def run() -> None:
+        try:
+            for ev in events:
+                while not stop.is_set():
+                    try:
+                        q.put((None, ev), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put((None, end))
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer
+            q.put((exc, None))
+
+    t = threading.Thread(target=run, name="subpix-reader", daemon=True)
+    t.start()
+    try:
+        while True:
+            exc, ev = q.get()
+            if exc is not None:
+                raise exc
+            if ev is end:
+                return
+            yield ev
+    finally:
+        stop.set()
+        t.join(timeout=5.0)
+
+
 def load_params(path: str | Path | None) -> dict[str, dict]:
     """Stage parameters by node name from a config/*.yaml (``node: ros__parameters: {...}``)."""
     if path is None:
@@ -570,7 +611,7 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
     broke_off = None
     add_ms: list[float] = []
     try:
-        for kind, item in flight.events():
+        for kind, item in prefetch(flight.events()):
             if kind == "telemetry":
                 samples.append(item)
                 pipe.add_telemetry(item)

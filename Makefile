@@ -13,7 +13,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export PYTHONUNBUFFERED := 1
 
-.PHONY: all venv sample demo test bench clean
+.PHONY: all venv sample browser demo test bench clean
 all: test
 
 $(VENV)/.installed: requirements.txt setup.py setup.cfg package.xml
@@ -42,7 +42,19 @@ sample: data/bags/.built
 demo: sample
 	$(BIN)/subpix demo --out out/demo
 
-test: sample
+# Debian's chromium for the flight report's browser test (test/process/test_report_browser.py):
+# installed when missing (as root, or through sudo without a password), otherwise a clear error.
+browser:
+	@command -v chromium >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ]; then SUDO=; elif sudo -n true 2>/dev/null; then SUDO="sudo -n"; else \
+	    echo "make: chromium is missing and cannot be installed without root: apt-get install chromium" >&2; \
+	    exit 1; fi; \
+	  echo "installing chromium (Debian package) for the report test"; \
+	  $$SUDO apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends chromium >/dev/null; }
+	@command -v chromium >/dev/null 2>&1
+
+test: sample browser
 	$(PY) -m pytest test
 
 bench: sample

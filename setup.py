@@ -30,7 +30,7 @@ setup(
     # ROS 2 itself (rclpy, message packages) comes from the ROS install or, in
     # a venv, from requirements.txt: never from install_requires.
     install_requires=["setuptools", "numpy", "opencv-python-headless", "pymavlink", "pyserial", "rosbags", "PyYAML",
-                      "foxglove-sdk"],
+                      "foxglove-sdk", "matplotlib", "tqdm"],
     zip_safe=True,
     maintainer="subpix_ros developers",
     maintainer_email="dev@subpix-ros.org",

@@ -168,3 +168,19 @@ def spin(nodes, until, timeout=10.0, executor=None, procs=()):
             for n in ([nodes] if single else nodes):
                 ex.remove_node(n)
     return until()
+
+
+@pytest.fixture(scope="session")
+def processed(sample_bags, tmp_path_factory):
+    """`subpix process` of both sample flights with --jobs 2 (demo parameters): (outdir, CompletedProcess).
+
+    Shared by test/process (the products, and the report in headless Chromium).
+    """
+    import subprocess
+
+    out = tmp_path_factory.mktemp("processed")
+    r = subprocess.run(subpix_cmd("process", str(sample_bags / "subpixel"), str(sample_bags / "seneca"),
+                                  "-o", str(out), "--params", str(ROOT / "config" / "demo.yaml"), "--jobs", "2"),
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return out, r

@@ -18,6 +18,8 @@ from ..runtime import RuntimeSetupError, configure_ros_environment, keep_freed_m
 # Subcommand modules, in the order ``subpix --help`` lists them.
 MODULES = (
     "demo",
+    "process",
+    "report",
     "replay",
     "record",
     "shift",

@@ -11,7 +11,10 @@ this process and writes what an operator looks at:
 * ``shifts.csv``: per-frame shifts (and their error against the rendered
   truth) with the telemetry frame timing at that frame;
 * ``summary.txt`` / ``summary.json``: frames in/out, PSNR gain over bicubic,
-  time per stage (from /diagnostics).
+  time per stage (from /diagnostics);
+* ``flights/<bag>/``: both flights through ``subpix process`` (the same stages
+  in this process, without DDS), with the flight report ``report.html``,
+  whose path is printed last.
 """
 from __future__ import annotations
 
@@ -288,6 +291,22 @@ def run(args: argparse.Namespace) -> int:
     text = "\n".join(lines)
     (out / "summary.txt").write_text(text + "\n")
     print(text)
+    report = _flight_report(root, bags, out / "flights")
     if not srs or mosaic is None:
         raise CliError("the demo did not produce every output (see summary.txt and the pipeline's log)")
     return 0
+
+
+def _flight_report(root: Path, bags: Path, out: Path) -> Path:
+    """``subpix process`` of both sample flights into ``out``; prints and returns the subpixel report's path."""
+    from subpix_ros.process.batch import run_batch
+    from subpix_ros.process.flight import load_params
+
+    params = load_params(root / "config" / "demo.yaml")
+    results = run_batch([bags / "subpixel", bags / "seneca"], out, params, force=True)
+    bad = [r.line for r in results if r.status not in ("ok", "skipped")]
+    if bad:
+        raise CliError(f"subpix process of the sample flights: {bad[0]}")
+    report = out / "subpixel" / "report.html"
+    print(f"flight report: {report.resolve()}")
+    return report

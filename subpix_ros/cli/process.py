@@ -1,0 +1,125 @@
+"""``subpix process``: flight bags -> products and a flight report, without DDS.
+
+Reads each bag directly (rosbag2, mcap or sqlite3; sensor_msgs/Image or
+CompressedImage; telemetry from the bag's /telemetry/* topics or a .tlog
+beside it), runs the stage pipeline in this process (or one worker process
+per bag with --jobs), and writes OUTDIR/<bag name>/: results.mcap (shift,
+homography, super_resolved, mosaic, telemetry/frame_interval, diagnostics,
+stamped with their source frames; `subpix replay` plays it), superres/*.png
+beside bicubic/*.png of each set's reference, mosaic.png, shifts.csv,
+frames.csv, telemetry.csv, summary.json, timing.json and report.html.
+
+The same bag and parameters give byte-identical products (timing.json and
+report.html carry the processing times). A folder is renamed into place only
+when complete; a re-run skips complete bags (--force redoes them). A bag that
+cannot be processed (or only in part: no images, a corrupt chunk, frames of
+another size) gets one line and the exit status is 1 at the end; a bag
+without telemetry is processed (every frame kept) and the report says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from subpix_ros.cli import CliError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "process",
+        help="flight bags -> products and a flight report (no DDS)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("bags", nargs="+", metavar="BAG", help="rosbag2 bag folder, .mcap or .db3")
+    p.add_argument("-o", "--out", required=True, metavar="OUTDIR", help="output folder")
+    p.add_argument(
+        "--params",
+        default=None,
+        metavar="FILE.yaml",
+        help="stage parameters (config/*.yaml layout: node: ros__parameters: ...); default: the "
+        "nodes' defaults",
+    )
+    p.add_argument(
+        "--jobs", type=int, default=1, metavar="N", help="bags processed in parallel (default 1)"
+    )
+    p.add_argument(
+        "--camera-topic",
+        default=None,
+        metavar="T",
+        help="image topic (default /camera/image_raw, else the bag's image topic)",
+    )
+    p.add_argument(
+        "--telemetry",
+        choices=("tlog", "topics"),
+        default=None,
+        help="telemetry source (default: the bag's /telemetry/* topics, else a .tlog beside it)",
+    )
+    p.add_argument("--force", action="store_true", help="redo bags whose products are complete")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from subpix_ros.process.batch import Progress, interrupt_on_signals, run_batch
+    from subpix_ros.process.flight import check_params, load_params
+    from subpix_ros.process.inputs import InputError, bag_name
+
+    if args.jobs < 1:
+        raise CliError(f"--jobs must be >= 1, got {args.jobs}")
+    try:
+        params = load_params(args.params)
+        check_params(params)
+    except InputError as exc:
+        raise CliError(str(exc)) from None
+    names: dict[str, str] = {}
+    for b in args.bags:
+        n = bag_name(b)
+        if n in names:
+            raise CliError(f"bags {names[n]} and {b} would both write {Path(args.out) / n}")
+        names[n] = b
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CliError(f"cannot create {out}: {exc.strerror}") from None
+    interrupt_on_signals()  # Ctrl-C or a kill: unfinished folders removed, exit status 130
+    progress = Progress(stream=sys.stderr, quiet=args.quiet)
+    results = run_batch(
+        args.bags,
+        out,
+        params,
+        jobs=args.jobs,
+        camera_topic=args.camera_topic,
+        telemetry=args.telemetry,
+        force=args.force,
+        progress=progress,
+    )
+    failed = [r for r in results if r.status in ("failed", "partial")]
+    lines = [r.line for r in results]
+    (out / "batch_summary.json").write_text(
+        json.dumps(
+            [
+                {"bag": r.bag, "name": r.name, "status": r.status, "line": r.line, "out": r.out}
+                for r in results
+            ],
+            indent=1,
+        )
+        + "\n"
+    )
+    if not args.quiet:
+        print("\n".join(["summary:"] + [f"  {ln}" for ln in lines]))
+        for r in results:
+            if r.out and r.status != "failed":
+                print(f"  report: {Path(r.out) / 'report.html'}")
+    if failed:
+        print(
+            f"subpix process: {len(failed)} of {len(results)} bag(s) failed or only partly usable: "
+            f"{', '.join(r.name for r in failed)}",
+            file=sys.stderr,
+        )
+        return 1
+    return 0

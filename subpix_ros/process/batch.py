@@ -1,0 +1,239 @@
+"""Many flight bags: sequentially in this process or in ``jobs`` worker processes, with progress.
+
+Each bag runs :func:`subpix_ros.process.flight.process_bag` (one pipeline per
+process); a bag that fails is reported by one line and the others go on.
+Worker processes are started with ``spawn`` (no fork of a process that holds
+OpenCV thread pools) and live for one bag each (``max_tasks_per_child=1``),
+so each bag's peak memory in its ``timing.json`` is its own; each worker
+gets the machine's cores divided by ``jobs`` as OpenCV threads. The products
+do not depend on the thread count (they carry 10 significant digits:
+:func:`subpix_ros.process.products.rounded`).
+
+Progress: a tqdm bar per bag on a terminal (frames done / total, frames/s,
+ETA), plain lines every ``PLAIN_PERIOD_S`` seconds otherwise, nothing with
+``quiet``.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from pathlib import Path
+from typing import Callable, Sequence
+
+from subpix_ros.process.flight import BagResult, process_bag
+
+PLAIN_PERIOD_S = 5.0
+
+
+class Progress:
+    """Per-bag progress: tqdm bars on a TTY, periodic plain lines otherwise, or nothing."""
+
+    def __init__(self, stream=None, quiet: bool = False, tty: bool | None = None) -> None:
+        self.stream = stream or sys.stderr
+        self.quiet = quiet
+        self.tty = self.stream.isatty() if tty is None else tty
+        self._bars: dict[str, object] = {}
+        self._last: dict[str, float] = {}
+        self._slots: list[str | None] = []
+
+    def update(self, name: str, done: int, total: int) -> None:
+        if self.quiet:
+            return
+        if self.tty:
+            from tqdm import tqdm
+
+            bar = self._bars.get(name)
+            if bar is None:
+                slot = self._slots.index(None) if None in self._slots else len(self._slots)
+                if slot == len(self._slots):
+                    self._slots.append(name)
+                else:
+                    self._slots[slot] = name
+                bar = tqdm(
+                    total=total or None,
+                    desc=name,
+                    unit="frame",
+                    file=self.stream,
+                    position=slot,
+                    leave=True,
+                    dynamic_ncols=True,
+                )
+                self._bars[name] = bar
+            bar.update(done - bar.n)
+            return
+        now = time.monotonic()
+        first = name not in self._last
+        if first:
+            self._last[name] = now
+            self._t0 = getattr(self, "_t0", {})
+            self._t0[name] = now
+        if first or now - self._last[name] >= PLAIN_PERIOD_S or (total and done >= total):
+            self._last[name] = now
+            el = now - self._t0[name]
+            rate = done / el if el > 0 else 0.0
+            pct = f" ({100.0 * done / total:.0f} %)" if total else ""
+            print(
+                f"{name}: {done}/{total or '?'} frames{pct}, {rate:.1f} frames/s",
+                file=self.stream,
+                flush=True,
+            )
+
+    def finish(self, name: str, line: str) -> None:
+        bar = self._bars.pop(name, None)
+        if bar is not None:
+            bar.close()
+            self._slots[self._slots.index(name)] = None
+        if not self.quiet:
+            print(line, file=self.stream, flush=True)
+
+
+def _raise_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def interrupt_on_signals() -> None:
+    """SIGINT and SIGTERM raise KeyboardInterrupt (a clean stop), even where SIGINT was ignored."""
+    import signal
+
+    signal.signal(signal.SIGINT, _raise_interrupt)
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+
+
+def _worker(
+    bag: str, out: str, params: dict, camera_topic, telemetry, force: bool, threads: int, queue
+) -> BagResult:
+    import cv2
+
+    from subpix_ros.runtime import keep_freed_memory
+
+    interrupt_on_signals()
+    keep_freed_memory()
+    cv2.setNumThreads(threads)
+    from subpix_ros.process.inputs import bag_name
+
+    name = bag_name(bag)
+    last = [0.0]
+
+    def progress(done: int, total: int) -> None:
+        now = time.monotonic()
+        if queue is not None and (now - last[0] >= 0.2 or done >= total):
+            last[0] = now
+            try:
+                queue.put((name, done, total))
+            except Exception:  # noqa: BLE001 - progress is best effort
+                pass
+
+    try:
+        return process_bag(
+            bag,
+            out,
+            params,
+            camera_topic=camera_topic,
+            telemetry=telemetry,
+            force=force,
+            progress=progress,
+        )
+    except KeyboardInterrupt:
+        return BagResult(bag, name, "failed", f"{name}: interrupted")
+
+
+def run_batch(
+    bags: Sequence[str | Path],
+    out: str | Path,
+    params: dict,
+    *,
+    jobs: int = 1,
+    camera_topic: str | None = None,
+    telemetry: str | None = None,
+    force: bool = False,
+    progress: Progress | None = None,
+    on_result: Callable[[BagResult], None] | None = None,
+) -> list[BagResult]:
+    """Process ``bags`` into ``out``; returns one result per bag in the order given."""
+    progress = progress or Progress(quiet=True)
+    bags = [str(b) for b in bags]
+    results: dict[int, BagResult] = {}
+
+    def done(i: int, r: BagResult) -> None:
+        results[i] = r
+        progress.finish(r.name, r.line)
+        if on_result is not None:
+            on_result(r)
+
+    if jobs <= 1 or len(bags) <= 1:
+        for i, b in enumerate(bags):
+            from subpix_ros.process.inputs import bag_name
+
+            name = bag_name(b)
+            r = process_bag(
+                b,
+                out,
+                params,
+                camera_topic=camera_topic,
+                telemetry=telemetry,
+                force=force,
+                progress=lambda d, t, n=name: progress.update(n, d, t),
+            )
+            done(i, r)
+        return [results[i] for i in range(len(bags))]
+
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    manager = ctx.Manager()
+    queue = manager.Queue()
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, max_tasks_per_child=1)
+    try:
+        futs = {
+            pool.submit(
+                _worker, b, str(out), params, camera_topic, telemetry, force, threads, queue
+            ): i
+            for i, b in enumerate(bags)
+        }
+        pending = set(futs)
+        while pending:
+            finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            _drain(queue, progress)
+            for f in finished:
+                i = futs[f]
+                try:
+                    r = f.result()
+                except Exception as exc:  # noqa: BLE001 - a crashed worker fails its bag only
+                    from subpix_ros.process.inputs import bag_name
+
+                    name = bag_name(bags[i])
+                    r = BagResult(
+                        bags[i],
+                        name,
+                        "failed",
+                        f"{name}: failed: worker died: {type(exc).__name__}: {exc}",
+                    )
+                done(i, r)
+        _drain(queue, progress)
+    except KeyboardInterrupt:
+        # Ctrl-C on a terminal reaches the workers too; a signal to this process alone does not:
+        # stop them (each removes its unfinished folder) before leaving.
+        for proc in list(getattr(pool, "_processes", {}).values()):
+            try:
+                proc.terminate()
+            except OSError:
+                pass
+        pool.shutdown(wait=True, cancel_futures=True)
+        manager.shutdown()
+        raise
+    pool.shutdown(wait=True)
+    manager.shutdown()
+    return [results[i] for i in range(len(bags))]
+
+
+def _drain(queue, progress: Progress) -> None:
+    while True:
+        try:
+            name, d, t = queue.get_nowait()
+        except Exception:  # noqa: BLE001 - queue.Empty or a closed manager
+            return
+        progress.update(name, d, t)

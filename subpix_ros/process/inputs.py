@@ -1,0 +1,277 @@
+"""Flight bags as a time-ordered stream of camera frames and telemetry samples (no ROS).
+
+A flight bag is a rosbag2 bag (mcap or sqlite3, read through
+:mod:`subpix_ros.io.bags`) with a camera topic (``sensor_msgs/Image`` or
+``sensor_msgs/CompressedImage``) and, optionally, the telemetry node's
+``/telemetry/*`` topics or a MAVLink ``.tlog`` beside it (``<bag>.tlog``, or
+the single ``*.tlog`` inside a bag directory).
+
+:func:`open_flight` inspects the bag (topics, frame count, telemetry
+source); :meth:`Flight.events` yields ``("telemetry", TelemetrySample)`` and
+``("frame", Frame)`` / ``("bad_frame", (stamp_ns, reason))`` in the bag's
+time order, with every telemetry sample at or before a frame's stamp given
+before that frame (as a live pipeline would have received it).
+
+Telemetry from topics is rebuilt as the registration node does it from the
+same messages: a sample per ``telemetry/velocity`` (TwistStamped, ENU) with
+the latest ``telemetry/height`` (Float64, m above ground), the heading of the
+latest ``telemetry/imu`` orientation and the latest ``telemetry/fix``
+position (for the GPS track of the report).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+from subpix_ros.core.telemetry import TelemetrySample, heading_from_quaternion_enu, sample_from_enu
+from subpix_ros.io import cdr
+from subpix_ros.io.bags import BagError, bag_topics, read_messages
+
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED = "sensor_msgs/msg/CompressedImage"
+TELEMETRY_TOPICS = {
+    "/telemetry/velocity": "geometry_msgs/msg/TwistStamped",
+    "/telemetry/height": "std_msgs/msg/Float64",
+    "/telemetry/imu": "sensor_msgs/msg/Imu",
+    "/telemetry/fix": "sensor_msgs/msg/NavSatFix",
+}
+PREFERRED_CAMERA = "/camera/image_raw"
+
+
+class InputError(Exception):
+    """The bag cannot be processed at all; the message is one user-facing line."""
+
+
+def bag_name(path: str | Path) -> str:
+    """Name of a bag for its output folder: the directory name, or the file name without suffix."""
+    p = Path(path)
+    return p.stem if p.is_file() else p.name
+
+
+def find_tlog(path: str | Path) -> Path | None:
+    """The MAVLink log that belongs to bag ``path``: ``<bag>.tlog`` beside it, else the single
+    ``*.tlog`` inside the bag directory; None if there is none."""
+    p = Path(path)
+    beside = p.parent / f"{bag_name(p)}.tlog"
+    if beside.is_file():
+        return beside
+    if p.is_dir():
+        inside = sorted(p.glob("*.tlog"))
+        if len(inside) == 1:
+            return inside[0]
+    return None
+
+
+def read_tlog(path: str | Path) -> tuple[list[TelemetrySample], str]:
+    """Every accepted sample of a ``.tlog`` (read at full speed) and a note on the rejected."""
+    from subpix_ros.io.mavlink import MavlinkReader
+
+    samples: list[TelemetrySample] = []
+    try:
+        reader = MavlinkReader(str(path), rate=None, on_sample=samples.append)
+        reader.start()
+    except Exception as exc:  # noqa: BLE001 - pymavlink raises many types for bad files
+        raise InputError(f"cannot read telemetry log {path}: {exc}") from None
+    reader.join()
+    reader.stop()
+    st = reader.stats
+    notes = []
+    if st.rejected:
+        notes.append(f"{st.rejected} samples rejected ({st.last_reject})")
+    if st.bad_crc or st.bad_data:
+        notes.append(f"{st.bad_crc} bad CRC, {st.bad_data} bad data")
+    samples.sort(key=lambda s: s.t)
+    return samples, "; ".join(notes)
+
+
+@dataclass
+class Flight:
+    """What :func:`open_flight` found in a bag; :meth:`events` streams it."""
+
+    path: Path
+    name: str
+    camera_topic: str | None
+    camera_type: str | None
+    frames_total: int
+    topics: dict[str, tuple[str, int]]  # topic -> (type, count)
+    telemetry_source: str  # "topics", "tlog <path>", or "none"
+    telemetry_note: str = ""
+    tlog_samples: list[TelemetrySample] = field(default_factory=list)
+    camera_note: str = ""
+
+    @property
+    def has_telemetry(self) -> bool:
+        return self.telemetry_source != "none"
+
+    def events(self) -> Iterator[tuple[str, object]]:
+        """``("telemetry", sample)``, ``("frame", Frame)`` and ``("bad_frame", (stamp_ns, reason))``
+        in time order. Raises :class:`BagError` if the storage turns out corrupt while reading
+        (after yielding everything before the damage)."""
+        from subpix_ros.nodes.payloads import frame_from_cdr, frame_from_compressed_cdr
+
+        topics = [self.camera_topic] if self.camera_topic else []
+        use_topics = self.telemetry_source == "topics"
+        if use_topics:
+            topics += [t for t in TELEMETRY_TOPICS if t in self.topics]
+        pending = list(self.tlog_samples)
+        i = 0
+        rebuild = _TopicTelemetry()
+        decode = frame_from_compressed_cdr if self.camera_type == COMPRESSED else frame_from_cdr
+        if not topics:
+            return
+        for m in read_messages(self.path, topics):
+            if m.topic == self.camera_topic:
+                try:
+                    frame = decode(m.raw, received=0.0)
+                except Exception as exc:  # noqa: BLE001 - a bad frame is counted, not fatal
+                    yield "bad_frame", (
+                        m.timestamp_ns,
+                        f"undecodable image: {' '.join(str(exc).split())[:160]}",
+                    )
+                    continue
+                while i < len(pending) and pending[i].t <= frame.stamp_s:
+                    yield "telemetry", pending[i]
+                    i += 1
+                yield "frame", frame
+            else:
+                try:
+                    s = rebuild.add(m.topic, m.raw, m.timestamp_ns)
+                except Exception:  # noqa: BLE001 - a malformed telemetry message is skipped
+                    rebuild.bad += 1
+                    continue
+                if s is not None:
+                    yield "telemetry", s
+        while i < len(pending):
+            yield "telemetry", pending[i]
+            i += 1
+
+    def telemetry_samples(self) -> list[TelemetrySample]:
+        """All telemetry samples of the flight (for the report's track and expected shifts)."""
+        if self.telemetry_source == "none":
+            return []
+        if self.telemetry_source != "topics":
+            return list(self.tlog_samples)
+        rebuild = _TopicTelemetry()
+        out = []
+        for m in read_messages(self.path, [t for t in TELEMETRY_TOPICS if t in self.topics]):
+            try:
+                s = rebuild.add(m.topic, m.raw, m.timestamp_ns)
+            except Exception:  # noqa: BLE001
+                continue
+            if s is not None:
+                out.append(s)
+        return out
+
+
+class _TopicTelemetry:
+    """TelemetrySamples from the telemetry node's topics (as the registration node builds them)."""
+
+    def __init__(self) -> None:
+        self.height: float | None = None
+        self.heading: float | None = None
+        self.fix: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.bad = 0
+
+    def add(self, topic: str, raw: bytes, bag_ns: int) -> TelemetrySample | None:
+        if topic == "/telemetry/height":
+            h = float(cdr.deserialize(raw, TELEMETRY_TOPICS[topic]).data)
+            self.height = h if math.isfinite(h) else None
+        elif topic == "/telemetry/imu":
+            q = cdr.deserialize(raw, TELEMETRY_TOPICS[topic]).orientation
+            self.heading = heading_from_quaternion_enu(q.x, q.y, q.z, q.w)
+        elif topic == "/telemetry/fix":
+            f = cdr.deserialize(raw, TELEMETRY_TOPICS[topic])
+            self.fix = (float(f.latitude), float(f.longitude), float(f.altitude))
+        elif topic == "/telemetry/velocity" and self.height is not None:
+            msg = cdr.deserialize(raw, TELEMETRY_TOPICS[topic])
+            v = msg.twist.linear
+            lat, lon, alt = self.fix
+            return sample_from_enu(
+                cdr.header_to_ns(msg.header) * 1e-9,
+                (v.x, v.y, v.z),
+                self.height,
+                lat_deg=lat,
+                lon_deg=lon,
+                alt_msl_m=alt,
+                heading_rad=self.heading,
+            )
+        return None
+
+
+def open_flight(
+    path: str | Path, camera_topic: str | None = None, telemetry: str | None = None
+) -> Flight:
+    """Inspect bag ``path``: camera topic, frame count and telemetry source.
+
+    ``camera_topic`` None picks the bag's image topic (``/camera/image_raw``
+    if present, else the image topic with most messages). ``telemetry``:
+    ``"topics"`` (the bag's ``/telemetry/*``), ``"tlog"`` (the ``.tlog`` beside
+    the bag) or None (topics if the bag has them, else a tlog if one exists,
+    else none). Raises :class:`InputError` (or :class:`BagError`) when the bag
+    cannot be opened or a requested source is missing; a bag without images
+    is not an error here (``camera_topic`` None, ``frames_total`` 0).
+    """
+    p = Path(path)
+    try:
+        infos = bag_topics(p)
+    except BagError:
+        raise
+    topics = {t.name: (t.msgtype, t.count) for t in infos}
+    images = {n: tc for n, tc in topics.items() if tc[0] in (IMAGE, COMPRESSED)}
+    note = ""
+    if camera_topic:
+        if camera_topic not in topics:
+            raise InputError(
+                f"camera topic {camera_topic} not in bag {p} (image topics: "
+                f"{', '.join(sorted(images)) or 'none'})"
+            )
+        if topics[camera_topic][0] not in (IMAGE, COMPRESSED):
+            raise InputError(f"topic {camera_topic} is {topics[camera_topic][0]}, not an image")
+        cam = camera_topic
+    elif PREFERRED_CAMERA in images:
+        cam = PREFERRED_CAMERA
+    elif images:
+        cam = sorted(images, key=lambda n: (-images[n][1], n))[0]
+        if len(images) > 1:
+            note = (
+                f"camera topic {cam} chosen of {', '.join(sorted(images))} "
+                "(--camera-topic to choose)"
+            )
+    else:
+        cam = None
+    flight = Flight(
+        p,
+        bag_name(p),
+        cam,
+        topics[cam][0] if cam else None,
+        topics[cam][1] if cam else 0,
+        topics,
+        "none",
+        camera_note=note,
+    )
+    has_topics = "/telemetry/velocity" in topics and "/telemetry/height" in topics
+    if telemetry == "topics" or (telemetry is None and has_topics):
+        if not has_topics:
+            raise InputError(f"bag {p} has no /telemetry/velocity and /telemetry/height topics")
+        flight.telemetry_source = "topics"
+    elif telemetry in ("tlog", None):
+        tlog = find_tlog(p)
+        if tlog is None:
+            if telemetry == "tlog":
+                raise InputError(
+                    f"no .tlog beside bag {p} (looked for {p.parent / (bag_name(p) + '.tlog')})"
+                )
+        else:
+            flight.tlog_samples, flight.telemetry_note = read_tlog(tlog)
+            flight.telemetry_source = f"tlog {tlog.name}"
+            if not flight.tlog_samples:
+                flight.telemetry_source = "none"
+                flight.telemetry_note = f"{tlog.name} has no usable telemetry sample" + (
+                    f" ({flight.telemetry_note})" if flight.telemetry_note else ""
+                )
+    else:
+        raise InputError(f"unknown telemetry source {telemetry!r} (tlog or topics)")
+    return flight

@@ -1,0 +1,267 @@
+"""The products of one processed flight, written atomically into ``OUTDIR/<bag name>/``.
+
+Everything is written into a hidden temporary folder beside the target
+(``OUTDIR/.<name>.partial-<pid>``) and renamed to ``OUTDIR/<name>`` only when
+complete, so an interrupted run never leaves a folder that looks complete: a
+folder ``OUTDIR/<name>`` with ``summary.json`` is complete by construction.
+
+Products (byte-identical for the same bag and parameters):
+
+* ``results.mcap``: ROS 2 messages, each with the log time (and header
+  stamp) of its source frame: ``/shift`` (Vector3Stamped), ``/homography``
+  (Float64MultiArray), ``/aligned/reference_stamp`` (TimeReference),
+  ``/super_resolved`` (Image, the set reference's stamp), ``/mosaic`` (Image,
+  the last frame's stamp), ``/telemetry/frame_interval`` (Float64, eq. 1 at
+  the frame) and ``/diagnostics`` (DiagnosticArray, once per second of
+  flight time and at the end; counts and reasons only, no wall-clock times);
+* ``superres/<stamp>.png`` and ``bicubic/<stamp>.png`` (same size and bit
+  depth; the set's reference upsampled bicubically), ``mosaic.png``;
+* ``shifts.csv``, ``frames.csv``, ``telemetry.csv``, ``summary.json``.
+
+``timing.json`` (processing time, stage times, memory) and ``report.html``
+(which shows them) are the only files that change between runs.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import shutil
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from subpix_ros.io import cdr
+from subpix_ros.io.bags import BagWriter
+
+DETERMINISTIC = (
+    "results.mcap",
+    "superres",
+    "bicubic",
+    "mosaic.png",
+    "shifts.csv",
+    "frames.csv",
+    "telemetry.csv",
+    "summary.json",
+    "mosaic.json",
+)
+TIMING_FILES = ("timing.json", "report.html")
+
+_T = cdr.TYPESTORE.types
+_DIAG_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+_FLOAT64 = "std_msgs/msg/Float64"
+
+
+def rounded(x: float) -> float:
+    """``x`` to 10 significant digits: the products' precision.
+
+    The last bits of the estimates differ between runs and processes (OpenCV's
+    thread pool, SIMD/BLAS kernels chosen by memory alignment), so the products
+    carry 10 significant digits, far above that noise and below any accuracy
+    that matters; with them the products are byte-identical whatever the
+    number of threads or jobs (test/process/test_cli_process.py).
+    """
+    x = float(x)
+    return float(f"{x:.10g}") if np.isfinite(x) else x
+
+
+def is_complete(folder: Path) -> bool:
+    """A product folder is complete if it has a readable summary.json (renamed into place)."""
+    try:
+        json.loads((folder / "summary.json").read_text())
+        return True
+    except (OSError, ValueError):
+        return False
+
+
+def _fmt(x: Any) -> str:
+    if x is None:
+        return ""
+    if isinstance(x, (bool, np.bool_)):
+        return "1" if x else "0"
+    if isinstance(x, (float, np.floating)):
+        return "" if not np.isfinite(x) else f"{float(x):.10g}"
+    return str(x)
+
+
+def write_csv(path: Path, columns: Sequence[str], rows: Sequence[dict]) -> None:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(columns)
+    for r in rows:
+        w.writerow([_fmt(r.get(c)) for c in columns])
+    path.write_text(buf.getvalue())
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+class ProductWriter:
+    """Writes one flight's products into a temporary folder; :meth:`commit` moves it in place."""
+
+    def __init__(self, out_root: Path, name: str) -> None:
+        self.final = Path(out_root) / name
+        self.tmp = Path(out_root) / f".{name}.partial-{os.getpid()}"
+        if self.tmp.exists():
+            shutil.rmtree(self.tmp)
+        (self.tmp / "superres").mkdir(parents=True)
+        (self.tmp / "bicubic").mkdir()
+        self.bag = BagWriter(self.tmp / "results.mcap")
+        self._closed = False
+        # Encoding and writing (PNG, the results bag) run on one background thread, in call order
+        # (so results.mcap is the same every run), at most 16 calls ahead of the pipeline.
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="subpix-products")
+        self._room = threading.BoundedSemaphore(16)
+        self._error: BaseException | None = None
+
+    def _later(self, fn, *args) -> None:
+        if self._error is not None:
+            raise self._error
+        self._room.acquire()
+
+        def run() -> None:
+            try:
+                if self._error is None:
+                    fn(*args)
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread
+                self._error = exc
+            finally:
+                self._room.release()
+
+        self._pool.submit(run)
+
+    def wait(self) -> None:
+        """Block until every queued write is done; re-raise the first error of one."""
+        self._pool.shutdown(wait=True)
+        if self._error is not None:
+            raise self._error
+
+    # ---------------------------------------------------------------- results.mcap
+    def shift(self, stamp_ns: int, u: float, v: float, z: float, frame_id: str = "") -> None:
+        vec = (rounded(u), rounded(v), rounded(z))
+        raw = cdr.vector3_stamped_to_cdr(vec, stamp_ns, frame_id)
+        self._later(self.bag.write, "/shift", cdr.VECTOR3_STAMPED, stamp_ns, raw)
+
+    def homography(self, stamp_ns: int, h: np.ndarray) -> None:
+        hh = np.array([rounded(x) for x in np.asarray(h, np.float64).ravel()]).reshape(3, 3)
+        raw = cdr.float64_array_to_cdr(hh, ["rows", "cols"])
+        self._later(self.bag.write, "/homography", cdr.FLOAT64_MULTI_ARRAY, stamp_ns, raw)
+
+    def reference_link(self, stamp_ns: int, reference_ns: int, frame_id: str = "") -> None:
+        raw = cdr.time_reference_to_cdr(
+            stamp_ns, reference_ns, frame_id, "subpix_ros reference frame"
+        )
+        self._later(
+            self.bag.write,
+            "/aligned/reference_stamp",
+            "sensor_msgs/msg/TimeReference",
+            stamp_ns,
+            raw,
+        )
+
+    def image(self, topic: str, image: np.ndarray, stamp_ns: int, frame_id: str = "") -> None:
+        enc = {
+            (np.dtype(np.uint8), 2): "mono8",
+            (np.dtype(np.uint8), 3): "bgr8",
+            (np.dtype(np.uint16), 2): "mono16",
+            (np.dtype(np.uint16), 3): "bgr16",
+        }[(image.dtype, image.ndim)]
+
+        def write() -> None:
+            raw = cdr.image_to_cdr(np.ascontiguousarray(image), enc, stamp_ns, frame_id)
+            self.bag.write(topic, cdr.IMAGE, stamp_ns, raw)
+
+        self._later(write)
+
+    def frame_interval(self, stamp_ns: int, interval_s: float) -> None:
+        raw = cdr.serialize(_T[_FLOAT64](data=rounded(interval_s)), _FLOAT64)
+        self._later(self.bag.write, "/telemetry/frame_interval", _FLOAT64, stamp_ns, raw)
+
+    def diagnostics(
+        self, stamp_ns: int, statuses: dict[str, tuple[int, str, dict[str, Any]]]
+    ) -> None:
+        """``statuses``: name -> (level 0 OK / 1 WARN / 2 ERROR, message, key values)."""
+        KV, Status = _T["diagnostic_msgs/msg/KeyValue"], _T["diagnostic_msgs/msg/DiagnosticStatus"]
+        status = [
+            Status(
+                level=int(lvl),
+                name=name,
+                message=str(msg)[:300],
+                hardware_id="subpix process",
+                values=[KV(key=str(k), value=_fmt(v)) for k, v in sorted(vals.items())],
+            )
+            for name, (lvl, msg, vals) in sorted(statuses.items())
+        ]
+        msg = _T[_DIAG_ARRAY](header=cdr.make_header(stamp_ns, ""), status=status)
+        self._later(
+            self.bag.write, "/diagnostics", _DIAG_ARRAY, stamp_ns, cdr.serialize(msg, _DIAG_ARRAY)
+        )
+
+    # ---------------------------------------------------------------- files
+    def png(self, rel: str, image: np.ndarray) -> None:
+        import cv2
+
+        path = self.tmp / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+
+        def write() -> None:
+            if not cv2.imwrite(str(path), image):
+                raise OSError(f"cannot write {rel}")
+
+        self._later(write)
+
+    def csv(self, rel: str, columns: Sequence[str], rows: Sequence[dict]) -> None:
+        write_csv(self.tmp / rel, columns, rows)
+
+    def json(self, rel: str, data: Any) -> None:
+        (self.tmp / rel).write_text(
+            json.dumps(data, indent=1, sort_keys=True, default=_json_default) + "\n"
+        )
+
+    def close_bag(self) -> None:
+        if not self._closed:
+            self._closed = True
+            try:
+                self.wait()
+            finally:
+                self.bag.close()
+
+    def commit(self, force: bool) -> Path:
+        """Rename the finished folder into place (replacing an old one only with ``force``)."""
+        self.close_bag()
+        if self.final.exists():
+            if not force:
+                raise FileExistsError(f"{self.final} appeared while processing (another run?)")
+            trash = self.final.with_name(f".{self.final.name}.old-{os.getpid()}")
+            os.rename(self.final, trash)
+            os.rename(self.tmp, self.final)
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            os.rename(self.tmp, self.final)
+        return self.final
+
+    def abort(self) -> None:
+        try:
+            self.close_bag()
+        except Exception:  # noqa: BLE001 - cleaning up after a failure
+            pass
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return None if not np.isfinite(o) else float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

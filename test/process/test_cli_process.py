@@ -1,0 +1,448 @@
+"""`subpix process` / `subpix report` on real rosbag2 files: products, determinism, re-runs,
+interruption, and bad input (no images, no telemetry, a corrupt chunk, mixed frame sizes)."""
+
+import filecmp
+import json
+import os
+import signal
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from subpix_ros.io.bags import BagWriter, bag_topics, read_messages
+from subpix_ros.io.cdr import cdr_to_image, compressed_to_cdr, header_to_ns, image_to_cdr
+from subpix_ros.process.products import DETERMINISTIC, read_csv
+
+ROOT = Path(__file__).resolve().parents[2]
+DEMO = str(ROOT / "config" / "demo.yaml")
+
+
+def process_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "subpix_ros.cli", "process", *args]
+
+
+def _run(*args, timeout=600):
+    return subprocess.run(process_cmd(*args), capture_output=True, text=True, timeout=timeout)
+
+
+def _sample(sample_bags):
+    msgs = list(read_messages(sample_bags / "subpixel"))
+    frames = [m for m in msgs if m.topic == "/camera/image_raw"]
+    tel = [m for m in msgs if m.topic.startswith("/telemetry/")]
+    return msgs, frames, tel
+
+
+def _write(path, msgs, storage="mcap"):
+    with BagWriter(path, storage=storage) as w:
+        for m in msgs:
+            w.write(m.topic, m.msgtype, m.timestamp_ns, m.raw)
+    return path
+
+
+def _summary(folder):
+    return json.loads((folder / "summary.json").read_text())
+
+
+def _deterministic_files(folder):
+    out = []
+    for name in DETERMINISTIC:
+        p = folder / name
+        if p.is_dir():
+            out += sorted(q.relative_to(folder) for q in p.rglob("*") if q.is_file())
+        elif p.is_file():
+            out.append(p.relative_to(folder))
+    return out
+
+
+# --------------------------------------------------------------------------- the sample flights
+def test_sample_flight_products(processed, sample_bags):
+    out, r = processed
+    d = out / "subpixel"
+    for name in (
+        "results.mcap",
+        "mosaic.png",
+        "shifts.csv",
+        "frames.csv",
+        "telemetry.csv",
+        "summary.json",
+        "timing.json",
+        "report.html",
+    ):
+        assert (d / name).is_file(), name
+    assert not [p for p in out.iterdir() if p.name.startswith(".")], "temporary folders left behind"
+    s = _summary(d)
+    truth = json.loads((sample_bags / "subpixel" / "truth.json").read_text())
+    true = {f["stamp_ns"]: np.array([f["u"], f["v"]]) for f in truth["frames"]}
+    assert s["status"] == "ok" and s["problems"] == []
+    assert s["frames"]["in"] == len(true) and s["frames"]["dropped"] == 0
+    assert s["telemetry"]["source"] == "topics" and s["telemetry"]["samples"] > 20
+    rows = read_csv(d / "shifts.csv")
+    conv = [row for row in rows if row["converged"] == "1"]
+    assert len(conv) >= 18
+    for row in conv:
+        ref = int(row["reference_stamp_ns"])
+        t = true[int(row["stamp_ns"])] - true[ref]
+        measured = np.array([float(row["u_total_px"]), float(row["v_total_px"])])
+        expected = np.array([float(row["u_expected_px"]), float(row["v_expected_px"])])
+        assert (
+            np.abs(measured - t).max() < 0.02
+        ), row  # whole + sub-pixel shift against the rendered truth
+        assert np.abs(expected - t).max() < 0.02, row  # METHODS eq. 1 from the bag's telemetry
+        assert float(row["u_std_px"]) > 0 and float(row["v_std_px"]) > 0
+    assert len(s["sets"]) >= 2
+    for st in s["sets"]:
+        sr = cv2.imread(str(d / st["superres"]), cv2.IMREAD_UNCHANGED)
+        bic = cv2.imread(str(d / st["bicubic"]), cv2.IMREAD_UNCHANGED)
+        assert sr.dtype == np.uint8 and sr.shape == bic.shape == (896, 896, 3)
+        assert st["gain_db"] > 3.0, st  # PSNR against truth_hr.png, beside the bicubic reference
+    assert (out / "seneca" / "mosaic.png").is_file()
+    mos = _summary(out / "seneca")["mosaic"]
+    assert mos["written"] and len(mos["footprints"]) == 9
+    assert "report: " in r.stdout
+
+
+def test_results_mcap_messages_carry_their_source_frames(processed):
+    d = processed[0] / "subpixel"
+    s = _summary(d)
+    topics = {t.name: t for t in bag_topics(d / "results.mcap")}
+    for name in (
+        "/shift",
+        "/homography",
+        "/super_resolved",
+        "/mosaic",
+        "/telemetry/frame_interval",
+        "/diagnostics",
+        "/aligned/reference_stamp",
+    ):
+        assert name in topics, name
+    frames = {int(r["stamp_ns"]) for r in read_csv(d / "frames.csv")}
+    conv = {int(r["stamp_ns"]) for r in read_csv(d / "shifts.csv") if r["converged"] == "1"}
+    shifts = list(read_messages(d / "results.mcap", ["/shift"]))
+    from subpix_ros.io.cdr import cdr_to_vector3_stamped
+
+    assert {m.timestamp_ns for m in shifts} == conv
+    for m in shifts:
+        assert header_to_ns(cdr_to_vector3_stamped(m.raw)[1]) == m.timestamp_ns
+    srs = list(read_messages(d / "results.mcap", ["/super_resolved"]))
+    assert [m.timestamp_ns for m in srs] == [st["reference_stamp_ns"] for st in s["sets"]]
+    img, header = cdr_to_image(srs[0].raw)
+    ref_png = cv2.imread(str(d / s["sets"][0]["superres"]), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(img, ref_png) and header_to_ns(header) == srs[0].timestamp_ns
+    for topic in ("/homography", "/telemetry/frame_interval", "/aligned/reference_stamp"):
+        assert {m.timestamp_ns for m in read_messages(d / "results.mcap", [topic])} <= frames, topic
+
+
+def test_results_mcap_replays(processed):
+    d = processed[0] / "subpixel"
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "subpix_ros.cli",
+            "replay",
+            str(d / "results.mcap"),
+            "--rate",
+            "20",
+            "--delay",
+            "0",
+            "--ack-timeout",
+            "0",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 0, r.stderr
+    n = sum(t.count for t in bag_topics(d / "results.mcap"))
+    assert f"replayed {n} messages" in r.stdout
+
+
+def test_deterministic_and_rerun_skips(processed, sample_bags, tmp_path):
+    """Same bag and parameters, one job instead of two: byte-identical products.
+    A re-run skips, --force redoes."""
+    out, _ = processed
+    r = _run(str(sample_bags / "subpixel"), "-o", str(tmp_path), "--params", DEMO, "--quiet")
+    assert r.returncode == 0, r.stderr
+    a, b = out / "subpixel", tmp_path / "subpixel"
+    files = _deterministic_files(a)
+    assert len(files) >= 10 and files == _deterministic_files(b)
+    match, mismatch, errors = filecmp.cmpfiles(a, b, [str(f) for f in files], shallow=False)
+    assert mismatch == [] and errors == []
+    before = (b / "summary.json").stat().st_mtime_ns
+    r = _run(str(sample_bags / "subpixel"), "-o", str(tmp_path), "--params", DEMO)
+    assert r.returncode == 0 and "skipped" in r.stdout
+    assert (b / "summary.json").stat().st_mtime_ns == before
+    r = _run(
+        str(sample_bags / "subpixel"), "-o", str(tmp_path), "--params", DEMO, "--force", "--quiet"
+    )
+    assert r.returncode == 0, r.stderr
+    assert (b / "summary.json").stat().st_mtime_ns != before
+    assert filecmp.cmp(a / "shifts.csv", b / "shifts.csv", shallow=False)
+
+
+def test_ctrl_c_leaves_nothing_that_looks_complete(sample_bags, tmp_path):
+    p = subprocess.Popen(
+        process_cmd(str(sample_bags / "subpixel"), "-o", str(tmp_path), "--params", DEMO),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    line = p.stderr.readline()  # the first progress line: processing has started
+    assert "frames" in line, line
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert "Traceback" not in err
+    assert list(tmp_path.iterdir()) == [] or not (tmp_path / "subpixel").exists()
+    assert not [q for q in tmp_path.iterdir() if q.name.startswith(".")]
+
+
+def test_kill_with_jobs_stops_the_workers_and_removes_their_folders(sample_bags, tmp_path):
+    p = subprocess.Popen(
+        process_cmd(
+            str(sample_bags / "subpixel"),
+            str(sample_bags / "seneca"),
+            "-o",
+            str(tmp_path),
+            "--params",
+            DEMO,
+            "--jobs",
+            "2",
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    line = p.stderr.readline()
+    assert "frames" in line, line
+    p.send_signal(signal.SIGTERM)  # to the parent alone: it must stop its workers itself
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert "Traceback" not in err
+    time.sleep(1.0)
+    assert [q.name for q in tmp_path.iterdir()] == []
+
+
+# --------------------------------------------------------------------------- bad input
+def test_bad_bags_get_one_line_each_and_the_rest_is_processed(sample_bags, tmp_path):
+    msgs, frames, tel = _sample(sample_bags)
+    bags = tmp_path / "bags"
+    bags.mkdir()
+    _write(bags / "no_images", tel)
+    _write(bags / "no_telemetry", frames)
+    mixed = []
+    for k, m in enumerate(frames):
+        if 9 <= k <= 11:
+            img, h = cdr_to_image(m.raw)
+            m = type(m)(
+                m.topic,
+                m.msgtype,
+                m.timestamp_ns,
+                image_to_cdr(
+                    np.ascontiguousarray(img[:320, :300]), "bgr8", m.timestamp_ns, "camera"
+                ),
+            )
+        mixed.append(m)
+    _write(bags / "mixed_sizes", sorted(mixed + tel, key=lambda m: m.timestamp_ns))
+    corrupt = _write(bags / "corrupt.mcap", msgs)
+    data = bytearray(corrupt.read_bytes())
+    i, chunks = 8, []
+    while (
+        data[i] != 0x0F
+    ):  # top-level records up to the data end: damage a record inside the middle chunk
+        op, n = data[i], struct.unpack_from("<Q", data, i + 1)[0]
+        if op == 0x06:
+            chunks.append(i)
+        i += 9 + n
+    c = chunks[len(chunks) // 2]
+    j = c + 9 + 28
+    j += 4 + struct.unpack_from("<I", data, j)[0] + 8
+    data[j : j + 9] = b"\x05" + struct.pack("<Q", 2**40)
+    corrupt.write_bytes(bytes(data))
+    (bags / "not_a_bag").mkdir()
+    out = tmp_path / "out"
+    names = ["no_images", "no_telemetry", "mixed_sizes", "corrupt.mcap", "not_a_bag"]
+    r = _run(*[str(bags / n) for n in names], "-o", str(out), "--params", DEMO, "--jobs", "2")
+    assert r.returncode == 1
+    assert "Traceback" not in r.stderr + r.stdout
+    batch = {b["name"]: b for b in json.loads((out / "batch_summary.json").read_text())}
+    assert set(batch) == {"no_images", "no_telemetry", "mixed_sizes", "corrupt", "not_a_bag"}
+    for b in batch.values():
+        assert "\n" not in b["line"]
+    assert batch["not_a_bag"]["status"] == "failed" and not (out / "not_a_bag").exists()
+
+    s = _summary(out / "no_images")
+    assert s["status"] == "partial" and "no images" in batch["no_images"]["line"]
+    assert any("no images" in p for p in s["problems"])
+    assert "no images" in (out / "no_images" / "report.html").read_text()
+
+    s = _summary(out / "no_telemetry")
+    assert batch["no_telemetry"]["status"] == "ok"
+    assert s["telemetry"]["source"] == "none" and any("no telemetry" in p for p in s["problems"])
+    assert (
+        len(s["sets"]) >= 2
+        and (out / "no_telemetry" / "superres" / s["sets"][0]["superres"].split("/")[1]).is_file()
+    )
+    rows = read_csv(out / "no_telemetry" / "shifts.csv")
+    assert rows and all(row["u_expected_px"] == "" for row in rows)
+    assert "no telemetry" in (out / "no_telemetry" / "report.html").read_text()
+
+    s = _summary(out / "mixed_sizes")
+    assert s["status"] == "partial" and s["frames"]["dropped"] == 3
+    assert any(
+        "frame size 300x320x3 uint8 differs from the flight's 448x448x3 uint8" in p
+        for p in s["problems"]
+    )
+    assert len(s["sets"]) >= 1
+    fr = read_csv(out / "mixed_sizes" / "frames.csv")
+    assert [row["status"] for row in fr[9:12]] == ["dropped"] * 3
+
+    s = _summary(out / "corrupt")
+    assert s["status"] == "partial" and "breaks off" in batch["corrupt"]["line"]
+    assert 0 < s["frames"]["in"] < len(frames)
+    assert "corrupt or truncated" in (out / "corrupt" / "report.html").read_text()
+
+
+def test_sqlite3_compressed_images_with_tlog_telemetry(sample_bags, tmp_path):
+    """CompressedImage (lossless PNG) in a sqlite3 bag, telemetry from the .tlog beside it."""
+    _, frames, _ = _sample(sample_bags)
+    comp = []
+    for m in frames:
+        img, h = cdr_to_image(m.raw)
+        comp.append(
+            type(m)(
+                "/cam/compressed",
+                "sensor_msgs/msg/CompressedImage",
+                m.timestamp_ns,
+                compressed_to_cdr(np.ascontiguousarray(img), m.timestamp_ns, "camera", "png"),
+            )
+        )
+    bag = _write(tmp_path / "flight", comp, storage="sqlite3")
+    (tmp_path / "flight.tlog").write_bytes((sample_bags / "subpixel.tlog").read_bytes())
+    r = _run(
+        str(bag), "-o", str(tmp_path / "out"), "--params", DEMO, "--telemetry", "tlog", "--quiet"
+    )
+    assert r.returncode == 0, r.stderr
+    s = _summary(tmp_path / "out" / "flight")
+    assert (
+        s["camera"]["topic"] == "/cam/compressed" and s["telemetry"]["source"] == "tlog flight.tlog"
+    )
+    truth = json.loads((sample_bags / "subpixel" / "truth.json").read_text())
+    true = {f["stamp_ns"]: np.array([f["u"], f["v"]]) for f in truth["frames"]}
+    rows = [
+        row
+        for row in read_csv(tmp_path / "out" / "flight" / "shifts.csv")
+        if row["converged"] == "1"
+    ]
+    assert len(rows) >= 18
+    for row in rows:
+        t = true[int(row["stamp_ns"])] - true[int(row["reference_stamp_ns"])]
+        # MAVLink carries the velocity in cm/s: 1 cm/s of the 0.59 m/s drift is 1.7 % of the shift
+        exp = np.array([float(row["u_expected_px"]), float(row["v_expected_px"])])
+        assert np.all(np.abs(exp - t) < 0.01 + 0.03 * np.abs(t)), (exp, t)
+
+
+def test_missing_sources_are_one_line_errors(sample_bags, tmp_path):
+    r = _run(str(sample_bags / "seneca"), "-o", str(tmp_path), "--camera-topic", "/nope", "--quiet")
+    assert (
+        r.returncode == 1
+        and "camera topic /nope not in bag" in (tmp_path / "batch_summary.json").read_text()
+    )
+    r = _run(str(sample_bags / "subpixel"), str(sample_bags / "subpixel"), "-o", str(tmp_path))
+    assert r.returncode == 1 and r.stderr.count("\n") == 1 and "would both write" in r.stderr
+    r = _run(
+        str(sample_bags / "subpixel"), "-o", str(tmp_path), "--params", str(tmp_path / "none.yaml")
+    )
+    assert r.returncode == 1 and r.stderr.count("\n") == 1 and "cannot read parameters" in r.stderr
+
+
+def test_report_command_rewrites_reports(processed, tmp_path):
+    import shutil
+
+    src = processed[0] / "seneca"
+    d = tmp_path / "seneca"
+    shutil.copytree(src, d)
+    (d / "report.html").unlink()
+    r = subprocess.run(
+        [sys.executable, "-m", "subpix_ros.cli", "report", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 0, r.stderr
+    text = (d / "report.html").read_text()
+    assert "Flight report: seneca" in text and "http" not in text.lower().replace("http-equiv", "")
+    r = subprocess.run(
+        [sys.executable, "-m", "subpix_ros.cli", "report", str(tmp_path / "empty")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 1 and r.stderr.count("\n") == 1
+
+
+def test_mono16_flight_gives_16_bit_products(sample_bags, tmp_path):
+    """A 16-bit camera: super-resolved and bicubic PNGs stay 16-bit, the mosaic preview is 8-bit."""
+    _, frames, tel = _sample(sample_bags)
+    mono = []
+    for m in frames:
+        img, _ = cdr_to_image(m.raw)
+        y = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_BGR2GRAY).astype(np.uint16) * 257
+        mono.append(
+            type(m)(
+                m.topic,
+                m.msgtype,
+                m.timestamp_ns,
+                image_to_cdr(y, "mono16", m.timestamp_ns, "camera"),
+            )
+        )
+    bag = _write(tmp_path / "mono16", sorted(mono + tel, key=lambda m: m.timestamp_ns))
+    r = _run(str(bag), "-o", str(tmp_path / "out"), "--params", DEMO, "--quiet")
+    assert r.returncode == 0, r.stderr
+    d = tmp_path / "out" / "mono16"
+    s = _summary(d)
+    assert s["camera"]["dtype"] == "uint16" and len(s["sets"]) >= 2
+    for st in s["sets"]:
+        sr = cv2.imread(str(d / st["superres"]), cv2.IMREAD_UNCHANGED)
+        bic = cv2.imread(str(d / st["bicubic"]), cv2.IMREAD_UNCHANGED)
+        assert sr.dtype == bic.dtype == np.uint16 and sr.shape == bic.shape == (896, 896)
+        assert sr.max() > 255 * 4  # the 16-bit range is used, not 8-bit values in a 16-bit file
+    mos = cv2.imread(str(d / "mosaic.png"), cv2.IMREAD_UNCHANGED)
+    assert mos.dtype == np.uint8 and s["mosaic"]["written"]
+    srs = list(read_messages(d / "results.mcap", ["/super_resolved"]))
+    img, _ = cdr_to_image(srs[0].raw)
+    assert img.dtype == np.uint16
+
+
+def test_progress_bars_on_a_terminal_plain_lines_otherwise():
+    import io
+
+    from subpix_ros.process.batch import Progress
+
+    tty = io.StringIO()
+    p = Progress(stream=tty, tty=True)
+    for k in range(1, 11):
+        p.update("flight", k, 10)
+    p.finish("flight", "flight: ok")
+    text = tty.getvalue()
+    assert "flight" in text and "10/10" in text and "frame/s" in text and "\r" in text  # a tqdm bar
+    plain = io.StringIO()
+    p = Progress(stream=plain, tty=False)
+    for k in range(1, 11):
+        p.update("flight", k, 10)
+    lines = plain.getvalue().splitlines()
+    assert lines[0].startswith("flight: 1/10 frames") and lines[-1].startswith(
+        "flight: 10/10 frames (100 %)"
+    )
+    assert len(lines) == 2 and "\r" not in plain.getvalue()  # first and last only (period 5 s)
+    quiet = io.StringIO()
+    p = Progress(stream=quiet, quiet=True)
+    p.update("flight", 1, 10)
+    p.finish("flight", "flight: ok")
+    assert quiet.getvalue() == ""

@@ -306,7 +306,7 @@ def test_bad_bags_get_one_line_each_and_the_rest_is_processed(sample_bags, tmp_p
     s = _summary(out / "corrupt")
     assert s["status"] == "partial" and "breaks off" in batch["corrupt"]["line"]
     assert 0 < s["frames"]["in"] < len(frames)
-    assert "corrupt or truncated" in (out / "corrupt" / "report.html").read_text()
+    assert "is corrupt at byte offset" in (out / "corrupt" / "report.html").read_text()
 
 
 def test_sqlite3_compressed_images_with_tlog_telemetry(sample_bags, tmp_path):

@@ -59,6 +59,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="telemetry source (default: the bag's /telemetry/* topics, else a .tlog beside it)",
     )
     p.add_argument("--force", action="store_true", help="redo bags whose products are complete")
+    p.add_argument(
+        "--skip-corrupt",
+        action="store_true",
+        help="go on past damaged chunks/records of a bag (default: stop the bag at the first one); what was skipped is in the summary and the report, and the bag counts as partial",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
@@ -96,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
         camera_topic=args.camera_topic,
         telemetry=args.telemetry,
         force=args.force,
+        skip_corrupt=args.skip_corrupt,
         progress=progress,
     )
     failed = [r for r in results if r.status in ("failed", "partial")]

@@ -103,7 +103,8 @@ def interrupt_on_signals() -> None:
 
 
 def _worker(
-    bag: str, out: str, params: dict, camera_topic, telemetry, force: bool, threads: int, queue
+    bag: str, out: str, params: dict, camera_topic, telemetry, force: bool, threads: int, queue,
+    skip_corrupt: bool = False,
 ) -> BagResult:
     import cv2
 
@@ -134,6 +135,7 @@ def _worker(
             camera_topic=camera_topic,
             telemetry=telemetry,
             force=force,
+            skip_corrupt=skip_corrupt,
             progress=progress,
         )
     except KeyboardInterrupt:
@@ -149,6 +151,7 @@ def run_batch(
     camera_topic: str | None = None,
     telemetry: str | None = None,
     force: bool = False,
+    skip_corrupt: bool = False,
     progress: Progress | None = None,
     on_result: Callable[[BagResult], None] | None = None,
 ) -> list[BagResult]:
@@ -175,6 +178,7 @@ def run_batch(
                 camera_topic=camera_topic,
                 telemetry=telemetry,
                 force=force,
+                skip_corrupt=skip_corrupt,
                 progress=lambda d, t, n=name: progress.update(n, d, t),
             )
             done(i, r)
@@ -190,7 +194,8 @@ def run_batch(
     try:
         futs = {
             pool.submit(
-                _worker, b, str(out), params, camera_topic, telemetry, force, threads, queue
+                _worker, b, str(out), params, camera_topic, telemetry, force, threads, queue,
+                skip_corrupt,
             ): i
             for i, b in enumerate(bags)
         }

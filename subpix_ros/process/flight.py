@@ -455,6 +455,7 @@ def process_bag(
     camera_topic: str | None = None,
     telemetry: str | None = None,
     force: bool = False,
+    skip_corrupt: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> BagResult:
     """Process one flight bag into ``out_root/<bag name>/``; never raises for bad input.
@@ -471,6 +472,9 @@ def process_bag(
         As in :func:`subpix_ros.process.inputs.open_flight`.
     force : bool
         Redo a bag whose products are already complete (else it is skipped).
+    skip_corrupt : bool
+        Read past damaged chunks/records (counted in ``problems``, status "partial") instead of
+        stopping the bag at the first one.
     progress : callable, optional
         ``progress(frames_done, frames_total)`` after every frame.
 
@@ -497,6 +501,7 @@ def process_bag(
     params = params or {}
     try:
         flight = open_flight(bag, camera_topic, telemetry)
+        flight.skip_corrupt = skip_corrupt
     except (InputError, BagError) as exc:
         return BagResult(str(bag), name, "failed", f"{name}: failed: {exc}", problems=[str(exc)])
     out_root.mkdir(parents=True, exist_ok=True)
@@ -676,6 +681,9 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
         problems.extend(f"{n} frame(s) dropped: {examples[k]}" for k, n in sorted(dropped.items()))
     if col.errors:
         problems.append(f"{len(col.errors)} stage error(s), last: {col.errors[-1]}")
+    if flight.read_report.skipped_records:
+        status = "partial"
+        problems.append(f"corrupt bag read past its damage: {flight.read_report.summary()}")
 
     # ---- per-frame products
     buf = TelemetryBuffer(

@@ -28,7 +28,7 @@ from typing import Iterator
 
 from subpix_ros.core.telemetry import TelemetrySample, heading_from_quaternion_enu, sample_from_enu
 from subpix_ros.io import cdr
-from subpix_ros.io.bags import BagError, bag_topics, read_messages
+from subpix_ros.io.bags import BagError, ReadReport, bag_topics, read_messages
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -101,6 +101,8 @@ class Flight:
     telemetry_note: str = ""
     tlog_samples: list[TelemetrySample] = field(default_factory=list)
     camera_note: str = ""
+    skip_corrupt: bool = False  # read past damaged chunks (counted in read_report)
+    read_report: ReadReport = field(default_factory=ReadReport)
 
     @property
     def has_telemetry(self) -> bool:
@@ -122,7 +124,9 @@ class Flight:
         decode = frame_from_compressed_cdr if self.camera_type == COMPRESSED else frame_from_cdr
         if not topics:
             return
-        for m in read_messages(self.path, topics):
+        for m in read_messages(
+            self.path, topics, skip_corrupt=self.skip_corrupt, report=self.read_report
+        ):
             if m.topic == self.camera_topic:
                 try:
                     frame = decode(m.raw, received=0.0)
@@ -156,7 +160,8 @@ class Flight:
             return list(self.tlog_samples)
         rebuild = _TopicTelemetry()
         out = []
-        for m in read_messages(self.path, [t for t in TELEMETRY_TOPICS if t in self.topics]):
+        tel = [t for t in TELEMETRY_TOPICS if t in self.topics]
+        for m in read_messages(self.path, tel, skip_corrupt=self.skip_corrupt):
             try:
                 s = rebuild.add(m.topic, m.raw, m.timestamp_ns)
             except Exception:  # noqa: BLE001

@@ -307,6 +307,14 @@ def test_bad_bags_get_one_line_each_and_the_rest_is_processed(sample_bags, tmp_p
     assert s["status"] == "partial" and "breaks off" in batch["corrupt"]["line"]
     assert 0 < s["frames"]["in"] < len(frames)
     assert "is corrupt at byte offset" in (out / "corrupt" / "report.html").read_text()
+    # --skip-corrupt: the frames after the damaged chunk are processed too, and it is said
+    r = _run(str(bags / "corrupt.mcap"), "-o", str(tmp_path / "out2"), "--params", DEMO,
+             "--skip-corrupt", "--quiet")
+    assert r.returncode == 1 and "Traceback" not in r.stderr + r.stdout
+    s2 = _summary(tmp_path / "out2" / "corrupt")
+    assert s2["status"] == "partial" and s["frames"]["in"] < s2["frames"]["in"] < len(frames)
+    assert any("corrupt bag read past its damage: skipped 1 corrupt record" in p
+               for p in s2["problems"]), s2["problems"]
 
 
 def test_sqlite3_compressed_images_with_tlog_telemetry(sample_bags, tmp_path):

@@ -10,6 +10,7 @@ touched (``len``) but not decoded. Times: median and best of several runs, MB/s 
 bytes; the load average is printed (the machine may be shared).
 Usage: ``python benchmarks/bench_bag_read.py [--frames N] [--runs R]``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -61,8 +62,10 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=5)
     args = ap.parse_args()
     frames = [cv2.imread(str(p)) for p in seneca_frame_paths()]
-    print(f"load average {os.getloadavg()[0]:.2f}; {args.frames} frames "
-          f"{frames[0].shape[1]}x{frames[0].shape[0]} bgr8")
+    print(
+        f"load average {os.getloadavg()[0]:.2f}; {args.frames} frames "
+        f"{frames[0].shape[1]}x{frames[0].shape[0]} bgr8"
+    )
     print(f"{'storage':8s} {'reader':28s} {'median s':>9s} {'best s':>8s} {'MB/s':>7s}")
     with tempfile.TemporaryDirectory(prefix="bench_bag_") as tmp:
         for storage in ("mcap", "sqlite3"):
@@ -70,10 +73,16 @@ def main() -> None:
             with BagWriter(bag, storage=storage) as w:
                 for i in range(args.frames):
                     t = 10**18 + i * 10**8
-                    w.write("/camera/image_raw", "sensor_msgs/msg/Image", t,
-                            image_to_cdr(frames[i % len(frames)], "bgr8", t, "cam"))
-            for name, fn in (("rosbags Reader (reference)", _rosbags),
-                             ("read_messages (verifying)", _ours)):
+                    w.write(
+                        "/camera/image_raw",
+                        "sensor_msgs/msg/Image",
+                        t,
+                        image_to_cdr(frames[i % len(frames)], "bgr8", t, "cam"),
+                    )
+            for name, fn in (
+                ("rosbags Reader (reference)", _rosbags),
+                ("read_messages (verifying)", _ours),
+            ):
                 med, best, nbytes = _time(fn, bag, args.runs)
                 print(f"{storage:8s} {name:28s} {med:9.3f} {best:8.3f} {nbytes / 1e6 / med:7.0f}")
 

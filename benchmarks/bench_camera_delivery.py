@@ -23,6 +23,7 @@ Printed: one line per run, then runs with frames delivered / runs.
 Usage: python benchmarks/bench_camera_delivery.py [--runs 7] [--bag subpixel|mono512] [--settle 3]
        [--extra VAR=VALUE ...] [--kill-first] [--reliable]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -39,8 +40,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 VENV = ROOT / ".venv"
-DROP_PREFIXES = ("ROS_", "RMW_", "AMENT_", "FASTRTPS_", "FASTDDS_", "COLCON_", "CYCLONEDDS_",
-                 "ZENOH_")
+DROP_PREFIXES = (
+    "ROS_",
+    "RMW_",
+    "AMENT_",
+    "FASTRTPS_",
+    "FASTDDS_",
+    "COLCON_",
+    "CYCLONEDDS_",
+    "ZENOH_",
+)
 
 LISTENER = r"""
 import json, signal, sys
@@ -108,17 +117,30 @@ def write_mono512(folder: Path) -> Path:
             m = np.float32([[1, 0, -100 + 0.27 * k], [0, 1, -100 + 0.41 * k]])
             frame = cv2.warpAffine(crop, m, (512, 512), flags=cv2.INTER_LINEAR)
             ns = 1_700_000_000_000_000_000 + k * 100_000_000
-            w.write("/camera/image_raw", "sensor_msgs/msg/Image", ns,
-                    image_to_cdr(np.clip(frame, 0, 255).astype(np.uint8), "mono8", ns, "camera"))
+            w.write(
+                "/camera/image_raw",
+                "sensor_msgs/msg/Image",
+                ns,
+                image_to_cdr(np.clip(frame, 0, 255).astype(np.uint8), "mono8", ns, "camera"),
+            )
     return bag
 
 
 def start_nodes(env: dict, reliable: bool, log: Path) -> list[subprocess.Popen]:
     extra = ["-p", "camera_reliable:=true"] if reliable else []
-    cmds = [["registration_node", "--ros-args", "-r", "image:=/camera/image_raw",
-             "-p", "use_sim_time:=true", *extra],
-            ["shift_node", "--ros-args", "-p", "use_sim_time:=true"],
-            ["reconstruction_node", "--ros-args", "-p", "use_sim_time:=true"]]
+    cmds = [
+        [
+            "registration_node",
+            "--ros-args",
+            "-r",
+            "image:=/camera/image_raw",
+            "-p",
+            "use_sim_time:=true",
+            *extra,
+        ],
+        ["shift_node", "--ros-args", "-p", "use_sim_time:=true"],
+        ["reconstruction_node", "--ros-args", "-p", "use_sim_time:=true"],
+    ]
     fh = open(log, "a")
     return [subprocess.Popen(c, env=env, stdout=fh, stderr=subprocess.STDOUT) for c in cmds]
 
@@ -146,40 +168,66 @@ def one_run(args, env: dict, bag: Path, log: Path) -> dict:
         time.sleep(args.settle)
         stop(first, signal.SIGKILL)
     shm_before = shm_files()
-    listener = subprocess.Popen([str(VENV / "bin" / "python"), "-c", LISTENER], env=env,
-                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    listener = subprocess.Popen(
+        [str(VENV / "bin" / "python"), "-c", LISTENER],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
     assert listener.stdout.readline().strip() == "listening"
     nodes = start_nodes(env, args.reliable, log)
     time.sleep(args.settle)
     t0 = time.monotonic()
     renv = dict(env, **dict(e.split("=", 1) for e in args.replay_extra))
-    r = subprocess.run(["subpix", "replay", str(bag), "--clock", *args.replay_args], env=renv,
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        ["subpix", "replay", str(bag), "--clock", *args.replay_args],
+        env=renv,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     replay_s = time.monotonic() - t0
     time.sleep(args.after)
     stop(nodes)
     listener.send_signal(signal.SIGINT)
     out, _ = listener.communicate(timeout=20)
     res = json.loads(out.strip().splitlines()[-1])
-    res.update(replay_rc=r.returncode, replay=(r.stdout + r.stderr).strip().splitlines()[-1:],
-               replay_s=replay_s, shm_before=shm_before)
+    res.update(
+        replay_rc=r.returncode,
+        replay=(r.stdout + r.stderr).strip().splitlines()[-1:],
+        replay_s=replay_s,
+        shm_before=shm_before,
+    )
     return res
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=7)
-    ap.add_argument("--bag", default="subpixel",
-                    help="subpixel (README) or mono512 (8 frames 512x512 mono8)")
-    ap.add_argument("--settle", type=float, default=3.0,
-                    help="seconds between starting the nodes and the replay")
-    ap.add_argument("--after", type=float, default=6.0,
-                    help="seconds after the replay before stopping")
+    ap.add_argument(
+        "--bag", default="subpixel", help="subpixel (README) or mono512 (8 frames 512x512 mono8)"
+    )
+    ap.add_argument(
+        "--settle",
+        type=float,
+        default=3.0,
+        help="seconds between starting the nodes and the replay",
+    )
+    ap.add_argument(
+        "--after", type=float, default=6.0, help="seconds after the replay before stopping"
+    )
     ap.add_argument("--extra", nargs="*", default=[], metavar="VAR=VALUE")
-    ap.add_argument("--replay-extra", nargs="*", default=[], metavar="VAR=VALUE",
-                    help="variables for the replay (the camera) only, e.g. SKIP_DEFAULT_XML=1")
-    ap.add_argument("--kill-first", action="store_true",
-                    help="SIGKILL a first set of nodes before each run")
+    ap.add_argument(
+        "--replay-extra",
+        nargs="*",
+        default=[],
+        metavar="VAR=VALUE",
+        help="variables for the replay (the camera) only, e.g. SKIP_DEFAULT_XML=1",
+    )
+    ap.add_argument(
+        "--kill-first", action="store_true", help="SIGKILL a first set of nodes before each run"
+    )
     ap.add_argument("--reliable", action="store_true", help="camera_reliable:=true")
     ap.add_argument("--domain", default=os.environ.get("SUBPIX_TEST_DOMAIN_ID", "44"))
     ap.add_argument("--replay-args", nargs="*", default=[], help="more arguments for subpix replay")
@@ -189,20 +237,25 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="bench_delivery_"))
     bag = ROOT / "data" / "bags" / "subpixel" if args.bag == "subpixel" else write_mono512(tmp)
     log = tmp / "nodes.log"
-    print(f"bag {args.bag}, settle {args.settle} s, extra {extra or '-'}, "
-          f"kill-first {args.kill_first}, "
-          f"reliable {args.reliable}; node logs in {log}")
+    print(
+        f"bag {args.bag}, settle {args.settle} s, extra {extra or '-'}, "
+        f"kill-first {args.kill_first}, "
+        f"reliable {args.reliable}; node logs in {log}"
+    )
     delivered = 0
     for k in range(args.runs):
         res = one_run(args, env, bag, log)
         ok = res["input_total"] > 0 or res["registered"] > 0
         delivered += ok
         diag = res["diag"].get("registration_node", {})
-        print(f"run {k + 1}: registration input {res['input_total']:3d} (diag), frames registered "
-              f"{res['registered']:3d}, shifts {res['shifts']:3d}, super-resolved "
-              f"{res['super_resolved']}, diag {diag.get('level')} "
-              f"{diag.get('message', '')[:100]!r}, shm files before {res['shm_before']}, "
-              f"replay {res['replay_s']:.1f} s {res['replay']}", flush=True)
+        print(
+            f"run {k + 1}: registration input {res['input_total']:3d} (diag), frames registered "
+            f"{res['registered']:3d}, shifts {res['shifts']:3d}, super-resolved "
+            f"{res['super_resolved']}, diag {diag.get('level')} "
+            f"{diag.get('message', '')[:100]!r}, shm files before {res['shm_before']}, "
+            f"replay {res['replay_s']:.1f} s {res['replay']}",
+            flush=True,
+        )
     print(f"runs with frames delivered: {delivered}/{args.runs}")
 
 

@@ -21,10 +21,10 @@ medians (and best) of several runs in milliseconds; the machine may be shared,
 so the load average is printed with the table. Outputs are checked for
 equality before timing. Usage: ``python benchmarks/bench_image_io.py [--runs N]``.
 """
+
 from __future__ import annotations
 
 import argparse
-import array
 import os
 import platform
 import statistics
@@ -64,8 +64,12 @@ def timeit(fn, runs: int) -> tuple[float, float]:
 def frames() -> list[tuple[str, np.ndarray]]:
     """Real Seneca content at each benchmark size (BGR8)."""
     src = cv2.imread(str(seneca_frame_paths()[0]), cv2.IMREAD_COLOR)
-    out = [(label, cv2.resize(src, (w, h), interpolation=cv2.INTER_LINEAR)) for h, w, label in SIZES]
-    full = sorted(FULL_RES.glob("*.jpg")) + sorted(FULL_RES.glob("*.JPG")) if FULL_RES.is_dir() else []
+    out = [
+        (label, cv2.resize(src, (w, h), interpolation=cv2.INTER_LINEAR)) for h, w, label in SIZES
+    ]
+    full = (
+        sorted(FULL_RES.glob("*.jpg")) + sorted(FULL_RES.glob("*.JPG")) if FULL_RES.is_dir() else []
+    )
     if full:
         img = cv2.imread(str(full[0]), cv2.IMREAD_COLOR)
         if img is not None:
@@ -76,7 +80,9 @@ def frames() -> list[tuple[str, np.ndarray]]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=7, help="timed runs per cell (default 7)")
-    ap.add_argument("--naive-runs", type=int, default=3, help="runs for the slow data=ndarray path (default 3)")
+    ap.add_argument(
+        "--naive-runs", type=int, default=3, help="runs for the slow data=ndarray path (default 3)"
+    )
     add_malloc_argument(ap)
     args = ap.parse_args()
     print(allocator_line(args.default_malloc))
@@ -92,17 +98,26 @@ def main() -> int:
         return m
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
-    print(f"# bench_image_io: sensor_msgs/Image bgr8, rclpy vs raw CDR (ms, median/best of {args.runs}; "
-          f"data=ndarray {args.naive_runs} runs)")
-    print(f"# python {platform.python_version()}, numpy {np.__version__}, opencv {cv2.__version__}, "
-          f"{os.cpu_count()} CPUs, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+    print(
+        f"# bench_image_io: sensor_msgs/Image bgr8, rclpy vs raw CDR (ms, median/best of {args.runs}; "
+        f"data=ndarray {args.naive_runs} runs)"
+    )
+    print(
+        f"# python {platform.python_version()}, numpy {np.__version__}, opencv {cv2.__version__}, "
+        f"{os.cpu_count()} CPUs, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}"
+    )
     cols = ["size", "op", "rclpy data=ndarray", "rclpy data=bytes", "fast path", "speed-up"]
     widths = [30, 11, 18, 16, 13, 8]
 
     def row(cells):
-        return "| " + " | ".join(
-            f"{c:<{wd}}" if i < 2 else f"{c:>{wd}}" for i, (c, wd) in enumerate(zip(cells, widths))
-        ) + " |"
+        return (
+            "| "
+            + " | ".join(
+                f"{c:<{wd}}" if i < 2 else f"{c:>{wd}}"
+                for i, (c, wd) in enumerate(zip(cells, widths))
+            )
+            + " |"
+        )
 
     print(row(cols))
     print("|" + "|".join("-" * (wd + 2) for wd in widths) + "|")
@@ -124,7 +139,9 @@ def main() -> int:
 
         raw = ser_fast()
         # Sanity: both paths describe the same message.
-        assert np.array_equal(np.frombuffer(deserialize_message(raw, Image).data, np.uint8).reshape(h, w, 3), img)
+        assert np.array_equal(
+            np.frombuffer(deserialize_message(raw, Image).data, np.uint8).reshape(h, w, 3), img
+        )
         assert np.array_equal(cdr_to_image(ser_bytes())[0], img)
 
         def de_rclpy():
@@ -142,13 +159,35 @@ def main() -> int:
         rb = timeit(ser_bytes, args.runs)
         fs = timeit(ser_fast, args.runs)
         best_rclpy = min(rb[0], naive[0]) if naive else rb[0]
-        print(row([label, "serialise", naive_s, f"{rb[0]:.2f}/{rb[1]:.2f}", f"{fs[0]:.2f}/{fs[1]:.2f}",
-                   f"{best_rclpy / fs[0]:.1f}x"]))
+        print(
+            row(
+                [
+                    label,
+                    "serialise",
+                    naive_s,
+                    f"{rb[0]:.2f}/{rb[1]:.2f}",
+                    f"{fs[0]:.2f}/{fs[1]:.2f}",
+                    f"{best_rclpy / fs[0]:.1f}x",
+                ]
+            )
+        )
         rd = timeit(de_rclpy, args.runs)
         fd = timeit(de_fast, args.runs)
-        print(row([label, "deserialise", "-", f"{rd[0]:.2f}/{rd[1]:.2f}", f"{fd[0]:.3f}/{fd[1]:.3f}",
-                   f"{rd[0] / fd[0]:.0f}x"]))
-    print("# speed-up = faster rclpy median / fast-path median; target >= 5x at 1920x1080 and 3840x2160")
+        print(
+            row(
+                [
+                    label,
+                    "deserialise",
+                    "-",
+                    f"{rd[0]:.2f}/{rd[1]:.2f}",
+                    f"{fd[0]:.3f}/{fd[1]:.3f}",
+                    f"{rd[0] / fd[0]:.0f}x",
+                ]
+            )
+        )
+    print(
+        "# speed-up = faster rclpy median / fast-path median; target >= 5x at 1920x1080 and 3840x2160"
+    )
     return 0
 
 

@@ -17,6 +17,7 @@ of a set), and the CPU time of the node processes.
 
 Usage: python benchmarks/bench_pipeline.py [--rate 10] [--seconds 20] [--set 16] [--layouts separate single]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,20 +59,41 @@ def pingpong(k: int, n: int) -> int:
 
 def start_layout(layout: str, env: dict) -> list[subprocess.Popen]:
     override = Path(tempfile.gettempdir()) / f"bench_pipeline_set{SET}_{os.getpid()}.yaml"
-    override.write_text(f"registration_node:\n  ros__parameters:\n    max_frames_per_reference: {SET - 1}\n"
-                        f"reconstruction_node:\n  ros__parameters:\n    n_frames: {SET}\n"
-                        f"    max_memory_mb: {float(env.get('SUBPIX_BENCH_MAX_MEMORY_MB') or 0.0)}\n")
+    override.write_text(
+        f"registration_node:\n  ros__parameters:\n    max_frames_per_reference: {SET - 1}\n"
+        f"reconstruction_node:\n  ros__parameters:\n    n_frames: {SET}\n"
+        f"    max_memory_mb: {float(env.get('SUBPIX_BENCH_MAX_MEMORY_MB') or 0.0)}\n"
+    )
     params = ["--params-file", str(ROOT / "config" / "bench.yaml"), "--params-file", str(override)]
     if layout == "single":
-        cmds = [[sys.executable, "-m", "subpix_ros.nodes.pipeline", "--no-telemetry", "--ros-args", "-r",
-                 "image:=/camera/image_raw", *params]]
+        cmds = [
+            [
+                sys.executable,
+                "-m",
+                "subpix_ros.nodes.pipeline",
+                "--no-telemetry",
+                "--ros-args",
+                "-r",
+                "image:=/camera/image_raw",
+                *params,
+            ]
+        ]
     else:
         # the mosaic takes the registration node's reference frames (keyframes, 1 in max_frames_per_reference+1)
         # instead of a second 10 Hz camera subscription: the README's wiring for high camera rates
-        remap = {"registration_node": ["-r", "image:=/camera/image_raw"], "mosaic_node": ["-r", "image:=/aligned/reference"]}
-        cmds = [[sys.executable, "-m", f"subpix_ros.nodes.{n}", "--ros-args", *params] + remap.get(n, [])
-                for n in ("registration_node", "shift_node", "reconstruction_node", "mosaic_node")]
-    return [subprocess.Popen(c, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for c in cmds]
+        remap = {
+            "registration_node": ["-r", "image:=/camera/image_raw"],
+            "mosaic_node": ["-r", "image:=/aligned/reference"],
+        }
+        cmds = [
+            [sys.executable, "-m", f"subpix_ros.nodes.{n}", "--ros-args", *params]
+            + remap.get(n, [])
+            for n in ("registration_node", "shift_node", "reconstruction_node", "mosaic_node")
+        ]
+    return [
+        subprocess.Popen(c, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        for c in cmds
+    ]
 
 
 def cpu_seconds(pid: int) -> float:
@@ -101,16 +123,37 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
     shifts: dict[int, float] = {}
     srs: dict[int, float] = {}
     diag: dict[str, dict[str, str]] = {}
-    node.create_subscription(Vector3Stamped, "/shift", lambda r: shifts.setdefault(
-        cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]), time.monotonic()), reliable_qos(100), raw=True)
-    node.create_subscription(Image, "/super_resolved", lambda r: srs.setdefault(
-        cdr.header_to_ns(cdr.cdr_to_image_msg(r).header), time.monotonic()), latched_qos(), raw=True)
-    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diag.update(
-        {s.name: {kv.key: kv.value for kv in s.values} for s in m.status}), 50)
+    node.create_subscription(
+        Vector3Stamped,
+        "/shift",
+        lambda r: shifts.setdefault(
+            cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]), time.monotonic()
+        ),
+        reliable_qos(100),
+        raw=True,
+    )
+    node.create_subscription(
+        Image,
+        "/super_resolved",
+        lambda r: srs.setdefault(
+            cdr.header_to_ns(cdr.cdr_to_image_msg(r).header), time.monotonic()
+        ),
+        latched_qos(),
+        raw=True,
+    )
+    node.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: diag.update({s.name: {kv.key: kv.value for kv in s.values} for s in m.status}),
+        50,
+    )
     try:
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not (pub.get_subscription_count() >= (1 if layout == "single" else 2)
-                                                   and node.count_publishers("/shift") and node.count_publishers("/super_resolved")):
+        while time.monotonic() < deadline and not (
+            pub.get_subscription_count() >= (1 if layout == "single" else 2)
+            and node.count_publishers("/shift")
+            and node.count_publishers("/super_resolved")
+        ):
             rclpy.spin_once(node, timeout_sec=0.1)
         for _ in range(20):
             rclpy.spin_once(node, timeout_sec=0.05)
@@ -149,12 +192,33 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
             i = order.index(ref)
             last = order[min(i + SET - 1, len(order) - 1)]
             lat_sr.append((t - sent[last]) * 1000)
-    drops = {name.replace("_node", ""): d.get("dropped_frames", "?") for name, d in sorted(diag.items())}
-    stage_keys = ("frames_tracked", "tracking_fallbacks", "worker_cpu_ms_per_item", "latency_p50_ms")
-    stages = {name.replace("_node", ""): {k: v for k, v in d.items() if k in stage_keys} for name, d in sorted(diag.items())}
-    return {"layout": layout, "frames": len(sent), "rate": len(sent) / wall, "shifts": len(shifts), "sr": len(srs),
-            "lat_shift": lat_shift, "lat_sr": np.array(lat_sr), "drops": drops, "stages": stages, "cpu_s_per_frame": cpu / len(sent),
-            "cpu_each": [round(c / len(sent), 3) for c in cpu_each], "camera_cpu": camera_cpu / len(sent)}
+    drops = {
+        name.replace("_node", ""): d.get("dropped_frames", "?") for name, d in sorted(diag.items())
+    }
+    stage_keys = (
+        "frames_tracked",
+        "tracking_fallbacks",
+        "worker_cpu_ms_per_item",
+        "latency_p50_ms",
+    )
+    stages = {
+        name.replace("_node", ""): {k: v for k, v in d.items() if k in stage_keys}
+        for name, d in sorted(diag.items())
+    }
+    return {
+        "layout": layout,
+        "frames": len(sent),
+        "rate": len(sent) / wall,
+        "shifts": len(shifts),
+        "sr": len(srs),
+        "lat_shift": lat_shift,
+        "lat_sr": np.array(lat_sr),
+        "drops": drops,
+        "stages": stages,
+        "cpu_s_per_frame": cpu / len(sent),
+        "cpu_each": [round(c / len(sent), 3) for c in cpu_each],
+        "camera_cpu": camera_cpu / len(sent),
+    }
 
 
 def pct(a: np.ndarray, q: float) -> str:
@@ -162,15 +226,25 @@ def pct(a: np.ndarray, q: float) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--rate", type=float, default=10.0)
     ap.add_argument("--seconds", type=float, default=20.0)
     global SET
-    ap.add_argument("--set", type=int, default=SET, help="frames per super-resolved image (default %(default)s)")
-    ap.add_argument("--layouts", nargs="+", default=["separate", "single"], choices=["separate", "single"])
+    ap.add_argument(
+        "--set", type=int, default=SET, help="frames per super-resolved image (default %(default)s)"
+    )
+    ap.add_argument(
+        "--layouts", nargs="+", default=["separate", "single"], choices=["separate", "single"]
+    )
     add_malloc_argument(ap, " in this process and the nodes")
-    ap.add_argument("--max-memory-mb", type=float, default=None,
-                    help="the reconstruction's max_memory_mb (default: unbounded)")
+    ap.add_argument(
+        "--max-memory-mb",
+        type=float,
+        default=None,
+        help="the reconstruction's max_memory_mb (default: unbounded)",
+    )
     args = ap.parse_args()
     if args.max_memory_mb:
         os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)
@@ -180,19 +254,27 @@ def main() -> None:
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     frames = make_frames(48)
     rows = [run_layout(layout, frames, args.rate, args.seconds) for layout in args.layouts]
-    print(f"\n1920x1080 bgr8 at {args.rate:g} Hz for {args.seconds:g} s, sets of {SET} frames, x2 super-resolution"
-          f"{'' if not args.max_memory_mb else f', max_memory_mb {args.max_memory_mb:g}'} "
-          f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
-    print("| layout   | frames in | in Hz | shifts out | SR out | frame->shift p50/p99 ms | set->SR p50/p99 ms "
-          "| CPU s/frame | dropped (per node) |")
+    print(
+        f"\n1920x1080 bgr8 at {args.rate:g} Hz for {args.seconds:g} s, sets of {SET} frames, x2 super-resolution"
+        f"{'' if not args.max_memory_mb else f', max_memory_mb {args.max_memory_mb:g}'} "
+        f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)"
+    )
+    print(
+        "| layout   | frames in | in Hz | shifts out | SR out | frame->shift p50/p99 ms | set->SR p50/p99 ms "
+        "| CPU s/frame | dropped (per node) |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['layout']:8s} | {r['frames']:9d} | {r['rate']:5.1f} | {r['shifts']:10d} | {r['sr']:6d} | "
-              f"{pct(r['lat_shift'], 50)} / {pct(r['lat_shift'], 99)} | {pct(r['lat_sr'], 50)} / {pct(r['lat_sr'], 99)} | "
-              f"{r['cpu_s_per_frame']:.3f} | {r['drops']} |")
+        print(
+            f"| {r['layout']:8s} | {r['frames']:9d} | {r['rate']:5.1f} | {r['shifts']:10d} | {r['sr']:6d} | "
+            f"{pct(r['lat_shift'], 50)} / {pct(r['lat_shift'], 99)} | {pct(r['lat_sr'], 50)} / {pct(r['lat_sr'], 99)} | "
+            f"{r['cpu_s_per_frame']:.3f} | {r['drops']} |"
+        )
     for r in rows:
-        print(f"  {r['layout']}: CPU s/frame per process {r['cpu_each']} (camera stand-in {r['camera_cpu']:.3f}); "
-              f"last stage figures from /diagnostics: {r['stages']}")
+        print(
+            f"  {r['layout']}: CPU s/frame per process {r['cpu_each']} (camera stand-in {r['camera_cpu']:.3f}); "
+            f"last stage figures from /diagnostics: {r['stages']}"
+        )
 
 
 if __name__ == "__main__":

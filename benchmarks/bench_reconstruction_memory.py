@@ -23,6 +23,7 @@ Rows:
 Usage: python benchmarks/bench_reconstruction_memory.py [--set 16] [--size 1920x1080] [--repeat 2]
        [--budgets 600 400 250] [--default-malloc]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -74,7 +75,9 @@ def measure(fn, repeat: int) -> tuple[float, float, float, np.ndarray]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--set", type=int, default=16)
     ap.add_argument("--size", default="1920x1080")
     ap.add_argument("--repeat", type=int, default=2)
@@ -96,9 +99,11 @@ def main() -> None:
     bic = superres.bicubic_upscale(frames[0].astype(np.float32), 2)
     plans = {}
     for b in args.budgets:
+
         def run(b=b):
             res, plans[b] = reconstruct_within_budget(frames, shifts, 2, max_memory_mb=b, **KW)
             return res.image
+
         row(f"budget {b:g} MB", run, b)
     orig_stack = superres._stack64
     superres._stack64 = _stack32
@@ -114,8 +119,12 @@ def main() -> None:
     superres.fit_spectrum = lambda *a, **k: fits[-1]
     try:
         for b in args.budgets[-1:]:
+
             def run_shared(b=b):
-                return reconstruct_within_budget(frames, shifts, 2, max_memory_mb=b, noise_sigma=noise, **KW)[0].image
+                return reconstruct_within_budget(
+                    frames, shifts, 2, max_memory_mb=b, noise_sigma=noise, **KW
+                )[0].image
+
             row(f"(patch) shared prior, budget {b:g} MB", run_shared)
     finally:
         superres.fit_spectrum = orig_fit
@@ -123,17 +132,27 @@ def main() -> None:
     m = 64 * 2
     inner = (slice(m, -m), slice(m, -m))
     detail = float(np.sqrt(np.mean((whole[inner] - bic[inner]) ** 2)))
-    print(f"\n{args.set} frames {w}x{h} bgr8 -> x2, MAP (load average {os.getloadavg()[0]:.1f} on "
-          f"{os.cpu_count()} CPUs); SR detail (whole - bicubic, interior RMS) {detail:.3f} DN")
-    print("| run | plan | process CPU s per set | peak traced MB | minor faults per set | "
-          "interior diff to whole RMS / max DN |")
+    print(
+        f"\n{args.set} frames {w}x{h} bgr8 -> x2, MAP (load average {os.getloadavg()[0]:.1f} on "
+        f"{os.cpu_count()} CPUs); SR detail (whole - bicubic, interior RMS) {detail:.3f} DN"
+    )
+    print(
+        "| run | plan | process CPU s per set | peak traced MB | minor faults per set | "
+        "interior diff to whole RMS / max DN |"
+    )
     print("|---|---|---|---|---|---|")
     for name, cpu, peak, faults, img, b in rows:
         d = np.abs(img[inner].astype(np.float64) - whole[inner])
         plan = plans.get(b)
-        desc = "-" if plan is None else (", ".join(plan.reductions) or "whole") + f" (est {plan.estimate_mb:.0f} MB)"
-        print(f"| {name} | {desc} | {cpu:.2f} | {peak:.0f} | {faults:.0f} | "
-              f"{np.sqrt(np.mean(d ** 2)):.4f} / {d.max():.3f} |")
+        desc = (
+            "-"
+            if plan is None
+            else (", ".join(plan.reductions) or "whole") + f" (est {plan.estimate_mb:.0f} MB)"
+        )
+        print(
+            f"| {name} | {desc} | {cpu:.2f} | {peak:.0f} | {faults:.0f} | "
+            f"{np.sqrt(np.mean(d**2)):.4f} / {d.max():.3f} |"
+        )
     print(f"max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
 
 

@@ -19,6 +19,7 @@ prior = the full result moved by (1.5, -1.0) px; time per frame, tracked vs full
 
     python benchmarks/bench_registration.py [--repeat 2] [--no-fullres] [--only tracking|real|synthetic]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -52,7 +53,11 @@ def feature_ransac(kind: str, ref: np.ndarray, mov: np.ndarray):
     k1, d1 = det.detectAndCompute(g1, None)
     if d0 is None or d1 is None:
         return None, 0, None
-    m = [p[0] for p in cv2.BFMatcher(norm).knnMatch(d1, d0, k=2) if len(p) == 2 and p[0].distance < ratio * p[1].distance]
+    m = [
+        p[0]
+        for p in cv2.BFMatcher(norm).knnMatch(d1, d0, k=2)
+        if len(p) == 2 and p[0].distance < ratio * p[1].distance
+    ]
     if len(m) < 8:
         return None, 0, None
     src = np.float32([k1[a.queryIdx].pt for a in m])
@@ -87,8 +92,10 @@ def real_rows(paths, repeat, label, lam=None):
     methods = [("ours", run_ours)]
     if lam is not None:
         methods.append((f"ours,lam={lam:+.4f}", lambda a, b: run_ours(a, b, distortion=lam)))
-    methods += [("ORB+RANSAC", lambda a, b: feature_ransac("orb", a, b)),
-                ("SIFT+RANSAC", lambda a, b: feature_ransac("sift", a, b))]
+    methods += [
+        ("ORB+RANSAC", lambda a, b: feature_ransac("orb", a, b)),
+        ("SIFT+RANSAC", lambda a, b: feature_ransac("sift", a, b)),
+    ]
     for name, fn in methods:
         ok, inl, rms, tt, extra = 0, [], [], [], []
         for i in range(len(ims) - 1):
@@ -103,15 +110,39 @@ def real_rows(paths, repeat, label, lam=None):
         per_pair = " ".join(f"{v:.2f}" for v in rms)
         if name.startswith("ours"):
             per_pair += "  inl " + " ".join(str(v) for v in inl)
-        rows.append((label, name, f"{ok}/{len(ims) - 1}", int(np.median(inl)) if inl else 0, min(inl) if inl else 0,
-                     float(np.median(rms)) if rms else float("nan"), max(rms) if rms else float("nan"),
-                     float(np.median(tt)), per_pair, (float(np.median(extra)) if extra else None), float(np.max(tt))))
+        rows.append(
+            (
+                label,
+                name,
+                f"{ok}/{len(ims) - 1}",
+                int(np.median(inl)) if inl else 0,
+                min(inl) if inl else 0,
+                float(np.median(rms)) if rms else float("nan"),
+                max(rms) if rms else float("nan"),
+                float(np.median(tt)),
+                per_pair,
+                (float(np.median(extra)) if extra else None),
+                float(np.max(tt)),
+            )
+        )
         if name == "ours":
             r = rows[-1]
             strip, first = strip_time(ims, repeat)
-            rows.append((label, "ours,strip", r[2], r[3], r[4], r[5], r[6], float(np.median(strip)),
-                         f"(same results; each frame prepared once; first frame's preparation {first:.3f} s, once)",
-                         None, float(np.max(strip))))
+            rows.append(
+                (
+                    label,
+                    "ours,strip",
+                    r[2],
+                    r[3],
+                    r[4],
+                    r[5],
+                    r[6],
+                    float(np.median(strip)),
+                    f"(same results; each frame prepared once; first frame's preparation {first:.3f} s, once)",
+                    None,
+                    float(np.max(strip)),
+                )
+            )
     return rows
 
 
@@ -139,8 +170,13 @@ def strip_time(ims, repeat) -> tuple[np.ndarray, float]:
 def synthetic_pair(hr, h384, noise=1.0, seed=0):
     s = np.array([[2, 0, 0.5], [0, 2, 0.5], [0, 0, 1.0]])
     h = s @ h384 @ np.linalg.inv(s)
-    mov = cv2.warpPerspective(hr.astype(np.float32), h, (768, 768), flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP,
-                              borderMode=cv2.BORDER_REFLECT)
+    mov = cv2.warpPerspective(
+        hr.astype(np.float32),
+        h,
+        (768, 768),
+        flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_REFLECT,
+    )
     rng = np.random.default_rng(seed)
 
     def lr(x):
@@ -178,7 +214,9 @@ def synthetic_rows():
                 fails += 1
                 continue
             errs.append(np.hypot(*(est - apply_h(h, corners)).T).mean())
-        rows.append((meth, len(cases) - fails, len(cases), float(np.mean(errs)), float(np.max(errs))))
+        rows.append(
+            (meth, len(cases) - fails, len(cases), float(np.mean(errs)), float(np.max(errs)))
+        )
     return rows
 
 
@@ -208,7 +246,10 @@ def tracking_rows(repeat: int, lam: float | None):
             t_full.append(tf)
             prior = full.homography.copy()
             prior[:2, 2] += (1.5, -1.0)
-            tt, tr = timed(lambda: register(ref, b, distortion=dist, n_points=n_points, prior=prior), repeat + 1)
+            tt, tr = timed(
+                lambda: register(ref, b, distortion=dist, n_points=n_points, prior=prior),
+                repeat + 1,
+            )
             if tr.ok and tr.tracked:
                 n_tr += 1
                 t_tr.append(tt)
@@ -216,21 +257,39 @@ def tracking_rows(repeat: int, lam: float | None):
                 agree.append(float(np.hypot(*(tr.transfer(pm) - full.transfer(pm)).T).mean()))
                 inl_tr.append(tr.inliers)
                 inl_full.append(full.inliers)
-        rows.append((n_points, "off" if dist is False else f"{dist:+.4f}", n_ok, len(ims) - 1, n_tr,
-                     np.median(t_tr) * 1e3 if t_tr else np.nan, np.max(t_tr) * 1e3 if t_tr else np.nan,
-                     np.median(t_full) * 1e3 if t_full else np.nan, np.median(t_plain) * 1e3,
-                     np.median(inl_tr) if inl_tr else 0, np.median(inl_full) if inl_full else 0,
-                     np.median(agree) if agree else np.nan, np.max(agree) if agree else np.nan))
+        rows.append(
+            (
+                n_points,
+                "off" if dist is False else f"{dist:+.4f}",
+                n_ok,
+                len(ims) - 1,
+                n_tr,
+                np.median(t_tr) * 1e3 if t_tr else np.nan,
+                np.max(t_tr) * 1e3 if t_tr else np.nan,
+                np.median(t_full) * 1e3 if t_full else np.nan,
+                np.median(t_plain) * 1e3,
+                np.median(inl_tr) if inl_tr else 0,
+                np.median(inl_full) if inl_full else 0,
+                np.median(agree) if agree else np.nan,
+                np.max(agree) if agree else np.nan,
+            )
+        )
     return rows
 
 
 def print_tracking(rows) -> None:
-    print("\nTracking path, 1920x1080 (prior = full result + (1.5, -1.0) px; prepared reference; ms/frame, best of repeats)")
-    print(f"{'n_points':>8s} {'lambda':>8s} {'full ok':>7s} {'tracked':>7s} {'trk med':>8s} {'trk max':>8s} "
-          f"{'full(prep)':>10s} {'full':>7s} {'inl trk':>7s} {'inl full':>8s} {'|trk-full| med':>14s} {'max':>6s}")
+    print(
+        "\nTracking path, 1920x1080 (prior = full result + (1.5, -1.0) px; prepared reference; ms/frame, best of repeats)"
+    )
+    print(
+        f"{'n_points':>8s} {'lambda':>8s} {'full ok':>7s} {'tracked':>7s} {'trk med':>8s} {'trk max':>8s} "
+        f"{'full(prep)':>10s} {'full':>7s} {'inl trk':>7s} {'inl full':>8s} {'|trk-full| med':>14s} {'max':>6s}"
+    )
     for r in rows:
-        print(f"{r[0]:8d} {r[1]:>8s} {r[2]:>3d}/{r[3]:<3d} {r[4]:>3d}/{r[2]:<3d} {r[5]:8.1f} {r[6]:8.1f} {r[7]:10.1f} {r[8]:7.1f} "
-              f"{r[9]:7.0f} {r[10]:8.0f} {r[11]:14.3f} {r[12]:6.3f}")
+        print(
+            f"{r[0]:8d} {r[1]:>8s} {r[2]:>3d}/{r[3]:<3d} {r[4]:>3d}/{r[2]:<3d} {r[5]:8.1f} {r[6]:8.1f} {r[7]:10.1f} {r[8]:7.1f} "
+            f"{r[9]:7.0f} {r[10]:8.0f} {r[11]:14.3f} {r[12]:6.3f}"
+        )
     print("(|trk-full|: mean transfer difference over the full result's inlier tie points, px)")
 
 
@@ -238,10 +297,14 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--no-fullres", action="store_true")
-    ap.add_argument("--only", choices=["tracking", "real", "synthetic"], help="run one section only")
+    ap.add_argument(
+        "--only", choices=["tracking", "real", "synthetic"], help="run one section only"
+    )
     add_malloc_argument(ap)
     a = ap.parse_args()
-    print(f"cv2 {cv2.__version__}, numpy {np.__version__}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
+    print(
+        f"cv2 {cv2.__version__}, numpy {np.__version__}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}"
+    )
     print(allocator_line(a.default_malloc))
     if a.only == "tracking":
         print_tracking(tracking_rows(a.repeat, None))
@@ -254,17 +317,27 @@ def main() -> int:
     # per-pair registrations of the bundled strip (in-sample), lambda is resolution-independent.
     ims = [cv2.imread(str(p)) for p in seneca_frame_paths()]
     lam = calibrate_distortion([register(ims[i], ims[i + 1]) for i in range(len(ims) - 1)])
-    print(f"shared calibration: division-model lambda {lam:+.5f} (pooled over the 8 half-resolution pairs)")
+    print(
+        f"shared calibration: division-model lambda {lam:+.5f} (pooled over the 8 half-resolution pairs)"
+    )
     rows = real_rows(seneca_frame_paths(), a.repeat, "1800x1350", lam)
     full = sorted(FULLRES.glob("IMG_*.jpg")) if FULLRES.is_dir() else []
     if full and not a.no_fullres:
-        rows += real_rows(full, a.repeat, "3600x2700", lam)  # best of repeats, as at half resolution
-    print("\nReal consecutive Seneca pairs (inliers: method's own inlier set; rms: inlier RMS residual, px)")
-    print(f"{'size':10s} {'method':16s} {'ok':>5s} {'inl.med':>7s} {'inl.min':>7s} {'rms.med':>7s} {'rms.max':>7s} {'s/pair':>7s} "
-          f"{'s.max':>6s}  per-pair rms (ours: and inliers)")
+        rows += real_rows(
+            full, a.repeat, "3600x2700", lam
+        )  # best of repeats, as at half resolution
+    print(
+        "\nReal consecutive Seneca pairs (inliers: method's own inlier set; rms: inlier RMS residual, px)"
+    )
+    print(
+        f"{'size':10s} {'method':16s} {'ok':>5s} {'inl.med':>7s} {'inl.min':>7s} {'rms.med':>7s} {'rms.max':>7s} {'s/pair':>7s} "
+        f"{'s.max':>6s}  per-pair rms (ours: and inliers)"
+    )
     for r in rows:
-        print(f"{r[0]:10s} {r[1]:16s} {r[2]:>5s} {r[3]:7d} {r[4]:7d} {r[5]:7.3f} {r[6]:7.3f} {r[7]:7.3f} {r[10]:6.3f}  {r[8]}"
-              + (f"   (ours, projective part only: rms.med {r[9]:.3f})" if r[9] is not None else ""))
+        print(
+            f"{r[0]:10s} {r[1]:16s} {r[2]:>5s} {r[3]:7d} {r[4]:7d} {r[5]:7.3f} {r[6]:7.3f} {r[7]:7.3f} {r[10]:6.3f}  {r[8]}"
+            + (f"   (ours, projective part only: rms.med {r[9]:.3f})" if r[9] is not None else "")
+        )
     if a.only == "real":
         print(f"load average at the end {os.getloadavg()[0]:.1f}")
         return 0
@@ -275,7 +348,9 @@ def main() -> int:
 
 
 def print_synthetic() -> None:
-    print("\nSynthetic pairs, known homography (4 real crops x 2, rotation +-5 deg, perspective, 384x384, 1 DN noise)")
+    print(
+        "\nSynthetic pairs, known homography (4 real crops x 2, rotation +-5 deg, perspective, 384x384, 1 DN noise)"
+    )
     print(f"{'method':12s} {'ok':>6s} {'corner err mean':>16s} {'max':>8s}")
     for m, ok, n, e, emax in synthetic_rows():
         print(f"{m:12s} {ok:>3d}/{n:<2d} {e:16.4f} {emax:8.4f}")

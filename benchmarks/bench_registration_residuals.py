@@ -57,6 +57,7 @@ restate the residual.)
 
     python benchmarks/bench_registration_residuals.py
 """
+
 from __future__ import annotations
 
 import csv
@@ -103,16 +104,29 @@ def anatomy(ref: np.ndarray, r) -> dict:
     nrm = Normaliser.for_shape(r.ref_shape)
     ur, um = undistort_points(pr, r.distortion, nrm), undistort_points(pm, r.distortion, nrm)
     f, _ = cv2.findFundamentalMat(um, ur, cv2.FM_8POINT)
-    lines = np.hstack([um, np.ones((len(um), 1))]) @ f.T  # epipolar lines in the reference: a x + b y + c = 0
-    epi = np.sum(np.hstack([ur, np.ones((len(ur), 1))]) * lines, axis=1) / np.hypot(lines[:, 0], lines[:, 1])
+    lines = (
+        np.hstack([um, np.ones((len(um), 1))]) @ f.T
+    )  # epipolar lines in the reference: a x + b y + c = 0
+    epi = np.sum(np.hstack([ur, np.ones((len(ur), 1))]) * lines, axis=1) / np.hypot(
+        lines[:, 0], lines[:, 1]
+    )
     # control: same geometry, same exposure (reference warped by the fitted homography)
-    ctrl_mov = cv2.warpPerspective(ref, r.homography, (w, h), flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP)
+    ctrl_mov = cv2.warpPerspective(
+        ref, r.homography, (w, h), flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP
+    )
     rc = register(ref, ctrl_mov, distortion=False)
     return {
-        "inliers": r.inliers, "rms": r.rms_px, "along": rms_along, "cross": rms_cross,
-        "nn_al": nn_corr(pr, along), "nn_cr": nn_corr(pr, cross), "row": row_explained(pr[:, 1], along),
-        "ctrl": rc.rms_px if rc.ok else float("nan"), "ctrl_inl": rc.inliers, "t_px": float(np.hypot(*t)),
-        "epi": float(np.sqrt(np.mean(epi ** 2))),
+        "inliers": r.inliers,
+        "rms": r.rms_px,
+        "along": rms_along,
+        "cross": rms_cross,
+        "nn_al": nn_corr(pr, along),
+        "nn_cr": nn_corr(pr, cross),
+        "row": row_explained(pr[:, 1], along),
+        "ctrl": rc.rms_px if rc.ok else float("nan"),
+        "ctrl_inl": rc.inliers,
+        "t_px": float(np.hypot(*t)),
+        "epi": float(np.sqrt(np.mean(epi**2))),
     }
 
 
@@ -127,7 +141,11 @@ def match_ncc(ref: np.ndarray, mov: np.ndarray, r, half: int = 7) -> np.ndarray:
     d = np.arange(-half, half + 1, dtype=np.float64)
     offs = np.stack(np.meshgrid(d, d), -1).reshape(1, -1, 2)
     grid = pr[:, None, :] + offs  # (N, k*k, 2) reference positions
-    mg = r.inverse_transfer(grid.reshape(-1, 2)).reshape(grid.shape) - r.inverse_transfer(pr)[:, None, :] + pm[:, None, :]
+    mg = (
+        r.inverse_transfer(grid.reshape(-1, 2)).reshape(grid.shape)
+        - r.inverse_transfer(pr)[:, None, :]
+        + pm[:, None, :]
+    )
     a = sample_linear_cv(g0, grid[..., 0], grid[..., 1])
     b = sample_linear_cv(g1, mg[..., 0], mg[..., 1])
     a = a - a.mean(1, keepdims=True)
@@ -137,36 +155,44 @@ def match_ncc(ref: np.ndarray, mov: np.ndarray, r, half: int = 7) -> np.ndarray:
 
 def inlier_residuals(ours: list) -> np.ndarray:
     """Transfer residual (px, reference frame) of every inlier of the registrations ``ours``, concatenated."""
-    return np.concatenate([np.hypot(*(r.transfer(r.points[:, 2:]) - r.points[:, :2]).T) for r in ours])
+    return np.concatenate(
+        [np.hypot(*(r.transfer(r.points[:, 2:]) - r.points[:, :2]).T) for r in ours]
+    )
 
 
 def quality_table(ims: list, ours: list) -> None:
     """The third table: residual RMS over the inliers whose own match correlates at least ``t``."""
     res = inlier_residuals(ours)
     ncc = np.concatenate([match_ncc(ims[i], ims[i + 1], r) for i, r in enumerate(ours)])
-    print("\nBad matches? Inlier residual by the NCC of each point's own match (15x15 px, all 8 pairs)")
+    print(
+        "\nBad matches? Inlier residual by the NCC of each point's own match (15x15 px, all 8 pairs)"
+    )
     head = f"{'NCC >=':>6s} {'points':>7s} {'share':>6s} {'rms px':>7s}"
     print(head)
     print("-" * len(head))
     for t in (-1.0, 0.7, 0.8, 0.85, 0.9, 0.95):
         k = ncc >= t
         if k.any():
-            print(f"{t:6.2f} {int(k.sum()):7d} {k.mean():6.2f} {float(np.sqrt(np.mean(res[k] ** 2))):7.3f}")
+            print(
+                f"{t:6.2f} {int(k.sum()):7d} {k.mean():6.2f} {float(np.sqrt(np.mean(res[k] ** 2))):7.3f}"
+            )
     print(f"correlation of |residual| with NCC: {float(np.corrcoef(res, ncc)[0, 1]):+.3f}")
 
 
 def _brown_undistort(p: np.ndarray, k: np.ndarray, c: np.ndarray, scale: float) -> np.ndarray:
     """Brown-Conrady undistortion (k1, k2, k3 radial, p1, p2 tangential), radius in ``scale`` px."""
     x = (p - c) / scale
-    r2 = (x ** 2).sum(1, keepdims=True)
-    rad = 1 + k[0] * r2 + k[1] * r2 ** 2 + k[2] * r2 ** 3
+    r2 = (x**2).sum(1, keepdims=True)
+    rad = 1 + k[0] * r2 + k[1] * r2**2 + k[2] * r2**3
     xx, yy = x[:, :1], x[:, 1:]
     tx = 2 * k[3] * xx * yy + k[4] * (r2 + 2 * xx * xx)
     ty = k[3] * (r2 + 2 * yy * yy) + 2 * k[4] * xx * yy
     return np.hstack([xx * rad + tx, yy * rad + ty]) * scale + c
 
 
-def _local_scale(p: np.ndarray, k: np.ndarray, c: np.ndarray, scale: float, e: float = 0.5) -> np.ndarray:
+def _local_scale(
+    p: np.ndarray, k: np.ndarray, c: np.ndarray, scale: float, e: float = 0.5
+) -> np.ndarray:
     """sqrt |det| of the undistortion's Jacobian at ``p`` (undistorted px per image px)."""
     a = _brown_undistort(p + [e, 0], k, c, scale) - _brown_undistort(p - [e, 0], k, c, scale)
     b = _brown_undistort(p + [0, e], k, c, scale) - _brown_undistort(p - [0, e], k, c, scale)
@@ -185,7 +211,11 @@ def joint_lens_fit(pairs: list, shape: tuple) -> list:
     c0 = np.array([w / 2.0, h / 2.0])
 
     def unpack(x):
-        return np.asarray(x[:5]), c0 + x[5:7], [np.append(x[7 + 8 * j: 15 + 8 * j], 1.0).reshape(3, 3) for j in range(len(pairs))]
+        return (
+            np.asarray(x[:5]),
+            c0 + x[5:7],
+            [np.append(x[7 + 8 * j : 15 + 8 * j], 1.0).reshape(3, 3) for j in range(len(pairs))],
+        )
 
     def resid(x):
         k, c, hs = unpack(x)
@@ -203,7 +233,7 @@ def joint_lens_fit(pairs: list, shape: tuple) -> list:
     d = np.hypot(r[:, 0], r[:, 1])
     out, i = [], 0
     for pm, _, _ in pairs:
-        out.append(d[i: i + len(pm)])
+        out.append(d[i : i + len(pm)])
         i += len(pm)
     return out
 
@@ -218,18 +248,24 @@ def lens_table(ims: list, ours: list) -> None:
             return
         pts.append((r0.points[:, 2:], r0.points[:, :2], r0.homography))
     res = joint_lens_fit(pts, ims[0].shape[:2])
-    print("\nA richer lens model? Joint fit over the strip: one Brown model (k1 k2 k3 p1 p2 + centre) for all frames")
+    print(
+        "\nA richer lens model? Joint fit over the strip: one Brown model (k1 k2 k3 p1 p2 + centre) for all frames"
+    )
     head = f"{'pair':>4s} {'register: inl':>13s} {'rms':>6s} | {'joint Brown: <=1.5':>18s} {'rms<=1.5':>8s}"
     print(head)
     print("-" * len(head))
     for i, (r1, d) in enumerate(zip(ours, res)):
         inl = d <= 1.5
-        print(f"{i:4d} {r1.inliers:13d} {r1.rms_px:6.3f} | {int(inl.sum()):18d} {float(np.sqrt(np.mean(d[inl] ** 2))):8.3f}")
+        print(
+            f"{i:4d} {r1.inliers:13d} {r1.rms_px:6.3f} | {int(inl.sum()):18d} {float(np.sqrt(np.mean(d[inl] ** 2))):8.3f}"
+        )
     allr = np.concatenate(res)
     inl = allr <= 1.5
     own = inlier_residuals(ours)
-    print(f"all pairs: register (one lambda per pair) {np.sqrt(np.mean(own ** 2)):.3f} px over {own.size} inliers;"
-          f" joint Brown {np.sqrt(np.mean(allr[inl] ** 2)):.3f} px over {int(inl.sum())} of {allr.size} points")
+    print(
+        f"all pairs: register (one lambda per pair) {np.sqrt(np.mean(own**2)):.3f} px over {own.size} inliers;"
+        f" joint Brown {np.sqrt(np.mean(allr[inl] ** 2)):.3f} px over {int(inl.sum())} of {allr.size} points"
+    )
 
 
 def main() -> int:
@@ -237,8 +273,10 @@ def main() -> int:
     with open(paths[0].parent / "frames.csv", newline="") as f:
         meta = {row["file"]: row for row in csv.DictReader(f)}
     print("Inlier residual anatomy, Seneca strip at 1800x1350 (px unless stated)")
-    head = (f"{'pair':>4s} {'inl':>4s} {'rms':>6s} {'along':>6s} {'cross':>6s} {'nn.al':>6s} {'nn.cr':>6s} {'row':>5s} "
-            f"{'epi':>6s} {'ctrl':>6s} {'c.inl':>5s} {'B m':>6s} {'|t| px':>7s} {'H m':>6s} {'px/cm':>6s} {'view':>5s}")
+    head = (
+        f"{'pair':>4s} {'inl':>4s} {'rms':>6s} {'along':>6s} {'cross':>6s} {'nn.al':>6s} {'nn.cr':>6s} {'row':>5s} "
+        f"{'epi':>6s} {'ctrl':>6s} {'c.inl':>5s} {'B m':>6s} {'|t| px':>7s} {'H m':>6s} {'px/cm':>6s} {'view':>5s}"
+    )
     print(head)
     print("-" * len(head))
     ims = [cv2.imread(str(p)) for p in paths]
@@ -250,21 +288,43 @@ def main() -> int:
             continue
         s = anatomy(ims[i], r)
         m0, m1 = meta[paths[i].name], meta[paths[i + 1].name]
-        east, north = enu_offset_m(float(m0["latitude_deg"]), float(m0["longitude_deg"]),
-                                   float(m1["latitude_deg"]), float(m1["longitude_deg"]))
+        east, north = enu_offset_m(
+            float(m0["latitude_deg"]),
+            float(m0["longitude_deg"]),
+            float(m1["latitude_deg"]),
+            float(m1["longitude_deg"]),
+        )
         base = float(np.hypot(east, north))
         height = base * FOCAL_M / (s["t_px"] * PITCH_HALF_M)
         s["pxcm"] = s["t_px"] * 0.01 / height
         s["view"] = float(np.degrees(2 * np.arctan(base / (2 * height))))
         allr.append(s)
-        print(f"{i:4d} {s['inliers']:4d} {s['rms']:6.3f} {s['along']:6.3f} {s['cross']:6.3f} {s['nn_al']:6.2f} "
-              f"{s['nn_cr']:6.2f} {s['row']:5.2f} {s['epi']:6.3f} {s['ctrl']:6.3f} {s['ctrl_inl']:5d} {base:6.1f} {s['t_px']:7.1f} "
-              f"{height:6.1f} {s['pxcm']:6.3f} {s['view']:5.1f}")
+        print(
+            f"{i:4d} {s['inliers']:4d} {s['rms']:6.3f} {s['along']:6.3f} {s['cross']:6.3f} {s['nn_al']:6.2f} "
+            f"{s['nn_cr']:6.2f} {s['row']:5.2f} {s['epi']:6.3f} {s['ctrl']:6.3f} {s['ctrl_inl']:5d} {base:6.1f} {s['t_px']:7.1f} "
+            f"{height:6.1f} {s['pxcm']:6.3f} {s['view']:5.1f}"
+        )
     if allr:
-        med = {k: float(np.median([s[k] for s in allr])) for k in ("rms", "along", "cross", "nn_al", "nn_cr", "row", "epi", "ctrl", "pxcm", "view")}
-        print(f"median: rms {med['rms']:.3f}, along {med['along']:.3f}, cross {med['cross']:.3f}, nn corr along "
-              f"{med['nn_al']:.2f} / cross {med['nn_cr']:.2f}, row-explained {med['row']:.2f}, off the epipolar lines {med['epi']:.3f}, control {med['ctrl']:.3f} px; "
-              f"1 cm of relief = {med['pxcm']:.3f} px of parallax along the baseline; lines of sight {med['view']:.0f} deg apart")
+        med = {
+            k: float(np.median([s[k] for s in allr]))
+            for k in (
+                "rms",
+                "along",
+                "cross",
+                "nn_al",
+                "nn_cr",
+                "row",
+                "epi",
+                "ctrl",
+                "pxcm",
+                "view",
+            )
+        }
+        print(
+            f"median: rms {med['rms']:.3f}, along {med['along']:.3f}, cross {med['cross']:.3f}, nn corr along "
+            f"{med['nn_al']:.2f} / cross {med['nn_cr']:.2f}, row-explained {med['row']:.2f}, off the epipolar lines {med['epi']:.3f}, control {med['ctrl']:.3f} px; "
+            f"1 cm of relief = {med['pxcm']:.3f} px of parallax along the baseline; lines of sight {med['view']:.0f} deg apart"
+        )
     if all(r.ok for r in results):
         lens_table(ims, results)
         quality_table(ims, results)

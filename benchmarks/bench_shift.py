@@ -39,6 +39,7 @@ loaded machine slows all of them alike.
 
 Usage: python benchmarks/bench_shift.py [--quick] [--no-speed] [--no-accuracy]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -143,10 +144,14 @@ def render_set(n_per_crop, max_shift, blur, seed, snr_db=None, noise=0.0, clean=
         hr = load_crop(name)
         sh = rng.uniform(-max_shift, max_shift, (n_per_crop, 2))
         shifts = [(0.0, 0.0)] + [tuple(s) for s in sh]
-        seq = render_sequence(hr, 4, shifts, blur_sigma=blur, snr_db=snr_db, noise_sigma=noise, seed=seed + ci)
+        seq = render_sequence(
+            hr, 4, shifts, blur_sigma=blur, snr_db=snr_db, noise_sigma=noise, seed=seed + ci
+        )
         cref = None
         if clean:
-            cref = render_sequence(hr, 4, shifts[:1], blur_sigma=blur, seed=seed + ci, quantize=False).frames[0]
+            cref = render_sequence(
+                hr, 4, shifts[:1], blur_sigma=blur, seed=seed + ci, quantize=False
+            ).frames[0]
         for i in range(n_per_crop):
             out.append((seq.frames[0], seq.frames[i + 1], sh[i], cref))
     return out
@@ -164,7 +169,14 @@ def render_noisy_set(n_per_crop, max_shift, blur, seed, noise):
     for ci, name in enumerate(CROP_NAMES):
         hr = load_crop(name)
         sh = rng.uniform(-max_shift, max_shift, (n_per_crop, 2))
-        seq = render_sequence(hr, 4, [(0.0, 0.0)] + [tuple(x) for x in sh], blur_sigma=blur, seed=seed + ci, quantize=False)
+        seq = render_sequence(
+            hr,
+            4,
+            [(0.0, 0.0)] + [tuple(x) for x in sh],
+            blur_sigma=blur,
+            seed=seed + ci,
+            quantize=False,
+        )
         cref = seq.frames[0]
         for i in range(n_per_crop):
             out.append((noisy(cref), noisy(seq.frames[i + 1]), sh[i], cref))
@@ -181,7 +193,9 @@ def render_rotated(n_per_crop, seed, angle=0.2, blur=0.4):
             a = angle * rng.choice([-1.0, 1.0])
             sh = rng.uniform(-1, 1, 2)
             M = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), a, 1.0)
-            rot = cv2.warpAffine(hr, M, (w, h), flags=cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT)
+            rot = cv2.warpAffine(
+                hr, M, (w, h), flags=cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT
+            )
             r = render_frame(hr, 4, (0.0, 0.0), blur, 0.5, rng)[8:-8, 8:-8]
             m = render_frame(rot, 4, tuple(sh), blur, 0.5, rng)[8:-8, 8:-8]
             out.append((r, m, sh, None))
@@ -237,7 +251,9 @@ def crb_weighted_factor(clean, sigma):
         n = N * sigma**2
         ww = (wy, wx)
         J = np.array([[np.sum(ww[i] * ww[j] * P) for j in (0, 1)] for i in (0, 1)]) / N
-        Iw = np.array([[np.sum(ww[i] * ww[j] * P * P / (2 * P * n + n * n)) for j in (0, 1)] for i in (0, 1)])
+        Iw = np.array(
+            [[np.sum(ww[i] * ww[j] * P * P / (2 * P * n + n * n)) for j in (0, 1)] for i in (0, 1)]
+        )
         _WBOUND[key] = np.diag(np.linalg.inv(Iw)) / np.diag(2 * sigma**2 * np.linalg.inv(J))
     return _WBOUND[key]
 
@@ -264,14 +280,21 @@ def accuracy(quick: bool):
     sets = {
         "A": ("|s|<=1, 40 dB, blur 0.5", render_set(60 // k, 1.0, 0.5, 11, snr_db=40.0)),
         "B": ("|s|<=1, 40 dB, blur 0.3", render_set(60 // k, 1.0, 0.3, 22, snr_db=40.0)),
-        "C": ("|s|<=1, noise 10 DN (fresh on both frames), blur 0.4", render_noisy_set(60 // k, 1.0, 0.4, 33, 10.0)),
+        "C": (
+            "|s|<=1, noise 10 DN (fresh on both frames), blur 0.4",
+            render_noisy_set(60 // k, 1.0, 0.4, 33, 10.0),
+        ),
         "D": ("|s|<=4, 40 dB, blur 0.4", render_set(30 // k, 4.0, 0.4, 44, snr_db=40.0)),
         "E": ("rotation 0.2 deg, blur 0.4", render_rotated(10 // k, 55)),
     }
     cache = {}
     for p in sets["C"][1]:
         if id(p[3]) not in cache:
-            cache[id(p[3])] = (crb_diag(p[3], 10.0), crb_diag(p[3], 10.0, 5), crb_weighted_factor(p[3], 10.0))
+            cache[id(p[3])] = (
+                crb_diag(p[3], 10.0),
+                crb_diag(p[3], 10.0, 5),
+                crb_weighted_factor(p[3], 10.0),
+            )
     crb = np.array([cache[id(p[3])][0] for p in sets["C"][1]])
     crb_in = np.array([cache[id(p[3])][1] for p in sets["C"][1]])
     crb_w = np.array([cache[id(p[3])][0] * cache[id(p[3])][2] for p in sets["C"][1]])
@@ -291,28 +314,43 @@ def accuracy(quick: bool):
             fails += f
             ok = np.all(np.isfinite(err), axis=1)
             e = err[ok]
-            row[key] = (float(np.sqrt(np.mean(e**2))) if len(e) else float("nan"), max_bin_bias(e, truth[ok])[0] if len(e) else float("nan"))
+            row[key] = (
+                float(np.sqrt(np.mean(e**2))) if len(e) else float("nan"),
+                max_bin_bias(e, truth[ok])[0] if len(e) else float("nan"),
+            )
             if key == "C":
-                row["crb"] = float(np.sqrt(np.mean(e**2) / np.mean(crb[ok]))) if len(e) else float("nan")
-                row["crb_in"] = float(np.sqrt(np.mean(e**2) / np.mean(crb_in[ok]))) if len(e) else float("nan")
-                row["crb_w"] = float(np.sqrt(np.mean(e**2) / np.mean(crb_w[ok]))) if len(e) else float("nan")
+                row["crb"] = (
+                    float(np.sqrt(np.mean(e**2) / np.mean(crb[ok]))) if len(e) else float("nan")
+                )
+                row["crb_in"] = (
+                    float(np.sqrt(np.mean(e**2) / np.mean(crb_in[ok]))) if len(e) else float("nan")
+                )
+                row["crb_w"] = (
+                    float(np.sqrt(np.mean(e**2) / np.mean(crb_w[ok]))) if len(e) else float("nan")
+                )
         print(
             f"{name:26s} | {row['A'][0]:7.4f} {row['A'][1]:7.4f} | {row['B'][0]:7.4f} {row['B'][1]:7.4f} | "
             f"{row['C'][0]:7.4f} {row['crb']:5.2f} {row['crb_in']:5.2f} {row['crb_w']:5.2f} | {row['D'][0]:7.4f} | {row['E'][0]:7.4f} | {fails}"
         )
-    print(f"  bounds (rms per axis) for set C: {math.sqrt(float(np.mean(crb))):.4f} px = 2 sigma^2 J^-1 over the whole "
-          f"176x176 frame (/CRB), {math.sqrt(float(np.mean(crb_in))):.4f} px over the central 166x166 px (/CRBc, the pixels "
-          f"ours uses), {math.sqrt(float(np.mean(crb_w))):.4f} px unknown-scene bound with the ideal weighting (/CRBw)")
+    print(
+        f"  bounds (rms per axis) for set C: {math.sqrt(float(np.mean(crb))):.4f} px = 2 sigma^2 J^-1 over the whole "
+        f"176x176 frame (/CRB), {math.sqrt(float(np.mean(crb_in))):.4f} px over the central 166x166 px (/CRBc, the pixels "
+        f"ours uses), {math.sqrt(float(np.mean(crb_w))):.4f} px unknown-scene bound with the ideal weighting (/CRBw)"
+    )
     resC = [estimate_shift(r, m) for r, m, _, _ in sets["C"][1]]
     errC = np.array([(x.u - t[0], x.v - t[1]) for x, (_, _, t, _) in zip(resC, sets["C"][1])])
     stdC = np.array([(x.u_std, x.v_std) for x in resC])
     crb_cd = np.array([crb_diag(p[3], 10.0, gradients=central_gradients) for p in sets["C"][1]])
-    print(f"  ours on set C with J from central differences of the noise-free frame instead (the np.gradient shortcut: "
-          f"J {float(np.mean(crb) / np.mean(crb_cd)):.2f}x the exact one, sin(w) for w): RMSE / that figure "
-          f"{math.sqrt(float(np.mean(errC**2)) / float(np.mean(crb_cd))):.2f}. Not a bound (it undercounts the near-Nyquist "
-          f"gradient energy the estimator uses), so /CRB above is the target's figure.")
-    print(f"  ours on set C: empirical RMSE / reported std (rms) = "
-          f"{math.sqrt(float(np.mean(errC**2)) / float(np.mean(stdC**2))):.3f} (1 = honest); n_pixels {resC[0].n_pixels}")
+    print(
+        f"  ours on set C with J from central differences of the noise-free frame instead (the np.gradient shortcut: "
+        f"J {float(np.mean(crb) / np.mean(crb_cd)):.2f}x the exact one, sin(w) for w): RMSE / that figure "
+        f"{math.sqrt(float(np.mean(errC**2)) / float(np.mean(crb_cd))):.2f}. Not a bound (it undercounts the near-Nyquist "
+        f"gradient energy the estimator uses), so /CRB above is the target's figure."
+    )
+    print(
+        f"  ours on set C: empirical RMSE / reported std (rms) = "
+        f"{math.sqrt(float(np.mean(errC**2)) / float(np.mean(stdC**2))):.3f} (1 = honest); n_pixels {resC[0].n_pixels}"
+    )
     res = [estimate_shift(r, m) for r, m, _, _ in sets["E"][1]]
     flagged = sum(x.misfit for x in res)
     print(
@@ -321,8 +359,10 @@ def accuracy(quick: bool):
         f"{np.median([x.misfit_px for x in res]):.3f}"
     )
     clean = [estimate_shift(r, m) for key in "ABCD" for r, m, _, _ in sets[key][1]]
-    print(f"  ours on sets A-D: misfit flagged on {sum(x.misfit for x in clean)}/{len(clean)} pure translations; "
-          f"not converged {sum(not x.converged for x in clean)}")
+    print(
+        f"  ours on sets A-D: misfit flagged on {sum(x.misfit for x in clean)}/{len(clean)} pure translations; "
+        f"not converged {sum(not x.converged for x in clean)}"
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -341,29 +381,47 @@ def big_pair(w, h, shift=(1.37, -2.61), noise=1.0, seed=1):
         origin = "bundled half-resolution frame, upscaled"
     if src.shape[1] < w or src.shape[0] < h:
         s = max(w / src.shape[1], h / src.shape[0])
-        src = cv2.resize(src, (int(math.ceil(src.shape[1] * s)), int(math.ceil(src.shape[0] * s))), interpolation=cv2.INTER_CUBIC)
+        src = cv2.resize(
+            src,
+            (int(math.ceil(src.shape[1] * s)), int(math.ceil(src.shape[0] * s))),
+            interpolation=cv2.INTER_CUBIC,
+        )
         origin += f", resized x{s:.2f}"
     y0 = (src.shape[0] - h) // 2
     x0 = (src.shape[1] - w) // 2
     crop = src[y0 : y0 + h, x0 : x0 + w].astype(np.float64)
     rng = np.random.default_rng(seed)
-    ref = np.clip(np.rint(fourier_shift_blur(crop, (0, 0), 0.4, pad=16) + rng.normal(0, noise, crop.shape)), 0, 255).astype(np.uint8)
-    mov = np.clip(np.rint(fourier_shift_blur(crop, shift, 0.4, pad=16) + rng.normal(0, noise, crop.shape)), 0, 255).astype(np.uint8)
+    ref = np.clip(
+        np.rint(fourier_shift_blur(crop, (0, 0), 0.4, pad=16) + rng.normal(0, noise, crop.shape)),
+        0,
+        255,
+    ).astype(np.uint8)
+    mov = np.clip(
+        np.rint(fourier_shift_blur(crop, shift, 0.4, pad=16) + rng.normal(0, noise, crop.shape)),
+        0,
+        255,
+    ).astype(np.uint8)
     return ref, mov, origin, shift
 
 
 def speed(quick: bool):
     print("\nSpeed per pair (ms; uint8 input), methods interleaved in one loop")
     reps = {"1080p": 3 if quick else 9, "1080p noisy": 3 if quick else 9, "4K": 2 if quick else 5}
-    configs = (("1080p", (1920, 1080), 1.0), ("1080p noisy", (1920, 1080), 10.0), ("4K", (3840, 2160), 1.0))
+    configs = (
+        ("1080p", (1920, 1080), 1.0),
+        ("1080p noisy", (1920, 1080), 10.0),
+        ("4K", (3840, 2160), 1.0),
+    )
     for label, (w, h), noise in configs:
         # noisy: a fresh noise draw per repetition, and the error column is the RMS
         # (over both axes) of the answers on all of them; else one pair
         npairs = reps[label] if noise > 1.0 else 1
         pairs = [big_pair(w, h, noise=noise, seed=1 + i) for i in range(npairs)]
         _, _, origin, truth = pairs[0]
-        print(f"  {label} {w}x{h} from {origin}; noise {noise:g} DN; true shift {truth}"
-              + (f"; {npairs} noise draws" if npairs > 1 else ""))
+        print(
+            f"  {label} {w}x{h} from {origin}; noise {noise:g} DN; true shift {truth}"
+            + (f"; {npairs} noise draws" if npairs > 1 else "")
+        )
         times = {name: [] for name, _ in METHODS}
         cpu = {name: [] for name, _ in METHODS}
         errs = {name: [] for name, _ in METHODS}
@@ -387,7 +445,9 @@ def speed(quick: bool):
             if not ok:
                 err = "failed"
             elif npairs > 1:
-                err = f"{math.sqrt(float(np.mean(np.square(ok)))):.4f}" + (f" ({len(errs[name]) - len(ok)} failed)" if len(ok) < len(errs[name]) else "")
+                err = f"{math.sqrt(float(np.mean(np.square(ok)))):.4f}" + (
+                    f" ({len(errs[name]) - len(ok)} failed)" if len(ok) < len(errs[name]) else ""
+                )
             else:
                 err = f"{math.hypot(*ok[0]):.4f}"
             cm = np.median(cpu[name]) * 1e3
@@ -395,7 +455,9 @@ def speed(quick: bool):
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--quick", action="store_true", help="fewer pairs and repetitions")
     ap.add_argument("--no-speed", action="store_true")
     ap.add_argument("--no-accuracy", action="store_true")
@@ -404,8 +466,10 @@ def main() -> int:
     print(allocator_line(args.default_malloc))
     try:
         load = os.getloadavg()
-        print(f"machine: {os.cpu_count()} cores, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; "
-              f"OpenCV {cv2.__version__} threads {cv2.getNumThreads()}")
+        print(
+            f"machine: {os.cpu_count()} cores, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; "
+            f"OpenCV {cv2.__version__} threads {cv2.getNumThreads()}"
+        )
     except OSError:
         pass
     if not args.no_accuracy:

@@ -24,6 +24,7 @@ Run: ``python benchmarks/bench_superres.py [--quick] [--repeats 5] [--only quali
 machine's load is printed: timings on a shared machine are noisy (report
 the best of several runs).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -65,7 +66,9 @@ def tikhonov_cg(frames, shifts, p, lam, iters=60):
 
     b = sum(op.adjoint(np.asarray(f, float) * op.valid) for op, f in zip(ops, frames)).ravel()
     x0 = bicubic_upscale(frames[0], p).ravel()
-    sol, _ = cg(LinearOperator((b.size, b.size), matvec=normal, dtype=np.float64), b, x0=x0, maxiter=iters)
+    sol, _ = cg(
+        LinearOperator((b.size, b.size), matvec=normal, dtype=np.float64), b, x0=x0, maxiter=iters
+    )
     return sol.reshape(shape)
 
 
@@ -87,8 +90,11 @@ def quality(quick: bool) -> None:
         ("x4, 16 frames, 4x4 grid", 4, lambda k: grid(4), 0.0, False, 128 if quick else 176),
     ]
     lam = None
-    print("\nQuality: PSNR gain over bicubic of the reference frame (dB); per crop "
-          + ", ".join(c.replace("crop_", "") for c in CROP_NAMES) + "; mean")
+    print(
+        "\nQuality: PSNR gain over bicubic of the reference frame (dB); per crop "
+        + ", ".join(c.replace("crop_", "") for c in CROP_NAMES)
+        + "; mean"
+    )
     print(f"{'case':48s} {'method':22s} {'gains per crop':30s} {'mean':>6s} {'s/run':>7s}")
     for title, p, shifts_fn, err, estimate, lr in cases:
         rows = {}
@@ -110,15 +116,26 @@ def quality(quick: bool) -> None:
                 given = np.array([[r.u, r.v] for r in rs])
             runs = {
                 "map (ours)": lambda: reconstruct(seq.frames, given, p).image,
-                "map, shifts as given": lambda: reconstruct(seq.frames, given, p, refine_shifts=False).image,
+                "map, shifts as given": lambda: (
+                    reconstruct(seq.frames, given, p, refine_shifts=False).image
+                ),
             }
             if shifts_fn is not None and not err:
-                runs["windowed eq.7 (norm.)"] = lambda: reconstruct(seq.frames, given, p, method="windowed").image
+                runs["windowed eq.7 (norm.)"] = lambda: (
+                    reconstruct(seq.frames, given, p, method="windowed").image
+                )
                 if p == 2:
-                    runs["pinv eq.6"] = lambda: reconstruct(seq.frames, given, p, method="pinv").image
+                    runs["pinv eq.6"] = lambda: (
+                        reconstruct(seq.frames, given, p, method="pinv").image
+                    )
             if p == 2 and not quick:
-                if lam is None:  # tune the reference's weight once, on the first crop of the first case
-                    best = max((gain(seq, tikhonov_cg(seq.frames, given, p, l)), l) for l in (0.003, 0.01, 0.03, 0.1))
+                if (
+                    lam is None
+                ):  # tune the reference's weight once, on the first crop of the first case
+                    best = max(
+                        (gain(seq, tikhonov_cg(seq.frames, given, p, l)), l)
+                        for l in (0.003, 0.01, 0.03, 0.1)
+                    )
                     lam = best[1]
                 runs[f"tikhonov-cg scipy l={lam}"] = lambda: tikhonov_cg(seq.frames, given, p, lam)
             for mname, fn in runs.items():
@@ -130,7 +147,9 @@ def quality(quick: bool) -> None:
                 rows[mname][0].append(g)
                 rows[mname][1].append(dt)
         for mname, (gs, ts) in rows.items():
-            print(f"{title:48s} {mname:22s} {' '.join(f'{g:+6.2f}' for g in gs):30s} {np.mean(gs):+6.2f} {np.mean(ts):7.2f}")
+            print(
+                f"{title:48s} {mname:22s} {' '.join(f'{g:+6.2f}' for g in gs):30s} {np.mean(gs):+6.2f} {np.mean(ts):7.2f}"
+            )
 
 
 def speed_source(h, w):
@@ -145,9 +164,13 @@ def speed_source(h, w):
 
 def speed(quick: bool, repeats: int) -> None:
     sizes = [(256, 256), (512, 512), (1024, 1024), (1080, 1920)] + ([] if quick else [(2160, 3840)])
-    print(f"\nSpeed: x2 from 4 frames (2x2 grid), best / median of {repeats} runs, seconds and s per output MP"
-          f" (load average {os.getloadavg()[0]:.2f} at start)")
-    print(f"{'output':>11s} {'method':24s} {'best s':>8s} {'median s':>9s} {'best s/MP':>10s} {'med s/MP':>9s}")
+    print(
+        f"\nSpeed: x2 from 4 frames (2x2 grid), best / median of {repeats} runs, seconds and s per output MP"
+        f" (load average {os.getloadavg()[0]:.2f} at start)"
+    )
+    print(
+        f"{'output':>11s} {'method':24s} {'best s':>8s} {'median s':>9s} {'best s/MP':>10s} {'med s/MP':>9s}"
+    )
     best: dict[str, list[tuple[float, float]]] = {}
     full = False
     for oh, ow in sizes:
@@ -157,14 +180,20 @@ def speed(quick: bool, repeats: int) -> None:
         mp = seq.truth.size / 1e6
         methods = {
             "map (full default)": (lambda: reconstruct(frames, sh, 2), repeats),
-            "map-core (given noise)": (lambda: reconstruct(frames, sh, 2, refine_shifts=False, geometry="translation",
-                                                           noise_sigma=0.4), repeats),
+            "map-core (given noise)": (
+                lambda: reconstruct(
+                    frames, sh, 2, refine_shifts=False, geometry="translation", noise_sigma=0.4
+                ),
+                repeats,
+            ),
             "windowed eq.7": (lambda: reconstruct(frames, sh, 2, method="windowed"), repeats),
             "bicubic cv2.resize": (lambda: bicubic_upscale(frames[0], 2), repeats),
         }
         if oh * ow <= 1024 * 1024:  # the scipy reference: 60 CG iterations (fewer runs at 1 MP)
-            methods["tikhonov-cg scipy 60it"] = (lambda: tikhonov_cg(frames, sh, 2, 0.01),
-                                                 repeats if oh * ow <= 512 * 512 else min(repeats, 2))
+            methods["tikhonov-cg scipy 60it"] = (
+                lambda: tikhonov_cg(frames, sh, 2, 0.01),
+                repeats if oh * ow <= 512 * 512 else min(repeats, 2),
+            )
         for name, (fn, reps) in methods.items():
             ts = []
             for _ in range(reps):
@@ -172,9 +201,15 @@ def speed(quick: bool, repeats: int) -> None:
                 fn()
                 ts.append(time.perf_counter() - t)
             best.setdefault(name, []).append((mp, min(ts)))
-            print(f"{seq.truth.shape[1]:>5d}x{seq.truth.shape[0]:<5d} {name:24s} {min(ts):8.3f} {np.median(ts):9.3f} "
-                  f"{min(ts) / mp:10.4f} {np.median(ts) / mp:9.4f}")
-    print("(source: full-resolution originals)" if full else "(source: bundled half-resolution frames, upsampled)")
+            print(
+                f"{seq.truth.shape[1]:>5d}x{seq.truth.shape[0]:<5d} {name:24s} {min(ts):8.3f} {np.median(ts):9.3f} "
+                f"{min(ts) / mp:10.4f} {np.median(ts) / mp:9.4f}"
+            )
+    print(
+        "(source: full-resolution originals)"
+        if full
+        else "(source: bundled half-resolution frames, upsampled)"
+    )
     print(f"load average {os.getloadavg()[0]:.2f} at end")
     # linearity: least-squares fit best time = fixed + slope * MP over the sizes (fixed: per-call overhead)
     print("\nLinearity: best time = fixed + slope * output MP (least squares over the sizes above)")
@@ -183,10 +218,14 @@ def speed(quick: bool, repeats: int) -> None:
         if len(pts) < 3:
             continue
         mp_, t_ = np.array(pts).T
-        (slope, fixed), *_ = np.linalg.lstsq(np.stack([mp_, np.ones_like(mp_)], axis=1), t_, rcond=None)
+        (slope, fixed), *_ = np.linalg.lstsq(
+            np.stack([mp_, np.ones_like(mp_)], axis=1), t_, rcond=None
+        )
         resid = t_ - (fixed + slope * mp_)
         print(f"{name:24s} {fixed * 1e3:9.1f} {slope:11.4f} {np.abs(resid).max() * 1e3:15.1f}")
-    print("targets (issue 5): MAP <= 0.05 s/MP (1920x1080 from 4 frames in ~0.1 s); windowed eq. 7 <= 0.01 s/MP")
+    print(
+        "targets (issue 5): MAP <= 0.05 s/MP (1920x1080 from 4 frames in ~0.1 s); windowed eq. 7 <= 0.01 s/MP"
+    )
 
 
 def pipeline_case(repeats: int) -> None:
@@ -206,31 +245,46 @@ def pipeline_case(repeats: int) -> None:
         m[(slice(0, a) if rng.random() < 0.5 else slice(h - a, h))] = False
         m[:, (slice(0, b) if rng.random() < 0.5 else slice(w - b, w))] = False
         masks.append(m)
-    print(f"\nPipeline case (reconstruction_node): reconstruct_aligned, 8 aligned {w}x{h} frames with strip masks, x2 "
-          f"-> {2 * w}x{2 * h}; best / median of {repeats} (load average {os.getloadavg()[0]:.2f})")
+    print(
+        f"\nPipeline case (reconstruction_node): reconstruct_aligned, 8 aligned {w}x{h} frames with strip masks, x2 "
+        f"-> {2 * w}x{2 * h}; best / median of {repeats} (load average {os.getloadavg()[0]:.2f})"
+    )
     cut = (slice(16, 2 * h - 16), slice(16, 2 * w - 16))
     base = psnr(bicubic_upscale(frames[0], 2)[cut], seq.truth[: 2 * h, : 2 * w][cut])
-    for name, fr in (("mono", frames), ("BGR (luminance SR)", [cv2.cvtColor(f, cv2.COLOR_GRAY2BGR) for f in frames])):
+    for name, fr in (
+        ("mono", frames),
+        ("BGR (luminance SR)", [cv2.cvtColor(f, cv2.COLOR_GRAY2BGR) for f in frames]),
+    ):
         ts = []
         for _ in range(repeats):
             t = time.perf_counter()
             r = reconstruct_aligned(fr, np.array(seq.shifts), 2, masks=masks)
             ts.append(time.perf_counter() - t)
-        img = r.image if r.image.ndim == 2 else cv2.cvtColor(r.image.astype(np.float32), cv2.COLOR_BGR2GRAY)
+        img = (
+            r.image
+            if r.image.ndim == 2
+            else cv2.cvtColor(r.image.astype(np.float32), cv2.COLOR_BGR2GRAY)
+        )
         g = psnr(img[cut], seq.truth[: 2 * h, : 2 * w][cut]) - base
-        print(f"{name:20s} method {r.method:7s} best {min(ts):6.3f} s  median {np.median(ts):6.3f} s  "
-              f"{min(ts) / (4 * h * w / 1e6):.4f} s/MP out  gain over bicubic {g:+.2f} dB")
+        print(
+            f"{name:20s} method {r.method:7s} best {min(ts):6.3f} s  median {np.median(ts):6.3f} s  "
+            f"{min(ts) / (4 * h * w / 1e6):.4f} s/MP out  gain over bicubic {g:+.2f} dB"
+        )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="smaller images, no scipy reference in quality")
+    ap.add_argument(
+        "--quick", action="store_true", help="smaller images, no scipy reference in quality"
+    )
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--only", choices=["quality", "speed", "pipeline"], default=None)
     add_malloc_argument(ap)
     args = ap.parse_args()
     print(allocator_line(args.default_malloc))
-    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; OpenCV threads {cv2.getNumThreads()}")
+    print(
+        f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; OpenCV threads {cv2.getNumThreads()}"
+    )
     if args.only in (None, "quality"):
         quality(args.quick)
     if args.only in (None, "speed"):

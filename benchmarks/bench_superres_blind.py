@@ -40,8 +40,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from degrade_independent import degrade, scene_crop, shift_layout  # noqa: E402
 
-from subpix_ros.core.shift import estimate_shift  # noqa: E402
 from subpix_ros.core import superres  # noqa: E402
+from subpix_ros.core.shift import estimate_shift  # noqa: E402
 from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct  # noqa: E402
 from subpix_ros.core.superres_model import FrameOperator, translation_homography  # noqa: E402
 from subpix_ros.data import CROP_NAMES, load_crop  # noqa: E402
@@ -106,7 +106,7 @@ def cells(quick: bool):
                 for b in blurs:
                     out.append(dict(p=p, layout=layout, snr=snr, blur=b, jpeg=None, err=0.0))
     for layout in ("grid", "random"):  # JPEG frames and unmodelled shift error: x2, 40 dB
-        for b in ((0.3, 0.7) if quick else (0.2, 0.5, 0.9)):
+        for b in (0.3, 0.7) if quick else (0.2, 0.5, 0.9):
             out.append(dict(p=2, layout=layout, snr=40, blur=b, jpeg=90, err=0.0))
             out.append(dict(p=2, layout=layout, snr=40, blur=b, jpeg=None, err=0.1))
     return out

@@ -243,8 +243,9 @@ def degrade(
 def _roof_rois(c: float, size: tuple[float, float], n_lr: int) -> list[tuple[int, int, int, int]]:
     """ROIs (x, y, w, h) in frame-0 LR px around the middle of each of the roof's four edges."""
     th = np.deg2rad(ROOF_ANGLE_DEG)
-    along, normal = np.array([np.sin(th), np.cos(th)]), np.array(
-        [np.cos(th), -np.sin(th)]
+    along, normal = (
+        np.array([np.sin(th), np.cos(th)]),
+        np.array([np.cos(th), -np.sin(th)]),
     )  # (row, col)
     half = int(min(size) * 0.4)
     out = []

@@ -23,6 +23,7 @@ the plans).
 Usage: python benchmarks/profile_pipeline.py [--frames 48] [--set 16] [--size 1920x1080]
        [--max-memory-mb MB] [--cprofile 30]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -77,11 +78,15 @@ class Meter:
         self.cpu[stage] += time.process_time() - t0
         self.calls[stage] += 1
         if self.trace:
-            self.peak[stage] = max(self.peak[stage], (tracemalloc.get_traced_memory()[1] - base) / 1e6)
+            self.peak[stage] = max(
+                self.peak[stage], (tracemalloc.get_traced_memory()[1] - base) / 1e6
+            )
         return out
 
 
-def run(frames: list[np.ndarray], set_size: int, m: Meter, budget: float | None, plans: list) -> None:
+def run(
+    frames: list[np.ndarray], set_size: int, m: Meter, budget: float | None, plans: list
+) -> None:
     """One pass of the stream through the stages (the pipeline's order and settings)."""
     ref = prep = rg = None
     mt = MotionTracker()
@@ -96,16 +101,36 @@ def run(frames: list[np.ndarray], set_size: int, m: Meter, budget: float | None,
                 fr = [ref] + [a for a, _, _ in members]
                 ms = [np.ones(ref.shape[:2], bool)] + [mk for _, mk, _ in members]
                 sh = np.array([[0.0, 0.0]] + [s for _, _, s in members])
-                _, plan = m.run("reconstruct", reconstruct_within_budget, fr, sh, 2, masks=ms, max_memory_mb=budget,
-                                method="map", geometry="translation", refine_shifts=False)
+                _, plan = m.run(
+                    "reconstruct",
+                    reconstruct_within_budget,
+                    fr,
+                    sh,
+                    2,
+                    masks=ms,
+                    max_memory_mb=budget,
+                    method="map",
+                    geometry="translation",
+                    refine_shifts=False,
+                )
                 plans.append(plan)
             ref, members = f, []
             prep = m.run("reference", reg.prepare_reference, f)
             rg = m.run("reference", gray, f)  # the reference's luminance, once per reference
             mt.restart(t)
             continue
-        r = m.run("register", reg.register, prep, f, model="projective", n_points=150, distortion=False,
-                  prior=mt.predict(t), track_radius=4, want_inliers=100)
+        r = m.run(
+            "register",
+            reg.register,
+            prep,
+            f,
+            model="projective",
+            n_points=150,
+            distortion=False,
+            prior=mt.predict(t),
+            track_radius=4,
+            want_inliers=100,
+        )
         if not r.ok:
             continue
         mt.update(r.homography, t)
@@ -117,12 +142,24 @@ def run(frames: list[np.ndarray], set_size: int, m: Meter, budget: float | None,
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--frames", type=int, default=48)
-    ap.add_argument("--set", type=int, default=16, help="frames per super-resolved image (default %(default)s)")
+    ap.add_argument(
+        "--set", type=int, default=16, help="frames per super-resolved image (default %(default)s)"
+    )
     ap.add_argument("--size", default="1920x1080", help="WxH of the frames (default %(default)s)")
-    ap.add_argument("--max-memory-mb", type=float, default=None, help="reconstruction memory budget")
-    ap.add_argument("--cprofile", type=int, default=0, metavar="N", help="print the top N functions (cumulative)")
+    ap.add_argument(
+        "--max-memory-mb", type=float, default=None, help="reconstruction memory budget"
+    )
+    ap.add_argument(
+        "--cprofile",
+        type=int,
+        default=0,
+        metavar="N",
+        help="print the top N functions (cumulative)",
+    )
     ap.add_argument("--no-trace", action="store_true", help="skip the tracemalloc pass")
     add_malloc_argument(ap)
     args = ap.parse_args()
@@ -146,23 +183,36 @@ def main() -> None:
         tracemalloc.start()
         run(frames, args.set, mem_m, args.max_memory_mb, [])
         tracemalloc.stop()
-    print(f"\n{w}x{h} bgr8, {n} frames, sets of {args.set}, x2 MAP"
-          f"{'' if args.max_memory_mb is None else f', max_memory_mb {args.max_memory_mb:g}'} "
-          f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
-    print("| stage | calls | process CPU ms per frame | ms per call | peak traced MB (largest call) |")
+    print(
+        f"\n{w}x{h} bgr8, {n} frames, sets of {args.set}, x2 MAP"
+        f"{'' if args.max_memory_mb is None else f', max_memory_mb {args.max_memory_mb:g}'} "
+        f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)"
+    )
+    print(
+        "| stage | calls | process CPU ms per frame | ms per call | peak traced MB (largest call) |"
+    )
     print("|---|---|---|---|---|")
     for st in STAGES:
         c = cpu_m.calls.get(st, 0)
-        print(f"| {st} | {c} | {1000 * cpu_m.cpu[st] / n:.1f} | {1000 * cpu_m.cpu[st] / max(c, 1):.1f} | "
-              f"{'-' if args.no_trace else f'{mem_m.peak[st]:.0f}'} |")
+        print(
+            f"| {st} | {c} | {1000 * cpu_m.cpu[st] / n:.1f} | {1000 * cpu_m.cpu[st] / max(c, 1):.1f} | "
+            f"{'-' if args.no_trace else f'{mem_m.peak[st]:.0f}'} |"
+        )
     print(f"| total (incl. frame loop) | | {1000 * cpu_total / n:.1f} | | |")
-    print(f"total CPU {cpu_total / n:.4f} s/frame, wall {wall_total / n:.4f} s/frame; "
-          f"max RSS {rss_cpu_pass:.0f} MB after the CPU pass, "
-          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB at the end")
+    print(
+        f"total CPU {cpu_total / n:.4f} s/frame, wall {wall_total / n:.4f} s/frame; "
+        f"max RSS {rss_cpu_pass:.0f} MB after the CPU pass, "
+        f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB at the end"
+    )
     if plans:
-        print("reconstruction plans: " + "; ".join(
-            f"{p.n_frames} frames, grid {p.grid}, est {p.estimate_mb:.0f} MB"
-            + (f" ({', '.join(p.reductions)})" if p.reductions else "") for p in plans[:3]))
+        print(
+            "reconstruction plans: "
+            + "; ".join(
+                f"{p.n_frames} frames, grid {p.grid}, est {p.estimate_mb:.0f} MB"
+                + (f" ({', '.join(p.reductions)})" if p.reductions else "")
+                for p in plans[:3]
+            )
+        )
     if prof:
         pstats.Stats(prof).sort_stats("cumulative").print_stats(args.cprofile)
 

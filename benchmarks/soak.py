@@ -12,6 +12,7 @@ warm-up (first 60 s), at the end, growth, and the maximum, and the floor
 
 Usage: python benchmarks/soak.py [--frames 18000] [--rate 30]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,13 +41,19 @@ def rss_mb(pid: int) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--frames", type=int, default=18000)
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--warmup-s", type=float, default=60.0)
     add_malloc_argument(ap, " in the pipeline process")
-    ap.add_argument("--max-memory-mb", type=float, default=None,
-                    help="the reconstruction's max_memory_mb (default: unbounded)")
+    ap.add_argument(
+        "--max-memory-mb",
+        type=float,
+        default=None,
+        help="the reconstruction's max_memory_mb (default: unbounded)",
+    )
     args = ap.parse_args()
     if args.max_memory_mb:
         os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)
@@ -79,13 +86,21 @@ def main() -> None:
             lat.append(time.monotonic() - t)
 
     node.create_subscription(Vector3Stamped, "/shift", on_shift, reliable_qos(100), raw=True)
-    node.create_subscription(Image, "/super_resolved", lambda r: srs.__setitem__(0, srs[0] + 1), latched_qos(), raw=True)
-    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diag.update(
-        {s.name: {kv.key: kv.value for kv in s.values} for s in m.status}), 50)
+    node.create_subscription(
+        Image, "/super_resolved", lambda r: srs.__setitem__(0, srs[0] + 1), latched_qos(), raw=True
+    )
+    node.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: diag.update({s.name: {kv.key: kv.value for kv in s.values} for s in m.status}),
+        50,
+    )
     mem: list[tuple[float, float]] = []
     try:
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not (pub.get_subscription_count() and node.count_publishers("/shift")):
+        while time.monotonic() < deadline and not (
+            pub.get_subscription_count() and node.count_publishers("/shift")
+        ):
             rclpy.spin_once(node, timeout_sec=0.1)
         t0 = time.monotonic()
         cpu0 = cpu_seconds(proc.pid)
@@ -125,29 +140,46 @@ def main() -> None:
     k = max(1, len(after) // 5)
     base_mb = float(np.median(after[:k, 1]))
     end_mb = float(np.median(after[-k:, 1]))
-    slope = float(np.polyfit(after[:, 0], after[:, 1], 1)[0] * 60) if len(after) > 2 else float("nan")
+    slope = (
+        float(np.polyfit(after[:, 0], after[:, 1], 1)[0] * 60) if len(after) > 2 else float("nan")
+    )
     # The floor: the lowest RSS of each minute after warm-up (what stays when no image is in flight). A leak
     # lifts the floor; frames and 4K images in flight only lift the peaks, which the medians above still see.
     win = np.floor((after[:, 0] - args.warmup_s) / 60.0)
-    floors = np.array([[w, after[win == w, 1].min()] for w in np.unique(win) if (win == w).sum() >= 6])
-    floor_slope = float(np.polyfit(floors[:, 0], floors[:, 1], 1)[0]) if len(floors) > 2 else float("nan")
+    floors = np.array(
+        [[w, after[win == w, 1].min()] for w in np.unique(win) if (win == w).sum() >= 6]
+    )
+    floor_slope = (
+        float(np.polyfit(floors[:, 0], floors[:, 1], 1)[0]) if len(floors) > 2 else float("nan")
+    )
     lat_ms = np.array(lat) * 1000
     drops = {n.replace("_node", ""): d.get("dropped_frames", "?") for n, d in sorted(diag.items())}
-    print(f"\nsoak: single-process pipeline, 1920x1080 bgr8 at {args.rate:g} Hz, {args.frames} frames in {wall:.0f} s"
-          f"{'' if not args.max_memory_mb else f', max_memory_mb {args.max_memory_mb:g}'} "
-          f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
-    print("| frames in | shifts out | SR out | frame->shift p50 / p99 ms | RSS after warm-up MB (median, first 1/5) | "
-          "RSS end MB (median, last 1/5) | growth MB | trend MB/min | RSS max MB | crashed | dropped (per stage) |")
+    print(
+        f"\nsoak: single-process pipeline, 1920x1080 bgr8 at {args.rate:g} Hz, {args.frames} frames in {wall:.0f} s"
+        f"{'' if not args.max_memory_mb else f', max_memory_mb {args.max_memory_mb:g}'} "
+        f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)"
+    )
+    print(
+        "| frames in | shifts out | SR out | frame->shift p50 / p99 ms | RSS after warm-up MB (median, first 1/5) | "
+        "RSS end MB (median, last 1/5) | growth MB | trend MB/min | RSS max MB | crashed | dropped (per stage) |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
-    print(f"| {args.frames} | {len(lat)} | {srs[0]} | {np.percentile(lat_ms, 50):.0f} / {np.percentile(lat_ms, 99):.0f} | "
-          f"{base_mb:.0f} | {end_mb:.0f} | {end_mb - base_mb:+.0f} | {slope:+.1f} | {m[:, 1].max():.0f} | {not alive} | "
-          f"{drops} |")
+    print(
+        f"| {args.frames} | {len(lat)} | {srs[0]} | {np.percentile(lat_ms, 50):.0f} / {np.percentile(lat_ms, 99):.0f} | "
+        f"{base_mb:.0f} | {end_mb:.0f} | {end_mb - base_mb:+.0f} | {slope:+.1f} | {m[:, 1].max():.0f} | {not alive} | "
+        f"{drops} |"
+    )
     if len(floors):
-        print(f"RSS floor (lowest of each minute after warm-up), MB: first {floors[0, 1]:.0f}, last {floors[-1, 1]:.0f}, "
-              f"trend {floor_slope:+.1f} MB/min over {len(floors)} minutes: "
-              + ", ".join(f"{v:.0f}" for v in floors[:, 1]))
+        print(
+            f"RSS floor (lowest of each minute after warm-up), MB: first {floors[0, 1]:.0f}, last {floors[-1, 1]:.0f}, "
+            f"trend {floor_slope:+.1f} MB/min over {len(floors)} minutes: "
+            + ", ".join(f"{v:.0f}" for v in floors[:, 1])
+        )
     print(f"pipeline process CPU {cpu / args.frames:.3f} s per frame in")
-    print("memory samples (s, MB): " + ", ".join(f"{t:.0f}:{v:.0f}" for t, v in m[:: max(1, len(m) // 20)]))
+    print(
+        "memory samples (s, MB): "
+        + ", ".join(f"{t:.0f}:{v:.0f}" for t, v in m[:: max(1, len(m) // 20)])
+    )
 
 
 if __name__ == "__main__":

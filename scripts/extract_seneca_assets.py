@@ -14,6 +14,7 @@ Run once by a developer (the outputs are committed under data/):
 Usage: ``python scripts/extract_seneca_assets.py [SENECA_DIR]``
 (default ``../shared/data/seneca``).
 """
+
 from __future__ import annotations
 
 import shutil
@@ -52,10 +53,12 @@ def main(src: Path) -> None:
     crops.mkdir(parents=True, exist_ok=True)
     for name, (frame, r0, c0) in CROPS.items():
         im = cv2.imread(str(src / f"IMG_0{frame}.jpg"), cv2.IMREAD_COLOR)
-        cv2.imwrite(str(crops / f"{name}.png"), luminance_u8(im[r0:r0 + 768, c0:c0 + 768]))
+        cv2.imwrite(str(crops / f"{name}.png"), luminance_u8(im[r0 : r0 + 768, c0 : c0 + 768]))
     frame, r0, c0, n = COLOUR_CROP
     im = cv2.imread(str(src / f"IMG_0{frame}.jpg"), cv2.IMREAD_COLOR)
-    cv2.imwrite(str(crops / "colour_hr.jpg"), im[r0:r0 + n, c0:c0 + n], [cv2.IMWRITE_JPEG_QUALITY, 95])
+    cv2.imwrite(
+        str(crops / "colour_hr.jpg"), im[r0 : r0 + n, c0 : c0 + n], [cv2.IMWRITE_JPEG_QUALITY, 95]
+    )
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@
 Search order: ``$SUBPIX_DATA``; the ``data/`` folder of a source checkout
 (editable/venv install); ``share/subpix_ros/data`` of an installed package.
 """
+
 from __future__ import annotations
 
 import os

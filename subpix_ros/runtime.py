@@ -41,6 +41,7 @@ nodes need to exchange camera frames: the package's Fast DDS profile
 frames; see docs/design-notes.md, "Camera frames between processes") and the
 venv's ament prefix. Settings the operator made are kept.
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -49,9 +50,18 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["keep_freed_memory", "allocator_line", "add_malloc_argument", "MMAP_THRESHOLD",
-           "TRIM_THRESHOLD", "OPT_OUT", "configure_ros_environment", "fastdds_profile",
-           "PROFILE_VARS", "RuntimeSetupError"]
+__all__ = [
+    "keep_freed_memory",
+    "allocator_line",
+    "add_malloc_argument",
+    "MMAP_THRESHOLD",
+    "TRIM_THRESHOLD",
+    "OPT_OUT",
+    "configure_ros_environment",
+    "fastdds_profile",
+    "PROFILE_VARS",
+    "RuntimeSetupError",
+]
 
 #: glibc's ``mallopt`` parameter numbers (malloc.h).
 _M_TRIM_THRESHOLD = -1
@@ -70,8 +80,11 @@ OPT_OUT = "SUBPIX_DEFAULT_MALLOC"
 
 def _operator_set() -> bool:
     """True if the environment opts out or sets glibc's malloc thresholds (old variables or the tunables)."""
-    return (os.environ.get(OPT_OUT, "") not in ("", "0") or any(os.environ.get(k) for k in _ENV)
-            or "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", ""))
+    return (
+        os.environ.get(OPT_OUT, "") not in ("", "0")
+        or any(os.environ.get(k) for k in _ENV)
+        or "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", "")
+    )
 
 
 def _mallopt():
@@ -88,7 +101,9 @@ def _mallopt():
     return fn
 
 
-def keep_freed_memory(mmap_threshold: int = MMAP_THRESHOLD, trim_threshold: int = TRIM_THRESHOLD) -> bool:
+def keep_freed_memory(
+    mmap_threshold: int = MMAP_THRESHOLD, trim_threshold: int = TRIM_THRESHOLD
+) -> bool:
     """Keep freed frame buffers in the heap for reuse (glibc ``mallopt``); see the module docstring.
 
     ``mmap_threshold`` / ``trim_threshold`` in bytes. Returns True if both were
@@ -110,8 +125,11 @@ def keep_freed_memory(mmap_threshold: int = MMAP_THRESHOLD, trim_threshold: int 
 
 def add_malloc_argument(parser, where: str = "") -> None:
     """For benchmarks: the ``--default-malloc`` flag (``where``: which processes it reaches, for the help)."""
-    parser.add_argument("--default-malloc", action="store_true",
-                        help=f"glibc's default allocator thresholds{where} (subpix_ros.runtime)")
+    parser.add_argument(
+        "--default-malloc",
+        action="store_true",
+        help=f"glibc's default allocator thresholds{where} (subpix_ros.runtime)",
+    )
 
 
 def allocator_line(default_malloc: bool = False) -> str:
@@ -121,10 +139,15 @@ def allocator_line(default_malloc: bool = False) -> str:
         os.environ[OPT_OUT] = "1"  # and in the processes this one starts
         return "allocator: glibc defaults (--default-malloc; the nodes and subpix keep freed frame buffers)"
     if keep_freed_memory():
-        return (f"allocator: freed frame buffers kept for reuse, as in the nodes and subpix "
-                f"(mmap threshold {MMAP_THRESHOLD >> 20} MiB, trim threshold {TRIM_THRESHOLD >> 20} MiB; "
-                f"--default-malloc for glibc's defaults)")
-    return "allocator: unchanged (not glibc, or SUBPIX_DEFAULT_MALLOC, MALLOC_* or GLIBC_TUNABLES set in the environment)"
+        return (
+            f"allocator: freed frame buffers kept for reuse, as in the nodes and subpix "
+            f"(mmap threshold {MMAP_THRESHOLD >> 20} MiB, trim threshold {TRIM_THRESHOLD >> 20} MiB; "
+            f"--default-malloc for glibc's defaults)"
+        )
+    return (
+        "allocator: unchanged (not glibc, or SUBPIX_DEFAULT_MALLOC, MALLOC_* or GLIBC_TUNABLES "
+        "set in the environment)"
+    )
 
 
 # --------------------------------------------------------------------------- ROS / DDS environment
@@ -149,8 +172,10 @@ def fastdds_profile() -> Path | None:
         ``config/fastdds_profile.xml`` of the checkout (venv / editable install), else of
         ``share/subpix_ros`` next to the interpreter's prefix or on ``AMENT_PREFIX_PATH``.
     """
-    candidates = [Path(__file__).resolve().parents[1] / "config" / _PROFILE_NAME,
-                  Path(sys.prefix) / "share" / "subpix_ros" / "config" / _PROFILE_NAME]
+    candidates = [
+        Path(__file__).resolve().parents[1] / "config" / _PROFILE_NAME,
+        Path(sys.prefix) / "share" / "subpix_ros" / "config" / _PROFILE_NAME,
+    ]
     for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
         if prefix:
             candidates.append(Path(prefix) / "share" / "subpix_ros" / "config" / _PROFILE_NAME)
@@ -190,17 +215,23 @@ def configure_ros_environment(environ=None) -> list[str]:
     chosen = [v for v in PROFILE_VARS if env.get(v)]
     for var in chosen:
         if not Path(env[var]).is_file():
-            raise RuntimeSetupError(f"{var}={env[var]} names no file (unset it to use "
-                                    f"subpix_ros's Fast DDS profile)")
+            raise RuntimeSetupError(
+                f"{var}={env[var]} names no file (unset it to use subpix_ros's Fast DDS profile)"
+            )
     rmw = env.get("RMW_IMPLEMENTATION", "")
-    own = (chosen or env.get("SKIP_DEFAULT_XML", "") not in ("", "0")
-           or any(Path(n).is_file() for n in _CWD_PROFILES))
+    own = (
+        chosen
+        or env.get("SKIP_DEFAULT_XML", "") not in ("", "0")
+        or any(Path(n).is_file() for n in _CWD_PROFILES)
+    )
     if not own and (not rmw or rmw in _FASTDDS_RMWS):
         profile = fastdds_profile()
         if profile is None:
-            raise RuntimeSetupError(f"subpix_ros's Fast DDS profile {_PROFILE_NAME} not found "
-                                    f"(reinstall the package, or set "
-                                    f"FASTRTPS_DEFAULT_PROFILES_FILE)")
+            raise RuntimeSetupError(
+                f"subpix_ros's Fast DDS profile {_PROFILE_NAME} not found "
+                f"(reinstall the package, or set "
+                f"FASTRTPS_DEFAULT_PROFILES_FILE)"
+            )
         env[PROFILE_VARS[0]] = str(profile)
         done.append(f"{PROFILE_VARS[0]}={profile}")
     prefix = Path(sys.prefix) / "subpix_prefix"

@@ -1,8 +1,7 @@
 import os
 import sys
-from pathlib import Path
-
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
@@ -27,7 +26,9 @@ def ros_isolation():
     """
     import random
 
-    os.environ["ROS_DOMAIN_ID"] = os.environ.get("SUBPIX_TEST_DOMAIN_ID", str(random.Random().randint(1, 100)))
+    os.environ["ROS_DOMAIN_ID"] = os.environ.get(
+        "SUBPIX_TEST_DOMAIN_ID", str(random.Random().randint(1, 100))
+    )
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     os.environ["PYTHONUNBUFFERED"] = "1"
@@ -44,9 +45,15 @@ def sample_bags(tmp_path_factory):
     import subprocess
 
     bags = ROOT / "data" / "bags"
-    if not (bags / "subpixel" / "truth.json").is_file() or not (bags / "seneca" / "metadata.yaml").is_file():
+    if (
+        not (bags / "subpixel" / "truth.json").is_file()
+        or not (bags / "seneca" / "metadata.yaml").is_file()
+    ):
         bags = tmp_path_factory.mktemp("bags")
-        subprocess.run([sys.executable, str(ROOT / "scripts" / "build_sample_flight.py"), "--out", str(bags)], check=True)
+        subprocess.run(
+            [sys.executable, str(ROOT / "scripts" / "build_sample_flight.py"), "--out", str(bags)],
+            check=True,
+        )
     return bags
 
 
@@ -69,8 +76,16 @@ def flight(sample_bags):
 
 
 # eight sub-pixel shifts (rows, cols; LR px) that sample a factor-2 grid well: a set of eight frames
-SET_SHIFTS = [(0.0, 0.0), (0.5, 0.0), (0.0, 0.5), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25),
-              (0.3, 0.6), (0.6, 0.3)]
+SET_SHIFTS = [
+    (0.0, 0.0),
+    (0.5, 0.0),
+    (0.0, 0.5),
+    (0.5, 0.5),
+    (0.25, 0.75),
+    (0.75, 0.25),
+    (0.3, 0.6),
+    (0.6, 0.3),
+]
 
 
 def rendered_set(crop, seed=5):
@@ -152,7 +167,7 @@ def spin(nodes, until, timeout=10.0, executor=None, procs=()):
     ex = None
     if not single or executor is not None:
         ex = (executor or SingleThreadedExecutor)()
-        for n in ([nodes] if single else nodes):
+        for n in [nodes] if single else nodes:
             ex.add_node(n)
     deadline = time.monotonic() + timeout
     try:
@@ -165,7 +180,7 @@ def spin(nodes, until, timeout=10.0, executor=None, procs=()):
                 assert p.poll() is None, f"{p.args[2]} died:\n{p.stdout.read()}"
     finally:
         if ex is not None:
-            for n in ([nodes] if single else nodes):
+            for n in [nodes] if single else nodes:
                 ex.remove_node(n)
     return until()
 
@@ -179,8 +194,21 @@ def processed(sample_bags, tmp_path_factory):
     import subprocess
 
     out = tmp_path_factory.mktemp("processed")
-    r = subprocess.run(subpix_cmd("process", str(sample_bags / "subpixel"), str(sample_bags / "seneca"),
-                                  "-o", str(out), "--params", str(ROOT / "config" / "demo.yaml"), "--jobs", "2"),
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        subpix_cmd(
+            "process",
+            str(sample_bags / "subpixel"),
+            str(sample_bags / "seneca"),
+            "-o",
+            str(out),
+            "--params",
+            str(ROOT / "config" / "demo.yaml"),
+            "--jobs",
+            "2",
+        ),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     return out, r

@@ -1,4 +1,5 @@
 """`subpix register` and `subpix mosaic` command lines."""
+
 from __future__ import annotations
 
 import json
@@ -56,7 +57,9 @@ def _frames_1200(tmp_path, n=7):
     paths = []
     for i, p in enumerate(seneca_frame_paths()[:n]):
         q = tmp_path / f"f{i}.png"
-        cv2.imwrite(str(q), cv2.resize(cv2.imread(str(p)), (1200, 900), interpolation=cv2.INTER_AREA))
+        cv2.imwrite(
+            str(q), cv2.resize(cv2.imread(str(p)), (1200, 900), interpolation=cv2.INTER_AREA)
+        )
         paths.append(str(q))
     return paths
 

@@ -1,4 +1,5 @@
 """``subpix shift`` and ``subpix interval`` command lines."""
+
 import json
 import math
 import subprocess
@@ -15,7 +16,9 @@ from subpix_ros.core.render import render_sequence
 @pytest.fixture(scope="module")
 def pair_files(crops, tmp_path_factory):
     d = tmp_path_factory.mktemp("shift")
-    seq = render_sequence(crops["crop_rows"][:384, :384], 3, [(0, 0), (0.37, -0.62)], blur_sigma=0.4, snr_db=40)
+    seq = render_sequence(
+        crops["crop_rows"][:384, :384], 3, [(0, 0), (0.37, -0.62)], blur_sigma=0.4, snr_db=40
+    )
     ref, mov = d / "ref.png", d / "mov.png"
     cv2.imwrite(str(ref), seq.frames[0])
     cv2.imwrite(str(mov), seq.frames[1])
@@ -25,7 +28,14 @@ def pair_files(crops, tmp_path_factory):
     cv2.imwrite(str(movc), cv2.cvtColor(seq.frames[1], cv2.COLOR_GRAY2BGR))
     flat = d / "flat.png"
     cv2.imwrite(str(flat), np.full((64, 64), 90, np.uint8))
-    return dict(ref=str(ref), mov=str(mov), refc=str(refc), movc=str(movc), flat=str(flat), truth=(0.37, -0.62))
+    return dict(
+        ref=str(ref),
+        mov=str(mov),
+        refc=str(refc),
+        movc=str(movc),
+        flat=str(flat),
+        truth=(0.37, -0.62),
+    )
 
 
 def test_shift_json(pair_files, capsys):
@@ -70,8 +80,18 @@ def test_shift_failure_is_one_line_and_nonzero(pair_files, capsys):
 
 def test_shift_as_a_process(pair_files):
     p = subprocess.run(
-        [sys.executable, "-m", "subpix_ros.cli", "shift", pair_files["ref"], pair_files["mov"], "--json"],
-        capture_output=True, text=True, timeout=120,
+        [
+            sys.executable,
+            "-m",
+            "subpix_ros.cli",
+            "shift",
+            pair_files["ref"],
+            pair_files["mov"],
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["u"] == pytest.approx(0.37, abs=0.01)
@@ -79,16 +99,71 @@ def test_shift_as_a_process(pair_files):
 
 def test_interval_hand_value(capsys):
     # t = 1.54e-6 * 60 / (2 * 4.3e-3 * 10) = 1.0744 ms
-    assert main(["interval", "--height-m", "60", "--speed-mps", "10", "--focal-mm", "4.3", "--pixel-um", "1.54", "--p", "2"]) == 0
+    assert (
+        main(
+            [
+                "interval",
+                "--height-m",
+                "60",
+                "--speed-mps",
+                "10",
+                "--focal-mm",
+                "4.3",
+                "--pixel-um",
+                "1.54",
+                "--p",
+                "2",
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "t = 1.074 ms" in text and "phi = 0 deg" in text
-    assert main(["interval", "--height-m", "60", "--speed-mps", "10", "--focal-mm", "4.3", "--pixel-um", "1.54",
-                 "--p", "4", "--rotate", "--json"]) == 0
+    assert (
+        main(
+            [
+                "interval",
+                "--height-m",
+                "60",
+                "--speed-mps",
+                "10",
+                "--focal-mm",
+                "4.3",
+                "--pixel-um",
+                "1.54",
+                "--p",
+                "4",
+                "--rotate",
+                "--json",
+            ]
+        )
+        == 0
+    )
     out = json.loads(capsys.readouterr().out)
     assert out["phi_deg"] == pytest.approx(math.degrees(math.atan(1 / 3)))
-    assert out["interval_s"] == pytest.approx(1.54e-6 * 60 * 3 / math.sqrt(10) / (4 * 4.3e-3 * 10), rel=1e-12)
-    assert main(["interval", "--height-m", "60", "--speed-mps", "10", "--focal-mm", "4.3", "--pixel-um", "1.54",
-                 "--p", "2", "--phi-deg", "30"]) == 0
+    assert out["interval_s"] == pytest.approx(
+        1.54e-6 * 60 * 3 / math.sqrt(10) / (4 * 4.3e-3 * 10), rel=1e-12
+    )
+    assert (
+        main(
+            [
+                "interval",
+                "--height-m",
+                "60",
+                "--speed-mps",
+                "10",
+                "--focal-mm",
+                "4.3",
+                "--pixel-um",
+                "1.54",
+                "--p",
+                "2",
+                "--phi-deg",
+                "30",
+            ]
+        )
+        == 0
+    )
     assert "phi = 30 deg" in capsys.readouterr().out
 
 
@@ -102,7 +177,13 @@ def test_interval_hand_value(capsys):
     ],
 )
 def test_interval_bad_input(argv, word, capsys):
-    base = {"--height-m": "60", "--speed-mps": "10", "--focal-mm": "4.3", "--pixel-um": "1.54", "--p": "2"}
+    base = {
+        "--height-m": "60",
+        "--speed-mps": "10",
+        "--focal-mm": "4.3",
+        "--pixel-um": "1.54",
+        "--p": "2",
+    }
     base.update(dict(zip(argv[::2], argv[1::2])))
     args = ["interval"] + [x for kv in base.items() for x in kv]
     assert main(args) != 0

@@ -1,4 +1,5 @@
 """``subpix superres`` and ``subpix mtf`` command lines."""
+
 import argparse
 import json
 
@@ -24,8 +25,14 @@ def run(module, argv):
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory, crops):
     d = tmp_path_factory.mktemp("sr")
-    seq = render_sequence(crops["crop_road"][: 2 * 112, : 2 * 112], 2,
-                          [(0, 0), (0, 0.5), (0.5, 0), (0.5, 0.5), (0.3, 0.8)], 0.4, snr_db=40, seed=1)
+    seq = render_sequence(
+        crops["crop_road"][: 2 * 112, : 2 * 112],
+        2,
+        [(0, 0), (0, 0.5), (0.5, 0), (0.5, 0.5), (0.3, 0.8)],
+        0.4,
+        snr_db=40,
+        seed=1,
+    )
     paths = []
     for i, f in enumerate(seq.frames):
         p = d / f"f{i}.png"
@@ -44,8 +51,24 @@ def test_superres_with_shift_file_npy(frames, capsys):
     d, paths, shifts, seq = frames
     out = d / "out.npy"
     # the frames' blur (0.4 px, as rendered) given as a lab calibration would be
-    assert run(superres_cli, ["superres", *paths, "--factor", "2", "--shifts", shifts, "--blur-sigma", "0.4",
-                              "-o", str(out)]) == 0
+    assert (
+        run(
+            superres_cli,
+            [
+                "superres",
+                *paths,
+                "--factor",
+                "2",
+                "--shifts",
+                shifts,
+                "--blur-sigma",
+                "0.4",
+                "-o",
+                str(out),
+            ],
+        )
+        == 0
+    )
     img = np.load(out)
     assert img.shape == seq.truth.shape and img.dtype == np.float64
     assert gain(seq, img) > 4.0
@@ -68,7 +91,19 @@ def test_superres_blur_auto_reports_estimate_and_source(frames, tmp_path, capsys
 def test_superres_bad_blur_sigma(frames, tmp_path, bad):
     _, paths, shifts, _ = frames
     with pytest.raises(CliError, match="--blur-sigma"):
-        run(superres_cli, ["superres", *paths, "--shifts", shifts, "--blur-sigma", bad, "-o", str(tmp_path / "o.png")])
+        run(
+            superres_cli,
+            [
+                "superres",
+                *paths,
+                "--shifts",
+                shifts,
+                "--blur-sigma",
+                bad,
+                "-o",
+                str(tmp_path / "o.png"),
+            ],
+        )
 
 
 def test_superres_auto_shifts_png_and_tiff(frames):
@@ -125,16 +160,28 @@ def test_superres_one_frame_mismatch_and_bad_shift_file(frames, tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text("[[0, 0], [0.5]]")
     with pytest.raises(CliError, match="shift file"):
-        run(superres_cli, ["superres", *paths[:2], "--shifts", str(bad), "-o", str(tmp_path / "o.png")])
+        run(
+            superres_cli,
+            ["superres", *paths[:2], "--shifts", str(bad), "-o", str(tmp_path / "o.png")],
+        )
     with pytest.raises(CliError, match="no such file"):
-        run(superres_cli, ["superres", paths[0], str(tmp_path / "missing.png"), "-o", str(tmp_path / "o.png")])
+        run(
+            superres_cli,
+            ["superres", paths[0], str(tmp_path / "missing.png"), "-o", str(tmp_path / "o.png")],
+        )
 
 
 def test_superres_equal_shifts_reports_fallback(frames, tmp_path, capsys):
     _, paths, _, _ = frames
     same = tmp_path / "same.json"
     same.write_text(json.dumps([[0, 0], [0, 0]]))
-    assert run(superres_cli, ["superres", paths[0], paths[0], "--shifts", str(same), "-o", str(tmp_path / "o.png")]) == 0
+    assert (
+        run(
+            superres_cli,
+            ["superres", paths[0], paths[0], "--shifts", str(same), "-o", str(tmp_path / "o.png")],
+        )
+        == 0
+    )
     assert "fell back" in capsys.readouterr().out
 
 
@@ -148,7 +195,13 @@ def test_mtf_cli(tmp_path, capsys):
     path = tmp_path / "edge.png"
     cv2.imwrite(str(path), img)
     plot = tmp_path / "mtf.png"
-    assert run(mtf_cli, ["mtf", str(path), "--roi", "5,5,80,86", "--pixel-um", "4", "--plot", str(plot)]) == 0
+    assert (
+        run(
+            mtf_cli,
+            ["mtf", str(path), "--roi", "5,5,80,86", "--pixel-um", "4", "--plot", str(plot)],
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "MTF50" in out and "MTF30" in out and "lp/mm" in out
     assert cv2.imread(str(plot)) is not None

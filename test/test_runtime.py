@@ -2,6 +2,7 @@
 
 Each case runs in a fresh Python process (the allocator settings are process-wide).
 """
+
 import json
 import os
 import subprocess
@@ -45,10 +46,15 @@ CHILD = textwrap.dedent("""
 
 
 def _child(mode: str, env: dict | None = None) -> dict:
-    e = {k: v for k, v in os.environ.items()
-         if not k.startswith("MALLOC_") and k not in ("GLIBC_TUNABLES", "SUBPIX_DEFAULT_MALLOC")}
+    e = {
+        k: v
+        for k, v in os.environ.items()
+        if not k.startswith("MALLOC_") and k not in ("GLIBC_TUNABLES", "SUBPIX_DEFAULT_MALLOC")
+    }
     e.update(env or {})
-    r = subprocess.run([sys.executable, "-c", CHILD, mode], capture_output=True, text=True, timeout=120, env=e)
+    r = subprocess.run(
+        [sys.executable, "-c", CHILD, mode], capture_output=True, text=True, timeout=120, env=e
+    )
     assert r.returncode == 0, r.stderr
     return json.loads(r.stdout.strip().splitlines()[-1])
 
@@ -61,14 +67,22 @@ def test_registration_reuses_freed_frame_buffers():
     assert kept["applied"] is True
     if kept["faults"] >= 500:
         default = _child("default")
-        pytest.fail(f"{kept['faults']:.0f} minor faults per pair with keep_freed_memory "
-                    f"(glibc defaults: {default['faults']:.0f})")
+        pytest.fail(
+            f"{kept['faults']:.0f} minor faults per pair with keep_freed_memory "
+            f"(glibc defaults: {default['faults']:.0f})"
+        )
 
 
 @glibc
-@pytest.mark.parametrize("env", [{"MALLOC_TRIM_THRESHOLD_": "1000000"}, {"MALLOC_MMAP_THRESHOLD_": "65536"},
-                                 {"GLIBC_TUNABLES": "glibc.malloc.trim_threshold=1000000"},
-                                 {"SUBPIX_DEFAULT_MALLOC": "1"}])
+@pytest.mark.parametrize(
+    "env",
+    [
+        {"MALLOC_TRIM_THRESHOLD_": "1000000"},
+        {"MALLOC_MMAP_THRESHOLD_": "65536"},
+        {"GLIBC_TUNABLES": "glibc.malloc.trim_threshold=1000000"},
+        {"SUBPIX_DEFAULT_MALLOC": "1"},
+    ],
+)
 def test_operator_malloc_settings_are_kept(env):
     assert _child("probe", env)["applied"] is False
 
@@ -78,15 +92,16 @@ def test_unrelated_tunables_do_not_block_it():
     assert _child("probe", {"GLIBC_TUNABLES": "glibc.cpu.hwcap_mask=0"})["applied"] is True
 
 
-@pytest.mark.parametrize("kw", [{"mmap_threshold": 0}, {"trim_threshold": -1}, {"trim_threshold": 2**31}])
+@pytest.mark.parametrize(
+    "kw", [{"mmap_threshold": 0}, {"trim_threshold": -1}, {"trim_threshold": 2**31}]
+)
 def test_bad_thresholds_raise(kw):
     with pytest.raises(ValueError):
         keep_freed_memory(**kw)
 
 
 # ------------------------------------------------------------- ROS / DDS environment (issue 19)
-from subpix_ros.runtime import (RuntimeSetupError, configure_ros_environment,  # noqa: E402
-                                fastdds_profile)
+from subpix_ros.runtime import RuntimeSetupError, configure_ros_environment, fastdds_profile  # noqa: E402
 
 MISSING = "names no file (unset it to use subpix_ros's Fast DDS profile)"
 
@@ -100,10 +115,15 @@ def test_the_package_profile_is_set_in_a_plain_environment(tmp_path, monkeypatch
     assert "<segment_size>67108864</segment_size>" in text and 'is_default_profile="true"' in text
 
 
-@pytest.mark.parametrize("env", [{"FASTRTPS_DEFAULT_PROFILES_FILE": "{own}"},
-                                 {"FASTDDS_DEFAULT_PROFILES_FILE": "{own}"},
-                                 {"SKIP_DEFAULT_XML": "1"},
-                                 {"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}])
+@pytest.mark.parametrize(
+    "env",
+    [
+        {"FASTRTPS_DEFAULT_PROFILES_FILE": "{own}"},
+        {"FASTDDS_DEFAULT_PROFILES_FILE": "{own}"},
+        {"SKIP_DEFAULT_XML": "1"},
+        {"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"},
+    ],
+)
 def test_the_operators_choice_is_kept(tmp_path, monkeypatch, env):
     monkeypatch.chdir(tmp_path)
     own = tmp_path / "mine.xml"
@@ -123,8 +143,9 @@ def test_a_default_profile_in_the_working_directory_is_kept(tmp_path, monkeypatc
 
 
 def test_a_named_profile_that_does_not_exist_refuses(tmp_path):
-    with pytest.raises(RuntimeSetupError,
-                       match="FASTRTPS_DEFAULT_PROFILES_FILE=/nonexistent/x.xml names no file"):
+    with pytest.raises(
+        RuntimeSetupError, match="FASTRTPS_DEFAULT_PROFILES_FILE=/nonexistent/x.xml names no file"
+    ):
         configure_ros_environment({"FASTRTPS_DEFAULT_PROFILES_FILE": "/nonexistent/x.xml"})
 
 
@@ -133,29 +154,54 @@ def _plain_env(**extra):
     drop = ("ROS_", "RMW_", "AMENT_", "FASTRTPS_", "FASTDDS_")
     env = {k: v for k, v in os.environ.items() if not k.startswith(drop)}
     venv = os.path.dirname(os.path.dirname(sys.executable))
-    env.update(VIRTUAL_ENV=venv, PATH=f"{venv}/bin:{env.get('PATH', '')}",
-               ROS_DOMAIN_ID=os.environ.get("SUBPIX_TEST_DOMAIN_ID", "0"), **extra)
+    env.update(
+        VIRTUAL_ENV=venv,
+        PATH=f"{venv}/bin:{env.get('PATH', '')}",
+        ROS_DOMAIN_ID=os.environ.get("SUBPIX_TEST_DOMAIN_ID", "0"),
+        **extra,
+    )
     return env
 
 
-@pytest.mark.parametrize("module", ["registration_node", "shift_node", "reconstruction_node",
-                                    "mosaic_node", "telemetry_node", "pipeline"])
+@pytest.mark.parametrize(
+    "module",
+    [
+        "registration_node",
+        "shift_node",
+        "reconstruction_node",
+        "mosaic_node",
+        "telemetry_node",
+        "pipeline",
+    ],
+)
 def test_every_node_entry_point_refuses_a_missing_profile_with_one_line(module):
     env = _plain_env(FASTRTPS_DEFAULT_PROFILES_FILE="/nonexistent/p.xml")
-    r = subprocess.run([sys.executable, "-m", f"subpix_ros.nodes.{module}"], capture_output=True,
-                       text=True, timeout=60, env=env)
+    r = subprocess.run(
+        [sys.executable, "-m", f"subpix_ros.nodes.{module}"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )
     assert r.returncode == 2, r.stderr
     assert r.stderr.strip().splitlines() == [
-        f"error: FASTRTPS_DEFAULT_PROFILES_FILE=/nonexistent/p.xml {MISSING}"]
+        f"error: FASTRTPS_DEFAULT_PROFILES_FILE=/nonexistent/p.xml {MISSING}"
+    ]
 
 
 def test_subpix_refuses_a_missing_profile_with_one_line():
     env = _plain_env(FASTDDS_DEFAULT_PROFILES_FILE="/nonexistent/p.xml")
-    r = subprocess.run([sys.executable, "-m", "subpix_ros.cli", "replay", "x"], capture_output=True,
-                       text=True, timeout=60, env=env)
+    r = subprocess.run(
+        [sys.executable, "-m", "subpix_ros.cli", "replay", "x"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [
-        f"subpix replay: error: FASTDDS_DEFAULT_PROFILES_FILE=/nonexistent/p.xml {MISSING}"]
+        f"subpix replay: error: FASTDDS_DEFAULT_PROFILES_FILE=/nonexistent/p.xml {MISSING}"
+    ]
 
 
 def _new_segments(before):
@@ -176,8 +222,12 @@ def test_a_node_in_a_plain_venv_loads_the_profile():
     import time
 
     before = set(os.listdir("/dev/shm"))
-    p = subprocess.Popen([sys.executable, "-m", "subpix_ros.nodes.shift_node"], env=_plain_env(),
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "subpix_ros.nodes.shift_node"],
+        env=_plain_env(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         sizes = []
         deadline = time.monotonic() + 30

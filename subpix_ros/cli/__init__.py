@@ -6,6 +6,7 @@ callable ``func(args) -> int``. A subcommand reports a user error by raising
 :class:`CliError`; ``main`` prints it as one line and exits non-zero (no
 traceback wall).
 """
+
 from __future__ import annotations
 
 import argparse

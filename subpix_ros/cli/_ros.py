@@ -1,4 +1,5 @@
 """rclpy start-up shared by the CLI subcommands that talk ROS."""
+
 from __future__ import annotations
 
 import contextlib
@@ -16,7 +17,9 @@ def ros_node(name: str, use_sim_time: bool = False) -> Iterator[object]:
     # Not sys.argv: rcl would read the command's own FROM:=TO arguments (subpix replay --remap)
     # as ROS 1 style remap rules for every name of the node, its /rosout logger included.
     rclpy.init(args=[])
-    node = rclpy.create_node(name, parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)])
+    node = rclpy.create_node(
+        name, parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)]
+    )
     try:
         yield node
     finally:

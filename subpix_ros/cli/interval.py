@@ -1,4 +1,5 @@
 """``subpix interval``: frame interval for a 1/p pixel step (METHODS.md B, eqs. 1-2)."""
+
 from __future__ import annotations
 
 import argparse
@@ -20,11 +21,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--height-m", type=float, required=True, help="height above ground H (m)")
     p.add_argument("--speed-mps", type=float, required=True, help="ground speed V (m/s)")
     p.add_argument("--focal-mm", type=float, required=True, help="focal length f (mm)")
-    p.add_argument("--pixel-um", type=float, required=True, help="detector pixel pitch a (micrometres)")
-    p.add_argument("--p", type=float, required=True, help="sub-pixel steps per pixel (step = 1/p px), p >= 2")
+    p.add_argument(
+        "--pixel-um", type=float, required=True, help="detector pixel pitch a (micrometres)"
+    )
+    p.add_argument(
+        "--p", type=float, required=True, help="sub-pixel steps per pixel (step = 1/p px), p >= 2"
+    )
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--phi-deg", type=float, default=0.0, help="detector angle phi (degrees, default 0)")
-    g.add_argument("--rotate", action="store_true", help="use the eq. 2 detector angle arctan(1/(p-1))")
+    g.add_argument(
+        "--phi-deg", type=float, default=0.0, help="detector angle phi (degrees, default 0)"
+    )
+    g.add_argument(
+        "--rotate", action="store_true", help="use the eq. 2 detector angle arctan(1/(p-1))"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -37,7 +46,9 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(str(exc)) from None
     else:
         phi = math.radians(args.phi_deg)
-    r = frame_interval(args.pixel_um * 1e-6, args.height_m, args.focal_mm * 1e-3, args.speed_mps, args.p, phi)
+    r = frame_interval(
+        args.pixel_um * 1e-6, args.height_m, args.focal_mm * 1e-3, args.speed_mps, args.p, phi
+    )
     if args.json:
         print(json.dumps(r.as_dict()))
     if not r.ok:
@@ -45,5 +56,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.json:
         print(f"t = {r.interval_s * 1e3:.4g} ms ({r.frame_rate_hz:.4g} frames/s)")
         print(f"phi = {r.phi_deg:.4g} deg")
-        print(f"image motion {r.shift_px_per_s:.4g} px/s; step per interval {r.step_px:.4g} px (cos(phi)/p)")
+        print(
+            f"image motion {r.shift_px_per_s:.4g} px/s; step per interval {r.step_px:.4g} px (cos(phi)/p)"
+        )
     return 0

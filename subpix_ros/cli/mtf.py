@@ -1,4 +1,5 @@
 """``subpix mtf``: slanted-edge MTF of an image region (ISO 12233 manner)."""
+
 from __future__ import annotations
 
 import argparse
@@ -15,12 +16,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         "mtf",
         help="slanted-edge MTF, MTF50 and MTF30 of an image region",
         description="Measure the MTF of a straight edge tilted a few degrees from the pixel grid "
-                    "(ISO 12233 slanted-edge method). Frequencies in cycles/pixel; with --pixel-um "
-                    "also line pairs per mm.",
+        "(ISO 12233 slanted-edge method). Frequencies in cycles/pixel; with --pixel-um "
+        "also line pairs per mm.",
     )
     p.add_argument("image", metavar="IMAGE", help="image file (colour is converted to luminance)")
-    p.add_argument("--roi", default=None, help="x,y,w,h of the region holding one edge (pixels; default: whole image)")
-    p.add_argument("--pixel-um", type=float, default=None, help="pixel pitch in micrometres (for lp/mm)")
+    p.add_argument(
+        "--roi",
+        default=None,
+        help="x,y,w,h of the region holding one edge (pixels; default: whole image)",
+    )
+    p.add_argument(
+        "--pixel-um", type=float, default=None, help="pixel pitch in micrometres (for lp/mm)"
+    )
     p.add_argument("--plot", default=None, help="write the MTF curve as a PNG plot")
     p.set_defaults(func=run)
 
@@ -47,16 +54,37 @@ def plot_mtf(freqs: np.ndarray, mtf: np.ndarray, path: str, marks: dict[str, flo
     cv2.rectangle(img, (x0, y1), (x1, y0), (0, 0, 0), 1)
     for f in np.arange(0, 1.01, 0.1):  # grid lines
         cv2.line(img, to_px(f, 0), to_px(f, 1.2), (220, 220, 220), 1)
-        cv2.putText(img, f"{f:.1f}", (to_px(f, 0)[0] - 10, y0 + 18), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1)
+        cv2.putText(
+            img,
+            f"{f:.1f}",
+            (to_px(f, 0)[0] - 10, y0 + 18),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.4,
+            (0, 0, 0),
+            1,
+        )
     for v in (0.3, 0.5, 1.0):
         cv2.line(img, to_px(0, v), to_px(1, v), (200, 200, 255), 1)
-        cv2.putText(img, f"{v:.1f}", (5, to_px(0, v)[1] + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1)
-    pts = np.array([to_px(f, min(max(v, 0), 1.2)) for f, v in zip(freqs, mtf) if f <= 1.0], np.int32)
+        cv2.putText(
+            img, f"{v:.1f}", (5, to_px(0, v)[1] + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1
+        )
+    pts = np.array(
+        [to_px(f, min(max(v, 0), 1.2)) for f, v in zip(freqs, mtf) if f <= 1.0], np.int32
+    )
     cv2.polylines(img, [pts], False, (200, 0, 0), 2)
     for k, (name, f) in enumerate(marks.items()):
-        cv2.putText(img, f"{name} = {f:.3f} cy/px", (x1 - 200, y1 + 20 + 18 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
-                    (0, 0, 0), 1)
-    cv2.putText(img, "cycles / pixel", (w // 2 - 50, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
+        cv2.putText(
+            img,
+            f"{name} = {f:.3f} cy/px",
+            (x1 - 200, y1 + 20 + 18 * k),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.45,
+            (0, 0, 0),
+            1,
+        )
+    cv2.putText(
+        img, "cycles / pixel", (w // 2 - 50, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1
+    )
     if not cv2.imwrite(path, img):
         raise CliError(f"cannot write {path}")
 
@@ -81,9 +109,17 @@ def run(args: argparse.Namespace) -> int:
         r = slanted_edge_mtf(img, roi=roi, pixel_pitch_m=pitch)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    print(f"edge angle {r.angle_deg:+.2f} deg{' (edge near horizontal: rows/cols swapped)' if r.transposed else ''}")
-    print(f"MTF50 {r.mtf50:.4f} cycles/pixel" + (f"  {r.mtf50_lp_mm:.1f} lp/mm" if r.mtf50_lp_mm else ""))
-    print(f"MTF30 {r.mtf30:.4f} cycles/pixel" + (f"  {r.mtf30_lp_mm:.1f} lp/mm" if r.mtf30_lp_mm else ""))
+    print(
+        f"edge angle {r.angle_deg:+.2f} deg{' (edge near horizontal: rows/cols swapped)' if r.transposed else ''}"
+    )
+    print(
+        f"MTF50 {r.mtf50:.4f} cycles/pixel"
+        + (f"  {r.mtf50_lp_mm:.1f} lp/mm" if r.mtf50_lp_mm else "")
+    )
+    print(
+        f"MTF30 {r.mtf30:.4f} cycles/pixel"
+        + (f"  {r.mtf30_lp_mm:.1f} lp/mm" if r.mtf30_lp_mm else "")
+    )
     if args.plot:
         plot_mtf(r.freqs, r.mtf, args.plot, {"MTF50": r.mtf50, "MTF30": r.mtf30})
         print(f"plot: {args.plot}")

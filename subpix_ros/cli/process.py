@@ -62,7 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--skip-corrupt",
         action="store_true",
-        help="go on past damaged chunks/records of a bag (default: stop the bag at the first one); what was skipped is in the summary and the report, and the bag counts as partial",
+        help="go on past damaged chunks/records of a bag (default: stop the bag at the first "
+        "one); what was skipped is in the summary and the report, and the bag counts as partial",
     )
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)

@@ -1,4 +1,5 @@
 """``subpix register REF MOVING [--json] [-o aligned.png]``: automatic co-registration of two frames."""
+
 from __future__ import annotations
 
 import argparse
@@ -36,32 +37,48 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         d = res.as_dict()
         if args.output:
-            d.update(aligned=args.output, prior_shift=list(al.prior_shift), integer_offset=list(al.integer_offset),
-                     warped=al.warped)
+            d.update(
+                aligned=args.output,
+                prior_shift=list(al.prior_shift),
+                integer_offset=list(al.integer_offset),
+                warped=al.warped,
+            )
         print(json.dumps(d))
     else:
         h = res.homography
-        print(f"inliers {res.inliers}  rms {res.rms_px:.3f} px (projective only {res.rms_px_projective:.3f} px)  "
-              f"overlap {res.overlap:.2f}  distortion lambda {res.distortion:+.4f}  {res.time_s * 1000:.0f} ms")
+        print(
+            f"inliers {res.inliers}  rms {res.rms_px:.3f} px (projective only {res.rms_px_projective:.3f} px)  "
+            f"overlap {res.overlap:.2f}  distortion lambda {res.distortion:+.4f}  {res.time_s * 1000:.0f} ms"
+        )
         ac = res.residual_along_cross()
         if ac is not None:
-            hint = " (mostly along: parallax of relief, not a registration error)" if ac[0] > 1.5 * ac[1] else ""
+            hint = (
+                " (mostly along: parallax of relief, not a registration error)"
+                if ac[0] > 1.5 * ac[1]
+                else ""
+            )
             print(f"residual rms along the baseline {ac[0]:.3f} px, across {ac[1]:.3f} px{hint}")
         print("homography (MOVING px -> REF px):")
         for row in h:
             print("  " + "  ".join(f"{v: .6g}" for v in row))
         if args.output:
-            print(f"aligned frame -> {args.output} (integer offset {al.integer_offset}, prior shift "
-                  f"({al.prior_shift[0]:+.3f}, {al.prior_shift[1]:+.3f}) px, warped={al.warped})")
+            print(
+                f"aligned frame -> {args.output} (integer offset {al.integer_offset}, prior shift "
+                f"({al.prior_shift[0]:+.3f}, {al.prior_shift[1]:+.3f}) px, warped={al.warped})"
+            )
     return 0
 
 
 def register(sub) -> None:  # noqa: A001 - the CLI module protocol's name
-    p = sub.add_parser("register", help="co-register two overlapping frames (homography moving -> ref)")
+    p = sub.add_parser(
+        "register", help="co-register two overlapping frames (homography moving -> ref)"
+    )
     p.add_argument("ref", help="reference frame (image file)")
     p.add_argument("moving", help="moving frame (image file)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("-o", "--output", help="write the moving frame aligned onto the reference grid")
     p.add_argument("--model", choices=("projective", "affine"), default="projective")
-    p.add_argument("--no-distortion", action="store_true", help="do not estimate the radial distortion term")
+    p.add_argument(
+        "--no-distortion", action="store_true", help="do not estimate the radial distortion term"
+    )
     p.set_defaults(func=run)

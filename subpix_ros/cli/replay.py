@@ -1,4 +1,5 @@
 """``subpix replay BAG``: publish a rosbag2 bag with its original timing."""
+
 from __future__ import annotations
 
 import argparse
@@ -20,25 +21,51 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1.0)")
     p.add_argument("--loop", action="store_true", help="replay again and again until interrupted")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all)")
-    p.add_argument("--clock", action="store_true", help="also publish /clock (bag time) for use_sim_time nodes")
-    p.add_argument("--remap", nargs="+", default=[], metavar="FROM:=TO", help="publish topic FROM under TO")
-    p.add_argument("--wait-for", nargs="+", default=[], metavar="TOPIC",
-                   help="before starting, wait until these topics have a subscriber (error if "
-                   "not within --wait-timeout); without it, wait until any replayed topic has "
-                   "one (replay anyway after --wait-timeout), since a subscriber still being "
-                   "discovered would miss the first messages")
-    p.add_argument("--no-wait", action="store_true",
-                   help="start at once, matched subscribers or not")
-    p.add_argument("--wait-timeout", type=float, default=15.0,
-                   help="seconds to wait for subscribers (default 15)")
-    p.add_argument("--delay", type=float, default=0.5, help="seconds to wait before the first message (discovery)")
-    p.add_argument("--ack-timeout", type=float, default=10.0,
-                   help="after the last message, wait up to this many seconds until every reliable subscriber has "
-                   "acknowledged everything (a slow subscriber still gets the end of the bag); default 10")
-    p.add_argument("--skip-corrupt", action="store_true",
-                   help="replay what can be read from a damaged bag and report the skipped "
-                   "records at the end (the exit status is still non-zero); default: stop at the "
-                   "first damaged record")
+    p.add_argument(
+        "--clock", action="store_true", help="also publish /clock (bag time) for use_sim_time nodes"
+    )
+    p.add_argument(
+        "--remap", nargs="+", default=[], metavar="FROM:=TO", help="publish topic FROM under TO"
+    )
+    p.add_argument(
+        "--wait-for",
+        nargs="+",
+        default=[],
+        metavar="TOPIC",
+        help="before starting, wait until these topics have a subscriber (error if "
+        "not within --wait-timeout); without it, wait until any replayed topic has "
+        "one (replay anyway after --wait-timeout), since a subscriber still being "
+        "discovered would miss the first messages",
+    )
+    p.add_argument(
+        "--no-wait", action="store_true", help="start at once, matched subscribers or not"
+    )
+    p.add_argument(
+        "--wait-timeout",
+        type=float,
+        default=15.0,
+        help="seconds to wait for subscribers (default 15)",
+    )
+    p.add_argument(
+        "--delay",
+        type=float,
+        default=0.5,
+        help="seconds to wait before the first message (discovery)",
+    )
+    p.add_argument(
+        "--ack-timeout",
+        type=float,
+        default=10.0,
+        help="after the last message, wait up to this many seconds until every reliable subscriber has "
+        "acknowledged everything (a slow subscriber still gets the end of the bag); default 10",
+    )
+    p.add_argument(
+        "--skip-corrupt",
+        action="store_true",
+        help="replay what can be read from a damaged bag and report the skipped "
+        "records at the end (the exit status is still non-zero); default: stop at the "
+        "first damaged record",
+    )
     p.set_defaults(func=run)
 
 
@@ -58,18 +85,35 @@ def run(args: argparse.Namespace) -> int:
         remap[src] = dst
     try:
         with ros_node("subpix_replay") as node:
-            player = Player(node, args.bag, topics=args.topics, rate=args.rate, loop=args.loop, clock=args.clock,
-                            remap=remap, skip_corrupt=args.skip_corrupt)
+            player = Player(
+                node,
+                args.bag,
+                topics=args.topics,
+                rate=args.rate,
+                loop=args.loop,
+                clock=args.clock,
+                remap=remap,
+                skip_corrupt=args.skip_corrupt,
+            )
             signal.signal(signal.SIGTERM, lambda *_: player.stop())
-            unknown = [t for t in args.wait_for if t not in player.publishers and not (t == "/clock" and args.clock)]
+            unknown = [
+                t
+                for t in args.wait_for
+                if t not in player.publishers and not (t == "/clock" and args.clock)
+            ]
             if unknown:
                 raise CliError(f"--wait-for topic(s) not replayed: {', '.join(unknown)}")
             if args.wait_for and not player.wait_for_subscribers(args.wait_for, args.wait_timeout):
-                raise CliError(f"no subscriber on {', '.join(args.wait_for)} within {args.wait_timeout:.0f} s")
+                raise CliError(
+                    f"no subscriber on {', '.join(args.wait_for)} within {args.wait_timeout:.0f} s"
+                )
             waits = not args.wait_for and not args.no_wait
             if waits and not player.wait_for_any_subscriber(args.wait_timeout):
-                print(f"subpix replay: no subscriber on any replayed topic within "
-                      f"{args.wait_timeout:g} s: replaying anyway", file=sys.stderr)
+                print(
+                    f"subpix replay: no subscriber on any replayed topic within "
+                    f"{args.wait_timeout:g} s: replaying anyway",
+                    file=sys.stderr,
+                )
             time.sleep(max(0.0, args.delay))
             interrupted = False
             corrupt = None
@@ -89,8 +133,11 @@ def run(args: argparse.Namespace) -> int:
     if corrupt is not None:
         raise CliError(f"{corrupt} (replayed {stats.published} messages before it)", code=3)
     if not acked and not interrupted:
-        print(f"subpix replay: warning: not every reliable subscriber acknowledged every message within "
-              f"{args.ack_timeout:g} s (a subscriber is slow, stalled or gone)", file=sys.stderr)
+        print(
+            f"subpix replay: warning: not every reliable subscriber acknowledged every message within "
+            f"{args.ack_timeout:g} s (a subscriber is slow, stalled or gone)",
+            file=sys.stderr,
+        )
     print(f"replayed {stats.published} messages from {args.bag} ({stats.loops} pass(es))")
     rep = player.read_report
     if rep.skipped_records:

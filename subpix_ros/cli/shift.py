@@ -1,4 +1,5 @@
 """``subpix shift``: sub-pixel shift between two image files (METHODS.md A)."""
+
 from __future__ import annotations
 
 import argparse
@@ -24,9 +25,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("reference", metavar="REF", help="reference image file")
     p.add_argument("moving", metavar="MOVING", help="moving image file (same size)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--method", choices=METHODS, default="default", help="estimator (seed = the paper's single solve)")
-    p.add_argument("--prior", nargs=2, type=float, metavar=("U", "V"), default=None, help="starting guess (px)")
-    p.add_argument("--mask", default=None, metavar="MASK.png", help="validity mask for both frames (non-zero = valid)")
+    p.add_argument(
+        "--method",
+        choices=METHODS,
+        default="default",
+        help="estimator (seed = the paper's single solve)",
+    )
+    p.add_argument(
+        "--prior", nargs=2, type=float, metavar=("U", "V"), default=None, help="starting guess (px)"
+    )
+    p.add_argument(
+        "--mask",
+        default=None,
+        metavar="MASK.png",
+        help="validity mask for both frames (non-zero = valid)",
+    )
     p.set_defaults(func=run)
 
 
@@ -48,7 +61,9 @@ def run(args: argparse.Namespace) -> int:
     ref = _read(args.reference, "reference")
     mov = _read(args.moving, "moving")
     if ref.shape != mov.shape:
-        raise CliError(f"images differ in size: {ref.shape[1]}x{ref.shape[0]} vs {mov.shape[1]}x{mov.shape[0]}")
+        raise CliError(
+            f"images differ in size: {ref.shape[1]}x{ref.shape[0]} vs {mov.shape[1]}x{mov.shape[0]}"
+        )
     mask = None
     if args.mask:
         m = _read(args.mask, "mask")

@@ -3,6 +3,7 @@
 Output grid: low-resolution pixel i of the FIRST frame covers output pixels
 factor*i .. factor*i + factor - 1 (pixel centres aligned as in cv2.resize).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,20 +35,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("frames", nargs="+", metavar="FRAME", help="input images (2 or more, same size)")
     p.add_argument("--factor", type=int, default=2, help="resolution factor 2..4 (default 2)")
-    p.add_argument("--method", default="map", choices=["map", "windowed", "pinv", "bicubic"],
-                   help="map: MAP estimate (eq. 9, default); windowed: eq. 7; pinv: eq. 6 (reference only); "
-                        "bicubic: the reference frame upscaled")
-    p.add_argument("--shifts", default="auto",
-                   help="'auto' (estimate with subpix_ros.core.shift.estimate_shift, default) or a JSON file "
-                        "with one [u, v] per frame relative to the first frame (rows, cols; px)")
-    p.add_argument("--blur-sigma", default="auto",
-                   help="optics blur std of the model, input px: 'auto' (default: measured on straight edges in "
-                        "the frames, biased low; a low fallback when none is in view) or a number in 0..3 "
-                        "(a lab calibration)")
-    p.add_argument("--noise-sigma", type=float, default=None, help="noise std in DN (default: estimated)")
-    p.add_argument("--no-refine", action="store_true", help="use the shifts as given (no refinement)")
-    p.add_argument("-o", "--output", required=True,
-                   help="output file: .png (8-bit, clipped), .tif/.tiff (32-bit float) or .npy (float64)")
+    p.add_argument(
+        "--method",
+        default="map",
+        choices=["map", "windowed", "pinv", "bicubic"],
+        help="map: MAP estimate (eq. 9, default); windowed: eq. 7; pinv: eq. 6 (reference only); "
+        "bicubic: the reference frame upscaled",
+    )
+    p.add_argument(
+        "--shifts",
+        default="auto",
+        help="'auto' (estimate with subpix_ros.core.shift.estimate_shift, default) or a JSON file "
+        "with one [u, v] per frame relative to the first frame (rows, cols; px)",
+    )
+    p.add_argument(
+        "--blur-sigma",
+        default="auto",
+        help="optics blur std of the model, input px: 'auto' (default: measured on straight edges in "
+        "the frames, biased low; a low fallback when none is in view) or a number in 0..3 "
+        "(a lab calibration)",
+    )
+    p.add_argument(
+        "--noise-sigma", type=float, default=None, help="noise std in DN (default: estimated)"
+    )
+    p.add_argument(
+        "--no-refine", action="store_true", help="use the shifts as given (no refinement)"
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="output file: .png (8-bit, clipped), .tif/.tiff (32-bit float) or .npy (float64)",
+    )
     p.set_defaults(func=run)
 
 
@@ -83,7 +102,9 @@ def _shifts_from_file(path: str, n: int) -> np.ndarray:
     except (TypeError, ValueError):
         raise CliError(f"shift file {path}: expected a JSON list of [u, v] pairs") from None
     if s.shape != (n, 2) or not np.isfinite(s).all():
-        raise CliError(f"shift file {path}: expected {n} [u, v] pairs (one per frame), got shape {arr.shape}")
+        raise CliError(
+            f"shift file {path}: expected {n} [u, v] pairs (one per frame), got shape {arr.shape}"
+        )
     return s
 
 
@@ -94,7 +115,10 @@ def _auto_shifts(lumas: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, list[
     for i, f in enumerate(lumas[1:], start=1):
         r = estimate_shift(lumas[0], f)
         if not r.ok:
-            print(f"subpix superres: frame {i} left out: shift estimate failed ({r.reason})", file=sys.stderr)
+            print(
+                f"subpix superres: frame {i} left out: shift estimate failed ({r.reason})",
+                file=sys.stderr,
+            )
             continue
         shifts.append(np.array([r.u, r.v]))
         covs.append(np.asarray(r.cov)[:2, :2] if r.cov is not None else np.zeros((2, 2)))
@@ -118,7 +142,7 @@ def _write(path: str, image: np.ndarray) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from subpix_ros.core.superres import MAX_FACTOR, reconstruct, reconstruct_colour
+    from subpix_ros.core.superres import MAX_FACTOR, reconstruct_colour
 
     if not 2 <= args.factor <= MAX_FACTOR:
         raise CliError(f"--factor must be 2..{MAX_FACTOR}, got {args.factor}")
@@ -129,7 +153,10 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"unsupported output type {ext or '(none)'}: use .png, .tif/.tiff or .npy")
     imgs = [_read(f) for f in args.frames]
     if len({i.shape for i in imgs}) != 1:
-        raise CliError("frames differ in size: " + ", ".join(f"{f}: {i.shape[1]}x{i.shape[0]}" for f, i in zip(args.frames, imgs)))
+        raise CliError(
+            "frames differ in size: "
+            + ", ".join(f"{f}: {i.shape[1]}x{i.shape[0]}" for f, i in zip(args.frames, imgs))
+        )
     cov = None
     if args.shifts == "auto":
         shifts, cov, keep = _auto_shifts([_luma(i) for i in imgs])
@@ -144,16 +171,30 @@ def run(args: argparse.Namespace) -> int:
         blur = parse_blur_sigma(args.blur_sigma)
     except ValueError as exc:
         raise CliError(f"--blur-sigma: {exc}") from None
-    kw = dict(method=args.method, blur_sigma=blur, noise_sigma=args.noise_sigma,
-              refine_shifts=not args.no_refine, shift_cov=cov)
+    kw = dict(
+        method=args.method,
+        blur_sigma=blur,
+        noise_sigma=args.noise_sigma,
+        refine_shifts=not args.no_refine,
+        shift_cov=cov,
+    )
     try:
         res = reconstruct_colour(imgs, shifts, args.factor, **kw)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     _write(args.output, res.image)
-    note = f" (fell back: {res.reason})" if res.fell_back else (f" ({res.reason})" if res.reason else "")
-    blur_note = (f"blur_sigma={res.blur_sigma:.3f} px ({res.blur_source}: {res.blur_reason})"
-                 if res.blur_source != "unused" else "blur_sigma unused")
-    print(f"{args.output}: {res.image.shape[1]}x{res.image.shape[0]} method={res.method} "
-          f"noise_sigma={res.noise_sigma:.3g} DN frames={len(imgs)} {blur_note}{note}")
+    note = (
+        f" (fell back: {res.reason})"
+        if res.fell_back
+        else (f" ({res.reason})" if res.reason else "")
+    )
+    blur_note = (
+        f"blur_sigma={res.blur_sigma:.3f} px ({res.blur_source}: {res.blur_reason})"
+        if res.blur_source != "unused"
+        else "blur_sigma unused"
+    )
+    print(
+        f"{args.output}: {res.image.shape[1]}x{res.image.shape[0]} method={res.method} "
+        f"noise_sigma={res.noise_sigma:.3g} DN frames={len(imgs)} {blur_note}{note}"
+    )
     return 0

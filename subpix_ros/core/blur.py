@@ -372,8 +372,7 @@ def estimate_blur(
         return BlurEstimate(
             fallback,
             "fallback",
-            reason=f"no usable edge ({len(rois)} candidates: {common}); "
-            f"fallback {fallback:.2f} px",
+            reason=f"no usable edge ({len(rois)} candidates: {common}); fallback {fallback:.2f} px",
         )
     vals = np.array([p[0] for p in per_edge])
     ses = np.array([p[1] for p in per_edge])

@@ -4,6 +4,7 @@ Conventions as in :mod:`subpix_ros.core.render`: a frame whose true shift
 against frame 0 is ``(u, v)`` LR px has its own truth equal to frame 0's HR
 truth with content moved by ``factor * (u, v)`` HR px.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -21,19 +22,28 @@ def truth_on_grid(truth0: np.ndarray, shift_lr: tuple[float, float], factor: int
     border of width ``factor * |s_k|`` wraps and must be excluded).
     """
     t = luminance(truth0, "bgr") if truth0.ndim == 3 else np.asarray(truth0, dtype=np.float64)
-    return fourier_shift_blur(t, (factor * shift_lr[0], factor * shift_lr[1]), 0.0,
-                              pad=int(np.ceil(factor * max(abs(shift_lr[0]), abs(shift_lr[1])))) + 32)
+    return fourier_shift_blur(
+        t,
+        (factor * shift_lr[0], factor * shift_lr[1]),
+        0.0,
+        pad=int(np.ceil(factor * max(abs(shift_lr[0]), abs(shift_lr[1])))) + 32,
+    )
 
 
-def gain_over_bicubic(sr: np.ndarray, reference_lr: np.ndarray, truth: np.ndarray, factor: int,
-                      border: int) -> tuple[float, float]:
+def gain_over_bicubic(
+    sr: np.ndarray, reference_lr: np.ndarray, truth: np.ndarray, factor: int, border: int
+) -> tuple[float, float]:
     """(PSNR of ``sr``, PSNR of bicubic(``reference_lr``)) against ``truth`` (luminance, dB).
 
     Colour inputs (BGR) are compared on luminance; ``border`` HR pixels are
     cut from every side.
     """
     y_sr = luminance(sr, "bgr") if sr.ndim == 3 else np.asarray(sr, np.float64)
-    y_ref = luminance(reference_lr, "bgr") if reference_lr.ndim == 3 else np.asarray(reference_lr, np.float64)
+    y_ref = (
+        luminance(reference_lr, "bgr")
+        if reference_lr.ndim == 3
+        else np.asarray(reference_lr, np.float64)
+    )
     y_t = luminance(truth, "bgr") if truth.ndim == 3 else np.asarray(truth, np.float64)
     if y_sr.shape != y_t.shape:
         raise ValueError(f"super-resolved image {y_sr.shape} and truth {y_t.shape} differ in size")
@@ -47,7 +57,9 @@ def wrapped_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return (d + 0.5) % 1.0 - 0.5
 
 
-def max_bin_bias(err: np.ndarray, truth: np.ndarray, nbins: int = 5, min_count: int = 5) -> tuple[float, int]:
+def max_bin_bias(
+    err: np.ndarray, truth: np.ndarray, nbins: int = 5, min_count: int = 5
+) -> tuple[float, int]:
     """Bias of a shift estimator across the sub-pixel phase.
 
     ``err`` and ``truth`` are (N, 2) arrays (px). The fractional part of the
@@ -69,8 +81,15 @@ def max_bin_bias(err: np.ndarray, truth: np.ndarray, nbins: int = 5, min_count: 
     return worst, fewest
 
 
-def mtf30_evaluation(crop: np.ndarray, factor: int, lr: int = 160, methods: tuple[str, ...] = ("map",),
-                     blur_sigma: float = 0.4, snr_db: float = 40.0, seed: int = 1) -> dict[str, float]:
+def mtf30_evaluation(
+    crop: np.ndarray,
+    factor: int,
+    lr: int = 160,
+    methods: tuple[str, ...] = ("map",),
+    blur_sigma: float = 0.4,
+    snr_db: float = 40.0,
+    seed: int = 1,
+) -> dict[str, float]:
     """The paper's resolution measurement (METHODS B): MTF30 of a slanted-edge target through the degradation.
 
     A slanted edge is put into the real ``crop`` (:func:`~subpix_ros.core.render.slanted_edge_scene`),
@@ -82,13 +101,21 @@ def mtf30_evaluation(crop: np.ndarray, factor: int, lr: int = 160, methods: tupl
     """
     p = int(factor)
     hr, roi = slanted_edge_scene(crop, p, lr=lr)
-    seq = render_sequence(hr, p, [(a / p, b / p) for a in range(p) for b in range(p)], blur_sigma, snr_db=snr_db,
-                          seed=seed)
+    seq = render_sequence(
+        hr,
+        p,
+        [(a / p, b / p) for a in range(p) for b in range(p)],
+        blur_sigma,
+        snr_db=snr_db,
+        seed=seed,
+    )
     x, y, w, h = roi
     roi_hr = (x * p, y * p, w * p, h * p)
-    out = {"input": slanted_edge_mtf(seq.frames[0], roi).mtf30,
-           "ceiling": slanted_edge_mtf(seq.truth_blurred, roi_hr).mtf30 * p,
-           "bicubic": slanted_edge_mtf(bicubic_upscale(seq.frames[0], p), roi_hr).mtf30 * p}
+    out = {
+        "input": slanted_edge_mtf(seq.frames[0], roi).mtf30,
+        "ceiling": slanted_edge_mtf(seq.truth_blurred, roi_hr).mtf30 * p,
+        "bicubic": slanted_edge_mtf(bicubic_upscale(seq.frames[0], p), roi_hr).mtf30 * p,
+    }
     for m in methods:
         try:
             image = reconstruct(seq.frames, seq.shifts, p, method=m).image

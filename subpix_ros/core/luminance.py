@@ -8,6 +8,7 @@ later sums accumulate in double precision, or float32 on request (the shift
 estimator works in float32: asking for it saves a float64 frame and a
 conversion; the weighted sum then carries ~1e-5 DN of rounding at 8 bit).
 """
+
 from __future__ import annotations
 
 import cv2
@@ -50,7 +51,9 @@ def luminance(image: np.ndarray, order: str = "bgr", dtype: type = np.float64) -
     if dtype not in (np.float64, np.float32):
         raise ValueError(f"dtype must be float64 or float32, got {dtype}")
     img = np.asarray(image)
-    if img.dtype == bool or not (np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)):
+    if img.dtype == bool or not (
+        np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)
+    ):
         raise ValueError(f"image dtype {img.dtype} is not an integer or float type")
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
@@ -65,15 +68,19 @@ def luminance(image: np.ndarray, order: str = "bgr", dtype: type = np.float64) -
         raise ValueError(f"order {order!r} needs {need} channels, image has {img.shape[2]}")
     ir, ig, ib = ORDERS[order]
     wr, wg, wb = LUMA_WEIGHTS_RGB
-    if dtype == np.float32:  # one OpenCV pass over the pixels, weights in B, G, R order of the array
+    if (
+        dtype == np.float32
+    ):  # one OpenCV pass over the pixels, weights in B, G, R order of the array
         w = np.zeros((1, img.shape[2]), np.float32)
         w[0, ir], w[0, ig], w[0, ib] = wr, wg, wb
         # In blocks of _ROWS rows: each block's float32 copy stays in cache and small, instead of a
         # frame-sized HxWxC float32 temporary (same values; its page faults cost more than the sum).
         out = np.empty(img.shape[:2], np.float32)
         for r0 in range(0, img.shape[0], _ROWS):
-            blk = img[r0: r0 + _ROWS]
-            out[r0: r0 + _ROWS] = cv2.transform(blk.astype(np.float32, copy=False), w).reshape(blk.shape[:2])
+            blk = img[r0 : r0 + _ROWS]
+            out[r0 : r0 + _ROWS] = cv2.transform(blk.astype(np.float32, copy=False), w).reshape(
+                blk.shape[:2]
+            )
         return out
     out = wr * img[:, :, ir].astype(np.float64)
     out += wg * img[:, :, ig]

@@ -59,6 +59,7 @@ transition inside the overlap. ``overlap_residual_px`` is
 ``|D_(k-1)(x_prev) - D_k(x_new)|``: it adds the intended bending
 ``(1 - h) |H_k - A_k|`` in the hidden part of the overlap.
 """
+
 from __future__ import annotations
 
 import time
@@ -88,10 +89,14 @@ class MosaicUpdate:
     scale: float  # canvas px per first-frame px after this add
     canvas_shape: tuple[int, int]
     registration: RegistrationResult | None = None
-    overlap_residual_px: float | None = None  # tie points through both frames' drawing maps (new-frame px)
+    overlap_residual_px: float | None = (
+        None  # tie points through both frames' drawing maps (new-frame px)
+    )
 
 
-def _similarity_to(h: "PairModel", shape: tuple[int, int], prev_shape: tuple[int, int]) -> np.ndarray:
+def _similarity_to(
+    h: "PairModel", shape: tuple[int, int], prev_shape: tuple[int, int]
+) -> np.ndarray:
     """Similarity ``A`` (3x3, x -> s R x + t) closest to ``H`` over the overlap, symmetric under reversal.
 
     Point pairs: a 17x17 grid over this frame kept where ``H`` maps it inside
@@ -103,12 +108,19 @@ def _similarity_to(h: "PairModel", shape: tuple[int, int], prev_shape: tuple[int
     back over the same frames (``H' = H^-1``) gives exactly ``A' = A^-1``, so
     the placement chain ``P_k`` does not drift by construction.
     """
+
     def grid(sh: tuple[int, int]) -> np.ndarray:
-        ys, xs = np.mgrid[0:sh[0] - 1:17j, 0:sh[1] - 1:17j]
+        ys, xs = np.mgrid[0 : sh[0] - 1 : 17j, 0 : sh[1] - 1 : 17j]
         return np.stack([xs.ravel(), ys.ravel()], axis=1)
 
     def inside(p: np.ndarray, sh: tuple[int, int]) -> np.ndarray:
-        return np.isfinite(p).all(axis=1) & (p[:, 0] >= 0) & (p[:, 0] <= sh[1] - 1) & (p[:, 1] >= 0) & (p[:, 1] <= sh[0] - 1)
+        return (
+            np.isfinite(p).all(axis=1)
+            & (p[:, 0] >= 0)
+            & (p[:, 0] <= sh[1] - 1)
+            & (p[:, 1] >= 0)
+            & (p[:, 1] <= sh[0] - 1)
+        )
 
     gk, gp = grid(shape), grid(prev_shape)
     fk, bp = h.fwd(gk), h.inv(gp)
@@ -143,7 +155,9 @@ class PairModel:
     def of(cls, reg: RegistrationResult) -> "PairModel":
         if reg.distortion == 0.0 or reg.homography_undistorted is None:
             return cls(reg.homography)
-        return cls(reg.homography, reg.homography_undistorted, float(reg.distortion), tuple(reg.ref_shape))
+        return cls(
+            reg.homography, reg.homography_undistorted, float(reg.distortion), tuple(reg.ref_shape)
+        )
 
     def fwd(self, pts: np.ndarray) -> np.ndarray:
         if self.hu is None:
@@ -155,7 +169,9 @@ class PairModel:
         if self.hu is None:
             return apply_h(np.linalg.inv(self.h), pts)
         n = Normaliser.for_shape(self.ref_shape)
-        return distort_points(apply_h(np.linalg.inv(self.hu), undistort_points(pts, self.lam, n)), self.lam, n)
+        return distort_points(
+            apply_h(np.linalg.inv(self.hu), undistort_points(pts, self.lam, n)), self.lam, n
+        )
 
 
 @dataclass
@@ -181,7 +197,9 @@ class FrameGeometry:
         """h at frame pixels ``pts`` (N, 2): 1 -> predecessor's geometry, 0 -> own geometry."""
         if not self.blend:
             return np.zeros(len(pts))
-        if not np.isfinite(self.t2):  # no advance / turning back: the frame's own geometry throughout
+        if not np.isfinite(
+            self.t2
+        ):  # no advance / turning back: the frame's own geometry throughout
             return np.zeros(len(pts))
         t = (np.asarray(pts, float) - self.centre) @ self.direction
         return np.clip((self.t2 - t) / max(self.t2 - self.t1, 1e-9), 0.0, 1.0)
@@ -199,9 +217,16 @@ class FrameGeometry:
         return cls(e, PairModel(e), e, shape, c, np.array([0.0, 1.0]), 0.0, 0.0, blend=False)
 
     @classmethod
-    def chained(cls, p_prev: np.ndarray, h: PairModel, shape: tuple[int, int], prev_shape: tuple[int, int],
-                h_next: PairModel | None = None, next_shape: tuple[int, int] | None = None,
-                min_advance_px: float = 2.0) -> "FrameGeometry":
+    def chained(
+        cls,
+        p_prev: np.ndarray,
+        h: PairModel,
+        shape: tuple[int, int],
+        prev_shape: tuple[int, int],
+        h_next: PairModel | None = None,
+        next_shape: tuple[int, int] | None = None,
+        min_advance_px: float = 2.0,
+    ) -> "FrameGeometry":
         """Geometry of frame k from ``P_(k-1)``, ``H_k`` and, when known, ``H_(k+1)`` (next frame px -> this frame px).
 
         Without ``h_next`` the next frame's footprint is predicted as this frame
@@ -221,7 +246,9 @@ class FrameGeometry:
         if not np.isfinite(adv) or adv < min_advance_px:  # hovering: no transition, own geometry
             return cls(p_prev, h, a, shape, c, np.array([0.0, 1.0]), np.inf, np.inf)
         d = (c - c_prev) / adv
-        if h_next is None:  # steady flight: the next frame is this one displaced by the same advance
+        if (
+            h_next is None
+        ):  # steady flight: the next frame is this one displaced by the same advance
             next_fp = _corners(shape) + (c - c_prev)
         else:
             next_fp = h_next.fwd(_corners(next_shape))
@@ -304,7 +331,9 @@ class Mosaic:
         self.register_kwargs = dict(register_kwargs or {})
         self._canvas: np.ndarray | None = None
         self._s = np.eye(3)  # mosaic (first-frame px) -> canvas px
-        self._prev: np.ndarray | None = None  # previous accepted frame (as drawn: reduced to frame_max_px)
+        self._prev: np.ndarray | None = (
+            None  # previous accepted frame (as drawn: reduced to frame_max_px)
+        )
         self._prev_prepared = None  # its registration-side work (ReferenceFrame)
         self._prev_geo: FrameGeometry | None = None  # its geometry
         self._prev_index = -1  # its index in ``geometries``
@@ -347,10 +376,14 @@ class Mosaic:
         shift = np.array([[f, 0, -f * nx0], [0, f, -f * ny0], [0, 0, 1.0]])
         nw = int(min(self.max_size_px, np.ceil(need_w * f)))
         nh = int(min(self.max_size_px, np.ceil(need_h * f)))
-        self._canvas = cv2.warpAffine(self._canvas, shift[:2], (nw, nh), flags=cv2.INTER_AREA if f < 1 else cv2.INTER_NEAREST)
+        self._canvas = cv2.warpAffine(
+            self._canvas, shift[:2], (nw, nh), flags=cv2.INTER_AREA if f < 1 else cv2.INTER_NEAREST
+        )
         self._s = shift @ self._s
 
-    def _canvas_to_frame(self, geo: FrameGeometry, xc: np.ndarray, yc: np.ndarray, iterations: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    def _canvas_to_frame(
+        self, geo: FrameGeometry, xc: np.ndarray, yc: np.ndarray, iterations: int = 5
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Invert ``C = S D_k`` at canvas points (arrays of any shape): frame px (x, y).
 
         Fixed-point iteration ``x <- x - L^-1 (C(x) - y)`` from ``x0 = (S P_k)^-1 y``,
@@ -380,7 +413,9 @@ class Mosaic:
         img, k = frame, 1
         if sc < 0.5:
             k = max(1, int(1 / sc / 1.5))
-            img = cv2.resize(frame, (max(1, wf // k), max(1, hf // k)), interpolation=cv2.INTER_AREA)
+            img = cv2.resize(
+                frame, (max(1, wf // k), max(1, hf // k)), interpolation=cv2.INTER_AREA
+            )
         # Canvas -> frame map on a grid every g px (one cell beyond the ROI on each side), so that
         # cv2.resize (pixel-centre aligned) interpolates it bilinearly onto every ROI pixel.
         g = 8
@@ -390,8 +425,12 @@ class Mosaic:
         fx, fy = self._canvas_to_frame(geo, *np.meshgrid(gx, gy))
         # small px i covers frame px k i .. k i + k - 1: centre k i + (k - 1) / 2
         fx, fy = (fx - (k - 1) / 2.0) / k, (fy - (k - 1) / 2.0) / k
-        mx = cv2.resize(fx.astype(np.float32), (nx * g, ny * g), interpolation=cv2.INTER_LINEAR)[g: g + y1 - y0, g: g + x1 - x0]
-        my = cv2.resize(fy.astype(np.float32), (nx * g, ny * g), interpolation=cv2.INTER_LINEAR)[g: g + y1 - y0, g: g + x1 - x0]
+        mx = cv2.resize(fx.astype(np.float32), (nx * g, ny * g), interpolation=cv2.INTER_LINEAR)[
+            g : g + y1 - y0, g : g + x1 - x0
+        ]
+        my = cv2.resize(fy.astype(np.float32), (nx * g, ny * g), interpolation=cv2.INTER_LINEAR)[
+            g : g + y1 - y0, g : g + x1 - x0
+        ]
         warped = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         hs, ws = img.shape[:2]
         valid = (mx >= 0) & (mx <= ws - 1) & (my >= 0) & (my <= hs - 1)
@@ -400,7 +439,9 @@ class Mosaic:
         dst = self._canvas[y0:y1, x0:x1]
         empty = (dst.max(axis=2) == 0)[:, :, None] & valid[:, :, None]
         alpha = np.where(empty, 1.0, alpha)
-        self._canvas[y0:y1, x0:x1] = np.clip(dst * (1 - alpha) + warped * alpha + 0.5, 0, 255).astype(np.uint8)
+        self._canvas[y0:y1, x0:x1] = np.clip(
+            dst * (1 - alpha) + warped * alpha + 0.5, 0, 255
+        ).astype(np.uint8)
 
     def to_canvas(self, index: int, pts: np.ndarray) -> np.ndarray:
         """Map frame ``index``'s pixels (N, 2) (x, y) to current canvas pixels (``S D_k``)."""
@@ -419,55 +460,110 @@ class Mosaic:
         if img.ndim == 3 and img.shape[2] == 1:
             img = img[:, :, 0]
         if not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 3)) or min(img.shape[:2]) < 32:
-            raise ValueError(f"frame: expected HxW or HxWx3 (BGR) of at least 32x32, got shape {img.shape}")
+            raise ValueError(
+                f"frame: expected HxW or HxWx3 (BGR) of at least 32x32, got shape {img.shape}"
+            )
         if img.ndim == 2:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
         if self.frame_max_px is not None and max(img.shape[:2]) > self.frame_max_px:
             f = self.frame_max_px / max(img.shape[:2])
             size = (max(32, round(img.shape[1] * f)), max(32, round(img.shape[0] * f)))
             img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
-        kw = {k: self.register_kwargs[k] for k in ("coarse_size", "detect_size") if k in self.register_kwargs}
+        kw = {
+            k: self.register_kwargs[k]
+            for k in ("coarse_size", "detect_size")
+            if k in self.register_kwargs
+        }
         prepared = prepare_reference(img, **kw)
         idx = len(self.transforms)
         hf, wf = img.shape[:2]
         if self._prev is None:
-            s = self._scale0 if self._scale0 is not None else min(1.0, self.max_size_px / (4.0 * max(wf, hf)))
+            s = (
+                self._scale0
+                if self._scale0 is not None
+                else min(1.0, self.max_size_px / (4.0 * max(wf, hf)))
+            )
             self._s = np.diag([s, s, 1.0])
-            self._canvas = np.zeros((max(1, int(np.ceil(hf * s))), max(1, int(np.ceil(wf * s))), 3), np.uint8)
+            self._canvas = np.zeros(
+                (max(1, int(np.ceil(hf * s))), max(1, int(np.ceil(wf * s))), 3), np.uint8
+            )
             geo = FrameGeometry.first((hf, wf))
             self._fit_canvas(geo.to_mosaic(_border((hf, wf))))
             self._draw(img, geo)
             self._accept(img, geo, prepared)
-            up = MosaicUpdate(True, "", idx, 0.0, 0, None, time.perf_counter() - t0, self.scale, self._canvas.shape[:2])
+            up = MosaicUpdate(
+                True,
+                "",
+                idx,
+                0.0,
+                0,
+                None,
+                time.perf_counter() - t0,
+                self.scale,
+                self._canvas.shape[:2],
+            )
             self.updates.append(up)
             return up
         reg = register(self._prev_prepared, prepared, **self.register_kwargs)
         if not reg.ok:
             self.transforms.append(None)
             self.geometries.append(None)
-            up = MosaicUpdate(False, reg.reason, idx, None, 0, None, time.perf_counter() - t0, self.scale,
-                              self._canvas.shape[:2], reg)
+            up = MosaicUpdate(
+                False,
+                reg.reason,
+                idx,
+                None,
+                0,
+                None,
+                time.perf_counter() - t0,
+                self.scale,
+                self._canvas.shape[:2],
+                reg,
+            )
             self.updates.append(up)
             return up
         prev = self._prev_geo
-        if prev.blend:  # the paper's h for the previous frame, now that its successor's overlap is known
-            prev = FrameGeometry.chained(prev.p_prev, prev.h, prev.shape, self._prev_prev_shape,
-                                         PairModel.of(reg), (hf, wf))
+        if (
+            prev.blend
+        ):  # the paper's h for the previous frame, now that its successor's overlap is known
+            prev = FrameGeometry.chained(
+                prev.p_prev, prev.h, prev.shape, self._prev_prev_shape, PairModel.of(reg), (hf, wf)
+            )
             self._draw(self._prev, prev)
             self.geometries[self._prev_index] = prev
-        geo = FrameGeometry.chained(prev.placement, PairModel.of(reg), (hf, wf), self._prev.shape[:2])
+        geo = FrameGeometry.chained(
+            prev.placement, PairModel.of(reg), (hf, wf), self._prev.shape[:2]
+        )
         # Drift report (new-frame px): the predecessor as drawn against the new frame's seam geometry
         # (h = 1: P_(k-1) H_k), and against the new frame as drawn (with its transition).
         pr, pm = reg.points[:, :2], reg.points[:, 2:]
         ls = _local_scale(prev.placement, pr.mean(axis=0))
         q_prev = prev.to_mosaic(pr)
-        seam = float(np.sqrt(np.mean(np.sum((q_prev - apply_h(prev.placement, geo.h.fwd(pm))) ** 2, axis=1)))) / ls
+        seam = (
+            float(
+                np.sqrt(
+                    np.mean(np.sum((q_prev - apply_h(prev.placement, geo.h.fwd(pm))) ** 2, axis=1))
+                )
+            )
+            / ls
+        )
         over = float(np.sqrt(np.mean(np.sum((q_prev - geo.to_mosaic(pm)) ** 2, axis=1)))) / ls
         self._fit_canvas(geo.to_mosaic(_border((hf, wf))))
         self._draw(img, geo)
         self._accept(img, geo, prepared)
-        up = MosaicUpdate(True, "", idx, seam, reg.inliers, reg.rms_px, time.perf_counter() - t0, self.scale,
-                          self._canvas.shape[:2], reg, over)
+        up = MosaicUpdate(
+            True,
+            "",
+            idx,
+            seam,
+            reg.inliers,
+            reg.rms_px,
+            time.perf_counter() - t0,
+            self.scale,
+            self._canvas.shape[:2],
+            reg,
+            over,
+        )
         self.updates.append(up)
         return up
 

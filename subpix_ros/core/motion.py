@@ -18,6 +18,7 @@ a coarse search; the registration checks the prediction and falls back to
 the full search when it is wrong, so the model only has to be good to a few
 pixels.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -61,7 +62,9 @@ def scale_motion(motion: np.ndarray, ratio: float) -> np.ndarray:
     return _normalised(np.eye(3) + ratio * (d - np.eye(3)))
 
 
-def predict_homography(h_last: np.ndarray | None, motion: np.ndarray, ratio: float = 1.0) -> np.ndarray:
+def predict_homography(
+    h_last: np.ndarray | None, motion: np.ndarray, ratio: float = 1.0
+) -> np.ndarray:
     """Constant-velocity prediction ``H_{k+1} = H_k D_k^ratio`` (next frame -> reference pixels).
 
     ``h_last`` None means the last frame was the reference (``H_k = I``);
@@ -86,7 +89,9 @@ class MotionTracker:
 
     def __init__(self, max_ratio: float = 20.0) -> None:
         self.max_ratio = float(max_ratio)
-        self.h_last: np.ndarray | None = None  # last frame -> reference (None: it was the reference)
+        self.h_last: np.ndarray | None = (
+            None  # last frame -> reference (None: it was the reference)
+        )
         self.motion: np.ndarray | None = None  # last frame-to-frame motion D
         self.motion_dt = 0.0  # the time D took, s
         self.last_t: float | None = None  # stamp of the last frame of the chain

@@ -37,6 +37,7 @@ MTF50 / MTF30 are the first frequencies where the MTF falls to 0.5 / 0.3
 (linear interpolation between samples); with a pixel pitch they are also
 given in cycles (line pairs) per mm.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -93,7 +94,9 @@ def gaussian_pixel_mtf(freqs: np.ndarray, sigma_px: float, angle_deg: float) -> 
     (``freqs`` in cycles/pixel). The reference the slanted-edge method is validated against."""
     f = np.asarray(freqs, dtype=np.float64)
     th = np.deg2rad(angle_deg)
-    return np.exp(-2 * np.pi**2 * sigma_px**2 * f**2) * np.abs(np.sinc(f * np.cos(th)) * np.sinc(f * np.sin(th)))
+    return np.exp(-2 * np.pi**2 * sigma_px**2 * f**2) * np.abs(
+        np.sinc(f * np.cos(th)) * np.sinc(f * np.sin(th))
+    )
 
 
 def _edge_centroids(img: np.ndarray, half_window: int = 8) -> tuple[np.ndarray, np.ndarray]:
@@ -115,7 +118,7 @@ def _edge_centroids(img: np.ndarray, half_window: int = 8) -> tuple[np.ndarray, 
     peak = np.argmax(sm, axis=1).astype(np.float64)
     # robust line through the per-row peaks: slope = median of slopes between rows half the ROI apart
     half = img.shape[0] // 2
-    slope = float(np.median((peak[half:half * 2] - peak[:half]) / half)) if half else 0.0
+    slope = float(np.median((peak[half : half * 2] - peak[:half]) / half)) if half else 0.0
     icpt = float(np.median(peak - slope * rows))
     pred = icpt + slope * rows
     rel = (cols[None, :] - pred[:, None]) / half_window
@@ -253,7 +256,11 @@ def slanted_edge_mtf(
     far = np.abs(dist[sel]) > 2.0
     n_pl = min(2 * OVERSAMPLE, esf.size // 4)
     step = abs(float(esf[-n_pl:].mean() - esf[:n_pl].mean()))
-    texture = float(np.sqrt(np.mean((img[sel][far] - esf[idx[far]]) ** 2)) / max(step, 1e-12)) if far.any() else np.inf
+    texture = (
+        float(np.sqrt(np.mean((img[sel][far] - esf[idx[far]]) ** 2)) / max(step, 1e-12))
+        if far.any()
+        else np.inf
+    )
     if esf[-OVERSAMPLE:].mean() < esf[:OVERSAMPLE].mean():
         esf = esf[::-1]  # dark-to-bright along +distance
     lsf = np.zeros_like(esf)
@@ -277,9 +284,20 @@ def slanted_edge_mtf(
     freqs = freqs[keep_f]
     mtf50 = mtf_crossing(freqs, mtf, 0.5)
     mtf30 = mtf_crossing(freqs, mtf, 0.3)
-    res = MTFResult(freqs=freqs, mtf=mtf, mtf50=mtf50, mtf30=mtf30, angle_deg=angle, transposed=transposed,
-                    esf=esf, lsf=lsfw, pixel_pitch_m=pixel_pitch_m, line_rms_px=line_rms, contrast=step,
-                    texture=texture)
+    res = MTFResult(
+        freqs=freqs,
+        mtf=mtf,
+        mtf50=mtf50,
+        mtf30=mtf30,
+        angle_deg=angle,
+        transposed=transposed,
+        esf=esf,
+        lsf=lsfw,
+        pixel_pitch_m=pixel_pitch_m,
+        line_rms_px=line_rms,
+        contrast=step,
+        texture=texture,
+    )
     if pixel_pitch_m is not None:
         if not pixel_pitch_m > 0:
             raise ValueError("pixel_pitch_m must be > 0")

@@ -59,6 +59,7 @@ Conventions
   content at (r, c) in the reference appears at (r + u, c + v) in the other
   frame.
 """
+
 from __future__ import annotations
 
 import threading
@@ -71,7 +72,13 @@ import cv2
 import numpy as np
 
 from .luminance import luminance
-from .registration_coarse import coarse_orb, coarse_overlap, gradient_magnitude, orb_features, orientation_hypotheses
+from .registration_coarse import (
+    coarse_orb,
+    coarse_overlap,
+    gradient_magnitude,
+    orb_features,
+    orientation_hypotheses,
+)
 from .registration_fit import (
     Normaliser,
     check_homography,
@@ -80,10 +87,25 @@ from .registration_fit import (
     fit_homography_lm,
     undistort_points,
 )
-from .registration_points import apply_h, harris_peaks, ncc_match, refine_gauss_newton, select_spread
+from .registration_points import (
+    apply_h,
+    harris_peaks,
+    ncc_match,
+    refine_gauss_newton,
+    select_spread,
+)
 
-__all__ = ["RegistrationResult", "AlignResult", "ReferenceFrame", "prepare_reference", "register", "align", "calibrate_distortion", "to_gray32", "overlap_fraction"]
-
+__all__ = [
+    "RegistrationResult",
+    "AlignResult",
+    "ReferenceFrame",
+    "prepare_reference",
+    "register",
+    "align",
+    "calibrate_distortion",
+    "to_gray32",
+    "overlap_fraction",
+]
 
 
 def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
@@ -94,7 +116,9 @@ def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
     ``ValueError`` for other shapes, non-numeric dtypes or non-finite values.
     """
     img = np.asarray(image)
-    if img.dtype == bool or not (np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)):
+    if img.dtype == bool or not (
+        np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)
+    ):
         raise ValueError(f"{name}: dtype {img.dtype} is not an integer or float image")
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
@@ -106,16 +130,22 @@ def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
         raise ValueError(f"{name}: expected HxW or HxWx3 (BGR), got shape {img.shape}")
     if min(g.shape) < 32:
         raise ValueError(f"{name}: frame {g.shape} is too small (need at least 32x32)")
-    if np.issubdtype(img.dtype, np.floating) and not np.isfinite(g).all():  # integers are always finite
+    if (
+        np.issubdtype(img.dtype, np.floating) and not np.isfinite(g).all()
+    ):  # integers are always finite
         raise ValueError(f"{name}: contains non-finite values")
     return np.ascontiguousarray(g)
 
 
-def overlap_fraction(h_mr: np.ndarray, shape_ref: tuple[int, ...], shape_mov: tuple[int, ...]) -> float:
+def overlap_fraction(
+    h_mr: np.ndarray, shape_ref: tuple[int, ...], shape_mov: tuple[int, ...]
+) -> float:
     """Fraction of the reference frame's area covered by the moving frame mapped through ``h_mr``."""
     hm, wm = shape_mov[:2]
     hr, wr = shape_ref[:2]
-    q = apply_h(h_mr, np.array([[0, 0], [wm - 1, 0], [wm - 1, hm - 1], [0, hm - 1]], float)).astype(np.float32)
+    q = apply_h(h_mr, np.array([[0, 0], [wm - 1, 0], [wm - 1, hm - 1], [0, hm - 1]], float)).astype(
+        np.float32
+    )
     rr = np.array([[0, 0], [wr - 1, 0], [wr - 1, hr - 1], [0, hr - 1]], np.float32)
     if not np.isfinite(q).all():
         return 0.0
@@ -134,9 +164,13 @@ class RegistrationResult:
     reason: str = ""
     homography: np.ndarray | None = None  # 3x3 float64, MOVING (x, y) -> REFERENCE (x, y), pixels
     inliers: int = 0
-    rms_px: float | None = None  # RMS transfer residual of the full model over the inliers (reference px)
+    rms_px: float | None = (
+        None  # RMS transfer residual of the full model over the inliers (reference px)
+    )
     overlap: float = 0.0  # fraction of the reference area covered by the moving frame
-    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # inliers: x_ref, y_ref, x_mov, y_mov
+    points: np.ndarray = field(
+        default_factory=lambda: np.zeros((0, 4))
+    )  # inliers: x_ref, y_ref, x_mov, y_mov
     model: str = "projective"
     distortion: float = 0.0  # division-model lambda (dimensionless, radius in half-diagonals)
     homography_undistorted: np.ndarray | None = None  # H_u between undistorted pixel coordinates
@@ -159,7 +193,11 @@ class RegistrationResult:
         if self.distortion == 0.0 or self.homography_undistorted is None:
             return apply_h(self.homography, pts)
         n = self._norm()
-        return distort_points(apply_h(self.homography_undistorted, undistort_points(pts, self.distortion, n)), self.distortion, n)
+        return distort_points(
+            apply_h(self.homography_undistorted, undistort_points(pts, self.distortion, n)),
+            self.distortion,
+            n,
+        )
 
     def inverse_transfer(self, pts_ref: np.ndarray) -> np.ndarray:
         """Map (N, 2) reference pixel coordinates (x, y) to moving pixel coordinates (full model)."""
@@ -169,10 +207,15 @@ class RegistrationResult:
             return apply_h(np.linalg.inv(self.homography), pts)
         n = self._norm()
         hi = np.linalg.inv(self.homography_undistorted)
-        return distort_points(apply_h(hi, undistort_points(pts, self.distortion, n)), self.distortion, n)
+        return distort_points(
+            apply_h(hi, undistort_points(pts, self.distortion, n)), self.distortion, n
+        )
 
     def baseline_px(self) -> np.ndarray | None:
-        """The motion ``t = transfer(c) - c`` of the moving frame's centre ``c``, reference px (x, y); None on failure."""
+        """The motion ``t = transfer(c) - c`` of the moving frame's centre ``c``.
+
+        Reference px (x, y); None on failure.
+        """
         if not self.ok:
             return None
         hm, wm = self.mov_shape
@@ -227,7 +270,9 @@ class RegistrationResult:
             "spread": self.spread,
             "model": self.model,
             "distortion_lambda": self.distortion,
-            "homography_undistorted": None if self.homography_undistorted is None else self.homography_undistorted.tolist(),
+            "homography_undistorted": None
+            if self.homography_undistorted is None
+            else self.homography_undistorted.tolist(),
             "ref_shape": list(self.ref_shape),
             "mov_shape": list(self.mov_shape),
             "time_s": self.time_s,
@@ -245,8 +290,13 @@ def _scale_h(h: np.ndarray, factor: float) -> np.ndarray:
 
 def _inside(p: np.ndarray, shape: tuple[int, ...], margin: float) -> np.ndarray:
     """Points (x, y) at least ``margin`` px inside a frame of ``shape`` (finite)."""
-    return (np.isfinite(p).all(axis=1) & (p[:, 0] >= margin) & (p[:, 0] <= shape[1] - 1 - margin)
-            & (p[:, 1] >= margin) & (p[:, 1] <= shape[0] - 1 - margin))
+    return (
+        np.isfinite(p).all(axis=1)
+        & (p[:, 0] >= margin)
+        & (p[:, 0] <= shape[1] - 1 - margin)
+        & (p[:, 1] >= margin)
+        & (p[:, 1] <= shape[0] - 1 - margin)
+    )
 
 
 def _valid_grid(shape_ref, shape_mov, h_mr, margin_mov: float, step: int) -> np.ndarray:
@@ -258,7 +308,9 @@ def _valid_grid(shape_ref, shape_mov, h_mr, margin_mov: float, step: int) -> np.
     return _inside(pm, shape_mov, margin_mov + step).reshape(xs.shape)
 
 
-def _valid_ref_points(shape_ref, shape_mov, h_mr, margin_ref: int, margin_mov: float, step: int = 4) -> np.ndarray:
+def _valid_ref_points(
+    shape_ref, shape_mov, h_mr, margin_ref: int, margin_mov: float, step: int = 4
+) -> np.ndarray:
     """Bool mask (reference shape) of pixels whose prediction in the moving frame is inside it.
 
     ``margin_ref`` / ``margin_mov`` px are kept clear of either frame's border. The moving frame
@@ -275,29 +327,41 @@ def _valid_ref_points(shape_ref, shape_mov, h_mr, margin_ref: int, margin_mov: f
         q = apply_h(h_mr, quad)
         inside = np.zeros((hr, wr), np.uint8)
         if np.isfinite(q).all() and np.abs(q).max() < 1e6:
-            cv2.fillConvexPoly(inside, np.rint(q * 16).astype(np.int32), 1, lineType=cv2.LINE_8, shift=4)
+            cv2.fillConvexPoly(
+                inside, np.rint(q * 16).astype(np.int32), 1, lineType=cv2.LINE_8, shift=4
+            )
         inside = inside.astype(bool)
     else:
         small = _valid_grid(shape_ref, shape_mov, h_mr, margin_mov, step)
         inside = np.repeat(np.repeat(small, step, axis=0), step, axis=1)[:hr, :wr].copy()
     inside[:margin_ref] = False
-    inside[hr - margin_ref:] = False
+    inside[hr - margin_ref :] = False
     inside[:, :margin_ref] = False
-    inside[:, wr - margin_ref:] = False
+    inside[:, wr - margin_ref :] = False
     return inside
 
 
-def _robust(pm: np.ndarray, pr: np.ndarray, thresh: float, affine: bool) -> tuple[np.ndarray | None, np.ndarray]:
+def _robust(
+    pm: np.ndarray, pr: np.ndarray, thresh: float, affine: bool
+) -> tuple[np.ndarray | None, np.ndarray]:
     """USAC/MAGSAC outlier rejection; returns (H or None, inlier mask)."""
     n = len(pm)
     if n < (3 if affine else 4) + 2:
         return None, np.zeros(n, bool)
     if affine:
-        a, mask = cv2.estimateAffine2D(pm, pr, method=cv2.USAC_MAGSAC, ransacReprojThreshold=thresh,
-                                       maxIters=2000, confidence=0.999)
+        a, mask = cv2.estimateAffine2D(
+            pm,
+            pr,
+            method=cv2.USAC_MAGSAC,
+            ransacReprojThreshold=thresh,
+            maxIters=2000,
+            confidence=0.999,
+        )
         h = None if a is None else np.vstack([a, [0, 0, 1]])
     else:
-        h, mask = cv2.findHomography(pm, pr, cv2.USAC_MAGSAC, thresh, maxIters=2000, confidence=0.999)
+        h, mask = cv2.findHomography(
+            pm, pr, cv2.USAC_MAGSAC, thresh, maxIters=2000, confidence=0.999
+        )
     if h is None or mask is None:
         return None, np.zeros(n, bool)
     return h.astype(np.float64), mask.ravel().astype(bool)
@@ -332,30 +396,50 @@ def _spread(pr: np.ndarray, h_mr: np.ndarray, shape_ref, shape_mov, cells: int =
     return float((occ & in_overlap).sum() / max(n_in, 1))
 
 
-def _full_residuals(hu: np.ndarray, lam: float, norm: Normaliser, pm: np.ndarray, pr: np.ndarray) -> np.ndarray:
+def _full_residuals(
+    hu: np.ndarray, lam: float, norm: Normaliser, pm: np.ndarray, pr: np.ndarray
+) -> np.ndarray:
     """Transfer residuals ``|D(H_u(U(x_m))) - x_r|`` (reference px); inf where the model is invalid."""
-    res = np.hypot(*(distort_points(apply_h(hu, undistort_points(pm, lam, norm)), lam, norm) - pr).T)
+    res = np.hypot(
+        *(distort_points(apply_h(hu, undistort_points(pm, lam, norm)), lam, norm) - pr).T
+    )
     return np.where(np.isfinite(res), res, np.inf)
 
 
-def _model_residuals(h: np.ndarray, hu: np.ndarray | None, lam: float, norm: Normaliser, pm: np.ndarray,
-                     pr: np.ndarray) -> np.ndarray:
+def _model_residuals(
+    h: np.ndarray,
+    hu: np.ndarray | None,
+    lam: float,
+    norm: Normaliser,
+    pm: np.ndarray,
+    pr: np.ndarray,
+) -> np.ndarray:
     """Transfer residuals of the current model: the full one (``hu``, ``lam``) once fitted, else ``h``."""
     return _full_residuals(hu, lam, norm, pm, pr) if hu is not None else _residuals(h, pm, pr)
 
 
-def _fit_fixed_lambda(pm: np.ndarray, pr: np.ndarray, lam: float, norm: Normaliser, affine: bool,
-                      h0: np.ndarray) -> np.ndarray:
+def _fit_fixed_lambda(
+    pm: np.ndarray, pr: np.ndarray, lam: float, norm: Normaliser, affine: bool, h0: np.ndarray
+) -> np.ndarray:
     """``H_u`` for a known division-model ``lam``: eq. P fitted by LM between the undistorted points.
 
     The residual is measured between undistorted coordinates; with |lam| << 1
     it differs from the distorted-space residual by a factor ``1 + O(lam)``.
     """
-    return fit_homography_lm(undistort_points(pm, lam, norm), undistort_points(pr, lam, norm), norm, affine, h0=h0)
+    return fit_homography_lm(
+        undistort_points(pm, lam, norm), undistort_points(pr, lam, norm), norm, affine, h0=h0
+    )
 
 
-def _refit_distortion(pm: np.ndarray, pr: np.ndarray, lam: float, hu: np.ndarray, fixed_lam: float | None,
-                      norm: Normaliser, affine: bool) -> tuple[np.ndarray, float]:
+def _refit_distortion(
+    pm: np.ndarray,
+    pr: np.ndarray,
+    lam: float,
+    hu: np.ndarray,
+    fixed_lam: float | None,
+    norm: Normaliser,
+    affine: bool,
+) -> tuple[np.ndarray, float]:
     """Refit the full model on the tie points ``pm`` -> ``pr``: ``H_u`` alone with a fixed camera
     lambda (``fixed_lam``), else ``H_u`` and lambda jointly from ``(hu, lam)``. Returns ``(H_u, lambda)``."""
     if fixed_lam is not None:
@@ -404,7 +488,14 @@ def calibrate_distortion(results: list[RegistrationResult], lam_range: float = 0
 
 
 def _fail(reason: str, t0: float, shapes, model: str) -> RegistrationResult:
-    return RegistrationResult(False, reason, model=model, ref_shape=shapes[0], mov_shape=shapes[1], time_s=time.perf_counter() - t0)
+    return RegistrationResult(
+        False,
+        reason,
+        model=model,
+        ref_shape=shapes[0],
+        mov_shape=shapes[1],
+        time_s=time.perf_counter() - t0,
+    )
 
 
 @dataclass(eq=False)
@@ -462,8 +553,9 @@ def _levels(shape: tuple[int, int], coarse_size: int, detect_size: int) -> tuple
     return n_lev, det_lev, mid_lev
 
 
-def prepare_reference(reference: np.ndarray | ReferenceFrame, *, coarse_size: int = 128,
-                      detect_size: int = 1000) -> ReferenceFrame:
+def prepare_reference(
+    reference: np.ndarray | ReferenceFrame, *, coarse_size: int = 128, detect_size: int = 1000
+) -> ReferenceFrame:
     """Luminance, pyramid, Harris maxima (detection and refinement levels) and coarse ORB features of a reference.
 
     Pass the result to :func:`register` (as ``reference``) for every frame
@@ -478,8 +570,14 @@ def prepare_reference(reference: np.ndarray | ReferenceFrame, *, coarse_size: in
     return _compute_eager(ref, ref.shape, coarse_size, detect_size, peaks=True)
 
 
-def _compute_eager(frame: ReferenceFrame, ref_shape: tuple[int, ...], coarse_size: int, detect_size: int, *,
-                   peaks: bool) -> ReferenceFrame:
+def _compute_eager(
+    frame: ReferenceFrame,
+    ref_shape: tuple[int, ...],
+    coarse_size: int,
+    detect_size: int,
+    *,
+    peaks: bool,
+) -> ReferenceFrame:
     """What :func:`register`'s full pipeline uses of ``frame``, computed now (levels from the reference's
     shape ``ref_shape``): the pyramid, the coarse ORB features and, for a reference (``peaks``), the Harris
     maxima of the detection and refinement levels. Nothing for a blank frame. Returns ``frame``."""
@@ -506,8 +604,9 @@ def _pool() -> ThreadPoolExecutor:
         return _POOL
 
 
-def _prepare_pair(reference: np.ndarray, moving: np.ndarray, coarse_size: int,
-                  detect_size: int) -> tuple[ReferenceFrame, ReferenceFrame]:
+def _prepare_pair(
+    reference: np.ndarray, moving: np.ndarray, coarse_size: int, detect_size: int
+) -> tuple[ReferenceFrame, ReferenceFrame]:
     """Both frames of a one-off pair prepared at the same time (two threads).
 
     The reference as :func:`prepare_reference` in the worker; in the calling thread
@@ -517,19 +616,35 @@ def _prepare_pair(reference: np.ndarray, moving: np.ndarray, coarse_size: int,
     35 ms one after the other, 20 ms together). The same work as on one thread, so
     the same result. Bad input raises ``ValueError`` as before, the reference's first.
     """
-    fut = _pool().submit(prepare_reference, reference, coarse_size=coarse_size, detect_size=detect_size)
+    fut = _pool().submit(
+        prepare_reference, reference, coarse_size=coarse_size, detect_size=detect_size
+    )
     try:
-        mov = _compute_eager(ReferenceFrame.of(to_gray32(moving, "moving")), np.shape(reference), coarse_size,
-                             detect_size, peaks=False)
+        mov = _compute_eager(
+            ReferenceFrame.of(to_gray32(moving, "moving")),
+            np.shape(reference),
+            coarse_size,
+            detect_size,
+            peaks=False,
+        )
     except ValueError:
         fut.result()  # a bad reference is reported first, as on one thread
         raise
     return fut.result(), mov
 
 
-def _refine_levels(ref: ReferenceFrame, mov: ReferenceFrame, p_r: np.ndarray, p_m: np.ndarray, h: np.ndarray,
-                   top: int, bottom: int, template_half: int, half: int,
-                   iterations: int = 6) -> tuple[np.ndarray, np.ndarray]:
+def _refine_levels(
+    ref: ReferenceFrame,
+    mov: ReferenceFrame,
+    p_r: np.ndarray,
+    p_m: np.ndarray,
+    h: np.ndarray,
+    top: int,
+    bottom: int,
+    template_half: int,
+    half: int,
+    iterations: int = 6,
+) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Newton sub-pixel refinement (:func:`refine_gauss_newton`), coarse to fine.
 
     ``p_r`` (integer input px, divisible by ``2^top``), ``p_m``: reference points and their moving
@@ -541,18 +656,31 @@ def _refine_levels(ref: ReferenceFrame, mov: ReferenceFrame, p_r: np.ndarray, p_
     p_m = p_m.copy()
     conv = np.ones(len(p_r), bool)
     for lev in range(top, bottom - 1, -1):
-        s = 2.0 ** lev
+        s = 2.0**lev
         idx = np.nonzero(conv)[0]
-        m_l, c_l = refine_gauss_newton(ref.level(lev), mov.level(lev), p_r[idx] / s, p_m[idx] / s,
-                                       _scale_h(h, 1.0 / s), half=template_half if lev > 0 else half,
-                                       iterations=iterations)
+        m_l, c_l = refine_gauss_newton(
+            ref.level(lev),
+            mov.level(lev),
+            p_r[idx] / s,
+            p_m[idx] / s,
+            _scale_h(h, 1.0 / s),
+            half=template_half if lev > 0 else half,
+            iterations=iterations,
+        )
         p_m[idx[c_l]] = m_l[c_l] * s
         conv[idx[~c_l]] = False
     return p_m, conv
 
 
-def _finer_candidates(ref: ReferenceFrame, mov: ReferenceFrame, lev: int, h: np.ndarray, taken: np.ndarray,
-                      n_target: int, margin: float) -> np.ndarray:
+def _finer_candidates(
+    ref: ReferenceFrame,
+    mov: ReferenceFrame,
+    lev: int,
+    h: np.ndarray,
+    taken: np.ndarray,
+    n_target: int,
+    margin: float,
+) -> np.ndarray:
     """Harris maxima of pyramid level ``lev`` (finer than the detection level) inside the overlap
     predicted by ``h`` (input px), at least 4 level px from the points in ``taken`` (input px, the
     same corners seen one level up); grid quota of ``n_target``. Returns input px (x, y).
@@ -560,9 +688,15 @@ def _finer_candidates(ref: ReferenceFrame, mov: ReferenceFrame, lev: int, h: np.
     The Harris response is computed on the overlap's bounding box only (plus a 16 px border, more
     than the filters' and the non-maximum suppression's reach), not cached.
     """
-    s = 2.0 ** lev
+    s = 2.0**lev
     ref_l = ref.level(lev)
-    valid = _valid_ref_points(ref_l.shape, mov.level(lev).shape, _scale_h(h, 1.0 / s), int(np.ceil(margin / s)), margin / s)
+    valid = _valid_ref_points(
+        ref_l.shape,
+        mov.level(lev).shape,
+        _scale_h(h, 1.0 / s),
+        int(np.ceil(margin / s)),
+        margin / s,
+    )
     t = np.rint(taken / s).astype(np.intp)
     t = t[_inside(t.astype(float), ref_l.shape, 0)]
     near = np.zeros(ref_l.shape, np.uint8)
@@ -577,11 +711,27 @@ def _finer_candidates(ref: ReferenceFrame, mov: ReferenceFrame, lev: int, h: np.
     return select_spread((xs + x0, ys + y0, r), valid, n_target=n_target) * s
 
 
-def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, h: np.ndarray, h_lev: int, radius: int, *,
-                 model: str, fixed_lam: float | None, distortion, template_half: int, inlier_px: float,
-                 min_inliers: int, min_spread: float, t0: float,
-                 pred_det: np.ndarray | None = None, extra_det: np.ndarray | None = None,
-                 want_inliers: int = 0, n_points: int = 700) -> tuple[RegistrationResult, int]:
+def _final_stage(
+    ref: ReferenceFrame,
+    mov: ReferenceFrame,
+    pts_det: np.ndarray,
+    h: np.ndarray,
+    h_lev: int,
+    radius: int,
+    *,
+    model: str,
+    fixed_lam: float | None,
+    distortion,
+    template_half: int,
+    inlier_px: float,
+    min_inliers: int,
+    min_spread: float,
+    t0: float,
+    pred_det: np.ndarray | None = None,
+    extra_det: np.ndarray | None = None,
+    want_inliers: int = 0,
+    n_points: int = 700,
+) -> tuple[RegistrationResult, int]:
     """Input-resolution stage of :func:`register` (stage 3): MAGSAC, LM, Gauss-Newton, final LM, checks.
 
     ``pts_det``: reference tie points (x, y) at pyramid level ``h_lev``;
@@ -606,13 +756,13 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
     gr, gm = ref.gray, mov.gray
     affine = model == "affine"
     shapes = (gr.shape, gm.shape)
-    f = 2.0 ** h_lev
+    f = 2.0**h_lev
     h = _scale_h(h, f)
     # Above the detection size the texture per pixel is finer and blurrier: keep the template's
     # footprint on the ground the same as at the detection level's double (level m_lev, where NCC runs).
     half = int(round(template_half * max(1.0, f / 2)))
     m_lev = max(0, h_lev - 1)
-    fm = 2.0 ** m_lev
+    fm = 2.0**m_lev
     half_m = template_half if m_lev > 0 else half
     margin = half + radius + 3
     pts0 = np.rint(pts_det * f)
@@ -628,33 +778,54 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
     # The detection-level NCC matches (to ~0.2 level px) start the refinement directly; the points
     # without one are matched by NCC at level m_lev around the model's prediction.
     r_m = int(np.ceil(radius / fm))
-    q_r, q_m, _ = ncc_match(ref.level(m_lev), mov.level(m_lev), pts0[~seeded] / fm, _scale_h(h, 1.0 / fm),
-                            half=half_m, radius=r_m, pred_mov=pred[~seeded] / fm)
+    q_r, q_m, _ = ncc_match(
+        ref.level(m_lev),
+        mov.level(m_lev),
+        pts0[~seeded] / fm,
+        _scale_h(h, 1.0 / fm),
+        half=half_m,
+        radius=r_m,
+        pred_mov=pred[~seeded] / fm,
+    )
     p_r, p_m = np.vstack([pts0[seeded], q_r * fm]), np.vstack([pred[seeded], q_m * fm])
     # Thresholds before the radial term is fitted grow with the resolution above the detection level's
     # double: the unmodelled lens distortion (and relief parallax) in px grows with it.
     pre = max(1.0, f / 2)
     hn, inl = _robust(p_m, p_r, 2.0 * pre, affine)
     if hn is None or inl.sum() < min_inliers:
-        return _fail(f"too few tie points: {int(inl.sum())} consistent matches (need {min_inliers})", t0, shapes, model), n_try
+        return _fail(
+            f"too few tie points: {int(inl.sum())} consistent matches (need {min_inliers})",
+            t0,
+            shapes,
+            model,
+        ), n_try
     p_r, p_m = p_r[inl], p_m[inl]
     norm = Normaliser.for_shape(gr.shape)
     # LM from the identity (METHODS C), guarded by the robust estimate.
     h_id = fit_homography_lm(p_m, p_r, norm, affine)
     h_rb = fit_homography_lm(p_m, p_r, norm, affine, h0=hn)
-    h = h_id if np.sqrt(np.mean(_residuals(h_id, p_m, p_r) ** 2)) <= np.sqrt(np.mean(_residuals(h_rb, p_m, p_r) ** 2)) + 1e-9 else h_rb
+    h = (
+        h_id
+        if np.sqrt(np.mean(_residuals(h_id, p_m, p_r) ** 2))
+        <= np.sqrt(np.mean(_residuals(h_rb, p_m, p_r) ** 2)) + 1e-9
+        else h_rb
+    )
     # Sub-pixel refinement of the tie points, then the final fit on the inliers.
     # Seeds from the detection level start up to ~0.5 level px off: up to 10 iterations.
     p_m2, conv = _refine_levels(ref, mov, p_r, p_m, h, m_lev, 0, template_half, half, iterations=10)
     p_r, p_m = p_r[conv], p_m2[conv]
     if len(p_r) < min_inliers:
-        return _fail(f"too few tie points after sub-pixel refinement ({len(p_r)})", t0, shapes, model), n_try
+        return _fail(
+            f"too few tie points after sub-pixel refinement ({len(p_r)})", t0, shapes, model
+        ), n_try
     h = fit_homography_lm(p_m, p_r, norm, affine, h0=h)
     inl = _residuals(h, p_m, p_r) <= 2 * inlier_px * pre
     h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
     lam, hu = 0.0, None
     res = _residuals(h, p_m, p_r)
-    if fixed_lam is not None and fixed_lam != 0.0:  # shared calibration: lambda known, only H_u fitted
+    if (
+        fixed_lam is not None and fixed_lam != 0.0
+    ):  # shared calibration: lambda known, only H_u fitted
         lam = fixed_lam
         hu = _fit_fixed_lambda(p_m[inl], p_r[inl], lam, norm, affine, h)
         res = _full_residuals(hu, lam, norm, p_m, p_r)
@@ -688,13 +859,22 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
             miss = np.vstack([miss, ex[~np.isin(_point_key(ex), _point_key(miss))]])
         if len(miss):
             if lam != 0.0 and hu is not None:
-                pred2 = distort_points(apply_h(np.linalg.inv(hu), undistort_points(miss, lam, norm)), lam, norm)
+                pred2 = distort_points(
+                    apply_h(np.linalg.inv(hu), undistort_points(miss, lam, norm)), lam, norm
+                )
             else:
                 pred2 = apply_h(np.linalg.inv(h), miss)
             inside = _inside(pred2, gm.shape, margin)
             miss, pred2 = miss[inside], pred2[inside]
-            r2, m2, _ = ncc_match(ref.level(m_lev), mov.level(m_lev), miss / fm, _scale_h(h, 1.0 / fm), half=half_m,
-                                  radius=2, pred_mov=pred2 / fm)
+            r2, m2, _ = ncc_match(
+                ref.level(m_lev),
+                mov.level(m_lev),
+                miss / fm,
+                _scale_h(h, 1.0 / fm),
+                half=half_m,
+                radius=2,
+                pred_mov=pred2 / fm,
+            )
             r2, m2 = r2 * fm, m2 * fm
             if m_lev > 0:
                 # Refined first at the NCC level (cheap); only matches that can be inliers (0.5 px to spare for
@@ -707,7 +887,9 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
                 # than inlier_px + 1 px from the model cannot become an inlier (0.5 px to spare).
                 near = _model_residuals(h, hu, lam, norm, m2, r2) <= inlier_px + 1.5
             r2, m2 = r2[near], m2[near]
-            m2, conv2 = _refine_levels(ref, mov, r2, m2, h, 0, 0, template_half, half, iterations=10)
+            m2, conv2 = _refine_levels(
+                ref, mov, r2, m2, h, 0, 0, template_half, half, iterations=10
+            )
             r2, m2 = r2[conv2], m2[conv2]
             res2 = _model_residuals(h, hu, lam, norm, m2, r2)
             if (res2 <= inlier_px).any():
@@ -716,7 +898,9 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
                 p_m = np.vstack([p_m[keep_old], m2])
                 inl = _model_residuals(h, hu, lam, norm, p_m, p_r) <= inlier_px
                 if hu is not None:
-                    hu, lam = _refit_distortion(p_m[inl], p_r[inl], lam, hu, fixed_lam, norm, affine)
+                    hu, lam = _refit_distortion(
+                        p_m[inl], p_r[inl], lam, hu, fixed_lam, norm, affine
+                    )
                 else:
                     h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
                 res = _model_residuals(h, hu, lam, norm, p_m, p_r)
@@ -730,7 +914,12 @@ def _final_stage(ref: ReferenceFrame, mov: ReferenceFrame, pts_det: np.ndarray, 
         return _fail(reason, t0, shapes, model), n_try
     spread = _spread(p_r[inl], h, gr.shape, gm.shape)
     if spread < min_spread:
-        return _fail(f"tie points badly spread: {spread:.2f} of the overlap cells (need {min_spread})", t0, shapes, model), n_try
+        return _fail(
+            f"tie points badly spread: {spread:.2f} of the overlap cells (need {min_spread})",
+            t0,
+            shapes,
+            model,
+        ), n_try
     rms_full = float(np.sqrt(np.mean(res[inl] ** 2)))
     rms_proj = float(np.sqrt(np.mean(_residuals(h, p_m[inl], p_r[inl]) ** 2)))
     if fixed_lam is None and lam != 0.0 and rms_full > rms_proj:
@@ -775,7 +964,9 @@ def _per_point(pts: np.ndarray, p_r: np.ndarray, p_m: np.ndarray) -> np.ndarray:
     return out
 
 
-def _candidates(peaks, valid: np.ndarray, n_points: int, want_inliers: int) -> tuple[np.ndarray, np.ndarray | None]:
+def _candidates(
+    peaks, valid: np.ndarray, n_points: int, want_inliers: int
+) -> tuple[np.ndarray, np.ndarray | None]:
     """``n_points`` spread tie points, plus (if ``want_inliers`` > 0) the next ``2 n_points`` tier of
     spread candidates for the second pass on weak texture."""
     if want_inliers <= 0:
@@ -786,13 +977,25 @@ def _candidates(peaks, valid: np.ndarray, n_points: int, want_inliers: int) -> t
 def _check_prior(prior) -> np.ndarray:
     p = np.asarray(prior, dtype=np.float64)
     if p.shape != (3, 3) or not np.isfinite(p).all() or abs(p[2, 2]) < 1e-12:
-        raise ValueError(f"prior must be a finite 3x3 homography with H[2, 2] != 0, got shape {p.shape}")
+        raise ValueError(
+            f"prior must be a finite 3x3 homography with H[2, 2] != 0, got shape {p.shape}"
+        )
     return p / p[2, 2]
 
 
-def _register_tracked(ref: ReferenceFrame, mov: ReferenceFrame, prior: np.ndarray, radius: int, n_points: int,
-                      detect_size: int, coarse_size: int, template_half: int, min_fraction: float,
-                      kw: dict, t0: float) -> RegistrationResult:
+def _register_tracked(
+    ref: ReferenceFrame,
+    mov: ReferenceFrame,
+    prior: np.ndarray,
+    radius: int,
+    n_points: int,
+    detect_size: int,
+    coarse_size: int,
+    template_half: int,
+    min_fraction: float,
+    kw: dict,
+    t0: float,
+) -> RegistrationResult:
     """Tracking path: the tie points are matched around ``prior``'s prediction, no coarse stage.
 
     At the detection level only (no coarse stage, no pyramid descent): the
@@ -811,9 +1014,11 @@ def _register_tracked(ref: ReferenceFrame, mov: ReferenceFrame, prior: np.ndarra
     if reason:
         return _fail(f"prior rejected: {reason}", t0, shapes, model)
     _, det_lev, _ = _levels(gr.shape, coarse_size, detect_size)
-    f = 2.0 ** det_lev
+    f = 2.0**det_lev
     h_det = _scale_h(prior, 1.0 / f)
-    r_det = int(np.ceil(radius / f)) + 1  # the NCC peak must be inside the window, not on its border
+    r_det = (
+        int(np.ceil(radius / f)) + 1
+    )  # the NCC peak must be inside the window, not on its border
     mov_l = mov.level(det_lev)
     ref_l = ref.level(det_lev)
     margin = template_half + r_det + 2
@@ -824,22 +1029,49 @@ def _register_tracked(ref: ReferenceFrame, mov: ReferenceFrame, prior: np.ndarra
     p_r, p_m, _ = ncc_match(ref_l, mov_l, pts, h_det, half=template_half, radius=r_det)
     hn, inl = _robust(p_m, p_r, 1.5, model == "affine")
     if hn is None or inl.sum() < max(8, kw["min_inliers"] // 2, min_fraction * len(pts)):
-        return _fail(f"tracking lost: {int(inl.sum())} of {len(pts)} tie points consistent with the prior", t0, shapes, model)
+        return _fail(
+            f"tracking lost: {int(inl.sum())} of {len(pts)} tie points consistent with the prior",
+            t0,
+            shapes,
+            model,
+        )
     reason = check_homography(hn, mov_l.shape)
     if reason:
         return _fail(reason, t0, shapes, model)
-    res, n_try = _final_stage(ref, mov, pts, hn, det_lev, 2 + int(f) // 2, t0=t0, template_half=template_half, n_points=n_points,
-                              pred_det=_per_point(pts, p_r, p_m), extra_det=extra, **kw)
+    res, n_try = _final_stage(
+        ref,
+        mov,
+        pts,
+        hn,
+        det_lev,
+        2 + int(f) // 2,
+        t0=t0,
+        template_half=template_half,
+        n_points=n_points,
+        pred_det=_per_point(pts, p_r, p_m),
+        extra_det=extra,
+        **kw,
+    )
     if not res.ok:
         return res
     if res.inliers < min_fraction * n_try:
-        return _fail(f"tracking lost: {res.inliers} of {n_try} tie points are inliers (need {min_fraction:.0%})",
-                     t0, shapes, model)
+        return _fail(
+            f"tracking lost: {res.inliers} of {n_try} tie points are inliers (need {min_fraction:.0%})",
+            t0,
+            shapes,
+            model,
+        )
     pm = res.points[:, 2:]
-    dev = float(np.max(np.hypot(*(apply_h(res.homography, pm) - apply_h(prior, pm)).T)))  # projective parts
+    dev = float(
+        np.max(np.hypot(*(apply_h(res.homography, pm) - apply_h(prior, pm)).T))
+    )  # projective parts
     if not dev < radius + 1:
-        return _fail(f"tracking lost: the model departs {dev:.1f} px from the prior (search radius {radius})",
-                     t0, shapes, model)
+        return _fail(
+            f"tracking lost: the model departs {dev:.1f} px from the prior (search radius {radius})",
+            t0,
+            shapes,
+            model,
+        )
     res.tracked = True
     return res
 
@@ -905,7 +1137,9 @@ def register(
     else:
         fixed_lam = float(distortion)
         if not (np.isfinite(fixed_lam) and abs(fixed_lam) < 0.3):
-            raise ValueError(f"distortion lambda must be finite and |lambda| < 0.3, got {distortion!r}")
+            raise ValueError(
+                f"distortion lambda must be finite and |lambda| < 0.3, got {distortion!r}"
+            )
     if model not in ("projective", "affine"):
         raise ValueError(f"model must be 'projective' or 'affine', got {model!r}")
     if coarse_method not in ("orb", "fragments"):
@@ -914,12 +1148,17 @@ def register(
         prior = _check_prior(prior)
         if not (isinstance(track_radius, (int, np.integer)) and 1 <= track_radius <= 64):
             raise ValueError(f"track_radius must be an integer in [1, 64], got {track_radius!r}")
-    affine = model == "affine"
-    if prior is None and not isinstance(reference, ReferenceFrame) and not isinstance(moving, ReferenceFrame):
+    if (
+        prior is None
+        and not isinstance(reference, ReferenceFrame)
+        and not isinstance(moving, ReferenceFrame)
+    ):
         ref, mov = _prepare_pair(reference, moving, coarse_size, detect_size)
     else:
         ref = prepare_reference(reference, coarse_size=coarse_size, detect_size=detect_size)
-        if isinstance(moving, ReferenceFrame):  # prepared once, e.g. a strip frame that is reference next
+        if isinstance(
+            moving, ReferenceFrame
+        ):  # prepared once, e.g. a strip frame that is reference next
             mov = moving
         else:
             mov = ReferenceFrame.of(to_gray32(moving, "moving"))
@@ -930,23 +1169,62 @@ def register(
         return _fail("no texture: the reference frame is blank (std < 1 DN)", t0, shapes, model)
     if mov.blank:
         return _fail("no texture: the moving frame is blank (std < 1 DN)", t0, shapes, model)
-    kw = dict(model=model, fixed_lam=fixed_lam, distortion=distortion, inlier_px=inlier_px,
-              min_inliers=min_inliers, min_spread=min_spread, want_inliers=int(want_inliers))
+    kw = dict(
+        model=model,
+        fixed_lam=fixed_lam,
+        distortion=distortion,
+        inlier_px=inlier_px,
+        min_inliers=min_inliers,
+        min_spread=min_spread,
+        want_inliers=int(want_inliers),
+    )
     track_failure = ""
     if prior is not None:
-        res = _register_tracked(ref, mov, prior, int(track_radius), n_points, detect_size, coarse_size,
-                                template_half, track_min_fraction, kw, t0)
+        res = _register_tracked(
+            ref,
+            mov,
+            prior,
+            int(track_radius),
+            n_points,
+            detect_size,
+            coarse_size,
+            template_half,
+            track_min_fraction,
+            kw,
+            t0,
+        )
         if res.ok:
             return res
         track_failure = res.reason
-    res = _register_full(ref, mov, n_points=n_points, coarse_size=coarse_size, detect_size=detect_size,
-                         template_half=template_half, coarse_method=coarse_method, angles=angles, kw=kw, t0=t0)
+    res = _register_full(
+        ref,
+        mov,
+        n_points=n_points,
+        coarse_size=coarse_size,
+        detect_size=detect_size,
+        template_half=template_half,
+        coarse_method=coarse_method,
+        angles=angles,
+        kw=kw,
+        t0=t0,
+    )
     res.track_failure = track_failure
     return res
 
 
-def _register_full(ref: ReferenceFrame, mov: ReferenceFrame, *, n_points: int, coarse_size: int, detect_size: int,
-                   template_half: int, coarse_method: str, angles, kw: dict, t0: float) -> RegistrationResult:
+def _register_full(
+    ref: ReferenceFrame,
+    mov: ReferenceFrame,
+    *,
+    n_points: int,
+    coarse_size: int,
+    detect_size: int,
+    template_half: int,
+    coarse_method: str,
+    angles,
+    kw: dict,
+    t0: float,
+) -> RegistrationResult:
     """Full pipeline of :func:`register`: coarse stage, pyramid refinement, :func:`_final_stage`."""
     gr, gm = ref.gray, mov.gray
     shapes = (gr.shape, gm.shape)
@@ -961,9 +1239,16 @@ def _register_full(ref: ReferenceFrame, mov: ReferenceFrame, *, n_points: int, c
     # Stage 1: coarse overlap.
     used = coarse_method
     if coarse_method == "orb":
-        coarse = coarse_orb(ref.level(mid_lev), pm_[mid_lev], ref_features=ref.orb(mid_lev), mov_features=mov.orb(mid_lev))
+        coarse = coarse_orb(
+            ref.level(mid_lev),
+            pm_[mid_lev],
+            ref_features=ref.orb(mid_lev),
+            mov_features=mov.orb(mid_lev),
+        )
         h_lev = mid_lev
-    if coarse_method == "fragments" or not coarse.ok:  # METHODS C stage 1 (also when ORB finds too little)
+    if (
+        coarse_method == "fragments" or not coarse.ok
+    ):  # METHODS C stage 1 (also when ORB finds too little)
         gc_r = gradient_magnitude(cv2.GaussianBlur(ref.level(n_lev), (3, 3), 0))
         gc_m = gradient_magnitude(cv2.GaussianBlur(pm_[n_lev], (3, 3), 0))
         if angles is not None:
@@ -979,8 +1264,12 @@ def _register_full(ref: ReferenceFrame, mov: ReferenceFrame, *, n_points: int, c
         # Last resort (both stages above failed; e.g. ~20 % overlap on weak infrared texture, a 1080p
         # crop of Seneca pair 1): 5000 weaker ORB corners one level finer (~0.2 s, only on this path).
         lev = max(det_lev, mid_lev - 1)
-        rich = coarse_orb(ref.level(lev), pm_[lev], ref_features=orb_features(ref.level(lev), 5000, fast_threshold=10),
-                          mov_features=orb_features(pm_[lev], 5000, fast_threshold=10))
+        rich = coarse_orb(
+            ref.level(lev),
+            pm_[lev],
+            ref_features=orb_features(ref.level(lev), 5000, fast_threshold=10),
+            mov_features=orb_features(pm_[lev], 5000, fast_threshold=10),
+        )
         if rich.ok:
             coarse, used, h_lev = rich, "orb", lev
     if not coarse.ok:
@@ -993,7 +1282,9 @@ def _register_full(ref: ReferenceFrame, mov: ReferenceFrame, *, n_points: int, c
     half = template_half
     pts_det = pred_det = extra_det = None
     first = True
-    for lev in range(min(h_lev, max(mid_lev, det_lev)) if used == "orb" else h_lev - 1, det_lev - 1, -1):
+    for lev in range(
+        min(h_lev, max(mid_lev, det_lev)) if used == "orb" else h_lev - 1, det_lev - 1, -1
+    ):
         h = _scale_h(h, 2.0 ** (h_lev - lev))
         h_lev = lev
         ref_l, mov_l = ref.level(lev), pm_[lev]
@@ -1012,7 +1303,12 @@ def _register_full(ref: ReferenceFrame, mov: ReferenceFrame, *, n_points: int, c
         p_r, p_m, _ = ncc_match(ref_l, mov_l, pts, h, half=half, radius=radius)
         hn, inl = _robust(p_m, p_r, 1.0 if lev > det_lev else 1.5, affine)
         if hn is None or inl.sum() < max(8, min_inliers // 2):
-            return _fail(f"too few tie points at pyramid level {lev} ({int(inl.sum())} consistent matches)", t0, shapes, model)
+            return _fail(
+                f"too few tie points at pyramid level {lev} ({int(inl.sum())} consistent matches)",
+                t0,
+                shapes,
+                model,
+            )
         reason = check_homography(hn, mov_l.shape)
         if reason:
             return _fail(reason, t0, shapes, model)
@@ -1020,15 +1316,27 @@ def _register_full(ref: ReferenceFrame, mov: ReferenceFrame, *, n_points: int, c
         pts_det = pts
         pred_det = _per_point(pts, p_r, p_m)
     if pts_det is None:  # no refinement level (tiny input): detect at the input level directly
-        h = _scale_h(h, 2.0 ** h_lev)
+        h = _scale_h(h, 2.0**h_lev)
         h_lev = 0
         valid = _valid_ref_points(gr.shape, gm.shape, h, half + 6, half + 6)
         pts_det = select_spread(ref.peaks(0), valid, n_target=n_points)
     # Stage 3: input resolution.
     # Search radius at input resolution: the level's per-point matches predict to ~0.5 level px.
-    radius = 1 + int(2.0 ** h_lev) if pred_det is None else 2 + int(2.0 ** h_lev) // 2
-    res, _ = _final_stage(ref, mov, pts_det, h, h_lev, radius, t0=t0, template_half=template_half, n_points=n_points,
-                          pred_det=pred_det, extra_det=extra_det, **kw)
+    radius = 1 + int(2.0**h_lev) if pred_det is None else 2 + int(2.0**h_lev) // 2
+    res, _ = _final_stage(
+        ref,
+        mov,
+        pts_det,
+        h,
+        h_lev,
+        radius,
+        t0=t0,
+        template_half=template_half,
+        n_points=n_points,
+        pred_det=pred_det,
+        extra_det=extra_det,
+        **kw,
+    )
     return res
 
 
@@ -1038,7 +1346,9 @@ class AlignResult:
 
     aligned: np.ndarray  # same shape (and dtype) as the reference
     mask: np.ndarray  # bool, True where the pixel really came from the moving frame
-    prior_shift: tuple[float, float]  # (u, v) rows, cols px: content moved from reference to aligned
+    prior_shift: tuple[
+        float, float
+    ]  # (u, v) rows, cols px: content moved from reference to aligned
     integer_offset: tuple[int, int]  # (rows, cols) integer translation removed
     warped: bool  # True if rotation/perspective exceeded the threshold and the frame was resampled
     deviation_px: float  # max deviation of the model from a pure translation over the overlap
@@ -1047,7 +1357,9 @@ class AlignResult:
 _MAP_STEP = 8  # px between exact samples of align()'s warp map
 
 
-def _warp_maps(registration: RegistrationResult, fr: np.ndarray, hr: int, wr: int) -> tuple[np.ndarray, np.ndarray]:
+def _warp_maps(
+    registration: RegistrationResult, fr: np.ndarray, hr: int, wr: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Moving-frame coordinates (x, y maps, float32 HxW) of reference pixel ``(x - fr_x, y - fr_y)``.
 
     The full model (homography and radial term) is evaluated exactly every
@@ -1069,8 +1381,10 @@ def _warp_maps(registration: RegistrationResult, fr: np.ndarray, hr: int, wr: in
         qx = np.broadcast_to(np.arange(wr, dtype=np.float32) / st, (hr, wr))
         qy = np.broadcast_to((np.arange(hr, dtype=np.float32) / st)[:, None], (hr, wr))
         qx, qy = np.ascontiguousarray(qx), np.ascontiguousarray(qy)
-        return (cv2.remap(cx, qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
-                cv2.remap(cy, qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+        return (
+            cv2.remap(cx, qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
+            cv2.remap(cy, qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
+        )
     yy, xx = np.mgrid[0:hr, 0:wr]
     mp = registration.inverse_transfer(np.stack([xx.ravel() - fr[0], yy.ravel() - fr[1]], axis=1))
     return mp[:, 0].reshape(hr, wr).astype(np.float32), mp[:, 1].reshape(hr, wr).astype(np.float32)
@@ -1106,16 +1420,26 @@ def align(
     registration._require_ok()
     ref = np.asarray(reference)
     mov = np.asarray(moving)
-    if ref.shape[:2] != tuple(registration.ref_shape) or mov.shape[:2] != tuple(registration.mov_shape):
-        raise ValueError(f"frame shapes {ref.shape[:2]}, {mov.shape[:2]} differ from the registration's "
-                         f"{tuple(registration.ref_shape)}, {tuple(registration.mov_shape)}")
+    if ref.shape[:2] != tuple(registration.ref_shape) or mov.shape[:2] != tuple(
+        registration.mov_shape
+    ):
+        raise ValueError(
+            f"frame shapes {ref.shape[:2]}, {mov.shape[:2]} differ from the registration's "
+            f"{tuple(registration.ref_shape)}, {tuple(registration.mov_shape)}"
+        )
     hr, wr = ref.shape[:2]
     hm, wm = mov.shape[:2]
     step = max(1, min(hr, wr) // 64)
     ys, xs = np.mgrid[0:hr:step, 0:wr:step]
     grid = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
     pm = registration.inverse_transfer(grid)
-    inside = (pm[:, 0] >= 0) & (pm[:, 0] <= wm - 1) & (pm[:, 1] >= 0) & (pm[:, 1] <= hm - 1) & np.isfinite(pm).all(axis=1)
+    inside = (
+        (pm[:, 0] >= 0)
+        & (pm[:, 0] <= wm - 1)
+        & (pm[:, 1] >= 0)
+        & (pm[:, 1] <= hm - 1)
+        & np.isfinite(pm).all(axis=1)
+    )
     if not inside.any():
         raise ValueError("the registration puts no part of the moving frame on the reference")
     s = pm[inside] - grid[inside]
@@ -1130,7 +1454,7 @@ def align(
         c0, c1 = max(0, -nx), min(wr, wm - nx)
         mask = np.zeros((hr, wr), bool)
         if r1 > r0 and c1 > c0:
-            out[r0:r1, c0:c1] = mov[r0 + ny: r1 + ny, c0 + nx: c1 + nx]
+            out[r0:r1, c0:c1] = mov[r0 + ny : r1 + ny, c0 + nx : c1 + nx]
             mask[r0:r1, c0:c1] = True
         return AlignResult(out, mask, (float(fr[1]), float(fr[0])), (ny, nx), False, dev)
     mx, my = _warp_maps(registration, fr, hr, wr)
@@ -1140,4 +1464,11 @@ def align(
     warped = cv2.remap(mov, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     mask = finite & (mx >= 1) & (mx <= wm - 2) & (my >= 1) & (my <= hm - 2)
     warped[~mask] = 0
-    return AlignResult(warped.astype(mov.dtype, copy=False), mask, (float(fr[1]), float(fr[0])), (int(n[1]), int(n[0])), True, dev)
+    return AlignResult(
+        warped.astype(mov.dtype, copy=False),
+        mask,
+        (float(fr[1]), float(fr[0])),
+        (int(n[1]), int(n[0])),
+        True,
+        dev,
+    )

@@ -21,6 +21,7 @@ The consistent fragment centres give a similarity (or translation) fit.
 Units: pixels of the coarse level; transforms map MOVING (x, y) to REFERENCE
 (x, y), as 3x3 matrices.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -28,7 +29,14 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["gradient_magnitude", "orientation_hypotheses", "CoarseResult", "coarse_overlap", "orb_features", "coarse_orb"]
+__all__ = [
+    "gradient_magnitude",
+    "orientation_hypotheses",
+    "CoarseResult",
+    "coarse_overlap",
+    "orb_features",
+    "coarse_orb",
+]
 
 
 def gradient_magnitude(gray: np.ndarray) -> np.ndarray:
@@ -50,7 +58,9 @@ def _orientation_hist(gray: np.ndarray, bins: int) -> np.ndarray:
     return np.convolve(hp, k / k.sum(), mode="valid")
 
 
-def orientation_hypotheses(ref: np.ndarray, mov: np.ndarray, n: int = 4, bins: int = 180) -> list[float]:
+def orientation_hypotheses(
+    ref: np.ndarray, mov: np.ndarray, n: int = 4, bins: int = 180
+) -> list[float]:
     """Candidate rotation angles (radians) from moving to reference.
 
     ``c(k) = sum_i h_m(i) h_r(i + k)`` (circular cross-correlation of the
@@ -67,7 +77,7 @@ def orientation_hypotheses(ref: np.ndarray, mov: np.ndarray, n: int = 4, bins: i
     order = np.argsort(-c)
     sep = int(round(20 * bins / 360))
     picked: list[int] = []
-    for k in order[: bins]:  # a few iterations: stops once n peaks are picked
+    for k in order[:bins]:  # a few iterations: stops once n peaks are picked
         if all(min(abs(k - j), bins - abs(k - j)) >= sep for j in picked):
             picked.append(int(k))
             if len(picked) == n:
@@ -104,7 +114,7 @@ def _mad_refine(big: np.ndarray, frag: np.ndarray, x: int, y: int) -> tuple[int,
     best = (x, y, np.inf)
     ys = np.arange(max(y - 1, 0), min(y + 1, hb - f) + 1)
     xs = np.arange(max(x - 1, 0), min(x + 1, wb - f) + 1)
-    sub = big[ys[0]: ys[-1] + f, xs[0]: xs[-1] + f]
+    sub = big[ys[0] : ys[-1] + f, xs[0] : xs[-1] + f]
     win = np.lib.stride_tricks.sliding_window_view(sub, (f, f))  # (ny, nx, f, f)
     mad = np.abs(win - frag).mean(axis=(2, 3))
     j, i = np.unravel_index(np.argmin(mad), mad.shape)
@@ -113,7 +123,9 @@ def _mad_refine(big: np.ndarray, frag: np.ndarray, x: int, y: int) -> tuple[int,
     return best
 
 
-def _fragment_search(gref: np.ndarray, gcan: np.ndarray, vcan: np.ndarray, frag: int, min_energy: float):
+def _fragment_search(
+    gref: np.ndarray, gcan: np.ndarray, vcan: np.ndarray, frag: int, min_energy: float
+):
     """Forward/backward fragment search; returns (src centres, dst centres, mads) of consistent fragments."""
     hc, wc = gcan.shape
     stride = max(int(frag * 0.75), 1)
@@ -127,13 +139,13 @@ def _fragment_search(gref: np.ndarray, gcan: np.ndarray, vcan: np.ndarray, frag:
             cov = ii[y + frag, x + frag] - ii[y, x + frag] - ii[y + frag, x] + ii[y, x]
             if cov < frag * frag:
                 continue
-            f = gcan[y: y + frag, x: x + frag]
+            f = gcan[y : y + frag, x : x + frag]
             if float(f.mean()) < min_energy:
                 continue
             res = cv2.matchTemplate(gref, f, cv2.TM_SQDIFF)
             _, _, (bx, by), _ = cv2.minMaxLoc(res)
             bx, by, mad = _mad_refine(gref, f, bx, by)
-            back = gref[by: by + frag, bx: bx + frag]
+            back = gref[by : by + frag, bx : bx + frag]
             rb = cv2.matchTemplate(gcan, back, cv2.TM_SQDIFF)
             _, _, (cx, cy), _ = cv2.minMaxLoc(rb)
             cx, cy, _ = _mad_refine(gcan, back, cx, cy)
@@ -162,7 +174,9 @@ def _similarity_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return out
 
 
-def _consensus_similarity(src: np.ndarray, dst: np.ndarray, tol: float) -> tuple[np.ndarray | None, np.ndarray]:
+def _consensus_similarity(
+    src: np.ndarray, dst: np.ndarray, tol: float
+) -> tuple[np.ndarray | None, np.ndarray]:
     """Similarity supported by most fragment correspondences (exhaustive over pairs, vectorised).
 
     Each pair (i, j) defines ``z -> a z + b`` in complex notation
@@ -224,21 +238,29 @@ def coarse_overlap(
         if fit is None or n < min_consistent:
             continue
         mad = float(mads[agree].mean())
-        if best is not None and (n < best.n_consistent or (n == best.n_consistent and mad >= best.mad)):
+        if best is not None and (
+            n < best.n_consistent or (n == best.n_consistent and mad >= best.mad)
+        ):
             continue
         rot = np.vstack([a, [0, 0, 1]])
         best = CoarseResult(True, "", fit @ rot, n, mad)
     if best is None:
-        return CoarseResult(False, "no overlap: no fragment offset confirmed by the reverse search", None, 0, np.inf)
+        return CoarseResult(
+            False, "no overlap: no fragment offset confirmed by the reverse search", None, 0, np.inf
+        )
     return best
 
 
 def _orb_u8(img: np.ndarray) -> np.ndarray:
-    clahe = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8))  # even out the weak NIR field texture
+    clahe = cv2.createCLAHE(
+        clipLimit=2.0, tileGridSize=(8, 8)
+    )  # even out the weak NIR field texture
     return clahe.apply(cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8))
 
 
-def orb_features(img: np.ndarray, n_features: int = 1500, fast_threshold: int = 20) -> tuple[tuple, np.ndarray | None]:
+def orb_features(
+    img: np.ndarray, n_features: int = 1500, fast_threshold: int = 20
+) -> tuple[tuple, np.ndarray | None]:
     """ORB keypoints and descriptors of one pyramid level (CLAHE-equalised 8-bit copy), for :func:`coarse_orb`.
 
     Depends only on the frame, so a fixed reference frame computes it once. Four ORB scales
@@ -249,14 +271,25 @@ def orb_features(img: np.ndarray, n_features: int = 1500, fast_threshold: int = 
     detection takes 40% and the quadratic matching about half the time). :func:`register`'s last
     resort for low overlap asks for more and weaker corners (``n_features``, ``fast_threshold``).
     """
-    orb = cv2.ORB_create(nfeatures=n_features, scaleFactor=1.2, nlevels=4, edgeThreshold=19, patchSize=19,
-                         fastThreshold=fast_threshold)
+    orb = cv2.ORB_create(
+        nfeatures=n_features,
+        scaleFactor=1.2,
+        nlevels=4,
+        edgeThreshold=19,
+        patchSize=19,
+        fastThreshold=fast_threshold,
+    )
     return orb.detectAndCompute(_orb_u8(img), None)
 
 
-def coarse_orb(ref: np.ndarray, mov: np.ndarray, n_features: int = 1500, min_inliers: int = 10,
-               ref_features: tuple[tuple, np.ndarray | None] | None = None,
-               mov_features: tuple[tuple, np.ndarray | None] | None = None) -> CoarseResult:
+def coarse_orb(
+    ref: np.ndarray,
+    mov: np.ndarray,
+    n_features: int = 1500,
+    min_inliers: int = 10,
+    ref_features: tuple[tuple, np.ndarray | None] | None = None,
+    mov_features: tuple[tuple, np.ndarray | None] | None = None,
+) -> CoarseResult:
     """Rotation-invariant coarse alignment: ORB features + USAC/MAGSAC similarity, at a low pyramid level.
 
     Used instead of (before) the paper's translation-only fragment search,
@@ -278,16 +311,21 @@ def coarse_orb(ref: np.ndarray, mov: np.ndarray, n_features: int = 1500, min_inl
     dist, idx = cv2.batchDistance(db, da, -1, normType=cv2.NORM_HAMMING, K=2)[:2]
     good = dist[:, 0] < 0.85 * dist[:, 1]
     if int(good.sum()) < min_inliers:
-        return CoarseResult(False, "no overlap: too few coarse feature matches", None, int(good.sum()), np.inf)
+        return CoarseResult(
+            False, "no overlap: too few coarse feature matches", None, int(good.sum()), np.inf
+        )
     pa = np.float32([k.pt for k in ka])
     pb = np.float32([k.pt for k in kb])
     src = pb[good]
     dst = pa[idx[good, 0]]
-    a, mask = cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=3.0,
-                                          maxIters=5000, confidence=0.999)
+    a, mask = cv2.estimateAffinePartial2D(
+        src, dst, method=cv2.RANSAC, ransacReprojThreshold=3.0, maxIters=5000, confidence=0.999
+    )
     n = 0 if mask is None else int(mask.sum())
     if a is None or n < min_inliers:
-        return CoarseResult(False, f"no overlap: only {n} consistent coarse feature matches", None, n, np.inf)
+        return CoarseResult(
+            False, f"no overlap: only {n} consistent coarse feature matches", None, n, np.inf
+        )
     scale = float(np.sqrt(abs(np.linalg.det(a[:, :2]))))
     if not (0.5 < scale < 2.0):
         return CoarseResult(False, f"degenerate coarse fit (scale {scale:.2f})", None, n, np.inf)

@@ -23,6 +23,7 @@ with ``s`` the half-diagonal (so ``lam`` is dimensionless). The full model
 maps a moving pixel ``x_d`` to the reference as ``D(H_u(U(x_d)))``; the
 residual is measured in reference pixels.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -58,7 +59,9 @@ class Normaliser:
 
     @property
     def t(self) -> np.ndarray:
-        return np.array([[1 / self.s, 0, -self.cx / self.s], [0, 1 / self.s, -self.cy / self.s], [0, 0, 1.0]])
+        return np.array(
+            [[1 / self.s, 0, -self.cx / self.s], [0, 1 / self.s, -self.cy / self.s], [0, 0, 1.0]]
+        )
 
     def to_pixel_h(self, hn: np.ndarray) -> np.ndarray:
         """``H_px = T^-1 H_n T`` (normalised-coordinate homography to pixel coordinates)."""
@@ -160,7 +163,11 @@ def _jacobian_eq_p(q: np.ndarray, m: np.ndarray, affine: bool) -> np.ndarray:
 
 
 def fit_homography_lm(
-    pts_mov: np.ndarray, pts_ref: np.ndarray, norm: Normaliser, affine: bool = False, h0: np.ndarray | None = None
+    pts_mov: np.ndarray,
+    pts_ref: np.ndarray,
+    norm: Normaliser,
+    affine: bool = False,
+    h0: np.ndarray | None = None,
 ) -> np.ndarray:
     """LM fit of eq. P (or its affine case) to tie points; returns the pixel 3x3 H (moving -> reference).
 
@@ -203,7 +210,12 @@ def distort_points(pts: np.ndarray, lam: float, norm: Normaliser) -> np.ndarray:
         return pts.astype(np.float64).copy()
     disc = 1.0 - 4.0 * lam * ru * ru
     with np.errstate(invalid="ignore", divide="ignore"):
-        rd = np.where(ru > 1e-12, (1.0 - np.sqrt(np.where(disc >= 0, disc, np.nan))) / (2.0 * lam * np.maximum(ru, 1e-12)), 0.0)
+        rd = np.where(
+            ru > 1e-12,
+            (1.0 - np.sqrt(np.where(disc >= 0, disc, np.nan)))
+            / (2.0 * lam * np.maximum(ru, 1e-12)),
+            0.0,
+        )
         scale = np.where(ru > 1e-12, rd / np.maximum(ru, 1e-12), 1.0)
     out = c + norm.s * u * scale[:, None]
     out[~np.isfinite(out).all(axis=1)] = np.inf
@@ -269,7 +281,9 @@ def fit_homography_distortion_lm(
     return norm.to_pixel_h(_h_from_params(q[:-1], affine)), float(q[-1])
 
 
-def check_homography(h: np.ndarray, shape_mov: tuple[int, ...], max_scale: float = 3.0, max_aniso: float = 2.0) -> str:
+def check_homography(
+    h: np.ndarray, shape_mov: tuple[int, ...], max_scale: float = 3.0, max_aniso: float = 2.0
+) -> str:
     """Sanity check of a moving->reference homography; returns '' if sane, else the reason.
 
     Checks: finite; the moving frame's corners map to a convex, same-orientation
@@ -296,8 +310,15 @@ def check_homography(h: np.ndarray, shape_mov: tuple[int, ...], max_scale: float
         # Jacobian of eq. P at (x, y).
         u = (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / wv
         v = (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / wv
-        j = np.array([[h[0, 0] - u * h[2, 0], h[0, 1] - u * h[2, 1]],
-                      [h[1, 0] - v * h[2, 0], h[1, 1] - v * h[2, 1]]]) / wv
+        j = (
+            np.array(
+                [
+                    [h[0, 0] - u * h[2, 0], h[0, 1] - u * h[2, 1]],
+                    [h[1, 0] - v * h[2, 0], h[1, 1] - v * h[2, 1]],
+                ]
+            )
+            / wv
+        )
         sv = np.linalg.svd(j, compute_uv=False)
         det = sv[0] * sv[1]
         if not (1 / max_scale**2 <= det <= max_scale**2):

@@ -27,6 +27,7 @@ Coordinates are pixel coordinates ``(x, y) = (column, row)`` with pixel
 centres at integers. Transforms are 3x3 homographies mapping MOVING (x, y)
 to REFERENCE (x, y).
 """
+
 from __future__ import annotations
 
 import cv2
@@ -80,7 +81,9 @@ def harris_response(gray: np.ndarray, window: int = 11, k: float = 0.04) -> np.n
     return a
 
 
-def harris_peaks(gray: np.ndarray, window: int = 11, nms_radius: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def harris_peaks(
+    gray: np.ndarray, window: int = 11, nms_radius: int = 4
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Local maxima of the Harris response over the whole frame: ``(xs, ys, R)`` (int, int, float32).
 
     Non-maximum suppression keeps pixels equal to the maximum of their
@@ -93,7 +96,9 @@ def harris_peaks(gray: np.ndarray, window: int = 11, nms_radius: int = 4) -> tup
     k = 2 * nms_radius + 1
     dil = cv2.dilate(resp, np.ones((k, k), np.uint8))
     # Pixels equal to their neighbourhood maximum and positive, listed row by row (as np.nonzero).
-    nz = cv2.findNonZero(cv2.bitwise_and(cv2.compare(resp, dil, cv2.CMP_GE), cv2.compare(resp, 0, cv2.CMP_GT)))
+    nz = cv2.findNonZero(
+        cv2.bitwise_and(cv2.compare(resp, dil, cv2.CMP_GE), cv2.compare(resp, 0, cv2.CMP_GT))
+    )
     if nz is None:
         z = np.zeros(0, np.intp)
         return z, z, np.zeros(0, np.float32)
@@ -114,8 +119,9 @@ def _quota_rank(peaks, valid: np.ndarray, grid: tuple[int, int]):
     rows, cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
     y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
     gr, gc = grid
-    cell = (np.minimum((ys - y0) * gr // max(y1 - y0, 1), gr - 1) * gc
-            + np.minimum((xs - x0) * gc // max(x1 - x0, 1), gc - 1))
+    cell = np.minimum((ys - y0) * gr // max(y1 - y0, 1), gr - 1) * gc + np.minimum(
+        (xs - x0) * gc // max(x1 - x0, 1), gc - 1
+    )
     order = np.lexsort((-r, cell))  # by cell, strongest first
     cs = cell[order]
     rank = np.arange(cs.size) - np.searchsorted(cs, cs, side="left")  # 0 = strongest of its cell
@@ -181,7 +187,9 @@ def _keys(t: np.ndarray) -> np.ndarray:
     """Keys cubic convolution kernel (a = -0.5) at distances ``t``."""
     t = np.abs(t)
     t2, t3 = t * t, t * t * t
-    return np.where(t <= 1, 1.5 * t3 - 2.5 * t2 + 1, np.where(t < 2, -0.5 * t3 + 2.5 * t2 - 4 * t + 2, 0.0))
+    return np.where(
+        t <= 1, 1.5 * t3 - 2.5 * t2 + 1, np.where(t < 2, -0.5 * t3 + 2.5 * t2 - 4 * t + 2, 0.0)
+    )
 
 
 def sample_bicubic(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -229,8 +237,18 @@ def _remap(img: np.ndarray, x: np.ndarray, y: np.ndarray, interp: int) -> np.nda
     if len(mx) < _REMAP_MAX:
         out = cv2.remap(img, mx, my, interp, borderMode=cv2.BORDER_REPLICATE)
     else:
-        out = np.vstack([cv2.remap(img, mx[r0: r0 + _REMAP_MAX], my[r0: r0 + _REMAP_MAX], interp,
-                                   borderMode=cv2.BORDER_REPLICATE) for r0 in range(0, len(mx), _REMAP_MAX)])
+        out = np.vstack(
+            [
+                cv2.remap(
+                    img,
+                    mx[r0 : r0 + _REMAP_MAX],
+                    my[r0 : r0 + _REMAP_MAX],
+                    interp,
+                    borderMode=cv2.BORDER_REPLICATE,
+                )
+                for r0 in range(0, len(mx), _REMAP_MAX)
+            ]
+        )
     return out.reshape(shp)
 
 
@@ -284,15 +302,17 @@ def _correlate_batch(win: np.ndarray, tpl: np.ndarray) -> np.ndarray:
     pp = tpl.shape[1]
     k = b - pp + 1
     out = np.zeros((n, k, k), np.float32)
-    step = max(1, int(5e5 // (b * k * pp)))  # chunks keep the unfolded copy ~2 MB (cache-sized: 2x faster than 16 MB)
+    step = max(
+        1, int(5e5 // (b * k * pp))
+    )  # chunks keep the unfolded copy ~2 MB (cache-sized: 2x faster than 16 MB)
     for c0 in range(0, n, step):  # usually one chunk
-        w = win[c0: c0 + step]
+        w = win[c0 : c0 + step]
         m = len(w)
         unf = np.lib.stride_tricks.sliding_window_view(w, pp, axis=2).reshape(m, b * k, pp)
-        c = np.matmul(unf, tpl[c0: c0 + step].transpose(0, 2, 1)).reshape(m, b, k, pp)
-        o = out[c0: c0 + step]
+        c = np.matmul(unf, tpl[c0 : c0 + step].transpose(0, 2, 1)).reshape(m, b, k, pp)
+        o = out[c0 : c0 + step]
         for i in range(pp):  # P additions, each over all points and offsets
-            o += c[:, i: i + k, :, i]
+            o += c[:, i : i + k, :, i]
     return out
 
 
@@ -356,7 +376,13 @@ def ncc_match(
     # Local sums of W and W^2 over each offset window: box filters over the windows stacked vertically
     # (anchor top-left, so a sum never crosses into the next window), on mean-removed float32 values.
     wc = (win32 - win32.mean(axis=(1, 2), keepdims=True)).reshape(n * b, b)
-    box = dict(ddepth=cv2.CV_32F, ksize=(pp, pp), anchor=(0, 0), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    box = dict(
+        ddepth=cv2.CV_32F,
+        ksize=(pp, pp),
+        anchor=(0, 0),
+        normalize=False,
+        borderType=cv2.BORDER_CONSTANT,
+    )
     s1 = cv2.boxFilter(wc, **box).reshape(n, b, b)[:, :k, :k].astype(np.float64)
     s2 = cv2.boxFilter(wc * wc, **box).reshape(n, b, b)[:, :k, :k].astype(np.float64)
     var = np.maximum(s2 - s1 * s1 / (pp * pp), 0.0)
@@ -370,9 +396,11 @@ def ncc_match(
     iyc, ixc = np.clip(iy, 1, k - 2), np.clip(ix, 1, k - 2)
     ar = np.arange(n)
     c0 = ncc[ar, iyc, ixc]
+
     def _para(m, pl):
         d = m - 2 * c0 + pl
         return np.where(d < 0, 0.5 * (m - pl) / np.where(d < 0, d, -1.0), 0.0)
+
     sx = _para(ncc[ar, iyc, ixc - 1], ncc[ar, iyc, ixc + 1])
     sy = _para(ncc[ar, iyc - 1, ixc], ncc[ar, iyc + 1, ixc])
     dx = ixc - radius + np.clip(sx, -0.5, 0.5)
@@ -465,7 +493,11 @@ def refine_gauss_newton(
         e = (t[act] - z / nrm).reshape(m, pp, 1)
         am = g @ g.transpose(0, 2, 1)
         bv = (g @ e)[:, :, 0]
-        a11, a12, a22 = (am[:, 0, 0].astype(np.float64), am[:, 0, 1].astype(np.float64), am[:, 1, 1].astype(np.float64))
+        a11, a12, a22 = (
+            am[:, 0, 0].astype(np.float64),
+            am[:, 0, 1].astype(np.float64),
+            am[:, 1, 1].astype(np.float64),
+        )
         b1, b2 = bv[:, 0].astype(np.float64), bv[:, 1].astype(np.float64)
         det = a11 * a22 - a12 * a12
         ok = det > 1e-12 * np.maximum(a11 + a22, 1e-30) ** 2

@@ -21,6 +21,7 @@ Conventions (used throughout subpix_ros):
 * Output grid: LR pixel ``i`` of the unshifted frame covers HR pixels
   ``factor*i .. factor*i + factor - 1`` of the returned truth.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -40,7 +41,10 @@ __all__ = [
 
 
 def fourier_shift_blur(
-    image: np.ndarray, shift: tuple[float, float] = (0.0, 0.0), blur_sigma: float = 0.0, pad: int = 64
+    image: np.ndarray,
+    shift: tuple[float, float] = (0.0, 0.0),
+    blur_sigma: float = 0.0,
+    pad: int = 64,
 ) -> np.ndarray:
     """Shift an image's content by ``shift`` (rows, cols; pixels) and blur it.
 
@@ -67,7 +71,9 @@ def fourier_shift_blur(
         tx[-1] = np.cos(np.pi * shift[1])
     transfer = ty[:, None] * tx[None, :]
     if blur_sigma > 0:
-        transfer = transfer * np.exp(-2.0 * np.pi**2 * blur_sigma**2 * (ky[:, None] ** 2 + kx[None, :] ** 2))
+        transfer = transfer * np.exp(
+            -2.0 * np.pi**2 * blur_sigma**2 * (ky[:, None] ** 2 + kx[None, :] ** 2)
+        )
     out = np.fft.irfft2(np.fft.rfft2(padded) * transfer, s=(h, w))
     return out[pad:-pad, pad:-pad]
 
@@ -156,7 +162,14 @@ def render_sequence(
     if snr_db is not None:
         ref = box_integrate(fourier_shift_blur(hr, (0, 0), blur_sigma * factor), factor)
         noise_sigma = noise_sigma_for_snr(ref, snr_db)
-    pad = int(np.ceil(max(max(abs(s[0]), abs(s[1])) for s in shifts) * factor + 4 * blur_sigma * factor)) + 32
+    pad = (
+        int(
+            np.ceil(
+                max(max(abs(s[0]), abs(s[1])) for s in shifts) * factor + 4 * blur_sigma * factor
+            )
+        )
+        + 32
+    )
     frames = []
     for s in shifts:
         lr = render_frame(hr, factor, s, blur_sigma, noise_sigma, rng, quantize, pad=pad)
@@ -175,8 +188,14 @@ def render_sequence(
     )
 
 
-def slanted_edge_scene(base: np.ndarray, factor: int, lr: int, angle_deg: float = 5.0, margin: int = 8,
-                       levels: tuple[float, float] = (50.0, 210.0)) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+def slanted_edge_scene(
+    base: np.ndarray,
+    factor: int,
+    lr: int,
+    angle_deg: float = 5.0,
+    margin: int = 8,
+    levels: tuple[float, float] = (50.0, 210.0),
+) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """A real scene with a slanted-edge target (ISO 12233 style) pasted in its middle.
 
     The first ``(lr + 2 margin) * factor`` rows/columns of ``base`` (HR px)
@@ -193,7 +212,9 @@ def slanted_edge_scene(base: np.ndarray, factor: int, lr: int, angle_deg: float 
     sub = (np.arange(ss) + 0.5) / ss - 0.5
     r = np.arange(n)[:, None, None, None] + sub[None, None, :, None] - n / 2
     c = np.arange(n)[None, :, None, None] + sub[None, None, None, :] - n / 2
-    edge = levels[0] + (levels[1] - levels[0]) * ((c * np.cos(th) - r * np.sin(th)) > 0).mean(axis=(2, 3))
+    edge = levels[0] + (levels[1] - levels[0]) * ((c * np.cos(th) - r * np.sin(th)) > 0).mean(
+        axis=(2, 3)
+    )
     q0, q1 = n // 4, 3 * n // 4
     scene[q0:q1, q0:q1] = edge[q0:q1, q0:q1]
     x0 = q0 // factor - margin + 4

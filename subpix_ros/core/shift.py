@@ -110,6 +110,7 @@ Failure: textureless, constant, all-NaN, too small or non-overlapping input
 gives ``ok=False`` with a ``reason`` and ``u = v = z = None`` (never NaN or a
 made-up number). Wrong argument types/shapes raise ``ValueError``.
 """
+
 from __future__ import annotations
 
 import math
@@ -208,8 +209,12 @@ def _as_working(image: np.ndarray, name: str) -> Tuple[np.ndarray, Optional[np.n
     """
     a = np.asarray(image)
     if a.ndim != 2:
-        raise ValueError(f"{name} must be a 2-D (mono) array, got shape {a.shape}; convert colour with luminance()")
-    if a.dtype == bool or not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+        raise ValueError(
+            f"{name} must be a 2-D (mono) array, got shape {a.shape}; convert colour with luminance()"
+        )
+    if a.dtype == bool or not (
+        np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)
+    ):
         raise ValueError(f"{name} dtype {a.dtype} is not an integer or float type")
     if a.size == 0:
         raise ValueError(f"{name} is empty")
@@ -236,7 +241,9 @@ def _is_constant(a: np.ndarray, valid: Optional[np.ndarray]) -> bool:
     return hi <= lo
 
 
-def _masks(mask: MaskArg, shape: Tuple[int, int]) -> Tuple[Optional[np.ndarray], Optional[np.ndarray]]:
+def _masks(
+    mask: MaskArg, shape: Tuple[int, int]
+) -> Tuple[Optional[np.ndarray], Optional[np.ndarray]]:
     if mask is None:
         return None, None
     if isinstance(mask, (tuple, list)):
@@ -304,11 +311,17 @@ def seed_solve(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.linalg.solve(A, B)
 
 
-def _seed_result(x: np.ndarray, y: np.ndarray, method: str, iterations: int, converged: bool) -> ShiftResult:
+def _seed_result(
+    x: np.ndarray, y: np.ndarray, method: str, iterations: int, converged: bool
+) -> ShiftResult:
     A, B, ff, n = _seed_sums(x, y)
     cond = float(np.linalg.cond(A))
     if not np.isfinite(cond) or cond > 1e12:
-        return _fail(f"textureless or degenerate input: condition number of A is {cond:.3g}", method, cond=cond)
+        return _fail(
+            f"textureless or degenerate input: condition number of A is {cond:.3g}",
+            method,
+            cond=cond,
+        )
     C = np.linalg.solve(A, B)
     u, v, z = -4.0 * C[0], -4.0 * C[1], C[2]
     # residual of f = c_u d + c_v e + z: <r^2> = <FF> - 2 C.B + C^T A C (no second pass)
@@ -332,11 +345,15 @@ def _seed_result(x: np.ndarray, y: np.ndarray, method: str, iterations: int, con
     )
 
 
-def _warp_translate(img: np.ndarray, u: float, v: float, interp: int = cv2.INTER_CUBIC) -> np.ndarray:
+def _warp_translate(
+    img: np.ndarray, u: float, v: float, interp: int = cv2.INTER_CUBIC
+) -> np.ndarray:
     """``out(x) = img(x + s)``: moves content by ``-s`` (undoes a shift ``s``)."""
     h, w = img.shape
     M = np.float64([[1, 0, v], [0, 1, u]])
-    return cv2.warpAffine(img, M, (w, h), flags=interp | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+    return cv2.warpAffine(
+        img, M, (w, h), flags=interp | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
+    )
 
 
 def _seed_iterated(x: np.ndarray, y: np.ndarray, iterations: int = 3) -> ShiftResult:
@@ -349,7 +366,9 @@ def _seed_iterated(x: np.ndarray, y: np.ndarray, iterations: int = 3) -> ShiftRe
         yw = _warp_translate(y, u, v) if (u or v) else y
         b = int(math.ceil(max(abs(u), abs(v)))) + 2
         if 2 * b + 8 > min(x.shape):
-            return _fail("seed-iterated diverged: shift estimate exceeds the frame", "seed-iterated")
+            return _fail(
+                "seed-iterated diverged: shift estimate exceeds the frame", "seed-iterated"
+            )
         res = _seed_result(x[b:-b, b:-b], yw[b:-b, b:-b], "seed-iterated", 0, False)
         if not res.ok:
             return res
@@ -382,7 +401,9 @@ def _kernel_cached(t_key: int, taps: int, sigma: float, band: float) -> Tuple[np
     return h, a - 1
 
 
-def fractional_shift_kernel(t: float, taps: int = 8, sigma: float = 0.8, band: float = 0.85) -> Tuple[np.ndarray, int]:
+def fractional_shift_kernel(
+    t: float, taps: int = 8, sigma: float = 0.8, band: float = 0.85
+) -> Tuple[np.ndarray, int]:
     """FIR taps ``h_j`` (``j = -taps/2+1 .. taps/2``) and anchor for a delay ``t``.
 
     Least-squares design over ``|w| <= band*pi`` of ``sum_j h_j exp(i w j) ~=
@@ -449,7 +470,12 @@ def coarse_shift(
 
 
 _DEFAULT_SIGMA = 0.8  # prefilter (px) against aliasing when the pair is not noise-limited
-_ADAPTIVE_SIGMAS = (0.7, 0.6, 0.5, 0.4)  # candidates on noise-limited pairs (smallest predicted variance wins)
+_ADAPTIVE_SIGMAS = (
+    0.7,
+    0.6,
+    0.5,
+    0.4,
+)  # candidates on noise-limited pairs (smallest predicted variance wins)
 _NOISE_LIMITED_PX = 0.005  # standard error (px) above which a pair counts as noise-limited
 _NOISY_PIXEL_FACTOR = 4  # a noise-limited pair gets this many times the max_pixels budget
 _BLOCK = 16  # block size (px) of the sandwich covariance and the misfit grid
@@ -463,11 +489,14 @@ def _block_sum(a: np.ndarray, bs: int) -> np.ndarray:
     if ph or pw:  # a partial last block row/column: zero padding adds nothing to its sums
         a = cv2.copyMakeBorder(a, 0, ph, 0, pw, cv2.BORDER_CONSTANT, value=0)
         h, w = a.shape
-    return cv2.resize(a, (w // bs, h // bs), interpolation=cv2.INTER_AREA).astype(np.float64) * (bs * bs)
+    return cv2.resize(a, (w // bs, h // bs), interpolation=cv2.INTER_AREA).astype(np.float64) * (
+        bs * bs
+    )
 
 
 def _block_counts(shape: Tuple[int, int], bs: int) -> np.ndarray:
     """Pixels per bs x bs block of an array of ``shape`` (as :func:`_block_sum` of ones)."""
+
     def ext(n: int) -> np.ndarray:
         e = np.full(-(-n // bs), float(bs))
         if n % bs:
@@ -534,8 +563,12 @@ class _Level:
         if self._tiles is None:
             self._tiles = self._choose_tiles(border)
         ok = [
-            t for t in self._tiles
-            if t[0] + k0 - a + 1 >= 0 and t[1] + k0 + a <= self.h and t[2] + k1 - a + 1 >= 0 and t[3] + k1 + a <= self.w
+            t
+            for t in self._tiles
+            if t[0] + k0 - a + 1 >= 0
+            and t[1] + k0 + a <= self.h
+            and t[2] + k1 - a + 1 >= 0
+            and t[3] + k1 + a <= self.w
         ]
         return tuple(ok) if ok else None
 
@@ -555,7 +588,9 @@ class _Level:
         if ntile >= RR.size:
             return [(int(r), int(r) + T, int(c), int(c) + T) for r, c in zip(RR, CC)]
         sc = self.score(RR, RR + T, CC, CC + T) if self.score else np.zeros(RR.size)
-        cell = np.minimum(((RR + T / 2) * 3 / self.h).astype(int), 2) * 3 + np.minimum(((CC + T / 2) * 3 / self.w).astype(int), 2)
+        cell = np.minimum(((RR + T / 2) * 3 / self.h).astype(int), 2) * 3 + np.minimum(
+            ((CC + T / 2) * 3 / self.w).astype(int), 2
+        )
         per = int(math.ceil(ntile / 9))
         chosen = []
         for c in range(9):
@@ -573,7 +608,9 @@ class _Level:
         h0, anc = fractional_shift_kernel(0.0, self.taps, self.sigma, self.band)
         wins = [self.R[r0 - m : r1 + m, c0 - m : c1 + m] for r0, r1, c0, c1 in rects]
         stack = wins[0] if len(wins) == 1 else np.concatenate(wins, axis=0)
-        Rb = cv2.sepFilter2D(stack, cv2.CV_32F, h0, h0, anchor=(anc, anc), borderType=cv2.BORDER_REPLICATE)
+        Rb = cv2.sepFilter2D(
+            stack, cv2.CV_32F, h0, h0, anchor=(anc, anc), borderType=cv2.BORDER_REPLICATE
+        )
         k = np.float32([-0.5, 0.0, 0.5])
         one = np.float32([1.0])
         g0 = cv2.sepFilter2D(Rb, cv2.CV_32F, one, k, borderType=cv2.BORDER_REPLICATE)
@@ -613,9 +650,14 @@ class _Level:
         hc, _ = fractional_shift_kernel(float(t[1]), self.taps, self.sigma, self.band)
         a = self.a
         k0, k1 = int(k[0]), int(k[1])
-        wins = [self.M[r0 + k0 - a + 1 : r1 + k0 + a, c0 + k1 - a + 1 : c1 + k1 + a] for r0, r1, c0, c1 in rects]
+        wins = [
+            self.M[r0 + k0 - a + 1 : r1 + k0 + a, c0 + k1 - a + 1 : c1 + k1 + a]
+            for r0, r1, c0, c1 in rects
+        ]
         stack = wins[0] if len(wins) == 1 else np.concatenate(wins, axis=0)
-        out = cv2.sepFilter2D(stack, cv2.CV_32F, hc, hr, anchor=(anc, anc), borderType=cv2.BORDER_REPLICATE)
+        out = cv2.sepFilter2D(
+            stack, cv2.CV_32F, hc, hr, anchor=(anc, anc), borderType=cv2.BORDER_REPLICATE
+        )
         return self._interior(out, rects, a - 1, a - 1)
 
     def weights(self, rects, s) -> Optional[np.ndarray]:
@@ -711,7 +753,9 @@ def _solve(A: np.ndarray, b: np.ndarray) -> Optional[np.ndarray]:
     return d if np.all(np.isfinite(d)) else None
 
 
-def _noise_variance(A: np.ndarray, b: np.ndarray, ee: float, n: int, taps: int, sigma: float, band: float, t) -> Optional[float]:
+def _noise_variance(
+    A: np.ndarray, b: np.ndarray, ee: float, n: int, taps: int, sigma: float, band: float, t
+) -> Optional[float]:
     """Per-frame white-noise variance (DN^2) from the least-squares residual.
 
     ``var(e) = sig2 (|h_t|^2 |h_t|^2 + |h_0|^2 |h_0|^2)`` (separable 2-D norms
@@ -733,7 +777,9 @@ def _noise_variance(A: np.ndarray, b: np.ndarray, ee: float, n: int, taps: int, 
 _SPECTRUM_SIZE = 256  # side (px) of the central crop whose spectrum chooses the prefilter
 
 
-def predicted_shift_variance(ref: np.ndarray, mov: np.ndarray, noise_var: float, sigmas: Sequence[float]) -> np.ndarray:
+def predicted_shift_variance(
+    ref: np.ndarray, mov: np.ndarray, noise_var: float, sigmas: Sequence[float]
+) -> np.ndarray:
     """Predicted variance (px^2, u + v) of the Gaussian-prefiltered estimator, per ``sigma``.
 
     Frequency-domain model of the estimating equation ``sum g e = 0`` for a
@@ -789,7 +835,9 @@ def predicted_shift_variance(ref: np.ndarray, mov: np.ndarray, noise_var: float,
     return np.array(out)
 
 
-def _signal_matrix(A: np.ndarray, b: np.ndarray, ee: float, n: int, taps: int, sigma: float, band: float, t) -> np.ndarray:
+def _signal_matrix(
+    A: np.ndarray, b: np.ndarray, ee: float, n: int, taps: int, sigma: float, band: float, t
+) -> np.ndarray:
     """Normal matrix with the reference-noise energy removed from the gradient terms.
 
     The slope of the estimating equation ``sum g e = 0`` with respect to the
@@ -871,7 +919,9 @@ def _gauss_newton(lv: _Level, s0, max_iter: int, tol: float, border: int, blocks
             break
     if blocks and out.get("blocks") is None and "s_eval" in out:
         A, b, ee, n, bl = _gn_sums(lv, out["rects"], out["s_eval"], True)
-        As = _signal_matrix(A, b, ee, n, lv.taps, lv.sigma, lv.band, out["s_eval"] - np.floor(out["s_eval"]))
+        As = _signal_matrix(
+            A, b, ee, n, lv.taps, lv.sigma, lv.band, out["s_eval"] - np.floor(out["s_eval"])
+        )
         out.update(A=A, As=As, b=b, ee=ee, n=n, blocks=bl, d=_solve(As, b))
         if out["d"] is None:
             out["reason"] = "singular normal equations"
@@ -913,7 +963,9 @@ def _pyr_mask(v: Optional[np.ndarray]) -> Optional[np.ndarray]:
     return _pyr(v.astype(np.float32)) >= 0.999
 
 
-def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pixels, coarse_size, misfit_px) -> ShiftResult:
+def _default(
+    R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pixels, coarse_size, misfit_px
+) -> ShiftResult:
     method = "default"
     adaptive = sigma is None
     if adaptive:
@@ -932,7 +984,9 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
     if prior is not None:
         s = np.asarray(prior, dtype=np.float64).reshape(2) / 2**levels
     else:
-        (cu, cv), _, _ = coarse_shift(_fill_invalid(Rp[-1], VRp[-1]), _fill_invalid(Mp[-1], VMp[-1]), max_size=1 << 30)
+        (cu, cv), _, _ = coarse_shift(
+            _fill_invalid(Rp[-1], VRp[-1]), _fill_invalid(Mp[-1], VMp[-1]), max_size=1 << 30
+        )
         coarse = (cu * 2**levels, cv * 2**levels)
         s = np.array([cu, cv], dtype=np.float64)
     # Gauss-Newton on the small pyramid levels only (the big ones cost more than they save)
@@ -942,8 +996,18 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
             s = s * 2.0
             continue
         sc = _texture_scorer(Rp[-1], 2.0 ** (L - levels)) if L < levels else None
-        lv = _Level(Rp[L].astype(np.float32), Mp[L].astype(np.float32), VRp[L], VMp[L], taps, sigma, band, small, sc,
-                    kmax=int(np.max(np.abs(s))) + 3)
+        lv = _Level(
+            Rp[L].astype(np.float32),
+            Mp[L].astype(np.float32),
+            VRp[L],
+            VMp[L],
+            taps,
+            sigma,
+            band,
+            small,
+            sc,
+            kmax=int(np.max(np.abs(s))) + 3,
+        )
         out = _gauss_newton(lv, s, 8, 0.01, border)
         if not out["reason"]:
             s = out["s"]
@@ -963,13 +1027,20 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
         return _fail(out["reason"], method, iterations=it, coarse=coarse)
     conv, last = out["converged"], out["last"]
     if not conv and last > 0.05:
-        return _fail(f"Gauss-Newton did not converge (last step {last:.3g} px)", method, iterations=it, coarse=coarse)
+        return _fail(
+            f"Gauss-Newton did not converge (last step {last:.3g} px)",
+            method,
+            iterations=it,
+            coarse=coarse,
+        )
     res = _statistics(out, lv, h, w, misfit_px, coarse)
     if res.ok and adaptive and not res.misfit and max(res.u_std, res.v_std) > _NOISE_LIMITED_PX:
         # noise-limited pair: aliasing bias (< 0.003 px) no longer matters and the
         # prefilter is re-chosen for the smallest noise variance (module docstring, step 3)
         se = out["s_eval"]
-        sig2 = _noise_variance(out["A"], out["b"], out["ee"], out["n"], taps, sigma, band, se - np.floor(se))
+        sig2 = _noise_variance(
+            out["A"], out["b"], out["ee"], out["n"], taps, sigma, band, se - np.floor(se)
+        )
         if sig2 is not None and sig2 > 0:
             cands = (sigma,) + tuple(x for x in _ADAPTIVE_SIGMAS if x != sigma)
             pv = predicted_shift_variance(_fill_invalid(R, vr), _fill_invalid(M, vm), sig2, cands)
@@ -979,7 +1050,9 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
             mp_c = max_pixels * _NOISY_PIXEL_FACTOR if tiled else max_pixels
             if (best != sigma or tiled) and np.isfinite(pv.min()):
                 s1 = np.array([res.u, res.v])
-                lv_c = _Level(R, M, vr, vm, taps, best, band, mp_c, score, kmax=int(np.max(np.abs(s1))) + 3)
+                lv_c = _Level(
+                    R, M, vr, vm, taps, best, band, mp_c, score, kmax=int(np.max(np.abs(s1))) + 3
+                )
                 lv_c.blocks = True
                 out_c = _gauss_newton(lv_c, s1, max_iterations, tol, border, blocks=True)
                 if not out_c["reason"] and (out_c["converged"] or out_c["last"] <= 0.05):
@@ -990,7 +1063,9 @@ def _default(R, M, vr, vm, prior, max_iterations, tol, taps, sigma, band, max_pi
     return res
 
 
-def _score_slope(lv: "_Level", rects, s: np.ndarray, A: np.ndarray, b: np.ndarray, delta: float = 1e-3) -> Optional[np.ndarray]:
+def _score_slope(
+    lv: "_Level", rects, s: np.ndarray, A: np.ndarray, b: np.ndarray, delta: float = 1e-3
+) -> Optional[np.ndarray]:
     """Slope of the estimating equation ``b(s) = sum J e(s)`` at ``s``: ``[db/du, db/dv, db/dz]``.
 
     ``db/dz = sum J`` (the third column of ``A``); ``db/du``, ``db/dv`` by a
@@ -1086,6 +1161,7 @@ def _statistics(out: dict, lv: "_Level", h: int, w: int, misfit_px: float, coars
     # misfit: local shifts on a 3x3 grid of the frame
     RR, CC = lv.block_centres(rects)
     gi = np.minimum((RR * 3 / h).astype(int), 2) * 3 + np.minimum((CC * 3 / w).astype(int), 2)
+
     # per grid cell (all 9 at once): block counts, score sums and normal-equation sums
     def per_cell(x: np.ndarray) -> np.ndarray:
         return np.bincount(gi, weights=x, minlength=9)
@@ -1098,12 +1174,23 @@ def _statistics(out: dict, lv: "_Level", h: int, w: int, misfit_px: float, coars
     nwb = int(used.sum())
     ncell = int(np.count_nonzero(nblk >= 2))
     s00, s01, s11, s0_, s1_, cn = (per_cell(x) for x in (g00, g01, g11, g0, g1, cnt))
-    Ak = np.stack([np.stack([s00, s01, s0_], -1), np.stack([s01, s11, s1_], -1), np.stack([s0_, s1_, cn], -1)], 1)
+    Ak = np.stack(
+        [
+            np.stack([s00, s01, s0_], -1),
+            np.stack([s01, s11, s1_], -1),
+            np.stack([s0_, s1_, cn], -1),
+        ],
+        1,
+    )
     cells = np.flatnonzero(nblk >= 4)
     if cells.size:
         ck = np.linalg.cond(Ak[cells])
         cells = cells[np.isfinite(ck) & (ck <= 1e10)]
-    dks = np.linalg.solve(Ak[cells], bsum[cells][:, :, None])[:, :, 0] if cells.size else np.zeros((0, 3))
+    dks = (
+        np.linalg.solve(Ak[cells], bsum[cells][:, :, None])[:, :, 0]
+        if cells.size
+        else np.zeros((0, 3))
+    )
     local = [(-dk[:2], n / max(float(cn[c]), 1.0)) for c, dk in zip(cells, dks)]
     # noise-only covariance: the sandwich over the block scores demeaned within each
     # grid cell (a misfit shifts whole cells and would otherwise count as noise)
@@ -1135,12 +1222,30 @@ def _statistics(out: dict, lv: "_Level", h: int, w: int, misfit_px: float, coars
     if max(u_std, v_std) > 0.5:
         return _fail(
             f"shift undetermined: standard error {max(u_std, v_std):.3g} px (too little texture for the noise)",
-            method, n_pixels=n, iterations=it, cond=cond, coarse=coarse,
+            method,
+            n_pixels=n,
+            iterations=it,
+            cond=cond,
+            coarse=coarse,
         )
     return ShiftResult(
-        ok=True, u=float(s[0]), v=float(s[1]), z=z, cov=cov, u_std=u_std, v_std=v_std, cond=cond,
-        n_pixels=int(n), iterations=int(it), converged=bool(conv), residual_rms=resid_rms,
-        misfit=misfit, misfit_px=mis_px, warning=warning, method=method, coarse=coarse,
+        ok=True,
+        u=float(s[0]),
+        v=float(s[1]),
+        z=z,
+        cov=cov,
+        u_std=u_std,
+        v_std=v_std,
+        cond=cond,
+        n_pixels=int(n),
+        iterations=int(it),
+        converged=bool(conv),
+        residual_rms=resid_rms,
+        misfit=misfit,
+        misfit_px=mis_px,
+        warning=warning,
+        method=method,
+        coarse=coarse,
     )
 
 
@@ -1207,13 +1312,18 @@ def estimate_shift(
     if method == "default":
         # one mask for both frames (the usual aligned pair) is looked at once
         box = common_valid_box([m for m in ((vr,) if vr is vm else (vr, vm)) if m is not None])
-        if box is not None:  # validity is a rectangle (an integer-crop alignment): crop to it, no mask needed
+        if (
+            box is not None
+        ):  # validity is a rectangle (an integer-crop alignment): crop to it, no mask needed
             r0, r1, c0, c1 = box
             R, M = R[r0:r1, c0:c1], M[r0:r1, c0:c1]
             vr = vm = None
     min_side = 8 if method == "seed" else 2 * (taps // 2 + 2) + 2 * _BLOCK
     if min(R.shape) < min_side:
-        return _fail(f"input too small: {R.shape[0]}x{R.shape[1]} px, need at least {min_side} px per side", method)
+        return _fail(
+            f"input too small: {R.shape[0]}x{R.shape[1]} px, need at least {min_side} px per side",
+            method,
+        )
     if (vr is not None and not vr.any()) or (vm is not None and not vm.any()):
         return _fail("no valid pixels (all NaN, masked or saturated)", method)
     if prior is not None:
@@ -1228,7 +1338,10 @@ def estimate_shift(
         x = np.asarray(reference, dtype=np.float64)  # full precision: float64 accumulation
         y = np.asarray(moving, dtype=np.float64)
         if mask is not None or not (np.isfinite(x).all() and np.isfinite(y).all()):
-            return _fail(f"method {method!r} has no validity mask: input has NaN/inf or a mask was given", method)
+            return _fail(
+                f"method {method!r} has no validity mask: input has NaN/inf or a mask was given",
+                method,
+            )
         if method == "seed":
             return _seed_result(x, y, "seed", 1, False)
         return _seed_iterated(x, y, seed_iterations)

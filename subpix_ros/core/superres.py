@@ -56,6 +56,7 @@ outermost LR-pixel ring of a MAP result is bicubic (only the reference
 observes it; see :func:`_bicubic_rim`).
 Intensities keep the input scale (eq. 3 taken as a mean, not a sum).
 """
+
 from __future__ import annotations
 
 import functools
@@ -65,7 +66,12 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from .superres_model import FrameOperator, frame_transfer_1d, gaussian_kernel, translation_homography
+from .superres_model import (
+    FrameOperator,
+    frame_transfer_1d,
+    gaussian_kernel,
+    translation_homography,
+)
 from .superres_paper import grid_offsets, interleave, pinv_solution, windowed_solution
 
 __all__ = [
@@ -187,7 +193,9 @@ def _integer_preshift(frame: np.ndarray, iu: int, iv: int) -> np.ndarray:
 _SPECTRUM_CROP = 384  # fit_spectrum's default crop (LR px)
 
 
-def _preshift_window(frame: np.ndarray, iu: int, iv: int, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+def _preshift_window(
+    frame: np.ndarray, iu: int, iv: int, r0: int, r1: int, c0: int, c1: int
+) -> np.ndarray:
     """``_integer_preshift(frame, iu, iv)[r0:r1, c0:c1]`` without shifting the whole frame.
 
     A plain slice when the window's source ``[r0+iu, r1+iu) x [c0+iv, c1+iv)``
@@ -200,7 +208,11 @@ def _preshift_window(frame: np.ndarray, iu: int, iv: int, r0: int, r1: int, c0: 
 
 
 def fit_spectrum(
-    frames: np.ndarray, p: int, blur_sigma: float, noise_sigma: float | None = None, max_bins: int = 8000,
+    frames: np.ndarray,
+    p: int,
+    blur_sigma: float,
+    noise_sigma: float | None = None,
+    max_bins: int = 8000,
     crop: int = _SPECTRUM_CROP,
 ) -> tuple[float, float, float]:
     """Fit the stationary prior and the noise floor to the frames' power spectrum.
@@ -239,18 +251,35 @@ def fit_spectrum(
     # coarse search on a 0.3 grid, then the 0.1 grid within +-0.2 of the coarse best (misfit is smooth
     # and single-minimum in alpha on real scenes: the test compares with the full 0.1 grid)
     key = (h, w, p, float(blur_sigma), max_bins)
-    coarse = _fit_exponents(1.0, 0.3, 11, amp, logf, obs, noise_sigma, *_exponent_terms(*key, 1.0, 0.3, 11))
+    coarse = _fit_exponents(
+        1.0, 0.3, 11, amp, logf, obs, noise_sigma, *_exponent_terms(*key, 1.0, 0.3, 11)
+    )
     a_best = coarse[1]
     lo = max(1.0, a_best - 0.2)
     n_fine = int(round((min(4.0, a_best + 0.2) - lo) / 0.1)) + 1
-    c, alpha, s2, _ = _fit_exponents(lo, 0.1, n_fine, amp, logf, obs, noise_sigma,
-                                     *_exponent_terms(*key, round(lo, 10), 0.1, n_fine))
+    c, alpha, s2, _ = _fit_exponents(
+        lo,
+        0.1,
+        n_fine,
+        amp,
+        logf,
+        obs,
+        noise_sigma,
+        *_exponent_terms(*key, round(lo, 10), 0.1, n_fine),
+    )
     return float(c), float(alpha), float(np.sqrt(s2))
 
 
 def _fit_exponents(
-    a0: float, da: float, count: int, amp: np.ndarray, logf: np.ndarray, obs: np.ndarray, noise_sigma: float | None,
-    q: np.ndarray | None = None, q2: np.ndarray | None = None,
+    a0: float,
+    da: float,
+    count: int,
+    amp: np.ndarray,
+    logf: np.ndarray,
+    obs: np.ndarray,
+    noise_sigma: float | None,
+    q: np.ndarray | None = None,
+    q2: np.ndarray | None = None,
 ) -> tuple[float, float, float, float]:
     """:func:`fit_spectrum`'s fit for the exponents ``a0 + da j``, j < count, at once.
 
@@ -300,7 +329,9 @@ def _fit_exponents(
     return float(c_[best]), float(alphas[best]), float(s2[best]), float(err[best])
 
 
-def _exponent_sums(a0: float, da: float, count: int, amp: np.ndarray, logf: np.ndarray) -> np.ndarray:
+def _exponent_sums(
+    a0: float, da: float, count: int, amp: np.ndarray, logf: np.ndarray
+) -> np.ndarray:
     """``q[j] = sum_m amp_m |f_m|^-(a0 + da j)`` (count, bins) by the recurrence of :func:`_fit_exponents`."""
     step = np.exp(-da * logf)
     term = amp * np.exp(-a0 * logf)
@@ -312,8 +343,9 @@ def _exponent_sums(a0: float, da: float, count: int, amp: np.ndarray, logf: np.n
 
 
 @functools.lru_cache(maxsize=64)
-def _exponent_terms(h: int, w: int, p: int, blur_sigma: float, max_bins: int, a0: float, da: float,
-                    count: int) -> tuple[np.ndarray, np.ndarray]:
+def _exponent_terms(
+    h: int, w: int, p: int, blur_sigma: float, max_bins: int, a0: float, da: float, count: int
+) -> tuple[np.ndarray, np.ndarray]:
     """``(q, q^2)`` of :func:`_exponent_sums` on :func:`_spectrum_model`'s terms: they depend only on the crop
     shape, factor, blur and exponents, so they are cached (read-only; the fine search has one table per coarse
     winner)."""
@@ -344,7 +376,9 @@ def _spectrum_bins(h: int, w: int, max_bins: int) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=16)
-def _spectrum_model(h: int, w: int, p: int, blur_sigma: float, max_bins: int) -> tuple[np.ndarray, ...]:
+def _spectrum_model(
+    h: int, w: int, p: int, blur_sigma: float, max_bins: int
+) -> tuple[np.ndarray, ...]:
     """:func:`fit_spectrum`'s bins and model terms for an h x w crop (cached per shape, read-only).
 
     Returns the flat bin indices ``sel`` (:func:`_spectrum_bins`), ``amp[m] = p^2 |a_m|^2`` and
@@ -356,7 +390,9 @@ def _spectrum_model(h: int, w: int, p: int, blur_sigma: float, max_bins: int) ->
     ax, fx = ax[:, :wc], fx[:, :wc]
     sel = _spectrum_bins(h, w, max_bins)
     ky, kx = np.unravel_index(sel, (h, wc))
-    amp = np.ascontiguousarray((np.abs(ay[:, None, ky] * ax[None, :, kx]) ** 2).reshape(p * p, -1) * p * p)
+    amp = np.ascontiguousarray(
+        (np.abs(ay[:, None, ky] * ax[None, :, kx]) ** 2).reshape(p * p, -1) * p * p
+    )
     fm = np.hypot(fy[:, None, ky], fx[None, :, kx]).reshape(p * p, -1)
     logf = np.ascontiguousarray(np.log(np.maximum(fm, 1e-9)))  # (p^2, bins), C order for the sums
     for a in (amp, logf):
@@ -378,7 +414,12 @@ def _solve_hermitian(m: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _lowpass_window(
-    frame: np.ndarray, g: np.ndarray, pre: tuple[int, int], post: tuple[int, int], rows: slice, cols: slice,
+    frame: np.ndarray,
+    g: np.ndarray,
+    pre: tuple[int, int],
+    post: tuple[int, int],
+    rows: slice,
+    cols: slice,
     whole: np.ndarray | None = None,
 ) -> np.ndarray:
     """``_integer_preshift(L, *post)[rows, cols]`` with ``L = lowpass(_integer_preshift(frame, *pre))``.
@@ -402,25 +443,43 @@ def _lowpass_window(
             if whole is not None:
                 return whole[r0:r1, c0:c1]
             a0, a1, b0, b1 = max(r0 - r, 0), min(r1 + r, h), max(c0 - r, 0), min(c1 + r, w)
-            sub = cv2.sepFilter2D(frame[a0:a1, b0:b1], cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101)
+            sub = cv2.sepFilter2D(
+                frame[a0:a1, b0:b1], cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
+            )
             return sub[r0 - a0 : r1 - a0, c0 - b0 : c1 - b0]
         a0, a1, b0, b1 = r0 + pre[0] - r, r1 + pre[0] + r, c0 + pre[1] - r, c1 + pre[1] + r
-        if 0 <= a0 and a1 <= h and 0 <= b0 and b1 <= w:  # pre-shift and margin inside: interior values only
+        if (
+            0 <= a0 and a1 <= h and 0 <= b0 and b1 <= w
+        ):  # pre-shift and margin inside: interior values only
             if whole is not None:
                 return whole[a0 + r : a1 - r, b0 + r : b1 - r]
-            sub = cv2.sepFilter2D(frame[a0:a1, b0:b1], cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101)
+            sub = cv2.sepFilter2D(
+                frame[a0:a1, b0:b1], cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
+            )
             return sub[r : r + r1 - r0, r : r + c1 - c0]
-    if whole is not None and pre == (0, 0) and r1 - h < h - max(r0, 0) and -r0 < min(r1, h) and c1 - w < w - max(c0, 0) \
-            and -c0 < min(c1, w):
+    if (
+        whole is not None
+        and pre == (0, 0)
+        and r1 - h < h - max(r0, 0)
+        and -r0 < min(r1, h)
+        and c1 - w < w - max(c0, 0)
+        and -c0 < min(c1, w)
+    ):
         # L is the whole low-pass: the window's part inside the frame, reflected about the frame's edges
         # where the window leaves it (the part touches those edges, so reflecting it is reflecting L)
         sub = whole[max(r0, 0) : min(r1, h), max(c0, 0) : min(c1, w)]
-        return cv2.copyMakeBorder(sub, max(-r0, 0), max(r1 - h, 0), max(-c0, 0), max(c1 - w, 0), cv2.BORDER_REFLECT_101)
-    low = cv2.sepFilter2D(_integer_preshift(frame, *pre), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101)
+        return cv2.copyMakeBorder(
+            sub, max(-r0, 0), max(r1 - h, 0), max(-c0, 0), max(c1 - w, 0), cv2.BORDER_REFLECT_101
+        )
+    low = cv2.sepFilter2D(
+        _integer_preshift(frame, *pre), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
+    )
     return _integer_preshift(low, *post)[rows, cols]
 
 
-_WHOLE_LOWPASS_PX = 512 * 512  # frames up to this size are low-passed whole once (see _WholeLowpass)
+_WHOLE_LOWPASS_PX = (
+    512 * 512
+)  # frames up to this size are low-passed whole once (see _WholeLowpass)
 
 
 class _WholeLowpass:
@@ -449,8 +508,13 @@ class _WholeLowpass:
             return None
         low = self._done.get(i)
         if low is None:
-            low = cv2.sepFilter2D(self.frames[i].astype(np.float32), cv2.CV_32F, self.g, self.g,
-                                  borderType=cv2.BORDER_REFLECT_101)
+            low = cv2.sepFilter2D(
+                self.frames[i].astype(np.float32),
+                cv2.CV_32F,
+                self.g,
+                self.g,
+                borderType=cv2.BORDER_REFLECT_101,
+            )
             self._done[i] = low
         return low
 
@@ -463,8 +527,14 @@ class _WholeLowpass:
 
 
 def _refine_shifts(
-    frames: np.ndarray, ishift: np.ndarray, resid: np.ndarray, lp_sigma: float = 1.0, border: int = 8, iters: int = 3,
-    max_region: int = 256, lowpassed: _WholeLowpass | None = None,
+    frames: np.ndarray,
+    ishift: np.ndarray,
+    resid: np.ndarray,
+    lp_sigma: float = 1.0,
+    border: int = 8,
+    iters: int = 3,
+    max_region: int = 256,
+    lowpassed: _WholeLowpass | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """Refine each frame's sub-pixel shift against frame 0 (Lucas-Kanade on low-passed frames).
 
@@ -496,11 +566,21 @@ def _refine_shifts(
     ref = _lowpass_window(frames[0], g, i0, (0, 0), *ctx, whole=whole(0))
 
     def mov_window(i: int, iu: int, iv: int) -> np.ndarray:
-        return _lowpass_window(frames[i], g, (int(ishift[i, 0]), int(ishift[i, 1])), (iu, iv), *ctx, whole=whole(i))
+        return _lowpass_window(
+            frames[i], g, (int(ishift[i, 0]), int(ishift[i, 1])), (iu, iv), *ctx, whole=whole(i)
+        )
 
     if n > 1:  # all frames against the reference at once
-        s_all, sg_all, rv_all = _lk_batch([ref], np.zeros(n - 1, dtype=int), mov_window, np.arange(1, n),
-                                          resid[1:], _lk_inner(region, ctx), g, iters=iters)
+        s_all, sg_all, rv_all = _lk_batch(
+            [ref],
+            np.zeros(n - 1, dtype=int),
+            mov_window,
+            np.arange(1, n),
+            resid[1:],
+            _lk_inner(region, ctx),
+            g,
+            iters=iters,
+        )
         for i in range(1, n):  # per frame: accept or flag
             s, sg, rv = s_all[i - 1], sg_all[i - 1], rv_all[i - 1]
             if np.isfinite(sg) and np.abs(s - resid[i]).max() < 0.5:
@@ -512,8 +592,13 @@ def _refine_shifts(
 
 
 def detect_geometry(
-    frames: np.ndarray, shifts: np.ndarray, tiles: int = 3, lp_sigma: float = 1.0, tol: float = 0.05,
-    tile_max: int = 64, lowpassed: _WholeLowpass | None = None,
+    frames: np.ndarray,
+    shifts: np.ndarray,
+    tiles: int = 3,
+    lp_sigma: float = 1.0,
+    tol: float = 0.05,
+    tile_max: int = 64,
+    lowpassed: _WholeLowpass | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray, float]:
     """Check whether frames are related by more than a translation; fit affines if so.
 
@@ -525,7 +610,8 @@ def detect_geometry(
     those windows are low-passed, and each reference tile is Fourier-
     transformed once for all frames); the tile shifts
     ``d(r, c)`` (at the window centres) are fitted by
-    ``d = s + J (r - r0, c - c0)`` (least squares, (r0, c0) the frame centre). If the non-translational part ``J`` moves any
+    ``d = s + J (r - r0, c - c0)`` (least squares, (r0, c0) the frame centre). If the
+    non-translational part ``J`` moves any
     tile centre by more than ``tol`` LR px, the affine of every frame is
     returned as a homography (reference -> frame LR pixel coordinates, as
     :class:`FrameOperator` takes them), else None. Also returns the tile
@@ -551,7 +637,12 @@ def detect_geometry(
             if w >= wa + 2 * ctx_pad:
                 ca = min(max(ca, ctx_pad), w - ctx_pad - wa)
             wins.append((slice(ra, ra + ha), slice(ca, ca + wa)))
-    centres = np.array([((sl[0].start + sl[0].stop - 1) / 2.0, (sl[1].start + sl[1].stop - 1) / 2.0) for sl in wins])
+    centres = np.array(
+        [
+            ((sl[0].start + sl[0].stop - 1) / 2.0, (sl[1].start + sl[1].stop - 1) / 2.0)
+            for sl in wins
+        ]
+    )
     r0, c0 = (h - 1) / 2.0, (w - 1) / 2.0
     rel = centres - np.array([r0, c0])
     design = np.concatenate([np.ones((len(rel), 1)), rel], axis=1)  # (T, 3)
@@ -561,22 +652,38 @@ def detect_geometry(
     for k, sl in enumerate(wins):  # tiles
         ctx = _lk_context(sl, h, w, ctx_pad)
         inner = _lk_inner(sl, ctx)
-        key = (ctx[0].stop - ctx[0].start, ctx[1].stop - ctx[1].start, inner[0].start, inner[0].stop,
-               inner[1].start, inner[1].stop)
+        key = (
+            ctx[0].stop - ctx[0].start,
+            ctx[1].stop - ctx[1].start,
+            inner[0].start,
+            inner[0].stop,
+            inner[1].start,
+            inner[1].stop,
+        )
         groups.setdefault(key, []).append((k, ctx))
-    for key, members in groups.items():  # tiles whose windows have one shape: all tiles x frames at once
-        refs = [_lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx, whole=whole(0)) for _, ctx in members]
+    for (
+        key,
+        members,
+    ) in groups.items():  # tiles whose windows have one shape: all tiles x frames at once
+        refs = [
+            _lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx, whole=whole(0))
+            for _, ctx in members
+        ]
         pair_tile = np.repeat(np.arange(len(members)), n - 1)
         pair_frame = np.tile(np.arange(1, n), len(members))
         ctxs = [ctx for _, ctx in members]
 
         def mov_window(m: int, iu: int, iv: int) -> np.ndarray:
             i = int(pair_frame[m])
-            return _lowpass_window(frames[i], g, (0, 0), (iu, iv), *ctxs[pair_tile[m]], whole=whole(i))
+            return _lowpass_window(
+                frames[i], g, (0, 0), (iu, iv), *ctxs[pair_tile[m]], whole=whole(i)
+            )
 
         s0 = np.asarray(shifts, dtype=np.float64)[pair_frame]
         inner = (slice(key[2], key[3]), slice(key[4], key[5]))
-        s_all, sg_all, rv_all = _lk_batch(refs, pair_tile, mov_window, np.arange(pair_tile.size), s0, inner, g)
+        s_all, sg_all, rv_all = _lk_batch(
+            refs, pair_tile, mov_window, np.arange(pair_tile.size), s0, inner, g
+        )
         for m in range(pair_tile.size):  # tile x frame pairs
             kk, i = members[pair_tile[m]][0], pair_frame[m]
             tshift[i, kk] = s_all[m] if np.isfinite(sg_all[m]) else np.nan
@@ -596,30 +703,45 @@ def detect_geometry(
         jac = coef[1:].T  # jac[out, in]: d(u, v) / d(r, c)
         if np.max(np.abs(rel @ jac.T)) > tol:
             nonlinear = True
-        affines[i] = np.array([
-            [1 + jac[1, 1], jac[1, 0], s[1] - jac[1, 0] * r0 - jac[1, 1] * c0],
-            [jac[0, 1], 1 + jac[0, 0], s[0] - jac[0, 0] * r0 - jac[0, 1] * c0],
-            [0.0, 0.0, 1.0],
-        ])
+        affines[i] = np.array(
+            [
+                [1 + jac[1, 1], jac[1, 0], s[1] - jac[1, 0] * r0 - jac[1, 1] * c0],
+                [jac[0, 1], 1 + jac[0, 0], s[0] - jac[0, 0] * r0 - jac[0, 1] * c0],
+                [0.0, 0.0, 1.0],
+            ]
+        )
     noise = float(np.sqrt(np.percentile(resvars, 25))) if resvars else float("nan")
     return (affines if nonlinear else None), tshift, noise
 
 
 def _lk_context(sl: tuple[slice, slice], h: int, w: int, pad: int = 16) -> tuple[slice, slice]:
     """Region ``sl`` widened by ``pad`` px of context (clipped to the frame), as :func:`_lk` works on it."""
-    return (slice(max(sl[0].start - pad, 0), min(sl[0].stop + pad, h)),
-            slice(max(sl[1].start - pad, 0), min(sl[1].stop + pad, w)))
+    return (
+        slice(max(sl[0].start - pad, 0), min(sl[0].stop + pad, h)),
+        slice(max(sl[1].start - pad, 0), min(sl[1].stop + pad, w)),
+    )
 
 
 def _lk_inner(sl: tuple[slice, slice], ctx: tuple[slice, slice]) -> tuple[slice, slice]:
     """The part of region ``sl`` (4 px in from its edges) that the fit uses, relative to its context window."""
     ra, ca = ctx[0].start, ctx[1].start
-    return (slice(sl[0].start - ra + 4, sl[0].stop - ra - 4), slice(sl[1].start - ca + 4, sl[1].stop - ca - 4))
+    return (
+        slice(sl[0].start - ra + 4, sl[0].stop - ra - 4),
+        slice(sl[1].start - ca + 4, sl[1].stop - ca - 4),
+    )
 
 
 def _lk_batch(
-    refs: list[np.ndarray], ref_of: np.ndarray, mov_window, keys: np.ndarray, s0: np.ndarray,
-    inner: tuple[slice, slice], g: np.ndarray, iters: int = 3, pad: int = 8, tol: float = 1e-3,
+    refs: list[np.ndarray],
+    ref_of: np.ndarray,
+    mov_window,
+    keys: np.ndarray,
+    s0: np.ndarray,
+    inner: tuple[slice, slice],
+    g: np.ndarray,
+    iters: int = 3,
+    pad: int = 8,
+    tol: float = 1e-3,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lucas-Kanade shifts of M (reference, moving) window pairs at once (all windows one shape).
 
@@ -647,8 +769,14 @@ def _lk_batch(
     m_all = len(ref_of)
     hh, ww = refs[0].shape[0] + 2 * pad, refs[0].shape[1] + 2 * pad
     spec = np.empty((len(refs), hh, ww // 2 + 1), np.complex64)  # once per reference
-    for t, rf in enumerate(refs):  # references (tiles), not pixels: reflect-padded (as np.pad "reflect")
-        spec[t] = _rfft2_32(cv2.copyMakeBorder(np.asarray(rf, np.float32), pad, pad, pad, pad, cv2.BORDER_REFLECT_101))
+    for t, rf in enumerate(
+        refs
+    ):  # references (tiles), not pixels: reflect-padded (as np.pad "reflect")
+        spec[t] = _rfft2_32(
+            cv2.copyMakeBorder(
+                np.asarray(rf, np.float32), pad, pad, pad, pad, cv2.BORDER_REFLECT_101
+            )
+        )
     wy = -2j * np.pi * np.fft.fftfreq(hh)
     wx = -2j * np.pi * np.fft.rfftfreq(ww)
     r0, r1, c0, c1 = inner[0].start, inner[0].stop, inner[1].start, inner[1].stop
@@ -684,7 +812,9 @@ def _lk_batch(
         half = np.fft.ifft(shifted, axis=1)[:, rows]
         half *= tx.astype(np.complex64)[:, None, :]
         pred_rows = np.fft.irfft(half, n=ww, axis=2)
-        pred = pred_rows[:, :, pad + c0 - 1 : pad + c1 + 1]  # rows r0-1 .. r1, cols c0-1 .. c1 (float32)
+        pred = pred_rows[
+            :, :, pad + c0 - 1 : pad + c1 + 1
+        ]  # rows r0-1 .. r1, cols c0-1 .. c1 (float32)
         # rows of z per pair: grad_y R, grad_x R, e = F - R, 1 — all the sums the step and the residual's
         # variance need are entries of z z^T (one batched matrix product instead of a pass per sum).
         # Central differences (as np.gradient in the interior; ``inner`` is >= 4 px from the window's edge)
@@ -715,7 +845,11 @@ def _lk_batch(
             # further pass over the pixels): sum r^2 = e.e + 2 d.(G^T e) + d^T (G^T G) d, sum r = sum e + d.(sum G)
             zg = zz[good]
             npx = z.shape[2]
-            s_rr = zg[:, 2, 2] + 2.0 * np.einsum("ai,ai->a", st, zg[:, :2, 2]) + np.einsum("ai,aij,aj->a", st, zg[:, :2, :2], st)
+            s_rr = (
+                zg[:, 2, 2]
+                + 2.0 * np.einsum("ai,ai->a", st, zg[:, :2, 2])
+                + np.einsum("ai,aij,aj->a", st, zg[:, :2, :2], st)
+            )
             s_r = zg[:, 2, 3] + np.einsum("ai,ai->a", st, zg[:, :2, 3])
             vr = np.maximum(s_rr / npx - (s_r / npx) ** 2, 0.0)
             resvar[idx] = vr / g2
@@ -741,8 +875,16 @@ def _tukey(n: int, frac: float = 0.25) -> np.ndarray:
 
 
 def _solve_separable(
-    spec: np.ndarray, ay: np.ndarray, ax: np.ndarray, fy: np.ndarray, fx: np.ndarray,
-    c: float, alpha: float, reg: float, noise_power: float, block_bins: int = 1 << 16,
+    spec: np.ndarray,
+    ay: np.ndarray,
+    ax: np.ndarray,
+    fy: np.ndarray,
+    fx: np.ndarray,
+    c: float,
+    alpha: float,
+    reg: float,
+    noise_power: float,
+    block_bins: int = 1 << 16,
     shifts: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per-bin MAP solve (eq. 9, normal-equation form) when every frame's noise variance is frequency-independent.
@@ -788,16 +930,37 @@ def _solve_separable(
         col_fac = {}
         for a1 in range(p):
             for b1 in range(a1 + 1):
-                cols = [(a2, b2) for a2 in range(p) for b2 in range(p) if a1 * p + a2 >= b1 * p + b2]
-                w = np.concatenate([cax[:, a2] * ax32[:, b2] for a2, b2 in cols], axis=1)  # (n, len(cols) wc)
+                cols = [
+                    (a2, b2) for a2 in range(p) for b2 in range(p) if a1 * p + a2 >= b1 * p + b2
+                ]
+                w = np.concatenate(
+                    [cax[:, a2] * ax32[:, b2] for a2, b2 in cols], axis=1
+                )  # (n, len(cols) wc)
                 col_fac[a1, b1] = (cols, _as_c2(w))
     else:
-        col_fac = _rank_one_gram_factors(ay, ax, fy, fx, np.asarray(shifts, dtype=np.float64), noise_power)
-    lam_cols = [(fy[m1].astype(np.float64) ** 2, fx[m2].astype(np.float64) ** 2) for m1 in range(p) for m2 in range(p)]
+        col_fac = _rank_one_gram_factors(
+            ay, ax, fy, fx, np.asarray(shifts, dtype=np.float64), noise_power
+        )
+    lam_cols = [
+        (fy[m1].astype(np.float64) ** 2, fx[m2].astype(np.float64) ** 2)
+        for m1 in range(p)
+        for m2 in range(p)
+    ]
     for r0 in range(0, hp, rows):  # blocks of spectrum rows (cache), not pixels
         r1 = min(hp, r0 + rows)
-        _solve_separable_block(spec[:, r0:r1], ay32[:, :, r0:r1], cay[:, :, r0:r1], cax, col_fac, lam_cols, r0, r1,
-                               alpha, np.float32(reg / c), xs[:, :, r0:r1])
+        _solve_separable_block(
+            spec[:, r0:r1],
+            ay32[:, :, r0:r1],
+            cay[:, :, r0:r1],
+            cax,
+            col_fac,
+            lam_cols,
+            r0,
+            r1,
+            alpha,
+            np.float32(reg / c),
+            xs[:, :, r0:r1],
+        )
     return xs
 
 
@@ -819,7 +982,9 @@ def _alias_classes(f: np.ndarray, p: int, m: int, mp: int) -> tuple[np.ndarray, 
 
 
 @functools.lru_cache(maxsize=256)
-def _alias_classes_cached(fb: bytes, shape: tuple, p: int, m: int, mp: int) -> tuple[np.ndarray, np.ndarray]:
+def _alias_classes_cached(
+    fb: bytes, shape: tuple, p: int, m: int, mp: int
+) -> tuple[np.ndarray, np.ndarray]:
     f = np.frombuffer(fb, dtype=np.float64).reshape(shape)
     d = np.rint(p * (f[m] - f[mp])).astype(np.int64)
     vals, inv = np.unique(d, return_inverse=True)
@@ -830,7 +995,12 @@ def _alias_classes_cached(fb: bytes, shape: tuple, p: int, m: int, mp: int) -> t
 
 
 def _rank_one_gram_factors(
-    ay: np.ndarray, ax: np.ndarray, fy: np.ndarray, fx: np.ndarray, shifts: np.ndarray, noise_power: float
+    ay: np.ndarray,
+    ax: np.ndarray,
+    fy: np.ndarray,
+    fx: np.ndarray,
+    shifts: np.ndarray,
+    noise_power: float,
 ) -> _RankOneGram:
     """Factors of the rank-one Gram entries (lower triangle) for :func:`_solve_separable` with ``shifts``."""
     p = ay.shape[1]
@@ -848,10 +1018,19 @@ def _rank_one_gram_factors(
                         continue
                     vy, cy = _alias_classes(fy, p, a1, b1)
                     vx, cx = _alias_classes(fx, p, a2, b2)
-                    table = (np.exp(2j * np.pi * (vy[:, None, None] * u + vx[None, :, None] * v)).sum(axis=2)
-                             / noise_power)
-                    entries[i, j] = ((np.conj(hy[a1]) * hy[b1]).astype(np.complex64), cy,
-                                     (np.conj(hx[a2]) * hx[b2]).astype(np.complex64), cx, table.astype(np.complex64))
+                    table = (
+                        np.exp(2j * np.pi * (vy[:, None, None] * u + vx[None, :, None] * v)).sum(
+                            axis=2
+                        )
+                        / noise_power
+                    )
+                    entries[i, j] = (
+                        (np.conj(hy[a1]) * hy[b1]).astype(np.complex64),
+                        cy,
+                        (np.conj(hx[a2]) * hx[b2]).astype(np.complex64),
+                        cx,
+                        table.astype(np.complex64),
+                    )
     return _RankOneGram(entries)
 
 
@@ -862,8 +1041,17 @@ def _as_c2(z: np.ndarray) -> np.ndarray:
 
 
 def _solve_separable_block(
-    spec: np.ndarray, ay32: np.ndarray, cay: np.ndarray, cax: np.ndarray, col_fac: dict, lam_cols: list,
-    r0: int, r1: int, alpha: float, lam_scale: np.float32, out: np.ndarray,
+    spec: np.ndarray,
+    ay32: np.ndarray,
+    cay: np.ndarray,
+    cax: np.ndarray,
+    col_fac: dict,
+    lam_cols: list,
+    r0: int,
+    r1: int,
+    alpha: float,
+    lam_scale: np.float32,
+    out: np.ndarray,
 ) -> None:
     """Rows r0..r1 of :func:`_solve_separable` (same arrays, cut to the block); writes ``out`` (p, p, R, wc)."""
     n, p, nr = ay32.shape
@@ -961,7 +1149,11 @@ def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
                 if e <= s:
                     continue
                 v = values[:, s - a : e - a]
-                target = edge[0 if lo == 0 else 1, rows][:, None] if dst is None else dst[rows, s - 1 : e - 1]
+                target = (
+                    edge[0 if lo == 0 else 1, rows][:, None]
+                    if dst is None
+                    else dst[rows, s - 1 : e - 1]
+                )
                 if conj:
                     np.conjugate(v, out=target)
                 else:
@@ -984,12 +1176,17 @@ def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
         lo, hi = c0 + wc, min(c0 + wp, nc)
         if hi > lo:  # kx in [wc, wp): conj of alias p-1-m2 at LR column wp - kx, HR row -K mod nh
             cs, ce = wp - (hi - c0) + 1, wp - (lo - c0) + 1
-            blk = xs[:, p - 1 - m2, :, cs:ce].reshape(nh, ce - cs)[:, ::-1]  # rows K, columns wp - kx
+            blk = xs[:, p - 1 - m2, :, cs:ce].reshape(nh, ce - cs)[
+                :, ::-1
+            ]  # rows K, columns wp - kx
             put(slice(0, 1), lo, hi, blk[:1], conj=True)
             put(slice(1, nh), lo, hi, blk[:0:-1], conj=True)
     if not ccs_path:
         return np.fft.irfft2(half, s=(nh, nw))
-    for col, e in ((0, edge[0]), (nw - 1, edge[1])):  # CCS packing of the two real-symmetric columns
+    for col, e in (
+        (0, edge[0]),
+        (nw - 1, edge[1]),
+    ):  # CCS packing of the two real-symmetric columns
         ccs[0, col] = e[0].real
         ccs[1 : nh - 1 : 2, col] = e[1 : nh // 2].real
         ccs[2 : nh - 1 : 2, col] = e[1 : nh // 2].imag
@@ -1004,7 +1201,9 @@ def _lanczos_delay(d: float, taps: int = 8) -> np.ndarray:
     a = taps // 2
     t = np.arange(-a + 1, a + 1, dtype=np.float64) + d
     h = np.sinc(t) * np.sinc(t / a) * (np.abs(t) < a)
-    out = (h / h.sum()).astype(np.float32)  # sepFilter2D correlates: tap j -> offset j - (a - 1) = k
+    out = (h / h.sum()).astype(
+        np.float32
+    )  # sepFilter2D correlates: tap j -> offset j - (a - 1) = k
     out.flags.writeable = False
     return out
 
@@ -1028,8 +1227,14 @@ def _fractional_shift(
         c0, c1 = max(cols.start - (a - 1), 0), min(cols.stop + a, w)
         out = _fractional_shift(src[r0:r1, c0:c1], du, dv, taps)
         return out[rows.start - r0 : rows.stop - r0, cols.start - c0 : cols.stop - c0]
-    return cv2.sepFilter2D(src, cv2.CV_32F, _lanczos_delay(float(dv), taps), _lanczos_delay(float(du), taps),
-                           anchor=(a - 1, a - 1), borderType=cv2.BORDER_REFLECT_101)
+    return cv2.sepFilter2D(
+        src,
+        cv2.CV_32F,
+        _lanczos_delay(float(dv), taps),
+        _lanczos_delay(float(du), taps),
+        anchor=(a - 1, a - 1),
+        borderType=cv2.BORDER_REFLECT_101,
+    )
 
 
 def _consistent_padding(
@@ -1047,8 +1252,9 @@ def _consistent_padding(
     """
     n, h, w = frames.shape
     out = np.empty((n, hp, wp), dtype=np.float32)
-    ref = cv2.copyMakeBorder(frames[0].astype(np.float32), pad, hp - h - pad, pad, wp - w - pad,
-                             cv2.BORDER_REFLECT_101)
+    ref = cv2.copyMakeBorder(
+        frames[0].astype(np.float32), pad, hp - h - pad, pad, wp - w - pad, cv2.BORDER_REFLECT_101
+    )
     for i in range(n):  # per frame
         iu, iv = int(ishift[i, 0] - ishift[0, 0]), int(ishift[i, 1] - ishift[0, 1])
         du, dv = float(resid[i, 0] - resid[0, 0]), float(resid[i, 1] - resid[0, 1])
@@ -1058,8 +1264,12 @@ def _consistent_padding(
         if r1 > r0 and c1 > c0:
             inner = (slice(pad + r0, pad + r1), slice(pad + c0, pad + c1))
             out[i][inner] = frames[i, r0 + iu : r1 + iu, c0 + iv : c1 + iv]
-            rest = [(slice(0, inner[0].start), slice(0, wp)), (slice(inner[0].stop, hp), slice(0, wp)),
-                    (inner[0], slice(0, inner[1].start)), (inner[0], slice(inner[1].stop, wp))]
+            rest = [
+                (slice(0, inner[0].start), slice(0, wp)),
+                (slice(inner[0].stop, hp), slice(0, wp)),
+                (inner[0], slice(0, inner[1].start)),
+                (inner[0], slice(inner[1].stop, wp)),
+            ]
         else:
             rest = [(slice(0, hp), slice(0, wp))]
         for win in rest:  # the padding strips (4 at most)
@@ -1134,7 +1344,9 @@ def _fourier_map(
     if refine_shifts or noise_sigma is None:
         # registration against frame 0: refined shifts (used if refine_shifts), their std, and the
         # multi-frame noise estimate (used if noise_sigma is None)
-        refined, shift_sigma_fit, lk_noise, resvar = _refine_shifts(frames, ishift, resid, lowpassed=lowpassed)
+        refined, shift_sigma_fit, lk_noise, resvar = _refine_shifts(
+            frames, ishift, resid, lowpassed=lowpassed
+        )
         if refine_shifts:
             resid = refined
         else:
@@ -1143,13 +1355,20 @@ def _fourier_map(
         # others (residual variance > 9x the median: moving objects, wrong frame), are left out
         keep = np.isfinite(shift_sigma_fit)
         if np.isfinite(resvar[1:]).any():
-            keep[1:] &= np.isfinite(resvar[1:]) & (resvar[1:] <= 9.0 * np.nanmedian(resvar[1:]) + 1e-12)
+            keep[1:] &= np.isfinite(resvar[1:]) & (
+                resvar[1:] <= 9.0 * np.nanmedian(resvar[1:]) + 1e-12
+            )
         keep[0] = True
         if keep.sum() < 2:
             raise ValueError("no frame other than the reference could be registered to it")
         if not keep.all():
             full_n = n
-            frames, ishift, resid, shift_sigma_fit = frames[keep], ishift[keep], resid[keep], shift_sigma_fit[keep]
+            frames, ishift, resid, shift_sigma_fit = (
+                frames[keep],
+                ishift[keep],
+                resid[keep],
+                shift_sigma_fit[keep],
+            )
             shift_cov = np.asarray(shift_cov)[keep]
             n = int(keep.sum())
     padded = _consistent_padding(frames, ishift, resid, pad, hp, wp)
@@ -1159,8 +1378,14 @@ def _fourier_map(
     # fit_spectrum reads only the central crop of the first two (integer-preshifted) frames: cut just that
     ch, cw = min(h, _SPECTRUM_CROP), min(w, _SPECTRUM_CROP)
     rc, cc = (h - ch) // 2, (w - cw) // 2
-    pre = np.stack([_preshift_window(frames[i], int(ishift[i, 0]), int(ishift[i, 1]), rc, rc + ch, cc, cc + cw)
-                    for i in range(min(n, 2))])
+    pre = np.stack(
+        [
+            _preshift_window(
+                frames[i], int(ishift[i, 0]), int(ishift[i, 1]), rc, rc + ch, cc, cc + cw
+            )
+            for i in range(min(n, 2))
+        ]
+    )
     if noise_sigma is None and np.isfinite(lk_noise):
         noise_sigma = lk_noise  # multi-frame estimate (see _refine_shifts)
     c_psd, alpha, sig_fit = fit_spectrum(pre, p, blur_sigma, noise_sigma)
@@ -1208,12 +1433,20 @@ def _fourier_map(
             prior = np.where(fr > 0, c * np.maximum(fr, 1e-6) ** (-alpha), 1e30)  # (p,p,R,wc)
             a0 = ay[:, :, None, r0:r1, None] * ax[:, None, :, None, :]  # (n,p,p,R,wc)
             e = np.exp(
-                -2.0 * np.pi**2 * p * p
-                * (cov[:, 0, 0, None, None, None, None] * f2y + 2 * cov[:, 0, 1, None, None, None, None] * fxy
-                   + cov[:, 1, 1, None, None, None, None] * f2x)
+                -2.0
+                * np.pi**2
+                * p
+                * p
+                * (
+                    cov[:, 0, 0, None, None, None, None] * f2y
+                    + 2 * cov[:, 0, 1, None, None, None, None] * fxy
+                    + cov[:, 1, 1, None, None, None, None] * f2x
+                )
             )
             a = a0 * e
-            var = noise_power + np.sum(np.abs(a0) ** 2 * prior * (1.0 - e**2), axis=(1, 2))  # (n,R,wc)
+            var = noise_power + np.sum(
+                np.abs(a0) ** 2 * prior * (1.0 - e**2), axis=(1, 2)
+            )  # (n,R,wc)
             # batch layout (bins, n, k)
             ab = a.reshape(n, k, -1).transpose(2, 0, 1)
             vb = var.reshape(n, -1).T
@@ -1246,8 +1479,16 @@ def _fourier_map(
         sh_full[keep] = ishift + resid
         sg_full = np.full(full_n, np.inf)
         sg_full[keep] = np.sqrt(np.maximum(cov[:, 0, 0], cov[:, 1, 1]))
-        return {"image": out, "shifts": sh_full, "shift_sigma": sg_full, "weights": w_full,
-                "resid_ratio": None, "prior": (c_psd, alpha), "noise_sigma": noise_sigma, "kept": keep}
+        return {
+            "image": out,
+            "shifts": sh_full,
+            "shift_sigma": sg_full,
+            "weights": w_full,
+            "resid_ratio": None,
+            "prior": (c_psd, alpha),
+            "noise_sigma": noise_sigma,
+            "kept": keep,
+        }
     return {
         "kept": keep,
         "image": out,
@@ -1359,17 +1600,26 @@ def _validate(
     if not 2 <= int(factor) <= MAX_FACTOR:
         raise ValueError(f"factor must be in 2..{MAX_FACTOR}, got {factor}")
     if frames is None or len(frames) < 2:
-        raise ValueError(f"super-resolution needs at least 2 frames, got {0 if frames is None else len(frames)}")
+        raise ValueError(
+            f"super-resolution needs at least 2 frames, got {0 if frames is None else len(frames)}"
+        )
     arrs = [np.asarray(f) for f in frames]
     if any(a.ndim != 2 for a in arrs):
         raise ValueError("frames must be 2-D (mono); use reconstruct_colour for colour frames")
     shape = arrs[0].shape
     if any(a.shape != shape for a in arrs):
-        raise ValueError(f"all frames must have the same shape, got {sorted({a.shape for a in arrs})}")
+        raise ValueError(
+            f"all frames must have the same shape, got {sorted({a.shape for a in arrs})}"
+        )
     if min(shape) < 16:
         raise ValueError(f"frames too small for reconstruction: {shape} (need >= 16x16)")
-    if any(not (np.issubdtype(a.dtype, np.integer) or a.dtype == bool) and not np.isfinite(a).all() for a in arrs):
-        raise ValueError("frames contain NaN or infinite values")  # integer frames are always finite
+    if any(
+        not (np.issubdtype(a.dtype, np.integer) or a.dtype == bool) and not np.isfinite(a).all()
+        for a in arrs
+    ):
+        raise ValueError(
+            "frames contain NaN or infinite values"
+        )  # integer frames are always finite
     n = len(arrs)
     if shifts is None:
         if homographies is None:
@@ -1397,7 +1647,10 @@ def _validate(
 
 def _small_ints(arrs: list[np.ndarray]) -> bool:
     """True if every frame has an integer dtype of at most 16 bits (values and p q sums exact in float32)."""
-    return all((np.issubdtype(a.dtype, np.integer) and a.dtype.itemsize <= 2) or a.dtype == bool for a in arrs)
+    return all(
+        (np.issubdtype(a.dtype, np.integer) and a.dtype.itemsize <= 2) or a.dtype == bool
+        for a in arrs
+    )
 
 
 def _stack64(arrs: list[np.ndarray]) -> np.ndarray:
@@ -1450,8 +1703,12 @@ def reconstruct(
     else:
         v = parse_blur_sigma(blur_sigma)
         if v == BLUR_AUTO:
-            if kw.get("method", "map") == "map" and frames is not None and len(frames) >= 2 \
-                    and all(np.ndim(f) == 2 for f in frames):
+            if (
+                kw.get("method", "map") == "map"
+                and frames is not None
+                and len(frames) >= 2
+                and all(np.ndim(f) == 2 for f in frames)
+            ):
                 sh = None if shifts is None else np.asarray(shifts, dtype=np.float64)
                 if sh is not None and (sh.shape != (len(frames), 2) or not np.isfinite(sh).all()):
                     sh = None  # malformed shifts: _reconstruct says why
@@ -1490,7 +1747,8 @@ def _reconstruct(
     content at (r, c) in frame 0 is at (r+u, c+v) in frame n); any sub-pixel
     values, unequal along rows/cols. factor: 2..4. method: "map" (default,
     eq. 9), "windowed" (eq. 7, normalised), "pinv" (eq. 6, reference),
-    "bicubic". window: eq. 7 window w (default factor+2: w+p-1 odd, best PSNR of the small windows measured). masks: optional bool per frame (True = valid), forces the CG
+    "bicubic". window: eq. 7 window w (default factor+2: w+p-1 odd, best PSNR of the small
+    windows measured). masks: optional bool per frame (True = valid), forces the CG
     solver. shift_cov: (N, 2, 2) registration-error covariance of the given
     shifts (LR px^2); ignored when ``refine_shifts`` (the refined shifts'
     own uncertainty is used). homographies: (N, 3, 3) reference -> frame LR
@@ -1522,33 +1780,63 @@ def _reconstruct(
         sigma = estimate_noise_sigma(arrs[0], max_size=256)
     ref = np.asarray(arrs[0], dtype=np.float64)
     if method == "bicubic":
-        return SRResult(bicubic_upscale(ref, p), "bicubic", noise_sigma=sigma, weights=np.r_[1.0, np.zeros(n - 1)],
-                        shifts=np.zeros((n, 2)) if s is None else s, shift_sigma=np.zeros(n), factor=p)
+        return SRResult(
+            bicubic_upscale(ref, p),
+            "bicubic",
+            noise_sigma=sigma,
+            weights=np.r_[1.0, np.zeros(n - 1)],
+            shifts=np.zeros((n, 2)) if s is None else s,
+            shift_sigma=np.zeros(n),
+            factor=p,
+        )
     if s is not None and homographies is None:
-        phase = (s - s[0] + 0.5) % 1.0 - 0.5  # each frame's sub-pixel phase relative to frame 0, LR px
+        phase = (
+            s - s[0] + 0.5
+        ) % 1.0 - 0.5  # each frame's sub-pixel phase relative to frame 0, LR px
         if np.max(np.abs(phase)) < 0.05:
-            return _fallback(ref, p, "all frames have the same sub-pixel phase: no new information", sigma, n, s)
+            return _fallback(
+                ref, p, "all frames have the same sub-pixel phase: no new information", sigma, n, s
+            )
     if method in ("windowed", "pinv"):
         if s is None:
             return _fallback(ref, p, f"{method} needs pure translations", sigma, n, s)
         offs = grid_offsets(s, p, p)
         if offs is None:
-            return _fallback(ref, p, f"{method} (eq. {7 if method == 'windowed' else 6}) needs shifts on the k/{p} grid", sigma, n, s)
+            return _fallback(
+                ref,
+                p,
+                f"{method} (eq. {7 if method == 'windowed' else 6}) needs shifts on the k/{p} grid",
+                sigma,
+                n,
+                s,
+            )
         # 8/16-bit frames: float32 holds the sums exactly (averages of frames sharing a phase to float32
         # round-off); half the memory traffic, and the filter still runs in float64
-        y, filled = interleave(arrs, offs, p, p, dtype=np.float32 if _small_ints(arrs) else np.float64)
+        y, filled = interleave(
+            arrs, offs, p, p, dtype=np.float32 if _small_ints(arrs) else np.float64
+        )
         if method == "windowed":
             x = windowed_solution(y, p, p, w=p + 2 if window is None else window)
             # eq. 9's Gaussian regularisation of the windowed solution: without it eq. 7 amplifies noise
             # and aliasing below bicubic (x3, x4, and x2 at low blur; docs/design-notes.md)
-            x = cv2.GaussianBlur(x, (0, 0), WINDOWED_SMOOTH_LR_PX * p, borderType=cv2.BORDER_REFLECT_101)
+            x = cv2.GaussianBlur(
+                x, (0, 0), WINDOWED_SMOOTH_LR_PX * p, borderType=cv2.BORDER_REFLECT_101
+            )
         else:
             h2 = (y.shape[0] // p) * p - (p - 1)
             w2 = (y.shape[1] // p) * p - (p - 1)
             x = np.zeros(y.shape)
             sol = pinv_solution(y[:h2, :w2], p, p)
             x[: sol.shape[0], : sol.shape[1]] = sol
-        return SRResult(x, method, noise_sigma=sigma, weights=np.ones(n), shifts=s, shift_sigma=np.zeros(n), factor=p)
+        return SRResult(
+            x,
+            method,
+            noise_sigma=sigma,
+            weights=np.ones(n),
+            shifts=s,
+            shift_sigma=np.zeros(n),
+            factor=p,
+        )
 
     # method == "map"
     stack = _stack64(arrs)
@@ -1578,9 +1866,24 @@ def _reconstruct(
             if np.isfinite(tile_noise):
                 noise_sigma = tile_noise
     try:
-        ints = True if all(np.issubdtype(a.dtype, np.integer) or a.dtype == bool for a in arrs) else None
-        sol = _fourier_map(stack, trans, p, blur_sigma, noise_sigma, cov, reg, refine_shifts and not use_cg, pad,
-                           integer_valued=ints, lowpassed=lowpassed)
+        ints = (
+            True
+            if all(np.issubdtype(a.dtype, np.integer) or a.dtype == bool for a in arrs)
+            else None
+        )
+        sol = _fourier_map(
+            stack,
+            trans,
+            p,
+            blur_sigma,
+            noise_sigma,
+            cov,
+            reg,
+            refine_shifts and not use_cg,
+            pad,
+            integer_valued=ints,
+            lowpassed=lowpassed,
+        )
     except (ValueError, np.linalg.LinAlgError) as exc:
         return _fallback(ref, p, f"MAP solve failed: {exc}", sigma, n, s)
     img = sol["image"]
@@ -1588,9 +1891,14 @@ def _reconstruct(
     sigma = sol["noise_sigma"]
     method_used = "map"
     if use_cg:
-        hs = (np.asarray(homographies, dtype=np.float64) if homographies is not None
-              else np.stack([translation_homography(*si) for si in s]))
-        img = _cg_map(stack, hs, p, blur_sigma, sol["noise_sigma"], masks, sol["prior"], reg, img, cg_iters)
+        hs = (
+            np.asarray(homographies, dtype=np.float64)
+            if homographies is not None
+            else np.stack([translation_homography(*si) for si in s])
+        )
+        img = _cg_map(
+            stack, hs, p, blur_sigma, sol["noise_sigma"], masks, sol["prior"], reg, img, cg_iters
+        )
         method_used = "map-cg"
     if not np.isfinite(img).all():
         return _fallback(ref, p, "MAP solution not finite", sigma, n, s)
@@ -1598,11 +1906,19 @@ def _reconstruct(
     kept = sol.get("kept")
     if kept is not None and not kept.all():
         dropped = ", ".join(str(i) for i in np.flatnonzero(~kept))
-        reason = (reason + "; " if reason else "") + f"frames {dropped} left out (registration failed or they disagree with the reference)"
+        reason = (
+            reason + "; " if reason else ""
+        ) + f"frames {dropped} left out (registration failed or they disagree with the reference)"
     eff = float(np.sum(weights[1:]))
     if eff < 0.05:
-        return _fallback(ref, p, "no frame other than the reference agrees with it (registration errors too large)",
-                         sigma, n, sol["shifts"])
+        return _fallback(
+            ref,
+            p,
+            "no frame other than the reference agrees with it (registration errors too large)",
+            sigma,
+            n,
+            sol["shifts"],
+        )
     return SRResult(
         image=img,
         method=method_used,
@@ -1616,7 +1932,10 @@ def _reconstruct(
 
 
 def reconstruct_colour(
-    frames_bgr: Sequence[np.ndarray], shifts: np.ndarray | Sequence[Sequence[float]] | None, factor: int, **kwargs
+    frames_bgr: Sequence[np.ndarray],
+    shifts: np.ndarray | Sequence[Sequence[float]] | None,
+    factor: int,
+    **kwargs,
 ) -> SRResult:
     """Super-resolve colour frames: luminance by :func:`reconstruct`, chroma upsampled.
 
@@ -1644,7 +1963,9 @@ def reconstruct_colour(
     p = res.factor
     h, w = arrs[0].shape[:2]
     ycc0 = cv2.cvtColor(arrs[0].astype(np.float32), cv2.COLOR_BGR2YCrCb)
-    chroma = cv2.resize(np.ascontiguousarray(ycc0[..., 1:]), (w * p, h * p), interpolation=cv2.INTER_CUBIC)
+    chroma = cv2.resize(
+        np.ascontiguousarray(ycc0[..., 1:]), (w * p, h * p), interpolation=cv2.INTER_CUBIC
+    )
     # YCrCb offsets: OpenCV uses delta = 128 for 8-bit, 0.5 for float in [0, 1]; frames keep their scale,
     # so the offset was taken from the data's own convention by converting back with OpenCV
     merged = cv2.merge([res.image.astype(np.float32), chroma[..., 0], chroma[..., 1]])

@@ -48,6 +48,7 @@ References
 docs/METHODS.md (super-resolution, the MAP estimate of eq. 9);
 docs/design-notes.md ("Onboard budget": the measured memory model).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -63,9 +64,18 @@ from subpix_ros.core.validity import common_valid_box
 __all__ = ["BudgetPlan", "estimate_peak_mb", "plan_reconstruction", "reconstruct_within_budget"]
 
 #: B per LR px of the set's frame-independent working memory, (factor, colour) -> bytes.
-_FIXED_B = {(2, True): 115, (3, True): 320, (4, True): 620, (2, False): 70, (3, False): 180, (4, False): 300}
+_FIXED_B = {
+    (2, True): 115,
+    (3, True): 320,
+    (4, True): 620,
+    (2, False): 70,
+    (3, False): 180,
+    (4, False): 300,
+}
 _PER_FRAME_B = 21  # B per LR px per frame
-_BASE_MB = 28.0  # fixed overheads (caches, small arrays; small tiles measured up to +10 MB over the rest)
+_BASE_MB = (
+    28.0  # fixed overheads (caches, small arrays; small tiles measured up to +10 MB over the rest)
+)
 
 
 def estimate_peak_mb(n_frames: int, shape: tuple[int, int], factor: int, colour: bool) -> float:
@@ -123,23 +133,40 @@ class BudgetPlan:
         return bool(self.reductions)
 
     def as_dict(self) -> dict:
-        return {"n_frames": self.n_frames, "grid": list(self.grid), "overlap": self.overlap,
-                "estimate_mb": round(self.estimate_mb, 1), "unbounded_mb": round(self.unbounded_mb, 1),
-                "max_memory_mb": self.max_memory_mb, "bicubic": self.bicubic, "reductions": list(self.reductions)}
+        return {
+            "n_frames": self.n_frames,
+            "grid": list(self.grid),
+            "overlap": self.overlap,
+            "estimate_mb": round(self.estimate_mb, 1),
+            "unbounded_mb": round(self.unbounded_mb, 1),
+            "max_memory_mb": self.max_memory_mb,
+            "bicubic": self.bicubic,
+            "reductions": list(self.reductions),
+        }
 
 
-def _tiled_mb(n: int, shape: tuple[int, int], grid: tuple[int, int], overlap: int, factor: int,
-              colour: bool) -> float:
+def _tiled_mb(
+    n: int, shape: tuple[int, int], grid: tuple[int, int], overlap: int, factor: int, colour: bool
+) -> float:
     """Predicted working memory of a tiled plan: the largest tile with its overlap, plus the output."""
     th = -(-shape[0] // grid[0]) + (2 * overlap if grid[0] > 1 else 0)
     tw = -(-shape[1] // grid[1]) + (2 * overlap if grid[1] > 1 else 0)
-    return estimate_peak_mb(n, (min(th, shape[0]), min(tw, shape[1])), factor, colour) + \
-        _output_mb(shape, factor, colour)
+    return estimate_peak_mb(n, (min(th, shape[0]), min(tw, shape[1])), factor, colour) + _output_mb(
+        shape, factor, colour
+    )
 
 
-def plan_reconstruction(n_frames: int, shape: tuple[int, int], factor: int, max_memory_mb: float | None, *,
-                        colour: bool = True, min_frames: int = 2, overlap: int = 32,
-                        min_tile: int = 128) -> BudgetPlan:
+def plan_reconstruction(
+    n_frames: int,
+    shape: tuple[int, int],
+    factor: int,
+    max_memory_mb: float | None,
+    *,
+    colour: bool = True,
+    min_frames: int = 2,
+    overlap: int = 32,
+    min_tile: int = 128,
+) -> BudgetPlan:
     """Plan a reconstruction of ``n_frames`` frames of ``shape`` (LR rows, cols) within ``max_memory_mb``.
 
     Parameters
@@ -182,11 +209,15 @@ def plan_reconstruction(n_frames: int, shape: tuple[int, int], factor: int, max_
         return plan
     min_frames = int(min(max(2, min_frames), n_frames))
     max_r, max_c = max(1, h // min_tile), max(1, w // min_tile)
-    grids = sorted(((r, c) for r in range(1, max_r + 1) for c in range(1, max_c + 1) if (r, c) != (1, 1)),
-                   key=lambda g: (g[0] * g[1], abs(h / g[0] - w / g[1])))
+    grids = sorted(
+        ((r, c) for r in range(1, max_r + 1) for c in range(1, max_c + 1) if (r, c) != (1, 1)),
+        key=lambda g: (g[0] * g[1], abs(h / g[0] - w / g[1])),
+    )
     for n in range(n_frames, min_frames - 1, -1):  # all frames first, then fewer
         whole = estimate_peak_mb(n, (h, w), factor, colour)
-        options = [((1, 1), whole)] + [(g, _tiled_mb(n, (h, w), g, overlap, factor, colour)) for g in grids]
+        options = [((1, 1), whole)] + [
+            (g, _tiled_mb(n, (h, w), g, overlap, factor, colour)) for g in grids
+        ]
         for g, mb in options:
             if mb <= max_memory_mb:
                 red = []
@@ -194,11 +225,23 @@ def plan_reconstruction(n_frames: int, shape: tuple[int, int], factor: int, max_
                     red.append(f"{n} of {n_frames} frames")
                 if g != (1, 1):
                     red.append(f"{g[0]}x{g[1]} tiles with {overlap} px overlap")
-                return BudgetPlan(n, g, overlap if g != (1, 1) else 0, mb, unbounded, max_memory_mb, False, red)
+                return BudgetPlan(
+                    n, g, overlap if g != (1, 1) else 0, mb, unbounded, max_memory_mb, False, red
+                )
     mb = _output_mb((h, w), factor, colour)
-    return BudgetPlan(1, (1, 1), 0, mb, unbounded, max_memory_mb, True,
-                      [f"bicubic upscale of the reference: no plan with >= {min_frames} frames and "
-                       f"{min_tile} px tiles fits {max_memory_mb:g} MB"])
+    return BudgetPlan(
+        1,
+        (1, 1),
+        0,
+        mb,
+        unbounded,
+        max_memory_mb,
+        True,
+        [
+            f"bicubic upscale of the reference: no plan with >= {min_frames} frames and "
+            f"{min_tile} px tiles fits {max_memory_mb:g} MB"
+        ],
+    )
 
 
 def _spans(n: int, parts: int) -> list[tuple[int, int]]:
@@ -207,10 +250,18 @@ def _spans(n: int, parts: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
-def reconstruct_within_budget(frames: Sequence[np.ndarray], shifts: np.ndarray, factor: int,
-                              masks: Sequence[np.ndarray] | None = None, *, max_memory_mb: float | None = None,
-                              min_frames: int = 2, overlap: int = 32, min_tile: int = 128,
-                              **kw) -> tuple[SRResult, BudgetPlan]:
+def reconstruct_within_budget(
+    frames: Sequence[np.ndarray],
+    shifts: np.ndarray,
+    factor: int,
+    masks: Sequence[np.ndarray] | None = None,
+    *,
+    max_memory_mb: float | None = None,
+    min_frames: int = 2,
+    overlap: int = 32,
+    min_tile: int = 128,
+    **kw,
+) -> tuple[SRResult, BudgetPlan]:
     """:func:`~subpix_ros.core.superres_masks.reconstruct_aligned` planned to fit ``max_memory_mb``.
 
     Parameters
@@ -248,16 +299,35 @@ def reconstruct_within_budget(frames: Sequence[np.ndarray], shifts: np.ndarray, 
     h, w = ref.shape[:2]
     box = (0, h, 0, w) if masks is None else common_valid_box(masks)
     region = (h, w) if box is None else (box[1] - box[0], box[3] - box[2])
-    plan = plan_reconstruction(len(frames), region, factor, max_memory_mb, colour=colour,
-                               min_frames=min_frames, overlap=overlap,
-                               min_tile=min_tile if box is not None else max(h, w) + 1)
+    plan = plan_reconstruction(
+        len(frames),
+        region,
+        factor,
+        max_memory_mb,
+        colour=colour,
+        min_frames=min_frames,
+        overlap=overlap,
+        min_tile=min_tile if box is not None else max(h, w) + 1,
+    )
     if plan.bicubic:
         # float32 for colour, as the colour reconstruction returns (and half the memory of float64)
-        up = bicubic_upscale(ref, factor) if not colour else cv2.resize(
-            ref.astype(np.float32), (w * factor, h * factor), interpolation=cv2.INTER_CUBIC)
-        res = SRResult(up, "bicubic", True, plan.reductions[0],
-                       weights=np.r_[1.0, np.zeros(len(frames) - 1)], shifts=np.asarray(shifts, float),
-                       shift_sigma=np.zeros(len(frames)), factor=factor)
+        up = (
+            bicubic_upscale(ref, factor)
+            if not colour
+            else cv2.resize(
+                ref.astype(np.float32), (w * factor, h * factor), interpolation=cv2.INTER_CUBIC
+            )
+        )
+        res = SRResult(
+            up,
+            "bicubic",
+            True,
+            plan.reductions[0],
+            weights=np.r_[1.0, np.zeros(len(frames) - 1)],
+            shifts=np.asarray(shifts, float),
+            shift_sigma=np.zeros(len(frames)),
+            factor=factor,
+        )
         return res, plan
     n = plan.n_frames
     frames_n = list(frames[:n])
@@ -269,8 +339,10 @@ def reconstruct_within_budget(frames: Sequence[np.ndarray], shifts: np.ndarray, 
     p = factor
     rows, cols = _spans(r1 - r0, plan.grid[0]), _spans(c1 - c0, plan.grid[1])
     # the central tile first: its noise estimate is passed to the others, so the tiles agree
-    order = sorted(((i, j) for i in range(len(rows)) for j in range(len(cols))),
-                   key=lambda t: abs(t[0] - (len(rows) - 1) / 2) + abs(t[1] - (len(cols) - 1) / 2))
+    order = sorted(
+        ((i, j) for i in range(len(rows)) for j in range(len(cols))),
+        key=lambda t: abs(t[0] - (len(rows) - 1) / 2) + abs(t[1] - (len(cols) - 1) / 2),
+    )
     out = None
     first: SRResult | None = None
     fell = []
@@ -282,10 +354,16 @@ def reconstruct_within_budget(frames: Sequence[np.ndarray], shifts: np.ndarray, 
         tkw = dict(kw)
         if first is not None and tkw.get("noise_sigma") is None and np.isfinite(first.noise_sigma):
             tkw["noise_sigma"] = float(first.noise_sigma)
-        res = reconstruct_aligned([np.asarray(f)[e0:e1, f0:f1] for f in frames_n], shifts_n, factor, **tkw)
+        res = reconstruct_aligned(
+            [np.asarray(f)[e0:e1, f0:f1] for f in frames_n], shifts_n, factor, **tkw
+        )
         if out is None:
-            out = np.empty((p * h, p * w) + res.image.shape[2:], np.float32 if colour else res.image.dtype)
-        out[p * a0:p * a1, p * b0:p * b1] = res.image[p * (a0 - e0):p * (a1 - e0), p * (b0 - f0):p * (b1 - f0)]
+            out = np.empty(
+                (p * h, p * w) + res.image.shape[2:], np.float32 if colour else res.image.dtype
+            )
+        out[p * a0 : p * a1, p * b0 : p * b1] = res.image[
+            p * (a0 - e0) : p * (a1 - e0), p * (b0 - f0) : p * (b1 - f0)
+        ]
         if res.fell_back:
             fell.append(f"tile ({i}, {j}): {res.reason}")
         if first is None:

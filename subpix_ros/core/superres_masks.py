@@ -12,6 +12,7 @@ reference frame, which is the only frame that observes it. Output grid as
 factor*i .. factor*i + factor - 1. Masks that are not rectangles go to
 :func:`reconstruct` unchanged.
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -27,8 +28,13 @@ __all__ = ["reconstruct_aligned", "bicubic_outside"]
 MIN_SIDE = 32  # LR px: a smaller common rectangle is not worth the fast path
 
 
-def reconstruct_aligned(frames: Sequence[np.ndarray], shifts: np.ndarray, factor: int,
-                        masks: Sequence[np.ndarray] | None = None, **kw) -> SRResult:
+def reconstruct_aligned(
+    frames: Sequence[np.ndarray],
+    shifts: np.ndarray,
+    factor: int,
+    masks: Sequence[np.ndarray] | None = None,
+    **kw,
+) -> SRResult:
     """:func:`reconstruct` (mono) or :func:`reconstruct_colour` (BGR) with strip masks handled fast."""
     colour = np.asarray(frames[0]).ndim == 3
     solve = reconstruct_colour if colour else reconstruct
@@ -43,12 +49,14 @@ def reconstruct_aligned(frames: Sequence[np.ndarray], shifts: np.ndarray, factor
         return solve(frames, shifts, factor, **kw)
     res = solve([np.asarray(f)[r0:r1, c0:c1] for f in frames], shifts, factor, **kw)
     out = np.empty((factor * h, factor * w) + res.image.shape[2:], dtype=res.image.dtype)
-    out[factor * r0:factor * r1, factor * c0:factor * c1] = res.image
+    out[factor * r0 : factor * r1, factor * c0 : factor * c1] = res.image
     bicubic_outside(out, np.asarray(frames[0]), factor, box)
     return replace(res, image=out)
 
 
-def bicubic_outside(out: np.ndarray, ref: np.ndarray, p: int, box: tuple[int, int, int, int]) -> None:
+def bicubic_outside(
+    out: np.ndarray, ref: np.ndarray, p: int, box: tuple[int, int, int, int]
+) -> None:
     """Fill ``out`` outside the output box of ``box`` with the bicubic upscale of ``ref`` (in place).
 
     Only the strips are upscaled, each from the reference strip plus 4 LR px
@@ -65,7 +73,9 @@ def bicubic_outside(out: np.ndarray, ref: np.ndarray, p: int, box: tuple[int, in
             return
         e0, e1, f0, f1 = max(a0 - ctx, 0), min(a1 + ctx, h), max(b0 - ctx, 0), min(b1 + ctx, w)
         up = bicubic_upscale(ref[e0:e1, f0:f1], p)
-        out[p * a0 : p * a1, p * b0 : p * b1] = up[p * (a0 - e0) : p * (a1 - e0), p * (b0 - f0) : p * (b1 - f0)]
+        out[p * a0 : p * a1, p * b0 : p * b1] = up[
+            p * (a0 - e0) : p * (a1 - e0), p * (b0 - f0) : p * (b1 - f0)
+        ]
 
     strip(0, r0, 0, w)  # top
     strip(r1, h, 0, w)  # bottom

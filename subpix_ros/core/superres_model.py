@@ -24,6 +24,7 @@ to frame-n LR pixel coordinates (pixel centres at integers); a translation
 of the reference covers HR pixels ``p*i .. p*i+p-1``; HR pixel k has its
 centre at LR coordinate ``(k + 0.5)/p - 0.5``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -84,7 +85,9 @@ def blur(x: np.ndarray, sigma: float) -> np.ndarray:
     if sigma <= 0:
         return np.asarray(x, dtype=np.float64)
     g = gaussian_kernel(sigma)
-    return cv2.sepFilter2D(np.asarray(x, dtype=np.float64), cv2.CV_64F, g, g, borderType=cv2.BORDER_CONSTANT)
+    return cv2.sepFilter2D(
+        np.asarray(x, dtype=np.float64), cv2.CV_64F, g, g, borderType=cv2.BORDER_CONSTANT
+    )
 
 
 def decimate_mean(z: np.ndarray, p: int, q: int) -> np.ndarray:
@@ -140,7 +143,12 @@ class FrameOperator:
         hr_r = p * (y0 + 0.5) - 0.5  # HR index coordinates
         hr_c = q * (x0 + 0.5) - 0.5
         border = int(np.ceil(3.0 * self.blur_sigma * max(p, q)))
-        ok = (hr_r >= border) & (hr_r <= hh - 1 - border) & (hr_c >= border) & (hr_c <= hw - 1 - border)
+        ok = (
+            (hr_r >= border)
+            & (hr_r <= hh - 1 - border)
+            & (hr_c >= border)
+            & (hr_c <= hw - 1 - border)
+        )
         r0 = np.clip(np.floor(hr_r), 0, hh - 2).astype(np.int64)
         c0 = np.clip(np.floor(hr_c), 0, hw - 2).astype(np.int64)
         fr = np.clip(hr_r - r0, 0.0, 1.0)
@@ -154,14 +162,22 @@ class FrameOperator:
     def forward(self, x: np.ndarray) -> np.ndarray:
         """``A_n x``: HR image (hr_shape) -> LR frame (lr_shape), invalid pixels 0."""
         bx = blur(x, self.blur_sigma * self.p).ravel()
-        sub = (bx[self._idx] * self._wts).sum(axis=0).reshape(self.lr_shape[0] * self.p, self.lr_shape[1] * self.q)
+        sub = (
+            (bx[self._idx] * self._wts)
+            .sum(axis=0)
+            .reshape(self.lr_shape[0] * self.p, self.lr_shape[1] * self.q)
+        )
         return decimate_mean(sub, self.p, self.q) * self.valid
 
     def adjoint(self, y: np.ndarray) -> np.ndarray:
         """``A_n^T y``: LR frame -> HR image; exact adjoint of :meth:`forward`."""
-        sub = decimate_mean_adjoint(np.asarray(y, dtype=np.float64) * self.valid, self.p, self.q).ravel()
+        sub = decimate_mean_adjoint(
+            np.asarray(y, dtype=np.float64) * self.valid, self.p, self.q
+        ).ravel()
         n = self.hr_shape[0] * self.hr_shape[1]
-        acc = np.bincount(self._idx.ravel(), weights=(self._wts * sub[None, :]).ravel(), minlength=n)
+        acc = np.bincount(
+            self._idx.ravel(), weights=(self._wts * sub[None, :]).ravel(), minlength=n
+        )
         return blur(acc.reshape(self.hr_shape), self.blur_sigma * self.p)
 
 

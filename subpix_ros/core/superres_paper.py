@@ -16,6 +16,7 @@ by default):
   has a DC (brightness) gain error for even factors (1.14 at p = 2, w = 6 in 2-D).
   :func:`windowed_filter` returns it normalised to unit DC gain by default.
 """
+
 from __future__ import annotations
 
 import functools
@@ -133,7 +134,9 @@ def windowed_filter(p: int, w: int, normalise: bool = True) -> tuple[np.ndarray,
     return g, c
 
 
-def windowed_solution(y: np.ndarray, p: int, q: int, w: int = 6, u: int | None = None, normalise: bool = True) -> np.ndarray:
+def windowed_solution(
+    y: np.ndarray, p: int, q: int, w: int = 6, u: int | None = None, normalise: bool = True
+) -> np.ndarray:
     """Eq. 7 as a convolution: one fixed separable filter on the interleaved ``y``.
 
     ``y`` (sums) has the HR grid's shape; the result (same shape) is the
@@ -149,7 +152,9 @@ def windowed_solution(y: np.ndarray, p: int, q: int, w: int = 6, u: int | None =
     src = np.asarray(y)
     if src.dtype not in (np.float32, np.float64):
         src = src.astype(np.float64)
-    return cv2.sepFilter2D(src, cv2.CV_64F, gc, gr, anchor=(cc, cr), borderType=cv2.BORDER_REFLECT_101)
+    return cv2.sepFilter2D(
+        src, cv2.CV_64F, gc, gr, anchor=(cc, cr), borderType=cv2.BORDER_REFLECT_101
+    )
 
 
 def grid_offsets(shifts: np.ndarray, p: int, q: int, tol: float = 0.1) -> np.ndarray | None:
@@ -181,7 +186,9 @@ def interleave(
     """
     h, w = frames[0].shape
     hh, ww = h * p, w * q
-    y = np.empty((hh, ww), dtype=dtype)  # every entry is written below: by a frame, by hole filling, or 0
+    y = np.empty(
+        (hh, ww), dtype=dtype
+    )  # every entry is written below: by a frame, by hole filling, or 0
     filled = np.zeros((hh, ww), dtype=bool)
 
     def span(t: int, n: int, f: int) -> tuple[slice, slice]:
@@ -192,18 +199,24 @@ def interleave(
         return slice(i0, max(i0, i1)), slice(k0, k0 + f * max(0, i1 - i0), f)
 
     offsets = np.asarray(offsets, dtype=np.int64)
-    phases: dict[tuple[int, int], list[int]] = {(a, b): [] for a in range(p) for b in range(q)}  # first HR row/col
+    phases: dict[tuple[int, int], list[int]] = {
+        (a, b): [] for a in range(p) for b in range(q)
+    }  # first HR row/col
     for n_, (tr, tc) in enumerate(offsets):  # group frames by sub-pixel phase
         phases[(-int(tr)) % p, (-int(tc)) % q].append(n_)
     holes_r, holes_c = [], []
     for (first_r, first_c), members in phases.items():  # loop over phases / frames, not pixels
         plane = (slice(first_r, None, p), slice(first_c, None, q))
         hp_, wp_ = len(range(first_r, hh, p)), len(range(first_c, ww, q))
-        if len(members) == 1:  # one frame: write its samples straight into y; holes = outside its rectangle
+        if (
+            len(members) == 1
+        ):  # one frame: write its samples straight into y; holes = outside its rectangle
             n_ = members[0]
             (ri, rk), (ci, ck) = span(int(offsets[n_, 0]), h, p), span(int(offsets[n_, 1]), w, q)
             # the factor in y's own precision (exact: small integer), so the product runs in that precision
-            np.multiply(np.asarray(frames[n_])[ri, ci], y.dtype.type(p * q), out=y[rk, ck], casting="unsafe")
+            np.multiply(
+                np.asarray(frames[n_])[ri, ci], y.dtype.type(p * q), out=y[rk, ck], casting="unsafe"
+            )
             filled[rk, ck] = True
             a0, a1 = (rk.start - first_r) // p, (rk.start - first_r) // p + (ri.stop - ri.start)
             b0, b1 = (ck.start - first_c) // q, (ck.start - first_c) // q + (ci.stop - ci.start)
@@ -214,15 +227,26 @@ def interleave(
             # holes: whole rows outside [a0, a1), then the columns outside [b0, b1) of the rows inside
             out_rows = np.concatenate((np.arange(a0), np.arange(a1, hp_)))
             out_cols = np.concatenate((np.arange(b0), np.arange(b1, wp_)))
-            rr = np.concatenate((np.repeat(out_rows, wp_), np.tile(np.arange(a0, a1), out_cols.size)))
-            cc = np.concatenate((np.tile(np.arange(wp_), out_rows.size), np.repeat(out_cols, a1 - a0)))
+            rr = np.concatenate(
+                (np.repeat(out_rows, wp_), np.tile(np.arange(a0, a1), out_cols.size))
+            )
+            cc = np.concatenate(
+                (np.tile(np.arange(wp_), out_rows.size), np.repeat(out_cols, a1 - a0))
+            )
         else:  # no frame, or several frames on one phase: average them on that phase's sub-grid
             acc = np.zeros((hp_, wp_))
             cnt = np.zeros((hp_, wp_))
             for n_ in members:
-                (ri, rk), (ci, ck) = span(int(offsets[n_, 0]), h, p), span(int(offsets[n_, 1]), w, q)
-                rs = slice((rk.start - first_r) // p, (rk.start - first_r) // p + (ri.stop - ri.start))
-                cs = slice((ck.start - first_c) // q, (ck.start - first_c) // q + (ci.stop - ci.start))
+                (ri, rk), (ci, ck) = (
+                    span(int(offsets[n_, 0]), h, p),
+                    span(int(offsets[n_, 1]), w, q),
+                )
+                rs = slice(
+                    (rk.start - first_r) // p, (rk.start - first_r) // p + (ri.stop - ri.start)
+                )
+                cs = slice(
+                    (ck.start - first_c) // q, (ck.start - first_c) // q + (ci.stop - ci.start)
+                )
                 acc[rs, cs] += p * q * np.asarray(frames[n_], dtype=np.float64)[ri, ci]
                 cnt[rs, cs] += 1
             y[plane] = np.where(cnt > 0, acc / np.maximum(cnt, 1), 0.0)
@@ -230,7 +254,9 @@ def interleave(
             rr, cc = np.nonzero(cnt == 0)
         holes_r.append(first_r + p * rr)
         holes_c.append(first_c + q * cc)
-    if not holes_r:  # every phase plane covered by its frame (e.g. all shifts <= 0): nothing to fill
+    if (
+        not holes_r
+    ):  # every phase plane covered by its frame (e.g. all shifts <= 0): nothing to fill
         return y, filled
     hr, hc = np.concatenate(holes_r).astype(np.intp), np.concatenate(holes_c).astype(np.intp)
     if hr.size:

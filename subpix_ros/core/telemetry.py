@@ -25,6 +25,7 @@ Frames and sign conventions
   convert, exactly as mavros publishes ``/mavros/imu/data`` and
   ``/mavros/local_position/velocity_local``.
 """
+
 from __future__ import annotations
 
 import bisect
@@ -93,7 +94,9 @@ class TelemetrySample:
     def __post_init__(self) -> None:
         v = np.asarray(self.vel_ned_mps, dtype=np.float64).reshape(-1)
         if v.shape != (3,):
-            raise ValueError(f"vel_ned_mps must have 3 components (north, east, down), got shape {v.shape}")
+            raise ValueError(
+                f"vel_ned_mps must have 3 components (north, east, down), got shape {v.shape}"
+            )
         v.setflags(write=False)
         object.__setattr__(self, "vel_ned_mps", v)
 
@@ -142,7 +145,9 @@ def _quat_from_euler_zyx(roll: float, pitch: float, yaw: float) -> np.ndarray:
     )
 
 
-def attitude_quaternion_enu(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+def attitude_quaternion_enu(
+    roll: float, pitch: float, yaw: float
+) -> tuple[float, float, float, float]:
     """Orientation of the FLU body w.r.t. ENU from MAVLink NED/FRD Euler angles.
 
     ``q_ENU<-FLU = q_ENU<-NED * q_NED<-FRD(roll, pitch, yaw) * q_FRD<-FLU``
@@ -193,9 +198,17 @@ def sample_from_enu(
     roll/pitch unknown (0)."""
     ve, vn, vu = (float(c) for c in vel_enu_mps)
     course = course_from_velocity(vn, ve)
-    return TelemetrySample(t=t, lat_deg=lat_deg, lon_deg=lon_deg, alt_msl_m=alt_msl_m, height_agl_m=float(height_agl_m),
-                           vel_ned_mps=np.array([vn, ve, -vu]), ground_speed_mps=math.hypot(ve, vn), course_rad=course,
-                           yaw_rad=course if heading_rad is None else heading_rad)
+    return TelemetrySample(
+        t=t,
+        lat_deg=lat_deg,
+        lon_deg=lon_deg,
+        alt_msl_m=alt_msl_m,
+        height_agl_m=float(height_agl_m),
+        vel_ned_mps=np.array([vn, ve, -vu]),
+        ground_speed_mps=math.hypot(ve, vn),
+        course_rad=course,
+        yaw_rad=course if heading_rad is None else heading_rad,
+    )
 
 
 # --------------------------------------------------------------------------- #
@@ -244,7 +257,10 @@ def validate_sample(
     if s.ground_speed_mps < 0.0:
         return False, f"negative ground speed ({s.ground_speed_mps:.3f} m/s)"
     if s.ground_speed_mps > max_ground_speed_mps:
-        return False, f"absurd ground speed ({s.ground_speed_mps:.1f} m/s > {max_ground_speed_mps:g})"
+        return (
+            False,
+            f"absurd ground speed ({s.ground_speed_mps:.1f} m/s > {max_ground_speed_mps:g})",
+        )
     if not 0.0 <= s.course_rad < _TWO_PI:
         return False, f"course out of range ({s.course_rad} rad, expected [0, 2 pi))"
     return True, ""
@@ -444,11 +460,15 @@ class TelemetryBuffer:
                 st.out_of_order += 1
                 if self.out_of_order == "reject":
                     st.out_of_order_rejected += 1
-                    st.last_reason = f"out-of-order timestamp {sample.t:.6f} < newest {self._times[-1]:.6f}"
+                    st.last_reason = (
+                        f"out-of-order timestamp {sample.t:.6f} < newest {self._times[-1]:.6f}"
+                    )
                     return False, st.last_reason
                 if sample.t < self._times[-1] - self.max_age_s:
                     st.too_old += 1
-                    st.last_reason = f"sample {self._times[-1] - sample.t:.3f} s older than newest (> max_age_s)"
+                    st.last_reason = (
+                        f"sample {self._times[-1] - sample.t:.3f} s older than newest (> max_age_s)"
+                    )
                     return False, st.last_reason
                 self._times.insert(i, sample.t)
                 self._samples.insert(i, sample)
@@ -501,8 +521,13 @@ class TelemetryBuffer:
             if t > t1:
                 age = t - t1
                 if age > self.stale_after_s:
-                    return None, f"telemetry stale: newest sample {age:.3f} s before {t:.3f} (> {self.stale_after_s:g} s)"
-                return replace(self._samples[-1], t=t, time_boot_ms=None), f"held newest sample ({age:.3f} s old)"
+                    return (
+                        None,
+                        f"telemetry stale: newest sample {age:.3f} s before {t:.3f} (> {self.stale_after_s:g} s)",
+                    )
+                return replace(
+                    self._samples[-1], t=t, time_boot_ms=None
+                ), f"held newest sample ({age:.3f} s old)"
             i = bisect.bisect_left(self._times, t)
             if self._times[i] == t:
                 return self._samples[i], ""
@@ -516,7 +541,9 @@ class TelemetryBuffer:
 # --------------------------------------------------------------------------- #
 # Trajectories
 # --------------------------------------------------------------------------- #
-def _natural_cubic_spline(x: np.ndarray, y: np.ndarray, xq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _natural_cubic_spline(
+    x: np.ndarray, y: np.ndarray, xq: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Value and first derivative at ``xq`` of the natural cubic spline through (x, y).
 
     Second derivatives M solve the standard tridiagonal system
@@ -652,7 +679,11 @@ def trajectory_straight(
     of the Seneca strip, 58 m above ground, 8 m/s, course 60 deg.
     Sampled at ``rate_hz`` for ``duration_s`` (both ends included).
     """
-    for name, val in (("duration_s", duration_s), ("rate_hz", rate_hz), ("height_agl_m", height_agl_m)):
+    for name, val in (
+        ("duration_s", duration_s),
+        ("rate_hz", rate_hz),
+        ("height_agl_m", height_agl_m),
+    ):
         if not (math.isfinite(val) and val > 0):
             raise ValueError(f"{name} must be > 0, got {val}")
     if not (math.isfinite(speed_mps) and speed_mps >= 0):

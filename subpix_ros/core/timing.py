@@ -29,6 +29,7 @@ Nothing here returns a negative, infinite or NaN interval silently: bad input
 gives a result with ``ok=False`` and a reason (or ``ValueError`` where the
 function returns a bare number).
 """
+
 from __future__ import annotations
 
 import math
@@ -95,7 +96,9 @@ def detector_angle(p: float) -> float:
     return math.atan(1.0 / (p - 1.0))
 
 
-def image_speed_px_s(speed_mps: float, height_m: float, focal_length_m: float, pixel_pitch_m: float) -> float:
+def image_speed_px_s(
+    speed_mps: float, height_m: float, focal_length_m: float, pixel_pitch_m: float
+) -> float:
     """Image motion rate ``s = f V / (H a)`` in pixels per second (METHODS.md B, text of eq. 1).
 
     ``speed_mps`` may be 0 (hovering); negative or non-finite speed, and
@@ -103,7 +106,11 @@ def image_speed_px_s(speed_mps: float, height_m: float, focal_length_m: float, p
     """
     if not (math.isfinite(speed_mps) and speed_mps >= 0.0):
         raise ValueError(f"ground speed must be finite and >= 0 m/s (got {speed_mps!r})")
-    for name, val in (("height_m", height_m), ("focal_length_m", focal_length_m), ("pixel_pitch_m", pixel_pitch_m)):
+    for name, val in (
+        ("height_m", height_m),
+        ("focal_length_m", focal_length_m),
+        ("pixel_pitch_m", pixel_pitch_m),
+    ):
         if not _finite_positive(val):
             raise ValueError(f"{name} must be finite and > 0 (got {val!r})")
     return focal_length_m * speed_mps / (height_m * pixel_pitch_m)
@@ -132,22 +139,36 @@ def frame_interval(
     phi = float(phi_rad) if isinstance(phi_rad, (int, float)) else float("nan")
 
     def fail(reason: str) -> IntervalResult:
-        return IntervalResult(False, reason, None, phi if math.isfinite(phi) else 0.0, float(p) if isinstance(p, (int, float)) else float("nan"))
+        return IntervalResult(
+            False,
+            reason,
+            None,
+            phi if math.isfinite(phi) else 0.0,
+            float(p) if isinstance(p, (int, float)) else float("nan"),
+        )
 
     if not (isinstance(p, (int, float)) and math.isfinite(p)) or p < 2:
         return fail(f"p must be a finite number >= 2 (got {p!r})")
     if not (isinstance(speed_mps, (int, float)) and math.isfinite(speed_mps)):
         return fail(f"ground speed is not a finite number ({speed_mps!r})")
     if speed_mps <= 0:
-        return fail(f"ground speed {speed_mps:g} m/s <= 0: the carrier does not move, no interval gives a 1/p step")
-    for name, val in (("height", height_m), ("focal length", focal_length_m), ("pixel pitch", pixel_pitch_m)):
+        return fail(
+            f"ground speed {speed_mps:g} m/s <= 0: the carrier does not move, no interval gives a 1/p step"
+        )
+    for name, val in (
+        ("height", height_m),
+        ("focal length", focal_length_m),
+        ("pixel pitch", pixel_pitch_m),
+    ):
         if not _finite_positive(val):
             return fail(f"{name} must be finite and > 0 (got {val!r})")
     if not math.isfinite(phi):
         return fail(f"phi is not a finite angle ({phi_rad!r})")
     c = math.cos(phi)
     if c <= 1e-12:
-        return fail(f"cos(phi) <= 0 for phi = {math.degrees(phi):g} deg: the detector axis is across the track")
+        return fail(
+            f"cos(phi) <= 0 for phi = {math.degrees(phi):g} deg: the detector axis is across the track"
+        )
     t = pixel_pitch_m * height_m * c / (p * focal_length_m * speed_mps)
     if not (math.isfinite(t) and t > 0):
         return fail(f"interval not finite ({t!r})")
@@ -261,7 +282,9 @@ class FrameSelector:
         self._acc = (0.0, 0.0)
         self._have_kept = False
 
-    def _keep(self, stamp_s: float, reason: str, step: Optional[Tuple[float, float]]) -> FrameDecision:
+    def _keep(
+        self, stamp_s: float, reason: str, step: Optional[Tuple[float, float]]
+    ) -> FrameDecision:
         self._prev_stamp = stamp_s
         self._acc = (0.0, 0.0)
         self._have_kept = True
@@ -287,7 +310,9 @@ class FrameSelector:
             return self._keep(stamp_s, "first frame", None)
         dt = stamp_s - self._prev_stamp
         if dt <= 0:
-            return self._keep(stamp_s, f"frame stamp did not increase (dt = {dt:g} s): restarting selection", None)
+            return self._keep(
+                stamp_s, f"frame stamp did not increase (dt = {dt:g} s): restarting selection", None
+            )
         if rate_px_s is None:
             return self._keep(stamp_s, "no telemetry: keeping every frame", None)
         ru, rv = (float(rate_px_s[0]), float(rate_px_s[1]))
@@ -297,7 +322,9 @@ class FrameSelector:
             age = stamp_s - float(rate_stamp_s)
             if not math.isfinite(age) or age > self.max_age_s:
                 return self._keep(
-                    stamp_s, f"telemetry stale ({age:.3g} s old > {self.max_age_s:g} s): keeping every frame", None
+                    stamp_s,
+                    f"telemetry stale ({age:.3g} s old > {self.max_age_s:g} s): keeping every frame",
+                    None,
                 )
         # Integrate the motion since the previous frame (kept or not).
         acc = (self._acc[0] + ru * dt, self._acc[1] + rv * dt)
@@ -307,7 +334,11 @@ class FrameSelector:
         target = self.target_px
         if self.mode == "step":
             if nxt > target + self.tolerance_px:
-                return self._keep(stamp_s, f"frame rate too low for a 1/p step: {nxt:.3g} px per frame > {target:.3g} px; keeping every frame", acc)
+                return self._keep(
+                    stamp_s,
+                    f"frame rate too low for a 1/p step: {nxt:.3g} px per frame > {target:.3g} px; keeping every frame",
+                    acc,
+                )
             if norm + 0.5 * nxt >= target:
                 return self._keep(stamp_s, f"step {norm:.3g} px ~ 1/p = {target:.3g} px", acc)
             self._acc = acc
@@ -316,6 +347,15 @@ class FrameSelector:
         frac = norm - math.floor(norm)
         dist = abs(((frac - target) + 0.5) % 1.0 - 0.5)
         if norm >= target - self.tolerance_px and dist <= self.tolerance_px:
-            return self._keep(stamp_s, f"sub-pixel phase {frac:.3g} px ~ 1/p = {target:.3g} px (total {norm:.3g} px)", acc)
+            return self._keep(
+                stamp_s,
+                f"sub-pixel phase {frac:.3g} px ~ 1/p = {target:.3g} px (total {norm:.3g} px)",
+                acc,
+            )
         self._acc = acc
-        return FrameDecision(False, f"sub-pixel phase {frac:.3g} px not within {self.tolerance_px:.3g} of 1/p = {target:.3g}", acc, norm)
+        return FrameDecision(
+            False,
+            f"sub-pixel phase {frac:.3g} px not within {self.tolerance_px:.3g} of 1/p = {target:.3g}",
+            acc,
+            norm,
+        )

@@ -5,6 +5,7 @@ marks a frame valid on one axis-aligned rectangle. Consumers that would
 otherwise take a slower masked path (masked sums in the shift estimator, the
 conjugate-gradient solver in super-resolution) crop to that rectangle instead.
 """
+
 from __future__ import annotations
 
 from typing import Sequence

@@ -433,7 +433,9 @@ def read_messages(
         yield from _rosbags_messages(p, wanted, rep)
         return
     if meta is not None and (meta.get("compression_mode") or "").lower() == "message":
-        yield from _decompressed(p, _read_storage(p, storage, files, meta, wanted, rep, on_bad), rep)
+        yield from _decompressed(
+            p, _read_storage(p, storage, files, meta, wanted, rep, on_bad), rep
+        )
         return
     yield from _read_storage(p, storage, files, meta, wanted, rep, on_bad)
 
@@ -447,7 +449,10 @@ def _decompressed(path: Path, msgs: Iterator[BagMessage], rep: ReadReport) -> It
             raw = _decompress(m.raw, "zstd", 0)
         except Exception as exc:  # noqa: BLE001 - the decompressor's own types
             raise BagCorrupt(
-                path, None, f"a {m.topic} message does not decompress ({_one_line(exc)})", rep.messages
+                path,
+                None,
+                f"a {m.topic} message does not decompress ({_one_line(exc)})",
+                rep.messages,
             ) from None
         yield BagMessage(m.topic, m.msgtype, m.timestamp_ns, raw)
 
@@ -553,7 +558,9 @@ class BagWriter:
                 topic, msgtype, typestore=self._typestore, offered_qos_profiles=list(qos)
             )
         except Exception as exc:  # noqa: BLE001
-            raise BagError(f"cannot add topic {topic} of type {msgtype}: {_one_line(exc)}") from None
+            raise BagError(
+                f"cannot add topic {topic} of type {msgtype}: {_one_line(exc)}"
+            ) from None
 
     def write(self, topic: str, msgtype: str, timestamp_ns: int, raw: bytes | memoryview) -> None:
         if topic not in self._connections:

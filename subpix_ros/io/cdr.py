@@ -29,6 +29,7 @@ zero padding. Stamps are integer nanoseconds since the epoch:
 
 No rclpy import here: nodes use ``rclpy`` only to move the bytes.
 """
+
 from __future__ import annotations
 
 import struct
@@ -113,7 +114,9 @@ def deserialize(raw: bytes | bytearray | memoryview, typename: str) -> Any:
     try:
         view = memoryview(raw)
     except TypeError:
-        raise CdrError(f"{typename} CDR data must be bytes-like, got {type(raw).__name__}") from None
+        raise CdrError(
+            f"{typename} CDR data must be bytes-like, got {type(raw).__name__}"
+        ) from None
     if view.ndim != 1 or view.itemsize != 1:
         view = view.cast("B")
     try:
@@ -129,7 +132,9 @@ def _split_stamp(stamp_ns: int) -> tuple[int, int]:
         raise CdrError(f"stamp_ns must be an integer number of nanoseconds, got {stamp_ns!r}")
     sec, nanosec = divmod(int(stamp_ns), _NS)
     if not _INT32[0] <= sec <= _INT32[1]:
-        raise CdrError(f"stamp_ns {stamp_ns} is outside the int32 seconds range of builtin_interfaces/Time")
+        raise CdrError(
+            f"stamp_ns {stamp_ns} is outside the int32 seconds range of builtin_interfaces/Time"
+        )
     return sec, nanosec
 
 
@@ -201,7 +206,9 @@ def image_to_cdr(
         if fields[name] > _UINT32_MAX:
             raise CdrError(f"image {name} {fields[name]} does not fit a uint32")
     if data.size > _UINT32_MAX:
-        raise CdrError(f"image data of {data.size} bytes does not fit a CDR sequence (max {_UINT32_MAX})")
+        raise CdrError(
+            f"image data of {data.size} bytes does not fit a CDR sequence (max {_UINT32_MAX})"
+        )
     buf = bytearray(b"\x00\x01\x00\x00")
     buf += struct.pack("<iI", sec, nanosec)
     _put_string(buf, frame_id)
@@ -220,7 +227,10 @@ def cdr_to_image_msg(raw: bytes | bytearray | memoryview) -> Any:
 
 
 def cdr_to_image(
-    raw: bytes | bytearray | memoryview, desired: str = "passthrough", *, allow_trailing: bool = False
+    raw: bytes | bytearray | memoryview,
+    desired: str = "passthrough",
+    *,
+    allow_trailing: bool = False,
 ) -> tuple[np.ndarray, Any]:
     """``(array, header)`` from sensor_msgs/msg/Image CDR bytes (e.g. a ``raw=True`` callback).
 
@@ -243,7 +253,9 @@ def compressed_to_cdr(
     """
     format_string, data = numpy_to_compressed(array, fmt, quality)
     msg = _CompressedImage(
-        header=make_header(stamp_ns, frame_id), format=format_string, data=np.frombuffer(data, np.uint8)
+        header=make_header(stamp_ns, frame_id),
+        format=format_string,
+        data=np.frombuffer(data, np.uint8),
     )
     return serialize(msg, COMPRESSED_IMAGE)
 
@@ -253,13 +265,17 @@ def cdr_to_compressed_msg(raw: bytes | bytearray | memoryview) -> Any:
     return deserialize(raw, COMPRESSED_IMAGE)
 
 
-def cdr_to_compressed(raw: bytes | bytearray | memoryview, desired: str = "passthrough") -> tuple[np.ndarray, Any]:
+def cdr_to_compressed(
+    raw: bytes | bytearray | memoryview, desired: str = "passthrough"
+) -> tuple[np.ndarray, Any]:
     """``(decoded array, header)`` from sensor_msgs/msg/CompressedImage CDR bytes."""
     msg = cdr_to_compressed_msg(raw)
     return compressed_to_numpy(msg, desired), msg.header
 
 
-def float64_array_to_cdr(values: np.ndarray | Sequence[float], labels: Sequence[str] | None = None) -> bytes:
+def float64_array_to_cdr(
+    values: np.ndarray | Sequence[float], labels: Sequence[str] | None = None
+) -> bytes:
     """CDR bytes of a std_msgs/msg/Float64MultiArray holding ``values`` (any shape).
 
     The layout follows the std_msgs convention: one dimension per axis with
@@ -275,7 +291,8 @@ def float64_array_to_cdr(values: np.ndarray | Sequence[float], labels: Sequence[
         raise CdrError(f"{len(labels)} labels for an array with {len(shape)} axes")
     strides = np.cumprod(shape[::-1])[::-1]
     dims = [
-        _MultiArrayDimension(label=str(lbl), size=int(n), stride=int(s)) for lbl, n, s in zip(labels, shape, strides)
+        _MultiArrayDimension(label=str(lbl), size=int(n), stride=int(s))
+        for lbl, n, s in zip(labels, shape, strides)
     ]
     msg = _Float64MultiArray(layout=_MultiArrayLayout(dim=dims, data_offset=0), data=a.reshape(-1))
     return serialize(msg, FLOAT64_MULTI_ARRAY)
@@ -284,7 +301,7 @@ def float64_array_to_cdr(values: np.ndarray | Sequence[float], labels: Sequence[
 def cdr_to_float64_array(raw: bytes | bytearray | memoryview) -> np.ndarray:
     """The data of a std_msgs/msg/Float64MultiArray, reshaped by its layout (flat if none)."""
     msg = deserialize(raw, FLOAT64_MULTI_ARRAY)
-    data = np.asarray(msg.data, dtype=np.float64)[int(msg.layout.data_offset):]
+    data = np.asarray(msg.data, dtype=np.float64)[int(msg.layout.data_offset) :]
     dims = msg.layout.dim
     if not dims:
         return data
@@ -300,7 +317,8 @@ def vector3_stamped_to_cdr(vector: Sequence[float], stamp_ns: int, frame_id: str
     if v.size != 3:
         raise CdrError(f"Vector3Stamped needs 3 values, got {v.size}")
     msg = _Vector3Stamped(
-        header=make_header(stamp_ns, frame_id), vector=_Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+        header=make_header(stamp_ns, frame_id),
+        vector=_Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2])),
     )
     return serialize(msg, VECTOR3_STAMPED)
 
@@ -311,11 +329,15 @@ def cdr_to_vector3_stamped(raw: bytes | bytearray | memoryview) -> tuple[np.ndar
     return np.array([msg.vector.x, msg.vector.y, msg.vector.z], dtype=np.float64), msg.header
 
 
-def time_reference_to_cdr(stamp_ns: int, time_ref_ns: int, frame_id: str = "", source: str = "") -> bytes:
+def time_reference_to_cdr(
+    stamp_ns: int, time_ref_ns: int, frame_id: str = "", source: str = ""
+) -> bytes:
     """CDR bytes of a sensor_msgs/msg/TimeReference: ``header.stamp`` = ``stamp_ns``, ``time_ref`` = ``time_ref_ns``."""
     if not isinstance(source, str):
         raise CdrError(f"source must be a str, got {type(source).__name__}")
-    msg = _TimeReference(header=make_header(stamp_ns, frame_id), time_ref=_time(time_ref_ns), source=source)
+    msg = _TimeReference(
+        header=make_header(stamp_ns, frame_id), time_ref=_time(time_ref_ns), source=source
+    )
     return serialize(msg, TIME_REFERENCE)
 
 

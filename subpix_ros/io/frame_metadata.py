@@ -98,6 +98,8 @@ def trajectory_from_frames_csv(
         raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
     fx = read_frames_csv(csv_path)
     try:
-        return trajectory_through_fixes(fx.t, fx.lat_deg, fx.lon_deg, fx.alt_msl_m, ground_alt_m, rate_hz)
+        return trajectory_through_fixes(
+            fx.t, fx.lat_deg, fx.lon_deg, fx.alt_msl_m, ground_alt_m, rate_hz
+        )
     except ValueError as exc:
         raise ValueError(f"{csv_path}: {exc}") from exc

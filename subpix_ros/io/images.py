@@ -60,6 +60,7 @@ Memory: a plain passthrough never copies, so an 8000 x 6000 frame costs no
 extra memory; conversions allocate only their output (plus one byte-swapped
 copy for big-endian multi-byte data).
 """
+
 from __future__ import annotations
 
 import difflib
@@ -130,15 +131,25 @@ def _named_encodings() -> dict[str, EncodingInfo]:
         for bits, dt in ((8, _U8), (16, _U16)):
             name = f"bayer_{pattern}{bits}"
             enc[name] = EncodingInfo(name, 1, dt, "bayer", pattern)
-    for name, order in (("yuv422", "uyvy"), ("uyvy", "uyvy"), ("yuv422_yuy2", "yuyv"), ("yuyv", "yuyv")):
+    for name, order in (
+        ("yuv422", "uyvy"),
+        ("uyvy", "uyvy"),
+        ("yuv422_yuy2", "yuyv"),
+        ("yuyv", "yuyv"),
+    ):
         enc[name] = EncodingInfo(name, 2, _U8, "yuv422", order)
     return enc
 
 
 _NAMED = _named_encodings()
 _GENERIC_DEPTHS = {
-    "8U": np.uint8, "8S": np.int8, "16U": np.uint16, "16S": np.int16,
-    "32S": np.int32, "32F": np.float32, "64F": np.float64,
+    "8U": np.uint8,
+    "8S": np.int8,
+    "16U": np.uint16,
+    "16S": np.int16,
+    "32S": np.int32,
+    "32F": np.float32,
+    "64F": np.float64,
 }
 _GENERIC_RE = re.compile(r"^(8|16|32|64)([USF])C([1-4])$")
 KNOWN_ENCODINGS: tuple[str, ...] = tuple(_NAMED) + tuple(
@@ -148,19 +159,33 @@ KNOWN_ENCODINGS: tuple[str, ...] = tuple(_NAMED) + tuple(
 # OpenCV codes. The explicit RGGB/BGGR/... names equal cv_bridge's mapping
 # (bayer_rggb8 -> COLOR_BayerBG2BGR etc.); test_images checks them on colour data.
 _BAYER_TO_BGR = {
-    "rggb": cv2.COLOR_BayerRGGB2BGR, "bggr": cv2.COLOR_BayerBGGR2BGR,
-    "gbrg": cv2.COLOR_BayerGBRG2BGR, "grbg": cv2.COLOR_BayerGRBG2BGR,
+    "rggb": cv2.COLOR_BayerRGGB2BGR,
+    "bggr": cv2.COLOR_BayerBGGR2BGR,
+    "gbrg": cv2.COLOR_BayerGBRG2BGR,
+    "grbg": cv2.COLOR_BayerGRBG2BGR,
 }
 _BAYER_TO_GRAY = {
-    "rggb": cv2.COLOR_BayerRGGB2GRAY, "bggr": cv2.COLOR_BayerBGGR2GRAY,
-    "gbrg": cv2.COLOR_BayerGBRG2GRAY, "grbg": cv2.COLOR_BayerGRBG2GRAY,
+    "rggb": cv2.COLOR_BayerRGGB2GRAY,
+    "bggr": cv2.COLOR_BayerBGGR2GRAY,
+    "gbrg": cv2.COLOR_BayerGBRG2GRAY,
+    "grbg": cv2.COLOR_BayerGRBG2GRAY,
 }
 # Which BGR channel (0 B, 1 G, 2 R) sits at mosaic positions (0,0) (0,1) (1,0) (1,1).
-_BAYER_LAYOUT = {"rggb": (2, 1, 1, 0), "bggr": (0, 1, 1, 2), "gbrg": (1, 0, 2, 1), "grbg": (1, 2, 0, 1)}
+_BAYER_LAYOUT = {
+    "rggb": (2, 1, 1, 0),
+    "bggr": (0, 1, 1, 2),
+    "gbrg": (1, 0, 2, 1),
+    "grbg": (1, 2, 0, 1),
+}
 _YUV_TO_BGR = {"uyvy": cv2.COLOR_YUV2BGR_UYVY, "yuyv": cv2.COLOR_YUV2BGR_YUYV}
 _BGR_TO_YUV = {"uyvy": cv2.COLOR_BGR2YUV_UYVY, "yuyv": cv2.COLOR_BGR2YUV_YUYV}
 _TO_BGR = {"rgb": cv2.COLOR_RGB2BGR, "bgra": cv2.COLOR_BGRA2BGR, "rgba": cv2.COLOR_RGBA2BGR}
-_TO_GRAY = {"bgr": cv2.COLOR_BGR2GRAY, "rgb": cv2.COLOR_RGB2GRAY, "bgra": cv2.COLOR_BGRA2GRAY, "rgba": cv2.COLOR_RGBA2GRAY}
+_TO_GRAY = {
+    "bgr": cv2.COLOR_BGR2GRAY,
+    "rgb": cv2.COLOR_RGB2GRAY,
+    "bgra": cv2.COLOR_BGRA2GRAY,
+    "rgba": cv2.COLOR_RGBA2GRAY,
+}
 
 
 def encoding_info(encoding: str) -> EncodingInfo:
@@ -192,7 +217,9 @@ def _as_byte_buffer(data: Any) -> np.ndarray:
         try:
             return np.asarray(data, dtype=np.uint8)
         except (OverflowError, ValueError, TypeError) as exc:
-            raise ImageConversionError(f"image data is not a sequence of bytes 0..255: {exc}") from None
+            raise ImageConversionError(
+                f"image data is not a sequence of bytes 0..255: {exc}"
+            ) from None
     try:
         return np.frombuffer(data, dtype=np.uint8)
     except (TypeError, ValueError, BufferError):
@@ -200,7 +227,9 @@ def _as_byte_buffer(data: Any) -> np.ndarray:
     try:  # non-contiguous or non-byte memoryviews: one copy
         return np.frombuffer(memoryview(data).tobytes(), dtype=np.uint8)
     except TypeError:
-        raise ImageConversionError(f"image data of type {type(data).__name__} is not a byte buffer") from None
+        raise ImageConversionError(
+            f"image data of type {type(data).__name__} is not a byte buffer"
+        ) from None
 
 
 def _field_int(msg: Any, name: str) -> int:
@@ -227,7 +256,9 @@ def _stored_view(msg: Any, *, allow_trailing: bool = False) -> tuple[np.ndarray,
     info = encoding_info(encoding)
     height, width, step = (_field_int(msg, f) for f in ("height", "width", "step"))
     if height <= 0 or width <= 0:
-        raise ImageConversionError(f"{encoding} image has zero or negative size {height}x{width} (height x width)")
+        raise ImageConversionError(
+            f"{encoding} image has zero or negative size {height}x{width} (height x width)"
+        )
     row_bytes = width * info.pixel_bytes
     if step < row_bytes:
         raise ImageConversionError(
@@ -237,7 +268,9 @@ def _stored_view(msg: Any, *, allow_trailing: bool = False) -> tuple[np.ndarray,
     if info.kind == "yuv422" and width % 2:
         raise ImageConversionError(f"{encoding} (YUV 4:2:2) needs an even width, got {width}")
     if info.kind == "bayer" and (width % 2 or height % 2):
-        raise ImageConversionError(f"{encoding} (Bayer) needs even width and height, got {height}x{width}")
+        raise ImageConversionError(
+            f"{encoding} (Bayer) needs even width and height, got {height}x{width}"
+        )
     try:
         data = msg.data
     except AttributeError:
@@ -270,8 +303,10 @@ def _stored_view(msg: Any, *, allow_trailing: bool = False) -> tuple[np.ndarray,
 
 def _cv_input(a: np.ndarray) -> np.ndarray:
     """``a`` if OpenCV can wrap it (rows may be padded), else a contiguous copy."""
-    inner_ok = a.strides[-1] == a.itemsize if a.ndim == 2 else (
-        a.strides[2] == a.itemsize and a.strides[1] == a.shape[2] * a.itemsize
+    inner_ok = (
+        a.strides[-1] == a.itemsize
+        if a.ndim == 2
+        else (a.strides[2] == a.itemsize and a.strides[1] == a.shape[2] * a.itemsize)
     )
     if inner_ok and a.flags.aligned and a.strides[0] % a.itemsize == 0:
         return a
@@ -284,7 +319,9 @@ def _to_8bit(a: np.ndarray) -> np.ndarray:
         return a
     if a.dtype == np.uint16:
         return cv2.convertScaleAbs(_cv_input(a), alpha=255.0 / 65535.0)
-    raise ImageConversionError(f"{a.dtype} samples have no defined 8-bit scale; use desired='passthrough' or 'mono'")
+    raise ImageConversionError(
+        f"{a.dtype} samples have no defined 8-bit scale; use desired='passthrough' or 'mono'"
+    )
 
 
 def _decode_stored(arr: np.ndarray, info: EncodingInfo) -> tuple[np.ndarray, str]:
@@ -305,14 +342,18 @@ def _convert(arr: np.ndarray, info: EncodingInfo, desired: str) -> np.ndarray:
     if desired not in DESIRED:
         close = difflib.get_close_matches(str(desired), DESIRED, n=1, cutoff=0.4)
         hint = f"; did you mean {close[0]!r}?" if close else ""
-        raise ImageConversionError(f"unknown desired format {desired!r} (one of {', '.join(DESIRED)}){hint}")
+        raise ImageConversionError(
+            f"unknown desired format {desired!r} (one of {', '.join(DESIRED)}){hint}"
+        )
     # Luminance straight from the stored samples where OpenCV can (no BGR detour).
     if desired in ("mono8", "mono") and info.kind == "yuv422":
         # OpenCV's 4:2:2 is BT.601 video range: Y' in 16..235. The grey of the
         # decoded BGR is 255/219 (Y' - 16) (the chroma terms cancel in the
         # 0.299/0.587/0.114 sum), so scale the Y plane instead of decoding.
         y_plane = arr[..., 1] if info.order == "uyvy" else arr[..., 0]
-        return cv2.convertScaleAbs(_cv_input(y_plane), alpha=255.0 / 219.0, beta=-16.0 * 255.0 / 219.0)
+        return cv2.convertScaleAbs(
+            _cv_input(y_plane), alpha=255.0 / 219.0, beta=-16.0 * 255.0 / 219.0
+        )
     if desired in ("mono8", "mono") and info.kind == "bayer":
         gray = cv2.cvtColor(_cv_input(arr), _BAYER_TO_GRAY[info.order])
         return _to_8bit(gray) if desired == "mono8" else gray
@@ -320,7 +361,9 @@ def _convert(arr: np.ndarray, info: EncodingInfo, desired: str) -> np.ndarray:
         return _to_8bit(_decode_stored(arr, info)[0])
     if info.order == "generic":
         if desired != "mono" and info.dtype not in (_U8, _U16):
-            raise ImageConversionError(f"{name} ({info.dtype}) has no defined 8-bit scale; use 'passthrough' or 'mono'")
+            raise ImageConversionError(
+                f"{name} ({info.dtype}) has no defined 8-bit scale; use 'passthrough' or 'mono'"
+            )
         want = 3 if desired == "bgr8" else 1
         if info.channels != want:
             raise ImageConversionError(
@@ -341,7 +384,9 @@ def _convert(arr: np.ndarray, info: EncodingInfo, desired: str) -> np.ndarray:
     return _to_8bit(gray) if desired == "mono8" else gray
 
 
-def image_to_numpy(msg: Any, desired: str = "passthrough", *, allow_trailing: bool = False) -> np.ndarray:
+def image_to_numpy(
+    msg: Any, desired: str = "passthrough", *, allow_trailing: bool = False
+) -> np.ndarray:
     """Convert a sensor_msgs/Image-like message to a numpy array.
 
     ``desired`` is one of ``"passthrough"``, ``"raw"``, ``"bgr8"``, ``"mono8"``,
@@ -354,7 +399,9 @@ def image_to_numpy(msg: Any, desired: str = "passthrough", *, allow_trailing: bo
     try:
         return _convert(arr, info, desired)
     except cv2.error as exc:  # should not happen after validation; never leak a cv2 traceback wall
-        raise ImageConversionError(f"OpenCV could not convert {info.name} to {desired}: {exc.err}") from None
+        raise ImageConversionError(
+            f"OpenCV could not convert {info.name} to {desired}: {exc.err}"
+        ) from None
 
 
 def _bayer_mosaic(bgr: np.ndarray, pattern: str) -> np.ndarray:
@@ -373,32 +420,46 @@ def _stored_from_array(array: np.ndarray, info: EncodingInfo) -> np.ndarray:
     """The samples to store for ``info``, shape (H, W) or (H, W, C), dtype info.dtype."""
     a = np.asarray(array)
     if a.ndim not in (2, 3) or a.shape[0] == 0 or a.shape[1] == 0:
-        raise ImageConversionError(f"cannot encode an array of shape {a.shape} as {info.name}: need H x W or H x W x C, non-empty")
+        raise ImageConversionError(
+            f"cannot encode an array of shape {a.shape} as {info.name}: need H x W or H x W x C, non-empty"
+        )
     if info.kind == "bayer":
         if a.shape[0] % 2 or a.shape[1] % 2:
-            raise ImageConversionError(f"{info.name} (Bayer) needs even width and height, got {a.shape[0]}x{a.shape[1]}")
+            raise ImageConversionError(
+                f"{info.name} (Bayer) needs even width and height, got {a.shape[0]}x{a.shape[1]}"
+            )
         if a.dtype != info.dtype:
             raise ImageConversionError(f"{info.name} needs {info.dtype} input, got {a.dtype}")
         if a.ndim == 2:  # already a mosaic
             return a
         if a.shape[2] != 3:
-            raise ImageConversionError(f"{info.name} encodes from BGR (H x W x 3) or a raw mosaic (H x W), got {a.shape}")
+            raise ImageConversionError(
+                f"{info.name} encodes from BGR (H x W x 3) or a raw mosaic (H x W), got {a.shape}"
+            )
         return _bayer_mosaic(a, info.order)
     if info.kind == "yuv422":
         if a.shape[1] % 2:
-            raise ImageConversionError(f"{info.name} (YUV 4:2:2) needs an even width, got {a.shape[1]}")
+            raise ImageConversionError(
+                f"{info.name} (YUV 4:2:2) needs an even width, got {a.shape[1]}"
+            )
         if a.dtype != np.uint8:
             raise ImageConversionError(f"{info.name} needs uint8 input, got {a.dtype}")
         if a.ndim == 3 and a.shape[2] == 2:  # already packed
             return a
         if a.ndim != 3 or a.shape[2] != 3:
-            raise ImageConversionError(f"{info.name} encodes from BGR (H x W x 3) or packed H x W x 2, got {a.shape}")
+            raise ImageConversionError(
+                f"{info.name} encodes from BGR (H x W x 3) or packed H x W x 2, got {a.shape}"
+            )
         return cv2.cvtColor(_cv_input(a), _BGR_TO_YUV[info.order])
     channels = 1 if a.ndim == 2 else a.shape[2]
     if channels != info.channels:
-        raise ImageConversionError(f"{info.name} needs {info.channels} channel(s), array has shape {a.shape}")
+        raise ImageConversionError(
+            f"{info.name} needs {info.channels} channel(s), array has shape {a.shape}"
+        )
     if a.dtype != info.dtype:
-        raise ImageConversionError(f"{info.name} needs {info.dtype} samples, array is {a.dtype} (convert it explicitly)")
+        raise ImageConversionError(
+            f"{info.name} needs {info.dtype} samples, array is {a.dtype} (convert it explicitly)"
+        )
     return a
 
 
@@ -425,7 +486,9 @@ def numpy_to_image_fields(
     if step is None:
         step = row_bytes
     if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < row_bytes:
-        raise ImageConversionError(f"step {step!r} is smaller than one {encoding} row ({row_bytes} bytes)")
+        raise ImageConversionError(
+            f"step {step!r} is smaller than one {encoding} row ({row_bytes} bytes)"
+        )
     step = int(step)
     swap = bigendian and info.dtype.itemsize > 1
     if swap:
@@ -513,7 +576,9 @@ _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 def _codec_of(fmt: str, head: bytes) -> str:
     f = fmt.strip().lower()
     if "compresseddepth" in f:
-        raise ImageConversionError(f"CompressedImage format {fmt!r} (compressedDepth) is not supported")
+        raise ImageConversionError(
+            f"CompressedImage format {fmt!r} (compressedDepth) is not supported"
+        )
     if "jpeg" in f or "jpg" in f:
         return "jpeg"
     if "png" in f:
@@ -523,7 +588,9 @@ def _codec_of(fmt: str, head: bytes) -> str:
             return "jpeg"
         if head.startswith(_PNG_MAGIC):
             return "png"
-        raise ImageConversionError("CompressedImage has an empty format and data that is neither JPEG nor PNG")
+        raise ImageConversionError(
+            "CompressedImage has an empty format and data that is neither JPEG nor PNG"
+        )
     raise ImageConversionError(f"CompressedImage format {fmt!r} is not supported (jpeg or png)")
 
 
@@ -551,22 +618,34 @@ def compressed_to_numpy(msg: Any, desired: str = "passthrough") -> np.ndarray:
     codec = _codec_of(fmt, head)
     if codec == "jpeg":
         if not head.startswith(_JPEG_MAGIC):
-            raise ImageConversionError(f"CompressedImage format {fmt!r} but data does not start with a JPEG marker")
+            raise ImageConversionError(
+                f"CompressedImage format {fmt!r} but data does not start with a JPEG marker"
+            )
         tail = np.flatnonzero(buf[-4096:])  # some drivers pad with zero bytes after EOI
         end = buf.size - min(buf.size, 4096) + (int(tail[-1]) + 1 if tail.size else 0)
         if end < 4 or buf[end - 2] != 0xFF or buf[end - 1] != 0xD9:
-            raise ImageConversionError("corrupt CompressedImage: JPEG data is truncated (no end-of-image marker)")
+            raise ImageConversionError(
+                "corrupt CompressedImage: JPEG data is truncated (no end-of-image marker)"
+            )
     else:
         if not head.startswith(_PNG_MAGIC):
-            raise ImageConversionError(f"CompressedImage format {fmt!r} but data does not start with the PNG signature")
+            raise ImageConversionError(
+                f"CompressedImage format {fmt!r} but data does not start with the PNG signature"
+            )
         if buf.size < 20 or buf[-12:-4].tobytes() != b"\x00\x00\x00\x00IEND":
-            raise ImageConversionError("corrupt CompressedImage: PNG data is truncated (no IEND chunk)")
+            raise ImageConversionError(
+                "corrupt CompressedImage: PNG data is truncated (no IEND chunk)"
+            )
     try:
         img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:
-        raise ImageConversionError(f"corrupt CompressedImage: OpenCV cannot decode the {codec}: {exc.err}") from None
+        raise ImageConversionError(
+            f"corrupt CompressedImage: OpenCV cannot decode the {codec}: {exc.err}"
+        ) from None
     if img is None or img.size == 0:
-        raise ImageConversionError(f"corrupt CompressedImage: OpenCV cannot decode the {codec} data")
+        raise ImageConversionError(
+            f"corrupt CompressedImage: OpenCV cannot decode the {codec} data"
+        )
     if img.ndim == 2:
         enc = "mono8" if img.dtype == np.uint8 else "mono16"
     else:
@@ -596,7 +675,9 @@ def numpy_to_compressed(
         raise ImageConversionError(f"compressed format {fmt!r} is not supported (jpeg or png)")
     a = np.asarray(array)
     if a.ndim not in (2, 3) or a.size == 0 or (a.ndim == 3 and a.shape[2] not in (3, 4)):
-        raise ImageConversionError(f"cannot compress an array of shape {a.shape}: need H x W, H x W x 3 or H x W x 4")
+        raise ImageConversionError(
+            f"cannot compress an array of shape {a.shape}: need H x W, H x W x 3 or H x W x 4"
+        )
     if a.dtype not in (_U8, _U16):
         raise ImageConversionError(f"cannot compress {a.dtype} images (uint8, or uint16 for PNG)")
     bits = 8 if a.dtype == np.uint8 else 16
@@ -614,4 +695,3 @@ def numpy_to_compressed(
     if not ok:
         raise ImageConversionError(f"OpenCV failed to encode {enc} as {codec}")
     return f"{enc}; {codec} compressed {enc}", out.tobytes()
-

@@ -21,6 +21,7 @@ encoder's network endpoints default to 127.0.0.1 when the URL omits the
 host (``udpin:14550`` binds 127.0.0.1:14550); give an explicit host such as
 ``udpin:0.0.0.0:14550`` to listen on all interfaces.
 """
+
 from __future__ import annotations
 
 import math
@@ -105,7 +106,13 @@ def _messages_for(s: TelemetrySample, boot_ms: int) -> list:
     if s.has_attitude:
         msgs.append(
             mavlink2.MAVLink_attitude_message(
-                boot_ms, float(s.roll_rad), float(s.pitch_rad), float(s.yaw_rad), 0.0, 0.0, 0.0  # type: ignore[arg-type]
+                boot_ms,
+                float(s.roll_rad),
+                float(s.pitch_rad),
+                float(s.yaw_rad),
+                0.0,
+                0.0,
+                0.0,  # type: ignore[arg-type]
             )
         )
     vn, ve, vd = (float(x) for x in s.vel_ned_mps)
@@ -151,7 +158,9 @@ class _Packer:
 
     def __init__(self, system_id: int, component_id: int, mavlink1: bool = False) -> None:
         if not (1 <= system_id <= 255 and 0 <= component_id <= 255):
-            raise ValueError(f"system_id must be 1..255 and component_id 0..255, got {system_id}, {component_id}")
+            raise ValueError(
+                f"system_id must be 1..255 and component_id 0..255, got {system_id}, {component_id}"
+            )
         self.mav = mavlink2.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
         self.mavlink1 = mavlink1
 
@@ -193,10 +202,14 @@ def encode_samples(
     for s in samples:
         boot_ms = int(round((s.t - boot) * 1000.0))
         if not 0 <= boot_ms < 2**32:
-            raise ValueError(f"sample t={s.t} is before boot_time={boot} or too late for time_boot_ms")
+            raise ValueError(
+                f"sample t={s.t} is before boot_time={boot} or too late for time_boot_ms"
+            )
         if heartbeat_hz > 0 and s.t >= next_hb:
             out.append((s.t, packer.pack(_heartbeat())))
-            next_hb = s.t + 1.0 / heartbeat_hz if next_hb == -math.inf else next_hb + 1.0 / heartbeat_hz
+            next_hb = (
+                s.t + 1.0 / heartbeat_hz if next_hb == -math.inf else next_hb + 1.0 / heartbeat_hz
+            )
             if next_hb <= s.t:  # a gap in the samples: restart the heartbeat clock
                 next_hb = s.t + 1.0 / heartbeat_hz
         for msg in _messages_for(s, boot_ms):
@@ -289,14 +302,16 @@ class ConnectionSpec:
 
 def _host_port(kind: str, rest: str, url: str) -> str:
     parts = rest.rsplit(":", 1)
-    host, port_s = (parts if len(parts) == 2 else ("", parts[0]))
+    host, port_s = parts if len(parts) == 2 else ("", parts[0])
     host = host or "127.0.0.1"
     if not _HOST_RE.match(host):
         raise ValueError(f"bad host {host!r} in MAVLink URL {url!r}")
     try:
         port = int(port_s)
     except ValueError:
-        raise ValueError(f"bad port {port_s!r} in MAVLink URL {url!r} (expected {kind}:HOST:PORT)") from None
+        raise ValueError(
+            f"bad port {port_s!r} in MAVLink URL {url!r} (expected {kind}:HOST:PORT)"
+        ) from None
     low = 0 if kind in ("udpin", "tcpin") else 1  # listeners may ask for an ephemeral port
     if not low <= port <= 65535:
         raise ValueError(f"port {port} out of range in MAVLink URL {url!r}")
@@ -322,8 +337,12 @@ def parse_url(url: str, baud: int = 57600) -> ConnectionSpec:
     if m:
         kind = "udpin" if m.group(1) == "udp" else m.group(1)
         return ConnectionSpec(kind, _host_port(kind, m.group(2), url))
-    if re.match(r"^[A-Za-z][A-Za-z0-9+.\-]*://", url) or re.match(r"^(udpbcast|mcast|ws|wss|wsserver|uds|unix|csv):", url):
-        raise ValueError(f"unsupported MAVLink URL {url!r} (use udpin:, udpout:, tcp:, tcpin:, a serial device or a .tlog)")
+    if re.match(r"^[A-Za-z][A-Za-z0-9+.\-]*://", url) or re.match(
+        r"^(udpbcast|mcast|ws|wss|wsserver|uds|unix|csv):", url
+    ):
+        raise ValueError(
+            f"unsupported MAVLink URL {url!r} (use udpin:, udpout:, tcp:, tcpin:, a serial device or a .tlog)"
+        )
     dev, _, baud_s = url.partition(",")
     if dev.startswith("/dev/") or re.match(r"^COM\d+$", dev, re.IGNORECASE):
         if baud_s:
@@ -371,7 +390,9 @@ def _open(spec: ConnectionSpec):
     # Parse with the v2 'ardupilotmega' dialect whatever mavutil's global
     # dialect is (it accepts MAVLink 1 and 2 frames alike), robustly: bad
     # bytes become BAD_DATA messages instead of exceptions.
-    conn.mav = mavlink2.MAVLink(conn, srcSystem=255, srcComponent=mavlink2.MAV_COMP_ID_MISSIONPLANNER)
+    conn.mav = mavlink2.MAVLink(
+        conn, srcSystem=255, srcComponent=mavlink2.MAV_COMP_ID_MISSIONPLANNER
+    )
     conn.mav.robust_parsing = True
     conn.first_byte = False  # no auto protocol switch replacing our parser
     conn.WIRE_PROTOCOL_VERSION = "2.0"
@@ -513,7 +534,9 @@ class MavlinkReader:
         if self._thread is not None:
             raise RuntimeError("reader already started")
         self._conn = _open(self.spec)
-        self._thread = threading.Thread(target=self._run, name=f"mavlink-reader[{self.spec.url}]", daemon=True)
+        self._thread = threading.Thread(
+            target=self._run, name=f"mavlink-reader[{self.spec.url}]", daemon=True
+        )
         self._thread.start()
         return self
 
@@ -546,7 +569,9 @@ class MavlinkReader:
     def stats(self) -> ReaderStats:
         """A consistent snapshot of the counters."""
         with self._lock:
-            s = ReaderStats(**{k: v for k, v in self._stats.__dict__.items() if k != "reject_reasons"})
+            s = ReaderStats(
+                **{k: v for k, v in self._stats.__dict__.items() if k != "reject_reasons"}
+            )
             s.reject_reasons = dict(self._reasons)
             return s
 
@@ -603,7 +628,9 @@ class MavlinkReader:
             now = time.time()
             if msg is None:
                 if self._is_log:
-                    self._emit(LinkEvent("end_of_log", self._last_activity or now, "end of telemetry log"))
+                    self._emit(
+                        LinkEvent("end_of_log", self._last_activity or now, "end of telemetry log")
+                    )
                     break
                 self._check_link(now)
                 try:
@@ -635,7 +662,9 @@ class MavlinkReader:
         now = time.time()
         if now >= self._next_gcs_hb:
             self._next_gcs_hb = now + 1.0
-            self._conn.mav.heartbeat_send(mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)  # type: ignore[union-attr]
+            self._conn.mav.heartbeat_send(
+                mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0
+            )  # type: ignore[union-attr]
 
     def _emit(self, ev: LinkEvent) -> None:
         with self._lock:
@@ -655,18 +684,39 @@ class MavlinkReader:
         if self._state in ("connected", "restored") and self._last_activity is not None:
             if now - self._last_activity > self.link_timeout_s:
                 self._emit(
-                    LinkEvent("lost", now, f"no MAVLink from system {self._target} for {now - self._last_activity:.2f} s")
+                    LinkEvent(
+                        "lost",
+                        now,
+                        f"no MAVLink from system {self._target} for {now - self._last_activity:.2f} s",
+                    )
                 )
 
     def _activity(self, t: float) -> None:
         last = self._last_activity
-        if self._is_log and last is not None and t - last > self.link_timeout_s and self._state != "lost":
-            self._emit(LinkEvent("lost", last + self.link_timeout_s, f"no MAVLink from system {self._target} for {t - last:.2f} s in the log"))
+        if (
+            self._is_log
+            and last is not None
+            and t - last > self.link_timeout_s
+            and self._state != "lost"
+        ):
+            self._emit(
+                LinkEvent(
+                    "lost",
+                    last + self.link_timeout_s,
+                    f"no MAVLink from system {self._target} for {t - last:.2f} s in the log",
+                )
+            )
         self._last_activity = t
         if self._state == "waiting":
             self._emit(LinkEvent("connected", t, f"receiving system {self._target}"))
         elif self._state == "lost":
-            self._emit(LinkEvent("restored", t, f"system {self._target} back after {t - last:.2f} s" if last else "restored"))
+            self._emit(
+                LinkEvent(
+                    "restored",
+                    t,
+                    f"system {self._target} back after {t - last:.2f} s" if last else "restored",
+                )
+            )
 
     def _pace(self, t: float) -> None:
         if self.rate is None:
@@ -829,7 +879,10 @@ class MavlinkSender:
         self.sent += 1
 
     def send_packets(
-        self, packets: Sequence[tuple[float, bytes]], rate: float | None = None, stop: threading.Event | None = None
+        self,
+        packets: Sequence[tuple[float, bytes]],
+        rate: float | None = None,
+        stop: threading.Event | None = None,
     ) -> int:
         """Send (t, bytes) packets in order, paced by ``t`` at ``rate`` x real time (None: no pacing)."""
         if not packets:

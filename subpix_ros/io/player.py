@@ -6,6 +6,7 @@ re-serialisation), optionally with ``/clock`` so nodes run with
 ``use_sim_time``. ``Recorder`` subscribes with ``raw=True`` and writes what
 arrives into a rosbag2 file. Both need an initialised rclpy context.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -30,7 +31,9 @@ def message_class(msgtype: str):
     try:
         return getattr(importlib.import_module(f"{parts[0]}.{parts[1]}"), parts[2])
     except (ImportError, AttributeError):
-        raise BagError(f"unknown message type {msgtype!r} (no Python message package {parts[0]} installed)") from None
+        raise BagError(
+            f"unknown message type {msgtype!r} (no Python message package {parts[0]} installed)"
+        ) from None
 
 
 @dataclass
@@ -43,9 +46,19 @@ class ReplayStats:
 class Player:
     """Replay one bag through an rclpy node."""
 
-    def __init__(self, node, bag: str | Path, *, topics: Sequence[str] | None = None, rate: float = 1.0,
-                 loop: bool = False, clock: bool = False, qos_depth: int = 100,
-                 remap: dict[str, str] | None = None, skip_corrupt: bool = False) -> None:
+    def __init__(
+        self,
+        node,
+        bag: str | Path,
+        *,
+        topics: Sequence[str] | None = None,
+        rate: float = 1.0,
+        loop: bool = False,
+        clock: bool = False,
+        qos_depth: int = 100,
+        remap: dict[str, str] | None = None,
+        skip_corrupt: bool = False,
+    ) -> None:
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
         if not rate > 0:
@@ -63,7 +76,9 @@ class Player:
         if topics:
             missing = [t for t in topics if t not in present]
             if missing:
-                raise BagError(f"topic(s) not in bag {self.bag}: {', '.join(missing)} (bag has: {', '.join(sorted(present))})")
+                raise BagError(
+                    f"topic(s) not in bag {self.bag}: {', '.join(missing)} (bag has: {', '.join(sorted(present))})"
+                )
             info = [present[t] for t in topics]
         if not info:
             raise BagError(f"bag {self.bag} has no messages")
@@ -74,16 +89,24 @@ class Player:
             # Reliable always (a subscriber of either kind matches); transient local when every
             # recorded publisher offered it (a latched topic stays latched), as ros2 bag play does.
             latched = bool(t.qos) and all(
-                q.durability == QosDurability.TRANSIENT_LOCAL for q in t.qos)
+                q.durability == QosDurability.TRANSIENT_LOCAL for q in t.qos
+            )
             return QoSProfile(
-                history=HistoryPolicy.KEEP_LAST, depth=qos_depth,
+                history=HistoryPolicy.KEEP_LAST,
+                depth=qos_depth,
                 reliability=ReliabilityPolicy.RELIABLE,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+                durability=DurabilityPolicy.TRANSIENT_LOCAL
+                if latched
+                else DurabilityPolicy.VOLATILE,
+            )
 
         remap = remap or {}
         self.publishers = {
-            t.name: node.create_publisher(message_class(t.msgtype), remap.get(t.name, t.name), qos(t))
-            for t in info}
+            t.name: node.create_publisher(
+                message_class(t.msgtype), remap.get(t.name, t.name), qos(t)
+            )
+            for t in info
+        }
         self._clock_pub = None
         if clock:
             from rosgraph_msgs.msg import Clock
@@ -160,8 +183,9 @@ class Player:
             wall0 = None
             bag0 = None
             report = ReadReport()
-            for m in read_messages(self.bag, self.topics, skip_corrupt=self.skip_corrupt,
-                                   report=report):
+            for m in read_messages(
+                self.bag, self.topics, skip_corrupt=self.skip_corrupt, report=report
+            ):
                 if self._stop.is_set():
                     break
                 if wall0 is None:
@@ -187,16 +211,29 @@ def _bag_qos(q):
     """An rclpy QoSProfile as the rosbags ``Qos`` a bag's offered_qos_profiles stores (the
     policies share rmw's integer values)."""
     from rosbags.interfaces import (
-        Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime)
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
 
     def t(d):
         sec, nsec = divmod(int(d.nanoseconds), 1_000_000_000)
         return QosTime(sec, nsec)
 
-    return Qos(QosHistory(int(q.history)), int(q.depth), QosReliability(int(q.reliability)),
-               QosDurability(int(q.durability)), t(q.deadline), t(q.lifespan),
-               QosLiveliness(int(q.liveliness)), t(q.liveliness_lease_duration),
-               bool(q.avoid_ros_namespace_conventions))
+    return Qos(
+        QosHistory(int(q.history)),
+        int(q.depth),
+        QosReliability(int(q.reliability)),
+        QosDurability(int(q.durability)),
+        t(q.deadline),
+        t(q.lifespan),
+        QosLiveliness(int(q.liveliness)),
+        t(q.liveliness_lease_duration),
+        bool(q.avoid_ros_namespace_conventions),
+    )
 
 
 class Recorder:
@@ -210,8 +247,9 @@ class Recorder:
     complete after :meth:`close`.
     """
 
-    def __init__(self, node, output: str | Path, topics: Sequence[str], *,
-                 storage: str = "mcap") -> None:
+    def __init__(
+        self, node, output: str | Path, topics: Sequence[str], *, storage: str = "mcap"
+    ) -> None:
         if not topics:
             raise BagError("no topic to record")
         self.node = node
@@ -241,25 +279,34 @@ class Recorder:
             msgtype = infos[0].topic_type
             others = {i.topic_type for i in infos} - {msgtype}
             if others:
-                raise BagError(f"topic {topic} is published with several types: {msgtype}, "
-                               f"{', '.join(others)}")
+                raise BagError(
+                    f"topic {topic} is published with several types: {msgtype}, {', '.join(others)}"
+                )
             cls = message_class(msgtype)
             best_effort = any(
-                i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
+                i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos
+            )
             latched = all(
-                i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+                i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos
+            )
             qos = QoSProfile(
                 depth=100,
-                reliability=ReliabilityPolicy.BEST_EFFORT if best_effort
+                reliability=ReliabilityPolicy.BEST_EFFORT
+                if best_effort
                 else ReliabilityPolicy.RELIABLE,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
-                else DurabilityPolicy.VOLATILE)
+                durability=DurabilityPolicy.TRANSIENT_LOCAL
+                if latched
+                else DurabilityPolicy.VOLATILE,
+            )
             with self._lock:
                 if self.writer is None:
                     self.writer = BagWriter(self.output, storage=self.storage)
                 self.writer.add_topic(topic, msgtype, [_bag_qos(i.qos_profile) for i in infos])
-            self.subs.append(self.node.create_subscription(
-                cls, topic, self._make_cb(topic, msgtype), qos, raw=True))
+            self.subs.append(
+                self.node.create_subscription(
+                    cls, topic, self._make_cb(topic, msgtype), qos, raw=True
+                )
+            )
             self.subscribed[topic] = msgtype
             self.pending.remove(topic)
             new.append(topic)

@@ -17,6 +17,7 @@ Topics and types (relative names, under the node's namespace):
 ``telemetry/frame_interval``  std_msgs/Float64          recommended frame interval (s), eq. 1
 ========================  ==============================  =========================================
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -47,9 +48,15 @@ def _unknown_cov() -> np.ndarray:
 
 def fix_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "gps") -> bytes:
     status = T["sensor_msgs/msg/NavSatStatus"](status=0, service=1)
-    msg = T[FIX](header=make_header(stamp_ns, frame_id), status=status, latitude=float(s.lat_deg),
-                 longitude=float(s.lon_deg), altitude=float(s.alt_msl_m), position_covariance=_unknown_cov(),
-                 position_covariance_type=0)
+    msg = T[FIX](
+        header=make_header(stamp_ns, frame_id),
+        status=status,
+        latitude=float(s.lat_deg),
+        longitude=float(s.lon_deg),
+        altitude=float(s.alt_msl_m),
+        position_covariance=_unknown_cov(),
+        position_covariance_type=0,
+    )
     return serialize(msg, FIX)
 
 
@@ -69,15 +76,21 @@ def imu_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "base_link") -> b
     V3 = T["geometry_msgs/msg/Vector3"]
     not_given = np.zeros(9, dtype=np.float64)
     not_given[0] = -1.0
-    msg = T[IMU](header=make_header(stamp_ns, frame_id),
-                 orientation=T["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
-                 orientation_covariance=_unknown_cov(), angular_velocity=V3(x=0.0, y=0.0, z=0.0),
-                 angular_velocity_covariance=not_given.copy(), linear_acceleration=V3(x=0.0, y=0.0, z=0.0),
-                 linear_acceleration_covariance=not_given.copy())
+    msg = T[IMU](
+        header=make_header(stamp_ns, frame_id),
+        orientation=T["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
+        orientation_covariance=_unknown_cov(),
+        angular_velocity=V3(x=0.0, y=0.0, z=0.0),
+        angular_velocity_covariance=not_given.copy(),
+        linear_acceleration=V3(x=0.0, y=0.0, z=0.0),
+        linear_acceleration_covariance=not_given.copy(),
+    )
     return serialize(msg, IMU)
 
 
-def sample_messages(s: TelemetrySample, frame_interval_s: float | None = None) -> list[tuple[str, str, bytes]]:
+def sample_messages(
+    s: TelemetrySample, frame_interval_s: float | None = None
+) -> list[tuple[str, str, bytes]]:
     """(relative topic, type, CDR) of every telemetry message for one sample.
 
     A sample without attitude (no recent ATTITUDE message: ``roll_rad`` etc. None) has no

@@ -56,14 +56,13 @@ import json
 import math
 import threading
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import cv2
-import numpy as np
-
 import foxglove
+import numpy as np
 from foxglove.channels import CompressedImageChannel, GeoJsonChannel, LocationFixChannel, LogChannel
 from foxglove.messages import CompressedImage, GeoJson, LocationFix, Log, LogLevel, Timestamp
 
@@ -416,9 +415,7 @@ class Monitor:
                 tls_cert=cert,
                 tls_key=key,
             )
-        except (
-            Exception
-        ) as exc:  # noqa: BLE001 - one line for the operator, whatever the SDK raised
+        except Exception as exc:  # noqa: BLE001 - one line for the operator, whatever the SDK raised
             if self.mcap is not None:
                 self.mcap.close()
             raise MonitorError(f"monitor: cannot serve on {cfg.host}:{cfg.port}: {exc}") from exc

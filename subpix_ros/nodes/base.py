@@ -8,32 +8,45 @@ single-process ``pipeline``, also hands them to in-process listeners
 objects, not DDS messages. ``subscribe_inputs=False`` makes a node skip its
 input subscriptions because the pipeline feeds it directly.
 """
+
 from __future__ import annotations
 
 import dataclasses
-
 import time
 from collections import defaultdict
 from typing import Any, Callable, Sequence
 
 from rclpy.node import Node
 
-from subpix_ros.nodes.common import Diagnostics, DropOldestWorker, Param, declare_params, qos_event_callbacks
+from subpix_ros.nodes.common import (
+    Diagnostics,
+    DropOldestWorker,
+    Param,
+    declare_params,
+    qos_event_callbacks,
+)
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
 
 
 def ros_params(specs: Sequence[Spec]) -> tuple[Param, ...]:
     """A stage's parameter specs as node parameters (same names, defaults, ranges, checks)."""
-    return tuple(Param(**{f.name: getattr(s, f.name) for f in dataclasses.fields(Spec)})
-                 for s in specs)
+    return tuple(
+        Param(**{f.name: getattr(s, f.name) for f in dataclasses.fields(Spec)}) for s in specs
+    )
 
 
 #: Declared by every stage with a main input (``MAIN_INPUTS``), after its own parameters.
 INPUT_PARAMS: tuple[Param, ...] = (
-    Param("input_timeout_s", 5.0, "main input (camera or aligned frames) silent this long, with "
-          "or without a publisher: diagnostics WARN naming the topic and the publishers seen with "
-          "their QoS", 0.5, 3600.0),
+    Param(
+        "input_timeout_s",
+        5.0,
+        "main input (camera or aligned frames) silent this long, with "
+        "or without a publisher: diagnostics WARN naming the topic and the publishers seen with "
+        "their QoS",
+        0.5,
+        3600.0,
+    ),
 )
 
 
@@ -92,7 +105,9 @@ class StageNode(Node):
         def on_error(exc: BaseException) -> None:
             self.diag.error(f"{type(exc).__name__}: {exc}")
 
-        self.worker = DropOldestWorker(handler, maxsize=maxsize, name=f"{self.get_name()}_worker", on_error=on_error)
+        self.worker = DropOldestWorker(
+            handler, maxsize=maxsize, name=f"{self.get_name()}_worker", on_error=on_error
+        )
         self.diag.attach(self.worker)
         return self.worker
 
@@ -104,7 +119,9 @@ class StageNode(Node):
         last = self._last_stamp_ns
         self._last_stamp_ns = stamp_ns
         if last is not None and stamp_ns < last:
-            self.diag.warn(f"time jumped back by {(last - stamp_ns) / 1e9:.3f} s: pipeline state reset")
+            self.diag.warn(
+                f"time jumped back by {(last - stamp_ns) / 1e9:.3f} s: pipeline state reset"
+            )
             self.reset()
             self.diag.clear_stage_times()  # the new stream's stage times are not mixed with the old one's
             self.emit("reset", stamp_ns)
@@ -118,7 +135,9 @@ class StageNode(Node):
         if self.worker is not None:
             self.worker.clear()
 
-    def output(self, kind: str, payload: Any, received: float, time_key: str, **values: Any) -> None:
+    def output(
+        self, kind: str, payload: Any, received: float, time_key: str, **values: Any
+    ) -> None:
         """After publishing: in-process listeners of ``kind``, output rate, latency since
         ``received``, the stage's last time as ``time_key`` and ``values`` on /diagnostics."""
         self.emit(kind, payload)

@@ -11,6 +11,7 @@
 * :func:`camera_qos`, :func:`latched_qos`, :func:`qos_event_callbacks`.
 * :func:`run_nodes`: the ``main`` of every console entry point.
 """
+
 from __future__ import annotations
 
 import collections
@@ -22,16 +23,26 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Sequence
 
 import rclpy
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
 
 from ..runtime import RuntimeSetupError, configure_ros_environment, keep_freed_memory
 from ..stages.params import Spec
@@ -62,20 +73,30 @@ class Param(Spec):
     """
 
     def descriptor(self) -> ParameterDescriptor:
-        d = ParameterDescriptor(name=self.name, description=self.description, read_only=self.read_only)
+        d = ParameterDescriptor(
+            name=self.name, description=self.description, read_only=self.read_only
+        )
         if self.min is not None and self.max is not None:
             if isinstance(self.default, bool):
                 pass
             elif isinstance(self.default, int):
-                d.integer_range = [IntegerRange(from_value=int(self.min), to_value=int(self.max), step=0)]
+                d.integer_range = [
+                    IntegerRange(from_value=int(self.min), to_value=int(self.max), step=0)
+                ]
             elif isinstance(self.default, float):
-                d.floating_point_range = [FloatingPointRange(from_value=float(self.min), to_value=float(self.max), step=0.0)]
+                d.floating_point_range = [
+                    FloatingPointRange(
+                        from_value=float(self.min), to_value=float(self.max), step=0.0
+                    )
+                ]
         if self.choices:
             d.additional_constraints = "one of: " + ", ".join(self.choices)
         return d
 
 
-def declare_params(node: Node, params: Iterable[Param], on_change: Callable[[str, Any], None] | None = None) -> dict[str, Param]:
+def declare_params(
+    node: Node, params: Iterable[Param], on_change: Callable[[str, Any], None] | None = None
+) -> dict[str, Param]:
     """Declare ``params`` on ``node`` and guard them at run time.
 
     A value given at start-up (``--ros-args -p`` or ``--params-file``) that is
@@ -94,7 +115,9 @@ def declare_params(node: Node, params: Iterable[Param], on_change: Callable[[str
             bad = str(exc).splitlines()[0]
             node.undeclare_parameter(p.name) if node.has_parameter(p.name) else None
         if bad:
-            node.get_logger().error(f"parameter rejected at start-up, keeping default {p.default!r}: {bad}")
+            node.get_logger().error(
+                f"parameter rejected at start-up, keeping default {p.default!r}: {bad}"
+            )
             if node.has_parameter(p.name):
                 node.undeclare_parameter(p.name)
             node.declare_parameter(p.name, p.default, p.descriptor(), ignore_override=True)
@@ -114,6 +137,7 @@ def declare_params(node: Node, params: Iterable[Param], on_change: Callable[[str
 
     node.add_on_set_parameters_callback(validate)
     if on_change is not None:
+
         def after(changes: list[Parameter]) -> None:
             for change in changes:
                 if change.name in spec:
@@ -128,22 +152,32 @@ def camera_qos(reliable: bool, depth: int = 5) -> QoSProfile:
     """SensorDataQoS (best effort, volatile) by default; reliable on request."""
     if not reliable:
         return QoSProfile(
-            history=qos_profile_sensor_data.history, depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT,
+            history=qos_profile_sensor_data.history,
+            depth=depth,
+            reliability=ReliabilityPolicy.BEST_EFFORT,
             durability=DurabilityPolicy.VOLATILE,
         )
     return reliable_qos(depth)
 
 
 def reliable_qos(depth: int = 10) -> QoSProfile:
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
 
 
 def latched_qos(depth: int = 1) -> QoSProfile:
     """Reliable + transient-local: a late joiner gets the latest message (a publisher's depth 1). A
     subscriber's ``depth`` > 1 keeps messages that arrive faster than it takes them."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
 
 
 def publish_if_subscribed(publisher, make: Callable[[], Any]) -> bool:
@@ -215,8 +249,13 @@ class DropOldestWorker:
     ``on_error``; the worker keeps running.
     """
 
-    def __init__(self, handler: Callable[[Any], None], maxsize: int = 4, name: str = "worker",
-                 on_error: Callable[[BaseException], None] | None = None) -> None:
+    def __init__(
+        self,
+        handler: Callable[[Any], None],
+        maxsize: int = 4,
+        name: str = "worker",
+        on_error: Callable[[BaseException], None] | None = None,
+    ) -> None:
         self._handler = handler
         self._on_error = on_error
         self._q: collections.deque = collections.deque()
@@ -319,7 +358,13 @@ class Diagnostics:
 
     HISTORY = 200  # durations kept per stage_time key (and latencies)
 
-    def __init__(self, node: Node, hardware_id: str = "subpix_ros", period_s: float = 1.0, hold_s: float = 5.0) -> None:
+    def __init__(
+        self,
+        node: Node,
+        hardware_id: str = "subpix_ros",
+        period_s: float = 1.0,
+        hold_s: float = 5.0,
+    ) -> None:
         self.node = node
         self.name = f"{node.get_name()}"
         self.hardware_id = hardware_id
@@ -342,8 +387,9 @@ class Diagnostics:
     def rate(self, name: str) -> RateMeter:
         return self.rates.setdefault(name, RateMeter())
 
-    def watch_inputs(self, topics: Sequence[str], timeout_s: Callable[[], float],
-                     meter: str = "input") -> None:
+    def watch_inputs(
+        self, topics: Sequence[str], timeout_s: Callable[[], float], meter: str = "input"
+    ) -> None:
         """Report a silent main input: WARN when nothing ticked ``meter`` for ``timeout_s()`` s.
 
         ``topics`` (relative names are resolved with the node's remappings) are one input, e.g.
@@ -373,8 +419,7 @@ class Diagnostics:
             return f"no publisher on {' or '.join(names)}"
         what = "; ".join(f"{t}: {len(p)} publisher(s) {', '.join(p)}" for t, p in seen.items() if p)
         word = "nothing received since the last message" if heard else "nothing received"
-        return (f"{word} on {' or '.join(names)} for over {limit:g} s (input_timeout_s) "
-                f"from {what}")
+        return f"{word} on {' or '.join(names)} for over {limit:g} s (input_timeout_s) from {what}"
 
     def check_inputs(self, now: float | None = None) -> str | None:
         """The input problem now (and report it), or None; called at every publication."""
@@ -486,12 +531,19 @@ class Diagnostics:
 
     def snapshot(self) -> DiagnosticStatus:
         with self._lock:
-            if self._status.level != OK and time.monotonic() - self._status.last_error_time > self.hold_s:
+            if (
+                self._status.level != OK
+                and time.monotonic() - self._status.last_error_time > self.hold_s
+            ):
                 self._status.level = OK
                 self._status.message = "ok"
             values = dict(self._status.values)
-            st = DiagnosticStatus(level=bytes([self._status.level]), name=self.name, message=self._status.message,
-                                  hardware_id=self.hardware_id)
+            st = DiagnosticStatus(
+                level=bytes([self._status.level]),
+                name=self.name,
+                message=self._status.message,
+                hardware_id=self.hardware_id,
+            )
             values["last_error"] = self._status.last_error
             values["recent_problems"] = " | ".join(self._status.recent)
             values["errors_total"] = str(self._status.errors)
@@ -527,7 +579,11 @@ class Diagnostics:
 
 
 # --------------------------------------------------------------------------- main
-def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None, threads: int | None = None) -> int:
+def run_nodes(
+    factories: Sequence[Callable[[], Node]],
+    args: Sequence[str] | None = None,
+    threads: int | None = None,
+) -> int:
     """Init rclpy, build the nodes, spin them on a MultiThreadedExecutor, shut down cleanly.
 
     Freed frame buffers stay in the process's heap for reuse

@@ -20,7 +20,6 @@ import sys
 import threading
 
 import cv2
-
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistStamped, Vector3Stamped
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -45,8 +44,7 @@ _MONITOR_PARAMS = (
     Param(
         "host",
         "127.0.0.1",
-        "address the WebSocket server binds to; anything but loopback needs TLS or "
-        "allow_insecure",
+        "address the WebSocket server binds to; anything but loopback needs TLS or allow_insecure",
         read_only=True,
     ),
     Param("port", 8765, "WebSocket port (0: any free port, logged)", 0, 65535, read_only=True),

@@ -6,6 +6,7 @@ single-process ``pipeline`` they pass between stages directly; between
 processes they travel as the documented ROS messages, and the ``*_from_cdr``
 / ``*_to_cdr`` helpers here convert (fast raw-CDR path).
 """
+
 from __future__ import annotations
 
 import time
@@ -24,7 +25,9 @@ def frame_from_cdr(raw: bytes, received: float | None = None) -> Frame:
     enc = msg.encoding.lower()
     plain = enc in ("mono8", "mono16", "bgr8", "8uc1", "16uc1", "32fc1")
     image = image_to_numpy(msg, "passthrough" if plain else "bgr8")
-    return Frame(cdr.header_to_ns(msg.header), image, msg.header.frame_id, received or time.monotonic())
+    return Frame(
+        cdr.header_to_ns(msg.header), image, msg.header.frame_id, received or time.monotonic()
+    )
 
 
 def frame_from_compressed_cdr(raw: bytes, received: float | None = None) -> Frame:
@@ -41,8 +44,16 @@ def homography_from_cdr(raw: bytes) -> np.ndarray:
 
 def shift_from_cdr(raw: bytes) -> Shift:
     vec, header = cdr.cdr_to_vector3_stamped(raw)
-    return Shift(cdr.header_to_ns(header), -1, float(vec[0]), float(vec[1]), float(vec[2]),
-                 float("nan"), float("nan"), header.frame_id)
+    return Shift(
+        cdr.header_to_ns(header),
+        -1,
+        float(vec[0]),
+        float(vec[1]),
+        float(vec[2]),
+        float("nan"),
+        float("nan"),
+        header.frame_id,
+    )
 
 
 # ---------------------------------------------------------------- payloads -> messages
@@ -75,7 +86,9 @@ def shift_cdr(s: Shift) -> bytes:
 def reference_link_cdr(stamp_ns: int, reference_stamp_ns: int, frame_id: str = "") -> bytes:
     """sensor_msgs/TimeReference naming an aligned frame's reference: header = the aligned frame's (stamp,
     frame_id), ``time_ref`` = its reference frame's stamp."""
-    return cdr.time_reference_to_cdr(stamp_ns, reference_stamp_ns, frame_id, "subpix_ros reference frame")
+    return cdr.time_reference_to_cdr(
+        stamp_ns, reference_stamp_ns, frame_id, "subpix_ros reference frame"
+    )
 
 
 def reference_link_from_cdr(raw: bytes) -> tuple[int, int]:

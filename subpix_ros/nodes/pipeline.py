@@ -15,6 +15,7 @@ telemetry comes from a bag). ``--monitor`` adds ``monitor_node`` (live
 Foxglove view), fed the camera frames, shifts (with their standard errors)
 and super-resolved images in memory.
 """
+
 from __future__ import annotations
 
 import sys
@@ -34,7 +35,9 @@ def build(with_telemetry: bool = True, with_monitor: bool = False):
     shift = ShiftNode(subscribe_inputs=False)
     recon = ReconstructionNode(subscribe_inputs=False)
     mosaic = MosaicNode(subscribe_inputs=False)
-    reg.listen("frame", mosaic.handle_frame)  # camera -> registration (subscribed) and mosaic (in memory)
+    reg.listen(
+        "frame", mosaic.handle_frame
+    )  # camera -> registration (subscribed) and mosaic (in memory)
     reg.listen("aligned", shift.handle_aligned)
     shift.listen("shift", recon.handle_shift)
     nodes = [reg, shift, recon, mosaic]
@@ -67,6 +70,7 @@ def main(args: Sequence[str] | None = None) -> int:
             if not nodes:
                 nodes.extend(build(with_telemetry, with_monitor))
             return nodes[i]
+
         return make
 
     count = (5 if with_telemetry else 4) + (1 if with_monitor else 0)

@@ -48,7 +48,6 @@ from subpix_ros.nodes.common import (
 )
 from subpix_ros.stages import Aligned, NewReference, RegistrationStage, Skipped
 
-
 LINK_HISTORY = 100  # aligned/reference_stamp messages a late-joining consumer still gets
 
 

@@ -14,18 +14,23 @@ defined), ``telemetry/detector_angle`` (Float64, rad: eq. 2 for p, latched) and
 ``telemetry/expected_shift`` (Vector3Stamped: x = u rows, y = v columns, in
 pixels per camera frame at ``camera_rate_hz``; z = image speed, px/s).
 """
+
 from __future__ import annotations
 
 import math
 import threading
 from pathlib import Path
 
-
 from geometry_msgs.msg import TwistStamped, Vector3Stamped
 from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Float64
 
-from subpix_ros.core.telemetry import TelemetrySample, heading_from_quaternion_enu, sample_from_enu, validate_sample
+from subpix_ros.core.telemetry import (
+    TelemetrySample,
+    heading_from_quaternion_enu,
+    sample_from_enu,
+    validate_sample,
+)
 from subpix_ros.core.timing import detector_angle, expected_shift_px, frame_interval
 from subpix_ros.io import cdr
 from subpix_ros.io import telemetry_msgs as tm
@@ -36,29 +41,69 @@ from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes,
 class TelemetryNode(StageNode):
     PARAMS = (
         Param("source", "mavlink", "telemetry source", choices=("mavlink", "mavros")),
-        Param("connection", "udpin:127.0.0.1:14550", "pymavlink connection: udpin:/udpout:/tcp:HOST:PORT, serial device, or .tlog"),
+        Param(
+            "connection",
+            "udpin:127.0.0.1:14550",
+            "pymavlink connection: udpin:/udpout:/tcp:HOST:PORT, serial device, or .tlog",
+        ),
         Param("baud", 57600, "serial baud rate", 1200, 4000000),
         Param("system_id", 0, "MAVLink system id to follow (0: the first vehicle seen)", 0, 255),
         Param("link_timeout_s", 2.0, "no message for this long: link lost", 0.1, 60.0),
         Param("tlog_rate", 1.0, "tlog replay speed (0: as fast as possible)", 0.0, 1000.0),
-        Param("tlog_start_delay_s", 1.0, "tlog replay starts this long after start-up (subscribers connect)", 0.0, 60.0),
+        Param(
+            "tlog_start_delay_s",
+            1.0,
+            "tlog replay starts this long after start-up (subscribers connect)",
+            0.0,
+            60.0,
+        ),
         Param("focal_length_mm", 4.3, "camera focal length (mm)", 0.1, 2000.0),
         Param("pixel_pitch_um", 1.54, "detector pixel pitch (um)", 0.1, 100.0),
         Param("p", 2.0, "sub-pixel factor: frames should step by 1/p pixel", 2.0, 16.0),
-        Param("phi_deg", 0.0, "angle between the detector's long axis and the ground track (deg), eq. 1", -89.0, 89.0),
-        Param("camera_rate_hz", 30.0, "camera frame rate, for the expected shift per frame", 0.1, 1000.0),
-        Param("camera_yaw_offset_deg", 0.0, "compass angle of the image top relative to the vehicle heading (deg)",
-              -180.0, 180.0),
-        Param("mavros_fix_topic", "/mavros/global_position/global", "mavros source: NavSatFix topic"),
-        Param("mavros_velocity_topic", "/mavros/local_position/velocity_local", "mavros source: TwistStamped (ENU)"),
-        Param("mavros_height_topic", "/mavros/global_position/rel_alt", "mavros source: Float64 relative altitude"),
+        Param(
+            "phi_deg",
+            0.0,
+            "angle between the detector's long axis and the ground track (deg), eq. 1",
+            -89.0,
+            89.0,
+        ),
+        Param(
+            "camera_rate_hz",
+            30.0,
+            "camera frame rate, for the expected shift per frame",
+            0.1,
+            1000.0,
+        ),
+        Param(
+            "camera_yaw_offset_deg",
+            0.0,
+            "compass angle of the image top relative to the vehicle heading (deg)",
+            -180.0,
+            180.0,
+        ),
+        Param(
+            "mavros_fix_topic", "/mavros/global_position/global", "mavros source: NavSatFix topic"
+        ),
+        Param(
+            "mavros_velocity_topic",
+            "/mavros/local_position/velocity_local",
+            "mavros source: TwistStamped (ENU)",
+        ),
+        Param(
+            "mavros_height_topic",
+            "/mavros/global_position/rel_alt",
+            "mavros source: Float64 relative altitude",
+        ),
         Param("mavros_imu_topic", "/mavros/imu/data", "mavros source: Imu"),
     )
 
     def __init__(self, *, name: str = "telemetry_node", **kw) -> None:
         super().__init__(name, **kw)
         q = reliable_qos(20)
-        self.pubs = {key: self.create_publisher(_cls(t), f"telemetry/{key}", q) for key, t in tm.TOPICS.items()}
+        self.pubs = {
+            key: self.create_publisher(_cls(t), f"telemetry/{key}", q)
+            for key, t in tm.TOPICS.items()
+        }
         self.pub_shift = self.create_publisher(Vector3Stamped, "telemetry/expected_shift", q)
         self.pub_angle = self.create_publisher(Float64, "telemetry/detector_angle", latched_qos())
         self.pub_angle.publish(Float64(data=detector_angle(self.p("p"))))
@@ -82,9 +127,15 @@ class TelemetryNode(StageNode):
             return
         try:
             rate = self.p("tlog_rate") if url.endswith(".tlog") else None
-            self.reader = MavlinkReader(url, baud=self.p("baud"), system_id=self.p("system_id") or None,
-                                        link_timeout_s=self.p("link_timeout_s"), on_sample=self.handle_sample,
-                                        on_status=self._on_link, rate=rate or None)
+            self.reader = MavlinkReader(
+                url,
+                baud=self.p("baud"),
+                system_id=self.p("system_id") or None,
+                link_timeout_s=self.p("link_timeout_s"),
+                on_sample=self.handle_sample,
+                on_status=self._on_link,
+                rate=rate or None,
+            )
             if url.endswith(".tlog") and self.p("tlog_start_delay_s") > 0:
                 self._delay = self.create_timer(self.p("tlog_start_delay_s"), self._start_reader)
             else:
@@ -99,10 +150,21 @@ class TelemetryNode(StageNode):
 
     def _start_mavros(self) -> None:
         q = reliable_qos(20)
-        self.create_subscription(NavSatFix, self.p("mavros_fix_topic"), lambda m: self._mavros.__setitem__("fix", m), q)
-        self.create_subscription(Float64, self.p("mavros_height_topic"), lambda m: self._mavros.__setitem__("h", m.data), q)
-        self.create_subscription(Imu, self.p("mavros_imu_topic"), lambda m: self._mavros.__setitem__("imu", m), q)
-        self.create_subscription(TwistStamped, self.p("mavros_velocity_topic"), self._on_mavros_velocity, q)
+        self.create_subscription(
+            NavSatFix, self.p("mavros_fix_topic"), lambda m: self._mavros.__setitem__("fix", m), q
+        )
+        self.create_subscription(
+            Float64,
+            self.p("mavros_height_topic"),
+            lambda m: self._mavros.__setitem__("h", m.data),
+            q,
+        )
+        self.create_subscription(
+            Imu, self.p("mavros_imu_topic"), lambda m: self._mavros.__setitem__("imu", m), q
+        )
+        self.create_subscription(
+            TwistStamped, self.p("mavros_velocity_topic"), self._on_mavros_velocity, q
+        )
 
     def _on_mavros_velocity(self, msg: TwistStamped) -> None:
         fix, h = self._mavros.get("fix"), self._mavros.get("h")
@@ -110,11 +172,23 @@ class TelemetryNode(StageNode):
             self.diag.warn("mavros: waiting for fix and rel_alt before publishing")
             return
         imu = self._mavros.get("imu")
-        heading = None if imu is None else heading_from_quaternion_enu(
-            imu.orientation.x, imu.orientation.y, imu.orientation.z, imu.orientation.w)
+        heading = (
+            None
+            if imu is None
+            else heading_from_quaternion_enu(
+                imu.orientation.x, imu.orientation.y, imu.orientation.z, imu.orientation.w
+            )
+        )
         v = msg.twist.linear
-        s = sample_from_enu(stamp_to_ns(msg.header.stamp) * 1e-9, (v.x, v.y, v.z), float(h), lat_deg=fix.latitude,
-                            lon_deg=fix.longitude, alt_msl_m=fix.altitude, heading_rad=heading)
+        s = sample_from_enu(
+            stamp_to_ns(msg.header.stamp) * 1e-9,
+            (v.x, v.y, v.z),
+            float(h),
+            lat_deg=fix.latitude,
+            lon_deg=fix.longitude,
+            alt_msl_m=fix.altitude,
+            heading_rad=heading,
+        )
         self.handle_sample(s)
 
     def _on_link(self, event) -> None:
@@ -133,23 +207,43 @@ class TelemetryNode(StageNode):
             self.diag.warn(f"telemetry sample rejected: {why}")
             return
         f_m, a_m, p = self.p("focal_length_mm") * 1e-3, self.p("pixel_pitch_um") * 1e-6, self.p("p")
-        iv = frame_interval(a_m, s.height_agl_m, f_m, s.ground_speed_mps, p, math.radians(self.p("phi_deg")))
+        iv = frame_interval(
+            a_m, s.height_agl_m, f_m, s.ground_speed_mps, p, math.radians(self.p("phi_deg"))
+        )
         with self._lock:
             for topic, msgtype, raw in tm.sample_messages(s, iv.interval_s if iv.ok else None):
                 self.pubs[topic.split("/", 1)[1]].publish(raw)
-            heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(self.p("camera_yaw_offset_deg"))
+            heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(
+                self.p("camera_yaw_offset_deg")
+            )
             try:
-                u, v = expected_shift_px(s.ground_speed_mps, s.course_rad, s.height_agl_m, f_m, a_m,
-                                         1.0 / self.p("camera_rate_hz"), heading)
-                self.pub_shift.publish(cdr.vector3_stamped_to_cdr(
-                    (u, v, math.hypot(u, v) * self.p("camera_rate_hz")), int(round(s.t * 1e9)), "camera"))
+                u, v = expected_shift_px(
+                    s.ground_speed_mps,
+                    s.course_rad,
+                    s.height_agl_m,
+                    f_m,
+                    a_m,
+                    1.0 / self.p("camera_rate_hz"),
+                    heading,
+                )
+                self.pub_shift.publish(
+                    cdr.vector3_stamped_to_cdr(
+                        (u, v, math.hypot(u, v) * self.p("camera_rate_hz")),
+                        int(round(s.t * 1e9)),
+                        "camera",
+                    )
+                )
             except ValueError as exc:
                 self.diag.warn(f"expected shift undefined: {exc}")
         self.samples += 1
         self.emit("sample", s)
         self.diag.rate("output").tick()
-        self.diag.set(samples=self.samples, height_m=float(s.height_agl_m), ground_speed_mps=float(s.ground_speed_mps),
-                      frame_interval_s=iv.interval_s if iv.ok else f"undefined: {iv.reason}")
+        self.diag.set(
+            samples=self.samples,
+            height_m=float(s.height_agl_m),
+            ground_speed_mps=float(s.ground_speed_mps),
+            frame_interval_s=iv.interval_s if iv.ok else f"undefined: {iv.reason}",
+        )
         if not iv.ok:
             self.diag.warn(f"no frame interval: {iv.reason}")
 
@@ -157,8 +251,15 @@ class TelemetryNode(StageNode):
         if self.reader is None:
             return
         st = self.reader.stats
-        self.diag.set(link=self.reader.link_state, packets=st.packets, bad_crc=st.bad_crc, garbage_bytes=st.garbage_bytes,
-                      other_system=st.other_system, rejected=st.rejected, last_reject=st.last_reject)
+        self.diag.set(
+            link=self.reader.link_state,
+            packets=st.packets,
+            bad_crc=st.bad_crc,
+            garbage_bytes=st.garbage_bytes,
+            other_system=st.other_system,
+            rejected=st.rejected,
+            last_reject=st.last_reject,
+        )
         if self.reader.link_state == "lost":
             self.diag.warn("MAVLink link lost")
 

@@ -103,7 +103,14 @@ def interrupt_on_signals() -> None:
 
 
 def _worker(
-    bag: str, out: str, params: dict, camera_topic, telemetry, force: bool, threads: int, queue,
+    bag: str,
+    out: str,
+    params: dict,
+    camera_topic,
+    telemetry,
+    force: bool,
+    threads: int,
+    queue,
     skip_corrupt: bool = False,
 ) -> BagResult:
     import cv2
@@ -194,7 +201,15 @@ def run_batch(
     try:
         futs = {
             pool.submit(
-                _worker, b, str(out), params, camera_topic, telemetry, force, threads, queue,
+                _worker,
+                b,
+                str(out),
+                params,
+                camera_topic,
+                telemetry,
+                force,
+                threads,
+                queue,
                 skip_corrupt,
             ): i
             for i, b in enumerate(bags)

@@ -36,8 +36,8 @@ import re
 import resource
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -652,9 +652,7 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                     mosaic_jobs.append((rec, mosaic_pool.submit(mosaic.add, _preview(frame))))
                     try:
                         pipe.add(frame)
-                    except (
-                        Exception
-                    ) as exc:  # noqa: BLE001 - a stage failure drops the frame, not the flight
+                    except Exception as exc:  # noqa: BLE001 - a stage failure drops the frame, not the flight
                         col.on_error(f"{type(exc).__name__}: {exc}")
                     add_ms.append(1000.0 * (time.perf_counter() - t0))
                     if rec.status == "in":

@@ -131,9 +131,12 @@ class Flight:
                 try:
                     frame = decode(m.raw, received=0.0)
                 except Exception as exc:  # noqa: BLE001 - a bad frame is counted, not fatal
-                    yield "bad_frame", (
-                        m.timestamp_ns,
-                        f"undecodable image: {' '.join(str(exc).split())[:160]}",
+                    yield (
+                        "bad_frame",
+                        (
+                            m.timestamp_ns,
+                            f"undecodable image: {' '.join(str(exc).split())[:160]}",
+                        ),
                     )
                     continue
                 while i < len(pending) and pending[i].t <= frame.stamp_s:

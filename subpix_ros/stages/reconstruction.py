@@ -24,6 +24,7 @@ from subpix_ros.stages.params import Spec
 from subpix_ros.stages.stats import ReconstructionStats
 from subpix_ros.stages.types import Aligned, Shift, SuperResolved, _to_dtype
 
+
 def _blur_setting_error(value) -> str | None:
     try:
         parse_blur_sigma(value)
@@ -384,7 +385,13 @@ class ReconstructionStage(Stage):
         )
 
 
-_SET_HERE = {"method", "masks", "geometry", "refine_shifts", "blur_sigma"}  # given by the stage itself
+_SET_HERE = {
+    "method",
+    "masks",
+    "geometry",
+    "refine_shifts",
+    "blur_sigma",
+}  # given by the stage itself
 
 
 def _mono(img: np.ndarray) -> np.ndarray:

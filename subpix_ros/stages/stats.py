@@ -123,7 +123,9 @@ class ReconstructionStats(StageStats):
     fell_back: bool | None = None
     fallback_reason: str = ""
     noise_sigma: float | None = None
-    frames: int | None = None  # frames used in the last image (fewer than the set under max_memory_mb)
+    frames: int | None = (
+        None  # frames used in the last image (fewer than the set under max_memory_mb)
+    )
     memory_estimate_mb: float | None = None  # predicted working memory of the last reconstruction
     memory_reduction: str = ""  # what max_memory_mb gave up in the last one ("" nothing)
     memory_reduced: int = 0  # images made with a reduction

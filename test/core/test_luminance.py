@@ -1,4 +1,5 @@
 """Seed luminance: 0.2989 R + 0.587 G + 0.1141 B, channel order explicit."""
+
 import numpy as np
 import pytest
 

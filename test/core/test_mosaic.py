@@ -1,4 +1,5 @@
 """Incremental overview mosaic: the real 9-frame Seneca strip, bounded canvas, rejected frames."""
+
 from __future__ import annotations
 
 import cv2
@@ -45,11 +46,18 @@ def test_mosaic_content_matches_last_frame(strip_mosaic, frames):
     """The newest frame is drawn on top: sampling the canvas through its chain reproduces it."""
     m, _ = strip_mosaic
     t = m._s @ m.transforms[-1]
-    small = cv2.warpPerspective(m.image(), np.linalg.inv(t) @ np.diag([1.0, 1.0, 1.0]), (frames[-1].shape[1], frames[-1].shape[0]))
+    small = cv2.warpPerspective(
+        m.image(),
+        np.linalg.inv(t) @ np.diag([1.0, 1.0, 1.0]),
+        (frames[-1].shape[1], frames[-1].shape[0]),
+    )
     # compare at the canvas' resolution: blur the frame to the canvas scale
     k = int(round(1 / m.scale))
-    ref = cv2.resize(cv2.resize(frames[-1], None, fx=1 / k, fy=1 / k, interpolation=cv2.INTER_AREA),
-                     (frames[-1].shape[1], frames[-1].shape[0]), interpolation=cv2.INTER_LINEAR)
+    ref = cv2.resize(
+        cv2.resize(frames[-1], None, fx=1 / k, fy=1 / k, interpolation=cv2.INTER_AREA),
+        (frames[-1].shape[1], frames[-1].shape[0]),
+        interpolation=cv2.INTER_LINEAR,
+    )
     inner = (slice(200, -200), slice(200, -200))
     diff = np.abs(small[inner].astype(float) - ref[inner].astype(float)).mean()
     assert diff < 12, diff
@@ -85,6 +93,7 @@ def test_bad_input_raises():
 
 # -- h(y) transition (METHODS C, eq. 3) -------------------------------------------------------
 
+
 def _h_forward(dy: float, persp: float) -> np.ndarray:
     """Frame k px -> frame k-1 px for a 200x300 (HxW) frame advanced by ``dy`` rows, with a small
     rotation and perspective (so that H is not a similarity)."""
@@ -95,9 +104,13 @@ def _h_forward(dy: float, persp: float) -> np.ndarray:
 
 def test_transition_weight_and_maps_follow_eq3():
     shape = (200, 300)
-    h_prev = PairModel(_h_forward(120.0, 2e-4))  # frame k -> k-1 (frame k lies 120 rows further down)
+    h_prev = PairModel(
+        _h_forward(120.0, 2e-4)
+    )  # frame k -> k-1 (frame k lies 120 rows further down)
     h_next = PairModel(_h_forward(110.0, -1e-4))  # frame k+1 -> k
-    p_prev = np.array([[0.9, -0.1, 40.0], [0.1, 0.9, 70.0], [0, 0, 1.0]])  # similarity placing frame k-1
+    p_prev = np.array(
+        [[0.9, -0.1, 40.0], [0.1, 0.9, 70.0], [0, 0, 1.0]]
+    )  # similarity placing frame k-1
     geo = FrameGeometry.chained(p_prev, h_prev, shape, shape, h_next, shape)
     # flight direction: frame k-1's centre maps to negative rows of frame k -> d points down (+y)
     assert geo.direction[1] > 0.99
@@ -106,19 +119,30 @@ def test_transition_weight_and_maps_follow_eq3():
     assert np.allclose(geo.weight(trailing), 1.0)
     g = np.stack(np.meshgrid(np.linspace(0, 299, 13), np.linspace(0, 199, 9)), -1).reshape(-1, 2)
     inside_next = h_next.fwd(g)  # frame k+1's pixels in frame k ...
-    inside_next = inside_next[(inside_next >= 0).all(1) & (inside_next[:, 0] <= 299) & (inside_next[:, 1] <= 199)]
-    assert len(inside_next) > 20 and np.allclose(geo.weight(inside_next), 0.0)  # ... keep frame k's own geometry
+    inside_next = inside_next[
+        (inside_next >= 0).all(1) & (inside_next[:, 0] <= 299) & (inside_next[:, 1] <= 199)
+    ]
+    assert len(inside_next) > 20 and np.allclose(
+        geo.weight(inside_next), 0.0
+    )  # ... keep frame k's own geometry
     # linear in between (eq. 3: h = 1 - (y - H_k) / (H_(k+1) - H_k))
     t = np.linspace(geo.t1, geo.t2, 7)
     pts = geo.centre + t[:, None] * geo.direction
     np.testing.assert_allclose(geo.weight(pts), 1 - (t - geo.t1) / (geo.t2 - geo.t1), atol=1e-12)
     # D_k = P_(k-1) H_k where h = 1, and P_k = P_(k-1) A_k (own geometry) where h = 0
-    np.testing.assert_allclose(geo.to_mosaic(trailing), apply_h(p_prev, h_prev.fwd(trailing)), atol=1e-9)
-    np.testing.assert_allclose(geo.to_mosaic(inside_next), apply_h(geo.placement, inside_next), atol=1e-9)
+    np.testing.assert_allclose(
+        geo.to_mosaic(trailing), apply_h(p_prev, h_prev.fwd(trailing)), atol=1e-9
+    )
+    np.testing.assert_allclose(
+        geo.to_mosaic(inside_next), apply_h(geo.placement, inside_next), atol=1e-9
+    )
     a = geo.placement[:2, :2]
     np.testing.assert_allclose(a @ a.T, np.eye(2) * np.linalg.det(a), atol=1e-12)  # a similarity
     # H is not a similarity, so the two geometries really differ inside the frame
-    assert np.abs(apply_h(p_prev, h_prev.fwd(inside_next)) - apply_h(geo.placement, inside_next)).max() > 1.0
+    assert (
+        np.abs(apply_h(p_prev, h_prev.fwd(inside_next)) - apply_h(geo.placement, inside_next)).max()
+        > 1.0
+    )
 
 
 def test_seam_is_exact_and_own_geometry_reverses():
@@ -140,7 +164,7 @@ def test_strip_visible_parts_match_their_frames(strip_mosaic, frames):
     m, _ = strip_mosaic
     img = m.image()
     hh, ww = frames[0].shape[:2]
-    ys, xs = np.mgrid[40:hh - 40:4, 40:ww - 40:4]
+    ys, xs = np.mgrid[40 : hh - 40 : 4, 40 : ww - 40 : 4]
     pts = np.stack([xs.ravel(), ys.ravel()], 1).astype(float)
     k = int(round(1 / m.scale))
     border = np.array([[0, 0], [ww - 1, 0], [ww - 1, hh - 1], [0, hh - 1]], float)
@@ -153,11 +177,20 @@ def test_strip_visible_parts_match_their_frames(strip_mosaic, frames):
         qi = np.clip(np.rint(q).astype(int), 0, [img.shape[1] - 1, img.shape[0] - 1])
         vis = covered[qi[:, 1], qi[:, 0]] == 0
         assert vis.sum() > 20000, (i, vis.sum())
-        ref = cv2.resize(cv2.resize(frames[i], None, fx=1 / k, fy=1 / k, interpolation=cv2.INTER_AREA),
-                         (ww, hh), interpolation=cv2.INTER_LINEAR)[ys, xs].reshape(-1, 3).astype(float)
+        ref = (
+            cv2.resize(
+                cv2.resize(frames[i], None, fx=1 / k, fy=1 / k, interpolation=cv2.INTER_AREA),
+                (ww, hh),
+                interpolation=cv2.INTER_LINEAR,
+            )[ys, xs]
+            .reshape(-1, 3)
+            .astype(float)
+        )
 
         def diff(dx):
-            s = cv2.remap(img, (q[:, 0] + dx).reshape(xs.shape), q[:, 1].reshape(xs.shape), cv2.INTER_LINEAR)
+            s = cv2.remap(
+                img, (q[:, 0] + dx).reshape(xs.shape), q[:, 1].reshape(xs.shape), cv2.INTER_LINEAR
+            )
             return np.abs(s.reshape(-1, 3).astype(float) - ref)[vis].mean()
 
         assert diff(0.0) < 6.0, (i, diff(0.0))

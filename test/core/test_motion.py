@@ -1,4 +1,5 @@
 """core.motion: constant-velocity prediction of the next frame's homography."""
+
 import numpy as np
 import pytest
 
@@ -42,13 +43,17 @@ def test_scale_of_homography_is_irrelevant_and_bad_input_raises():
 
 def test_motion_scaled_by_frame_interval():
     d = _h(0.41, 0.27)  # measured over one frame interval
-    np.testing.assert_allclose(scale_motion(d, 3.0), _h(1.23, 0.81), atol=1e-12)  # two frames dropped
+    np.testing.assert_allclose(
+        scale_motion(d, 3.0), _h(1.23, 0.81), atol=1e-12
+    )  # two frames dropped
     np.testing.assert_allclose(scale_motion(d, 0.0), np.eye(3), atol=1e-12)
     r = _h(2.0, -1.0, np.deg2rad(0.2))
     # first order: off the true matrix power by ~ rotation x translation (0.0035 rad x 2 px = 0.007 px here),
     # far inside the tracking search radius
     np.testing.assert_allclose(scale_motion(r, 2.0), r @ r, atol=1e-2)
-    np.testing.assert_allclose(predict_homography(_h(5.0, 1.0), d, ratio=2.0), _h(5.82, 1.54), atol=1e-12)
+    np.testing.assert_allclose(
+        predict_homography(_h(5.0, 1.0), d, ratio=2.0), _h(5.82, 1.54), atol=1e-12
+    )
     with pytest.raises(ValueError):
         scale_motion(d, -1.0)
 
@@ -62,7 +67,9 @@ def test_tracker_follows_restarts_forgets_and_gives_up_on_long_gaps():
     assert tr.predict(0.1) is None  # no motion known, the last frame is the reference: search fully
     tr.update(d, 0.1)
     np.testing.assert_allclose(tr.predict(0.2), d @ d, atol=1e-12)
-    np.testing.assert_allclose(tr.predict(0.4), _h(1.23 + 0.41, 0.81 + 0.27), atol=1e-12)  # two frames lost
+    np.testing.assert_allclose(
+        tr.predict(0.4), _h(1.23 + 0.41, 0.81 + 0.27), atol=1e-12
+    )  # two frames lost
     tr.restart(0.1)  # frame 1 becomes the reference: the chain restarts, the motion carries on
     np.testing.assert_allclose(tr.predict(0.2), d, atol=1e-12)
     assert tr.predict(0.1 + 0.1 * 25) is None  # a gap of 25 intervals predicts nothing

@@ -1,4 +1,5 @@
 """Slanted-edge MTF: validation against analytic MTFs, and the paper's evaluation (METHODS.md B)."""
+
 import numpy as np
 import pytest
 from scipy.special import erf
@@ -7,7 +8,9 @@ from subpix_ros.core.evaluate import mtf30_evaluation
 from subpix_ros.core.mtf import gaussian_pixel_mtf, mtf_crossing, slanted_edge_mtf
 
 
-def edge_image(h, w, angle_deg, sigma, ss=8, lo=50.0, hi=200.0, noise=0.0, seed=0, horizontal=False):
+def edge_image(
+    h, w, angle_deg, sigma, ss=8, lo=50.0, hi=200.0, noise=0.0, seed=0, horizontal=False
+):
     """Pixel-integrated (ss x ss sub-samples) image of a Gaussian-blurred straight edge.
 
     The edge passes through the image centre, tilted ``angle_deg`` from the column

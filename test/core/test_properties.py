@@ -1,5 +1,6 @@
 """Property tests (hypothesis) for the core estimators: invariances that must hold
 for any shift, crop and offset, not just the hand-picked cases."""
+
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -15,13 +16,19 @@ frac = st.floats(min_value=-2.5, max_value=2.5, allow_nan=False)
 
 
 def _pair(name, r0, c0, shift, seed):
-    hr = CROPS[name][r0:r0 + 320, c0:c0 + 320]
+    hr = CROPS[name][r0 : r0 + 320, c0 : c0 + 320]
     return render_sequence(hr, 2, [(0.0, 0.0), shift], 0.4, snr_db=40, seed=seed, margin=12).frames
 
 
 @FAST
-@given(name=st.sampled_from(CROP_NAMES), r0=st.integers(0, 400), c0=st.integers(0, 400), u=frac, v=frac,
-       seed=st.integers(0, 1000))
+@given(
+    name=st.sampled_from(CROP_NAMES),
+    r0=st.integers(0, 400),
+    c0=st.integers(0, 400),
+    u=frac,
+    v=frac,
+    seed=st.integers(0, 1000),
+)
 def test_shift_estimate_recovers_any_shift(name, r0, c0, u, v, seed):
     ref, mov = _pair(name, r0, c0, (u, v), seed)
     r = estimate_shift(ref, mov)
@@ -38,9 +45,9 @@ def test_moving_the_input_by_whole_pixels_moves_the_estimate(name, u, v, a, b):
     h, w = mov.shape
     m = 6
     moved = np.zeros_like(mov)
-    moved[m + a:h - m + a, m + b:w - m + b] = mov[m:h - m, m:w - m]
+    moved[m + a : h - m + a, m + b : w - m + b] = mov[m : h - m, m : w - m]
     valid = np.zeros(mov.shape, bool)
-    valid[m + a:h - m + a, m + b:w - m + b] = True
+    valid[m + a : h - m + a, m + b : w - m + b] = True
     r2 = estimate_shift(ref, moved, mask=(np.ones_like(valid), valid))
     assert r1.ok and r2.ok
     assert abs((r2.u - r1.u) - a) < 0.01 and abs((r2.v - r1.v) - b) < 0.01
@@ -56,10 +63,16 @@ def test_swapping_the_frames_negates_the_shift(name, u, v):
 
 
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(name=st.sampled_from(["crop_road", "crop_trees", "crop_field_edge"]), u=st.floats(-6, 6), v=st.floats(-6, 6))
+@given(
+    name=st.sampled_from(["crop_road", "crop_trees", "crop_field_edge"]),
+    u=st.floats(-6, 6),
+    v=st.floats(-6, 6),
+)
 def test_registration_of_a_translation_is_that_translation(name, u, v):
     hr = CROPS[name][:640, :640]
-    ref, mov = render_sequence(hr, 2, [(0.0, 0.0), (u, v)], 0.4, snr_db=40, seed=3, margin=12).frames
+    ref, mov = render_sequence(
+        hr, 2, [(0.0, 0.0), (u, v)], 0.4, snr_db=40, seed=3, margin=12
+    ).frames
     r = register(ref, mov)
     assert r.ok, r.reason
     # moving (x, y) -> reference: content moved by +(u, v) (rows, cols), so H translates by -(v, u)

@@ -1,5 +1,6 @@
 """Co-registration (METHODS C stages 1-3) and align(): synthetic pairs with known geometry,
 real Seneca pairs, failure cases."""
+
 from __future__ import annotations
 
 import cv2
@@ -23,8 +24,13 @@ def _synthetic_pair(hr: np.ndarray, h384: np.ndarray, noise: float = 1.0, seed: 
     """
     s = np.array([[2, 0, 0.5], [0, 2, 0.5], [0, 0, 1.0]])
     h = s @ h384 @ np.linalg.inv(s)
-    mov = cv2.warpPerspective(hr.astype(np.float32), h, (768, 768),
-                              flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
+    mov = cv2.warpPerspective(
+        hr.astype(np.float32),
+        h,
+        (768, 768),
+        flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_REFLECT,
+    )
     rng = np.random.default_rng(seed)
 
     def lr(x):
@@ -34,7 +40,9 @@ def _synthetic_pair(hr: np.ndarray, h384: np.ndarray, noise: float = 1.0, seed: 
     return lr(hr), lr(mov)
 
 
-def _known_h(deg: float, tx: float, ty: float, p: tuple[float, float] = (2e-5, -1e-5)) -> np.ndarray:
+def _known_h(
+    deg: float, tx: float, ty: float, p: tuple[float, float] = (2e-5, -1e-5)
+) -> np.ndarray:
     th = np.deg2rad(deg)
     c = 191.5
     t = np.array([[1, 0, c], [0, 1, c], [0, 0, 1.0]])
@@ -88,7 +96,10 @@ def test_real_seneca_pairs_all_register(seneca):
     for i in range(8):
         res = register(seneca[i], seneca[i + 1])
         assert res.ok, (i, res.reason)
-        assert res.inliers >= 200, (i, res.inliers)  # issue 4 target, also on the weak-texture lawn pairs
+        assert res.inliers >= 200, (
+            i,
+            res.inliers,
+        )  # issue 4 target, also on the weak-texture lawn pairs
         assert res.spread >= 0.4, (i, res.spread)
         assert res.rms_px <= 1.0, (i, res.rms_px)
         assert res.rms_px <= res.rms_px_projective + 1e-9
@@ -112,8 +123,14 @@ def test_residual_along_cross_decomposes_the_inlier_residual():
     e, n = np.array([0.6, 0.8]), np.array([-0.8, 0.6])
     sign = np.where(np.arange(40) % 2 == 0, 1.0, -1.0)[:, None]
     pr = apply_h(h, pm) - (0.5 * e + 0.2 * sign * n)  # residual transfer(pm) - pr = 0.5 e +- 0.2 n
-    res = RegistrationResult(ok=True, homography=h, inliers=40, points=np.hstack([pr, pm]),
-                             ref_shape=(384, 384), mov_shape=(384, 384))
+    res = RegistrationResult(
+        ok=True,
+        homography=h,
+        inliers=40,
+        points=np.hstack([pr, pm]),
+        ref_shape=(384, 384),
+        mov_shape=(384, 384),
+    )
     along, cross = res.residual_along_cross()
     assert along == pytest.approx(0.5, abs=1e-9)
     assert cross == pytest.approx(0.2, abs=1e-9)
@@ -133,7 +150,9 @@ def test_real_frame_with_the_real_pairs_geometry_registers_to_a_hundredth_of_a_p
     real = register(seneca[i], seneca[i + 1])
     assert real.ok, real.reason
     h, w = seneca[i].shape[:2]
-    mov = cv2.warpPerspective(seneca[i], real.homography, (w, h), flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP)
+    mov = cv2.warpPerspective(
+        seneca[i], real.homography, (w, h), flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP
+    )
     ctrl = register(seneca[i], mov, distortion=False)
     assert ctrl.ok, ctrl.reason
     assert ctrl.inliers >= 400, ctrl.inliers
@@ -164,7 +183,9 @@ def test_low_overlap_pair_registers_through_the_last_resort(seneca):
     back = half.transfer(to_half)
     back = np.c_[(back[:, 0] + 0.5) * k - 0.5, (back[:, 1] + 0.5) * k - 180.5]
     err = np.hypot(*(back - res.transfer(pm)).T)
-    assert err.mean() < 0.6, err.mean()  # measured 0.30 (relief parallax differs between the two inlier sets)
+    assert err.mean() < 0.6, (
+        err.mean()
+    )  # measured 0.30 (relief parallax differs between the two inlier sets)
 
 
 def test_align_warp_map_equals_the_exact_model(seneca):
@@ -217,12 +238,18 @@ def test_repeated_texture_is_not_silently_wrong():
     period = 12.0
 
     def grating(dx):
-        return np.clip(128 + 60 * np.sin(2 * np.pi * (x - dx) / period) + 40 * np.sin(2 * np.pi * y / 17.0), 0, 255).astype(np.uint8)
+        return np.clip(
+            128 + 60 * np.sin(2 * np.pi * (x - dx) / period) + 40 * np.sin(2 * np.pi * y / 17.0),
+            0,
+            255,
+        ).astype(np.uint8)
 
     res = register(grating(0.0), grating(1.3 * period))
     if res.ok:
         c = np.array([[192.0, 192.0]])
-        d = res.transfer(c) - c  # content moved by +15.6 px in x: moving -> reference is -15.6 px + k * period
+        d = (
+            res.transfer(c) - c
+        )  # content moved by +15.6 px in x: moving -> reference is -15.6 px + k * period
         frac = ((d[0, 0] + 1.3 * period) / period + 0.5) % 1.0 - 0.5
         assert abs(frac) * period < 0.2
         assert abs(d[0, 1]) < 0.2
@@ -252,7 +279,9 @@ def test_align_translation_prior_matches_known_subpixel_shift(crops, shift):
     """Rendered pair with a known (u, v): align() crops by the integer part and its prior is the
     sub-pixel remainder in the project convention (content at (r, c) in the reference is at
     (r + u, c + v) in the moving frame)."""
-    seq = render_sequence(crops["crop_field_edge"], 2, [(0.0, 0.0), shift], blur_sigma=0.4, noise_sigma=0.5, seed=1)
+    seq = render_sequence(
+        crops["crop_field_edge"], 2, [(0.0, 0.0), shift], blur_sigma=0.4, noise_sigma=0.5, seed=1
+    )
     ref, mov = seq.frames
     res = register(ref, mov)
     assert res.ok, res.reason
@@ -299,9 +328,16 @@ def _distort_frame(img: np.ndarray, lam: float) -> np.ndarray:
 
     h, w = img.shape
     ys, xs = np.mgrid[0:h, 0:w]
-    u = undistort_points(np.stack([xs.ravel(), ys.ravel()], 1).astype(float), lam, Normaliser.for_shape(img.shape))
-    return cv2.remap(img, u[:, 0].reshape(h, w).astype(np.float32), u[:, 1].reshape(h, w).astype(np.float32),
-                     cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    u = undistort_points(
+        np.stack([xs.ravel(), ys.ravel()], 1).astype(float), lam, Normaliser.for_shape(img.shape)
+    )
+    return cv2.remap(
+        img,
+        u[:, 0].reshape(h, w).astype(np.float32),
+        u[:, 1].reshape(h, w).astype(np.float32),
+        cv2.INTER_CUBIC,
+        borderMode=cv2.BORDER_REFLECT,
+    )
 
 
 def test_radial_distortion_estimated_and_calibrated(crops):
@@ -318,7 +354,9 @@ def test_radial_distortion_estimated_and_calibrated(crops):
         ref_u, mov_u = _synthetic_pair(crops[name], h_true, noise=0.5, seed=11 + k)
         pairs.append((_distort_frame(ref_u, lam), _distort_frame(mov_u, lam)))
         truths.append(h_true)
-    grid = np.stack(np.meshgrid(np.linspace(40, 343, 8), np.linspace(40, 343, 8)), -1).reshape(-1, 2)
+    grid = np.stack(np.meshgrid(np.linspace(40, 343, 8), np.linspace(40, 343, 8)), -1).reshape(
+        -1, 2
+    )
     results = []
     for (ref, mov), h_true in zip(pairs, truths):
         res = register(ref, mov)
@@ -329,7 +367,10 @@ def test_radial_distortion_estimated_and_calibrated(crops):
         plain = register(ref, mov, distortion=False)
         err_plain = np.hypot(*(plain.transfer(grid) - truth).T).mean()
         assert err < 0.02, err
-        assert err_plain > 3 * err, (err, err_plain)  # the projective model alone does not fit the lens
+        assert err_plain > 3 * err, (
+            err,
+            err_plain,
+        )  # the projective model alone does not fit the lens
         results.append(res)
     lam_cal = calibrate_distortion(results)
     assert lam_cal == pytest.approx(lam, abs=0.003)
@@ -341,7 +382,9 @@ def test_radial_distortion_estimated_and_calibrated(crops):
     with pytest.raises(ValueError):
         register(ref, mov, distortion=float("nan"))
     with pytest.raises(ValueError):
-        calibrate_distortion([register(np.full((100, 100), 7, np.uint8), np.full((100, 100), 7, np.uint8))])
+        calibrate_distortion(
+            [register(np.full((100, 100), 7, np.uint8), np.full((100, 100), 7, np.uint8))]
+        )
 
 
 # --- tracking fast path (prior) and the prepared reference --------------------------------------
@@ -441,8 +484,18 @@ def test_correlate_batch_equals_direct_sum():
         win = rng.normal(size=(n, pp + k - 1, pp + k - 1)).astype(np.float32)
         tpl = rng.normal(size=(n, pp, pp)).astype(np.float32)
         got = _correlate_batch(win, tpl)
-        want = np.array([[[np.sum(tpl[i].astype(np.float64) * win[i, dy:dy + pp, dx:dx + pp]) for dx in range(k)]
-                          for dy in range(k)] for i in range(n)])
+        want = np.array(
+            [
+                [
+                    [
+                        np.sum(tpl[i].astype(np.float64) * win[i, dy : dy + pp, dx : dx + pp])
+                        for dx in range(k)
+                    ]
+                    for dy in range(k)
+                ]
+                for i in range(n)
+            ]
+        )
         assert got.shape == (n, k, k)
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-3 * np.sqrt(pp * pp))
 
@@ -458,7 +511,9 @@ def test_ncc_and_gauss_newton_with_more_rows_than_remap_allows(crops):
     ys, xs = np.mgrid[40:620:15, 40:620:15]
     pts = np.stack([xs.ravel(), ys.ravel()], 1).astype(float)[:1500]
     assert len(pts) * (29 + 8) > 32767
-    h = np.array([[1.0, 0, 0.4], [0, 1.0, -0.3], [0, 0, 1]])  # a prior 0.5 px off (moving -> reference)
+    h = np.array(
+        [[1.0, 0, 0.4], [0, 1.0, -0.3], [0, 0, 1]]
+    )  # a prior 0.5 px off (moving -> reference)
     p_r, p_m, _ = ncc_match(ref, mov, pts, h, half=14, radius=4)
     assert len(p_r) > 0.8 * len(pts)
     m2, conv = refine_gauss_newton(ref, mov, p_r, p_m, h, half=14)
@@ -471,12 +526,16 @@ def test_harris_response_is_the_plain_formula():
     """The buffer-reusing Harris response equals R = a c - b^2 - k (a + c)^2 written out."""
     from subpix_ros.core.registration_points import harris_response
 
-    img = cv2.GaussianBlur(np.random.default_rng(5).normal(100, 30, (120, 150)).astype(np.float32), (0, 0), 1.5)
+    img = cv2.GaussianBlur(
+        np.random.default_rng(5).normal(100, 30, (120, 150)).astype(np.float32), (0, 0), 1.5
+    )
     g = cv2.GaussianBlur(img, (3, 3), 0)
     vx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
     vy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
     a, b, c = (cv2.GaussianBlur(v, (11, 11), 0) for v in (vx * vx, vx * vy, vy * vy))
-    np.testing.assert_array_equal(harris_response(img), a * c - b * b - np.float32(0.04) * (a + c) ** 2)
+    np.testing.assert_array_equal(
+        harris_response(img), a * c - b * b - np.float32(0.04) * (a + c) ** 2
+    )
 
 
 def test_overlap_mask_matches_the_pointwise_definition():
@@ -489,7 +548,9 @@ def test_overlap_mask_matches_the_pointwise_definition():
     ys, xs = np.mgrid[0:300, 0:400]
     pm = apply_h(np.linalg.inv(h), np.stack([xs.ravel(), ys.ravel()], 1).astype(float))
     m = 10.0 + 1
-    inside = ((pm[:, 0] >= m) & (pm[:, 0] <= 359 - m) & (pm[:, 1] >= m) & (pm[:, 1] <= 279 - m)).reshape(300, 400)
+    inside = (
+        (pm[:, 0] >= m) & (pm[:, 0] <= 359 - m) & (pm[:, 1] >= m) & (pm[:, 1] <= 279 - m)
+    ).reshape(300, 400)
     inside[:5] = inside[-5:] = False
     inside[:, :5] = inside[:, -5:] = False
     core = cv2.erode(inside.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)

@@ -19,7 +19,9 @@ def test_box_integrate_mean_of_blocks():
 
 def test_sequence_shift_convention(crops):
     # A shift of exactly one LR pixel equals a one-pixel roll of the reference frame.
-    seq = render_sequence(crops["crop_rows"][:256, :256], 2, [(0, 0), (1, 0), (0, -1)], 0.4, quantize=False)
+    seq = render_sequence(
+        crops["crop_rows"][:256, :256], 2, [(0, 0), (1, 0), (0, -1)], 0.4, quantize=False
+    )
     ref, down, left = seq.frames
     np.testing.assert_allclose(down[1:], ref[:-1], atol=1e-6)
     np.testing.assert_allclose(left[:, :-1], ref[:, 1:], atol=1e-6)

@@ -5,6 +5,7 @@ Ground truth: pairs rendered by subpix_ros.core.render from real Seneca crops
 Each scene is a 384x384 full-resolution sub-crop of the four bundled crops
 (two per crop), rendered to 128x128 LR px and cut by an 8 px margin.
 """
+
 from __future__ import annotations
 
 import math
@@ -13,7 +14,6 @@ import numpy as np
 import pytest
 
 from subpix_ros.core.evaluate import max_bin_bias
-
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.shift import (
     ShiftResult,
@@ -45,10 +45,14 @@ def _render_set(crops, n_per_scene, max_shift, blur, seed, snr_db=None, noise=0.
     for si, hr in enumerate(_scenes(crops)):
         sh = rng.uniform(-max_shift, max_shift, (n_per_scene, 2))
         shifts = [(0.0, 0.0)] + [tuple(s) for s in sh]
-        seq = render_sequence(hr, FACTOR, shifts, blur_sigma=blur, snr_db=snr_db, noise_sigma=noise, seed=seed + si)
+        seq = render_sequence(
+            hr, FACTOR, shifts, blur_sigma=blur, snr_db=snr_db, noise_sigma=noise, seed=seed + si
+        )
         cref = None
         if clean:
-            cref = render_sequence(hr, FACTOR, shifts[:1], blur_sigma=blur, seed=seed + si, quantize=False).frames[0]
+            cref = render_sequence(
+                hr, FACTOR, shifts[:1], blur_sigma=blur, seed=seed + si, quantize=False
+            ).frames[0]
         for i in range(n_per_scene):
             pairs.append((seq.frames[0], seq.frames[i + 1], sh[i], cref))
     return pairs
@@ -84,7 +88,14 @@ def set_noisy(crops):
 
     for si, name in enumerate(CROP_NAMES):
         sh = rng.uniform(-1.0, 1.0, (20, 2))
-        seq = render_sequence(crops[name], 4, [(0.0, 0.0)] + [tuple(x) for x in sh], blur_sigma=0.4, seed=400 + si, quantize=False)
+        seq = render_sequence(
+            crops[name],
+            4,
+            [(0.0, 0.0)] + [tuple(x) for x in sh],
+            blur_sigma=0.4,
+            seed=400 + si,
+            quantize=False,
+        )
         clean = seq.frames[0]
         for i in range(20):
             pairs.append((noisy(clean), noisy(seq.frames[i + 1]), sh[i], clean))
@@ -278,7 +289,9 @@ def test_predicted_variance_prefers_light_prefilter_at_low_noise(crops):
     # the spectral model of the estimator's variance: without noise the lightest
     # prefilter keeps the most signal, heavy noise asks for a stronger one, and
     # more noise never predicts a smaller variance
-    seq = render_sequence(crops[CROP_NAMES[0]], 4, [(0.0, 0.0), (0.3, -0.2)], blur_sigma=0.4, seed=1, quantize=False)
+    seq = render_sequence(
+        crops[CROP_NAMES[0]], 4, [(0.0, 0.0), (0.3, -0.2)], blur_sigma=0.4, seed=1, quantize=False
+    )
     r, m = seq.frames
     rng = np.random.default_rng(5)
     sig = (0.4, 0.6, 0.8, 1.2)
@@ -315,7 +328,9 @@ def _rotated_pair(hr, angle_deg, shift, seed):
     rng = np.random.default_rng(seed)
     h, w = hr.shape
     Mr = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), angle_deg, 1.0)
-    rot = cv2.warpAffine(hr.astype(np.float64), Mr, (w, h), flags=cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT)
+    rot = cv2.warpAffine(
+        hr.astype(np.float64), Mr, (w, h), flags=cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT
+    )
     r = render_frame(hr, FACTOR, (0.0, 0.0), 0.4, 0.5, rng)[8:-8, 8:-8]
     m = render_frame(rot, FACTOR, shift, 0.4, 0.5, rng)[8:-8, 8:-8]
     return r, m
@@ -356,7 +371,11 @@ def test_mask_excludes_corrupted_region(set_b05):
     assert abs(masked.u - t[0]) < 0.01 and abs(masked.v - t[1]) < 0.01
     assert masked.n_pixels < estimate_shift(r, m).n_pixels
     # without the mask the corrupted block pulls the estimate off or inflates its error
-    assert (not unmasked.ok) or max(abs(unmasked.u - t[0]), abs(unmasked.v - t[1])) > 0.01 or unmasked.misfit
+    assert (
+        (not unmasked.ok)
+        or max(abs(unmasked.u - t[0]), abs(unmasked.v - t[1])) > 0.01
+        or unmasked.misfit
+    )
 
 
 def test_nan_and_saturated_pixels_are_ignored(set_b05):
@@ -469,7 +488,18 @@ def test_result_as_dict_is_json_ready(set_b05):
     r, m, _, _ = set_b05[0]
     d = estimate_shift(r, m).as_dict()
     s = json.loads(json.dumps(d))
-    for key in ("u", "v", "u_std", "v_std", "converged", "cov", "cond", "n_pixels", "iterations", "misfit"):
+    for key in (
+        "u",
+        "v",
+        "u_std",
+        "v_std",
+        "converged",
+        "cov",
+        "cond",
+        "n_pixels",
+        "iterations",
+        "misfit",
+    ):
         assert key in s
     assert len(s["cov"]) == 2 and len(s["cov"][0]) == 2
 

@@ -5,6 +5,7 @@ PSNR(reconstruction) - PSNR(bicubic upscaling of the reference frame). Optics
 blur 0.4 LR px, pixel integration, SNR 40 dB, 8 bit. Targets are on the mean
 gain over the four crops; no crop may fall below bicubic.
 """
+
 import numpy as np
 import pytest
 
@@ -31,7 +32,9 @@ def render(crop, p, shifts, lr=144, seed=1):
 
 def gain(seq, image):
     b = 4 * seq.factor
-    return psnr(image, seq.truth, b) - psnr(bicubic_upscale(seq.frames[0], seq.factor), seq.truth, b)
+    return psnr(image, seq.truth, b) - psnr(
+        bicubic_upscale(seq.frames[0], seq.factor), seq.truth, b
+    )
 
 
 def gains(crops, p, shifts_fn, lr=144, err=0.0, **kw):
@@ -87,8 +90,14 @@ def test_x2_grid_with_shift_errors(crops, err, target):
 
 def test_x2_shift_errors_without_refinement_use_covariance(crops):
     # the given shifts as they are (0.05 px error), their covariance in the model: still above bicubic
-    g = gains(crops, 2, lambda k: grid(2), err=0.05, refine_shifts=False,
-              shift_cov=np.r_[np.zeros((1, 2, 2)), np.tile(np.eye(2) * 0.05**2, (3, 1, 1))])
+    g = gains(
+        crops,
+        2,
+        lambda k: grid(2),
+        err=0.05,
+        refine_shifts=False,
+        shift_cov=np.r_[np.zeros((1, 2, 2)), np.tile(np.eye(2) * 0.05**2, (3, 1, 1))],
+    )
     assert g.min() > 1.0, g
 
 
@@ -117,7 +126,9 @@ def test_windowed_and_pinv_references(crops):
     assert w.method == "windowed" and gain(seq, w.image) > 1.0
     pv = reconstruct(seq.frames, seq.shifts, 2, method="pinv")
     assert pv.method == "pinv" and gain(seq, pv.image) < -10  # eq. 6 blows up 8-bit rounding noise
-    off = reconstruct(seq.frames, seq.shifts + [[0, 0], [0.2, 0], [0, 0.2], [0.2, 0.2]], 2, method="windowed")
+    off = reconstruct(
+        seq.frames, seq.shifts + [[0, 0], [0.2, 0], [0, 0.2], [0.2, 0.2]], 2, method="windowed"
+    )
     assert off.fell_back and off.method == "bicubic" and "grid" in off.reason
 
 
@@ -150,16 +161,23 @@ def _rotated_sequence(hr, p, params, noise=0.3, margin=8, seed=1):
     s = np.array([[p, 0, (p - 1) / 2], [0, p, (p - 1) / 2], [0, 0, 1.0]])
     shift_origin = np.array([[1, 0, margin], [0, 1, margin], [0, 0, 1.0]])
     frames, hs = [], []
-    for (u, v, deg) in params:
+    for u, v, deg in params:
         a = np.deg2rad(deg)
         rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
         h = np.eye(3)
         h[:2, :2] = rot
         h[:2, 2] = np.array([c, c]) - rot @ np.array([c, c]) + np.array([v, u])
         m = s @ np.linalg.inv(h) @ np.linalg.inv(s)
-        z = cv2.warpPerspective(hr, m, hr.shape[::-1], flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP,
-                                borderMode=cv2.BORDER_REFLECT_101)
-        lr = box_integrate(fourier_shift_blur(z, (0, 0), 0.4 * p, pad=32), p) + rng.normal(0, noise, (n_lr, n_lr))
+        z = cv2.warpPerspective(
+            hr,
+            m,
+            hr.shape[::-1],
+            flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP,
+            borderMode=cv2.BORDER_REFLECT_101,
+        )
+        lr = box_integrate(fourier_shift_blur(z, (0, 0), 0.4 * p, pad=32), p) + rng.normal(
+            0, noise, (n_lr, n_lr)
+        )
         frames.append(np.clip(np.rint(lr), 0, 255)[margin:-margin, margin:-margin])
         hs.append(np.linalg.inv(shift_origin) @ h @ shift_origin)
     truth = hr[margin * p : -margin * p, margin * p : -margin * p]
@@ -169,7 +187,9 @@ def _rotated_sequence(hr, p, params, noise=0.3, margin=8, seed=1):
 def test_rotation_goes_into_the_forward_model(crops):
     p = 2
     hr = crops["crop_road"][: 2 * 160, : 2 * 160].astype(float)
-    frames, hs, truth = _rotated_sequence(hr, p, [(0, 0, 0), (0, 0.5, 0.4), (0.5, 0, -0.3), (0.5, 0.5, 0.5)])
+    frames, hs, truth = _rotated_sequence(
+        hr, p, [(0, 0, 0), (0, 0.5, 0.4), (0.5, 0, -0.3), (0.5, 0.5, 0.5)]
+    )
     b = 4 * p
     base = psnr(bicubic_upscale(frames[0], p), truth, b)
     given = reconstruct(frames, None, p, homographies=hs)
@@ -179,7 +199,9 @@ def test_rotation_goes_into_the_forward_model(crops):
     translation_only = reconstruct(frames, centre_shifts, p, geometry="translation")
     auto = reconstruct(frames, centre_shifts, p)  # detects the rotation itself
     assert auto.method == "map-cg" and "affine" in auto.reason
-    g_given, g_tr, g_auto = (psnr(r.image, truth, b) - base for r in (given, translation_only, auto))
+    g_given, g_tr, g_auto = (
+        psnr(r.image, truth, b) - base for r in (given, translation_only, auto)
+    )
     assert g_given > 3.0 and g_auto > 3.0, (g_given, g_auto)
     assert g_given > g_tr + 2.0 and g_auto > g_tr + 2.0, (g_given, g_auto, g_tr)
 

@@ -1,13 +1,27 @@
 """A memory budget makes the reconstruction use tiles or fewer frames (and say so), not grow."""
+
 import numpy as np
 import pytest
 
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres import bicubic_upscale, psnr
-from subpix_ros.core.superres_budget import estimate_peak_mb, plan_reconstruction, reconstruct_within_budget
+from subpix_ros.core.superres_budget import (
+    estimate_peak_mb,
+    plan_reconstruction,
+    reconstruct_within_budget,
+)
 from subpix_ros.core.superres_masks import reconstruct_aligned
 
-SHIFTS8 = [(0, 0), (0.5, 0), (0, 0.5), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25), (0.3, 0.1), (0.6, 0.8)]
+SHIFTS8 = [
+    (0, 0),
+    (0.5, 0),
+    (0, 0.5),
+    (0.5, 0.5),
+    (0.25, 0.75),
+    (0.75, 0.25),
+    (0.3, 0.1),
+    (0.6, 0.8),
+]
 KW = dict(method="map", geometry="translation", refine_shifts=False)
 
 
@@ -22,7 +36,9 @@ def test_plan_unbounded_and_generous_budget_change_nothing():
         assert plan.grid == (1, 1) and plan.n_frames == 16 and not plan.reduced and not plan.bicubic
     # the model grows with the frames and the area
     assert estimate_peak_mb(16, (1080, 1920), 2, True) > estimate_peak_mb(8, (1080, 1920), 2, True)
-    assert estimate_peak_mb(8, (2160, 3840), 2, True) > 3 * estimate_peak_mb(8, (1080, 1920), 2, True)
+    assert estimate_peak_mb(8, (2160, 3840), 2, True) > 3 * estimate_peak_mb(
+        8, (1080, 1920), 2, True
+    )
 
 
 def test_plan_prefers_tiles_then_fewer_frames_then_bicubic():
@@ -32,7 +48,9 @@ def test_plan_prefers_tiles_then_fewer_frames_then_bicubic():
     assert plan.estimate_mb <= whole / 2 and plan.unbounded_mb == pytest.approx(whole)
     assert any("tiles" in r for r in plan.reductions)
     # frames smaller than two minimum tiles cannot be tiled: frames are dropped instead
-    small = plan_reconstruction(16, (200, 200), 2, estimate_peak_mb(6, (200, 200), 2, True), min_frames=4)
+    small = plan_reconstruction(
+        16, (200, 200), 2, estimate_peak_mb(6, (200, 200), 2, True), min_frames=4
+    )
     assert small.grid == (1, 1) and small.n_frames == 6 and small.reductions == ["6 of 16 frames"]
     # nothing fits: bicubic, and the reason says so
     tiny = plan_reconstruction(16, (1080, 1920), 2, 5, min_frames=4)
@@ -46,10 +64,14 @@ def test_tiled_reconstruction_fits_the_budget_and_keeps_the_gain(seq):
     full, plan0 = reconstruct_within_budget(seq.frames, seq.shifts, 2, **KW)
     assert not plan0.reduced
     budget = 0.9 * plan0.unbounded_mb  # small frames: the fixed overheads are a large part
-    tiled, plan = reconstruct_within_budget(seq.frames, seq.shifts, 2, max_memory_mb=budget, overlap=16, **KW)
+    tiled, plan = reconstruct_within_budget(
+        seq.frames, seq.shifts, 2, max_memory_mb=budget, overlap=16, **KW
+    )
     assert plan.reduced and plan.n_frames == len(seq.frames) and plan.grid[0] * plan.grid[1] >= 2
     assert plan.estimate_mb <= budget
-    assert tiled.image.shape == full.image.shape == (2 * h, 2 * w) and np.isfinite(tiled.image).all()
+    assert (
+        tiled.image.shape == full.image.shape == (2 * h, 2 * w) and np.isfinite(tiled.image).all()
+    )
     assert tiled.method == "map" and not tiled.fell_back
     b = 16
     inner = (slice(b, 2 * h - b), slice(b, 2 * w - b))
@@ -64,7 +86,9 @@ def test_tiled_reconstruction_fits_the_budget_and_keeps_the_gain(seq):
 def test_fewer_frames_are_the_first_frames_reconstructed_as_usual(seq):
     small = [f[:150, :150] for f in seq.frames]
     budget = estimate_peak_mb(5, (150, 150), 2, False)
-    res, plan = reconstruct_within_budget(small, seq.shifts, 2, max_memory_mb=budget, min_frames=4, **KW)
+    res, plan = reconstruct_within_budget(
+        small, seq.shifts, 2, max_memory_mb=budget, min_frames=4, **KW
+    )
     assert plan.n_frames == 5 and plan.reductions == [f"5 of {len(small)} frames"]
     ref = reconstruct_aligned(small[:5], np.asarray(seq.shifts)[:5], 2, **KW)
     np.testing.assert_array_equal(res.image, ref.image)
@@ -83,9 +107,15 @@ def test_colour_and_strip_masks_are_tiled_inside_the_common_rectangle(seq):
     masks[1][:5] = False
     masks[2][:, -7:] = False
     full = reconstruct_aligned(frames, seq.shifts, 2, masks=masks, **KW)
-    res, plan = reconstruct_within_budget(frames, seq.shifts, 2, masks=masks,
-                                          max_memory_mb=0.9 * estimate_peak_mb(8, (h, w), 2, True),
-                                          overlap=16, **KW)
+    res, plan = reconstruct_within_budget(
+        frames,
+        seq.shifts,
+        2,
+        masks=masks,
+        max_memory_mb=0.9 * estimate_peak_mb(8, (h, w), 2, True),
+        overlap=16,
+        **KW,
+    )
     assert plan.grid[0] * plan.grid[1] >= 2 and res.image.shape == (2 * h, 2 * w, 3)
     assert res.image.dtype == np.float32 and np.isfinite(res.image).all()
     # outside the common rectangle both are the reference's bicubic upscale
@@ -93,4 +123,7 @@ def test_colour_and_strip_masks_are_tiled_inside_the_common_rectangle(seq):
     np.testing.assert_allclose(res.image[:, -14:], full.image[:, -14:], atol=1e-3)
     b = 24
     inner = (slice(10 + b, 2 * h - b), slice(b, 2 * w - 14 - b))
-    assert psnr(res.image[inner][..., 0], seq.truth[inner]) > psnr(full.image[inner][..., 0], seq.truth[inner]) - 0.3
+    assert (
+        psnr(res.image[inner][..., 0], seq.truth[inner])
+        > psnr(full.image[inner][..., 0], seq.truth[inner]) - 0.3
+    )

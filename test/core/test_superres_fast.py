@@ -7,6 +7,7 @@ whole-frame filtering, an array-wide roll-based hole fill, a per-exponent
 least-squares loop). Random inputs; tolerances are the single-precision
 round-off of the fast path.
 """
+
 import cv2
 import numpy as np
 import pytest
@@ -30,7 +31,9 @@ def _dense_map(spec, ay, ax, fy, fx, c, alpha, reg, noise_power):
             if ky == 0 and kx == 0:
                 lam[0] = 0.0
             m = a.conj().T @ a / noise_power + np.diag(lam)
-            out[:, :, ky, kx] = np.linalg.solve(m, a.conj().T @ spec[:, ky, kx] / noise_power).reshape(p, p)
+            out[:, :, ky, kx] = np.linalg.solve(
+                m, a.conj().T @ spec[:, ky, kx] / noise_power
+            ).reshape(p, p)
     return out
 
 
@@ -125,26 +128,45 @@ def test_interleave_equals_reference(p, q):
             np.testing.assert_array_equal(y32.astype(np.float64), y_ref)
 
 
-@pytest.mark.parametrize("pre,post", [((0, 0), (0, 0)), ((1, -2), (0, 0)), ((0, 0), (-1, 1)), ((2, 1), (1, -1))])
+@pytest.mark.parametrize(
+    "pre,post", [((0, 0), (0, 0)), ((1, -2), (0, 0)), ((0, 0), (-1, 1)), ((2, 1), (1, -1))]
+)
 def test_lowpass_window_equals_whole_frame_filter(pre, post):
     rng = np.random.default_rng(5)
     frame = rng.normal(size=(60, 70))
     g = gaussian_kernel(1.0)
-    whole = cv2.sepFilter2D(sr._integer_preshift(frame, *pre), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101)
+    whole = cv2.sepFilter2D(
+        sr._integer_preshift(frame, *pre), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
+    )
     whole = sr._integer_preshift(whole, *post)
-    for rows, cols in [(slice(20, 40), slice(25, 50)), (slice(0, 30), slice(0, 20)), (slice(45, 60), slice(50, 70)),
-                       (slice(2, 58), slice(1, 69))]:
-        np.testing.assert_allclose(sr._lowpass_window(frame, g, pre, post, rows, cols), whole[rows, cols],
-                                   rtol=0, atol=1e-12)
+    for rows, cols in [
+        (slice(20, 40), slice(25, 50)),
+        (slice(0, 30), slice(0, 20)),
+        (slice(45, 60), slice(50, 70)),
+        (slice(2, 58), slice(1, 69)),
+    ]:
+        np.testing.assert_allclose(
+            sr._lowpass_window(frame, g, pre, post, rows, cols),
+            whole[rows, cols],
+            rtol=0,
+            atol=1e-12,
+        )
 
 
 def test_fractional_shift_window_equals_whole_image():
     rng = np.random.default_rng(6)
     img = rng.uniform(0, 255, (50, 64)).astype(np.float32)
     whole = sr._fractional_shift(img, 0.3, -0.45)
-    for win in [(slice(0, 10), slice(0, 64)), (slice(40, 50), slice(0, 64)), (slice(10, 40), slice(0, 7)),
-                (slice(10, 40), slice(57, 64)), (slice(20, 30), slice(20, 30))]:
-        np.testing.assert_allclose(sr._fractional_shift(img, 0.3, -0.45, window=win), whole[win], rtol=0, atol=1e-3)
+    for win in [
+        (slice(0, 10), slice(0, 64)),
+        (slice(40, 50), slice(0, 64)),
+        (slice(10, 40), slice(0, 7)),
+        (slice(10, 40), slice(57, 64)),
+        (slice(20, 30), slice(20, 30)),
+    ]:
+        np.testing.assert_allclose(
+            sr._fractional_shift(img, 0.3, -0.45, window=win), whole[win], rtol=0, atol=1e-3
+        )
 
 
 @pytest.mark.parametrize("p", [2, 3, 4])
@@ -163,8 +185,14 @@ def test_bicubic_rim_equals_whole_frame_bicubic(p):
 
 
 def test_refined_shifts_do_not_depend_on_batching(crops):
-    seq = render_sequence(crops["crop_trees"][: 2 * 160, : 2 * 160], 2, [(0, 0), (0.3, 0.6), (0.55, 0.1), (0.8, 0.9)],
-                          blur_sigma=0.4, snr_db=40, seed=3)
+    seq = render_sequence(
+        crops["crop_trees"][: 2 * 160, : 2 * 160],
+        2,
+        [(0, 0), (0.3, 0.6), (0.55, 0.1), (0.8, 0.9)],
+        blur_sigma=0.4,
+        snr_db=40,
+        seed=3,
+    )
     frames = np.stack(seq.frames).astype(np.float64)
     given = seq.shifts + np.array([[0, 0], [0.05, -0.04], [-0.03, 0.06], [0.02, 0.03]])
     ishift = np.rint(given).astype(np.int64)
@@ -206,8 +234,14 @@ def _fit_spectrum_loop(psd_obs, amp, logf, noise_sigma, alphas):
 @pytest.mark.parametrize("noise_sigma", [None, 0.6])
 @pytest.mark.parametrize("p", [2, 3])
 def test_fit_spectrum_equals_per_exponent_loop(crops, p, noise_sigma):
-    seq = render_sequence(crops["crop_field_edge"][: 100 * p, : 100 * p], p, [(0, 0), (0.5, 0.5)], blur_sigma=0.4,
-                          snr_db=40, seed=2)
+    seq = render_sequence(
+        crops["crop_field_edge"][: 100 * p, : 100 * p],
+        p,
+        [(0, 0), (0.5, 0.5)],
+        blur_sigma=0.4,
+        snr_db=40,
+        seed=2,
+    )
     frames = np.stack(seq.frames).astype(np.float64)
     c, alpha, sigma = sr.fit_spectrum(frames, p, 0.4, noise_sigma)
     # the same observation and model terms, built as fit_spectrum's docstring states
@@ -221,21 +255,27 @@ def test_fit_spectrum_equals_per_exponent_loop(crops, p, noise_sigma):
     sel = sr._spectrum_bins(h, w, 8000)
     ky, kx = np.unravel_index(sel, (h, wc))
     amp = (np.abs(ay[:, None, ky] * ax[:, :wc][None, :, kx]) ** 2).reshape(p * p, -1) * p * p
-    logf = np.log(np.maximum(np.hypot(fy[:, None, ky], fx[:, :wc][None, :, kx]).reshape(p * p, -1), 1e-9))
+    logf = np.log(
+        np.maximum(np.hypot(fy[:, None, ky], fx[:, :wc][None, :, kx]).reshape(p * p, -1), 1e-9)
+    )
     obs = psd.ravel()[sel]
     # the documented search: 0.3 grid over [1, 4], then the 0.1 grid within +-0.2 of its winner
     a_coarse = _fit_spectrum_loop(obs, amp, logf, noise_sigma, 1.0 + 0.3 * np.arange(11))[1]
     fine = [a for a in a_coarse + 0.1 * np.arange(-2, 3) if 1.0 - 1e-9 <= a <= 4.0 + 1e-9]
     c_ref, alpha_ref, sigma_ref = _fit_spectrum_loop(obs, amp, logf, noise_sigma, fine)
     # and it finds the minimum of the full 0.1 grid (the misfit has one minimum in alpha)
-    assert _fit_spectrum_loop(obs, amp, logf, noise_sigma, 1.0 + 0.1 * np.arange(31))[1] == pytest.approx(alpha_ref)
+    assert _fit_spectrum_loop(obs, amp, logf, noise_sigma, 1.0 + 0.1 * np.arange(31))[
+        1
+    ] == pytest.approx(alpha_ref)
     assert alpha == pytest.approx(alpha_ref, abs=1e-9)
     assert c == pytest.approx(c_ref, rel=1e-3)  # single- vs double-precision periodogram
     assert sigma == pytest.approx(sigma_ref, rel=1e-3)
 
 
-@pytest.mark.parametrize("pre,post", [((0, 0), (0, 0)), ((1, -2), (0, 0)), ((0, 0), (-1, 1)), ((0, 0), (2, -3)),
-                                      ((2, 1), (1, -1))])
+@pytest.mark.parametrize(
+    "pre,post",
+    [((0, 0), (0, 0)), ((1, -2), (0, 0)), ((0, 0), (-1, 1)), ((0, 0), (2, -3)), ((2, 1), (1, -1))],
+)
 def test_lowpass_window_from_whole_lowpass_equals_direct(pre, post):
     """Windows sliced (or reflected) from the shared whole-frame low-pass equal the per-window filtering
     (to the shared low-pass's single-precision round-off: values ~100, float32 eps 1.2e-7)."""
@@ -244,8 +284,13 @@ def test_lowpass_window_from_whole_lowpass_equals_direct(pre, post):
     g = gaussian_kernel(1.0)
     lp = sr._WholeLowpass(frames)
     assert lp.get(1, 1.0) is not None and lp.get(1, 0.5) is None  # another low-pass: not shared
-    for rows, cols in [(slice(20, 40), slice(25, 50)), (slice(0, 30), slice(0, 20)), (slice(45, 60), slice(50, 70)),
-                       (slice(2, 58), slice(1, 69)), (slice(0, 60), slice(0, 70))]:
+    for rows, cols in [
+        (slice(20, 40), slice(25, 50)),
+        (slice(0, 30), slice(0, 20)),
+        (slice(45, 60), slice(50, 70)),
+        (slice(2, 58), slice(1, 69)),
+        (slice(0, 60), slice(0, 70)),
+    ]:
         direct = sr._lowpass_window(frames[1], g, pre, post, rows, cols)
         shared = sr._lowpass_window(frames[1], g, pre, post, rows, cols, whole=lp.get(1, 1.0))
         assert shared.shape == direct.shape
@@ -256,8 +301,14 @@ def test_lowpass_window_from_whole_lowpass_equals_direct(pre, post):
 
 def test_lk_residual_variance_equals_direct_residual(crops):
     """_lk_batch's noise variance from the z z^T sums equals var(F - R - d . grad R) computed on the pixels."""
-    seq = render_sequence(crops["crop_trees"][: 2 * 96, : 2 * 96], 2, [(0, 0), (0.3, -0.4)], blur_sigma=0.4,
-                          snr_db=40, seed=4)
+    seq = render_sequence(
+        crops["crop_trees"][: 2 * 96, : 2 * 96],
+        2,
+        [(0, 0), (0.3, -0.4)],
+        blur_sigma=0.4,
+        snr_db=40,
+        seed=4,
+    )
     frames = np.stack(seq.frames).astype(np.float64)
     g = gaussian_kernel(1.0)
     sl = (slice(24, 72), slice(24, 72))
@@ -268,14 +319,18 @@ def test_lk_residual_variance_equals_direct_residual(crops):
     def mov(_k, iu, iv):
         return sr._lowpass_window(frames[1], g, (0, 0), (iu, iv), *ctx)
 
-    s, sig, rv = sr._lk_batch([ref], np.zeros(1, int), mov, np.arange(1), np.array([[0.25, -0.35]]), inner, g, iters=1)
+    s, sig, rv = sr._lk_batch(
+        [ref], np.zeros(1, int), mov, np.arange(1), np.array([[0.25, -0.35]]), inner, g, iters=1
+    )
     # the same single Gauss-Newton step written out on the pixels (Fourier shift by the start value)
     pad = 8
     pr = np.pad(ref, pad, mode="reflect")
     ky = np.fft.fftfreq(pr.shape[0])[:, None]
     kx = np.fft.fftfreq(pr.shape[1])[None, :]
     s0 = np.array([0.25, -0.35])
-    pred = np.fft.ifft2(np.fft.fft2(pr) * np.exp(-2j * np.pi * (ky * s0[0] + kx * s0[1]))).real[pad:-pad, pad:-pad]
+    pred = np.fft.ifft2(np.fft.fft2(pr) * np.exp(-2j * np.pi * (ky * s0[0] + kx * s0[1]))).real[
+        pad:-pad, pad:-pad
+    ]
     gy, gx = np.gradient(pred)
     r0, r1, c0, c1 = inner[0].start, inner[0].stop, inner[1].start, inner[1].stop
     e = (mov(0, 0, 0) - pred)[r0:r1, c0:c1].ravel()
@@ -294,4 +349,6 @@ def test_noise_estimate_of_8bit_frames_equals_float_path():
             f = np.clip(np.rint(rng.normal(128, spread, (h, w))), 0, 255).astype(np.uint8)
             assert sr.estimate_noise_sigma(f) == sr.estimate_noise_sigma(f.astype(np.float64))
     f = rng.integers(0, 256, (300, 280)).astype(np.uint8)
-    assert sr.estimate_noise_sigma(f, max_size=256) == sr.estimate_noise_sigma(f.astype(np.float64), max_size=256)
+    assert sr.estimate_noise_sigma(f, max_size=256) == sr.estimate_noise_sigma(
+        f.astype(np.float64), max_size=256
+    )

@@ -1,4 +1,5 @@
 """Strip masks from integer alignment take the fast solver, and the result matches."""
+
 import time
 
 import numpy as np
@@ -22,8 +23,14 @@ def test_common_valid_box():
 
 
 def test_strip_masks_match_the_unmasked_solution(crops):
-    seq = render_sequence(crops["crop_rows"][:400, :400], 2, [(0, 0), (0.5, 0), (0, 0.5), (0.5, 0.5)], 0.4,
-                          snr_db=40, seed=4)
+    seq = render_sequence(
+        crops["crop_rows"][:400, :400],
+        2,
+        [(0, 0), (0.5, 0), (0, 0.5), (0.5, 0.5)],
+        0.4,
+        snr_db=40,
+        seed=4,
+    )
     h, w = seq.frames[0].shape
     masks = [np.ones((h, w), bool) for _ in seq.frames]
     masks[1][:3] = False  # an integer crop left these rows without data
@@ -36,7 +43,9 @@ def test_strip_masks_match_the_unmasked_solution(crops):
     b = 16
     inner = (slice(2 * 3 + b, 2 * h - b), slice(b, 2 * (w - 2) - b))
     # inside the common rectangle it is the unmasked solution up to the rectangle's own border effects
-    assert psnr(fast.image[inner], seq.truth[inner]) > psnr(full.image[inner], seq.truth[inner]) - 0.3
+    assert (
+        psnr(fast.image[inner], seq.truth[inner]) > psnr(full.image[inner], seq.truth[inner]) - 0.3
+    )
     # the strips are filled from the reference (bicubic), never left empty or NaN
     assert np.isfinite(fast.image).all() and fast.image.shape == (2 * h, 2 * w)
     assert t_fast < 5.0
@@ -63,8 +72,14 @@ def test_strips_outside_the_box_are_the_whole_frame_bicubic():
 def test_colour_strip_masks(crops):
     import cv2
 
-    seq = render_sequence(crops["crop_rows"][:300, :300], 2, [(0, 0), (0.5, 0), (0, 0.5), (0.5, 0.5)], 0.4,
-                          snr_db=40, seed=4)
+    seq = render_sequence(
+        crops["crop_rows"][:300, :300],
+        2,
+        [(0, 0), (0.5, 0), (0, 0.5), (0.5, 0.5)],
+        0.4,
+        snr_db=40,
+        seed=4,
+    )
     h, w = seq.frames[0].shape
     colour = [cv2.merge([f, f, f]) for f in seq.frames]  # grey: the luminance is the mono frame
     masks = [np.ones((h, w), bool) for _ in seq.frames]

@@ -1,4 +1,5 @@
 """Observation model (METHODS.md B, eq. 3) and the paper's reference solutions (eqs. 4, 6, 7)."""
+
 import numpy as np
 import pytest
 
@@ -60,7 +61,9 @@ def test_interleaved_grid_frames_are_eq3_exactly(crops):
     # y[k, l] = sum of truth[k..k+p-1, l..l+p-1] wherever the frames reach
     inner = (slice(p, -2 * p), slice(p, -2 * p))
     direct = box_sum(seq.truth, p, p)
-    np.testing.assert_allclose(y[: direct.shape[0], : direct.shape[1]][inner], direct[inner], atol=1e-6)
+    np.testing.assert_allclose(
+        y[: direct.shape[0], : direct.shape[1]][inner], direct[inner], atol=1e-6
+    )
     assert filled[inner].all()
 
 
@@ -86,7 +89,9 @@ def test_pinv_divisibility_condition_enforced():
 def test_windowed_eq7_dc_gain_and_normalisation():
     g, c = windowed_filter(2, 6, normalise=False)
     assert c == 3
-    assert np.isclose(2 * g.sum(), 8 / 7)  # the 1.14 brightness error of eq. 7 as written (p=2, w=6)
+    assert np.isclose(
+        2 * g.sum(), 8 / 7
+    )  # the 1.14 brightness error of eq. 7 as written (p=2, w=6)
     gn, _ = windowed_filter(2, 6)
     assert np.isclose(2 * gn.sum(), 1.0)
     with pytest.raises(ValueError):
@@ -100,7 +105,7 @@ def test_windowed_convolution_equals_per_pixel_window_solve():
     xw = windowed_solution(y, p, p, w=w, normalise=False)
     t = band_matrix(w, p)
     c = (w + p - 2) // 2
-    for (k, l) in [(10, 12), (15, 9), (20, 20)]:
+    for k, l in [(10, 12), (15, 9), (20, 20)]:
         win = y[k - c : k - c + w, l - c : l - c + w]
         local = np.linalg.pinv(t) @ win @ np.linalg.pinv(t).T  # eq. 6 in the window
         assert np.isclose(xw[k, l], local[c, c])
@@ -113,7 +118,11 @@ def test_frame_transfer_matches_direct_periodic_model():
     x = rng.normal(size=p * n)
     shift, sigma = 0.37, 0.4  # LR px
     f = np.fft.fftfreq(p * n)
-    z = np.fft.ifft(np.fft.fft(x) * np.exp(-2j * np.pi * f * p * shift) * np.exp(-2 * np.pi**2 * (p * sigma) ** 2 * f**2))
+    z = np.fft.ifft(
+        np.fft.fft(x)
+        * np.exp(-2j * np.pi * f * p * shift)
+        * np.exp(-2 * np.pi**2 * (p * sigma) ** 2 * f**2)
+    )
     z = z.real
     y = np.array([z[p * i : p * i + p].mean() for i in range(n)])
     a, _ = frame_transfer_1d(n, p, shift, sigma)
@@ -125,7 +134,9 @@ def test_frame_transfer_matches_direct_periodic_model():
 def test_frame_operator_adjoint_and_translation():
     rng = np.random.default_rng(4)
     hr = rng.normal(size=(80, 96))
-    h = np.array([[np.cos(0.01), -np.sin(0.01), 0.3], [np.sin(0.01), np.cos(0.01), -0.2], [1e-5, 0, 1]])
+    h = np.array(
+        [[np.cos(0.01), -np.sin(0.01), 0.3], [np.sin(0.01), np.cos(0.01), -0.2], [1e-5, 0, 1]]
+    )
     op = FrameOperator(h, (36, 44), hr.shape, 2, 2, 0.4)
     y = rng.normal(size=(36, 44))
     assert np.isclose(np.sum(op.forward(hr) * y), np.sum(hr * op.adjoint(y)), rtol=1e-10)

@@ -1,6 +1,6 @@
 """Telemetry core: REP-103 conversions, validation, buffer, geodesy, trajectories."""
+
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,8 +16,8 @@ from subpix_ros.core.telemetry import (
     enu_to_latlon,
     ned_to_enu,
     timing_usable,
-    trajectory_through_fixes,
     trajectory_straight,
+    trajectory_through_fixes,
     validate_sample,
 )
 from subpix_ros.data import data_root
@@ -157,7 +157,11 @@ def ecef(lat, lon, h=0.0):
     p, l = math.radians(lat), math.radians(lon)
     n = a / math.sqrt(1 - e2 * math.sin(p) ** 2)
     return np.array(
-        [(n + h) * math.cos(p) * math.cos(l), (n + h) * math.cos(p) * math.sin(l), (n * (1 - e2) + h) * math.sin(p)]
+        [
+            (n + h) * math.cos(p) * math.cos(l),
+            (n + h) * math.cos(p) * math.sin(l),
+            (n * (1 - e2) + h) * math.sin(p),
+        ]
     )
 
 
@@ -230,10 +234,26 @@ def test_sample_requires_three_velocity_components():
 # --------------------------------------------------------------------------- buffer
 def test_buffer_interpolates_linearly_and_unwraps_angles():
     buf = TelemetryBuffer(max_age_s=10.0, stale_after_s=1.0)
-    a = sample(t=10.0, lat_deg=41.0, lon_deg=-83.0, height_agl_m=50.0, vel_ned_mps=(2.0, 0.0, 0.0),
-               ground_speed_mps=2.0, course_rad=math.radians(350), yaw_rad=math.radians(179))
-    b = sample(t=10.5, lat_deg=41.001, lon_deg=-83.002, height_agl_m=60.0, vel_ned_mps=(4.0, 2.0, -1.0),
-               ground_speed_mps=4.0, course_rad=math.radians(10), yaw_rad=math.radians(-179))
+    a = sample(
+        t=10.0,
+        lat_deg=41.0,
+        lon_deg=-83.0,
+        height_agl_m=50.0,
+        vel_ned_mps=(2.0, 0.0, 0.0),
+        ground_speed_mps=2.0,
+        course_rad=math.radians(350),
+        yaw_rad=math.radians(179),
+    )
+    b = sample(
+        t=10.5,
+        lat_deg=41.001,
+        lon_deg=-83.002,
+        height_agl_m=60.0,
+        vel_ned_mps=(4.0, 2.0, -1.0),
+        ground_speed_mps=4.0,
+        course_rad=math.radians(10),
+        yaw_rad=math.radians(-179),
+    )
     assert buf.add(a)[0] and buf.add(b)[0]
     s, note = buf.at(10.125)
     assert note == ""
@@ -247,7 +267,9 @@ def test_buffer_interpolates_linearly_and_unwraps_angles():
     assert math.degrees(s.yaw_rad) == pytest.approx(179.5)  # 179 -> -179 through 180
     s_mid, _ = buf.at(10.25)
     assert 0.0 <= s_mid.course_rad < 2 * math.pi  # due north, kept in [0, 2 pi)
-    assert math.cos(s_mid.course_rad) == pytest.approx(1.0) and abs(math.sin(s_mid.course_rad)) < 1e-9
+    assert (
+        math.cos(s_mid.course_rad) == pytest.approx(1.0) and abs(math.sin(s_mid.course_rad)) < 1e-9
+    )
     assert buf.at(10.5)[0] is b
 
 
@@ -347,7 +369,9 @@ def test_frames_trajectory_passes_through_every_fix():
     for s in traj:
         assert validate_sample(s) == (True, "")
         assert s.roll_rad == 0.0 and s.pitch_rad == 0.0
-        assert abs((s.yaw_rad - s.course_rad + math.pi) % (2 * math.pi) - math.pi) < 1e-9  # yaw = course
+        assert (
+            abs((s.yaw_rad - s.course_rad + math.pi) % (2 * math.pi) - math.pi) < 1e-9
+        )  # yaw = course
         assert s.ground_speed_mps == pytest.approx(math.hypot(*s.vel_ned_mps[:2]))
 
 
@@ -355,8 +379,12 @@ def test_frames_trajectory_speed_461_to_462_matches_hand_haversine():
     rows = frames_rows()
     r0, r1 = rows[0], rows[1]
     assert r0["file"] == "IMG_0461.jpg" and r1["file"] == "IMG_0462.jpg"
-    lat0, lon0, lat1, lon1 = (float(r0["latitude_deg"]), float(r0["longitude_deg"]),
-                              float(r1["latitude_deg"]), float(r1["longitude_deg"]))
+    lat0, lon0, lat1, lon1 = (
+        float(r0["latitude_deg"]),
+        float(r0["longitude_deg"]),
+        float(r1["latitude_deg"]),
+        float(r1["longitude_deg"]),
+    )
     dt = 4.0  # 13:39:05 -> 13:39:09
     hand_speed = haversine_m(lat0, lon0, lat1, lon1) / dt  # 36.65 m / 4 s = 9.16 m/s
     hand_course = bearing_rad(lat0, lon0, lat1, lon1)
@@ -366,9 +394,13 @@ def test_frames_trajectory_speed_461_to_462_matches_hand_haversine():
     v = np.array([s.vel_ned_mps for s in traj])
     sel = (t >= traj[0].t - 1e-6) & (t <= traj[0].t + dt + 1e-6)
     vs, ts = v[sel], t[sel]
-    mean_v = (0.5 * (vs[1:] + vs[:-1]) * np.diff(ts)[:, None]).sum(axis=0) / dt  # trapezoid: displacement / dt
+    mean_v = (0.5 * (vs[1:] + vs[:-1]) * np.diff(ts)[:, None]).sum(
+        axis=0
+    ) / dt  # trapezoid: displacement / dt
     assert math.hypot(mean_v[0], mean_v[1]) == pytest.approx(hand_speed, rel=SPHERE_VS_ELLIPSOID)
-    assert course_from_velocity(mean_v[0], mean_v[1]) == pytest.approx(hand_course, abs=SPHERE_BEARING_TOL)
+    assert course_from_velocity(mean_v[0], mean_v[1]) == pytest.approx(
+        hand_course, abs=SPHERE_BEARING_TOL
+    )
     # Vertical: GPS altitude 288.40 -> 287.14 m, so mean down velocity +0.315 m/s.
     assert mean_v[2] == pytest.approx((288.40 - 287.14) / dt, abs=1e-3)
 
@@ -376,26 +408,47 @@ def test_frames_trajectory_speed_461_to_462_matches_hand_haversine():
 def test_trajectory_through_fixes_rejects_bad_fixes():
     t = np.array([0.0, 0.0])
     with pytest.raises(ValueError, match="increase"):
-        trajectory_through_fixes(t, np.array([41.0, 41.1]), np.array([-83.0, -83.0]), np.array([280.0, 280.0]))
+        trajectory_through_fixes(
+            t, np.array([41.0, 41.1]), np.array([-83.0, -83.0]), np.array([280.0, 280.0])
+        )
     with pytest.raises(ValueError, match="at least 2"):
-        trajectory_through_fixes(np.array([0.0]), np.array([41.0]), np.array([-83.0]), np.array([280.0]))
+        trajectory_through_fixes(
+            np.array([0.0]), np.array([41.0]), np.array([-83.0]), np.array([280.0])
+        )
     with pytest.raises(ValueError, match="rate_hz"):
-        trajectory_through_fixes(np.array([0.0, 1.0]), np.array([41.0, 41.0]), np.array([-83.0, -83.0]),
-                                 np.array([280.0, 280.0]), rate_hz=0.0)
+        trajectory_through_fixes(
+            np.array([0.0, 1.0]),
+            np.array([41.0, 41.0]),
+            np.array([-83.0, -83.0]),
+            np.array([280.0, 280.0]),
+            rate_hz=0.0,
+        )
 
 
 def test_straight_trajectory_hand_values():
-    traj = trajectory_straight(t0=100.0, duration_s=10.0, rate_hz=5.0, lat0_deg=41.0, lon0_deg=-83.0,
-                               ground_alt_m=230.0, height_agl_m=60.0, speed_mps=8.0,
-                               course_rad=math.radians(60.0))
+    traj = trajectory_straight(
+        t0=100.0,
+        duration_s=10.0,
+        rate_hz=5.0,
+        lat0_deg=41.0,
+        lon0_deg=-83.0,
+        ground_alt_m=230.0,
+        height_agl_m=60.0,
+        speed_mps=8.0,
+        course_rad=math.radians(60.0),
+    )
     assert len(traj) == 51 and traj[-1].t == pytest.approx(110.0)
     first, last = traj[0], traj[-1]
     assert haversine_m(first.lat_deg, first.lon_deg, last.lat_deg, last.lon_deg) == pytest.approx(
-        80.0, rel=SPHERE_VS_ELLIPSOID)
+        80.0, rel=SPHERE_VS_ELLIPSOID
+    )
     assert bearing_rad(first.lat_deg, first.lon_deg, last.lat_deg, last.lon_deg) == pytest.approx(
-        math.radians(60.0), abs=SPHERE_BEARING_TOL)
+        math.radians(60.0), abs=SPHERE_BEARING_TOL
+    )
     for s in traj:
-        np.testing.assert_allclose(s.vel_ned_mps, [4.0, 8.0 * math.sin(math.radians(60)), 0.0], atol=1e-12)
+        np.testing.assert_allclose(
+            s.vel_ned_mps, [4.0, 8.0 * math.sin(math.radians(60)), 0.0], atol=1e-12
+        )
         assert s.ground_speed_mps == pytest.approx(8.0)
         assert s.course_rad == pytest.approx(math.radians(60.0))
         assert s.height_agl_m == 60.0 and s.alt_msl_m == 290.0

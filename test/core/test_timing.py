@@ -1,4 +1,5 @@
 """Frame timing (METHODS.md B, eqs. 1-2) against hand-computed numbers."""
+
 import math
 
 import pytest
@@ -18,7 +19,9 @@ F = 4.3e-3
 
 def test_detector_angle_hand_values():
     assert detector_angle(2) == pytest.approx(math.pi / 4, abs=1e-15)  # arctan(1)
-    assert math.degrees(detector_angle(4)) == pytest.approx(18.434948822922, abs=1e-9)  # arctan(1/3)
+    assert math.degrees(detector_angle(4)) == pytest.approx(
+        18.434948822922, abs=1e-9
+    )  # arctan(1/3)
     assert math.tan(detector_angle(5)) == pytest.approx(0.25, abs=1e-15)
 
 

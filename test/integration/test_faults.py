@@ -1,14 +1,15 @@
 """Faults across processes (issue 7): a node killed and restarted mid-stream, a looped
 bag (time jumps back), and use_sim_time with `subpix replay --clock`."""
+
 import subprocess
 import sys
 import time
 
+from conftest import ROOT, spin, subpix_cmd
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import Image
 
-from conftest import ROOT, spin, subpix_cmd
 from subpix_ros.cli._ros import stop_processes as _stop
 from subpix_ros.io import cdr
 from subpix_ros.io.bags import read_messages
@@ -18,23 +19,55 @@ PARAMS = str(ROOT / "config" / "demo.yaml")
 
 
 def _node(name, *extra):
-    return subprocess.Popen([sys.executable, "-m", f"subpix_ros.nodes.{name}", "--ros-args", "--params-file", PARAMS,
-                             *extra], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            f"subpix_ros.nodes.{name}",
+            "--ros-args",
+            "--params-file",
+            PARAMS,
+            *extra,
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
 
 
 def test_shift_node_killed_and_restarted_rebuilds_from_next_frames(rclpy_node, sample_bags):
     node = rclpy_node
     shifts, aligned = [], []
-    node.create_subscription(Vector3Stamped, "/shift", lambda r: shifts.append(
-        (time.monotonic(), cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]))), reliable_qos(100), raw=True)
-    node.create_subscription(Image, "/aligned", lambda r: aligned.append(time.monotonic()), reliable_qos(100), raw=True)
+    node.create_subscription(
+        Vector3Stamped,
+        "/shift",
+        lambda r: shifts.append(
+            (time.monotonic(), cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]))
+        ),
+        reliable_qos(100),
+        raw=True,
+    )
+    node.create_subscription(
+        Image, "/aligned", lambda r: aligned.append(time.monotonic()), reliable_qos(100), raw=True
+    )
     reg = _node("registration_node", "-r", "image:=/camera/image_raw")
     shift = _node("shift_node")
     procs = [reg, shift]
     try:
-        assert spin(node, lambda: node.count_publishers("/shift") and node.count_publishers("/aligned"), 30)
-        replay = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--rate", "0.05", "--topics",
-                                             "/camera/image_raw", "--wait-for", "/camera/image_raw"))
+        assert spin(
+            node, lambda: node.count_publishers("/shift") and node.count_publishers("/aligned"), 30
+        )
+        replay = subprocess.Popen(
+            subpix_cmd(
+                "replay",
+                str(sample_bags / "subpixel"),
+                "--rate",
+                "0.05",
+                "--topics",
+                "/camera/image_raw",
+                "--wait-for",
+                "/camera/image_raw",
+            )
+        )
         procs.append(replay)
         assert spin(node, lambda: len(shifts) >= 3, 60)
         shift.kill()  # SIGKILL mid-stream: no clean-up
@@ -57,18 +90,46 @@ def test_shift_node_killed_and_restarted_rebuilds_from_next_frames(rclpy_node, s
 def test_looped_bag_resets_state_on_time_jump(rclpy_node, sample_bags):
     node = rclpy_node
     refs, diag = [], []
-    node.create_subscription(Image, "/aligned/reference", lambda r: refs.append(
-        cdr.header_to_ns(cdr.cdr_to_image_msg(r).header)), latched_qos(), raw=True)
-    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diag.extend(
-        kv.value for s in m.status if s.name == "registration_node" for kv in s.values if kv.key == "recent_problems"), 50)
+    node.create_subscription(
+        Image,
+        "/aligned/reference",
+        lambda r: refs.append(cdr.header_to_ns(cdr.cdr_to_image_msg(r).header)),
+        latched_qos(),
+        raw=True,
+    )
+    node.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: diag.extend(
+            kv.value
+            for s in m.status
+            if s.name == "registration_node"
+            for kv in s.values
+            if kv.key == "recent_problems"
+        ),
+        50,
+    )
     reg = _node("registration_node", "-r", "image:=/camera/image_raw")
     first = next(read_messages(sample_bags / "subpixel", ["/camera/image_raw"])).timestamp_ns
     replay = None
     try:
         assert spin(node, lambda: node.count_publishers("/aligned/reference"), 30)
-        replay = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--rate", "1", "--loop",
-                                             "--topics", "/camera/image_raw", "--wait-for", "/camera/image_raw"))
-        assert spin(node, lambda: refs.count(first) >= 2, 90)  # frame 0 starts a new reference on the second pass
+        replay = subprocess.Popen(
+            subpix_cmd(
+                "replay",
+                str(sample_bags / "subpixel"),
+                "--rate",
+                "1",
+                "--loop",
+                "--topics",
+                "/camera/image_raw",
+                "--wait-for",
+                "/camera/image_raw",
+            )
+        )
+        assert spin(
+            node, lambda: refs.count(first) >= 2, 90
+        )  # frame 0 starts a new reference on the second pass
         assert spin(node, lambda: any("time jumped back" in d for d in diag), 10)
     finally:
         _stop([p for p in (reg, replay) if p is not None])
@@ -77,14 +138,29 @@ def test_looped_bag_resets_state_on_time_jump(rclpy_node, sample_bags):
 def test_use_sim_time_follows_replay_clock(rclpy_node, sample_bags):
     node = rclpy_node
     stamps = []
-    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: stamps.extend(
-        m.header.stamp.sec for s in m.status if s.name == "shift_node"), 50)
+    node.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: stamps.extend(m.header.stamp.sec for s in m.status if s.name == "shift_node"),
+        50,
+    )
     shift = _node("shift_node", "-p", "use_sim_time:=true")
     replay = None
     try:
         assert spin(node, lambda: node.count_publishers("/diagnostics"), 30)
-        replay = subprocess.Popen(subpix_cmd("replay", str(sample_bags / "subpixel"), "--clock", "--rate", "0.2",
-                                             "--topics", "/camera/image_raw", "--wait-for", "/clock"))
+        replay = subprocess.Popen(
+            subpix_cmd(
+                "replay",
+                str(sample_bags / "subpixel"),
+                "--clock",
+                "--rate",
+                "0.2",
+                "--topics",
+                "/camera/image_raw",
+                "--wait-for",
+                "/clock",
+            )
+        )
         # a sim-time node's 1 Hz timer runs on bag time: its diagnostics carry the bag's 2024 stamps
         assert spin(node, lambda: any(1_716_999_000 < s < 1_717_001_000 for s in stamps), 60)
     finally:

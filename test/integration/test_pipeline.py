@@ -3,6 +3,7 @@
 Real rclpy and Fast DDS: every node is its own process, `subpix replay` is
 another, and this test process listens to the public topics.
 """
+
 import json
 import subprocess
 import sys
@@ -11,11 +12,11 @@ import cv2
 import numpy as np
 import pytest
 import rclpy
+from conftest import ROOT, spin, subpix_cmd
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import CompressedImage, Image
 
-from conftest import ROOT, spin, subpix_cmd
 from subpix_ros.cli._ros import stop_processes as _stop
 from subpix_ros.core.evaluate import gain_over_bicubic, truth_on_grid, wrapped_error
 from subpix_ros.io import cdr
@@ -26,7 +27,15 @@ PARAMS = str(ROOT / "config" / "demo.yaml")
 
 
 def _node(name, *extra):
-    cmd = [sys.executable, "-m", f"subpix_ros.nodes.{name}", "--ros-args", "--params-file", PARAMS, *extra]
+    cmd = [
+        sys.executable,
+        "-m",
+        f"subpix_ros.nodes.{name}",
+        "--ros-args",
+        "--params-file",
+        PARAMS,
+        *extra,
+    ]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
@@ -36,18 +45,49 @@ class Outputs:
         self.diag = {}  # node name -> its latest /diagnostics values (for failure messages)
         self.node = node
         self.subs = [
-            node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: self.diag.update(
-                {s.name: {kv.key: kv.value for kv in s.values} for s in m.status}), 50),
-            node.create_subscription(Image, "/aligned/reference", lambda r: self.refs.append(cdr.header_to_ns(
-                cdr.cdr_to_image_msg(r).header)), latched_qos(), raw=True),
-            node.create_subscription(Vector3Stamped, "/shift",
-                                     lambda r: self.shifts.append(cdr.cdr_to_vector3_stamped(r)), reliable_qos(100), raw=True),
-            node.create_subscription(Image, "/super_resolved", lambda r: self.sr.append(cdr.cdr_to_image(r)),
-                                     reliable_qos(10), raw=True),
-            node.create_subscription(Image, "/mosaic", lambda r: self.mosaic.append(cdr.cdr_to_image(r)), latched_qos(),
-                                     raw=True),
-            node.create_subscription(CompressedImage, "/mosaic/compressed",
-                                     lambda r: self.mosaic_c.append(cdr.cdr_to_compressed(r)), latched_qos(), raw=True),
+            node.create_subscription(
+                DiagnosticArray,
+                "/diagnostics",
+                lambda m: self.diag.update(
+                    {s.name: {kv.key: kv.value for kv in s.values} for s in m.status}
+                ),
+                50,
+            ),
+            node.create_subscription(
+                Image,
+                "/aligned/reference",
+                lambda r: self.refs.append(cdr.header_to_ns(cdr.cdr_to_image_msg(r).header)),
+                latched_qos(),
+                raw=True,
+            ),
+            node.create_subscription(
+                Vector3Stamped,
+                "/shift",
+                lambda r: self.shifts.append(cdr.cdr_to_vector3_stamped(r)),
+                reliable_qos(100),
+                raw=True,
+            ),
+            node.create_subscription(
+                Image,
+                "/super_resolved",
+                lambda r: self.sr.append(cdr.cdr_to_image(r)),
+                reliable_qos(10),
+                raw=True,
+            ),
+            node.create_subscription(
+                Image,
+                "/mosaic",
+                lambda r: self.mosaic.append(cdr.cdr_to_image(r)),
+                latched_qos(),
+                raw=True,
+            ),
+            node.create_subscription(
+                CompressedImage,
+                "/mosaic/compressed",
+                lambda r: self.mosaic_c.append(cdr.cdr_to_compressed(r)),
+                latched_qos(),
+                raw=True,
+            ),
         ]
 
     def close(self):
@@ -58,10 +98,22 @@ class Outputs:
 
     def report(self):
         """What the stages said about drops and failures: the first thing to read when a count is short."""
-        keys = ("input_total", "output_total", "dropped_frames", "queue_depth", "worker_errors", "shift_failures",
-                "shifts_published", "warnings_total", "errors_total", "recent_problems")
-        return "; ".join(f"{name}: " + ", ".join(f"{k}={v[k]}" for k in keys if v.get(k)) for name, v in
-                         sorted(self.diag.items()))
+        keys = (
+            "input_total",
+            "output_total",
+            "dropped_frames",
+            "queue_depth",
+            "worker_errors",
+            "shift_failures",
+            "shifts_published",
+            "warnings_total",
+            "errors_total",
+            "recent_problems",
+        )
+        return "; ".join(
+            f"{name}: " + ", ".join(f"{k}={v[k]}" for k in keys if v.get(k))
+            for name, v in sorted(self.diag.items())
+        )
 
 
 def _replay_subpixel(node, out, bags, procs, rate="0.5"):
@@ -69,8 +121,20 @@ def _replay_subpixel(node, out, bags, procs, rate="0.5"):
     topics = ("/aligned/reference", "/shift", "/super_resolved")
     assert spin(node, lambda: all(node.count_publishers(t) for t in topics), 30, procs=procs)
     spin(node, lambda: False, 1.0, procs=procs)
-    replay = subprocess.Popen(subpix_cmd("replay", str(bags / "subpixel"), "--rate", rate, "--topics",
-                                         "/camera/image_raw", "--wait-for", "/camera/image_raw", "--wait-timeout", "60"))
+    replay = subprocess.Popen(
+        subpix_cmd(
+            "replay",
+            str(bags / "subpixel"),
+            "--rate",
+            rate,
+            "--topics",
+            "/camera/image_raw",
+            "--wait-for",
+            "/camera/image_raw",
+            "--wait-timeout",
+            "60",
+        )
+    )
     assert spin(node, lambda: replay.poll() is not None, 120, procs=procs)
     assert replay.returncode == 0
     # All 21 shifts AND 3 images, not the images alone: the executor takes one message per subscription
@@ -81,11 +145,16 @@ def _replay_subpixel(node, out, bags, procs, rate="0.5"):
 def _check_subpixel(out, bags):
     truth = json.loads((bags / "subpixel" / "truth.json").read_text())
     true = {f["stamp_ns"]: (f["u"], f["v"]) for f in truth["frames"]}
-    frames = {m.timestamp_ns: cdr.cdr_to_image(m.raw)[0] for m in read_messages(bags / "subpixel", ["/camera/image_raw"])}
+    frames = {
+        m.timestamp_ns: cdr.cdr_to_image(m.raw)[0]
+        for m in read_messages(bags / "subpixel", ["/camera/image_raw"])
+    }
     est = {cdr.header_to_ns(h): v[:2] for v, h in out.shifts}
     stamps = sorted(frames)
-    assert len(est) >= 18, (f"only {len(est)} shifts of the 21 aligned frames (frames "
-                            f"{[stamps.index(s) for s in sorted(est) if s in stamps]}); {out.report()}")
+    assert len(est) >= 18, (
+        f"only {len(est)} shifts of the 21 aligned frames (frames "
+        f"{[stamps.index(s) for s in sorted(est) if s in stamps]}); {out.report()}"
+    )
     assert len(out.refs) == 3  # frames 0, 8 and 16 start the three 8-frame sets
 
     def relative_truth(stamp):  # against the reference the frame was aligned to
@@ -93,7 +162,7 @@ def _check_subpixel(out, bags):
         return np.asarray(true[stamp]) - np.asarray(true[ref])
 
     err = np.array([wrapped_error(np.asarray(v), relative_truth(s)) for s, v in est.items()])
-    rmse = float(np.sqrt(np.mean(err ** 2)))
+    rmse = float(np.sqrt(np.mean(err**2)))
     assert rmse <= 0.02, f"shift RMSE {rmse:.4f} px against the bag's ground truth"
     assert len(out.sr) >= 2
     truth_hr = cv2.imread(str(bags / "subpixel" / "truth_hr.png"), cv2.IMREAD_COLOR)
@@ -120,12 +189,30 @@ def ros():
 
 def _run_layout(ros, bags, layout):
     if layout == "single":
-        procs = [subprocess.Popen([sys.executable, "-m", "subpix_ros.nodes.pipeline", "--no-telemetry", "--ros-args",
-                                   "--params-file", PARAMS, "-r", "image:=/camera/image_raw"],
-                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
+        procs = [
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "subpix_ros.nodes.pipeline",
+                    "--no-telemetry",
+                    "--ros-args",
+                    "--params-file",
+                    PARAMS,
+                    "-r",
+                    "image:=/camera/image_raw",
+                ],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+            )
+        ]
     else:
-        procs = [_node("registration_node", "-r", "image:=/camera/image_raw"), _node("shift_node"),
-                 _node("reconstruction_node")]
+        procs = [
+            _node("registration_node", "-r", "image:=/camera/image_raw"),
+            _node("shift_node"),
+            _node("reconstruction_node"),
+        ]
     out = Outputs(ros)
     try:
         _replay_subpixel(ros, out, bags, procs)
@@ -158,7 +245,9 @@ def test_single_process_pipeline_gives_the_same_outputs(ros, separate, sample_ba
     est2 = {cdr.header_to_ns(h): v[:2] for v, h in separate.shifts}
     common = sorted(set(est) & set(est2))
     assert len(common) >= 18
-    assert max(float(np.max(np.abs(np.asarray(est[s]) - np.asarray(est2[s])))) for s in common) < 1e-9
+    assert (
+        max(float(np.max(np.abs(np.asarray(est[s]) - np.asarray(est2[s])))) for s in common) < 1e-9
+    )
     by_stamp = {cdr.header_to_ns(h): img for img, h in separate.sr}
     assert by_stamp
     # A set whose frames differ between the runs (a frame dropped or without a shift in one of them: the
@@ -174,29 +263,61 @@ def test_single_process_pipeline_gives_the_same_outputs(ros, separate, sample_ba
             differ.append((s, sorted(set(mine) ^ set(theirs))))
             print(f"set {s}: frames differ {differ[-1][1]}")
             continue
-        assert np.array_equal(img, by_stamp[s]), f"set {s}: same {len(mine)} frames and shifts, different image"
+        assert np.array_equal(img, by_stamp[s]), (
+            f"set {s}: same {len(mine)} frames and shifts, different image"
+        )
         compared += 1
-    assert compared >= 1, (f"no set with the same frames in both runs to compare: {differ}; single: "
-                           f"{single.report()}; separate: {separate.report()}")
+    assert compared >= 1, (
+        f"no set with the same frames in both runs to compare: {differ}; single: "
+        f"{single.report()}; separate: {separate.report()}"
+    )
 
 
 def test_seneca_bag_produces_a_mosaic(ros, sample_bags):
     procs = [_node("mosaic_node", "-r", "image:=/camera/image_raw")]
     added = []
-    ros.create_subscription(DiagnosticArray, "/diagnostics", lambda m: added.extend(
-        int(kv.value) for s in m.status if s.name == "mosaic_node" for kv in s.values if kv.key == "frames_added"), 50)
+    ros.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: added.extend(
+            int(kv.value)
+            for s in m.status
+            if s.name == "mosaic_node"
+            for kv in s.values
+            if kv.key == "frames_added"
+        ),
+        50,
+    )
     out = Outputs(ros)
     try:
-        r = subprocess.run(subpix_cmd("replay", str(sample_bags / "seneca"), "--rate", "5", "--topics",
-                                      "/camera/image_raw", "--wait-for", "/camera/image_raw"), timeout=120)
+        r = subprocess.run(
+            subpix_cmd(
+                "replay",
+                str(sample_bags / "seneca"),
+                "--rate",
+                "5",
+                "--topics",
+                "/camera/image_raw",
+                "--wait-for",
+                "/camera/image_raw",
+            ),
+            timeout=120,
+        )
         assert r.returncode == 0
-        assert spin(ros, lambda: 9 in added, 60.0, procs=procs)  # every frame of the strip is in the mosaic
+        assert spin(
+            ros, lambda: 9 in added, 60.0, procs=procs
+        )  # every frame of the strip is in the mosaic
         spin(ros, lambda: False, 2.0, procs=procs)  # and its last publication arrives
         # a late joiner (transient local) still gets the latest mosaic at once
         late = rclpy.create_node("late_operator")
         got = []
-        late.create_subscription(Image, "/mosaic", lambda raw: got.append(cdr.cdr_to_image(raw)[0]), latched_qos(),
-                                 raw=True)
+        late.create_subscription(
+            Image,
+            "/mosaic",
+            lambda raw: got.append(cdr.cdr_to_image(raw)[0]),
+            latched_qos(),
+            raw=True,
+        )
         spin(late, lambda: bool(got), 10.0, procs=procs)
         late.destroy_node()
     finally:

@@ -12,6 +12,7 @@ Checked: shifts and a super-resolved image come out; the registration node recei
 of the camera frames the looping replay sends (best effort, SensorDataQoS); after a SIGKILL of
 the registration node and a restart with the same command, frames flow again.
 """
+
 import json
 import os
 import re
@@ -22,12 +23,19 @@ import threading
 import time
 
 import pytest
-
 from conftest import ROOT
 
 VENV = ROOT / ".venv"
-DROP_PREFIXES = ("ROS_", "RMW_", "AMENT_", "FASTRTPS_", "FASTDDS_", "COLCON_", "CYCLONEDDS_",
-                 "ZENOH_")
+DROP_PREFIXES = (
+    "ROS_",
+    "RMW_",
+    "AMENT_",
+    "FASTRTPS_",
+    "FASTDDS_",
+    "COLCON_",
+    "CYCLONEDDS_",
+    "ZENOH_",
+)
 RUN = ("subpix replay", "registration_node", "shift_node", "reconstruction_node")
 
 LISTENER = r"""
@@ -72,8 +80,11 @@ def readme_commands():
     text = (ROOT / "README.md").read_text()
     section = text.split("## Running the nodes", 1)[1]
     block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
-    return [line.split("#", 1)[0].strip().rstrip("&").strip() for line in block.splitlines()
-            if line.split("#", 1)[0].strip()]
+    return [
+        line.split("#", 1)[0].strip().rstrip("&").strip()
+        for line in block.splitlines()
+        if line.split("#", 1)[0].strip()
+    ]
 
 
 def plain_env():
@@ -87,9 +98,14 @@ def plain_env():
 
 class Listener:
     def __init__(self, env):
-        self.proc = subprocess.Popen([str(VENV / "bin" / "python"), "-c", LISTENER], env=env,
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                     cwd=ROOT)
+        self.proc = subprocess.Popen(
+            [str(VENV / "bin" / "python"), "-c", LISTENER],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            cwd=ROOT,
+        )
         self.latest, self.lines = {}, []
         threading.Thread(target=self._read, daemon=True).start()
 
@@ -127,8 +143,12 @@ def test_readme_running_the_nodes_in_a_plain_venv(tmp_path):
     if not (ROOT / "data" / "bags" / "subpixel" / "metadata.yaml").is_file():
         pytest.fail("data/bags/subpixel missing: run `make sample`")
     run = [c for c in cmds if c.startswith(RUN)]
-    assert [c.split()[0] for c in run] == ["subpix", "registration_node", "shift_node",
-                                           "reconstruction_node"]
+    assert [c.split()[0] for c in run] == [
+        "subpix",
+        "registration_node",
+        "shift_node",
+        "reconstruction_node",
+    ]
     env = plain_env()
     logs = {}
     listener = Listener(env)
@@ -137,12 +157,14 @@ def test_readme_running_the_nodes_in_a_plain_venv(tmp_path):
     def start(cmd):
         name = shlex.split(cmd)[0] if not cmd.startswith("subpix") else "replay"
         logs[name] = open(tmp_path / f"{name}.log", "a")
-        procs[name] = subprocess.Popen(shlex.split(cmd), env=env, cwd=ROOT, stdout=logs[name],
-                                       stderr=subprocess.STDOUT)
+        procs[name] = subprocess.Popen(
+            shlex.split(cmd), env=env, cwd=ROOT, stdout=logs[name], stderr=subprocess.STDOUT
+        )
 
     def report():
-        return (f"listener {listener.latest}; logs:\n" + "\n".join(
-            f"--- {n}\n{(tmp_path / f'{n}.log').read_text()[-1500:]}" for n in logs))
+        return f"listener {listener.latest}; logs:\n" + "\n".join(
+            f"--- {n}\n{(tmp_path / f'{n}.log').read_text()[-1500:]}" for n in logs
+        )
 
     try:
         for cmd in run:  # in the README's order: the looping replay first, then the nodes
@@ -161,8 +183,10 @@ def test_readme_running_the_nodes_in_a_plain_venv(tmp_path):
         expected = 24 * (s1["t"] - s0["t"]) / 2.8
         got = s1["reg_input"] - s0["reg_input"]
         print(f"camera frames at the registration node: {got} of ~{expected:.0f} sent")
-        assert got >= 0.7 * expected, (f"{got} camera frames reached the registration node of "
-                                       f"~{expected:.0f} sent; " + report())
+        assert got >= 0.7 * expected, (
+            f"{got} camera frames reached the registration node of "
+            f"~{expected:.0f} sent; " + report()
+        )
 
         # SIGKILL (stale shared-memory files stay), restart with the same command: frames again.
         procs["registration_node"].send_signal(signal.SIGKILL)

@@ -7,8 +7,8 @@ import subprocess
 import time
 
 import pytest
-
 from conftest import subpix_cmd
+
 from subpix_ros.io.bags import bag_topics, read_messages
 
 TOPICS = ("/camera/image_raw", "/telemetry/velocity")
@@ -160,14 +160,19 @@ def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path
     from std_msgs.msg import String
 
     topic = _ns() + "/latched"
-    latched = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    latched = QoSProfile(
+        depth=5, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+    )
     pub = rclpy_node.create_publisher(String, topic, latched)
     for i in range(3):
         pub.publish(String(data=f"state {i}"))
     out = tmp_path / "latched.mcap"
-    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), topic, "--count", "3"),
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rec = subprocess.Popen(
+        subpix_cmd("record", "-o", str(out), topic, "--count", "3"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 30
         while rec.poll() is None and time.monotonic() < deadline:
@@ -179,8 +184,9 @@ def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path
     assert rec.returncode == 0, err
     from rclpy.serialization import deserialize_message
 
-    assert [deserialize_message(m.raw, String).data for m in read_messages(out)] == \
-        [f"state {i}" for i in range(3)]
+    assert [deserialize_message(m.raw, String).data for m in read_messages(out)] == [
+        f"state {i}" for i in range(3)
+    ]
     (info,) = bag_topics(out)
     assert [q.durability for q in info.qos] == [QosDurability.TRANSIENT_LOCAL]
     assert info.qos[0].reliability == QosReliability.RELIABLE  # (depth is not discoverable: 0)
@@ -188,9 +194,23 @@ def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path
     # replayed: while the replay waits for a subscriber (--wait-for), its publisher is in the graph
     # offering transient local, as recorded; then a transient-local subscriber gets the 3 messages
     replay_topic = topic + "_again"
-    play = subprocess.Popen(subpix_cmd("replay", str(out), "--remap", f"{topic}:={replay_topic}",
-                                       "--wait-for", topic, "--wait-timeout", "30", "--delay", "0"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    play = subprocess.Popen(
+        subpix_cmd(
+            "replay",
+            str(out),
+            "--remap",
+            f"{topic}:={replay_topic}",
+            "--wait-for",
+            topic,
+            "--wait-timeout",
+            "30",
+            "--delay",
+            "0",
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     got = []
     try:
         deadline = time.monotonic() + 30
@@ -199,9 +219,16 @@ def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path
             offered = rclpy_node.get_publishers_info_by_topic(replay_topic)
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)
         assert [i.qos_profile.durability for i in offered] == [DurabilityPolicy.TRANSIENT_LOCAL]
-        rclpy_node.create_subscription(String, replay_topic, lambda m: got.append(m.data),
-                                       QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                                                  durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        rclpy_node.create_subscription(
+            String,
+            replay_topic,
+            lambda m: got.append(m.data),
+            QoSProfile(
+                depth=10,
+                reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            ),
+        )
         deadline = time.monotonic() + 20
         while len(got) < 3 and time.monotonic() < deadline:
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)

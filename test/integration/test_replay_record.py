@@ -1,11 +1,12 @@
 """`subpix replay` and `subpix record` in their own processes, over real DDS."""
+
 import os
 import subprocess
 import time
 
 import pytest
-
 from conftest import subpix_cmd
+
 from subpix_ros.io import cdr
 from subpix_ros.io.bags import read_messages
 
@@ -14,8 +15,13 @@ def _collect(node, topic, msg_cls, expected, timeout=30.0, proc=None):
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     got = []
-    node.create_subscription(msg_cls, topic, lambda raw: got.append(raw),
-                             QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE), raw=True)
+    node.create_subscription(
+        msg_cls,
+        topic,
+        lambda raw: got.append(raw),
+        QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE),
+        raw=True,
+    )
     import rclpy
 
     deadline = time.monotonic() + timeout
@@ -29,8 +35,14 @@ def test_replay_feeds_other_process_with_original_stamps(sample_bags, rclpy_node
 
     bag = sample_bags / "subpixel"
     recorded = [(m.timestamp_ns, m.raw) for m in read_messages(bag, ["/camera/image_raw"])]
-    proc = subprocess.Popen(subpix_cmd("replay", str(bag), "--topics", "/camera/image_raw", "--wait-for",
-                                       "/camera/image_raw"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        subpix_cmd(
+            "replay", str(bag), "--topics", "/camera/image_raw", "--wait-for", "/camera/image_raw"
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         got = _collect(rclpy_node, "/camera/image_raw", Image, len(recorded))
         out, err = proc.communicate(timeout=30)
@@ -46,17 +58,36 @@ def test_replay_feeds_other_process_with_original_stamps(sample_bags, rclpy_node
 
 def test_replay_rate_and_clock(sample_bags, rclpy_node):
     """--clock publishes bag time on /clock; --rate scales the timing."""
-    from rosgraph_msgs.msg import Clock
     import rclpy
     from rclpy.qos import QoSProfile
+    from rosgraph_msgs.msg import Clock
 
     bag = sample_bags / "subpixel"
     clocks = []
-    rclpy_node.create_subscription(Clock, "/clock", lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
-                                   QoSProfile(depth=100))
+    rclpy_node.create_subscription(
+        Clock,
+        "/clock",
+        lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
+        QoSProfile(depth=100),
+    )
     t0 = time.monotonic()
-    proc = subprocess.Popen(subpix_cmd("replay", str(bag), "--clock", "--rate", "0.5", "--topics", "/camera/image_raw",
-                                       "--wait-for", "/clock", "--delay", "0"), stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        subpix_cmd(
+            "replay",
+            str(bag),
+            "--clock",
+            "--rate",
+            "0.5",
+            "--topics",
+            "/camera/image_raw",
+            "--wait-for",
+            "/clock",
+            "--delay",
+            "0",
+        ),
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     while proc.poll() is None and time.monotonic() - t0 < 30:
         rclpy.spin_once(rclpy_node, timeout_sec=0.05)
     assert proc.returncode == 0, proc.stderr.read()
@@ -78,36 +109,73 @@ def test_record_then_replay_round_trip(sample_bags, tmp_path):
     # not yet forgotten by discovery) could otherwise satisfy the replay's --wait-for before the recorder's
     # own subscriptions match, or make the recorder take best effort from a stale offer.
     ns = f"/roundtrip_{os.getpid()}_{time.monotonic_ns() % 1_000_000}"
-    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), *(ns + t for t in topics),
-                                      "--count", str(total), "--discover-timeout", "20"),
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    play = subprocess.run(subpix_cmd("replay", str(bag), "--topics", *topics, "--remap", *(f"{t}:={ns}{t}" for t in topics),
-                                     "--wait-for", *topics, "--delay", "0.5"),
-                          capture_output=True, text=True, timeout=60)
+    rec = subprocess.Popen(
+        subpix_cmd(
+            "record",
+            "-o",
+            str(out),
+            *(ns + t for t in topics),
+            "--count",
+            str(total),
+            "--discover-timeout",
+            "20",
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    play = subprocess.run(
+        subpix_cmd(
+            "replay",
+            str(bag),
+            "--topics",
+            *topics,
+            "--remap",
+            *(f"{t}:={ns}{t}" for t in topics),
+            "--wait-for",
+            *topics,
+            "--delay",
+            "0.5",
+        ),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert play.returncode == 0, play.stderr
     try:
-        rec_out, err = rec.communicate(timeout=30)  # it stops by itself once it has every message (--count)
+        rec_out, err = rec.communicate(
+            timeout=30
+        )  # it stops by itself once it has every message (--count)
     except subprocess.TimeoutExpired:
         rec.kill()
         rec_out, err = rec.communicate()
-        pytest.fail(f"recorder did not get all {total} messages within 30 s; replay said: {play.stdout!r} "
-                    f"{play.stderr!r}; recorder said: {rec_out!r} {err!r}")
+        pytest.fail(
+            f"recorder did not get all {total} messages within 30 s; replay said: {play.stdout!r} "
+            f"{play.stderr!r}; recorder said: {rec_out!r} {err!r}"
+        )
     assert rec.returncode == 0, err
     recorded = {t: [m.raw for m in read_messages(out, [ns + t])] for t in topics}
     assert recorded == original
     # and what we recorded replays
-    again = subprocess.run(subpix_cmd("replay", str(out), "--delay", "0", "--no-wait"),
-                           capture_output=True, text=True, timeout=60)
+    again = subprocess.run(
+        subpix_cmd("replay", str(out), "--delay", "0", "--no-wait"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert again.returncode == 0 and "replayed" in again.stdout
 
 
-@pytest.mark.parametrize("args, message", [
-    (["replay", "/nonexistent/bag"], "bag not found"),
-    (["replay", "{bag}", "--topics", "/nope"], "not in bag"),
-    (["replay", "{corrupt}"], "is corrupt at byte offset 8: no MCAP header record"),
-    (["replay", "{bag}", "--rate", "0"], "rate must be > 0"),
-    (["replay", "{bag}", "--ack-timeout", "-1"], "--ack-timeout must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["replay", "/nonexistent/bag"], "bag not found"),
+        (["replay", "{bag}", "--topics", "/nope"], "not in bag"),
+        (["replay", "{corrupt}"], "is corrupt at byte offset 8: no MCAP header record"),
+        (["replay", "{bag}", "--rate", "0"], "rate must be > 0"),
+        (["replay", "{bag}", "--ack-timeout", "-1"], "--ack-timeout must be >= 0"),
+    ],
+)
 def test_replay_errors_are_one_line(sample_bags, tmp_path, args, message):
     corrupt = tmp_path / "corrupt.mcap"
     corrupt.write_bytes(b"\x89MCAP0\r\n" + b"garbage" * 100)
@@ -130,13 +198,17 @@ def _damaged_bag(tmp_path, n=45):
     with BagWriter(bag) as w:
         for i in range(n):
             img = np.random.default_rng(i).integers(0, 256, (256, 256)).astype(np.uint8)
-            w.write("/camera/image_raw", "sensor_msgs/msg/Image", 10**9 + i * 10**7,
-                    cdr.image_to_cdr(img, "mono8", 10**9 + i * 10**7, "cam"))
+            w.write(
+                "/camera/image_raw",
+                "sensor_msgs/msg/Image",
+                10**9 + i * 10**7,
+                cdr.image_to_cdr(img, "mono8", 10**9 + i * 10**7, "cam"),
+            )
     f, _ = _mcap.open_mcap(bag)
     counts = [sum(c.counts.values()) for c in f.chunks]
     c = f.chunks[1]
     raw = bytearray(bag.read_bytes())
-    raw[c.offset + c.length // 2: c.offset + c.length // 2 + 64] = bytes(64)
+    raw[c.offset + c.length // 2 : c.offset + c.length // 2 + 64] = bytes(64)
     bag.write_bytes(bytes(raw))
     return bag, c.offset, counts[0], counts[2]
 
@@ -145,39 +217,58 @@ def test_replay_stops_at_a_damaged_chunk(tmp_path):
     """Issue 19 item 2: the first bad offset and the count read, one line, non-zero exit (was: the
     damaged chunk's messages lost without a word, exit 0)."""
     bag, offset, before, _ = _damaged_bag(tmp_path)
-    r = subprocess.run(subpix_cmd("replay", str(bag), "--delay", "0"), capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        subpix_cmd("replay", str(bag), "--delay", "0"), capture_output=True, text=True, timeout=60
+    )
     assert r.returncode != 0
     lines = [line for line in r.stderr.splitlines() if line.strip()]
     assert len(lines) == 1, r.stderr
-    assert f"corrupt at byte offset {offset}" in lines[0] and f"{before} message(s) could be read" in lines[0]
+    assert (
+        f"corrupt at byte offset {offset}" in lines[0]
+        and f"{before} message(s) could be read" in lines[0]
+    )
     assert f"replayed {before} messages before it" in lines[0]
 
 
 def test_replay_skip_corrupt_reports_what_it_skipped(tmp_path):
     bag, offset, before, after = _damaged_bag(tmp_path)
-    r = subprocess.run(subpix_cmd("replay", str(bag), "--delay", "0", "--skip-corrupt"), capture_output=True,
-                       text=True, timeout=60)
+    r = subprocess.run(
+        subpix_cmd("replay", str(bag), "--delay", "0", "--skip-corrupt"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode != 0
     assert f"replayed {before + after} messages" in r.stdout
     lines = [line for line in r.stderr.splitlines() if line.strip()]
     lost = 45 - before - after
-    assert len(lines) == 1 and f"skipped 1 corrupt record(s) holding {lost} message(s)" in lines[0], r.stderr
+    assert (
+        len(lines) == 1 and f"skipped 1 corrupt record(s) holding {lost} message(s)" in lines[0]
+    ), r.stderr
     assert f"byte offset {offset}" in lines[0]
 
 
 def test_replay_unknown_message_type(tmp_path):
-    from subpix_ros.io.bags import BagWriter
-
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    from subpix_ros.io.bags import BagWriter
 
     store = get_typestore(Stores.ROS2_JAZZY)
     # a type this machine's rclpy has no Python package for
     store.register(get_types_from_msg("string data", "nosuch_msgs/msg/Thing"))
-    raw = store.serialize_cdr(store.types["nosuch_msgs/msg/Thing"](data="x"), "nosuch_msgs/msg/Thing")
+    raw = store.serialize_cdr(
+        store.types["nosuch_msgs/msg/Thing"](data="x"), "nosuch_msgs/msg/Thing"
+    )
     with BagWriter(tmp_path / "odd", typestore=store) as w:
         w.write("/odd", "nosuch_msgs/msg/Thing", 1, raw)
-    r = subprocess.run(subpix_cmd("replay", str(tmp_path / "odd")), capture_output=True, text=True, timeout=60)
-    assert r.returncode != 0 and "unknown message type" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    r = subprocess.run(
+        subpix_cmd("replay", str(tmp_path / "odd")), capture_output=True, text=True, timeout=60
+    )
+    assert (
+        r.returncode != 0
+        and "unknown message type" in r.stderr
+        and len(r.stderr.strip().splitlines()) == 1
+    )
 
 
 def _replay_to_a_stalled_recorder(node, bag, out, *replay_args, count=0):
@@ -193,12 +284,43 @@ def _replay_to_a_stalled_recorder(node, bag, out, *replay_args, count=0):
     # UDP only between these two: a process frozen by SIGSTOP cannot then hold a lock inside a Fast DDS
     # shared-memory segment that other participants (later tests) would wait on.
     env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="UDPv4")
-    rec = subprocess.Popen(subpix_cmd("record", "-o", str(out), "/camera/image_raw", "--discover-timeout", "30",
-                                      "--count", str(count)), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                           env=env)
-    play = subprocess.Popen(subpix_cmd("replay", str(bag), "--topics", "/camera/image_raw", "--rate", "10", "--clock",
-                                       "--wait-for", "/camera/image_raw", "/clock", "--delay", "0.5", *replay_args),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    rec = subprocess.Popen(
+        subpix_cmd(
+            "record",
+            "-o",
+            str(out),
+            "/camera/image_raw",
+            "--discover-timeout",
+            "30",
+            "--count",
+            str(count),
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    play = subprocess.Popen(
+        subpix_cmd(
+            "replay",
+            str(bag),
+            "--topics",
+            "/camera/image_raw",
+            "--rate",
+            "10",
+            "--clock",
+            "--wait-for",
+            "/camera/image_raw",
+            "/clock",
+            "--delay",
+            "0.5",
+            *replay_args,
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     deadline = time.monotonic() + 30
     while node.count_subscribers("/camera/image_raw") < 1 and time.monotonic() < deadline:
         rclpy.spin_once(node, timeout_sec=0.05)
@@ -220,7 +342,9 @@ def _finish(*procs):
     stop_processes(procs)
 
 
-def test_replay_waits_until_a_stalled_subscriber_has_every_message(sample_bags, rclpy_node, tmp_path):
+def test_replay_waits_until_a_stalled_subscriber_has_every_message(
+    sample_bags, rclpy_node, tmp_path
+):
     """A reliable subscriber that falls behind (here: its process stopped while the bag plays, 14 MB of
     frames) still gets every message: replay waits for the acknowledgements before it exits, instead of
     tearing its writers down with samples the subscriber has yet to receive."""
@@ -230,12 +354,18 @@ def test_replay_waits_until_a_stalled_subscriber_has_every_message(sample_bags, 
     out = tmp_path / "slow.mcap"
     rec, play, _ = _replay_to_a_stalled_recorder(rclpy_node, bag, out, count=24)
     try:
-        time.sleep(3.0)  # the bag (0.08 s at rate 10, after 0.5 s) is long published; replay waits for the acks
-        assert play.poll() is None, "replay exited while a matched reliable subscriber still lacked messages"
+        time.sleep(
+            3.0
+        )  # the bag (0.08 s at rate 10, after 0.5 s) is long published; replay waits for the acks
+        assert play.poll() is None, (
+            "replay exited while a matched reliable subscriber still lacked messages"
+        )
         rec.send_signal(signal.SIGCONT)
         _, err_play = play.communicate(timeout=60)
         assert play.returncode == 0 and "warning" not in err_play, err_play
-        _, err = rec.communicate(timeout=30)  # it stops by itself once it has written all 24 (--count 24)
+        _, err = rec.communicate(
+            timeout=30
+        )  # it stops by itself once it has written all 24 (--count 24)
     finally:
         _finish(rec, play)
     assert rec.returncode == 0, err
@@ -243,9 +373,12 @@ def test_replay_waits_until_a_stalled_subscriber_has_every_message(sample_bags, 
     assert [m.raw for m in read_messages(out, ["/camera/image_raw"])] == original
 
 
-def test_replay_gives_up_on_a_subscriber_that_stays_stalled_and_says_so(sample_bags, rclpy_node, tmp_path):
-    rec, play, t0 = _replay_to_a_stalled_recorder(rclpy_node, sample_bags / "subpixel", tmp_path / "never.mcap",
-                                                  "--ack-timeout", "2")
+def test_replay_gives_up_on_a_subscriber_that_stays_stalled_and_says_so(
+    sample_bags, rclpy_node, tmp_path
+):
+    rec, play, t0 = _replay_to_a_stalled_recorder(
+        rclpy_node, sample_bags / "subpixel", tmp_path / "never.mcap", "--ack-timeout", "2"
+    )
     try:
         out, err = play.communicate(timeout=60)
         waited = time.monotonic() - t0
@@ -265,9 +398,19 @@ def test_replay_waits_for_a_subscriber_by_default(sample_bags, rclpy_node):
     bag = sample_bags / "subpixel"
     n = sum(1 for _ in read_messages(bag, ["/camera/image_raw"]))
     topic = f"/waits_{os.getpid()}_{time.monotonic_ns() % 1_000_000}/image"
-    proc = subprocess.Popen(subpix_cmd("replay", str(bag), "--topics", "/camera/image_raw",
-                                       "--remap", f"/camera/image_raw:={topic}"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        subpix_cmd(
+            "replay",
+            str(bag),
+            "--topics",
+            "/camera/image_raw",
+            "--remap",
+            f"/camera/image_raw:={topic}",
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         time.sleep(6.0)  # the subscriber comes late (the bag lasts 2.4 s)
         assert proc.poll() is None, proc.communicate()
@@ -280,11 +423,21 @@ def test_replay_waits_for_a_subscriber_by_default(sample_bags, rclpy_node):
 
 
 def test_replay_without_subscriber_goes_ahead_after_the_wait(sample_bags):
-    r = subprocess.run(subpix_cmd("replay", str(sample_bags / "subpixel"), "--topics",
-                                  "/camera/image_raw", "--remap",
-                                  f"/camera/image_raw:=/nobody_{os.getpid()}",
-                                  "--wait-timeout", "1"),
-                       capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        subpix_cmd(
+            "replay",
+            str(sample_bags / "subpixel"),
+            "--topics",
+            "/camera/image_raw",
+            "--remap",
+            f"/camera/image_raw:=/nobody_{os.getpid()}",
+            "--wait-timeout",
+            "1",
+        ),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode == 0, r.stderr
     assert "no subscriber on any replayed topic within 1 s: replaying anyway" in r.stderr
     assert "replayed 24 messages" in r.stdout

@@ -1,4 +1,5 @@
 """rosbag2 read/write through subpix_ros.io.bags, and the bundled sample flights."""
+
 import json
 import shutil
 
@@ -13,9 +14,21 @@ def _write(path, storage="mcap", n=5):
     with BagWriter(path, storage=storage) as w:
         for i in range(n):
             img = np.full((4, 6), i, np.uint8)
-            w.write("/cam", "sensor_msgs/msg/Image", 1_000_000_000 + i, cdr.image_to_cdr(img, "mono8", 1_000 + i, "c"))
-            w.write("/h", "std_msgs/msg/Float64", 1_000_000_000 + i,
-                    cdr.serialize(cdr.TYPESTORE.types["std_msgs/msg/Float64"](data=float(i)), "std_msgs/msg/Float64"))
+            w.write(
+                "/cam",
+                "sensor_msgs/msg/Image",
+                1_000_000_000 + i,
+                cdr.image_to_cdr(img, "mono8", 1_000 + i, "c"),
+            )
+            w.write(
+                "/h",
+                "std_msgs/msg/Float64",
+                1_000_000_000 + i,
+                cdr.serialize(
+                    cdr.TYPESTORE.types["std_msgs/msg/Float64"](data=float(i)),
+                    "std_msgs/msg/Float64",
+                ),
+            )
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
@@ -73,8 +86,12 @@ def test_seneca_sample_bag(sample_bags):
     topics = {t.name: t for t in bag_topics(sample_bags / "seneca")}
     assert topics["/camera/image_raw"].count == 9
     assert topics["/camera/image_raw"].msgtype == "sensor_msgs/msg/Image"
-    for name, typ in [("/telemetry/fix", "sensor_msgs/msg/NavSatFix"), ("/telemetry/velocity", "geometry_msgs/msg/TwistStamped"),
-                      ("/telemetry/height", "std_msgs/msg/Float64"), ("/telemetry/imu", "sensor_msgs/msg/Imu")]:
+    for name, typ in [
+        ("/telemetry/fix", "sensor_msgs/msg/NavSatFix"),
+        ("/telemetry/velocity", "geometry_msgs/msg/TwistStamped"),
+        ("/telemetry/height", "std_msgs/msg/Float64"),
+        ("/telemetry/imu", "sensor_msgs/msg/Imu"),
+    ]:
         assert topics[name].msgtype == typ and topics[name].count > 300  # 10 Hz over the 36 s strip
     first = next(read_messages(sample_bags / "seneca", ["/camera/image_raw"]))
     img, header = cdr.cdr_to_image(first.raw)
@@ -102,15 +119,33 @@ def test_sqlite3_sample_build(tmp_path):
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
-    subprocess.run([sys.executable, str(root / "scripts" / "build_sample_flight.py"), "--out", str(tmp_path),
-                    "--storage", "sqlite3"], check=True, capture_output=True)
+    subprocess.run(
+        [
+            sys.executable,
+            str(root / "scripts" / "build_sample_flight.py"),
+            "--out",
+            str(tmp_path),
+            "--storage",
+            "sqlite3",
+        ],
+        check=True,
+        capture_output=True,
+    )
     assert any(p.suffix == ".db3" for p in (tmp_path / "subpixel").iterdir())
     assert len(list(read_messages(tmp_path / "subpixel", ["/camera/image_raw"]))) == 24
     shutil.rmtree(tmp_path)
 
 
-@pytest.mark.parametrize("storage, mode", [("mcap", "MESSAGE"), ("mcap", "FILE"), ("mcap", "STORAGE"),
-                                           ("sqlite3", "MESSAGE"), ("sqlite3", "FILE")])
+@pytest.mark.parametrize(
+    "storage, mode",
+    [
+        ("mcap", "MESSAGE"),
+        ("mcap", "FILE"),
+        ("mcap", "STORAGE"),
+        ("sqlite3", "MESSAGE"),
+        ("sqlite3", "FILE"),
+    ],
+)
 def test_compressed_bags_read_back(tmp_path, storage, mode):
     """rosbag2's compression modes (per message, whole file, mcap chunks) as the rosbags writer
     makes them: the same bytes come back."""

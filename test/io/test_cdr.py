@@ -1,4 +1,5 @@
 """Raw CDR fast path: byte layout vs rosbags and rclpy, and real rclpy raw pub/sub across processes."""
+
 from __future__ import annotations
 
 import array
@@ -62,7 +63,13 @@ def rclpy_image(array_, encoding, stamp_ns, frame_id, step=None):
     m = Image()
     m.header.stamp.sec, m.header.stamp.nanosec = divmod(stamp_ns, 10**9)
     m.header.frame_id = frame_id
-    m.height, m.width, m.encoding, m.is_bigendian, m.step = f["height"], f["width"], encoding, 0, f["step"]
+    m.height, m.width, m.encoding, m.is_bigendian, m.step = (
+        f["height"],
+        f["width"],
+        encoding,
+        0,
+        f["step"],
+    )
     m.data = array.array("B", f["data"].tobytes())
     return m
 
@@ -73,7 +80,9 @@ def rclpy_image(array_, encoding, stamp_ns, frame_id, step=None):
 @settings(max_examples=40, deadline=None)
 @given(
     frame_id=st.text(alphabet="abcxyz_/0", max_size=9),
-    encoding=st.sampled_from(["mono8", "mono16", "bgr8", "rgba8", "32FC1", "yuv422_yuy2", "bayer_gbrg8", "16SC3"]),
+    encoding=st.sampled_from(
+        ["mono8", "mono16", "bgr8", "rgba8", "32FC1", "yuv422_yuy2", "bayer_gbrg8", "16SC3"]
+    ),
     h=st.integers(1, 6).map(lambda k: 2 * k),
     w=st.integers(1, 6).map(lambda k: 2 * k),
     pad=st.integers(0, 7),
@@ -94,7 +103,9 @@ def test_image_to_cdr_matches_rosbags_bytes(frame_id, encoding, h, w, pad, bigen
     row = w * info.pixel_bytes
     raw = image_to_cdr(a, encoding, stamp, frame_id, step=row + pad, bigendian=bigendian)
     assert isinstance(raw, bytes)
-    assert raw == rosbags_image_bytes(a, encoding, stamp, frame_id, step=row + pad, bigendian=bigendian)
+    assert raw == rosbags_image_bytes(
+        a, encoding, stamp, frame_id, step=row + pad, bigendian=bigendian
+    )
 
 
 def test_rclpy_reads_our_bytes_and_we_read_rclpys(bgr):
@@ -104,7 +115,11 @@ def test_rclpy_reads_our_bytes_and_we_read_rclpys(bgr):
     raw = image_to_cdr(bgr, "bgr8", STAMP, "camera_optical", step=bgr.shape[1] * 3 + 4)
     m = deserialize_message(raw, Image)
     assert (m.height, m.width, m.encoding, m.is_bigendian, m.step) == (120, 160, "bgr8", 0, 484)
-    assert (m.header.stamp.sec, m.header.stamp.nanosec, m.header.frame_id) == (1_700_000_123, 456_789_012, "camera_optical")
+    assert (m.header.stamp.sec, m.header.stamp.nanosec, m.header.frame_id) == (
+        1_700_000_123,
+        456_789_012,
+        "camera_optical",
+    )
     rows = np.frombuffer(m.data, np.uint8).reshape(120, 484)
     np.testing.assert_array_equal(rows[:, :480].reshape(120, 160, 3), bgr)
 
@@ -149,7 +164,11 @@ def test_huge_frame_fast_path_memory():
         tracemalloc.stop()
     assert big.nbytes <= len(raw) < peak_ser + 1 and peak_ser < big.nbytes + 1_000_000
     assert peak_de - base < 1_000_000
-    assert img.shape == big.shape and img[101, 103] == 9 and np.shares_memory(img, np.frombuffer(raw, np.uint8))
+    assert (
+        img.shape == big.shape
+        and img[101, 103] == 9
+        and np.shares_memory(img, np.frombuffer(raw, np.uint8))
+    )
 
 
 def test_desired_through_cdr(bgr):
@@ -159,7 +178,9 @@ def test_desired_through_cdr(bgr):
     img, _ = cdr_to_image(raw, "mono8")
     assert img.shape == bgr.shape[:2] and img.dtype == np.uint8
     raw_rgb = image_to_cdr(bgr[..., ::-1].copy(), "rgb8", STAMP)
-    np.testing.assert_array_equal(cdr_to_image(raw_rgb, "mono8")[0], cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
+    np.testing.assert_array_equal(
+        cdr_to_image(raw_rgb, "mono8")[0], cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    )
 
 
 def test_make_header_and_stamps():
@@ -229,7 +250,9 @@ def test_float64_array_and_vector3():
     m = deserialize_message(raw, Float64MultiArray)
     assert [(d.label, d.size, d.stride) for d in m.layout.dim] == [("rows", 3, 12), ("cols", 4, 4)]
     np.testing.assert_array_equal(np.array(m.data), a.ravel())
-    np.testing.assert_array_equal(cdr_to_float64_array(float64_array_to_cdr([1.5, -2.0])), [1.5, -2.0])
+    np.testing.assert_array_equal(
+        cdr_to_float64_array(float64_array_to_cdr([1.5, -2.0])), [1.5, -2.0]
+    )
     with pytest.raises(CdrError, match="labels"):
         float64_array_to_cdr(a, ["only_one"])
 
@@ -250,9 +273,17 @@ def test_time_reference_round_trip_and_rclpy():
     ref = STAMP - 2_345_678_901
     raw = time_reference_to_cdr(STAMP, ref, "cam", "subpix_ros reference frame")
     stamp, time_ref, msg = cdr_to_time_reference(raw)
-    assert (stamp, time_ref, msg.header.frame_id, msg.source) == (STAMP, ref, "cam", "subpix_ros reference frame")
+    assert (stamp, time_ref, msg.header.frame_id, msg.source) == (
+        STAMP,
+        ref,
+        "cam",
+        "subpix_ros reference frame",
+    )
     m = deserialize_message(raw, TimeReference)
-    assert m.time_ref.sec * 10**9 + m.time_ref.nanosec == ref and m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == STAMP
+    assert (
+        m.time_ref.sec * 10**9 + m.time_ref.nanosec == ref
+        and m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == STAMP
+    )
     with pytest.raises(CdrError):
         time_reference_to_cdr(STAMP, 2**80)
     with pytest.raises(CdrError):
@@ -335,7 +366,9 @@ def ros_env(monkeypatch):
     domain = random.randint(1, 100)
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    monkeypatch.setenv("RMW_IMPLEMENTATION", os.environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp"))
+    monkeypatch.setenv(
+        "RMW_IMPLEMENTATION", os.environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    )
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     return domain, env
@@ -381,10 +414,16 @@ def test_rclpy_raw_subscription_receives_our_bytes(ros_env, rclpy_node):
     topics = {"raw": f"/subpix_test/raw_{tag}", "typed": f"/subpix_test/typed_{tag}"}
     got: dict[str, object] = {}
     for key, topic in topics.items():
-        node.create_subscription(Image, topic, lambda b, key=key: got.setdefault(key, b), 10, raw=True)
+        node.create_subscription(
+            Image, topic, lambda b, key=key: got.setdefault(key, b), 10, raw=True
+        )
     proc = subprocess.Popen(
         [sys.executable, "-c", PUBLISHER, topics["raw"], topics["typed"], "40"],
-        env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env=env,
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     try:
         deadline = time.monotonic() + 40
@@ -392,11 +431,13 @@ def test_rclpy_raw_subscription_receives_our_bytes(ros_env, rclpy_node):
             executor.spin_once(timeout_sec=0.1)
     finally:
         _kill(proc)
-    assert len(got) == 2, f"received {sorted(got)} only; publisher stderr: {proc.stderr.read()[-2000:]}"
+    assert len(got) == 2, (
+        f"received {sorted(got)} only; publisher stderr: {proc.stderr.read()[-2000:]}"
+    )
     for key, frame_id in (("raw", "cam_raw"), ("typed", "cam_typed")):
         assert isinstance(got[key], bytes)
         img, header = cdr_to_image(got[key])
-        np.testing.assert_array_equal(img, expected())
+        np.testing.assert_array_equal(img, expected())  # noqa: F821 (exec above)
         assert header_to_ns(header) == STAMP and header.frame_id == frame_id
 
 
@@ -409,10 +450,14 @@ def test_rclpy_typed_subscriber_receives_our_raw_publish(ros_env, rclpy_node):
     node, executor = rclpy_node
     topic = f"/subpix_test/pub_{uuid.uuid4().hex[:8]}"
     pub = node.create_publisher(Image, topic, 10)
-    raw = image_to_cdr(expected(), "bgr8", STAMP, "cam_test")
+    raw = image_to_cdr(expected(), "bgr8", STAMP, "cam_test")  # noqa: F821 (exec above)
     proc = subprocess.Popen(
         [sys.executable, "-c", SUBSCRIBER, topic, "40"],
-        env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env=env,
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     try:
         deadline = time.monotonic() + 45
@@ -422,4 +467,6 @@ def test_rclpy_typed_subscriber_receives_our_raw_publish(ros_env, rclpy_node):
     finally:
         _kill(proc)
     out = proc.stdout.read()
-    assert proc.returncode == 0 and "OK" in out, f"subscriber said {out!r}; stderr: {proc.stderr.read()[-2000:]}"
+    assert proc.returncode == 0 and "OK" in out, (
+        f"subscriber said {out!r}; stderr: {proc.stderr.read()[-2000:]}"
+    )

@@ -1,4 +1,5 @@
 """sensor_msgs/Image and CompressedImage <-> numpy: round trips, conversions, bad input."""
+
 from __future__ import annotations
 
 import array
@@ -8,9 +9,9 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 import pytest
+from conftest import ImageMsg as Msg
 
 from subpix_ros.data import seneca_frame_paths
-from conftest import ImageMsg as Msg
 from subpix_ros.io.images import (
     KNOWN_ENCODINGS,
     FrameFormatTracker,
@@ -103,7 +104,9 @@ def test_padded_step_ignores_pad_bytes(gray):
     np.testing.assert_array_equal(image_to_numpy(m), gray)
 
 
-@pytest.mark.parametrize("container", ["bytes", "bytearray", "array", "memoryview", "ndarray", "list"])
+@pytest.mark.parametrize(
+    "container", ["bytes", "bytearray", "array", "memoryview", "ndarray", "list"]
+)
 def test_data_containers(colour, container):
     f = numpy_to_image_fields(colour, "bgr8", step=colour.shape[1] * 3 + 2)
     raw = f["data"]
@@ -143,7 +146,13 @@ def test_colour_orders_to_bgr8_and_mono8(colour):
     bgra = np.dstack([colour, np.full(colour.shape[:2], 77, np.uint8)])
     rgba = np.dstack([rgb, np.full(colour.shape[:2], 77, np.uint8)])
     gray_ref = cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY)
-    for arr, enc in ((colour, "bgr8"), (rgb, "rgb8"), (bgra, "bgra8"), (rgba, "rgba8"), (colour, "8UC3")):
+    for arr, enc in (
+        (colour, "bgr8"),
+        (rgb, "rgb8"),
+        (bgra, "bgra8"),
+        (rgba, "rgba8"),
+        (colour, "8UC3"),
+    ):
         m = msg_of(arr, enc)
         np.testing.assert_array_equal(image_to_numpy(m, "bgr8"), colour)
         if enc != "8UC3":
@@ -164,13 +173,17 @@ def test_16bit_scaling():
     assert image_to_numpy(m, "mono8").tolist() == [[0, 1, 128, 255, 0]]
     assert image_to_numpy(m, "mono").dtype == np.uint16
     np.testing.assert_array_equal(image_to_numpy(m, "mono"), a)
-    np.testing.assert_array_equal(image_to_numpy(msg_of(a, "16UC1"), "mono8"), image_to_numpy(m, "mono8"))
+    np.testing.assert_array_equal(
+        image_to_numpy(msg_of(a, "16UC1"), "mono8"), image_to_numpy(m, "mono8")
+    )
     b16 = np.dstack([a, a // 2, a // 4])
     np.testing.assert_array_equal(
         image_to_numpy(msg_of(b16, "bgr16"), "bgr8"), cv2.convertScaleAbs(b16, alpha=255 / 65535)
     )
     rgb16 = b16[..., ::-1].copy()
-    np.testing.assert_array_equal(image_to_numpy(msg_of(rgb16, "rgb16"), "bgr8"), image_to_numpy(msg_of(b16, "bgr16"), "bgr8"))
+    np.testing.assert_array_equal(
+        image_to_numpy(msg_of(rgb16, "rgb16"), "bgr8"), image_to_numpy(msg_of(b16, "bgr16"), "bgr8")
+    )
 
 
 @pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
@@ -179,7 +192,10 @@ def test_bayer_mosaic_layout(pattern):
     bgr = np.zeros((2, 2, 3), np.uint8)
     bgr[..., 0], bgr[..., 1], bgr[..., 2] = 10, 20, 30  # B, G, R
     letters = {"r": 30, "g": 20, "b": 10}
-    expect = [[letters[pattern[0]], letters[pattern[1]]], [letters[pattern[2]], letters[pattern[3]]]]
+    expect = [
+        [letters[pattern[0]], letters[pattern[1]]],
+        [letters[pattern[2]], letters[pattern[3]]],
+    ]
     m = msg_of(bgr, f"bayer_{pattern}8")
     assert np.asarray(m.data).reshape(2, 2).tolist() == expect
     np.testing.assert_array_equal(image_to_numpy(m, "raw"), np.array(expect, np.uint8))
@@ -205,7 +221,9 @@ def test_bayer_demosaic_recovers_colour(pattern, bits):
 
 @pytest.mark.parametrize("new,old", [("uyvy", "yuv422"), ("yuyv", "yuv422_yuy2")])
 def test_yuv422_old_and_new_names(colour, new, old):
-    pair = np.repeat(colour[:, ::2], 2, axis=1)  # chroma constant over pixel pairs: 4:2:2 loses nothing
+    pair = np.repeat(
+        colour[:, ::2], 2, axis=1
+    )  # chroma constant over pixel pairs: 4:2:2 loses nothing
     m_new, m_old = msg_of(pair, new), msg_of(pair, old)
     np.testing.assert_array_equal(np.asarray(m_new.data), np.asarray(m_old.data))
     out = image_to_numpy(m_new)
@@ -253,7 +271,10 @@ def good_fields():
         ({"step": 5}, "step 5 is smaller than one row"),
         ({"height": 5}, "too short: 24 bytes, expected step\\*height = 6\\*5 = 30"),
         ({"height": 3}, "too long: 24 bytes, expected step\\*height = 6\\*3 = 18 \\(6 extra"),
-        ({"width": 3, "encoding": "mono16", "height": 2}, "too long: 24 bytes, expected step\\*height = 6\\*2 = 12"),
+        (
+            {"width": 3, "encoding": "mono16", "height": 2},
+            "too long: 24 bytes, expected step\\*height = 6\\*2 = 12",
+        ),
         ({"encoding": "rgb8"}, "step 6 is smaller than one row: width 6 x 3 bytes per pixel = 18"),
         ({"encoding": "uyvy", "width": 3}, "even width, got 3"),
         ({"encoding": "bayer_rggb8", "width": 5}, "even width and height"),
@@ -276,16 +297,22 @@ def test_trailing_bytes_can_be_allowed_explicitly():
     f["data"] = np.concatenate([f["data"], np.full(7, 9, np.uint8)])
     with pytest.raises(ImageConversionError, match="7 extra bytes"):
         image_to_numpy(Msg(**f))
-    np.testing.assert_array_equal(image_to_numpy(Msg(**f), allow_trailing=True), np.arange(24).reshape(4, 6))
+    np.testing.assert_array_equal(
+        image_to_numpy(Msg(**f), allow_trailing=True), np.arange(24).reshape(4, 6)
+    )
 
 
 def test_missing_field():
     with pytest.raises(ImageConversionError, match="no field 'step'"):
-        image_to_numpy(SimpleNamespace(height=1, width=1, encoding="mono8", is_bigendian=0, data=b"\x00"))
+        image_to_numpy(
+            SimpleNamespace(height=1, width=1, encoding="mono8", is_bigendian=0, data=b"\x00")
+        )
 
 
 def test_bad_desired_and_undefined_conversions(gray):
-    with pytest.raises(ImageConversionError, match="unknown desired format 'bgr' .*did you mean 'bgr8'"):
+    with pytest.raises(
+        ImageConversionError, match="unknown desired format 'bgr' .*did you mean 'bgr8'"
+    ):
         image_to_numpy(msg_of(gray, "mono8"), "bgr")
     f32 = gray.astype(np.float32)
     for desired in ("bgr8", "mono8"):
@@ -323,7 +350,9 @@ def test_float_nan_inf_are_converted_and_reportable(gray):
     out = image_to_numpy(msg_of(f, "32FC1"))
     assert np.isnan(out[3, 4]) and out[10, 11] == np.inf and out[20, 0] == -np.inf
     assert finite_fraction(out) == pytest.approx(1 - 3 / f.size)
-    with pytest.raises(ImageConversionError, match=r"non-finite samples \(NaN/Inf\): 99\.97\d% finite"):
+    with pytest.raises(
+        ImageConversionError, match=r"non-finite samples \(NaN/Inf\): 99\.97\d% finite"
+    ):
         require_finite(out)
     assert require_finite(out, min_fraction=0.99) is out
     assert finite_fraction(gray) == 1.0
@@ -344,11 +373,18 @@ def test_degenerate_frames_convert_unchanged(kind):
 def test_frame_size_change_mid_stream_is_reported(gray):
     tracker = FrameFormatTracker()
     small = gray[:48, :64]
-    msgs = [msg_of(gray, "mono8"), msg_of(gray, "mono8"), msg_of(small, "mono8"), msg_of(small, "mono8"),
-            msg_of(np.dstack([small] * 3), "bgr8")]
+    msgs = [
+        msg_of(gray, "mono8"),
+        msg_of(gray, "mono8"),
+        msg_of(small, "mono8"),
+        msg_of(small, "mono8"),
+        msg_of(np.dstack([small] * 3), "bgr8"),
+    ]
     notes = [tracker.update_from(m) for m in msgs]
     assert notes[:2] == [None, None] and notes[3] is None
-    assert notes[2] == "frame format changed mid-stream: 128x96 mono8 -> 64x48 mono8 (width x height)"
+    assert (
+        notes[2] == "frame format changed mid-stream: 128x96 mono8 -> 64x48 mono8 (width x height)"
+    )
     assert notes[4] == "frame format changed mid-stream: 64x48 mono8 -> 64x48 bgr8 (width x height)"
     assert tracker.changes == 2 and tracker.current == (48, 64, "bgr8")
     # Each frame still converts on its own terms.
@@ -390,7 +426,9 @@ def test_jpeg_round_trip(colour, gray):
     out = compressed_to_numpy(SimpleNamespace(format=fmt, data=data))
     assert out.shape == colour.shape and psnr(out, colour) > 35
     for plain in ("jpeg", "", "rgb8; jpeg compressed bgr8"):
-        np.testing.assert_array_equal(compressed_to_numpy(SimpleNamespace(format=plain, data=data)), out)
+        np.testing.assert_array_equal(
+            compressed_to_numpy(SimpleNamespace(format=plain, data=data)), out
+        )
     fmt_g, data_g = numpy_to_compressed(gray, "jpeg", quality=95)
     assert fmt_g == "mono8; jpeg compressed mono8"
     out_g = compressed_to_numpy(SimpleNamespace(format=fmt_g, data=array.array("B", data_g)))
@@ -408,8 +446,15 @@ def test_png_round_trips_exact(colour, gray):
         out = compressed_to_numpy(SimpleNamespace(format=fmt, data=np.frombuffer(data, np.uint8)))
         assert out.dtype == arr.dtype
         np.testing.assert_array_equal(out, arr)
-        np.testing.assert_array_equal(compressed_to_numpy(SimpleNamespace(format="png", data=data)), arr)
-    assert compressed_to_numpy(SimpleNamespace(format="png", data=numpy_to_compressed(g16, "png")[1]), "mono").dtype == np.uint16
+        np.testing.assert_array_equal(
+            compressed_to_numpy(SimpleNamespace(format="png", data=data)), arr
+        )
+    assert (
+        compressed_to_numpy(
+            SimpleNamespace(format="png", data=numpy_to_compressed(g16, "png")[1]), "mono"
+        ).dtype
+        == np.uint16
+    )
 
 
 def test_corrupt_compressed_raises(colour):

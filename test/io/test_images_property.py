@@ -1,5 +1,6 @@
 """Hypothesis property tests for image conversion: round trips over random shapes,
 dtypes, padded steps, byte orders and containers; every bad size is rejected."""
+
 from __future__ import annotations
 
 import array
@@ -8,10 +9,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import pytest
+from conftest import ImageMsg as Msg
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conftest import ImageMsg as Msg
 from subpix_ros.io.images import (
     KNOWN_ENCODINGS,
     ImageConversionError,
@@ -61,7 +62,9 @@ def test_plain_round_trip_bit_exact(encoding, h, w, pad, bigendian, container, s
     """Random bytes (so floats include NaN payloads, Inf, denormals) survive bit-exactly."""
     info = encoding_info(encoding)
     shape = (h, w) if info.channels == 1 else (h, w, info.channels)
-    a = np.frombuffer(np.random.default_rng(seed).bytes(h * w * info.pixel_bytes), info.dtype).reshape(shape)
+    a = np.frombuffer(
+        np.random.default_rng(seed).bytes(h * w * info.pixel_bytes), info.dtype
+    ).reshape(shape)
     f = numpy_to_image_fields(a, encoding, step=w * info.pixel_bytes + pad, bigendian=bigendian)
     f["data"] = wrap(f["data"], container)
     out = image_to_numpy(Msg(**f))
@@ -132,7 +135,12 @@ def test_wrong_data_size_always_rejected(encoding, hh, hw, pad, delta):
 
 
 @FAST
-@given(encoding=st.sampled_from(PLAIN + BAYER + YUV), hh=st.integers(1, 8), hw=st.integers(1, 8), short=st.integers(1, 8))
+@given(
+    encoding=st.sampled_from(PLAIN + BAYER + YUV),
+    hh=st.integers(1, 8),
+    hw=st.integers(1, 8),
+    short=st.integers(1, 8),
+)
 def test_step_smaller_than_row_always_rejected(encoding, hh, hw, short):
     info = encoding_info(encoding)
     h, w = 2 * hh, 2 * hw
@@ -160,9 +168,16 @@ def test_png_round_trip_exact(h, w, kind, seed):
 
 
 @settings(max_examples=30, deadline=None)
-@given(h=st.integers(8, 40), w=st.integers(8, 40), cut=st.floats(0.05, 0.95), seed=st.integers(0, 2**32 - 1))
+@given(
+    h=st.integers(8, 40),
+    w=st.integers(8, 40),
+    cut=st.floats(0.05, 0.95),
+    seed=st.integers(0, 2**32 - 1),
+)
 def test_truncated_compressed_always_rejected(h, w, cut, seed):
-    g = cv2.GaussianBlur(np.random.default_rng(seed).integers(0, 256, (h, w, 3), dtype=np.uint8), (0, 0), 1.5)
+    g = cv2.GaussianBlur(
+        np.random.default_rng(seed).integers(0, 256, (h, w, 3), dtype=np.uint8), (0, 0), 1.5
+    )
     for codec in ("jpeg", "png"):
         fmt, data = numpy_to_compressed(g, codec)
         n = max(1, int(len(data) * cut))

@@ -1,9 +1,12 @@
 """MAVLink I/O with real packets: pymavlink over UDP loopback and .tlog files."""
+
 import math
 import time
 
 import numpy as np
 import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from subpix_ros.core.telemetry import (
     TelemetrySample,
@@ -21,9 +24,6 @@ from subpix_ros.io.mavlink import (
     read_tlog_packets,
     write_tlog,
 )
-
-from pymavlink import mavutil
-from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 T0 = 1_700_000_000.0  # boot time of the synthetic autopilot (POSIX s)
 
@@ -97,7 +97,12 @@ def test_encoded_fields_follow_mavlink_units():
     pk = encode_samples([s], system_id=3, component_id=1, boot_time=T0)
     parser = mav2.MAVLink(None)
     msgs = [parser.parse_char(buf) for _, buf in pk]
-    assert [m.get_type() for m in msgs] == ["HEARTBEAT", "ATTITUDE", "VFR_HUD", "GLOBAL_POSITION_INT"]
+    assert [m.get_type() for m in msgs] == [
+        "HEARTBEAT",
+        "ATTITUDE",
+        "VFR_HUD",
+        "GLOBAL_POSITION_INT",
+    ]
     assert all(m.get_srcSystem() == 3 for m in msgs)
     assert [m.get_seq() for m in msgs] == [0, 1, 2, 3]
     hb, att, hud, gpi = msgs
@@ -133,7 +138,9 @@ def test_heartbeat_rate_and_encoding_errors():
 def test_udp_sample_matches_hand_computed_values(udp):
     col, reader, sender = udp()
     sender.send(packets([make(0.0)], heartbeat_hz=1.0))
-    sender.send(packets([make(0.1, vel_ned_mps=(-3.0, 0.0, 1.2), ground_speed_mps=3.0, yaw_rad=-2.0)]))
+    sender.send(
+        packets([make(0.1, vel_ned_mps=(-3.0, 0.0, 1.2), ground_speed_mps=3.0, yaw_rad=-2.0)])
+    )
     assert wait_until(lambda: len(col.samples) == 2)
     s, s2 = col.samples
     assert reader.target_system == 1 and s.system_id == 1 and s.time_boot_ms == 0
@@ -142,7 +149,9 @@ def test_udp_sample_matches_hand_computed_values(udp):
     assert s.ground_speed_mps == pytest.approx(8.0622577, rel=1e-7)  # hypot(4, 7)
     assert math.degrees(s.course_rad) == pytest.approx(60.2551187, abs=1e-6)  # atan2(7, 4)
     np.testing.assert_allclose(s.vel_enu_mps, [7.0, 4.0, 0.5])  # east, north, up
-    np.testing.assert_allclose(s.orientation_enu(), attitude_quaternion_enu(0.05, -0.02, 1.0), atol=1e-7)
+    np.testing.assert_allclose(
+        s.orientation_enu(), attitude_quaternion_enu(0.05, -0.02, 1.0), atol=1e-7
+    )
     assert time.time() - 5 < s.t <= time.time()  # live link: receive time
     # Flying south, 3 m/s, sinking: course 180 deg, ENU velocity (0, -3, -1.2).
     assert s2.time_boot_ms == 100 and s2.t >= s.t
@@ -176,9 +185,13 @@ def test_udp_bad_input_is_counted_and_valid_data_survives(udp):
     bad_crc = bytearray(packets([make(0.2)]))
     bad_crc[-1] ^= 0xFF  # the last frame (GLOBAL_POSITION_INT) gets a wrong checksum
     mav1 = packets([make(0.4, lat_deg=41.0354537)], mavlink1=True)
-    sender.send(packets([make(0.1)], heartbeat_hz=1.0) + garbage + bytes(bad_crc))  # garbage between frames
+    sender.send(
+        packets([make(0.1)], heartbeat_hz=1.0) + garbage + bytes(bad_crc)
+    )  # garbage between frames
     sender.send(garbage)
-    sender.send(packets([make(0.3, lat_deg=12.0)], system_id=7, heartbeat_hz=1.0))  # another vehicle
+    sender.send(
+        packets([make(0.3, lat_deg=12.0)], system_id=7, heartbeat_hz=1.0)
+    )  # another vehicle
     sender.send(mav1)
     sender.send(packets([make(0.5, roll_rad=float("nan"))]))
     sender.send(packets([make(0.6, height_agl_m=-2.0)]))
@@ -194,7 +207,9 @@ def test_udp_bad_input_is_counted_and_valid_data_survives(udp):
     assert col.samples[1].lat_deg == 41.0354537  # the MAVLink 1 sample
     hover = col.samples[2]
     assert hover.ground_speed_mps == 0.0 and not timing_usable(hover)[0]
-    assert math.degrees(hover.course_rad) == pytest.approx(math.degrees(1.0), abs=1e-5)  # heading at hover
+    assert math.degrees(hover.course_rad) == pytest.approx(
+        math.degrees(1.0), abs=1e-5
+    )  # heading at hover
     st = reader.stats
     assert st.bad_crc == 1
     assert st.bad_data == 2 and st.garbage_bytes == 2 * len(garbage)
@@ -251,7 +266,10 @@ def test_tlog_round_trip_recovers_every_sample(tmp_path, frames_traj):
     for a, b in zip(frames_traj, got):
         assert abs(a.t - b.t) <= 4e-6  # tlog stores microseconds with the 2 link-id bits cleared
         assert abs(a.lat_deg - b.lat_deg) <= 0.5e-7 and abs(a.lon_deg - b.lon_deg) <= 0.5e-7
-        assert abs(a.height_agl_m - b.height_agl_m) <= 0.5e-3 and abs(a.alt_msl_m - b.alt_msl_m) <= 0.5e-3
+        assert (
+            abs(a.height_agl_m - b.height_agl_m) <= 0.5e-3
+            and abs(a.alt_msl_m - b.alt_msl_m) <= 0.5e-3
+        )
         assert np.all(np.abs(a.vel_ned_mps - b.vel_ned_mps) <= 0.005 + 1e-12)  # cm/s
         assert b.ground_speed_mps == pytest.approx(a.ground_speed_mps, rel=1e-7)  # float32
         # course from cm/s velocities: error <= |dv| / |v| with |dv| <= 0.005 * sqrt(2)
@@ -302,7 +320,9 @@ def test_tlog_replay_rate_paces_in_log_time(tmp_path):
 
 def test_tlog_mixed_mavlink1_and_2(tmp_path):
     traj = trajectory_straight(t0=T0, duration_s=2.0, rate_hz=5.0)
-    pk = encode_samples(traj[:5], boot_time=T0) + encode_samples(traj[5:], boot_time=T0, mavlink1=True)
+    pk = encode_samples(traj[:5], boot_time=T0) + encode_samples(
+        traj[5:], boot_time=T0, mavlink1=True
+    )
     path = tmp_path / "mixed.tlog"
     write_tlog(path, packets=pk)
     col = Collector()
@@ -326,8 +346,18 @@ def test_parse_url_defaults_to_loopback_and_validates(tmp_path):
     log = tmp_path / "x.tlog"
     log.write_bytes(b"")
     assert parse_url(str(log)).kind == "tlog"
-    for bad in ("", "udpin:abc", "udpout:127.0.0.1:0", "udpin:70000", "udpin:$(reboot):14550",
-                "http://example.com", "mcast:", "/dev/null,fast", "/bin/ls", "notes.txt"):
+    for bad in (
+        "",
+        "udpin:abc",
+        "udpout:127.0.0.1:0",
+        "udpin:70000",
+        "udpin:$(reboot):14550",
+        "http://example.com",
+        "mcast:",
+        "/dev/null,fast",
+        "/bin/ls",
+        "notes.txt",
+    ):
         with pytest.raises(ValueError):
             parse_url(bad)
     with pytest.raises(FileNotFoundError):
@@ -367,7 +397,9 @@ def test_tcp_stream_split_at_odd_boundaries_and_peer_close():
         time.sleep(1.0)
         assert time.process_time() - cpu0 < 0.1  # the closed socket does not make the thread spin
         st = reader.stats
-        assert st.samples == len(traj) and st.bad_data == 0 and st.bad_crc == 0 and st.exceptions == 0
+        assert (
+            st.samples == len(traj) and st.bad_data == 0 and st.bad_crc == 0 and st.exceptions == 0
+        )
     finally:
         reader.stop()
 
@@ -383,7 +415,7 @@ def test_autopilot_reboot_is_accepted_and_counted(tmp_path):
     reader = col.reader(str(path)).start()
     assert reader.join(10.0)
     assert len(col.samples) == len(before) + len(after)
-    assert [s.time_boot_ms for s in col.samples[len(before):]][:2] == [500, 700]
+    assert [s.time_boot_ms for s in col.samples[len(before) :]][:2] == [500, 700]
     assert reader.stats.reboots == 1 and reader.stats.rejected == 0
 
 
@@ -405,7 +437,6 @@ def test_reader_survives_internal_errors(udp):
     st = reader.stats
     assert st.exceptions == 1 and "simulated decoder bug" in st.last_error
     assert [s.time_boot_ms for s in col.samples] == [200, 300]
-
 
 
 def test_import_leaves_the_environment_alone(tmp_path):
@@ -435,6 +466,8 @@ assert "MAVLINK20" not in os.environ, "reading set MAVLINK20"
 print("ok", len(got))
 """
     env = {k: v for k, v in os.environ.items() if k != "MAVLINK20"}
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.startswith("ok 361")

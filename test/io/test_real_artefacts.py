@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import subpix_cmd
 from rosbags.interfaces import QosDurability, QosReliability
 
-from conftest import subpix_cmd
 from subpix_ros.io.bags import BagError, bag_topics, read_messages
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -102,8 +102,8 @@ def test_rosbag2_mcap_cdr_decodes_with_its_own_definitions():
 
 @pytest.mark.parametrize("name", ["mcap_talker_v4", "sqlite3_talker_v4"])
 def test_rosbag2_talker_decodes_and_keeps_its_qos(name):
-    from std_msgs.msg import String
     from rclpy.serialization import deserialize_message
+    from std_msgs.msg import String
 
     bag = BAGS / name
     texts = [deserialize_message(m.raw, String).data for m in read_messages(bag, ["/topic"])]
@@ -163,11 +163,26 @@ def test_rosbag2_talker_replays_to_another_process(name, rclpy_node):
 
     bag = BAGS / name
     ns = f"/artefact_{name}_{time.monotonic_ns() % 1_000_000}"
-    args = ["replay", str(bag), "--topics", "/topic", "/rosout", "--rate", "20", "--remap",
-            f"/topic:={ns}/topic", f"/rosout:={ns}/rosout", "--wait-for", "/topic", "/rosout",
-            "--wait-timeout", "30"]
-    play = subprocess.Popen(subpix_cmd(*args), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    args = [
+        "replay",
+        str(bag),
+        "--topics",
+        "/topic",
+        "/rosout",
+        "--rate",
+        "20",
+        "--remap",
+        f"/topic:={ns}/topic",
+        f"/rosout:={ns}/rosout",
+        "--wait-for",
+        "/topic",
+        "/rosout",
+        "--wait-timeout",
+        "30",
+    ]
+    play = subprocess.Popen(
+        subpix_cmd(*args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     got = {"/topic": [], "/rosout": []}
     try:
         # the replay waits for our subscribers (--wait-for): its publishers are in the graph
@@ -179,14 +194,23 @@ def test_rosbag2_talker_replays_to_another_process(name, rclpy_node):
                 if infos:
                     offered[t] = [i.qos_profile.durability for i in infos]
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)
-        assert offered == {"/topic": [DurabilityPolicy.VOLATILE],
-                           "/rosout": [DurabilityPolicy.TRANSIENT_LOCAL]}
-        for t, cls, durability in (("/topic", String, DurabilityPolicy.VOLATILE),
-                                   ("/rosout", Log, DurabilityPolicy.TRANSIENT_LOCAL)):
+        assert offered == {
+            "/topic": [DurabilityPolicy.VOLATILE],
+            "/rosout": [DurabilityPolicy.TRANSIENT_LOCAL],
+        }
+        for t, cls, durability in (
+            ("/topic", String, DurabilityPolicy.VOLATILE),
+            ("/rosout", Log, DurabilityPolicy.TRANSIENT_LOCAL),
+        ):
             rclpy_node.create_subscription(
-                cls, ns + t, lambda raw, t=t: got[t].append(bytes(raw)),
-                QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=durability), raw=True)
+                cls,
+                ns + t,
+                lambda raw, t=t: got[t].append(bytes(raw)),
+                QoSProfile(
+                    depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=durability
+                ),
+                raw=True,
+            )
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and sum(map(len, got.values())) < 20:
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)
@@ -266,10 +290,23 @@ def test_telemetry_node_replays_the_ardupilot_sitl_log(rclpy_node):
     fixes, heights = [], []
     rclpy_node.create_subscription(NavSatFix, "/telemetry/fix", fixes.append, reliable_qos(500))
     rclpy_node.create_subscription(Float64, "/telemetry/height", heights.append, reliable_qos(500))
-    proc = subprocess.Popen([sys.executable, "-m", "subpix_ros.nodes.telemetry_node", "--ros-args",
-                             "-p", f"connection:={path}", "-p", "tlog_rate:=10.0",
-                             "-p", "tlog_start_delay_s:=3.0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "subpix_ros.nodes.telemetry_node",
+            "--ros-args",
+            "-p",
+            f"connection:={path}",
+            "-p",
+            "tlog_rate:=10.0",
+            "-p",
+            "tlog_start_delay_s:=3.0",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 60
         n_last, t_last = 0, time.monotonic()
@@ -296,12 +333,17 @@ def test_sample_without_attitude_has_no_imu_message_but_the_rest():
     from subpix_ros.io.mavlink import MavlinkReader
 
     samples = []
-    reader = MavlinkReader(str(DATA / "tlog" / "arducopter_sitl_flight_excerpt.tlog"),
-                           on_sample=samples.append).start()
+    reader = MavlinkReader(
+        str(DATA / "tlog" / "arducopter_sitl_flight_excerpt.tlog"), on_sample=samples.append
+    ).start()
     assert reader.join(60)
     bare = [s for s in samples if s.roll_rad is None]
     assert len(bare) == 1 and bare[0].time_boot_ms == 408139
     topics = [t for t, _, _ in tm.sample_messages(bare[0], 0.5)]
-    assert topics == ["telemetry/fix", "telemetry/velocity", "telemetry/height",
-                      "telemetry/frame_interval"]
+    assert topics == [
+        "telemetry/fix",
+        "telemetry/velocity",
+        "telemetry/height",
+        "telemetry/frame_interval",
+    ]
     assert "telemetry/imu" in [t for t, _, _ in tm.sample_messages(samples[0], 0.5)]

@@ -13,8 +13,8 @@ import time
 import cv2
 import numpy as np
 import pytest
-
 from conftest import ROOT
+
 from subpix_ros.io import cdr
 from subpix_ros.io.bags import read_messages
 from subpix_ros.monitor import TOPICS, Monitor, MonitorConfig, MonitorError
@@ -103,9 +103,9 @@ def test_link_budget_holds_and_shifts_keep_full_rate(frames, mosaic_image, kbps)
         t_start = min(r.t for r in got)
         lo, hi = t_start + 4.0, t_start + 11.0  # after the start-up burst, while the feed runs
         rate = sum(r.wire for r in got if lo <= r.t < hi) / (hi - lo) * 8 / 1000
-        assert (
-            abs(rate / kbps - 1) <= 0.10
-        ), f"received {rate:.1f} kbit/s against a budget of {kbps}"
+        assert abs(rate / kbps - 1) <= 0.10, (
+            f"received {rate:.1f} kbit/s against a budget of {kbps}"
+        )
         # every shift fed arrived (never throttled), none lost
         served = {
             client.decode("/shift", r.payload)["timestamp"]["nsec"]
@@ -222,7 +222,9 @@ def test_everything_served_is_recorded_to_mcap(tmp_path, frames, mosaic_image):
         feeder.stop()
         mon.set_bandwidth_kbps(1e6)  # what still waits for the link goes now: the client sees it
         deadline = time.monotonic() + 5.0  # every stream's last input sent (after its period)
-        while time.monotonic() < deadline and any(x.sent_seq != x.seq for x in mon.streams.values()):
+        while time.monotonic() < deadline and any(
+            x.sent_seq != x.seq for x in mon.streams.values()
+        ):
             time.sleep(0.05)
         time.sleep(0.5)
         served = {t: [r.payload for r in c.messages(t)] for t in TOPICS}
@@ -263,9 +265,9 @@ def test_layout_panels_use_advertised_topics():
         return out
 
     used = {t for cfg in panels.values() for t in topics_of(cfg)}
-    assert used <= set(
-        TOPICS
-    ), f"panels refer to topics the monitor does not advertise: {used - set(TOPICS)}"
+    assert used <= set(TOPICS), (
+        f"panels refer to topics the monitor does not advertise: {used - set(TOPICS)}"
+    )
     assert {"/mosaic", "/super_resolved", "/bicubic", "/shift", "/fix", "/health"} <= used
 
     def leaves(node):
@@ -273,7 +275,7 @@ def test_layout_panels_use_advertised_topics():
 
     assert sorted(leaves(layout["layout"])) == sorted(panels)
     # a plotted JSON field exists in the schema the monitor advertises
-    from subpix_ros.monitor.monitor import SHIFT_SCHEMA, TELEMETRY_SCHEMA, HEALTH_SCHEMA
+    from subpix_ros.monitor.monitor import HEALTH_SCHEMA, SHIFT_SCHEMA, TELEMETRY_SCHEMA
 
     schema = {"/shift": SHIFT_SCHEMA, "/telemetry": TELEMETRY_SCHEMA, "/health": HEALTH_SCHEMA}
     for cfg in panels.values():

@@ -6,8 +6,6 @@ reads what the operator's Foxglove would, and this test process listens to `/shi
 to check the served shifts against the topic.
 """
 
-import json
-import os
 import signal
 import socket
 import subprocess
@@ -18,9 +16,9 @@ import cv2
 import numpy as np
 import pytest
 import rclpy
+from conftest import ROOT, subpix_cmd
 from geometry_msgs.msg import Vector3Stamped
 
-from conftest import ROOT, subpix_cmd
 from subpix_ros.cli._ros import stop_processes
 from subpix_ros.io import cdr
 from subpix_ros.io.bags import read_messages
@@ -146,9 +144,9 @@ def test_monitor_serves_the_flight(flight, sample_bags):
         d = a.decode("/shift", r.payload)
         served[d["timestamp"]["sec"] * 10**9 + d["timestamp"]["nsec"]] = (d["u"], d["v"])
     common = set(served) & set(shifts)
-    assert (
-        len(common) >= 15
-    ), f"{len(served)} served, {len(shifts)} on /shift, {len(common)} in both"
+    assert len(common) >= 15, (
+        f"{len(served)} served, {len(shifts)} on /shift, {len(common)} in both"
+    )
     for s in common:
         np.testing.assert_allclose(served[s], shifts[s], atol=1e-12)
 
@@ -308,9 +306,9 @@ def test_pipeline_with_monitor_serves_shifts_with_their_errors(sample_bags):
             # within shift_node's max_std_px
             assert 0 < served[s]["u_std"] <= 0.1 and 0 < served[s]["v_std"] <= 0.1
         assert a.wait(
-            lambda: a.messages("/super_resolved")
-            and a.messages("/camera")
-            and a.messages("/mosaic"),
+            lambda: (
+                a.messages("/super_resolved") and a.messages("/camera") and a.messages("/mosaic")
+            ),
             20,
         )
         sr = a.decode("/super_resolved", a.messages("/super_resolved")[-1].payload)

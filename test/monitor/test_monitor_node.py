@@ -81,8 +81,9 @@ def test_bad_input_is_reported_and_the_node_keeps_serving(served):
     )
     assert _spin(
         ex,
-        lambda: all(p.get_subscription_count() for p in pubs.values())
-        and len(client.channels) == 10,
+        lambda: (
+            all(p.get_subscription_count() for p in pubs.values()) and len(client.channels) == 10
+        ),
         10,
     )
     T = cdr.TYPESTORE.types
@@ -112,9 +113,9 @@ def test_bad_input_is_reported_and_the_node_keeps_serving(served):
     fix.latitude, fix.longitude = math.nan, 10.0
     pubs["telemetry/fix"].publish(fix)
     pubs["shift"].publish(cdr.vector3_stamped_to_cdr((0.25, -0.5, 0.0), T0 + 5))
-    assert _spin(
-        ex, lambda: len(client.messages("/log")) >= 3 and client.messages("/shift"), 10
-    ), client.received
+    assert _spin(ex, lambda: len(client.messages("/log")) >= 3 and client.messages("/shift"), 10), (
+        client.received
+    )
     logs = [client.decode("/log", r.payload) for r in client.messages("/log")]
     text = " | ".join(x.message for x in logs)
     for topic in ("_on_camera", "_on_sr", "_on_mosaic_c"):

@@ -1,5 +1,6 @@
 """Bad input and faults at the nodes (issue 7): clear diagnostics, the node keeps
 running, nothing garbage is published, valid data beside bad data is not lost."""
+
 import time
 
 import numpy as np
@@ -27,12 +28,26 @@ class Harness:
         self.ex.add_node(node)
         self.ex.add_node(self.h)
         self.diag, self.shift, self.refs = [], [], []
-        self.h.create_subscription(DiagnosticArray, "/diagnostics",
-                                   lambda m: self.diag.extend(s for s in m.status if s.name == node.get_name()), 50)
-        self.h.create_subscription(Vector3Stamped, "/shift", lambda r: self.shift.append(cdr.cdr_to_vector3_stamped(r)),
-                                   reliable_qos(50), raw=True)
-        self.h.create_subscription(Image, "/aligned/reference", lambda r: self.refs.append(cdr.cdr_to_image(r)),
-                                   latched_qos(), raw=True)
+        self.h.create_subscription(
+            DiagnosticArray,
+            "/diagnostics",
+            lambda m: self.diag.extend(s for s in m.status if s.name == node.get_name()),
+            50,
+        )
+        self.h.create_subscription(
+            Vector3Stamped,
+            "/shift",
+            lambda r: self.shift.append(cdr.cdr_to_vector3_stamped(r)),
+            reliable_qos(50),
+            raw=True,
+        )
+        self.h.create_subscription(
+            Image,
+            "/aligned/reference",
+            lambda r: self.refs.append(cdr.cdr_to_image(r)),
+            latched_qos(),
+            raw=True,
+        )
         self.pubs = {}
         for topic, cls, qos in topics:
             self.pubs[topic] = self.h.create_publisher(cls, topic, qos)
@@ -45,8 +60,16 @@ class Harness:
         return until()
 
     def messages(self):
-        return " | ".join(s.message for s in self.diag) + " | " + " | ".join(
-            kv.value for s in self.diag for kv in s.values if kv.key in ("last_error", "recent_problems"))
+        return (
+            " | ".join(s.message for s in self.diag)
+            + " | "
+            + " | ".join(
+                kv.value
+                for s in self.diag
+                for kv in s.values
+                if kv.key in ("last_error", "recent_problems")
+            )
+        )
 
     def close(self):
         self.node.close()
@@ -59,8 +82,15 @@ def _bad_image(encoding="mono8", h=64, w=64, step=None, data=None, stamp=T0):
     T = cdr.TYPESTORE.types
     step = w if step is None else step
     data = np.zeros(step * h, np.uint8) if data is None else data
-    msg = T["sensor_msgs/msg/Image"](header=cdr.make_header(stamp, "cam"), height=h, width=w, encoding=encoding,
-                                     is_bigendian=0, step=step, data=data)
+    msg = T["sensor_msgs/msg/Image"](
+        header=cdr.make_header(stamp, "cam"),
+        height=h,
+        width=w,
+        encoding=encoding,
+        is_bigendian=0,
+        step=step,
+        data=data,
+    )
     return cdr.serialize(msg, "sensor_msgs/msg/Image")
 
 
@@ -80,16 +110,31 @@ BAD_IMAGES = {
 def test_registration_node_survives_bad_images(ctx):
     from subpix_ros.nodes.registration_node import RegistrationNode
 
-    node = RegistrationNode(parameter_overrides=[Parameter("camera_reliable", value=True),
-                                                 Parameter("selection", value="all")])
-    hs = Harness(node, [("image", Image, reliable_qos(50)), ("image/compressed", CompressedImage, reliable_qos(5))])
+    node = RegistrationNode(
+        parameter_overrides=[
+            Parameter("camera_reliable", value=True),
+            Parameter("selection", value="all"),
+        ]
+    )
+    hs = Harness(
+        node,
+        [
+            ("image", Image, reliable_qos(50)),
+            ("image/compressed", CompressedImage, reliable_qos(5)),
+        ],
+    )
     try:
         for raw in BAD_IMAGES.values():
             hs.pubs["image"].publish(raw)
         T = cdr.TYPESTORE.types
-        corrupt = T["sensor_msgs/msg/CompressedImage"](header=cdr.make_header(T0, "cam"), format="jpeg",
-                                                        data=np.frombuffer(b"\xff\xd8\xff\xe0 not really a jpeg", np.uint8))
-        hs.pubs["image/compressed"].publish(cdr.serialize(corrupt, "sensor_msgs/msg/CompressedImage"))
+        corrupt = T["sensor_msgs/msg/CompressedImage"](
+            header=cdr.make_header(T0, "cam"),
+            format="jpeg",
+            data=np.frombuffer(b"\xff\xd8\xff\xe0 not really a jpeg", np.uint8),
+        )
+        hs.pubs["image/compressed"].publish(
+            cdr.serialize(corrupt, "sensor_msgs/msg/CompressedImage")
+        )
         # a valid frame right after the bad ones is not lost: it becomes the reference
         good = (np.random.default_rng(0).random((64, 80)) * 255).astype(np.uint8)
         hs.pubs["image"].publish(pl.image_cdr(good, T0 + 5))
@@ -107,9 +152,17 @@ def test_shift_node_bad_pairs_and_valid_neighbours(ctx, crops):
 
     node = ShiftNode(parameter_overrides=[Parameter("queue_size", value=20)])
     q = reliable_qos(50)
-    hs = Harness(node, [("/aligned/reference", Image, latched_qos()), ("/aligned", Image, q),
-                        ("/aligned/mask", Image, q)])
-    seq = render_sequence(crops["crop_road"][:320, :320], 2, [(0, 0), (0.2, 0.3), (-0.4, 0.1)], 0.4, snr_db=40, seed=5)
+    hs = Harness(
+        node,
+        [
+            ("/aligned/reference", Image, latched_qos()),
+            ("/aligned", Image, q),
+            ("/aligned/mask", Image, q),
+        ],
+    )
+    seq = render_sequence(
+        crops["crop_road"][:320, :320], 2, [(0, 0), (0.2, 0.3), (-0.4, 0.1)], 0.4, snr_db=40, seed=5
+    )
     full = np.ones(seq.frames[0].shape, bool)
     try:
         hs.pubs["/aligned/reference"].publish(pl.image_cdr(seq.frames[0], T0))
@@ -139,7 +192,9 @@ def test_shift_node_bad_pairs_and_valid_neighbours(ctx, crops):
         hs.close()
     got = {cdr.header_to_ns(h) - T0: v for v, h in hs.shift}
     assert set(got) == {1, 3}, got
-    assert np.allclose(got[1][:2], [0.2, 0.3], atol=0.02) and np.allclose(got[3][:2], [-0.4, 0.1], atol=0.02)
+    assert np.allclose(got[1][:2], [0.2, 0.3], atol=0.02) and np.allclose(
+        got[3][:2], [-0.4, 0.1], atol=0.02
+    )
     assert all(np.isfinite(v).all() for v in got.values())
     text = hs.messages()
     assert "differ in size" in text and "does not match" in text
@@ -154,8 +209,13 @@ def test_slow_consumer_drops_oldest_counts_and_memory_stays_flat(ctx):
             if line.startswith("VmRSS"):
                 return int(line.split()[1]) / 1024
 
-    node = RegistrationNode(parameter_overrides=[Parameter("camera_reliable", value=True), Parameter("queue_size", value=1),
-                                                 Parameter("selection", value="all")])
+    node = RegistrationNode(
+        parameter_overrides=[
+            Parameter("camera_reliable", value=True),
+            Parameter("queue_size", value=1),
+            Parameter("selection", value="all"),
+        ]
+    )
     hs = Harness(node, [("image", Image, reliable_qos(200))])
     rng = np.random.default_rng(1)
     frames = [(rng.random((240, 320)) * 255).astype(np.uint8) for _ in range(4)]
@@ -174,7 +234,12 @@ def test_slow_consumer_drops_oldest_counts_and_memory_stays_flat(ctx):
 
             assert hs.spin(settled, 60)
             rss.append(rss_mb())
-        assert hs.spin(lambda: any(kv.key == "dropped_frames" and int(kv.value) > 0 for s in hs.diag for kv in s.values), 5)
+        assert hs.spin(
+            lambda: any(
+                kv.key == "dropped_frames" and int(kv.value) > 0 for s in hs.diag for kv in s.values
+            ),
+            5,
+        )
     finally:
         hs.close()
     assert node.worker.dropped > 0
@@ -184,13 +249,24 @@ def test_slow_consumer_drops_oldest_counts_and_memory_stays_flat(ctx):
 def test_telemetry_loss_falls_back_to_every_frame_and_recovers(ctx):
     from subpix_ros.nodes.registration_node import RegistrationNode
 
-    node = RegistrationNode(parameter_overrides=[Parameter("camera_reliable", value=True),
-                                                 Parameter("pixel_pitch_um", value=3.08),
-                                                 Parameter("queue_size", value=100),
-                                                 Parameter("telemetry_timeout_s", value=0.5)])
+    node = RegistrationNode(
+        parameter_overrides=[
+            Parameter("camera_reliable", value=True),
+            Parameter("pixel_pitch_um", value=3.08),
+            Parameter("queue_size", value=100),
+            Parameter("telemetry_timeout_s", value=0.5),
+        ]
+    )
     q = reliable_qos(100)
-    hs = Harness(node, [("image", Image, q), ("telemetry/velocity", TwistStamped, q), ("telemetry/height", Float64, q),
-                        ("telemetry/imu", Imu, q)])
+    hs = Harness(
+        node,
+        [
+            ("image", Image, q),
+            ("telemetry/velocity", TwistStamped, q),
+            ("telemetry/height", Float64, q),
+            ("telemetry/imu", Imu, q),
+        ],
+    )
     img = (np.random.default_rng(2).random((48, 64)) * 255).astype(np.uint8)
 
     def frames(k0, n):
@@ -218,7 +294,9 @@ def test_telemetry_loss_falls_back_to_every_frame_and_recovers(ctx):
         assert hs.spin(lambda: node.kept + node.skipped == 70, 30)
         kept_with_telemetry = node.kept - 10
         assert 8 <= kept_with_telemetry <= 12 and node.skipped >= 48
-        frames(200, 10)  # telemetry now stale (last sample 1.2 s before these frames): every frame kept again
+        frames(
+            200, 10
+        )  # telemetry now stale (last sample 1.2 s before these frames): every frame kept again
         assert hs.spin(lambda: node.kept + node.skipped == 80, 30)
         assert node.kept - 10 - kept_with_telemetry == 10
     finally:
@@ -228,9 +306,13 @@ def test_telemetry_loss_falls_back_to_every_frame_and_recovers(ctx):
 def test_registration_parameters_at_run_time(ctx):
     from subpix_ros.nodes.registration_node import RegistrationNode
 
-    node = RegistrationNode(parameter_overrides=[Parameter("p", value=1.0), Parameter("model", value=3)])
+    node = RegistrationNode(
+        parameter_overrides=[Parameter("p", value=1.0), Parameter("model", value=3)]
+    )
     try:
-        assert node.p("p") == 2.0 and node.p("model") == "projective"  # rejected at start: defaults kept
+        assert (
+            node.p("p") == 2.0 and node.p("model") == "projective"
+        )  # rejected at start: defaults kept
         assert node.selector.p == 2.0
         bad = node.set_parameters([Parameter("p", value=40.0)])[0]
         assert not bad.successful and node.p("p") == 2.0 and node.selector.p == 2.0
@@ -249,18 +331,30 @@ def test_reconstruction_blur_sigma_parameter(ctx, crops):
     from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
     from subpix_ros.nodes.reconstruction_node import ReconstructionNode
 
-    node = ReconstructionNode(subscribe_inputs=False, parameter_overrides=[Parameter("blur_sigma", value="sharp")])
+    node = ReconstructionNode(
+        subscribe_inputs=False, parameter_overrides=[Parameter("blur_sigma", value="sharp")]
+    )
     try:
         assert node.p("blur_sigma") == "auto"  # rejected at start: default kept
         for bad in ("5", "-0.2", "blurry"):
             r = node.set_parameters([Parameter("blur_sigma", value=bad)])[0]
             assert not r.successful and "blur_sigma" in r.reason and node.p("blur_sigma") == "auto"
-        fl = degrade(scene_crop(crops["crop_road"], 2, 96, 8, (280, 280)), 2, shift_layout("grid", 2), 0.5,
-                     roof=True, margin=8)
+        fl = degrade(
+            scene_crop(crops["crop_road"], 2, 96, 8, (280, 280)),
+            2,
+            shift_layout("grid", 2),
+            0.5,
+            roof=True,
+            margin=8,
+        )
         ref = pl.Frame(T0, fl.frames[0])
-        members = [(pl.Shift(T0 + i, T0, float(u), float(v), 0.0, 0.01, 0.01),
-                    pl.Aligned(T0 + i, f, np.ones(f.shape, bool), ref, np.eye(3)))
-                   for i, (f, (u, v)) in enumerate(zip(fl.frames[1:], fl.shifts[1:]), start=1)]
+        members = [
+            (
+                pl.Shift(T0 + i, T0, float(u), float(v), 0.0, 0.01, 0.01),
+                pl.Aligned(T0 + i, f, np.ones(f.shape, bool), ref, np.eye(3)),
+            )
+            for i, (f, (u, v)) in enumerate(zip(fl.frames[1:], fl.shifts[1:]), start=1)
+        ]
         from subpix_ros.stages.reconstruction import FrameSet
 
         got = []

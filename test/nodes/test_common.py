@@ -1,4 +1,5 @@
 """The shared node glue: parameter checks, the drop-oldest worker, rates."""
+
 import threading
 import time
 
@@ -142,6 +143,7 @@ def test_stage_times_restart_when_time_jumps_back(rclpy_node):
 
     node = StageNode("stage_time_probe")
     try:
+
         def keys():
             return {kv.key for kv in node.diag.snapshot().values}
 

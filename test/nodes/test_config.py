@@ -1,9 +1,9 @@
 """config/*.yaml are the nodes' declared defaults, and every params file names real parameters."""
+
+import sys
 from pathlib import Path
 
 import yaml
-
-import sys
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "scripts"))
@@ -12,8 +12,9 @@ import gen_config  # noqa: E402
 
 def test_default_configs_match_declarations():
     for name in gen_config.NODES:
-        assert (ROOT / "config" / f"{name}.yaml").read_text() == gen_config.render(name), \
+        assert (ROOT / "config" / f"{name}.yaml").read_text() == gen_config.render(name), (
             f"config/{name}.yaml is stale: run scripts/gen_config.py"
+        )
 
 
 def test_every_params_file_uses_declared_names_and_types():

@@ -3,6 +3,7 @@
 The node is started as its console entry point does (``python -m subpix_ros.nodes.<node>``), this
 test process is the camera (or not) and reads /diagnostics.
 """
+
 import subprocess
 import sys
 import time
@@ -31,8 +32,7 @@ def ros():
 
 def _start(module, *ros_args):
     cmd = [sys.executable, "-m", f"subpix_ros.nodes.{module}", "--ros-args", *ros_args]
-    return subprocess.Popen(cmd,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
 class Status:
@@ -66,9 +66,17 @@ def test_silent_camera_is_reported_with_its_publishers_and_qos(ros):
     """No publisher: WARN 'no publisher on /x'; a publisher that sends nothing: WARN naming it
     and its QoS; each logged once while it lasts; frames arriving end it. (Old code: status 'ok',
     nothing logged; with use_sim_time and no /clock no diagnostics at all.)"""
-    proc = _start("registration_node", "-r", "image:=/watch/camera",
-                  "-r", "__node:=watched_registration", "-p", "input_timeout_s:=1.0",
-                  "-p", "use_sim_time:=true")  # and no /clock: diagnostics must still run
+    proc = _start(
+        "registration_node",
+        "-r",
+        "image:=/watch/camera",
+        "-r",
+        "__node:=watched_registration",
+        "-p",
+        "input_timeout_s:=1.0",
+        "-p",
+        "use_sim_time:=true",
+    )  # and no /clock: diagnostics must still run
     status = Status(ros, "watched_registration")
     try:
         warned = lambda: status.latest is not None and status.latest[0] == WARN  # noqa: E731
@@ -87,7 +95,8 @@ def test_silent_camera_is_reported_with_its_publishers_and_qos(ros):
             assert message.startswith(
                 "nothing received on /watch/camera or /image/compressed for over 1 s "
                 "(input_timeout_s) from /watch/camera: 1 publisher(s) "
-                "/silent_camera (reliable, volatile)"), message
+                "/silent_camera (reliable, volatile)"
+            ), message
             # the silence goes on: still WARN, no second log line
             _spin_until(ros, lambda: False, 3.0, proc)
             assert status.latest[0] == WARN and status.latest[1] == message

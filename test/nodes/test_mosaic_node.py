@@ -1,9 +1,8 @@
 """mosaic_node in this process: the min_interval_s gate takes frames by stamp, it does not drop them."""
+
 import time
 
 import cv2
-import numpy as np
-
 from rclpy.parameter import Parameter
 
 from subpix_ros.data import seneca_frame_paths
@@ -19,8 +18,13 @@ def test_min_interval_gate_skips_by_stamp_without_drops(ctx):
 
     paths = seneca_frame_paths()[:3]
     imgs = [cv2.resize(cv2.imread(str(p)), (900, 675), interpolation=cv2.INTER_AREA) for p in paths]
-    node = MosaicNode(subscribe_inputs=False,
-                      parameter_overrides=[Parameter("min_interval_s", value=1.0), Parameter("queue_size", value=3)])
+    node = MosaicNode(
+        subscribe_inputs=False,
+        parameter_overrides=[
+            Parameter("min_interval_s", value=1.0),
+            Parameter("queue_size", value=3),
+        ],
+    )
     try:
         # a burst at 10 Hz of three scenes, 1 s apart: the gate must take exactly the first frame of each second,
         # even though all frames arrive before the worker has added anything (the old gate queued them all: 27 drops)

@@ -15,7 +15,16 @@ from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.common import latched_qos, reliable_qos
 
 T0 = 1_700_000_000_000_000_000
-SHIFTS = [(0.0, 0.0), (0.5, 0.0), (0.0, 0.5), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25), (0.3, 0.6), (0.6, 0.3)]
+SHIFTS = [
+    (0.0, 0.0),
+    (0.5, 0.0),
+    (0.0, 0.5),
+    (0.5, 0.5),
+    (0.25, 0.75),
+    (0.75, 0.25),
+    (0.3, 0.6),
+    (0.6, 0.3),
+]
 
 
 def test_max_memory_mb_reduces_the_set_and_reports_it_in_diagnostics(ctx, crops):
@@ -25,14 +34,23 @@ def test_max_memory_mb_reduces_the_set_and_reports_it_in_diagnostics(ctx, crops)
 
     seq = render_sequence(crops["crop_trees"][:256, :256], 2, SHIFTS, 0.4, snr_db=40, seed=5)
     budget = estimate_peak_mb(5, seq.frames[0].shape, 2, colour=False)
-    node = ReconstructionNode(parameter_overrides=[Parameter("n_frames", value=8),
-                                                   Parameter("max_memory_mb", value=float(budget))])
+    node = ReconstructionNode(
+        parameter_overrides=[
+            Parameter("n_frames", value=8),
+            Parameter("max_memory_mb", value=float(budget)),
+        ]
+    )
     h = rclpy.create_node("harness")
     got, diags = [], []
-    h.create_subscription(Image, "/super_resolved", lambda r: got.append(cdr.cdr_to_image(r)), latched_qos(),
-                          raw=True)
-    h.create_subscription(DiagnosticArray, "/diagnostics",
-                          lambda m: diags.extend(s for s in m.status if s.name == node.get_name()), 10)
+    h.create_subscription(
+        Image, "/super_resolved", lambda r: got.append(cdr.cdr_to_image(r)), latched_qos(), raw=True
+    )
+    h.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: diags.extend(s for s in m.status if s.name == node.get_name()),
+        10,
+    )
     ref_pub = h.create_publisher(Image, "/aligned/reference", latched_qos())
     link = h.create_publisher(TimeReference, "/aligned/reference_stamp", latched_qos(20))
     img_pub = h.create_publisher(Image, "/aligned", reliable_qos(20))
@@ -55,13 +73,17 @@ def test_max_memory_mb_reduces_the_set_and_reports_it_in_diagnostics(ctx, crops)
             img_pub.publish(pl.image_cdr(seq.frames[k], stamp))
             mask_pub.publish(pl.mask_cdr(full, stamp))
             shift_pub.publish(pl.shift_cdr(pl.Shift(stamp, T0, *SHIFTS[k], 0.0, 0.01, 0.01)))
-        assert spin([node, h], lambda: bool(got), 30), "no super-resolved image under the memory budget"
+        assert spin([node, h], lambda: bool(got), 30), (
+            "no super-resolved image under the memory budget"
+        )
         assert spin([node, h], lambda: value("memory_reduction") is not None, 5)
     finally:
         node.close()
         node.destroy_node()
         h.destroy_node()
     image, header = got[0]
-    assert cdr.header_to_ns(header) == T0 and image.shape == tuple(2 * n for n in seq.frames[0].shape)
+    assert cdr.header_to_ns(header) == T0 and image.shape == tuple(
+        2 * n for n in seq.frames[0].shape
+    )
     assert value("memory_reduction") == "5 of 8 frames" and value("frames_used") == "5"
     assert value("memory_reduced") == "1" and float(value("memory_estimate_mb")) <= budget + 0.05

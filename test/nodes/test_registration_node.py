@@ -1,11 +1,11 @@
 """registration_node in this process: video-rate tracking from the constant-velocity prediction, and its fallback."""
+
 import time
 
 import numpy as np
-
+from conftest import scene_frames
 from rclpy.parameter import Parameter
 
-from conftest import scene_frames
 from subpix_ros.nodes import payloads as pl
 
 
@@ -13,7 +13,9 @@ def _run(node, frames, ticks):
     got = []
     node.listen("aligned", got.append)
     for k, img in zip(ticks, frames):
-        node.handle_frame(pl.Frame(stamp_ns=1_000_000_000 + k * 100_000_000, image=img, frame_id="camera"))
+        node.handle_frame(
+            pl.Frame(stamp_ns=1_000_000_000 + k * 100_000_000, image=img, frame_id="camera")
+        )
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and not node.worker.idle():
             time.sleep(0.01)
@@ -28,9 +30,15 @@ def test_tracking_follows_constant_velocity_and_falls_back_on_a_jump(ctx):
     # prediction must still hit it), then a frame that jumps 40 px off the prediction
     ticks = list(range(7)) + [10, 11]
     offsets = [k * step for k in ticks[:-1]] + [11 * step + [25.0, 31.0]]
-    node = RegistrationNode(subscribe_inputs=False, parameter_overrides=[
-        Parameter("selection", value="all"), Parameter("distortion", value=False), Parameter("n_points", value=300),
-        Parameter("max_frames_per_reference", value=20)])
+    node = RegistrationNode(
+        subscribe_inputs=False,
+        parameter_overrides=[
+            Parameter("selection", value="all"),
+            Parameter("distortion", value=False),
+            Parameter("n_points", value=300),
+            Parameter("max_frames_per_reference", value=20),
+        ],
+    )
     try:
         got = _run(node, scene_frames(offsets), ticks)
         assert len(got) == 8  # frame 0 is the reference, every other frame aligned
@@ -42,9 +50,13 @@ def test_tracking_follows_constant_velocity_and_falls_back_on_a_jump(ctx):
             assert np.all(np.abs(a.prior) <= 0.5 + 1e-9)
             n_y = round(off[0] - a.prior[0])
             n_x = round(off[1] - a.prior[1])
-            assert abs(off[0] - n_y - a.prior[0]) < 0.05 and abs(off[1] - n_x - a.prior[1]) < 0.05, (off, a.prior)
+            assert (
+                abs(off[0] - n_y - a.prior[0]) < 0.05 and abs(off[1] - n_x - a.prior[1]) < 0.05
+            ), (off, a.prior)
             # the homography maps moving -> reference: a moving pixel goes back by the content offset
-            assert abs(a.homography[0, 2] + off[1]) < 0.05 and abs(a.homography[1, 2] + off[0]) < 0.05
+            assert (
+                abs(a.homography[0, 2] + off[1]) < 0.05 and abs(a.homography[1, 2] + off[0]) < 0.05
+            )
         # diagnostics carry the residual split along / across the baseline (a flat scene: both tiny)
         kv = {x.key: x.value for x in node.diag.snapshot().values}
         assert float(kv["rms_along_px"]) < 0.1 and float(kv["rms_cross_px"]) < 0.1, kv
@@ -60,16 +72,27 @@ def test_predicted_loss_of_overlap_starts_a_new_reference_without_a_failed_searc
     from subpix_ros.nodes.registration_node import RegistrationNode
 
     offsets = [(0.0, -280.0 * k) for k in range(4)]
-    node = RegistrationNode(subscribe_inputs=False, parameter_overrides=[
-        Parameter("selection", value="all"), Parameter("distortion", value=False), Parameter("n_points", value=300),
-        Parameter("max_frames_per_reference", value=20)])
+    node = RegistrationNode(
+        subscribe_inputs=False,
+        parameter_overrides=[
+            Parameter("selection", value="all"),
+            Parameter("distortion", value=False),
+            Parameter("n_points", value=300),
+            Parameter("max_frames_per_reference", value=20),
+        ],
+    )
     try:
         got = _run(node, scene_frames(offsets, w=640, h=480), [0, 1, 2, 3])
-        assert node.references_predicted == 1 and node.failures == 0, (node.references_predicted, node.failures)
+        assert node.references_predicted == 1 and node.failures == 0, (
+            node.references_predicted,
+            node.failures,
+        )
         assert len(got) == 2  # frames 1 and 3; frames 0 and 2 are references
         assert got[1].reference.stamp_ns == 1_000_000_000 + 2 * 100_000_000
         for a in got:  # 280 px of content motion to the left, in each frame's own pair
-            assert abs(a.homography[0, 2] - 280.0) < 0.05 and abs(a.homography[1, 2]) < 0.05, a.homography
+            assert abs(a.homography[0, 2] - 280.0) < 0.05 and abs(a.homography[1, 2]) < 0.05, (
+                a.homography
+            )
         assert node.tracked == 1  # frame 3, from the motion measured on frame 1
     finally:
         node.close()

@@ -1,14 +1,14 @@
 """shift_node in this process, fed over DDS: parameters, shifts, failures, diagnostics."""
+
 import time
 
 import numpy as np
 import pytest
-
 import rclpy
+from conftest import spin
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
-from conftest import spin
 from subpix_ros.core.render import render_sequence
 from subpix_ros.io import cdr
 from subpix_ros.nodes import payloads as pl
@@ -22,12 +22,25 @@ def _harness(node):
 
     h = rclpy.create_node("harness")
     got, diags = [], []
-    h.create_subscription(Vector3Stamped, "/shift", lambda raw: got.append(cdr.cdr_to_vector3_stamped(raw)),
-                          reliable_qos(20), raw=True)
-    h.create_subscription(DiagnosticArray, "/diagnostics",
-                          lambda m: diags.extend(s for s in m.status if s.name == node.get_name()), 10)
-    pubs = {t: h.create_publisher(Image, t, latched_qos() if t == "/aligned/reference" else reliable_qos(20))
-            for t in ("/aligned/reference", "/aligned", "/aligned/mask")}
+    h.create_subscription(
+        Vector3Stamped,
+        "/shift",
+        lambda raw: got.append(cdr.cdr_to_vector3_stamped(raw)),
+        reliable_qos(20),
+        raw=True,
+    )
+    h.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: diags.extend(s for s in m.status if s.name == node.get_name()),
+        10,
+    )
+    pubs = {
+        t: h.create_publisher(
+            Image, t, latched_qos() if t == "/aligned/reference" else reliable_qos(20)
+        )
+        for t in ("/aligned/reference", "/aligned", "/aligned/mask")
+    }
     spin([node, h], lambda: all(p.get_subscription_count() for p in pubs.values()), 10)
     return h, pubs, got, diags
 
@@ -35,9 +48,16 @@ def _harness(node):
 def test_parameters_rejected_at_start_and_run_time(ctx):
     from subpix_ros.nodes.shift_node import ShiftNode
 
-    node = ShiftNode(parameter_overrides=[Parameter("max_std_px", value=-1.0), Parameter("queue_size", value="x")])
+    node = ShiftNode(
+        parameter_overrides=[
+            Parameter("max_std_px", value=-1.0),
+            Parameter("queue_size", value="x"),
+        ]
+    )
     try:
-        assert node.p("max_std_px") == 0.1 and node.p("queue_size") == 4  # bad start values: defaults kept
+        assert (
+            node.p("max_std_px") == 0.1 and node.p("queue_size") == 4
+        )  # bad start values: defaults kept
         r = node.set_parameters([Parameter("max_std_px", value=50.0)])[0]
         assert not r.successful and node.p("max_std_px") == 0.1
         r = node.set_parameters([Parameter("method", value="magic")])[0]
@@ -53,8 +73,14 @@ def test_shift_published_for_aligned_frames(ctx, crops):
     from subpix_ros.nodes.shift_node import ShiftNode
 
     node = ShiftNode()
-    seq = render_sequence(crops["crop_trees"][:384, :384], 2, [(0, 0), (0.3, -0.45), (0.0, 0.0)], 0.4, snr_db=40,
-                          seed=3)
+    seq = render_sequence(
+        crops["crop_trees"][:384, :384],
+        2,
+        [(0, 0), (0.3, -0.45), (0.0, 0.0)],
+        0.4,
+        snr_db=40,
+        seed=3,
+    )
     h, pubs, got, diags = _harness(node)
     try:
         t0 = 1_700_000_000_000_000_000
@@ -97,14 +123,20 @@ def _recording_shift_node(crops):
 
 
 @pytest.mark.parametrize("executor", ["single", "multi"])
-def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_takes_them(ctx, crops, executor):
+def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_takes_them(
+    ctx, crops, executor
+):
     """The registration node publishes a new reference before the frames aligned to it, but on another
     topic: when both wait in the node's queues, the frame must still go with ITS reference, never with the
     previous one (and a reference followed at once by the next one must not be overwritten). On both
     executors (the nodes spin on a MultiThreadedExecutor)."""
     from rclpy.executors import MultiThreadedExecutor
 
-    kind = SingleThreadedExecutor if executor == "single" else (lambda: MultiThreadedExecutor(num_threads=2))
+    kind = (
+        SingleThreadedExecutor
+        if executor == "single"
+        else (lambda: MultiThreadedExecutor(num_threads=2))
+    )
 
     node, got, img, full, h, pubs, diags = _recording_shift_node(crops)
     t0 = 1_700_000_000_000_000_000
@@ -149,7 +181,11 @@ def test_aligned_frames_follow_their_reference_link_in_any_arrival_order(ctx, cr
         pubs["/aligned/mask"].publish(pl.mask_cdr(full, t0 + k))
 
     try:
-        assert spin([node, h], lambda: link.get_subscription_count() and node.inputs.link_sub.get_publisher_count(), 10)
+        assert spin(
+            [node, h],
+            lambda: link.get_subscription_count() and node.inputs.link_sub.get_publisher_count(),
+            10,
+        )
         pubs["/aligned/reference"].publish(pl.image_cdr(img, t0))
         assert spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 20)
         frame(9, 8)  # reference 8 not published yet

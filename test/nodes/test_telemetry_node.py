@@ -1,4 +1,5 @@
 """telemetry_node in its own process: real MAVLink 2 over UDP loopback and the sample tlog."""
+
 import math
 import socket
 import subprocess
@@ -7,12 +8,12 @@ import time
 
 import numpy as np
 import pytest
+from conftest import spin
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Float64
 
-from conftest import spin
 from subpix_ros.core.telemetry import TelemetrySample
 from subpix_ros.io.frame_metadata import trajectory_from_frames_csv
 from subpix_ros.io.mavlink import MavlinkSender, encode_samples
@@ -36,8 +37,12 @@ class Sink:
         node.create_subscription(Float64, "/telemetry/height", self.height.append, q)
         node.create_subscription(Float64, "/telemetry/frame_interval", self.interval.append, q)
         node.create_subscription(Imu, "/telemetry/imu", self.imu.append, q)
-        node.create_subscription(DiagnosticArray, "/diagnostics",
-                                 lambda m: self.diag.extend(s for s in m.status if s.name == "telemetry_node"), 50)
+        node.create_subscription(
+            DiagnosticArray,
+            "/diagnostics",
+            lambda m: self.diag.extend(s for s in m.status if s.name == "telemetry_node"),
+            50,
+        )
 
 
 def _start(*params):
@@ -49,16 +54,33 @@ def _start(*params):
 
 def test_udp_mavlink_to_ros_topics_and_link_loss(rclpy_node):
     port = _free_udp_port()
-    proc = _start(f"connection:=udpin:127.0.0.1:{port}", "link_timeout_s:=1.0", "p:=2.0", "focal_length_mm:=4.3",
-                  "pixel_pitch_um:=1.54")
+    proc = _start(
+        f"connection:=udpin:127.0.0.1:{port}",
+        "link_timeout_s:=1.0",
+        "p:=2.0",
+        "focal_length_mm:=4.3",
+        "pixel_pitch_um:=1.54",
+    )
     sink = Sink(rclpy_node)
     sender = MavlinkSender(f"udpout:127.0.0.1:{port}")
     try:
         t0 = time.time()
-        samples = [TelemetrySample(t=t0 + 0.1 * k, lat_deg=41.035308, lon_deg=-83.3062512, alt_msl_m=288.4,
-                                   height_agl_m=58.4, vel_ned_mps=(4.0, 7.0, -0.5), ground_speed_mps=math.hypot(4, 7),
-                                   course_rad=math.atan2(7, 4), roll_rad=0.0, pitch_rad=0.0, yaw_rad=math.atan2(7, 4))
-                   for k in range(400)]
+        samples = [
+            TelemetrySample(
+                t=t0 + 0.1 * k,
+                lat_deg=41.035308,
+                lon_deg=-83.3062512,
+                alt_msl_m=288.4,
+                height_agl_m=58.4,
+                vel_ned_mps=(4.0, 7.0, -0.5),
+                ground_speed_mps=math.hypot(4, 7),
+                course_rad=math.atan2(7, 4),
+                roll_rad=0.0,
+                pitch_rad=0.0,
+                yaw_rad=math.atan2(7, 4),
+            )
+            for k in range(400)
+        ]
         packets = encode_samples(samples, boot_time=t0)
         # keep sending until the node is up and its messages arrive
         i = 0
@@ -66,15 +88,23 @@ def test_udp_mavlink_to_ros_topics_and_link_loss(rclpy_node):
             for _ in range(8):
                 sender.send(packets[i % len(packets)][1])
                 i += 1
-        assert len(sink.interval) >= 3, proc.stdout.read() if proc.poll() is not None else "no messages"
+        assert len(sink.interval) >= 3, (
+            proc.stdout.read() if proc.poll() is not None else "no messages"
+        )
         f = sink.fix[-1]
-        assert f.latitude == pytest.approx(41.035308, abs=1e-7) and f.longitude == pytest.approx(-83.3062512, abs=1e-7)
+        assert f.latitude == pytest.approx(41.035308, abs=1e-7) and f.longitude == pytest.approx(
+            -83.3062512, abs=1e-7
+        )
         assert f.altitude == pytest.approx(288.4, abs=1e-3)
         v = sink.vel[-1].twist.linear
-        np.testing.assert_allclose([v.x, v.y, v.z], [7.0, 4.0, 0.5], atol=1e-6)  # ENU: east, north, up
+        np.testing.assert_allclose(
+            [v.x, v.y, v.z], [7.0, 4.0, 0.5], atol=1e-6
+        )  # ENU: east, north, up
         assert sink.height[-1].data == pytest.approx(58.4, abs=1e-3)
         # eq. 1 by hand: t = a H cos(0) / (p f V) = 1.54e-6 * 58.4 / (2 * 4.3e-3 * 8.0622577) s
-        assert sink.interval[-1].data == pytest.approx(1.54e-6 * 58.4 / (2 * 4.3e-3 * 8.0622577), rel=1e-4)
+        assert sink.interval[-1].data == pytest.approx(
+            1.54e-6 * 58.4 / (2 * 4.3e-3 * 8.0622577), rel=1e-4
+        )
         # link loss: stop sending; the node says so in /diagnostics within the timeout + 1 s report period
         assert spin(rclpy_node, lambda: any("link lost" in s.message for s in sink.diag), 6.0)
         assert proc.poll() is None  # and keeps running
@@ -87,21 +117,30 @@ def test_udp_mavlink_to_ros_topics_and_link_loss(rclpy_node):
 def test_tlog_replay_matches_the_flight(rclpy_node, sample_bags):
     from subpix_ros.data import data_root
 
-    proc = _start(f"connection:={sample_bags / 'seneca.tlog'}", "tlog_rate:=10.0", "pixel_pitch_um:=3.08",
-                  "tlog_start_delay_s:=3.0")
+    proc = _start(
+        f"connection:={sample_bags / 'seneca.tlog'}",
+        "tlog_rate:=10.0",
+        "pixel_pitch_um:=3.08",
+        "tlog_start_delay_s:=3.0",
+    )
     sink = Sink(rclpy_node)
     try:
         assert spin(rclpy_node, lambda: len(sink.fix) >= 361, 60.0), len(sink.fix)
     finally:
         proc.terminate()
         proc.wait(10)
-    rows = [line.split(",") for line in (data_root() / "seneca" / "frames.csv").read_text().splitlines()[1:]]
+    rows = [
+        line.split(",")
+        for line in (data_root() / "seneca" / "frames.csv").read_text().splitlines()[1:]
+    ]
     fixes = {(round(f.latitude, 7), round(f.longitude, 7)) for f in sink.fix}
     # the trajectory passes through every frame's GPS fix (1e-7 deg: MAVLink's resolution)
     for r in rows:
         assert (round(float(r[2]), 7), round(float(r[3]), 7)) in fixes, r[0]
     h = np.array([m.data for m in sink.height])
-    assert h.min() == pytest.approx(278.64 - 230.0, abs=0.05) and h.max() == pytest.approx(288.40 - 230.0, abs=0.5)
+    assert h.min() == pytest.approx(278.64 - 230.0, abs=0.05) and h.max() == pytest.approx(
+        288.40 - 230.0, abs=0.5
+    )
     speed = np.array([math.hypot(m.twist.linear.x, m.twist.linear.y) for m in sink.vel])
     assert 4.0 < np.median(speed) < 10.0  # the strip: 25-50 m between frames 4-6 s apart
     # every interval is eq. 1 for the published height and speed (flat terrain, phi = 0)
@@ -111,17 +150,27 @@ def test_tlog_replay_matches_the_flight(rclpy_node, sample_bags):
     assert sink.interval[0].data == pytest.approx(expected, rel=1e-3)
 
 
-@pytest.mark.parametrize("connection, expect", [
-    ("/nonexistent/flight.tlog", "tlog file not found"),
-    ("udpin:127.0.0.1:14550; rm -rf /tmp/x", "cannot open MAVLink connection"),
-    ("ftp://example.org/flight", "cannot open MAVLink connection"),
-])
-def test_bad_connection_parameter_is_reported_and_node_keeps_running(rclpy_node, connection, expect):
+@pytest.mark.parametrize(
+    "connection, expect",
+    [
+        ("/nonexistent/flight.tlog", "tlog file not found"),
+        ("udpin:127.0.0.1:14550; rm -rf /tmp/x", "cannot open MAVLink connection"),
+        ("ftp://example.org/flight", "cannot open MAVLink connection"),
+    ],
+)
+def test_bad_connection_parameter_is_reported_and_node_keeps_running(
+    rclpy_node, connection, expect
+):
     proc = _start(f"connection:={connection}")
     sink = Sink(rclpy_node)
     try:
-        assert spin(rclpy_node, lambda: any(expect in s.message or any(expect in kv.value for kv in s.values)
-                                             for s in sink.diag), 20.0)
+        assert spin(
+            rclpy_node,
+            lambda: any(
+                expect in s.message or any(expect in kv.value for kv in s.values) for s in sink.diag
+            ),
+            20.0,
+        )
         assert proc.poll() is None
     finally:
         proc.terminate()

@@ -3,7 +3,6 @@ interruption, and bad input (no images, no telemetry, a corrupt chunk, mixed fra
 
 import filecmp
 import json
-import os
 import signal
 import struct
 import subprocess
@@ -13,7 +12,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import pytest
 
 from subpix_ros.io.bags import BagWriter, bag_topics, read_messages
 from subpix_ros.io.cdr import cdr_to_image, compressed_to_cdr, header_to_ns, image_to_cdr
@@ -90,9 +88,9 @@ def test_sample_flight_products(processed, sample_bags):
         t = true[int(row["stamp_ns"])] - true[ref]
         measured = np.array([float(row["u_total_px"]), float(row["v_total_px"])])
         expected = np.array([float(row["u_expected_px"]), float(row["v_expected_px"])])
-        assert (
-            np.abs(measured - t).max() < 0.02
-        ), row  # whole + sub-pixel shift against the rendered truth
+        assert np.abs(measured - t).max() < 0.02, (
+            row
+        )  # whole + sub-pixel shift against the rendered truth
         assert np.abs(expected - t).max() < 0.02, row  # METHODS eq. 1 from the bag's telemetry
         assert float(row["u_std_px"]) > 0 and float(row["v_std_px"]) > 0
     assert len(s["sets"]) >= 2
@@ -308,13 +306,21 @@ def test_bad_bags_get_one_line_each_and_the_rest_is_processed(sample_bags, tmp_p
     assert 0 < s["frames"]["in"] < len(frames)
     assert "is corrupt at byte offset" in (out / "corrupt" / "report.html").read_text()
     # --skip-corrupt: the frames after the damaged chunk are processed too, and it is said
-    r = _run(str(bags / "corrupt.mcap"), "-o", str(tmp_path / "out2"), "--params", DEMO,
-             "--skip-corrupt", "--quiet")
+    r = _run(
+        str(bags / "corrupt.mcap"),
+        "-o",
+        str(tmp_path / "out2"),
+        "--params",
+        DEMO,
+        "--skip-corrupt",
+        "--quiet",
+    )
     assert r.returncode == 1 and "Traceback" not in r.stderr + r.stdout
     s2 = _summary(tmp_path / "out2" / "corrupt")
     assert s2["status"] == "partial" and s["frames"]["in"] < s2["frames"]["in"] < len(frames)
-    assert any("corrupt bag read past its damage: skipped 1 corrupt record" in p
-               for p in s2["problems"]), s2["problems"]
+    assert any(
+        "corrupt bag read past its damage: skipped 1 corrupt record" in p for p in s2["problems"]
+    ), s2["problems"]
 
 
 def test_sqlite3_compressed_images_with_tlog_telemetry(sample_bags, tmp_path):

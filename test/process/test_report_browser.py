@@ -14,7 +14,6 @@ import subprocess
 from pathlib import Path
 
 import cv2
-import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -43,9 +42,9 @@ window.addEventListener('load', function () {
 @pytest.fixture(scope="module")
 def chromium():
     exe = shutil.which("chromium") or shutil.which("chromium-browser")
-    assert (
-        exe
-    ), "chromium not found: `make test` installs Debian's chromium (Makefile target `browser`)"
+    assert exe, (
+        "chromium not found: `make test` installs Debian's chromium (Makefile target `browser`)"
+    )
     return exe
 
 

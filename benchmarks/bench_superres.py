@@ -48,13 +48,18 @@ def grid(p):
     return [(a / p, b / p) for a in range(p) for b in range(p)]
 
 
-def tikhonov_cg(frames, shifts, p, lam, iters=60):
-    """Reference: argmin sum ||A_n x - y_n||^2 + lam ||grad x||^2 by scipy CG (same operators)."""
+def tikhonov_cg(frames, shifts, p, lam, iters=60, blur_sigma=0.4):
+    """Reference: argmin sum ||A_n x - y_n||^2 + lam ||grad x||^2 by scipy CG.
+
+    ``A_n``: the package's operators (pixel box, Gaussian optics of ``blur_sigma`` LR px; 0: none).
+    """
     from scipy.sparse.linalg import LinearOperator, cg
 
     h, w = frames[0].shape
     shape = (h * p, w * p)
-    ops = [FrameOperator(translation_homography(*s), (h, w), shape, p, p, 0.4) for s in shifts]
+    ops = [
+        FrameOperator(translation_homography(*s), (h, w), shape, p, p, blur_sigma) for s in shifts
+    ]
     lap = np.array([[0, -1, 0], [-1, 4, -1], [0, -1, 0]], float)
 
     def normal(v):

@@ -43,7 +43,6 @@ from degrade_independent import degrade, scene_crop, shift_layout  # noqa: E402
 from subpix_ros.core import superres  # noqa: E402
 from subpix_ros.core.shift import estimate_shift  # noqa: E402
 from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct  # noqa: E402
-from subpix_ros.core.superres_model import FrameOperator, translation_homography  # noqa: E402
 from subpix_ros.data import CROP_NAMES, load_crop  # noqa: E402
 
 LR = {2: 128, 3: 112, 4: 96}  # LR frame side per factor
@@ -53,27 +52,10 @@ _AUTO = getattr(superres, "BLUR_AUTO", None)  # None: code from before issue 17 
 
 
 def tikhonov_cg(frames, shifts, p, lam, iters=60):
-    """argmin sum ||A_n x - y_n||^2 + lam ||grad x||^2 by scipy CG (A_n: box, no optics)."""
-    from scipy.sparse.linalg import LinearOperator, cg
+    """CG Tikhonov with box integration and no optics model (bench_superres's, blur 0)."""
+    from bench_superres import tikhonov_cg as cg_reference
 
-    h, w = frames[0].shape
-    shape = (h * p, w * p)
-    ops = [FrameOperator(translation_homography(*s), (h, w), shape, p, p, 0.0) for s in shifts]
-    lap = np.array([[0, -1, 0], [-1, 4, -1], [0, -1, 0]], float)
-
-    def normal(v):
-        x = np.asarray(v, dtype=np.float64).reshape(shape)
-        out = lam * cv2.filter2D(x, -1, lap, borderType=cv2.BORDER_REFLECT)
-        for op in ops:
-            out = out + op.adjoint(op.forward(x))
-        return out.ravel()
-
-    b = sum(op.adjoint(np.asarray(f, float) * op.valid) for op, f in zip(ops, frames)).ravel()
-    x0 = bicubic_upscale(frames[0], p).ravel()
-    sol, _ = cg(
-        LinearOperator((b.size, b.size), matvec=normal, dtype=np.float64), b, x0=x0, maxiter=iters
-    )
-    return sol.reshape(shape)
+    return cg_reference(frames, shifts, p, lam, iters, blur_sigma=0.0)
 
 
 def gain(fl, img):

@@ -66,6 +66,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "one); what was skipped is in the summary and the report, and the bag counts as partial",
     )
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument(
+        "--serve",
+        type=int,
+        nargs="?",
+        const=8765,
+        default=None,
+        metavar="PORT",
+        help="serve the processing live to Foxglove on ws://127.0.0.1:PORT (default 8765; "
+        "the monitor_node's view: mosaic, SR vs bicubic, camera, shifts, GPS); --jobs 1 only",
+    )
     p.set_defaults(func=run)
 
 
@@ -92,19 +102,36 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise CliError(f"cannot create {out}: {exc.strerror}") from None
+    monitor = None
+    if args.serve is not None:
+        if args.jobs != 1:
+            raise CliError("--serve shows one bag at a time: use it with --jobs 1")
+        from subpix_ros.monitor import Monitor, MonitorConfig, MonitorError
+
+        try:
+            monitor = Monitor(MonitorConfig(port=args.serve))
+            monitor.start()
+        except (MonitorError, OSError) as exc:
+            raise CliError(f"--serve: {exc}") from None
+        print(f"serving the processing on {monitor.url}", file=sys.stderr, flush=True)
     interrupt_on_signals()  # Ctrl-C or a kill: unfinished folders removed, exit status 130
     progress = Progress(stream=sys.stderr, quiet=args.quiet)
-    results = run_batch(
-        args.bags,
-        out,
-        params,
-        jobs=args.jobs,
-        camera_topic=args.camera_topic,
-        telemetry=args.telemetry,
-        force=args.force,
-        skip_corrupt=args.skip_corrupt,
-        progress=progress,
-    )
+    try:
+        results = run_batch(
+            args.bags,
+            out,
+            params,
+            jobs=args.jobs,
+            camera_topic=args.camera_topic,
+            telemetry=args.telemetry,
+            force=args.force,
+            skip_corrupt=args.skip_corrupt,
+            monitor=monitor,
+            progress=progress,
+        )
+    finally:
+        if monitor is not None:
+            monitor.close()
     failed = [r for r in results if r.status in ("failed", "partial")]
     lines = [r.line for r in results]
     (out / "batch_summary.json").write_text(

@@ -21,7 +21,7 @@ import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 from subpix_ros.process.flight import BagResult, process_bag
 
@@ -159,6 +159,7 @@ def run_batch(
     telemetry: str | None = None,
     force: bool = False,
     skip_corrupt: bool = False,
+    monitor: Any = None,
     progress: Progress | None = None,
     on_result: Callable[[BagResult], None] | None = None,
 ) -> list[BagResult]:
@@ -186,6 +187,7 @@ def run_batch(
                 telemetry=telemetry,
                 force=force,
                 skip_corrupt=skip_corrupt,
+                monitor=monitor,
                 progress=lambda d, t, n=name: progress.update(n, d, t),
             )
             done(i, r)

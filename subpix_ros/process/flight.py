@@ -457,6 +457,7 @@ def process_bag(
     force: bool = False,
     skip_corrupt: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    monitor: Any = None,
 ) -> BagResult:
     """Process one flight bag into ``out_root/<bag name>/``; never raises for bad input.
 
@@ -475,6 +476,8 @@ def process_bag(
     skip_corrupt : bool
         Read past damaged chunks/records (counted in ``problems``, status "partial") instead of
         stopping the bag at the first one.
+    monitor : subpix_ros.monitor.Monitor, optional
+        A started live monitor fed as the bag is processed (``subpix process --serve``).
     progress : callable, optional
         ``progress(frames_done, frames_total)`` after every frame.
 
@@ -507,7 +510,7 @@ def process_bag(
     out_root.mkdir(parents=True, exist_ok=True)
     writer = ProductWriter(out_root, name)
     try:
-        res = _run(flight, writer, params, progress)
+        res = _run(flight, writer, params, progress, monitor)
         writer.close_bag()  # every queued write done
         res.wall_s = time.monotonic() - t_wall
         timing = res.__dict__.pop("_timing")
@@ -537,7 +540,9 @@ def process_bag(
         return BagResult(str(bag), name, "failed", f"{name}: failed: {text}", problems=[text])
 
 
-def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) -> BagResult:
+def _run(
+    flight: Flight, w: ProductWriter, params: dict[str, dict], progress, monitor: Any = None
+) -> BagResult:
     from subpix_ros.stages import MosaicStage, Pipeline
 
     pparams = pipeline_params(params)
@@ -579,6 +584,10 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
     # The mosaic runs on its own thread (it needs nothing from the other stages), frames in order;
     # its problems are warnings: a frame missing from the preview loses no product.
     mosaic.on_problem = lambda level, msg: col.on_warning(("mosaic_node", msg))
+    feed = _MonitorFeed(monitor, mosaic) if monitor is not None else None
+    if feed is not None:
+        pipe.on("shift", feed.shift)
+        pipe.on("super_resolved", feed.super_resolved)
     mosaic_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="subpix-mosaic")
     mosaic_jobs: list[tuple[_FrameRec, Any]] = []
 
@@ -620,6 +629,8 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
             if kind == "telemetry":
                 samples.append(item)
                 pipe.add_telemetry(item)
+                if feed is not None:
+                    feed.telemetry(item)
                 continue
             done += 1
             if kind == "bad_frame":
@@ -655,6 +666,8 @@ def _run(flight: Flight, w: ProductWriter, params: dict[str, dict], progress) ->
                     except Exception as exc:  # noqa: BLE001 - a stage failure drops the frame, not the flight
                         col.on_error(f"{type(exc).__name__}: {exc}")
                     add_ms.append(1000.0 * (time.perf_counter() - t0))
+                    if feed is not None:
+                        feed.frame(frame, len(mosaic_jobs))
                     if rec.status == "in":
                         rec.status = "dropped" if col.errors else "in"
                     col.current = None
@@ -801,6 +814,44 @@ def _shape_text(shape) -> str:
     hw = f"{dims[1]}x{dims[0]}"
     ch = "" if len(dims) == 2 else f"x{dims[2]}"
     return f"{hw}{ch} {dtype}"
+
+
+class _MonitorFeed:
+    """Hands what the bag's pipeline produces to a live :class:`~subpix_ros.monitor.Monitor`.
+
+    The monitor keeps only the newest item per image stream and sends within its link budget, so
+    feeding it every frame costs a reference each; the mosaic canvas is drawn once every
+    ``MOSAIC_EVERY`` frames.
+    """
+
+    MOSAIC_EVERY = 10
+
+    def __init__(self, monitor: Any, mosaic: Any) -> None:
+        self.monitor = monitor
+        self.mosaic = mosaic
+
+    def frame(self, frame: Any, n: int) -> None:
+        img = frame.image
+        if img.dtype != np.uint8:  # the monitor's JPEGs are 8-bit
+            img = _preview(frame).image
+        self.monitor.on_camera(img, int(frame.stamp_ns))
+        if n % self.MOSAIC_EVERY == 0:
+            canvas = self.mosaic.canvas()
+            if canvas is not None:
+                self.monitor.on_mosaic(canvas, int(frame.stamp_ns))
+
+    def shift(self, item: Any) -> None:
+        s = item[0] if isinstance(item, tuple) else item
+        self.monitor.on_shift(int(s.stamp_ns), s.u, s.v, s.u_std, s.v_std, True)
+
+    def super_resolved(self, sr: Any) -> None:
+        img, bic = sr.image, sr.bicubic
+        if img.dtype != np.uint8:
+            img, bic = (np.clip(a / 257.0, 0, 255).astype(np.uint8) for a in (img, bic))
+        self.monitor.on_super_resolved(img, bic, int(sr.reference.stamp_ns), sr.factor)
+
+    def telemetry(self, s: TelemetrySample) -> None:
+        self.monitor.on_fix(s.lat_deg, s.lon_deg, s.alt_msl_m, int(round(s.t * 1e9)))
 
 
 def _pipe_stats(pipe: Any) -> dict:

@@ -460,3 +460,59 @@ def test_progress_bars_on_a_terminal_plain_lines_otherwise():
     p.update("flight", 1, 10)
     p.finish("flight", "flight: ok")
     assert quiet.getvalue() == ""
+
+
+def test_serve_shows_the_processing_live_to_a_foxglove_client(sample_bags, tmp_path):
+    """`subpix process --serve`: a foxglove.sdk.v1 client connected while the bag is processed
+    gets the camera, the GPS fix and the shifts, the same values as the products' shifts.csv."""
+    import re
+
+    from subpix_ros.monitor.client import FoxgloveClient
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        process_cmd(
+            str(sample_bags / "subpixel"),
+            "-o",
+            str(out),
+            "--params",
+            DEMO,
+            "--quiet",
+            "--serve",
+            "0",
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    client = None
+    try:
+        line = proc.stderr.readline()
+        m = re.search(r"ws://127\.0\.0\.1:(\d+)", line)
+        assert m, line
+        client = FoxgloveClient(f"ws://127.0.0.1:{m.group(1)}")
+        assert client.wait(lambda: client.messages("/shift"), 120), "no shift served"
+        assert client.wait(lambda: client.messages("/camera") and client.messages("/fix"), 30)
+        served = []
+        for r in client.messages("/shift"):
+            d = client.decode("/shift", r.payload)
+            served.append((d["timestamp"]["sec"] * 10**9 + d["timestamp"]["nsec"], d["u"], d["v"]))
+        _, err = proc.communicate(timeout=300)
+    finally:
+        if client is not None:
+            client.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    rows = {int(r["stamp_ns"]): r for r in read_csv(out / "subpixel" / "shifts.csv")}
+    for stamp, u, v in served:
+        assert stamp in rows
+        assert (
+            abs(float(rows[stamp]["u_px"]) - u) < 1e-6
+            and abs(float(rows[stamp]["v_px"]) - v) < 1e-6
+        )
+
+
+def test_serve_needs_one_job(sample_bags, tmp_path):
+    r = _run(str(sample_bags / "subpixel"), "-o", str(tmp_path / "o"), "--jobs", "2", "--serve")
+    assert r.returncode != 0 and "--serve shows one bag at a time" in r.stderr

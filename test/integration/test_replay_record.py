@@ -218,7 +218,11 @@ def test_replay_stops_at_a_damaged_chunk(tmp_path):
     damaged chunk's messages lost without a word, exit 0)."""
     bag, offset, before, _ = _damaged_bag(tmp_path)
     r = subprocess.run(
-        subpix_cmd("replay", str(bag), "--delay", "0"), capture_output=True, text=True, timeout=60
+        # no subscriber here: --no-wait, or the replay waits 15 s for one and says so
+        subpix_cmd("replay", str(bag), "--delay", "0", "--no-wait"),
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert r.returncode != 0
     lines = [line for line in r.stderr.splitlines() if line.strip()]
@@ -233,7 +237,7 @@ def test_replay_stops_at_a_damaged_chunk(tmp_path):
 def test_replay_skip_corrupt_reports_what_it_skipped(tmp_path):
     bag, offset, before, after = _damaged_bag(tmp_path)
     r = subprocess.run(
-        subpix_cmd("replay", str(bag), "--delay", "0", "--skip-corrupt"),
+        subpix_cmd("replay", str(bag), "--delay", "0", "--skip-corrupt", "--no-wait"),
         capture_output=True,
         text=True,
         timeout=60,

@@ -46,8 +46,11 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import fcntl
 import os
+import re
 import sys
+import time
 from pathlib import Path
 
 __all__ = [
@@ -240,3 +243,75 @@ def configure_ros_environment(environ=None) -> list[str]:
         env["AMENT_PREFIX_PATH"] = os.pathsep.join([str(prefix), *paths])
         done.append(f"AMENT_PREFIX_PATH+={prefix}")
     return done
+
+
+#: A Fast DDS shared-memory segment: ``fastrtps_<16 hex digits>`` (its lock file adds ``_el``);
+#: port files (``fastrtps_port<N>``) are shared between processes and left to Fast DDS.
+_SEGMENT_RE = re.compile(r"^fastrtps_[0-9a-f]{16}$")
+
+
+def remove_stale_shm_segments(shm_dir: str | Path = "/dev/shm", min_age_s: float = 60.0):
+    """Remove the shared-memory segments of Fast DDS participants that no longer exist.
+
+    Parameters
+    ----------
+    shm_dir : str or Path
+        Where Fast DDS keeps its segments (``/dev/shm`` on Linux).
+    min_age_s : float
+        Segments modified more recently than this are left alone (a starting participant).
+
+    Returns
+    -------
+    tuple of (int, int)
+        Segments removed and the bytes they held.
+
+    Notes
+    -----
+    A live participant holds an exclusive ``flock`` on its segment's ``<name>_el`` file for its
+    whole life; a process that was killed (SIGKILL, OOM) cannot release the segment, which stays
+    in ``/dev/shm`` (64 MiB each with the package's profile). A segment whose lock can be taken
+    has no owner: it is removed while the lock is held. Nothing else is touched.
+    """
+    removed = freed = 0
+    d = Path(shm_dir)
+    try:
+        names = os.listdir(d)
+    except OSError:
+        return 0, 0
+    now = time.time()
+    for name in names:
+        if not _SEGMENT_RE.match(name) or name + "_el" not in names:
+            continue
+        seg, lock = d / name, d / (name + "_el")
+        try:
+            st = seg.stat()
+            if now - st.st_mtime < min_age_s:
+                continue
+            fd = os.open(lock, os.O_RDWR)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)  # held: its participant is alive
+            continue
+        try:
+            seg.unlink()
+            lock.unlink()
+            removed += 1
+            freed += st.st_blocks * 512
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return removed, freed
+
+
+def clean_stale_shm_segments() -> int:
+    """:func:`remove_stale_shm_segments` at an entry point's start (``SUBPIX_KEEP_SHM=1``: not).
+
+    Quiet: the commands' own stderr stays theirs (scripts read it); returns the count removed.
+    """
+    if os.environ.get("SUBPIX_KEEP_SHM", "") not in ("", "0"):
+        return 0
+    return remove_stale_shm_segments()[0]

@@ -5,6 +5,7 @@ Each case runs in a fresh Python process (the allocator settings are process-wid
 
 import json
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -253,3 +254,95 @@ def test_the_venvs_ament_prefix_is_added(tmp_path, monkeypatch):
     assert env["AMENT_PREFIX_PATH"] == f"{prefix}{os.pathsep}/opt/other"
     configure_ros_environment(env)  # not twice
     assert env["AMENT_PREFIX_PATH"] == f"{prefix}{os.pathsep}/opt/other"
+
+
+# ---------------------------------------------------------------- stale shared-memory segments
+def _pair(d, name, age_s=3600.0, size=4096):
+    import os
+    import time
+
+    seg, lock = d / name, d / (name + "_el")
+    seg.write_bytes(b"\0" * size)
+    lock.write_bytes(b"")
+    old = time.time() - age_s
+    os.utime(seg, (old, old))
+    return seg, lock
+
+
+def test_stale_segments_are_removed_and_live_ones_kept(tmp_path):
+    import subprocess
+    import sys
+
+    from subpix_ros.runtime import remove_stale_shm_segments
+
+    dead = _pair(tmp_path, "fastrtps_00112233aabbccdd")
+    live = _pair(tmp_path, "fastrtps_99887766aabbccdd")
+    young = _pair(tmp_path, "fastrtps_0123456789abcdef", age_s=1.0)
+    port = _pair(tmp_path, "fastrtps_port7411")
+    alone = tmp_path / "fastrtps_fedcba9876543210"  # no lock file: not ours to judge
+    alone.write_bytes(b"x")
+    holder = subprocess.Popen(  # a "participant" holding its segment's lock
+        [
+            sys.executable,
+            "-c",
+            "import fcntl, os, sys, time\n"
+            f"fd = os.open({str(live[1])!r}, os.O_RDWR)\n"
+            "fcntl.flock(fd, fcntl.LOCK_EX)\nprint('held', flush=True)\ntime.sleep(60)\n",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        n, freed = remove_stale_shm_segments(tmp_path, min_age_s=60.0)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert n == 1 and freed >= 4096
+    assert not dead[0].exists() and not dead[1].exists()
+    assert all(p.exists() for p in (*live, *young, *port, alone))
+
+
+def test_a_killed_nodes_segment_is_removed_and_a_live_nodes_kept(tmp_path):
+    """Real Fast DDS: a SIGKILLed node leaves its segment; the clean-up removes it, not a live one."""
+    import os
+    import signal
+    import subprocess
+    import time
+    from pathlib import Path
+
+    from subpix_ros.runtime import remove_stale_shm_segments
+
+    shm = Path("/dev/shm")
+    env = dict(os.environ, ROS_DOMAIN_ID=str(200 + os.getpid() % 30), SUBPIX_KEEP_SHM="1")
+    exe = str(Path(sys.executable).with_name("shift_node"))
+
+    def start():
+        before = set(os.listdir(shm))
+        p = subprocess.Popen([exe], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            new = {
+                n for n in set(os.listdir(shm)) - before if re.match(r"^fastrtps_[0-9a-f]{16}$", n)
+            }
+            if new:
+                return p, new
+            time.sleep(0.2)
+        p.kill()
+        raise AssertionError("the node made no shared-memory segment in 30 s")
+
+    killed, seg_killed = start()
+    live, seg_live = start()
+    try:
+        killed.send_signal(signal.SIGKILL)
+        killed.wait()
+        assert all((shm / n).exists() for n in seg_killed)  # what a killed process leaves behind
+        remove_stale_shm_segments(shm, min_age_s=0.0)
+        assert not any((shm / n).exists() for n in seg_killed)
+        assert all((shm / n).exists() for n in seg_live) and live.poll() is None
+    finally:
+        live.send_signal(signal.SIGINT)
+        try:
+            live.wait(10)
+        except subprocess.TimeoutExpired:
+            live.kill()

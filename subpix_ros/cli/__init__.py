@@ -14,7 +14,12 @@ import importlib
 import sys
 from typing import Sequence
 
-from ..runtime import RuntimeSetupError, configure_ros_environment, keep_freed_memory
+from ..runtime import (
+    RuntimeSetupError,
+    clean_stale_shm_segments,
+    configure_ros_environment,
+    keep_freed_memory,
+)
 
 # Subcommand modules, in the order ``subpix --help`` lists them.
 MODULES = (
@@ -61,6 +66,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     keep_freed_memory()  # frame buffers reused, not re-faulted per frame (subpix_ros.runtime)
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command in ("replay", "record", "demo"):
+        clean_stale_shm_segments()  # the DDS commands: segments of killed processes (runtime)
     try:
         configure_ros_environment()  # before a subcommand creates a DDS participant (runtime)
     except RuntimeSetupError as exc:

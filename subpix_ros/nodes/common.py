@@ -44,7 +44,12 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-from ..runtime import RuntimeSetupError, configure_ros_environment, keep_freed_memory
+from ..runtime import (
+    RuntimeSetupError,
+    clean_stale_shm_segments,
+    configure_ros_environment,
+    keep_freed_memory,
+)
 from ..stages.params import Spec
 
 __all__ = [
@@ -592,6 +597,7 @@ def run_nodes(
     created, or the process refuses to start with one line on stderr (exit status 2).
     """
     keep_freed_memory()
+    clean_stale_shm_segments()  # segments of killed processes (64 MiB each with our profile)
     try:
         configure_ros_environment()
     except RuntimeSetupError as exc:

@@ -440,6 +440,13 @@ class BlurCalibration:
         self.current: BlurEstimate | None = None
         self._sets = 0
 
+    @property
+    def due(self) -> bool:
+        """Whether the next :meth:`update` measures the frames (else they are not looked at)."""
+        return self.setting == "auto" and (
+            self.current is None or self._sets % self.refresh_sets == 0
+        )
+
     def update(
         self,
         frames: Sequence[np.ndarray],
@@ -453,7 +460,7 @@ class BlurCalibration:
             if self.current is None:
                 self.current = BlurEstimate(float(self.setting), "parameter", reason="given")
             return self.current
-        due = self.current is None or self._sets % self.refresh_sets == 0
+        due = self.due
         self._sets += 1
         if due:
             new = estimate_blur(frames, shifts, masks=masks)

@@ -20,10 +20,18 @@ Topics and types (relative names, under the node's namespace):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from subpix_ros.core.telemetry import TelemetrySample, attitude_quaternion_enu, ned_to_enu
-from subpix_ros.io.cdr import TYPESTORE, make_header, serialize
+from subpix_ros.core.telemetry import (
+    TelemetrySample,
+    attitude_quaternion_enu,
+    heading_from_quaternion_enu,
+    ned_to_enu,
+    sample_from_enu,
+)
+from subpix_ros.io.cdr import TYPESTORE, header_to_ns, make_header, serialize
 
 T = TYPESTORE.types
 
@@ -107,3 +115,44 @@ def sample_messages(
     if frame_interval_s is not None:
         out.append(("telemetry/frame_interval", FLOAT64, float64_cdr(frame_interval_s)))
     return out
+
+
+class TelemetryFromTopics:
+    """TelemetrySamples rebuilt from the telemetry node's topics (the inverse of
+    :func:`sample_messages`), for message objects of rclpy or rosbags alike.
+
+    ``telemetry/height`` (Float64), ``telemetry/imu`` (Imu orientation, ENU) and
+    ``telemetry/fix`` (NavSatFix) are remembered; each ``telemetry/velocity``
+    (TwistStamped, ENU) gives a sample once a height has come, else None.
+    """
+
+    def __init__(self) -> None:
+        self.height_m: float | None = None
+        self.heading_rad: float | None = None
+        self.fix: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def height(self, msg) -> None:
+        h = float(msg.data)
+        self.height_m = h if math.isfinite(h) else None
+
+    def imu(self, msg) -> None:
+        q = msg.orientation
+        self.heading_rad = heading_from_quaternion_enu(q.x, q.y, q.z, q.w)
+
+    def navsat(self, msg) -> None:
+        self.fix = (float(msg.latitude), float(msg.longitude), float(msg.altitude))
+
+    def velocity(self, msg) -> TelemetrySample | None:
+        if self.height_m is None:
+            return None
+        v = msg.twist.linear
+        lat, lon, alt = self.fix
+        return sample_from_enu(
+            header_to_ns(msg.header) * 1e-9,
+            (v.x, v.y, v.z),
+            self.height_m,
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_msl_m=alt,
+            heading_rad=self.heading_rad,
+        )

@@ -28,13 +28,12 @@ references started from the predicted overlap as ``references_predicted``.
 
 from __future__ import annotations
 
-import math
-
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CompressedImage, Image, Imu, TimeReference
 from std_msgs.msg import Float64, Float64MultiArray
 
-from subpix_ros.core.telemetry import TelemetrySample, heading_from_quaternion_enu, sample_from_enu
+from subpix_ros.core.telemetry import TelemetrySample
+from subpix_ros.io.telemetry_msgs import TelemetryFromTopics
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode, ros_params
 from subpix_ros.nodes.common import (
@@ -44,7 +43,6 @@ from subpix_ros.nodes.common import (
     publish_if_subscribed,
     reliable_qos,
     run_nodes,
-    stamp_to_ns,
 )
 from subpix_ros.stages import Aligned, NewReference, RegistrationStage, Skipped
 
@@ -74,8 +72,7 @@ class RegistrationNode(StageNode):
     ) -> None:
         super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
         self.make_stage(RegistrationStage)
-        self._height: float | None = None
-        self._yaw: float | None = None
+        self.topics_telemetry = TelemetryFromTopics()  # height and heading kept for velocities
         sub_ev, pub_ev = self.events("image")
         self.pub_aligned = self.create_publisher(
             Image, "aligned", reliable_qos(10), event_callbacks=pub_ev
@@ -102,8 +99,8 @@ class RegistrationNode(StageNode):
             )
             tq = reliable_qos(50)
             self.create_subscription(TwistStamped, "telemetry/velocity", self._on_velocity, tq)
-            self.create_subscription(Float64, "telemetry/height", self._on_height, tq)
-            self.create_subscription(Imu, "telemetry/imu", self._on_imu, tq)
+            self.create_subscription(Float64, "telemetry/height", self.topics_telemetry.height, tq)
+            self.create_subscription(Imu, "telemetry/imu", self.topics_telemetry.imu, tq)
 
     # the stage's state and counters, by their former names
     selector = property(lambda self: self.stage.selector)
@@ -142,24 +139,9 @@ class RegistrationNode(StageNode):
         self.stage.add_telemetry(sample)
 
     def _on_velocity(self, msg: TwistStamped) -> None:
-        if self._height is None:
-            return
-        v = msg.twist.linear
-        self.handle_telemetry(
-            sample_from_enu(
-                stamp_to_ns(msg.header.stamp) * 1e-9,
-                (v.x, v.y, v.z),
-                self._height,
-                heading_rad=self._yaw,
-            )
-        )
-
-    def _on_height(self, msg: Float64) -> None:
-        self._height = float(msg.data) if math.isfinite(msg.data) else None
-
-    def _on_imu(self, msg: Imu) -> None:
-        q = msg.orientation
-        self._yaw = heading_from_quaternion_enu(q.x, q.y, q.z, q.w)
+        sample = self.topics_telemetry.velocity(msg)
+        if sample is not None:
+            self.handle_telemetry(sample)
 
     # ---------------------------------------------------------------- work
     def _process(self, frame: pl.Frame) -> None:

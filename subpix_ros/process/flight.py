@@ -831,10 +831,7 @@ class _MonitorFeed:
         self.mosaic = mosaic
 
     def frame(self, frame: Any, n: int) -> None:
-        img = frame.image
-        if img.dtype != np.uint8:  # the monitor's JPEGs are 8-bit
-            img = _preview(frame).image
-        self.monitor.on_camera(img, int(frame.stamp_ns))
+        self.monitor.on_camera(_to8(frame.image), int(frame.stamp_ns))  # JPEGs are 8-bit
         if n % self.MOSAIC_EVERY == 0:
             canvas = self.mosaic.canvas()
             if canvas is not None:
@@ -845,10 +842,8 @@ class _MonitorFeed:
         self.monitor.on_shift(int(s.stamp_ns), s.u, s.v, s.u_std, s.v_std, True)
 
     def super_resolved(self, sr: Any) -> None:
-        img, bic = sr.image, sr.bicubic
-        if img.dtype != np.uint8:
-            img, bic = (np.clip(a / 257.0, 0, 255).astype(np.uint8) for a in (img, bic))
-        self.monitor.on_super_resolved(img, bic, int(sr.reference.stamp_ns), sr.factor)
+        stamp = int(sr.reference.stamp_ns)
+        self.monitor.on_super_resolved(_to8(sr.image), _to8(sr.bicubic), stamp, sr.factor)
 
     def telemetry(self, s: TelemetrySample) -> None:
         self.monitor.on_fix(s.lat_deg, s.lon_deg, s.alt_msl_m, int(round(s.t * 1e9)))
@@ -975,13 +970,18 @@ def _telemetry_row(s: TelemetrySample) -> dict:
 
 def _preview(frame: Any) -> Any:
     """The frame as the mosaic draws it: 8 bit (16-bit frames scaled by 255/65535)."""
-    img = frame.image
-    if img.dtype == np.uint8:
+    if frame.image.dtype == np.uint8:
         return frame
     from subpix_ros.stages import Frame
 
-    img8 = np.clip(np.rint(img.astype(np.float32) * (255.0 / 65535.0)), 0, 255).astype(np.uint8)
-    return Frame(frame.stamp_ns, img8, frame.frame_id, frame.received)
+    return Frame(frame.stamp_ns, _to8(frame.image), frame.frame_id, frame.received)
+
+
+def _to8(img: np.ndarray) -> np.ndarray:
+    """An image as 8 bit (16-bit values scaled by 255/65535), unchanged if already 8 bit."""
+    if img.dtype == np.uint8:
+        return img
+    return np.clip(np.rint(img.astype(np.float32) * (255.0 / 65535.0)), 0, 255).astype(np.uint8)
 
 
 def _mosaic(stage: Any, w: ProductWriter, last_ns: int | None) -> dict:

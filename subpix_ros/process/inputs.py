@@ -21,14 +21,14 @@ position (for the GPS track of the report).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
-from subpix_ros.core.telemetry import TelemetrySample, heading_from_quaternion_enu, sample_from_enu
+from subpix_ros.core.telemetry import TelemetrySample
 from subpix_ros.io import cdr
 from subpix_ros.io.bags import BagError, ReadReport, bag_topics, read_messages
+from subpix_ros.io.telemetry_msgs import TelemetryFromTopics
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -174,39 +174,19 @@ class Flight:
         return out
 
 
-class _TopicTelemetry:
-    """TelemetrySamples from the telemetry node's topics (as the registration node builds them)."""
+class _TopicTelemetry(TelemetryFromTopics):
+    """:class:`TelemetryFromTopics` fed raw CDR from a bag (topic names as the telemetry node's)."""
 
-    def __init__(self) -> None:
-        self.height: float | None = None
-        self.heading: float | None = None
-        self.fix: tuple[float, float, float] = (0.0, 0.0, 0.0)
-        self.bad = 0
+    bad = 0  # messages that could not be decoded
 
     def add(self, topic: str, raw: bytes, bag_ns: int) -> TelemetrySample | None:
-        if topic == "/telemetry/height":
-            h = float(cdr.deserialize(raw, TELEMETRY_TOPICS[topic]).data)
-            self.height = h if math.isfinite(h) else None
-        elif topic == "/telemetry/imu":
-            q = cdr.deserialize(raw, TELEMETRY_TOPICS[topic]).orientation
-            self.heading = heading_from_quaternion_enu(q.x, q.y, q.z, q.w)
-        elif topic == "/telemetry/fix":
-            f = cdr.deserialize(raw, TELEMETRY_TOPICS[topic])
-            self.fix = (float(f.latitude), float(f.longitude), float(f.altitude))
-        elif topic == "/telemetry/velocity" and self.height is not None:
-            msg = cdr.deserialize(raw, TELEMETRY_TOPICS[topic])
-            v = msg.twist.linear
-            lat, lon, alt = self.fix
-            return sample_from_enu(
-                cdr.header_to_ns(msg.header) * 1e-9,
-                (v.x, v.y, v.z),
-                self.height,
-                lat_deg=lat,
-                lon_deg=lon,
-                alt_msl_m=alt,
-                heading_rad=self.heading,
-            )
-        return None
+        take = {
+            "/telemetry/height": self.height,
+            "/telemetry/imu": self.imu,
+            "/telemetry/fix": self.navsat,
+            "/telemetry/velocity": self.velocity,
+        }.get(topic)
+        return None if take is None else take(cdr.deserialize(raw, TELEMETRY_TOPICS[topic]))
 
 
 def open_flight(

@@ -335,7 +335,9 @@ class ReconstructionStage(Stage):
         if any(f.shape != ref.image.shape for f in frames):
             self.error("frames of one set differ in size: set dropped")
             return None
-        blur = self.blur.update([_mono(f) for f in frames], shifts, masks)
+        # luminance only for a set the calibration measures (the first, then every 10th)
+        mono = [_mono(f) for f in frames] if self.blur.due else []
+        blur = self.blur.update(mono, shifts, masks)
         res, plan = reconstruct_within_budget(
             frames,
             shifts,

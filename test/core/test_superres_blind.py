@@ -139,6 +139,17 @@ def test_calibration_kept_across_sets_and_refreshed(crops):
     assert fixed.update(without.frames).sigma == 0.3 and fixed.current.source == "parameter"
 
 
+def test_calibration_says_when_it_measures_so_frames_are_prepared_only_then(crops):
+    without = flight(crops, "crop_rows", 2, 0.5, roof=False, seed=4)
+    cal = BlurCalibration("auto", refresh_sets=3)
+    dues = []
+    for _ in range(7):
+        dues.append(cal.due)
+        cal.update(without.frames if dues[-1] else [], without.shifts)
+    assert dues == [True, False, False, True, False, False, True]
+    assert not BlurCalibration("0.3").due
+
+
 # ------------------------------------------------------------------ never below bicubic
 
 CELLS = [  # (factor, layout, blur, jpeg, shift error px)

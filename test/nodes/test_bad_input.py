@@ -276,7 +276,7 @@ def test_telemetry_loss_falls_back_to_every_frame_and_recovers(ctx):
 
     def telemetry(t0_ns, seconds, speed=0.1):
         hs.pubs["telemetry/height"].publish(Float64(data=56.0))
-        hs.spin(lambda: node._height is not None, 2)
+        hs.spin(lambda: node.topics_telemetry.height_m is not None, 2)
         for i in range(int(seconds * 10) + 1):
             m = TwistStamped()
             t = t0_ns + i * 100_000_000

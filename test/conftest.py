@@ -212,3 +212,41 @@ def processed(sample_bags, tmp_path_factory):
     )
     assert r.returncode == 0, r.stdout + r.stderr
     return out, r
+
+
+class AlignedFeed:
+    """Stands in for the registration and shift nodes on ``h`` (an rclpy node): publishes
+    ``aligned/reference``, the ``aligned/reference_stamp`` links, ``aligned`` frames with their
+    full masks, and ``shift``, with the QoS the real nodes use."""
+
+    def __init__(self, h):
+        from geometry_msgs.msg import Vector3Stamped
+        from sensor_msgs.msg import Image, TimeReference
+
+        from subpix_ros.nodes.common import latched_qos, reliable_qos
+
+        self.ref = h.create_publisher(Image, "/aligned/reference", latched_qos())
+        self.link = h.create_publisher(TimeReference, "/aligned/reference_stamp", latched_qos(20))
+        self.img = h.create_publisher(Image, "/aligned", reliable_qos(20))
+        self.mask = h.create_publisher(Image, "/aligned/mask", reliable_qos(20))
+        self.shift = h.create_publisher(Vector3Stamped, "/shift", reliable_qos(20))
+        self.pubs = (self.ref, self.link, self.img, self.mask, self.shift)
+
+    def matched(self) -> bool:
+        return all(p.get_subscription_count() for p in self.pubs)
+
+    def reference(self, image, stamp):
+        from subpix_ros.nodes import payloads as pl
+
+        self.ref.publish(pl.image_cdr(image, stamp))
+
+    def frame(self, image, stamp, ref_stamp, u, v):
+        """One aligned frame of reference ``ref_stamp``, its link, full mask and shift (u, v)."""
+        import numpy as np
+
+        from subpix_ros.nodes import payloads as pl
+
+        self.link.publish(pl.reference_link_cdr(stamp, ref_stamp))
+        self.img.publish(pl.image_cdr(image, stamp))
+        self.mask.publish(pl.mask_cdr(np.ones(image.shape[:2], bool), stamp))
+        self.shift.publish(pl.shift_cdr(pl.Shift(stamp, ref_stamp, u, v, 0.0, 0.01, 0.01)))

@@ -1,18 +1,15 @@
 """reconstruction_node with max_memory_mb, fed over DDS: the set is reduced to fit, and it says so."""
 
-import numpy as np
 import rclpy
-from conftest import spin
+from conftest import AlignedFeed, spin
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import Vector3Stamped
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import Image, TimeReference
+from sensor_msgs.msg import Image
 
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres_budget import estimate_peak_mb
 from subpix_ros.io import cdr
-from subpix_ros.nodes import payloads as pl
-from subpix_ros.nodes.common import latched_qos, reliable_qos
+from subpix_ros.nodes.common import latched_qos
 
 T0 = 1_700_000_000_000_000_000
 SHIFTS = [
@@ -51,28 +48,19 @@ def test_max_memory_mb_reduces_the_set_and_reports_it_in_diagnostics(ctx, crops)
         lambda m: diags.extend(s for s in m.status if s.name == node.get_name()),
         10,
     )
-    ref_pub = h.create_publisher(Image, "/aligned/reference", latched_qos())
-    link = h.create_publisher(TimeReference, "/aligned/reference_stamp", latched_qos(20))
-    img_pub = h.create_publisher(Image, "/aligned", reliable_qos(20))
-    mask_pub = h.create_publisher(Image, "/aligned/mask", reliable_qos(20))
-    shift_pub = h.create_publisher(Vector3Stamped, "/shift", reliable_qos(20))
-    pubs = (ref_pub, link, img_pub, mask_pub, shift_pub)
+    feed = AlignedFeed(h)
 
     def value(key):
         vals = [kv.value for s in diags for kv in s.values if kv.key == key]
         return vals[-1] if vals else None
 
     try:
-        assert spin([node, h], lambda: all(p.get_subscription_count() for p in pubs), 10)
-        ref_pub.publish(pl.image_cdr(seq.frames[0], T0))
+        assert spin([node, h], lambda: feed.matched(), 10)
+        feed.reference(seq.frames[0], T0)
         assert spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 10)
-        full = np.ones(seq.frames[0].shape, bool)
         for k in range(1, 8):
             stamp = T0 + k * 33_333_333
-            link.publish(pl.reference_link_cdr(stamp, T0))
-            img_pub.publish(pl.image_cdr(seq.frames[k], stamp))
-            mask_pub.publish(pl.mask_cdr(full, stamp))
-            shift_pub.publish(pl.shift_cdr(pl.Shift(stamp, T0, *SHIFTS[k], 0.0, 0.01, 0.01)))
+            feed.frame(seq.frames[k], stamp, T0, *SHIFTS[k])
         assert spin([node, h], lambda: bool(got), 30), (
             "no super-resolved image under the memory budget"
         )

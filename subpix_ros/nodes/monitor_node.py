@@ -4,7 +4,8 @@ A thin rclpy adapter of :class:`subpix_ros.monitor.Monitor`.
 
 Subscribes ``mosaic/compressed`` (or ``mosaic`` with ``mosaic_compressed:=false``),
 ``super_resolved`` with ``aligned/reference`` (for the bicubic beside it),
-``image`` (kept, sent every ``camera_period_s``), ``shift``,
+``image`` (kept, sent every ``camera_period_s``), ``shift`` with ``shift/std``
+(joined by stamp: a shift waits at most ``shift_std_wait_s`` for its errors),
 ``telemetry/expected_shift``, ``telemetry/frame_interval``, ``telemetry/fix``,
 ``telemetry/height``, ``telemetry/velocity`` and ``/diagnostics``, and feeds the
 monitor, which serves one Foxglove WebSocket server (``ws://host:port``) within
@@ -29,6 +30,7 @@ from std_msgs.msg import Float64
 from subpix_ros.io import cdr
 from subpix_ros.monitor import Monitor, MonitorConfig, MonitorError
 from subpix_ros.monitor.geo import footprint_lonlat
+from subpix_ros.monitor.join import ShiftStdJoin
 from subpix_ros.nodes.base import StageNode
 from subpix_ros.nodes.common import (
     Param,
@@ -123,6 +125,14 @@ class MonitorNode(StageNode):
             False,
             "subscribe to the camera with reliable QoS instead of SensorDataQoS",
         ),
+        Param(
+            "shift_std_wait_s",
+            0.5,
+            "a shift waits this long for its standard errors (shift/std), then goes without",
+            0.0,
+            10.0,
+            read_only=True,
+        ),
         Param("focal_length_mm", 4.3, "camera focal length (mm), for the footprints", 0.1, 2000.0),
         Param(
             "pixel_pitch_um",
@@ -158,6 +168,8 @@ class MonitorNode(StageNode):
         self._fix: tuple[float, float] | None = None
         self._last_camera_ns = 0
         self._timer = self.create_timer(1.0, self._publish_own_health)
+        self._shift_join = ShiftStdJoin(self._serve_shift, wait_s=self.p("shift_std_wait_s"))
+        self._join_timer = self.create_timer(0.1, self._expire_shifts)
         self._subscribe(subscribe_inputs)
 
     def _subscribe(self, stage_inputs: bool) -> None:
@@ -201,6 +213,13 @@ class MonitorNode(StageNode):
             )
             self.create_subscription(
                 Vector3Stamped, "shift", self._guard(self._on_shift), reliable_qos(100), raw=True
+            )
+            self.create_subscription(
+                Vector3Stamped,
+                "shift/std",
+                self._guard(self._on_shift_std),
+                reliable_qos(100),
+                raw=True,
             )
         self.create_subscription(
             Vector3Stamped, "telemetry/expected_shift", self._guard(self._on_expected), tel
@@ -332,18 +351,21 @@ class MonitorNode(StageNode):
     # ---------------------------------------------------------------- numbers
     def _on_shift(self, raw: bytes) -> None:
         vec, header = cdr.cdr_to_vector3_stamped(raw)
+        self._shift_join.shift(cdr.header_to_ns(header), float(vec[0]), float(vec[1]))
+
+    def _on_shift_std(self, raw: bytes) -> None:
+        vec, header = cdr.cdr_to_vector3_stamped(raw)
+        self._shift_join.std(cdr.header_to_ns(header), float(vec[0]), float(vec[1]))
+
+    def _expire_shifts(self) -> None:
+        if self._shift_join.expire():
+            self.diag.set(shifts_without_std=self._shift_join.unmatched)
+
+    def _serve_shift(self, stamp_ns: int, u: float, v: float, u_std, v_std) -> None:
+        # the shift topic carries screened estimates only (shift_node's max_std_px): converged
         e = self._expected
-        # the shift topic carries screened estimates only (shift_node's max_std_px): converged;
-        # their standard errors are in shift_node's /diagnostics, not on the topic
         self.monitor.on_shift(
-            cdr.header_to_ns(header),
-            float(vec[0]),
-            float(vec[1]),
-            None,
-            None,
-            True,
-            e[0] if e else None,
-            e[1] if e else None,
+            stamp_ns, u, v, u_std, v_std, True, e[0] if e else None, e[1] if e else None
         )
 
     def _on_expected(self, msg: Vector3Stamped) -> None:

@@ -83,6 +83,11 @@ def shift_cdr(s: Shift) -> bytes:
     return cdr.vector3_stamped_to_cdr((s.u, s.v, s.z), s.stamp_ns, s.frame_id)
 
 
+def shift_std_cdr(s: Shift) -> bytes:
+    """Vector3Stamped: x = standard error of u, y = of v (px), z = 0; header of the moving frame."""
+    return cdr.vector3_stamped_to_cdr((s.u_std, s.v_std, 0.0), s.stamp_ns, s.frame_id)
+
+
 def reference_link_cdr(stamp_ns: int, reference_stamp_ns: int, frame_id: str = "") -> bytes:
     """sensor_msgs/TimeReference naming an aligned frame's reference: header = the aligned frame's (stamp,
     frame_id), ``time_ref`` = its reference frame's stamp."""

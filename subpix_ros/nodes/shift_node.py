@@ -5,8 +5,9 @@ Subscribes ``aligned`` + ``aligned/mask`` (matched by stamp) and
 later than it). Publishes ``shift`` (geometry_msgs/Vector3Stamped: x = u rows,
 y = v columns, z = intensity offset, in the estimator's convention: content
 at (r, c) in the reference appears at (r + u, c + v) in the aligned frame;
-header = the aligned frame's). Quality figures (standard errors, condition,
-pixels, iterations) go to /diagnostics; a failed estimate publishes nothing
+header = the aligned frame's) and, just before it, ``shift/std``
+(Vector3Stamped, same header: x, y = the standard errors of u and v in px,
+z = 0). Quality figures (condition, pixels, iterations) go to /diagnostics; a failed estimate publishes nothing
 and the reason goes to /diagnostics. The estimation is
 :class:`~subpix_ros.stages.ShiftStage`'s.
 """
@@ -39,6 +40,7 @@ class ShiftNode(StageNode):
         super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
         self.make_stage(ShiftStage)
         self.pub = self.create_publisher(Vector3Stamped, "shift", reliable_qos(20))
+        self.pub_std = self.create_publisher(Vector3Stamped, "shift/std", reliable_qos(20))
         self.make_worker(self._process, self.p("queue_size"))
         self.inputs = AlignedInput(self, self.handle_aligned) if subscribe_inputs else None
 
@@ -60,6 +62,7 @@ class ShiftNode(StageNode):
         if not isinstance(s, Shift):
             self.diag.set(shift_failures=st.skipped)
             return
+        self.pub_std.publish(pl.shift_std_cdr(s))
         self.pub.publish(pl.shift_cdr(s))
         self.output(
             "shift",

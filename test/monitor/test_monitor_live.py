@@ -59,7 +59,8 @@ def _spin(node, until, timeout, procs=()):
 
 @pytest.fixture
 def flight(sample_bags):
-    """The nodes and the monitor running; yields (port, procs, test node, shifts seen on /shift)."""
+    """The nodes and the monitor running; yields (port, procs, test node, shifts seen on /shift,
+    their standard errors seen on /shift/std)."""
     port = free_port()
     cam = "image:=/camera/image_raw"
     procs = [
@@ -81,22 +82,19 @@ def flight(sample_bags):
     ]
     rclpy.init()
     node = rclpy.create_node("monitor_test")
-    shifts = {}
-    node.create_subscription(
-        Vector3Stamped,
-        "/shift",
-        lambda r: shifts.update(
-            {
-                cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]): cdr.cdr_to_vector3_stamped(r)[
-                    0
-                ][:2]
-            }
-        ),
-        reliable_qos(100),
-        raw=True,
-    )
+    shifts, stds = {}, {}
+
+    def keep(table):
+        def put(raw):
+            vec, header = cdr.cdr_to_vector3_stamped(raw)
+            table[cdr.header_to_ns(header)] = tuple(vec[:2])
+
+        return put
+
+    node.create_subscription(Vector3Stamped, "/shift", keep(shifts), reliable_qos(100), raw=True)
+    node.create_subscription(Vector3Stamped, "/shift/std", keep(stds), reliable_qos(100), raw=True)
     try:
-        yield port, procs, node, shifts
+        yield port, procs, node, shifts, stds
     finally:
         node.destroy_node()
         rclpy.shutdown()
@@ -104,7 +102,7 @@ def flight(sample_bags):
 
 
 def test_monitor_serves_the_flight(flight, sample_bags):
-    port, procs, node, shifts = flight
+    port, procs, node, shifts, stds = flight
     url = f"ws://127.0.0.1:{port}"
     # the server is up once the port accepts; the first client sees every channel with its schema
     deadline = time.monotonic() + 30
@@ -138,17 +136,22 @@ def test_monitor_serves_the_flight(flight, sample_bags):
     assert _spin(node, lambda: replay.poll() is not None, 120, procs) and replay.returncode == 0
     _spin(node, lambda: len(shifts) >= 21 and len(a.messages("/shift")) >= len(shifts), 30, procs)
 
-    # shifts: the served values are the topic's, stamp by stamp
+    # shifts: the served values and standard errors are the topics', stamp by stamp
     served = {}
     for r in a.messages("/shift"):
         d = a.decode("/shift", r.payload)
-        served[d["timestamp"]["sec"] * 10**9 + d["timestamp"]["nsec"]] = (d["u"], d["v"])
+        stamp = d["timestamp"]["sec"] * 10**9 + d["timestamp"]["nsec"]
+        served[stamp] = (d["u"], d["v"], d["u_std"], d["v_std"])
     common = set(served) & set(shifts)
     assert len(common) >= 15, (
         f"{len(served)} served, {len(shifts)} on /shift, {len(common)} in both"
     )
+    assert set(stds) == set(shifts), "every shift on /shift has its /shift/std"
     for s in common:
-        np.testing.assert_allclose(served[s], shifts[s], atol=1e-12)
+        np.testing.assert_allclose(served[s][:2], shifts[s], atol=1e-12)
+        assert served[s][2] is not None and served[s][3] is not None, f"no errors served at {s}"
+        np.testing.assert_allclose(served[s][2:], stds[s], atol=1e-12)
+        assert 0 < stds[s][0] <= 0.1 and 0 < stds[s][1] <= 0.1
 
     # the mosaic decodes to an image
     assert a.wait(lambda: a.messages("/mosaic"), 15), "no mosaic served"
@@ -253,20 +256,17 @@ def test_pipeline_with_monitor_serves_shifts_with_their_errors(sample_bags):
     )
     rclpy.init()
     node = rclpy.create_node("monitor_pipeline_test")
-    shifts = {}
-    node.create_subscription(
-        Vector3Stamped,
-        "/shift",
-        lambda r: shifts.update(
-            {
-                cdr.header_to_ns(cdr.cdr_to_vector3_stamped(r)[1]): cdr.cdr_to_vector3_stamped(r)[
-                    0
-                ][:2]
-            }
-        ),
-        reliable_qos(100),
-        raw=True,
-    )
+    shifts, stds = {}, {}
+
+    def keep(table):
+        def put(raw):
+            vec, header = cdr.cdr_to_vector3_stamped(raw)
+            table[cdr.header_to_ns(header)] = tuple(vec[:2])
+
+        return put
+
+    node.create_subscription(Vector3Stamped, "/shift", keep(shifts), reliable_qos(100), raw=True)
+    node.create_subscription(Vector3Stamped, "/shift/std", keep(stds), reliable_qos(100), raw=True)
     a = None
     try:
         deadline = time.monotonic() + 30

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-from collections import defaultdict
+import threading
+from collections import defaultdict, deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, Callable, Mapping
 
 from subpix_ros.core.telemetry import TelemetrySample
 from subpix_ros.stages.mosaic import MosaicStage
-from subpix_ros.stages.reconstruction import ReconstructionStage
+from subpix_ros.stages.reconstruction import FrameSet, ReconstructionStage
 from subpix_ros.stages.registration import RegistrationStage
 from subpix_ros.stages.shift import ShiftStage
 from subpix_ros.stages.stats import StageStats
@@ -33,10 +35,22 @@ class Pipeline:
     A frame stamped earlier than the previous one (a looped bag) resets every
     stage. An incomplete set is reconstructed when a frame comes
     ``flush_after_s`` of stream time after its newest member, and at :meth:`flush`.
+
+    With ``overlap=True`` a set's reconstruction runs on one worker thread while
+    the caller goes on registering the next frames (the solver's FFTs and OpenCV
+    release the GIL, so a second core is used). Its image, and the warnings and
+    errors raised while making it, are emitted in the caller's thread when the
+    next set is handed to the worker (waiting for it if need be), at
+    :meth:`flush` and at :meth:`reset`: the same events in the same order as
+    without overlap, one set later, whatever the timing. At most one set is being
+    solved at a time. Call :meth:`close` (or use ``with``) to stop the worker.
     """
 
     def __init__(
-        self, params: Mapping[str, Mapping[str, Any]] | None = None, with_mosaic: bool = True
+        self,
+        params: Mapping[str, Mapping[str, Any]] | None = None,
+        with_mosaic: bool = True,
+        overlap: bool = False,
     ) -> None:
         params = params or {}
         self.registration = RegistrationStage.from_params(params.get("registration_node"))
@@ -47,6 +61,14 @@ class Pipeline:
         self._last_stamp_ns: int | None = None
         for name, stage in self.stages().items():
             stage.on_problem = self._reporter(name)
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: deque[Future] = deque()
+        self._in_worker = threading.local()
+        if overlap:
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="reconstruction")
+            self.reconstruction.on_problem = self._worker_reporter(
+                self._reporter("reconstruction_node")
+            )
 
     def stages(self) -> dict:
         out = {
@@ -63,6 +85,18 @@ class Pipeline:
             self._emit("error" if level == "error" else "warning", (name, message))
 
         return report
+
+    def _worker_reporter(self, report):
+        """Problems raised on the worker are kept with the set's result, emitted with it."""
+
+        def problem(level: str, message: str) -> None:
+            kept = getattr(self._in_worker, "problems", None)
+            if kept is None:
+                report(level, message)
+            else:
+                kept.append((level, message))
+
+        return problem
 
     def on(self, kind: str, callback: Callable[[Any], None]) -> "Pipeline":
         if kind not in KINDS:
@@ -91,9 +125,10 @@ class Pipeline:
         self._last_stamp_ns = frame.stamp_ns
         if self.mosaic is not None and self._guard("mosaic_node", lambda: self.mosaic.add(frame)):
             self._emit("mosaic", frame)
-        images = self._emit_images(
+        images = self._solve(
             self._guard(
-                "reconstruction_node", lambda: self.reconstruction.tick(stamp_ns=frame.stamp_ns)
+                "reconstruction_node",
+                lambda: self.reconstruction.idle_sets(stamp_ns=frame.stamp_ns),
             )
         )
         r = self._guard("registration_node", lambda: self.registration.add(frame))
@@ -113,24 +148,79 @@ class Pipeline:
         if not isinstance(s, Shift):
             return []
         self._emit("shift", (s, a))
-        return self._emit_images(
-            self._guard("reconstruction_node", lambda: self.reconstruction.add(s, a))
+        return self._solve(
+            self._guard("reconstruction_node", lambda: self.reconstruction.assemble(s, a))
         )
 
-    def _emit_images(self, images: list[SuperResolved] | None) -> list[SuperResolved]:
-        for sr in images or []:
+    def _solve(self, sets: list[FrameSet] | None) -> list[SuperResolved]:
+        """Reconstruct closed sets (or hand them to the worker); emit the images now due."""
+        if self._pool is None:
+            images = [
+                self._guard(
+                    "reconstruction_node", lambda fs=fs: self.reconstruction.reconstruct(fs)
+                )
+                for fs in sets or []
+            ]
+            return self._emit_images(images)
+        for fs in sets or []:
+            self._pending.append(self._pool.submit(self._solve_on_worker, fs))
+        return self._collect(keep=1)
+
+    def _solve_on_worker(self, fs: FrameSet) -> tuple[SuperResolved | None, list, str | None]:
+        self._in_worker.problems = problems = []
+        try:
+            return self.reconstruction.reconstruct(fs), problems, None
+        except Exception as exc:  # noqa: BLE001 - reported in the caller's thread, stream goes on
+            return None, problems, f"{type(exc).__name__}: {exc}"
+        finally:
+            self._in_worker.problems = None
+
+    def _collect(self, keep: int = 0) -> list[SuperResolved]:
+        """Emit the worker's results, oldest first, until ``keep`` sets are left in flight."""
+        images = []
+        while len(self._pending) > keep:
+            sr, problems, failure = self._pending.popleft().result()
+            report = self._reporter("reconstruction_node")
+            for level, message in problems:
+                report(level, message)
+            if failure is not None:
+                self.reconstruction.error(failure)
+            images.append(sr)
+        return self._emit_images(images)
+
+    def _emit_images(self, images: list[SuperResolved | None]) -> list[SuperResolved]:
+        done = [sr for sr in images if sr is not None]
+        for sr in done:
             self._emit("super_resolved", sr)
-        return list(images or [])
+        return done
 
     def flush(self) -> list[SuperResolved]:
         """End of stream: reconstruct the sets still open (``min_frames`` or more)."""
-        return self._emit_images(self._guard("reconstruction_node", self.reconstruction.flush))
+        images = self._solve(self._guard("reconstruction_node", self.reconstruction.flush_sets))
+        return images + self._collect()
+
+    def close(self) -> None:
+        """Emit what the worker still has and stop it (``overlap=True``; else nothing to do)."""
+        if self._pool is not None:
+            self._collect()
+            self._pool.shutdown()
+            self._pool = None
+
+    def __enter__(self) -> "Pipeline":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def stats(self) -> dict[str, StageStats]:
         return {name: stage.stats for name, stage in self.stages().items()}
 
     def reset(self) -> None:
-        """Forget the stream in every stage (a new flight; done by itself when time jumps back)."""
+        """Forget the stream in every stage (a new flight; done by itself when time jumps back).
+
+        The sets already being reconstructed are finished and emitted first.
+        """
+        self._collect()
         for stage in self.stages().values():
             stage.reset()
         self._last_stamp_ns = None

@@ -37,7 +37,7 @@ import numpy as np
 
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct
-from subpix_ros.core.superres_model import FrameOperator, translation_homography
+from subpix_ros.core.superres.model import FrameOperator, translation_homography
 from subpix_ros.data import CROP_NAMES, load_crop, seneca_frame_paths
 from subpix_ros.runtime import add_malloc_argument, allocator_line
 
@@ -235,7 +235,7 @@ def speed(quick: bool, repeats: int) -> None:
 
 def pipeline_case(repeats: int) -> None:
     """The reconstruction node's call: 8 aligned 1920x1080 frames with border-strip masks, x2 (3840x2160 out)."""
-    from subpix_ros.core.superres_masks import reconstruct_aligned
+    from subpix_ros.core.superres.masks import reconstruct_aligned
 
     h, w = 1080, 1920
     rng = np.random.default_rng(7)

@@ -44,6 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .filters import tukey_taper
+
 __all__ = ["MTFResult", "slanted_edge_mtf", "mtf_crossing", "gaussian_pixel_mtf"]
 
 OVERSAMPLE = 4
@@ -270,7 +272,7 @@ def slanted_edge_mtf(
     pos = np.arange(lsf.size, dtype=np.float64)
     centre = float((lsf * pos).sum() / lsf.sum())
     hw = _window_half_width(lsf, centre, _rise_10_90(esf))
-    lsfw = lsf * _tukey_window(pos - centre, hw)
+    lsfw = lsf * tukey_taper(pos - centre, hw)
     spec = np.abs(np.fft.rfft(lsfw))
     if spec[0] <= 0:
         raise ValueError("line spread function has no area")

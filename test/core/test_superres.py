@@ -17,7 +17,7 @@ from subpix_ros.core.superres import (
     reconstruct,
     reconstruct_colour,
 )
-from subpix_ros.core.superres_model import translation_homography
+from subpix_ros.core.superres.model import translation_homography
 from subpix_ros.data import CROP_NAMES
 
 

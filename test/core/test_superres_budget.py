@@ -5,12 +5,12 @@ import pytest
 
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres import bicubic_upscale, psnr
-from subpix_ros.core.superres_budget import (
+from subpix_ros.core.superres.budget import (
     estimate_peak_mb,
     plan_reconstruction,
     reconstruct_within_budget,
 )
-from subpix_ros.core.superres_masks import reconstruct_aligned
+from subpix_ros.core.superres.masks import reconstruct_aligned
 
 SHIFTS8 = [
     (0, 0),

@@ -24,7 +24,7 @@ import functools
 import cv2
 import numpy as np
 
-from .superres_model import box_sum
+from .model import box_sum
 
 __all__ = [
     "band_matrix",

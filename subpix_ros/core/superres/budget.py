@@ -57,9 +57,9 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from subpix_ros.core.superres import SRResult, bicubic_upscale
-from subpix_ros.core.superres_masks import bicubic_outside, reconstruct_aligned
-from subpix_ros.core.validity import common_valid_box
+from ..validity import common_valid_box
+from .masks import bicubic_outside, reconstruct_aligned
+from .reconstruction import SRResult, bicubic_upscale
 
 __all__ = ["BudgetPlan", "estimate_peak_mb", "plan_reconstruction", "reconstruct_within_budget"]
 

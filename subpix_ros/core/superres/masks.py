@@ -20,8 +20,8 @@ from typing import Sequence
 
 import numpy as np
 
-from subpix_ros.core.superres import SRResult, bicubic_upscale, reconstruct, reconstruct_colour
-from subpix_ros.core.validity import common_valid_box
+from ..validity import common_valid_box
+from .reconstruction import SRResult, bicubic_upscale, reconstruct, reconstruct_colour
 
 __all__ = ["reconstruct_aligned", "bicubic_outside"]
 
@@ -81,6 +81,3 @@ def bicubic_outside(
     strip(r1, h, 0, w)  # bottom
     strip(r0, r1, 0, c0)  # left
     strip(r0, r1, c1, w)  # right
-
-
-_bicubic_outside = bicubic_outside  # the former private name

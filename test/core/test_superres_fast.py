@@ -15,7 +15,7 @@ import pytest
 from subpix_ros.core import superres as sr
 from subpix_ros.core.filters import fractional_shift, tukey
 from subpix_ros.core.render import render_sequence
-from subpix_ros.core.superres.fourier_map import _assemble_hr
+from subpix_ros.core.superres.dft import _assemble_hr
 from subpix_ros.core.superres.geometry import _refine_shifts
 from subpix_ros.core.superres.lowpass import _integer_preshift, _lowpass_window, _WholeLowpass
 from subpix_ros.core.superres.lucas_kanade import _lk_batch, _lk_context, _lk_inner

@@ -27,6 +27,7 @@ centre at LR coordinate ``(k + 0.5)/p - 0.5``.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import cv2
@@ -208,3 +209,27 @@ def frame_transfer_1d(
     if shift_var > 0:
         a = a * np.exp(-2.0 * np.pi**2 * f**2 * p * p * shift_var)
     return a / p, f
+
+
+@functools.lru_cache(maxsize=32)
+def _transfer_base(n_lr: int, p: int, blur_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`frame_transfer_1d` at zero shift, ``(a0, f)`` (cached per length, factor and blur; read-only)."""
+    a0, f = frame_transfer_1d(n_lr, p, 0.0, blur_sigma)
+    a0.flags.writeable = False
+    f.flags.writeable = False
+    return a0, f
+
+
+def _frame_transfers(
+    n_lr: int, p: int, shifts: np.ndarray, blur_sigma: float, keep: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`frame_transfer_1d` for every shift at once: ``a[n] = a0 exp(-2 pi i f p s_n)`` (N, p, keep), and f.
+
+    ``a0`` is the zero-shift transfer (cached); the shift enters as the phase factor only, as in
+    frame_transfer_1d (the same values to round-off). ``keep``: the first columns only (rfft half).
+    """
+    a0, f = _transfer_base(n_lr, p, float(blur_sigma))
+    if keep is not None:
+        a0, f = a0[:, :keep], f[:, :keep]
+    s = np.asarray(shifts, dtype=np.float64)
+    return a0[None] * np.exp((-2j * np.pi * p) * f[None] * s[:, None, None]), f

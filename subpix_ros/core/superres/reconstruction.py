@@ -459,9 +459,9 @@ def _reconstruct(
         )
     except (ValueError, np.linalg.LinAlgError) as exc:
         return _fallback(ref, p, f"MAP solve failed: {exc}", sigma, n, s)
-    img = sol["image"]
-    weights = sol["weights"]
-    sigma = sol["noise_sigma"]
+    img = sol.image
+    weights = sol.weights
+    sigma = sol.noise_sigma
     method_used = "map"
     if use_cg:
         hs = (
@@ -470,14 +470,14 @@ def _reconstruct(
             else np.stack([translation_homography(*si) for si in s])
         )
         img = _cg_map(
-            stack, hs, p, blur_sigma, sol["noise_sigma"], masks, sol["prior"], reg, img, cg_iters
+            stack, hs, p, blur_sigma, sol.noise_sigma, masks, sol.prior, reg, img, cg_iters
         )
         method_used = "map-cg"
     if not np.isfinite(img).all():
         return _fallback(ref, p, "MAP solution not finite", sigma, n, s)
     img = _bicubic_rim(img, ref, p)
-    kept = sol.get("kept")
-    if kept is not None and not kept.all():
+    kept = sol.kept
+    if not kept.all():
         dropped = ", ".join(str(i) for i in np.flatnonzero(~kept))
         reason = (
             reason + "; " if reason else ""
@@ -490,15 +490,15 @@ def _reconstruct(
             "no frame other than the reference agrees with it (registration errors too large)",
             sigma,
             n,
-            sol["shifts"],
+            sol.shifts,
         )
     return SRResult(
         image=img,
         method=method_used,
         noise_sigma=sigma,
         weights=weights,
-        shifts=sol["shifts"],
-        shift_sigma=sol["shift_sigma"],
+        shifts=sol.shifts,
+        shift_sigma=sol.shift_sigma,
         factor=p,
         reason=reason,
     )

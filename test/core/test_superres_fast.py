@@ -21,7 +21,7 @@ from subpix_ros.core.superres.lowpass import _integer_preshift, _lowpass_window,
 from subpix_ros.core.superres.lucas_kanade import _lk_batch, _lk_context, _lk_inner
 from subpix_ros.core.superres.model import frame_transfer_1d, gaussian_kernel
 from subpix_ros.core.superres.paper import interleave
-from subpix_ros.core.superres.reconstruction import _bicubic_rim
+from subpix_ros.core.superres.result import _bicubic_rim
 from subpix_ros.core.superres.separable import _solve_separable
 from subpix_ros.core.superres.spectrum import _spectrum_bins
 

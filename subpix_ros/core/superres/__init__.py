@@ -19,17 +19,12 @@ from .geometry import detect_geometry
 from .masks import bicubic_outside, reconstruct_aligned
 from .model import FrameOperator, frame_transfer_1d, gaussian_kernel, translation_homography
 from .paper import grid_offsets, interleave, pinv_solution, windowed_solution
-from .reconstruction import (
-    BLUR_AUTO,
-    MAX_FACTOR,
-    METHODS,
-    SRResult,
-    _reconstruct,  # noqa: F401  (the stages read its keyword-only options)
-    bicubic_upscale,
-    psnr,
+from .reconstruction import (  # noqa: F401  (_reconstruct: the stages read its options)
+    _reconstruct,
     reconstruct,
     reconstruct_colour,
 )
+from .result import BLUR_AUTO, MAX_FACTOR, METHODS, SRResult, bicubic_upscale, psnr
 from .spectrum import estimate_noise_sigma, fit_spectrum
 
 __all__ = [

@@ -59,7 +59,7 @@ import numpy as np
 
 from ..validity import common_valid_box
 from .masks import bicubic_outside, reconstruct_aligned
-from .reconstruction import SRResult, bicubic_upscale
+from .result import SRResult, bicubic_upscale
 
 __all__ = ["BudgetPlan", "estimate_peak_mb", "plan_reconstruction", "reconstruct_within_budget"]
 

@@ -21,7 +21,8 @@ from typing import Sequence
 import numpy as np
 
 from ..validity import common_valid_box
-from .reconstruction import SRResult, bicubic_upscale, reconstruct, reconstruct_colour
+from .reconstruction import reconstruct, reconstruct_colour
+from .result import SRResult, bicubic_upscale
 
 __all__ = ["reconstruct_aligned", "bicubic_outside"]
 

@@ -1,9 +1,14 @@
 """Registration inside super-resolution: shift refinement and the check for non-translations.
 
-:func:`_refine_shifts` refines every frame's sub-pixel shift against the
-reference and gives a multi-frame noise estimate; :func:`detect_geometry`
-registers tiles to tell whether the frames are related by more than a
-translation and fits an affine per frame if so.
+:func:`_refine_shifts` refines every frame's sub-pixel shift against the reference by
+Lucas-Kanade on low-passed frames and gives a multi-frame noise estimate;
+:func:`detect_geometry` registers tiles to tell whether the frames are related by more
+than a translation and fits an affine per frame if so.
+
+References
+----------
+.. [1] B. D. Lucas and T. Kanade, "An iterative image registration technique with an
+   application to stereo vision", Proc. IJCAI 1981, pp. 674-679.
 """
 
 from __future__ import annotations
@@ -27,22 +32,43 @@ def _refine_shifts(
     max_region: int = 256,
     lowpassed: _WholeLowpass | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-    """Refine each frame's sub-pixel shift against frame 0 (Lucas-Kanade on low-passed frames).
+    """Refine each frame's sub-pixel shift against frame 0 by Lucas-Kanade on low-passed frames.
 
-    Both frames are low-passed (Gaussian, ``lp_sigma`` LR px) so the fit uses
-    the band where aliasing is weak. With ``R`` the low-passed reference
-    moved by the current shift ``s`` (Fourier shift, content moves by +s),
-    the first-order model ``F ~ R - d . grad R`` gives the Gauss-Newton step
-    ``d = -(G^T G)^-1 G^T (F - R)`` over the central region (at most
-    ``max_region`` px square, ``border`` px from the edges: cost bounded; only
-    that region, with its context, is low-passed and Fourier-shifted).
-    Returns refined residual shifts (N, 2), each one's std (LR px) from
-    ``var(residual) (G^T G)^-1``, and the per-pixel noise std (DN) implied by
-    the residual: ``var(F - R) = 2 sigma^2 (sum g^2)^2`` for white noise
-    through the separable low-pass g (median over frames) — a multi-frame
-    noise estimate that texture does not bias, unlike single-frame ones —
-    and the per-frame noise variances themselves (NaN for frame 0). Frames whose fit diverges (|step| > 0.5 px)
-    keep their shift and get std = inf.
+    Parameters
+    ----------
+    frames : numpy.ndarray
+        (N, H, W) frames, frame 0 the reference.
+    ishift, resid : numpy.ndarray
+        (N, 2) integer and sub-pixel parts of the starting shifts (LR px).
+    lp_sigma : float, optional
+        Gaussian low-pass std (LR px): the fit uses the band where aliasing is weak.
+    border : int, optional
+        Px kept from the frame edges.
+    iters : int, optional
+        Most Gauss-Newton steps.
+    max_region : int, optional
+        Side of the central region fitted (px): the cost is bounded.
+    lowpassed : _WholeLowpass or None, optional
+        Shared whole-frame low-passes.
+
+    Returns
+    -------
+    resid : numpy.ndarray
+        (N, 2) refined sub-pixel shifts.
+    sigma : numpy.ndarray
+        (N,) std of each (LR px; 0 for frame 0, inf where the fit diverged: > 0.5 px).
+    noise : float
+        Per-pixel noise std (DN): the median over frames of the residual's noise.
+    noise_var : numpy.ndarray
+        (N,) per-frame noise variances (NaN for frame 0 and failed frames).
+
+    Notes
+    -----
+    With R the low-passed reference moved by the current shift s (content moves by +s),
+    the model ``F ~ R - d . grad R`` gives the step ``d = -(G^T G)^-1 G^T (F - R)``
+    (:func:`~subpix_ros.core.superres.lucas_kanade._lk_batch`). For white noise through
+    the separable low-pass g, ``var(F - R) = 2 sigma^2 (sum g^2)^2``: a multi-frame noise
+    estimate that texture does not bias, unlike single-frame ones.
     """
     n, h, w = frames.shape
     g = gaussian_kernel(lp_sigma)
@@ -93,55 +119,101 @@ def detect_geometry(
 ) -> tuple[np.ndarray | None, np.ndarray, float]:
     """Check whether frames are related by more than a translation; fit affines if so.
 
-    Each frame is registered to frame 0 in ``tiles x tiles`` tiles (Lucas-
-    Kanade on low-passed frames, started from ``shifts``, over one window
-    shape for all tiles — the smallest tile, at most ``tile_max`` px square —
-    at each tile's centre, moved inwards where its 16 px context would leave
-    the frame, so all tiles and frames are registered in one batch; only
-    those windows are low-passed, and each reference tile is Fourier-
-    transformed once for all frames); the tile shifts
-    ``d(r, c)`` (at the window centres) are fitted by
-    ``d = s + J (r - r0, c - c0)`` (least squares, (r0, c0) the frame centre). If the
-    non-translational part ``J`` moves any
-    tile centre by more than ``tol`` LR px, the affine of every frame is
-    returned as a homography (reference -> frame LR pixel coordinates, as
-    :class:`FrameOperator` takes them), else None. Also returns the tile
-    shifts (N, tiles^2, 2) and the multi-frame noise estimate (DN): from
-    the lower quartile of the tiles' residual variances (the tiles a local
-    translation fits best; rotation inflates the others).
+    Parameters
+    ----------
+    frames : numpy.ndarray
+        (N, H, W) frames, frame 0 the reference.
+    shifts : numpy.ndarray
+        (N, 2) starting shifts ``(u, v)`` (LR px) relative to frame 0.
+    tiles : int, optional
+        Tiles per side.
+    lp_sigma : float, optional
+        Gaussian low-pass std of the registration (LR px).
+    tol : float, optional
+        LR px a tile centre must move under the non-translational part to count.
+    tile_max : int, optional
+        Largest registration window side (px).
+    lowpassed : _WholeLowpass or None, optional
+        Shared whole-frame low-passes.
+
+    Returns
+    -------
+    homographies : numpy.ndarray or None
+        (N, 3, 3) per-frame affines (reference -> frame LR pixel coordinates, as
+        :class:`~subpix_ros.core.superres.model.FrameOperator` takes them), or None when
+        a translation fits every frame.
+    tile_shifts : numpy.ndarray
+        (N, tiles^2, 2) shifts of the tile centres (NaN where the fit failed).
+    noise : float
+        Multi-frame noise estimate (DN) from the lower quartile of the tiles' residual
+        variances (the tiles a local translation fits best; rotation inflates the others).
+
+    Notes
+    -----
+    Each frame is registered to frame 0 in ``tiles x tiles`` windows of one shape (the
+    smallest tile, at most ``tile_max`` px), at each tile's centre, moved inwards where
+    its 16 px context would leave the frame, all tiles and frames in one batch. The tile
+    shifts ``d(r, c)`` are fitted by ``d = s + J (r - r0, c - c0)`` (least squares,
+    (r0, c0) the frame centre); the frames are related by more than a translation when
+    ``J`` moves any tile centre by more than ``tol``.
     """
     n, h, w = frames.shape
-    g = gaussian_kernel(lp_sigma)
-    whole = _WholeLowpass.getter(lowpassed, lp_sigma)
-    ty = np.linspace(0, h, tiles + 1).astype(int)
-    tx = np.linspace(0, w, tiles + 1).astype(int)
-    ctx_pad = 16  # _lk_context's default
-    # one window shape for all tiles (the smallest tile, at most tile_max), each window moved inwards
-    # where needed so that its context lies inside the frame: all tiles x frames form one batch
-    ha, wa = min(int(np.diff(ty).min()), tile_max), min(int(np.diff(tx).min()), tile_max)
-    wins = []
-    for a in range(tiles):  # tiles, not pixels
-        for b in range(tiles):
-            ra, ca = (ty[a] + ty[a + 1] - ha) // 2, (tx[b] + tx[b + 1] - wa) // 2
-            if h >= ha + 2 * ctx_pad:
-                ra = min(max(ra, ctx_pad), h - ctx_pad - ha)
-            if w >= wa + 2 * ctx_pad:
-                ca = min(max(ca, ctx_pad), w - ctx_pad - wa)
-            wins.append((slice(ra, ra + ha), slice(ca, ca + wa)))
+    wins = _tile_windows(h, w, tiles, tile_max)
     centres = np.array(
         [
             ((sl[0].start + sl[0].stop - 1) / 2.0, (sl[1].start + sl[1].stop - 1) / 2.0)
             for sl in wins
         ]
     )
-    r0, c0 = (h - 1) / 2.0, (w - 1) / 2.0
-    rel = centres - np.array([r0, c0])
-    design = np.concatenate([np.ones((len(rel), 1)), rel], axis=1)  # (T, 3)
-    tshift = np.zeros((n, len(rel), 2))
-    resvar_t = np.full((n, len(rel)), np.nan)
+    rel = centres - np.array([(h - 1) / 2.0, (w - 1) / 2.0])
+    tshift, resvar_t = _register_tiles(frames, shifts, wins, lp_sigma, lowpassed)
+    # residual variances in the order the frames and tiles were visited before (frame-major)
+    resvars = [v for v in resvar_t[1:].ravel() if np.isfinite(v)]
+    affines, nonlinear = _fit_affines(tshift, shifts, rel, (h, w), tol)
+    noise = float(np.sqrt(np.percentile(resvars, 25))) if resvars else float("nan")
+    return (affines if nonlinear else None), tshift, noise
+
+
+_CTX_PAD = 16  # context px around a registration window (_lk_context's default)
+
+
+def _tile_windows(h: int, w: int, tiles: int, tile_max: int) -> list[tuple[slice, slice]]:
+    """Return one window of one shape per tile, moved inwards so its context fits the frame."""
+    ty = np.linspace(0, h, tiles + 1).astype(int)
+    tx = np.linspace(0, w, tiles + 1).astype(int)
+    ha, wa = min(int(np.diff(ty).min()), tile_max), min(int(np.diff(tx).min()), tile_max)
+    wins = []
+    for a in range(tiles):  # tiles, not pixels
+        for b in range(tiles):
+            ra, ca = (ty[a] + ty[a + 1] - ha) // 2, (tx[b] + tx[b + 1] - wa) // 2
+            if h >= ha + 2 * _CTX_PAD:
+                ra = min(max(ra, _CTX_PAD), h - _CTX_PAD - ha)
+            if w >= wa + 2 * _CTX_PAD:
+                ca = min(max(ca, _CTX_PAD), w - _CTX_PAD - wa)
+            wins.append((slice(ra, ra + ha), slice(ca, ca + wa)))
+    return wins
+
+
+def _register_tiles(
+    frames: np.ndarray,
+    shifts: np.ndarray,
+    wins: list[tuple[slice, slice]],
+    lp_sigma: float,
+    lowpassed: _WholeLowpass | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Register every tile window of every frame to frame 0: shifts (N, T, 2), variances (N, T).
+
+    Tiles whose context windows share one shape are registered together, all tiles x
+    frames in one :func:`~subpix_ros.core.superres.lucas_kanade._lk_batch`.
+    """
+    n, h, w = frames.shape
+    g = gaussian_kernel(lp_sigma)
+    whole = _WholeLowpass.getter(lowpassed, lp_sigma)
+    tshift = np.zeros((n, len(wins), 2))
+    resvar_t = np.full((n, len(wins)), np.nan)
     groups: dict[tuple, list[tuple[int, tuple[slice, slice]]]] = {}
     for k, sl in enumerate(wins):  # tiles
-        ctx = _lk_context(sl, h, w, ctx_pad)
+        ctx = _lk_context(sl, h, w, _CTX_PAD)
         inner = _lk_inner(sl, ctx)
         key = (
             ctx[0].stop - ctx[0].start,
@@ -152,10 +224,7 @@ def detect_geometry(
             inner[1].stop,
         )
         groups.setdefault(key, []).append((k, ctx))
-    for (
-        key,
-        members,
-    ) in groups.items():  # tiles whose windows have one shape: all tiles x frames at once
+    for key, members in groups.items():  # tiles with one window shape: tiles x frames at once
         refs = [
             _lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx, whole=whole(0))
             for _, ctx in members
@@ -179,8 +248,25 @@ def detect_geometry(
             kk, i = members[pair_tile[m]][0], pair_frame[m]
             tshift[i, kk] = s_all[m] if np.isfinite(sg_all[m]) else np.nan
             resvar_t[i, kk] = rv_all[m]
-    # residual variances in the order the frames and tiles were visited before (frame-major)
-    resvars = [v for v in resvar_t[1:].ravel() if np.isfinite(v)]
+    return tshift, resvar_t
+
+
+def _fit_affines(
+    tshift: np.ndarray,
+    shifts: np.ndarray,
+    rel: np.ndarray,
+    shape: tuple[int, int],
+    tol: float,
+) -> tuple[np.ndarray, bool]:
+    """Fit ``d = s + J (r - r0, c - c0)`` to each frame's tile shifts; return the affines.
+
+    ``rel`` holds the tile centres relative to the frame centre. A frame with fewer than 4
+    registered tiles keeps its translation. Also returns whether any frame's ``J`` moves a
+    tile centre by more than ``tol`` LR px.
+    """
+    n = tshift.shape[0]
+    r0, c0 = (shape[0] - 1) / 2.0, (shape[1] - 1) / 2.0
+    design = np.concatenate([np.ones((len(rel), 1)), rel], axis=1)  # (T, 3)
     nonlinear = False
     affines = np.zeros((n, 3, 3))
     affines[0] = np.eye(3)
@@ -189,7 +275,7 @@ def detect_geometry(
         if ok.sum() < 4:
             affines[i] = translation_homography(*shifts[i])
             continue
-        coef, *_ = np.linalg.lstsq(design[ok], tshift[i, ok], rcond=None)  # (3, 2): s, then J rows
+        coef, *_ = np.linalg.lstsq(design[ok], tshift[i, ok], rcond=None)  # (3, 2): s, J rows
         s = coef[0]
         jac = coef[1:].T  # jac[out, in]: d(u, v) / d(r, c)
         if np.max(np.abs(rel @ jac.T)) > tol:
@@ -201,5 +287,4 @@ def detect_geometry(
                 [0.0, 0.0, 1.0],
             ]
         )
-    noise = float(np.sqrt(np.percentile(resvars, 25))) if resvars else float("nan")
-    return (affines if nonlinear else None), tshift, noise
+    return affines, nonlinear

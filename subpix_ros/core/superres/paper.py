@@ -172,112 +172,156 @@ def interleave(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Build the interleaved eq. 3 observation (sums) from grid-shifted frames.
 
-    Frame n with offsets ``(t_r, t_c)`` sub-pixels: its pixel (i, j) is the
-    mean over the HR box starting at ``(p i - t_r, q j - t_c)``, so it fills
-    ``y[p i - t_r, q j - t_c] = p q * frame[i, j]``. Frames sharing a phase are
-    averaged. Returns ``(y, filled)`` (``dtype``, default float64; bool);
-    unfilled entries (missing phases, or the border strip a shifted frame
-    does not reach) are copied from the nearest filled entry along rows, then
-    columns: passes over offsets d = 1..p (rows) and 1..q (columns), each
-    taking from d entries before, then after (cyclically), twice over; 0 if
-    none is within reach. Strided slice writes per frame; the unfilled
-    entries are listed per phase from the frames' rectangles, and the hole
-    filling touches only them (no per-pixel loop).
+    Parameters
+    ----------
+    frames : list of numpy.ndarray
+        N 2-D frames of one shape (means over their pixels).
+    offsets : numpy.ndarray
+        (N, 2) integer sub-pixel offsets ``(t_r, t_c)`` (:func:`grid_offsets`).
+    p, q : int
+        Factors along rows and columns.
+    dtype : type, optional
+        dtype of the result.
+
+    Returns
+    -------
+    y : numpy.ndarray
+        ``(p H, q W)`` interleaved box sums.
+    filled : numpy.ndarray
+        bool, the entries some frame observed.
+
+    Notes
+    -----
+    Frame n's pixel (i, j) is the mean over the HR box starting at
+    ``(p i - t_r, q j - t_c)``, so it fills ``y[p i - t_r, q j - t_c] = p q frame[i, j]``.
+    Frames sharing a phase are averaged. Unfilled entries (missing phases, or the border
+    strip a shifted frame does not reach) are copied from the nearest filled entry along
+    rows, then columns (:func:`_fill_holes`); 0 if none is within reach.
     """
     h, w = frames[0].shape
     hh, ww = h * p, w * q
-    y = np.empty(
-        (hh, ww), dtype=dtype
-    )  # every entry is written below: by a frame, by hole filling, or 0
+    y = np.empty((hh, ww), dtype=dtype)  # every entry is written: by a frame, a hole fill, or 0
     filled = np.zeros((hh, ww), dtype=bool)
-
-    def span(t: int, n: int, f: int) -> tuple[slice, slice]:
-        # LR indices i with 0 <= f*i - t < n*f, and the matching strided HR slice
-        i0 = max(0, -(-t // f))
-        i1 = min(n, (n * f - 1 + t) // f + 1)
-        k0 = f * i0 - t
-        return slice(i0, max(i0, i1)), slice(k0, k0 + f * max(0, i1 - i0), f)
-
     offsets = np.asarray(offsets, dtype=np.int64)
-    phases: dict[tuple[int, int], list[int]] = {
-        (a, b): [] for a in range(p) for b in range(q)
-    }  # first HR row/col
-    for n_, (tr, tc) in enumerate(offsets):  # group frames by sub-pixel phase
+    phases: dict[tuple[int, int], list[int]] = {(a, b): [] for a in range(p) for b in range(q)}
+    for n_, (tr, tc) in enumerate(offsets):  # group frames by sub-pixel phase (first HR row/col)
         phases[(-int(tr)) % p, (-int(tc)) % q].append(n_)
     holes_r, holes_c = [], []
     for (first_r, first_c), members in phases.items():  # loop over phases / frames, not pixels
-        plane = (slice(first_r, None, p), slice(first_c, None, q))
-        hp_, wp_ = len(range(first_r, hh, p)), len(range(first_c, ww, q))
-        if (
-            len(members) == 1
-        ):  # one frame: write its samples straight into y; holes = outside its rectangle
-            n_ = members[0]
-            (ri, rk), (ci, ck) = span(int(offsets[n_, 0]), h, p), span(int(offsets[n_, 1]), w, q)
-            # the factor in y's own precision (exact: small integer), so the product runs in that precision
-            np.multiply(
-                np.asarray(frames[n_])[ri, ci], y.dtype.type(p * q), out=y[rk, ck], casting="unsafe"
-            )
-            filled[rk, ck] = True
-            a0, a1 = (rk.start - first_r) // p, (rk.start - first_r) // p + (ri.stop - ri.start)
-            b0, b1 = (ck.start - first_c) // q, (ck.start - first_c) // q + (ci.stop - ci.start)
-            if a1 <= a0 or b1 <= b0:
-                a0 = a1 = b0 = b1 = 0
-            if a0 == 0 and a1 == hp_ and b0 == 0 and b1 == wp_:
+        if len(members) == 1:
+            one = members[0]
+            holes = _write_single(y, filled, frames[one], offsets[one], (p, q), (first_r, first_c))
+            if holes is None:
                 continue  # the frame covers its whole phase plane: no holes
-            # holes: whole rows outside [a0, a1), then the columns outside [b0, b1) of the rows inside
-            out_rows = np.concatenate((np.arange(a0), np.arange(a1, hp_)))
-            out_cols = np.concatenate((np.arange(b0), np.arange(b1, wp_)))
-            rr = np.concatenate(
-                (np.repeat(out_rows, wp_), np.tile(np.arange(a0, a1), out_cols.size))
-            )
-            cc = np.concatenate(
-                (np.tile(np.arange(wp_), out_rows.size), np.repeat(out_cols, a1 - a0))
-            )
-        else:  # no frame, or several frames on one phase: average them on that phase's sub-grid
-            acc = np.zeros((hp_, wp_))
-            cnt = np.zeros((hp_, wp_))
-            for n_ in members:
-                (ri, rk), (ci, ck) = (
-                    span(int(offsets[n_, 0]), h, p),
-                    span(int(offsets[n_, 1]), w, q),
-                )
-                rs = slice(
-                    (rk.start - first_r) // p, (rk.start - first_r) // p + (ri.stop - ri.start)
-                )
-                cs = slice(
-                    (ck.start - first_c) // q, (ck.start - first_c) // q + (ci.stop - ci.start)
-                )
-                acc[rs, cs] += p * q * np.asarray(frames[n_], dtype=np.float64)[ri, ci]
-                cnt[rs, cs] += 1
-            y[plane] = np.where(cnt > 0, acc / np.maximum(cnt, 1), 0.0)
-            filled[plane] = cnt > 0
-            rr, cc = np.nonzero(cnt == 0)
-        holes_r.append(first_r + p * rr)
-        holes_c.append(first_c + q * cc)
-    if (
-        not holes_r
-    ):  # every phase plane covered by its frame (e.g. all shifts <= 0): nothing to fill
+        else:
+            holes = _write_mean(y, filled, frames, offsets, members, (p, q), (first_r, first_c))
+        holes_r.append(first_r + p * holes[0])
+        holes_c.append(first_c + q * holes[1])
+    if not holes_r:  # every phase plane covered by its frame (e.g. all shifts <= 0)
         return y, filled
     hr, hc = np.concatenate(holes_r).astype(np.intp), np.concatenate(holes_c).astype(np.intp)
     if hr.size:
-        # holes (missing phases, border strips): nearest filled sample along rows, then columns;
-        # each step reads the values as they were before it (as a cyclic roll of the array would)
-        have = filled.copy()
-        for axis, f in ((0, p), (1, q), (0, p), (1, q)):  # a few passes over offsets, not pixels
-            for d in range(1, f + 1):
-                for sgn in (1, -1):
-                    if axis == 0:
-                        sr, sc = (hr - sgn * d) % hh, hc
-                    else:
-                        sr, sc = hr, (hc - sgn * d) % ww
-                    take = have[sr, sc]
-                    if take.any():
-                        y[hr[take], hc[take]] = y[sr[take], sc[take]]
-                        have[hr[take], hc[take]] = True
-                        hr, hc = hr[~take], hc[~take]
-                if hr.size == 0:
-                    break
+        _fill_holes(y, filled, hr, hc, p, q)
+    return y, filled
+
+
+def _span(t: int, n: int, f: int) -> tuple[slice, slice]:
+    """Return the LR indices i with ``0 <= f i - t < n f`` and the matching strided HR slice."""
+    i0 = max(0, -(-t // f))
+    i1 = min(n, (n * f - 1 + t) // f + 1)
+    k0 = f * i0 - t
+    return slice(i0, max(i0, i1)), slice(k0, k0 + f * max(0, i1 - i0), f)
+
+
+def _write_single(
+    y: np.ndarray,
+    filled: np.ndarray,
+    frame: np.ndarray,
+    offset: np.ndarray,
+    factors: tuple[int, int],
+    first: tuple[int, int],
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Write a phase observed by one frame straight into ``y``; return its holes or None.
+
+    Holes are (row, column) indices on the phase plane outside the frame's rectangle:
+    whole rows outside it, then the columns outside it of the rows inside.
+    """
+    p, q = factors
+    first_r, first_c = first
+    h, w = frame.shape
+    hh, ww = y.shape
+    hp_, wp_ = len(range(first_r, hh, p)), len(range(first_c, ww, q))
+    (ri, rk), (ci, ck) = _span(int(offset[0]), h, p), _span(int(offset[1]), w, q)
+    # the factor in y's own precision (exact: small integer): the product runs in that precision
+    np.multiply(np.asarray(frame)[ri, ci], y.dtype.type(p * q), out=y[rk, ck], casting="unsafe")
+    filled[rk, ck] = True
+    a0, a1 = (rk.start - first_r) // p, (rk.start - first_r) // p + (ri.stop - ri.start)
+    b0, b1 = (ck.start - first_c) // q, (ck.start - first_c) // q + (ci.stop - ci.start)
+    if a1 <= a0 or b1 <= b0:
+        a0 = a1 = b0 = b1 = 0
+    if a0 == 0 and a1 == hp_ and b0 == 0 and b1 == wp_:
+        return None
+    out_rows = np.concatenate((np.arange(a0), np.arange(a1, hp_)))
+    out_cols = np.concatenate((np.arange(b0), np.arange(b1, wp_)))
+    rr = np.concatenate((np.repeat(out_rows, wp_), np.tile(np.arange(a0, a1), out_cols.size)))
+    cc = np.concatenate((np.tile(np.arange(wp_), out_rows.size), np.repeat(out_cols, a1 - a0)))
+    return rr, cc
+
+
+def _write_mean(
+    y: np.ndarray,
+    filled: np.ndarray,
+    frames: list[np.ndarray],
+    offsets: np.ndarray,
+    members: list[int],
+    factors: tuple[int, int],
+    first: tuple[int, int],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Write the mean of the frames ``members`` (none or several) on one phase; return its holes."""
+    p, q = factors
+    first_r, first_c = first
+    h, w = frames[0].shape
+    hh, ww = y.shape
+    hp_, wp_ = len(range(first_r, hh, p)), len(range(first_c, ww, q))
+    plane = (slice(first_r, None, p), slice(first_c, None, q))
+    acc = np.zeros((hp_, wp_))
+    cnt = np.zeros((hp_, wp_))
+    for n_ in members:
+        (ri, rk), (ci, ck) = _span(int(offsets[n_, 0]), h, p), _span(int(offsets[n_, 1]), w, q)
+        rs = slice((rk.start - first_r) // p, (rk.start - first_r) // p + (ri.stop - ri.start))
+        cs = slice((ck.start - first_c) // q, (ck.start - first_c) // q + (ci.stop - ci.start))
+        acc[rs, cs] += p * q * np.asarray(frames[n_], dtype=np.float64)[ri, ci]
+        cnt[rs, cs] += 1
+    y[plane] = np.where(cnt > 0, acc / np.maximum(cnt, 1), 0.0)
+    filled[plane] = cnt > 0
+    return np.nonzero(cnt == 0)
+
+
+def _fill_holes(
+    y: np.ndarray, filled: np.ndarray, hr: np.ndarray, hc: np.ndarray, p: int, q: int
+) -> None:
+    """Fill the holes ``(hr, hc)`` of ``y`` from the nearest filled entry (in place).
+
+    Passes over offsets d = 1..p along rows, then 1..q along columns, each taking from d
+    entries before, then after (cyclically), twice over; each step reads the values as they
+    were before it (as a cyclic roll of the array would); 0 if none is within reach.
+    """
+    hh, ww = y.shape
+    have = filled.copy()
+    for axis, f in ((0, p), (1, q), (0, p), (1, q)):  # a few passes over offsets, not pixels
+        for d in range(1, f + 1):
+            for sgn in (1, -1):
+                if axis == 0:
+                    sr, sc = (hr - sgn * d) % hh, hc
+                else:
+                    sr, sc = hr, (hc - sgn * d) % ww
+                take = have[sr, sc]
+                if take.any():
+                    y[hr[take], hc[take]] = y[sr[take], sc[take]]
+                    have[hr[take], hc[take]] = True
+                    hr, hc = hr[~take], hc[~take]
             if hr.size == 0:
                 break
-        y[hr, hc] = 0.0  # no filled sample within reach
-    return y, filled
+        if hr.size == 0:
+            break
+    y[hr, hc] = 0.0  # no filled sample within reach

@@ -208,11 +208,7 @@ def plan_reconstruction(
     if max_memory_mb is None or max_memory_mb <= 0 or unbounded <= max_memory_mb:
         return plan
     min_frames = int(min(max(2, min_frames), n_frames))
-    max_r, max_c = max(1, h // min_tile), max(1, w // min_tile)
-    grids = sorted(
-        ((r, c) for r in range(1, max_r + 1) for c in range(1, max_c + 1) if (r, c) != (1, 1)),
-        key=lambda g: (g[0] * g[1], abs(h / g[0] - w / g[1])),
-    )
+    grids = _tile_grids(h, w, min_tile)
     for n in range(n_frames, min_frames - 1, -1):  # all frames first, then fewer
         whole = estimate_peak_mb(n, (h, w), factor, colour)
         options = [((1, 1), whole)] + [
@@ -241,6 +237,15 @@ def plan_reconstruction(
             f"bicubic upscale of the reference: no plan with >= {min_frames} frames and "
             f"{min_tile} px tiles fits {max_memory_mb:g} MB"
         ],
+    )
+
+
+def _tile_grids(h: int, w: int, min_tile: int) -> list[tuple[int, int]]:
+    """Return the tile grids other than (1, 1) with tiles >= ``min_tile``: fewest, squarest first."""
+    max_r, max_c = max(1, h // min_tile), max(1, w // min_tile)
+    return sorted(
+        ((r, c) for r in range(1, max_r + 1) for c in range(1, max_c + 1) if (r, c) != (1, 1)),
+        key=lambda g: (g[0] * g[1], abs(h / g[0] - w / g[1])),
     )
 
 
@@ -310,35 +315,60 @@ def reconstruct_within_budget(
         min_tile=min_tile if box is not None else max(h, w) + 1,
     )
     if plan.bicubic:
-        # float32 for colour, as the colour reconstruction returns (and half the memory of float64)
-        up = (
-            bicubic_upscale(ref, factor)
-            if not colour
-            else cv2.resize(
-                ref.astype(np.float32), (w * factor, h * factor), interpolation=cv2.INTER_CUBIC
-            )
-        )
-        res = SRResult(
-            up,
-            "bicubic",
-            True,
-            plan.reductions[0],
-            weights=np.r_[1.0, np.zeros(len(frames) - 1)],
-            shifts=np.asarray(shifts, float),
-            shift_sigma=np.zeros(len(frames)),
-            factor=factor,
-        )
-        return res, plan
+        return _bicubic_result(ref, len(frames), shifts, factor, plan), plan
     n = plan.n_frames
     frames_n = list(frames[:n])
     shifts_n = np.asarray(shifts, dtype=np.float64)[:n]
     masks_n = None if masks is None else list(masks[:n])
     if plan.grid == (1, 1):
         return reconstruct_aligned(frames_n, shifts_n, factor, masks=masks_n, **kw), plan
+    return _reconstruct_tiles(frames_n, shifts_n, factor, box, plan, **kw), plan
+
+
+def _bicubic_result(
+    ref: np.ndarray, n: int, shifts: np.ndarray, factor: int, plan: BudgetPlan
+) -> SRResult:
+    """Return the bicubic upscale of the reference as the result of a plan that fits nothing."""
+    h, w = ref.shape[:2]
+    # float32 for colour, as the colour reconstruction returns (and half the memory of float64)
+    up = (
+        bicubic_upscale(ref, factor)
+        if ref.ndim != 3
+        else cv2.resize(
+            ref.astype(np.float32), (w * factor, h * factor), interpolation=cv2.INTER_CUBIC
+        )
+    )
+    return SRResult(
+        up,
+        "bicubic",
+        True,
+        plan.reductions[0],
+        weights=np.r_[1.0, np.zeros(n - 1)],
+        shifts=np.asarray(shifts, float),
+        shift_sigma=np.zeros(n),
+        factor=factor,
+    )
+
+
+def _reconstruct_tiles(
+    frames: list[np.ndarray],
+    shifts: np.ndarray,
+    factor: int,
+    box: tuple[int, int, int, int],
+    plan: BudgetPlan,
+    **kw,
+) -> SRResult:
+    """Reconstruct the box tile by tile with ``plan.overlap`` px of context; stitch the tiles.
+
+    The central tile goes first: its noise estimate is passed to the others, so the tiles
+    agree. Outside the box the output is the bicubic upscale of the reference.
+    """
+    ref = np.asarray(frames[0])
+    colour = ref.ndim == 3
+    h, w = ref.shape[:2]
     r0, r1, c0, c1 = box
-    p = factor
+    p, overlap = factor, plan.overlap
     rows, cols = _spans(r1 - r0, plan.grid[0]), _spans(c1 - c0, plan.grid[1])
-    # the central tile first: its noise estimate is passed to the others, so the tiles agree
     order = sorted(
         ((i, j) for i in range(len(rows)) for j in range(len(cols))),
         key=lambda t: abs(t[0] - (len(rows) - 1) / 2) + abs(t[1] - (len(cols) - 1) / 2),
@@ -355,7 +385,7 @@ def reconstruct_within_budget(
         if first is not None and tkw.get("noise_sigma") is None and np.isfinite(first.noise_sigma):
             tkw["noise_sigma"] = float(first.noise_sigma)
         res = reconstruct_aligned(
-            [np.asarray(f)[e0:e1, f0:f1] for f in frames_n], shifts_n, factor, **tkw
+            [np.asarray(f)[e0:e1, f0:f1] for f in frames], shifts, factor, **tkw
         )
         if out is None:
             out = np.empty(
@@ -372,4 +402,4 @@ def reconstruct_within_budget(
     if (r0, r1, c0, c1) != (0, h, 0, w):
         bicubic_outside(out, ref, p, box)
     reason = "; ".join(fell) if fell else first.reason
-    return replace(first, image=out, fell_back=bool(fell) or first.fell_back, reason=reason), plan
+    return replace(first, image=out, fell_back=bool(fell) or first.fell_back, reason=reason)

@@ -332,7 +332,7 @@ def estimate_blur(
     frames' spectral cap (:func:`spectral_cap`) are soft in the scene and left
     out; when none is left, the fallback is used.
     """
-    from .superres import estimate_noise_sigma
+    from .superres import estimate_noise_sigma  # superres imports this module
 
     arrs = [np.asarray(f, dtype=np.float32) for f in frames]
     if not arrs or any(a.ndim != 2 for a in arrs):
@@ -343,12 +343,38 @@ def estimate_blur(
         estimate_noise_sigma(arrs[0], max_size=256) if noise_sigma is None else float(noise_sigma)
     )
     rois = find_edge_rois(arrs[0], max_rois=max_edges)
+    per_edge, why = _measure_edges(arrs, sh, rois, noise, masks)
+    if not per_edge:
+        common = max(set(why), key=why.count) if why else "no straight edge found"
+        return BlurEstimate(
+            fallback,
+            "fallback",
+            reason=f"no usable edge ({len(rois)} candidates: {common}); fallback {fallback:.2f} px",
+        )
+    return _pool_edges(per_edge, spectral_cap(arrs, noise), fallback)
+
+
+def _measure_edges(
+    arrs: list[np.ndarray],
+    shifts: np.ndarray,
+    rois: list[tuple[int, int, int, int]],
+    noise: float,
+    masks: Sequence[np.ndarray] | None,
+) -> tuple[list[tuple[float, float]], list[str]]:
+    """Measure every ROI in every frame; return (median, standard error) per edge, and why not.
+
+    An ROI moves with the frame's rounded shift, is skipped where it leaves the frame or
+    covers an invalid pixel, and is not tried further when it fails in frame 0. An edge
+    counts when it passed in at least half the frames: the median over frames, standard
+    error ``1.25 std / sqrt(n)`` (0.05 px for one frame; floor 0.005 px).
+    """
+    n = len(arrs)
     h, w = arrs[0].shape
     per_edge = []
     why = []
     for x, y, rw, rh in rois:  # edges
         vals = []
-        for i, (a, (u, v)) in enumerate(zip(arrs, sh)):  # frames
+        for i, (a, (u, v)) in enumerate(zip(arrs, shifts)):  # frames
             if not (np.isfinite(u) and np.isfinite(v)):
                 continue
             xx, yy = x + int(round(v)), y + int(round(u))
@@ -367,16 +393,19 @@ def estimate_blur(
             v = np.asarray(vals)
             se = max(1.25 * float(np.std(v)) / np.sqrt(v.size) if v.size > 1 else 0.05, 0.005)
             per_edge.append((float(np.median(v)), se))
-    if not per_edge:
-        common = max(set(why), key=why.count) if why else "no straight edge found"
-        return BlurEstimate(
-            fallback,
-            "fallback",
-            reason=f"no usable edge ({len(rois)} candidates: {common}); fallback {fallback:.2f} px",
-        )
-    vals = np.array([p[0] for p in per_edge])
-    ses = np.array([p[1] for p in per_edge])
-    cap = spectral_cap(arrs, noise)
+    return per_edge, why
+
+
+def _pool_edges(per_edge: list[tuple[float, float]], cap: float, fallback: float) -> BlurEstimate:
+    """Pool the sharpest edges below the spectral cap into one low-biased estimate.
+
+    Edges within two standard errors of the lowest one are averaged with inverse-variance
+    weights; the uncertainty is the larger of that mean's standard error and the group's
+    spread over sqrt(n); the estimate is the mean minus it. All edges above ``cap``: the
+    fallback.
+    """
+    vals = np.array([e[0] for e in per_edge])
+    ses = np.array([e[1] for e in per_edge])
     if vals.min() > cap:
         return BlurEstimate(
             fallback,

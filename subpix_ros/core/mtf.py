@@ -16,26 +16,24 @@ function falls to 0.3 (MTF30), read off edge targets. Steps here:
    is moved to the centre to first order, ``ESF_k -= ESF'_k delta_k``;
 4. line spread function (LSF): central difference of the ESF, times a
    Tukey window (flat over the central half) centred on the LSF centroid,
-   half-width ``max(3 px, 3 x the ESF's 10-90 % rise)``: wide enough to
-   leave a Gaussian-like LSF untouched (flat to +-3.8 std), narrow enough
-   that the ESF noise far from the edge stays out;
+   half-width ``max(3 px, 3 x the ESF's 10-90 % rise)``, widened to cover
+   lobes of the LSF above its noise;
 5. MTF = |FFT(LSF)| normalised to 1 at zero frequency, divided by the
    transfer of the central difference (``sinc(2 f d)``) and of the binning
    (``sinc(f d)``), ``d = 1/4`` px; frequencies in cycles/pixel along the
    edge normal.
 
-Measured against the analytic MTF of pixel-integrated Gaussian-blurred
-edges (100x80 px, 2.5-30 deg, blur 0.3-2 px; ``benchmarks/bench_mtf.py``):
-MTF30 error <= 0.004 cycles/px noise-free and <= 0.01 with 1 DN noise and
-8-bit rounding down to blur 0.3 px, where MTF30 lies beyond Nyquist. Without
-steps 3's correction and 4's narrow window (a Hamming window over the whole
-ESF, as before) it was 0.010 noise-free (bin phase, at 8 deg) and 0.018 with
-noise at 0.3 px (noise let in by the wide window, the error growing with the
-frequency the read-out sits at).
-
 MTF50 / MTF30 are the first frequencies where the MTF falls to 0.5 / 0.3
 (linear interpolation between samples); with a pixel pitch they are also
-given in cycles (line pairs) per mm.
+given in cycles (line pairs) per mm. Accuracy against the analytic MTF:
+``benchmarks/bench_mtf.py`` and docs/design-notes.md.
+
+References
+----------
+.. [1] ISO 12233:2017, Photography -- Electronic still picture imaging -- Resolution
+   and spatial frequency responses.
+.. [2] P. D. Burns, "Slanted-edge MTF for digital camera and scanner analysis",
+   Proc. IS&T PICS 2000, pp. 135-138.
 """
 
 from __future__ import annotations
@@ -170,41 +168,38 @@ def _window_half_width(lsf: np.ndarray, centre: float, rise_px: float) -> float:
     return min(hw, lsf.size / 2.0)
 
 
-def _tukey_window(x: np.ndarray, half_width: float) -> np.ndarray:
-    """Tukey window: 1 for ``|x| <= half_width/2``, cosine taper to 0 at ``|x| = half_width``."""
-    t = np.clip((np.abs(x) / half_width - 0.5) / 0.5, 0.0, 1.0)
-    return 0.5 + 0.5 * np.cos(np.pi * t)
-
-
 def slanted_edge_mtf(
     image: np.ndarray,
     roi: tuple[int, int, int, int] | None = None,
     pixel_pitch_m: float | None = None,
     min_contrast: float = 0.05,
 ) -> MTFResult:
-    """MTF of a straight, slanted edge in ``image`` (mono 2-D, or BGR: luminance used).
+    """Measure the MTF of a straight, slanted edge in an image.
 
-    roi: ``(x, y, w, h)`` in pixels (x = column); the ROI must contain one
-    edge crossing it from side to side, tilted a few degrees (2-40 deg) from
-    the pixel grid. pixel_pitch_m: pixel pitch (m) for line-pairs/mm
-    read-outs. Raises ValueError when there is no usable edge (contrast
-    below ``min_contrast`` of the intensity range, too few rows, edge too
-    close to the grid direction to oversample, or the MTF never falls to 0.3).
+    Parameters
+    ----------
+    image : numpy.ndarray
+        Mono 2-D image, or HxWx3 BGR (its luminance is used).
+    roi : (int, int, int, int), optional
+        ``(x, y, w, h)`` in pixels (x = column). The ROI must contain one edge crossing it
+        from side to side, tilted 2-40 deg from the pixel grid.
+    pixel_pitch_m : float, optional
+        Pixel pitch (m) for line-pairs/mm read-outs.
+    min_contrast : float, optional
+        Least edge contrast, as a fraction of the image's intensity range.
+
+    Returns
+    -------
+    MTFResult
+        Frequencies in cycles/pixel along the edge normal.
+
+    Raises
+    ------
+    ValueError
+        When there is no usable edge: contrast below ``min_contrast``, too few rows, the
+        edge too close to the grid direction to oversample, or the MTF never falls to 0.3.
     """
-    img = np.asarray(image, dtype=np.float64)
-    if img.ndim == 3 and img.shape[2] == 3:
-        img = img @ np.array([0.114, 0.587, 0.299])  # BGR -> luminance (ITU-R BT.601)
-    if img.ndim != 2:
-        raise ValueError(f"image must be 2-D (or HxWx3 BGR), got shape {np.shape(image)}")
-    if roi is not None:
-        x, y, w, h = (int(v) for v in roi)
-        if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > img.shape[1] or y + h > img.shape[0]:
-            raise ValueError(f"roi {roi} outside the image {img.shape[1]}x{img.shape[0]}")
-        img = img[y : y + h, x : x + w]
-    if min(img.shape) < 16:
-        raise ValueError(f"ROI too small for an edge measurement: {img.shape}")
-    if not np.isfinite(img).all():
-        raise ValueError("image contains NaN or infinite values")
+    img = _roi_image(image, roi)
     # orientation: the edge should cross rows (strong horizontal gradient), else transpose
     gx = np.abs(np.diff(img, axis=1)).sum()
     gy = np.abs(np.diff(img, axis=0)).sum()
@@ -215,75 +210,10 @@ def slanted_edge_mtf(
     span = float(np.ptp(np.asarray(image, dtype=np.float64))) or 1.0
     if hi - lo < min_contrast * max(span, 1e-12) or hi - lo <= 0:
         raise ValueError("no edge: contrast too low in the ROI")
-    rows, cent = _edge_centroids(img)
-    good = np.isfinite(cent)
-    if good.sum() < 8:
-        raise ValueError("no edge found in enough rows")
-    b, a = np.polyfit(rows[good], cent[good], 1)
-    resid = cent[good] - (a + b * rows[good])
-    keep = np.abs(resid) < max(3 * np.std(resid), 1.0)  # drop rows where the centroid failed
-    b, a = np.polyfit(rows[good][keep], cent[good][keep], 1)
-    line_rms = float(np.sqrt(np.mean((cent[good][keep] - (a + b * rows[good][keep])) ** 2)))
+    rows, a, b, line_rms = _fit_edge_line(img)
     angle = float(np.degrees(np.arctan(b)))
-    # coverage of the sub-pixel phases: the edge must move >= 1 px over the rows used
-    if abs(b) * img.shape[0] < OVERSAMPLE:
-        raise ValueError(
-            f"edge angle {angle:.2f} deg too close to the pixel grid for {OVERSAMPLE}x oversampling "
-            f"over {img.shape[0]} rows (tilt it a few degrees)"
-        )
-    if abs(angle) > 40:
-        raise ValueError(f"edge angle {angle:.1f} deg too far from the pixel grid (use 2-40 deg)")
-    cc, rr = np.meshgrid(np.arange(img.shape[1], dtype=np.float64), rows)
-    dist = (cc - (a + b * rr)) / np.sqrt(1.0 + b * b)  # signed distance along the edge normal, px
-    # use a band of +-half-width around the edge that is fully inside the ROI in every row
-    edge_c = a + b * rows
-    half = min(edge_c.min(), (img.shape[1] - 1 - edge_c).min()) / np.sqrt(1.0 + b * b)
-    if half < 4:
-        raise ValueError("edge too close to the ROI border")
-    nb = int(np.floor(half * OVERSAMPLE))
-    sel = np.abs(dist) < nb / OVERSAMPLE
-    idx = np.floor(dist[sel] * OVERSAMPLE).astype(np.int64) + nb
-    cnt = np.bincount(idx, minlength=2 * nb)[: 2 * nb]
-    acc = np.bincount(idx, weights=img[sel], minlength=2 * nb)[: 2 * nb]
-    filled = cnt > 0
-    if filled.sum() < 0.9 * cnt.size:
-        raise ValueError("edge spread function has too many empty bins")
-    centres = np.arange(2 * nb)
-    esf = np.interp(centres, centres[filled], acc[filled] / cnt[filled])
-    # bin phase: mean position of each bin's samples relative to the bin centre, in bins (0 if empty)
-    pos_in_bin = dist[sel] * OVERSAMPLE - np.floor(dist[sel] * OVERSAMPLE) - 0.5
-    delta = np.bincount(idx, weights=pos_in_bin, minlength=2 * nb)[: 2 * nb] / np.maximum(cnt, 1)
-    esf = esf - np.gradient(esf) * delta  # first-order move of each bin mean to its bin centre
-    # texture beside the edge: pixels more than 2 px from it about the ESF, relative to the step
-    far = np.abs(dist[sel]) > 2.0
-    n_pl = min(2 * OVERSAMPLE, esf.size // 4)
-    step = abs(float(esf[-n_pl:].mean() - esf[:n_pl].mean()))
-    texture = (
-        float(np.sqrt(np.mean((img[sel][far] - esf[idx[far]]) ** 2)) / max(step, 1e-12))
-        if far.any()
-        else np.inf
-    )
-    if esf[-OVERSAMPLE:].mean() < esf[:OVERSAMPLE].mean():
-        esf = esf[::-1]  # dark-to-bright along +distance
-    lsf = np.zeros_like(esf)
-    lsf[1:-1] = 0.5 * (esf[2:] - esf[:-2])
-    if lsf.sum() <= 0:
-        raise ValueError("edge spread function is not monotone enough to measure")
-    pos = np.arange(lsf.size, dtype=np.float64)
-    centre = float((lsf * pos).sum() / lsf.sum())
-    hw = _window_half_width(lsf, centre, _rise_10_90(esf))
-    lsfw = lsf * tukey_taper(pos - centre, hw)
-    spec = np.abs(np.fft.rfft(lsfw))
-    if spec[0] <= 0:
-        raise ValueError("line spread function has no area")
-    mtf = spec / spec[0]
-    d = 1.0 / OVERSAMPLE
-    freqs = np.fft.rfftfreq(lsf.size, d=d)  # cycles / pixel
-    # remove the transfer of the central difference (sin(2 pi f d)/(2 pi f d)) and of the binning (sinc f d)
-    corr = np.sinc(2 * freqs * d) * np.sinc(freqs * d)
-    keep_f = freqs <= 1.0
-    mtf = (mtf / np.where(np.abs(corr) > 0.1, corr, 1.0))[keep_f]
-    freqs = freqs[keep_f]
+    esf, step, texture = _edge_spread(img, rows, a, b)
+    freqs, mtf, lsfw = _mtf_from_esf(esf)
     mtf50 = mtf_crossing(freqs, mtf, 0.5)
     mtf30 = mtf_crossing(freqs, mtf, 0.3)
     res = MTFResult(
@@ -307,3 +237,119 @@ def slanted_edge_mtf(
         res.mtf50_lp_mm = mtf50 * per_mm
         res.mtf30_lp_mm = mtf30 * per_mm
     return res
+
+
+def _roi_image(image: np.ndarray, roi: tuple[int, int, int, int] | None) -> np.ndarray:
+    """Return the ROI of the image's luminance as float64; ValueError if unusable."""
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim == 3 and img.shape[2] == 3:
+        img = img @ np.array([0.114, 0.587, 0.299])  # BGR -> luminance (ITU-R BT.601)
+    if img.ndim != 2:
+        raise ValueError(f"image must be 2-D (or HxWx3 BGR), got shape {np.shape(image)}")
+    if roi is not None:
+        x, y, w, h = (int(v) for v in roi)
+        if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > img.shape[1] or y + h > img.shape[0]:
+            raise ValueError(f"roi {roi} outside the image {img.shape[1]}x{img.shape[0]}")
+        img = img[y : y + h, x : x + w]
+    if min(img.shape) < 16:
+        raise ValueError(f"ROI too small for an edge measurement: {img.shape}")
+    if not np.isfinite(img).all():
+        raise ValueError("image contains NaN or infinite values")
+    return img
+
+
+def _fit_edge_line(img: np.ndarray) -> tuple[np.ndarray, float, float, float]:
+    """Fit the edge line ``c = a + b r``; return ``(rows, a, b, rms of the row positions)``.
+
+    Rows whose centroid lies beyond ``max(3 std, 1 px)`` of a first fit are dropped and the
+    line refitted. ValueError when too few rows have an edge, or the edge's angle does not
+    suit the 4x oversampling (it must move >= 1 px over the rows; at most 40 deg).
+    """
+    rows, cent = _edge_centroids(img)
+    good = np.isfinite(cent)
+    if good.sum() < 8:
+        raise ValueError("no edge found in enough rows")
+    b, a = np.polyfit(rows[good], cent[good], 1)
+    resid = cent[good] - (a + b * rows[good])
+    keep = np.abs(resid) < max(3 * np.std(resid), 1.0)  # drop rows where the centroid failed
+    b, a = np.polyfit(rows[good][keep], cent[good][keep], 1)
+    line_rms = float(np.sqrt(np.mean((cent[good][keep] - (a + b * rows[good][keep])) ** 2)))
+    angle = float(np.degrees(np.arctan(b)))
+    if abs(b) * img.shape[0] < OVERSAMPLE:
+        raise ValueError(
+            f"edge angle {angle:.2f} deg too close to the pixel grid for {OVERSAMPLE}x oversampling "
+            f"over {img.shape[0]} rows (tilt it a few degrees)"
+        )
+    if abs(angle) > 40:
+        raise ValueError(f"edge angle {angle:.1f} deg too far from the pixel grid (use 2-40 deg)")
+    return rows, a, b, line_rms
+
+
+def _edge_spread(
+    img: np.ndarray, rows: np.ndarray, a: float, b: float
+) -> tuple[np.ndarray, float, float]:
+    """Return the oversampled, bin-phase-corrected ESF (dark to bright), step height, texture.
+
+    Pixels within the band of +-half-width around the edge that lies inside the ROI in
+    every row are binned by their distance along the edge normal (``1/OVERSAMPLE`` px
+    bins). Texture: RMS of the pixels more than 2 px from the edge about the ESF, relative
+    to the step between the ESF's plateaus.
+    """
+    cc, rr = np.meshgrid(np.arange(img.shape[1], dtype=np.float64), rows)
+    dist = (cc - (a + b * rr)) / np.sqrt(1.0 + b * b)  # signed distance along the normal, px
+    edge_c = a + b * rows
+    half = min(edge_c.min(), (img.shape[1] - 1 - edge_c).min()) / np.sqrt(1.0 + b * b)
+    if half < 4:
+        raise ValueError("edge too close to the ROI border")
+    nb = int(np.floor(half * OVERSAMPLE))
+    sel = np.abs(dist) < nb / OVERSAMPLE
+    idx = np.floor(dist[sel] * OVERSAMPLE).astype(np.int64) + nb
+    cnt = np.bincount(idx, minlength=2 * nb)[: 2 * nb]
+    acc = np.bincount(idx, weights=img[sel], minlength=2 * nb)[: 2 * nb]
+    filled = cnt > 0
+    if filled.sum() < 0.9 * cnt.size:
+        raise ValueError("edge spread function has too many empty bins")
+    centres = np.arange(2 * nb)
+    esf = np.interp(centres, centres[filled], acc[filled] / cnt[filled])
+    # bin phase: mean position of each bin's samples relative to the bin centre, in bins
+    pos_in_bin = dist[sel] * OVERSAMPLE - np.floor(dist[sel] * OVERSAMPLE) - 0.5
+    delta = np.bincount(idx, weights=pos_in_bin, minlength=2 * nb)[: 2 * nb] / np.maximum(cnt, 1)
+    esf = esf - np.gradient(esf) * delta  # first-order move of each bin mean to its bin centre
+    far = np.abs(dist[sel]) > 2.0
+    n_pl = min(2 * OVERSAMPLE, esf.size // 4)
+    step = abs(float(esf[-n_pl:].mean() - esf[:n_pl].mean()))
+    texture = (
+        float(np.sqrt(np.mean((img[sel][far] - esf[idx[far]]) ** 2)) / max(step, 1e-12))
+        if far.any()
+        else np.inf
+    )
+    if esf[-OVERSAMPLE:].mean() < esf[:OVERSAMPLE].mean():
+        esf = esf[::-1]  # dark-to-bright along +distance
+    return esf, step, texture
+
+
+def _mtf_from_esf(esf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return ``(freqs, mtf, windowed lsf)`` of an ESF, up to 1 cycle/px.
+
+    The LSF (central difference) is windowed (:func:`~subpix_ros.core.filters.tukey_taper`)
+    about its centroid; the MTF is divided by the transfers of the central difference
+    ``sinc(2 f d)`` and of the binning ``sinc(f d)``, ``d = 1/OVERSAMPLE``.
+    """
+    lsf = np.zeros_like(esf)
+    lsf[1:-1] = 0.5 * (esf[2:] - esf[:-2])
+    if lsf.sum() <= 0:
+        raise ValueError("edge spread function is not monotone enough to measure")
+    pos = np.arange(lsf.size, dtype=np.float64)
+    centre = float((lsf * pos).sum() / lsf.sum())
+    hw = _window_half_width(lsf, centre, _rise_10_90(esf))
+    lsfw = lsf * tukey_taper(pos - centre, hw)
+    spec = np.abs(np.fft.rfft(lsfw))
+    if spec[0] <= 0:
+        raise ValueError("line spread function has no area")
+    mtf = spec / spec[0]
+    d = 1.0 / OVERSAMPLE
+    freqs = np.fft.rfftfreq(lsf.size, d=d)  # cycles / pixel
+    corr = np.sinc(2 * freqs * d) * np.sinc(freqs * d)
+    keep_f = freqs <= 1.0
+    mtf = (mtf / np.where(np.abs(corr) > 0.1, corr, 1.0))[keep_f]
+    return freqs[keep_f], mtf, lsfw

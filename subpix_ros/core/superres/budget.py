@@ -19,7 +19,7 @@ reconstruction that fits:
    image alone is what is left) and the result says why.
 
 :func:`reconstruct_within_budget` runs the plan through
-:func:`subpix_ros.core.superres_masks.reconstruct_aligned` and returns the
+:func:`subpix_ros.core.superres.reconstruct_aligned` and returns the
 result together with the plan, whose ``reductions`` say what was given up.
 
 Notes
@@ -45,8 +45,8 @@ whose effect fades within ``overlap`` px.
 
 References
 ----------
-docs/METHODS.md (super-resolution, the MAP estimate of eq. 9);
-docs/design-notes.md ("Onboard budget": the measured memory model).
+.. [1] docs/METHODS.md, B (super-resolution, the MAP estimate of eq. 9).
+.. [2] docs/design-notes.md, "Onboard budget" (the measured memory model).
 """
 
 from __future__ import annotations
@@ -73,13 +73,11 @@ _FIXED_B = {
     (4, False): 300,
 }
 _PER_FRAME_B = 21  # B per LR px per frame
-_BASE_MB = (
-    28.0  # fixed overheads (caches, small arrays; small tiles measured up to +10 MB over the rest)
-)
+_BASE_MB = 28.0  # fixed overheads (caches, small arrays)
 
 
 def estimate_peak_mb(n_frames: int, shape: tuple[int, int], factor: int, colour: bool) -> float:
-    """Predicted working memory (MB, 1e6 B) of one MAP reconstruction of ``n_frames`` frames of ``shape``.
+    """Predict the working memory of one MAP reconstruction (MB, 1e6 B).
 
     Parameters
     ----------
@@ -103,7 +101,7 @@ def estimate_peak_mb(n_frames: int, shape: tuple[int, int], factor: int, colour:
 
 
 def _output_mb(shape: tuple[int, int], factor: int, colour: bool) -> float:
-    """The stitched float32 HR output of a tiled reconstruction, MB."""
+    """Return the size of the stitched float32 HR output of a tiled reconstruction, MB."""
     return float(shape[0]) * shape[1] * factor * factor * (3 if colour else 1) * 4 / 1e6
 
 
@@ -111,12 +109,24 @@ def _output_mb(shape: tuple[int, int], factor: int, colour: bool) -> float:
 class BudgetPlan:
     """How a set is reconstructed within ``max_memory_mb`` (see :func:`plan_reconstruction`).
 
-    ``n_frames``: frames used (the first ones of the set); ``grid``: tiles along
-    rows and columns ((1, 1): the whole frame at once); ``overlap``: context LR px
-    on each inner side of a tile; ``estimate_mb``: predicted working memory of
-    the plan; ``unbounded_mb``: of the whole set at once; ``bicubic``: nothing
-    fits, the reference is upscaled; ``reductions``: what was given up, in words
-    (empty: nothing).
+    Attributes
+    ----------
+    n_frames : int
+        Frames used (the first ones of the set).
+    grid : (int, int)
+        Tiles along rows and columns ((1, 1): the whole frame at once).
+    overlap : int
+        Context LR px on each inner side of a tile.
+    estimate_mb : float
+        Predicted working memory of the plan.
+    unbounded_mb : float
+        Predicted working memory of the whole set at once.
+    max_memory_mb : float or None
+        The budget.
+    bicubic : bool
+        Nothing fits: the reference is upscaled.
+    reductions : list of str
+        What was given up, in words (empty: nothing).
     """
 
     n_frames: int
@@ -130,9 +140,11 @@ class BudgetPlan:
 
     @property
     def reduced(self) -> bool:
+        """Whether the plan gives anything up."""
         return bool(self.reductions)
 
     def as_dict(self) -> dict:
+        """Return the plan as a JSON-friendly dict (memory figures rounded to 0.1 MB)."""
         return {
             "n_frames": self.n_frames,
             "grid": list(self.grid),
@@ -148,7 +160,7 @@ class BudgetPlan:
 def _tiled_mb(
     n: int, shape: tuple[int, int], grid: tuple[int, int], overlap: int, factor: int, colour: bool
 ) -> float:
-    """Predicted working memory of a tiled plan: the largest tile with its overlap, plus the output."""
+    """Predict a tiled plan's working memory: the largest tile with its overlap, plus the output."""
     th = -(-shape[0] // grid[0]) + (2 * overlap if grid[0] > 1 else 0)
     tw = -(-shape[1] // grid[1]) + (2 * overlap if grid[1] > 1 else 0)
     return estimate_peak_mb(n, (min(th, shape[0]), min(tw, shape[1])), factor, colour) + _output_mb(
@@ -167,7 +179,7 @@ def plan_reconstruction(
     overlap: int = 32,
     min_tile: int = 128,
 ) -> BudgetPlan:
-    """Plan a reconstruction of ``n_frames`` frames of ``shape`` (LR rows, cols) within ``max_memory_mb``.
+    """Plan a reconstruction of ``n_frames`` frames of ``shape`` within ``max_memory_mb``.
 
     Parameters
     ----------
@@ -241,7 +253,7 @@ def plan_reconstruction(
 
 
 def _tile_grids(h: int, w: int, min_tile: int) -> list[tuple[int, int]]:
-    """Return the tile grids other than (1, 1) with tiles >= ``min_tile``: fewest, squarest first."""
+    """Return the grids other than (1, 1) with tiles >= ``min_tile``: fewest, squarest first."""
     max_r, max_c = max(1, h // min_tile), max(1, w // min_tile)
     return sorted(
         ((r, c) for r in range(1, max_r + 1) for c in range(1, max_c + 1) if (r, c) != (1, 1)),
@@ -250,7 +262,7 @@ def _tile_grids(h: int, w: int, min_tile: int) -> list[tuple[int, int]]:
 
 
 def _spans(n: int, parts: int) -> list[tuple[int, int]]:
-    """``parts`` contiguous spans covering 0..n (sizes differ by at most one)."""
+    """Return ``parts`` contiguous spans covering 0..n (sizes differ by at most one)."""
     edges = np.linspace(0, n, parts + 1).round().astype(int)
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
@@ -267,13 +279,14 @@ def reconstruct_within_budget(
     min_tile: int = 128,
     **kw,
 ) -> tuple[SRResult, BudgetPlan]:
-    """:func:`~subpix_ros.core.superres_masks.reconstruct_aligned` planned to fit ``max_memory_mb``.
+    """Reconstruct with ``reconstruct_aligned``, planned to fit a memory budget.
 
     Parameters
     ----------
     frames, shifts, factor, masks
-        As :func:`~subpix_ros.core.superres_masks.reconstruct_aligned` (frame 0 is the reference;
-        ``shifts`` (N, 2) ``(u, v)`` LR px: content at (r, c) in frame 0 is at (r + u, c + v) in frame n).
+        As :func:`~subpix_ros.core.superres.reconstruct_aligned` (frame 0 is the reference;
+        ``shifts`` (N, 2) ``(u, v)`` LR px: content at (r, c) in frame 0 is at
+        (r + u, c + v) in frame n).
     max_memory_mb : float or None
         Working-memory budget (MB); None or <= 0: unbounded (the plain reconstruction).
     min_frames, overlap, min_tile
@@ -283,19 +296,20 @@ def reconstruct_within_budget(
 
     Returns
     -------
-    (SRResult, BudgetPlan)
-        The result on the usual output grid (LR pixel i of frame 0 covers output
-        pixels ``factor*i .. factor*i + factor - 1``), and the plan it followed.
-        A tiled result reports the first tile's weights, shifts and noise level,
-        and ``fell_back`` with the reason if any tile fell back to bicubic.
+    result : SRResult
+        On the usual output grid (LR pixel i of frame 0 covers output pixels
+        ``factor i .. factor i + factor - 1``). A tiled result reports the first tile's
+        weights, shifts and noise level, and ``fell_back`` with the reason if any tile fell
+        back to bicubic.
+    plan : BudgetPlan
+        The plan it followed.
 
     Notes
     -----
-    Tiles are cut from the rectangle valid in every frame (the whole frame
-    without masks); outside it the output is the bicubic upscale of the
-    reference, as in :func:`reconstruct_aligned`. Masks that are not a
-    rectangle cannot be tiled (the masked CG solver); such a set is only
-    reduced in frames.
+    Tiles are cut from the rectangle valid in every frame (the whole frame without masks);
+    outside it the output is the bicubic upscale of the reference, as in
+    ``reconstruct_aligned``. Masks that are not a rectangle cannot be tiled (the masked CG
+    solver); such a set is only reduced in frames.
     """
     if frames is None or len(frames) < 2:
         raise ValueError("need at least 2 frames")

@@ -21,15 +21,43 @@ def _cg_map(
     x0: np.ndarray,
     iters: int,
 ) -> np.ndarray:
-    """MAP estimate of eq. 9 by conjugate gradients with the spatial operators.
+    """Compute the MAP estimate of eq. 9 by conjugate gradients with the spatial operators.
 
-    Solves ``(sum_n A_n^T M_n A_n / sigma^2 + reg Q) x = sum_n A_n^T M_n y_n / sigma^2``
-    where ``A_n`` is :class:`FrameOperator` (blur, any homography, box
-    integration; bilinear resampling), ``M_n`` the validity mask (given mask
-    AND footprint inside the HR grid) and ``Q`` the stationary prior
-    precision, applied by FFT: ``Q x = ifft(fft(x) / S_x(f))`` with
-    ``S_x(f) = c |f|^-alpha`` (DC unregularised). Warm-started from ``x0``;
-    ``iters`` CG iterations (each 2 N resamplings + 2 FFTs).
+    Parameters
+    ----------
+    frames : numpy.ndarray
+        (N, H, W) frames.
+    homographies : numpy.ndarray
+        (N, 3, 3) reference -> frame LR pixel coordinates.
+    p : int
+        Resolution factor.
+    blur_sigma : float
+        Optics blur std (LR px).
+    noise_sigma : float
+        Per-pixel noise std (DN).
+    masks : sequence of numpy.ndarray or None
+        A bool array per frame (True = valid).
+    prior : (float, float)
+        ``(c, alpha)`` of ``S_x(f) = c |f|^-alpha``.
+    reg : float
+        Prior strength multiplier.
+    x0 : numpy.ndarray
+        (p H, p W) starting image (the Fourier solution).
+    iters : int
+        Most CG iterations (each 2 N resamplings and 2 FFTs).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 (p H, p W).
+
+    Notes
+    -----
+    Solves ``(sum_n A_n^T M_n A_n / sigma^2 + reg Q) x = sum_n A_n^T M_n y_n / sigma^2`` where
+    ``A_n`` is :class:`~subpix_ros.core.superres.model.FrameOperator` (blur, any homography,
+    box integration; bilinear resampling), ``M_n`` the validity mask (given mask and
+    footprint inside the HR grid) and ``Q`` the stationary prior precision, applied by FFT:
+    ``Q x = ifft(fft(x) / S_x(f))`` (DC unregularised).
     """
     n = frames.shape[0]
     hh, hw = x0.shape
@@ -48,6 +76,7 @@ def _cg_map(
     inv_var = 1.0 / noise_sigma**2
 
     def normal(x: np.ndarray) -> np.ndarray:
+        """Apply the normal-equation operator to ``x``."""
         out = reg * np.fft.irfft2(np.fft.rfft2(x) * prec, s=x.shape)
         for op, m in ops:
             out += inv_var * op.adjoint(m * op.forward(x))

@@ -5,16 +5,21 @@ whole sub-pixels (k/p, l/q of an LR pixel) fill one array ``y`` on the HR
 grid, ``y[k, l] = sum_{a<p, b<q} x[k+a, l+b]`` (sums, as in the paper; see
 :func:`interleave` to build it from frames, which carry means).
 
-Measured weaknesses (why :mod:`subpix_ros.core.superres` does not use them
-by default):
+Why the MAP estimate is the default instead (docs/design-notes.md, "Super-resolution"):
 
 * eq. 4 (recursion) is exact on noise-free data but accumulates every error
-  along each stride-p chain: useless on real frames.
-* eq. 6 (pseudo-inverse) is the least-norm exact solution; it amplifies even
-  8-bit rounding noise to a useless image and costs O(n^3) in the side length.
+  along each stride-p chain;
+* eq. 6 (pseudo-inverse) is the least-norm exact solution; it amplifies noise
+  and costs O(n^3) in the side length;
 * eq. 7 (windowed) is one fixed separable filter per HR pixel; as written it
-  has a DC (brightness) gain error for even factors (1.14 at p = 2, w = 6 in 2-D).
-  :func:`windowed_filter` returns it normalised to unit DC gain by default.
+  has a DC (brightness) gain error for even factors; :func:`windowed_filter`
+  normalises it to unit DC gain by default.
+
+References
+----------
+.. [1] S. A. Stankevich, S. V. Shklyar, N. S. Lubskyi, "Increasing the spatial
+   resolution of aerial imaging by sub-pixel image registration", 2013
+   (docs/METHODS.md, B: eqs. 3-7).
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ __all__ = [
 
 
 def band_matrix(n: int, p: int) -> np.ndarray:
-    """``T1`` of eq. 5: n x (n+p-1), ones on p diagonals (``T[i, i..i+p-1] = 1``)."""
+    """Return ``T1`` of eq. 5: n x (n+p-1), ones on p diagonals (``T[i, i..i+p-1] = 1``)."""
     t = np.zeros((n, n + p - 1))
     idx = np.arange(n)
     for a in range(p):  # p diagonals, not a loop over pixels
@@ -50,8 +55,8 @@ def _unbox_1d(y: np.ndarray, p: int, head: np.ndarray) -> np.ndarray:
     """Invert a 1-D valid box sum along axis 0 given the first p-1 unknowns.
 
     From eq. 4 in 1-D: ``x[i+p-1] = y[i] - sum_{k=i}^{i+p-2} x[k]``, i.e.
-    ``x[i+p-1] = x[i-1] + y[i] - y[i-1]`` — a recursion of stride p, evaluated
-    for all chains at once with a cumulative sum along each residue class.
+    ``x[i+p-1] = x[i-1] + y[i] - y[i-1]``: a recursion of stride p, evaluated for all chains
+    at once with a cumulative sum along each residue class.
     """
     n = y.shape[0]
     m = n + p - 1
@@ -70,15 +75,28 @@ def _unbox_1d(y: np.ndarray, p: int, head: np.ndarray) -> np.ndarray:
 
 
 def recursive_solution(y: np.ndarray, p: int, q: int, boundary: np.ndarray) -> np.ndarray:
-    """Eq. 4: the exact recursive solution of eq. 3 given its boundary.
+    """Solve eq. 3 exactly by the recursion of eq. 4, given its boundary.
 
-    ``y`` is the interleaved box-sum observation (n_x x n_y, sums). The
-    recursion needs the first p-1 rows and q-1 columns of ``x`` (the paper's
-    starting values); they are taken from ``boundary`` (shape (n_x+p-1) x
-    (n_y+q-1); its other entries are ignored). Eq. 4 is separable
-    (``Y = T1 (X T2)``), so it is evaluated as a stride-p recursion along rows
-    then a stride-q recursion along columns, each a cumulative sum. Exact on
-    noise-free data; noise accumulates along every chain.
+    Parameters
+    ----------
+    y : numpy.ndarray
+        (n_x, n_y) interleaved box-sum observation (sums).
+    p, q : int
+        Factors along rows and columns.
+    boundary : numpy.ndarray
+        (n_x + p - 1, n_y + q - 1); its first p-1 rows and q-1 columns are the recursion's
+        starting values (the other entries are ignored).
+
+    Returns
+    -------
+    numpy.ndarray
+        (n_x + p - 1, n_y + q - 1) sub-pixels.
+
+    Notes
+    -----
+    Eq. 4 is separable (``Y = T1 (X T2)``), so it runs as a stride-p recursion along rows
+    then a stride-q recursion along columns, each a cumulative sum. Exact on noise-free
+    data; noise accumulates along every chain.
     """
     y = np.asarray(y, dtype=np.float64)
     b = np.asarray(boundary, dtype=np.float64)
@@ -93,17 +111,18 @@ def recursive_solution(y: np.ndarray, p: int, q: int, boundary: np.ndarray) -> n
 
 
 def pinv_solution(y: np.ndarray, p: int, q: int) -> np.ndarray:
-    """Eq. 6: ``X = pinv(T1) Y pinv(T2)``, the least-norm solution of eq. 5.
+    """Solve eq. 5 by eq. 6: ``X = pinv(T1) Y pinv(T2)``, the least-norm solution.
 
-    Requires the paper's divisibility condition: ``n_x + p - 1`` a multiple of
-    p and ``n_y + q - 1`` a multiple of q (ValueError otherwise). Dense
-    pseudo-inverses: O(n^3) in the side length; unstable under noise.
+    Requires the paper's divisibility condition: ``n_x + p - 1`` a multiple of p and
+    ``n_y + q - 1`` a multiple of q (ValueError otherwise). Dense pseudo-inverses: O(n^3) in
+    the side length; unstable under noise.
     """
     y = np.asarray(y, dtype=np.float64)
     nx, ny = y.shape
     if (nx + p - 1) % p or (ny + q - 1) % q:
         raise ValueError(
-            f"eq. 6 needs n_x+p-1 divisible by p and n_y+q-1 by q (got n_x={nx}, p={p}, n_y={ny}, q={q})"
+            "eq. 6 needs n_x+p-1 divisible by p and n_y+q-1 by q "
+            f"(got n_x={nx}, p={p}, n_y={ny}, q={q})"
         )
     t1 = band_matrix(nx, p)
     t2 = band_matrix(ny, q).T
@@ -112,15 +131,29 @@ def pinv_solution(y: np.ndarray, p: int, q: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=64)
 def windowed_filter(p: int, w: int, normalise: bool = True) -> tuple[np.ndarray, int]:
-    """Eq. 7 in 1-D: the filter that the sliding-window pseudo-inverse applies.
+    """Return the 1-D filter of eq. 7, the sliding-window pseudo-inverse, and its centre.
 
-    In a window of ``w`` observations and ``w+p-1`` unknowns (``w+p-1`` odd),
-    the least-norm solution for the central unknown is row ``c = (w+p-2)/2``
-    of ``pinv(T1)``: ``x[k] = sum_j g[j] y[k - c + j]`` (y sums). Returns
-    ``(g, c)``. With ``normalise`` the taps are scaled so a constant image
-    keeps its brightness (``p * sum(g) = 1``); eq. 7 as written has
-    ``p * sum(g) != 1`` for even p. Cached (a pinv per call was most of the
-    windowed method's fixed cost); the taps are returned read-only.
+    Parameters
+    ----------
+    p : int
+        Factor.
+    w : int
+        Window of observations (``w + p - 1`` odd, ``w >= p``).
+    normalise : bool, optional
+        Scale the taps to unit DC gain (``p sum(g) = 1``); eq. 7 as written has
+        ``p sum(g) != 1`` for even p.
+
+    Returns
+    -------
+    g : numpy.ndarray
+        Taps (read-only, cached).
+    c : int
+        Centre index ``(w + p - 2) / 2``.
+
+    Notes
+    -----
+    In a window of ``w`` observations and ``w + p - 1`` unknowns, the least-norm solution for
+    the central unknown is row c of ``pinv(T1)``: ``x[k] = sum_j g[j] y[k - c + j]``.
     """
     if (w + p - 1) % 2 == 0:
         raise ValueError(f"eq. 7 needs w+p-1 odd (w={w}, p={p})")
@@ -137,14 +170,25 @@ def windowed_filter(p: int, w: int, normalise: bool = True) -> tuple[np.ndarray,
 def windowed_solution(
     y: np.ndarray, p: int, q: int, w: int = 6, u: int | None = None, normalise: bool = True
 ) -> np.ndarray:
-    """Eq. 7 as a convolution: one fixed separable filter on the interleaved ``y``.
+    """Apply eq. 7 as one fixed separable filter on the interleaved ``y``.
 
-    ``y`` (sums) has the HR grid's shape; the result (same shape) is the
-    per-pixel windowed least-norm estimate of the sub-pixels ``x[k, l]``
-    (``x[k]`` is the first sub-pixel of box ``y[k]``), computed for all pixels
-    at once with ``cv2.sepFilter2D`` (reflected border; float64 taps,
-    arithmetic and result; a float32 ``y`` is read as is). See
-    :func:`windowed_filter` for the DC normalisation.
+    Parameters
+    ----------
+    y : numpy.ndarray
+        Interleaved observation (sums), on the HR grid.
+    p, q : int
+        Factors along rows and columns.
+    w, u : int, optional
+        Windows along rows and columns (``u`` defaults to ``w``).
+    normalise : bool, optional
+        Unit DC gain (:func:`windowed_filter`).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, y's shape: the windowed least-norm estimate of the sub-pixels ``x[k, l]``
+        (``x[k]`` is the first sub-pixel of box ``y[k]``), by ``cv2.sepFilter2D`` (reflected
+        border; a float32 ``y`` is read as is).
     """
     u = w if u is None else u
     gr, cr = windowed_filter(p, w, normalise)
@@ -158,8 +202,11 @@ def windowed_solution(
 
 
 def grid_offsets(shifts: np.ndarray, p: int, q: int, tol: float = 0.1) -> np.ndarray | None:
-    """Sub-pixel grid offsets ``(t_r, t_c) = round(p u, q v)`` if every shift lies on
-    the k/p, l/q grid within ``tol`` sub-pixels, else None."""
+    """Return the sub-pixel grid offsets of the shifts, or None if they are off the grid.
+
+    ``(t_r, t_c) = round(p u, q v)`` (int64, (N, 2)) when every shift lies on the k/p, l/q
+    grid within ``tol`` sub-pixels.
+    """
     s = np.asarray(shifts, dtype=np.float64) * np.array([p, q])
     t = np.rint(s)
     if np.max(np.abs(s - t)) > tol:

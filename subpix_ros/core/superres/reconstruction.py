@@ -32,7 +32,9 @@ the input scale (eq. 3 taken as a mean, not a sum).
 
 References
 ----------
-.. [1] docs/METHODS.md, B (the seed paper's eqs. 3-9).
+.. [1] S. A. Stankevich, S. V. Shklyar, N. S. Lubskyi, "Increasing the spatial
+   resolution of aerial imaging by sub-pixel image registration", 2013
+   (docs/METHODS.md, B: eqs. 3-9).
 """
 
 from __future__ import annotations

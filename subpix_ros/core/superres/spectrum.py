@@ -20,14 +20,31 @@ __all__ = ["estimate_noise_sigma", "fit_spectrum"]
 
 
 def estimate_noise_sigma(frame: np.ndarray, max_size: int | None = None) -> float:
-    """Per-pixel noise std (DN) of one frame, robust Immerkaer estimate.
+    """Estimate the per-pixel noise std of one frame (robust Immerkaer estimate).
 
-    The frame is filtered with ``N = [[1,-2,1],[-2,4,-2],[1,-2,1]]`` (a
-    difference of two Laplacians that removes planes and most smooth image
-    content; for white noise ``std(I*N) = 6 sigma``) and
-    ``sigma = 1.4826 median(|I*N|) / 6``. Texture left in ``I*N`` biases it
-    upwards; quantisation noise (1/sqrt(12) DN for 8 bit) is included.
-    ``max_size``: use only the central max_size x max_size region.
+    Parameters
+    ----------
+    frame : numpy.ndarray
+        2-D frame, at least 3x3 (any numeric dtype, DN).
+    max_size : int, optional
+        Use only the central ``max_size`` x ``max_size`` region (bounded cost).
+
+    Returns
+    -------
+    float
+        Noise std (DN).
+
+    Notes
+    -----
+    The frame is filtered with ``N = [[1,-2,1],[-2,4,-2],[1,-2,1]]`` (a difference of two
+    Laplacians that removes planes and most smooth image content; for white noise
+    ``std(I*N) = 6 sigma``) and ``sigma = 1.4826 median(|I*N|) / 6``. Texture left in ``I*N``
+    biases it upwards; quantisation noise (1/sqrt(12) DN for 8 bit) is included.
+
+    References
+    ----------
+    .. [1] J. Immerkaer, "Fast noise variance estimation", Computer Vision and Image
+       Understanding 64(2), 300-302, 1996. https://doi.org/10.1006/cviu.1996.0060
     """
     f = np.asarray(frame)
     if f.ndim != 2 or min(f.shape) < 3:
@@ -37,8 +54,7 @@ def estimate_noise_sigma(frame: np.ndarray, max_size: int | None = None) -> floa
         f = f[r0 : r0 + max_size, c0 : c0 + max_size]
     k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float64)
     if f.dtype == np.uint8:
-        # 8-bit: I*N is an integer in [-4080, 4080], exact in int16; its median |I*N| from a histogram
-        # (one pass instead of a partition; the same value, the mean of the two middle ones for even counts)
+        # 8-bit: I*N is an integer in [-4080, 4080], exact in int16: its median from a histogram
         r = np.abs(cv2.filter2D(np.ascontiguousarray(f), cv2.CV_16S, k)[1:-1, 1:-1]).ravel()
         return float(1.4826 * _median_of_small_ints(r) / 6.0)
     f = np.asarray(f, dtype=np.float64)
@@ -47,7 +63,7 @@ def estimate_noise_sigma(frame: np.ndarray, max_size: int | None = None) -> floa
 
 
 def _median_of_small_ints(v: np.ndarray) -> float:
-    """``np.median(v)`` of non-negative small integers by a histogram (exact)."""
+    """Return ``np.median(v)`` of non-negative small integers, exactly, by a histogram."""
     counts = np.cumsum(np.bincount(v))
     n = v.size
     hi = int(np.searchsorted(counts, n // 2, side="right"))  # the element at sorted index n // 2
@@ -70,24 +86,43 @@ def fit_spectrum(
 ) -> tuple[float, float, float]:
     """Fit the stationary prior and the noise floor to the frames' power spectrum.
 
-    Model (per-pixel PSD units, f in cycles / HR px, nu in cycles / LR px):
+    Parameters
+    ----------
+    frames : numpy.ndarray
+        (N, H, W) frames; the central ``crop`` square of the first two is used.
+    p : int
+        Resolution factor.
+    blur_sigma : float
+        Optics blur std (LR px).
+    noise_sigma : float, optional
+        Known per-pixel noise std (DN); then only c and alpha are fitted.
+    max_bins : int, optional
+        Frequency bins used (a fixed subsample of those above 0.03 cycles/LR px).
+    crop : int, optional
+        Side of the central region (LR px).
+
+    Returns
+    -------
+    c : float
+        Prior level, DN^2 (HR px units).
+    alpha : float
+        Prior exponent, in [1, 4].
+    sigma : float
+        Noise std (DN).
+
+    Notes
+    -----
+    Model (per-pixel PSD units, f in cycles / HR px, nu in cycles / LR px)::
 
         E S_y(nu) = p^2 sum_m |a_m(nu)|^2 c |f_m|^-alpha + sigma^2
 
-    — the HR scene's power law ``S_x(f) = c |f|^-alpha`` seen through the
-    observation model (eq. 3 with blur, aliased over the p^2 components m,
-    ``a_m`` from :func:`frame_transfer_1d`) plus white noise ``sigma^2``.
-    ``S_y`` is the Tukey-windowed periodogram of the central ``crop`` x ``crop``
-    region averaged over (up to) the first two frames. For each
-    alpha, (c, sigma^2) solve a weighted linear least squares (weights
-    1/model^2: a periodogram's std equals its mean; 3 reweighting passes);
-    the alpha with the least relative misfit wins, searched on a 0.3 grid in
-    [1, 4] and then on the 0.1 grid within +-0.2 of the coarse winner (16
-    exponents fitted instead of 31; each stage's exponents at once, arrays
-    exponents x bins). With
-    ``noise_sigma`` given, only c and alpha are fitted. Uses up to
-    ``max_bins`` frequency bins (fixed subsample) above 0.03 cycles/LR px.
-    Returns ``(c, alpha, sigma)``; sigma in DN, c in DN^2 (HR px units).
+    the HR scene's power law ``S_x(f) = c |f|^-alpha`` seen through the observation model
+    (eq. 3 with blur, aliased over the p^2 components m, ``a_m`` from ``frame_transfer_1d``)
+    plus white noise. ``S_y`` is the Tukey-windowed periodogram averaged over the frames. For
+    each alpha, (c, sigma^2) solve a weighted linear least squares (weights 1/model^2: a
+    periodogram's std equals its mean; 3 reweighting passes); the alpha with the least
+    relative misfit wins, searched on a 0.3 grid in [1, 4], then on the 0.1 grid within
+    +-0.2 of the coarse winner.
     """
     _, h0, w0 = frames.shape
     h, w = min(h0, crop), min(w0, crop)
@@ -101,8 +136,7 @@ def fit_spectrum(
     psd /= len(sub) * float(np.sum(np.square(win, dtype=np.float64)))
     sel, amp, logf = _spectrum_model(h, w, p, float(blur_sigma), max_bins)
     obs = psd.ravel()[sel]
-    # coarse search on a 0.3 grid, then the 0.1 grid within +-0.2 of the coarse best (misfit is smooth
-    # and single-minimum in alpha on real scenes: the test compares with the full 0.1 grid)
+    # coarse 0.3 grid, then the 0.1 grid within +-0.2 of the coarse best (misfit unimodal in alpha)
     key = (h, w, p, float(blur_sigma), max_bins)
     coarse = _fit_exponents(
         1.0, 0.3, 11, amp, logf, obs, noise_sigma, *_exponent_terms(*key, 1.0, 0.3, 11)
@@ -134,15 +168,34 @@ def _fit_exponents(
     q: np.ndarray | None = None,
     q2: np.ndarray | None = None,
 ) -> tuple[float, float, float, float]:
-    """:func:`fit_spectrum`'s fit for the exponents ``a0 + da j``, j < count, at once.
+    """Fit (c, sigma^2) for the exponents ``a0 + da j``, j < count, at once.
 
-    ``q[j] = sum_m amp_m |f_m|^-alpha_j`` by the recurrence
-    ``|f|^-(alpha + da) = |f|^-alpha |f|^-da`` (no loop over bins); per exponent
-    (c, sigma^2) by 3 passes of weighted least squares (weights 1/model^2).
-    ``q`` (count, bins) and ``q2 = q^2``: those sums if already known (:func:`_exponent_terms`).
-    Each pass's weighted sums are ``sum_b w q^2``, ``sum_b w q``, ``sum_b w q S_y``: matrix-vector
-    products in the first pass (one weight vector for all exponents), row-wise dot products after.
-    Returns (c, alpha, sigma^2, relative misfit) of the best exponent.
+    Parameters
+    ----------
+    a0, da : float
+        First exponent and step.
+    count : int
+        Number of exponents.
+    amp, logf : numpy.ndarray
+        (p^2, bins) model terms of :func:`_spectrum_model`.
+    obs : numpy.ndarray
+        (bins,) observed periodogram.
+    noise_sigma : float or None
+        Known noise std (DN), or None to fit it.
+    q, q2 : numpy.ndarray, optional
+        (count, bins) ``q[j] = sum_m amp_m |f_m|^-alpha_j`` and its square, if known
+        (:func:`_exponent_terms`).
+
+    Returns
+    -------
+    tuple of float
+        (c, alpha, sigma^2, relative misfit) of the best exponent.
+
+    Notes
+    -----
+    Per exponent 3 passes of weighted least squares (weights 1/model^2); each pass's sums
+    ``sum_b w q^2``, ``sum_b w q``, ``sum_b w q S_y`` are matrix-vector products in the first
+    pass (one weight vector for all exponents), row-wise dot products after.
     """
     alphas = a0 + da * np.arange(count)
     if q is None:
@@ -185,7 +238,10 @@ def _fit_exponents(
 def _exponent_sums(
     a0: float, da: float, count: int, amp: np.ndarray, logf: np.ndarray
 ) -> np.ndarray:
-    """``q[j] = sum_m amp_m |f_m|^-(a0 + da j)`` (count, bins) by the recurrence of :func:`_fit_exponents`."""
+    """Return ``q[j] = sum_m amp_m |f_m|^-(a0 + da j)``, (count, bins).
+
+    Computed by the recurrence ``|f|^-(alpha + da) = |f|^-alpha |f|^-da`` (no loop over bins).
+    """
     step = np.exp(-da * logf)
     term = amp * np.exp(-a0 * logf)
     q = np.empty((count, amp.shape[1]))
@@ -199,9 +255,11 @@ def _exponent_sums(
 def _exponent_terms(
     h: int, w: int, p: int, blur_sigma: float, max_bins: int, a0: float, da: float, count: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(q, q^2)`` of :func:`_exponent_sums` on :func:`_spectrum_model`'s terms: they depend only on the crop
-    shape, factor, blur and exponents, so they are cached (read-only; the fine search has one table per coarse
-    winner)."""
+    """Return ``(q, q^2)`` of :func:`_exponent_sums` on :func:`_spectrum_model`'s terms.
+
+    They depend only on the crop shape, factor, blur and exponents, so they are cached
+    (read-only; the fine search has one table per coarse winner).
+    """
     _, amp, logf = _spectrum_model(h, w, p, blur_sigma, max_bins)
     q = _exponent_sums(a0, da, count, amp, logf)
     q2 = q * q
@@ -212,10 +270,10 @@ def _exponent_terms(
 
 @functools.lru_cache(maxsize=16)
 def _spectrum_bins(h: int, w: int, max_bins: int) -> np.ndarray:
-    """Flat indices (into the h x (w//2+1) rfft half) of the bins :func:`fit_spectrum` uses.
+    """Return the flat indices into the h x (w//2+1) rfft half of the bins the fit uses.
 
-    Bins above 0.03 cycles / LR px; a fixed random subsample (seed 0) of
-    ``max_bins`` of them if there are more. Cached per shape (read-only).
+    Bins above 0.03 cycles / LR px; a fixed random subsample (seed 0) of ``max_bins`` of them
+    if there are more. Cached per shape (read-only).
     """
     nuy = np.fft.fftfreq(h)[:, None]
     nux = np.fft.rfftfreq(w)[None, :]
@@ -232,10 +290,10 @@ def _spectrum_bins(h: int, w: int, max_bins: int) -> np.ndarray:
 def _spectrum_model(
     h: int, w: int, p: int, blur_sigma: float, max_bins: int
 ) -> tuple[np.ndarray, ...]:
-    """:func:`fit_spectrum`'s bins and model terms for an h x w crop (cached per shape, read-only).
+    """Return the bins and model terms of :func:`fit_spectrum` for an h x w crop.
 
     Returns the flat bin indices ``sel`` (:func:`_spectrum_bins`), ``amp[m] = p^2 |a_m|^2`` and
-    ``log |f_m|`` (p^2, bins) of the p^2 aliases m at those bins.
+    ``log |f_m|`` (p^2, bins) of the p^2 aliases m at those bins; cached per shape, read-only.
     """
     ay, fy = frame_transfer_1d(h, p, 0.0, blur_sigma)
     ax, fx = frame_transfer_1d(w, p, 0.0, blur_sigma)

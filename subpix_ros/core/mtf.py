@@ -54,31 +54,74 @@ SUPPORT_SIGMAS = 5.0  # LSF lobes this far above the noise widen the window
 
 @dataclass
 class MTFResult:
-    """Result of :func:`slanted_edge_mtf` (frequencies in cycles/pixel)."""
+    """Result of :func:`slanted_edge_mtf` (frequencies in cycles/pixel along the edge normal).
+
+    Attributes
+    ----------
+    freqs, mtf : numpy.ndarray
+        The MTF, up to 1 cycle/px.
+    mtf50, mtf30 : float
+        First frequencies where the MTF falls to 0.5 and 0.3.
+    angle_deg : float
+        Edge angle from the pixel column (or row, if transposed) direction.
+    transposed : bool
+        True when the edge was closer to horizontal (rows and columns swapped).
+    esf : numpy.ndarray
+        Oversampled edge spread function (bin width 1/OVERSAMPLE px).
+    lsf : numpy.ndarray
+        Windowed line spread function.
+    pixel_pitch_m : float or None
+        Pixel pitch given (m).
+    mtf50_lp_mm, mtf30_lp_mm : float or None
+        MTF50 and MTF30 in line pairs per mm (with a pixel pitch).
+    line_rms_px : float
+        RMS of the per-row edge positions about the fitted line (px).
+    contrast : float
+        Step height between the ESF's plateaus (intensity units).
+    texture : float
+        RMS of the pixels more than 2 px from the edge about the ESF, relative to the step.
+
+    Notes
+    -----
+    The last three describe the edge's quality; :mod:`subpix_ros.core.blur` screens edges by
+    them.
+    """
 
     freqs: np.ndarray
     mtf: np.ndarray
     mtf50: float
     mtf30: float
-    angle_deg: float  # edge angle from the pixel column (or row, if transposed) direction
-    transposed: bool  # True when the edge was closer to horizontal (rows and columns swapped)
-    esf: np.ndarray  # oversampled edge spread function (bin width 1/OVERSAMPLE px)
-    lsf: np.ndarray  # windowed line spread function
+    angle_deg: float
+    transposed: bool
+    esf: np.ndarray
+    lsf: np.ndarray
     pixel_pitch_m: float | None = None
     mtf50_lp_mm: float | None = None
     mtf30_lp_mm: float | None = None
-    # edge quality (what core/blur.py screens edges by): RMS of the per-row edge positions about the
-    # fitted line (px), step height between the ESF's plateaus (intensity units), and the RMS of the
-    # pixels about the ESF beyond 2 px from the edge, relative to that step (texture beside the edge)
     line_rms_px: float = float("nan")
     contrast: float = float("nan")
     texture: float = float("nan")
 
 
 def mtf_crossing(freqs: np.ndarray, mtf: np.ndarray, level: float) -> float:
-    """First frequency where ``mtf`` falls to ``level`` (linear interpolation).
+    """Return the first frequency where ``mtf`` falls to ``level`` (linear interpolation).
 
-    Raises ValueError if the curve never reaches ``level`` in the measured range.
+    Parameters
+    ----------
+    freqs, mtf : numpy.ndarray
+        The curve.
+    level : float
+        Level to cross, e.g. 0.5 or 0.3.
+
+    Returns
+    -------
+    float
+        Frequency (units of ``freqs``).
+
+    Raises
+    ------
+    ValueError
+        If the curve never falls to ``level`` in the measured range.
     """
     below = np.flatnonzero(mtf < level)
     if below.size == 0 or below[0] == 0:
@@ -89,9 +132,23 @@ def mtf_crossing(freqs: np.ndarray, mtf: np.ndarray, level: float) -> float:
 
 
 def gaussian_pixel_mtf(freqs: np.ndarray, sigma_px: float, angle_deg: float) -> np.ndarray:
-    """Analytic MTF of Gaussian optics (std ``sigma_px``) times the square pixel aperture, along the
-    normal of an edge at ``angle_deg``: ``exp(-2 pi^2 sigma^2 f^2) |sinc(f cos a) sinc(f sin a)|``
-    (``freqs`` in cycles/pixel). The reference the slanted-edge method is validated against."""
+    """Return the analytic MTF of Gaussian optics times the square pixel aperture.
+
+    Parameters
+    ----------
+    freqs : numpy.ndarray
+        Frequencies (cycles/pixel) along the normal of the edge.
+    sigma_px : float
+        Optics std (px).
+    angle_deg : float
+        Edge angle from the pixel grid.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``exp(-2 pi^2 sigma^2 f^2) |sinc(f cos a) sinc(f sin a)|``: the reference the
+        slanted-edge method is validated against.
+    """
     f = np.asarray(freqs, dtype=np.float64)
     th = np.deg2rad(angle_deg)
     return np.exp(-2 * np.pi**2 * sigma_px**2 * f**2) * np.abs(
@@ -100,13 +157,13 @@ def gaussian_pixel_mtf(freqs: np.ndarray, sigma_px: float, angle_deg: float) -> 
 
 
 def _edge_centroids(img: np.ndarray, half_window: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """Per-row edge position (column, px): centroid of |d/dc| in a Hamming window.
+    """Locate the edge in every row: the centroid of |d/dc| in a Hamming window.
 
-    First pass: the column of the largest smoothed derivative in each row and a
-    robust straight-line fit through them (median of row-pair slopes); second
-    pass: the derivative centroid within +-``half_window`` px of that line,
-    weighted by a Hamming window (ISO 12233). Keeping the centroid local stops
-    noise far from the edge from pulling it towards the ROI centre.
+    Returns ``(rows, column of the edge per row)`` (NaN where a row has no derivative). First
+    pass: the column of the largest smoothed derivative in each row and a robust line through
+    them (median of row-pair slopes); second pass: the derivative centroid within
+    +-``half_window`` px of that line, Hamming-weighted (ISO 12233), so noise far from the
+    edge does not pull it towards the ROI centre.
     """
     d = np.zeros_like(img)
     d[:, 1:-1] = 0.5 * (img[:, 2:] - img[:, :-2])
@@ -116,7 +173,7 @@ def _edge_centroids(img: np.ndarray, half_window: int = 8) -> tuple[np.ndarray, 
     sm = d.copy()
     sm[:, 1:-1] = (d[:, :-2] + 2 * d[:, 1:-1] + d[:, 2:]) / 4
     peak = np.argmax(sm, axis=1).astype(np.float64)
-    # robust line through the per-row peaks: slope = median of slopes between rows half the ROI apart
+    # robust line through the per-row peaks: median slope between rows half the ROI apart
     half = img.shape[0] // 2
     slope = float(np.median((peak[half : half * 2] - peak[:half]) / half)) if half else 0.0
     icpt = float(np.median(peak - slope * rows))
@@ -131,10 +188,10 @@ def _edge_centroids(img: np.ndarray, half_window: int = 8) -> tuple[np.ndarray, 
 
 
 def _rise_10_90(esf: np.ndarray) -> float:
-    """10-90 % rise distance (pixels) of a dark-to-bright ESF sampled in 1/OVERSAMPLE px bins.
+    """Return the 10-90 % rise distance (px) of a dark-to-bright ESF in 1/OVERSAMPLE px bins.
 
-    Levels from the means of the first and last 2 px; the ESF is made
-    monotone (running maximum) first so noise cannot cross a level twice.
+    Levels from the means of the first and last 2 px; the ESF is made monotone (running
+    maximum) first so noise cannot cross a level twice.
     """
     n = 2 * OVERSAMPLE
     lo, hi = float(esf[:n].mean()), float(esf[-n:].mean())
@@ -144,16 +201,14 @@ def _rise_10_90(esf: np.ndarray) -> float:
 
 
 def _window_half_width(lsf: np.ndarray, centre: float, rise_px: float) -> float:
-    """Half-width (bins) of the LSF window: covers the rise and every part of the LSF above its noise.
+    """Return the LSF window's half-width (bins): the rise and every LSF part above its noise.
 
-    Core: ``WINDOW_RISES`` 10-90 % rises, at least ``WINDOW_MIN_PX`` px. Support:
-    the farthest distance from ``centre`` where the LSF, averaged over 1 px,
-    exceeds ``SUPPORT_SIGMAS`` times its noise there (noise std of the single
-    bins from the MAD of the LSF outside the core, divided by 2 for the
-    4-bin average). Deconvolved or sharpened images ring: their lobes lie
-    beyond the core and must stay inside the flat part of the window (the
-    half-width is at least twice the support); the flat-to-zero ESF of
-    a blurred edge has no such lobes, so noise alone is kept out.
+    Core: ``WINDOW_RISES`` 10-90 % rises, at least ``WINDOW_MIN_PX`` px. Support: the farthest
+    distance from ``centre`` where the LSF, averaged over 1 px, exceeds ``SUPPORT_SIGMAS``
+    times its noise there (noise std of the single bins from the MAD of the LSF outside the
+    core, divided by 2 for the 4-bin average). Ringing lobes of deconvolved or sharpened
+    images must stay inside the flat part of the window (the half-width is at least twice the
+    support); a blurred edge has no such lobes, so noise alone is kept out.
     """
     pos = np.arange(lsf.size, dtype=np.float64) - centre
     core = max(WINDOW_MIN_PX, WINDOW_RISES * rise_px) * OVERSAMPLE
@@ -277,8 +332,8 @@ def _fit_edge_line(img: np.ndarray) -> tuple[np.ndarray, float, float, float]:
     angle = float(np.degrees(np.arctan(b)))
     if abs(b) * img.shape[0] < OVERSAMPLE:
         raise ValueError(
-            f"edge angle {angle:.2f} deg too close to the pixel grid for {OVERSAMPLE}x oversampling "
-            f"over {img.shape[0]} rows (tilt it a few degrees)"
+            f"edge angle {angle:.2f} deg too close to the pixel grid for {OVERSAMPLE}x "
+            f"oversampling over {img.shape[0]} rows (tilt it a few degrees)"
         )
     if abs(angle) > 40:
         raise ValueError(f"edge angle {angle:.1f} deg too far from the pixel grid (use 2-40 deg)")

@@ -203,14 +203,12 @@ def plan_reconstruction(
     Returns
     -------
     BudgetPlan
-        Tiles are preferred to dropping frames (they keep the information of
-        every frame); the grid is the one with the fewest tiles that fits,
-        nearly square tiles first.
+        Tiles are preferred to dropping frames (they keep every frame's information);
+        the grid with the fewest tiles that fits, nearly square tiles first.
 
     Notes
     -----
-    Predicted memory from :func:`estimate_peak_mb`; a plan is accepted when
-    ``estimate_mb <= max_memory_mb``.
+    A plan is accepted when its :func:`estimate_peak_mb` is at most ``max_memory_mb``.
     """
     if n_frames < 2:
         raise ValueError(f"n_frames must be >= 2, got {n_frames}")

@@ -59,20 +59,13 @@ def _cg_map(
     footprint inside the HR grid) and ``Q`` the stationary prior precision, applied by FFT:
     ``Q x = ifft(fft(x) / S_x(f))`` (DC unregularised).
     """
-    n = frames.shape[0]
     hh, hw = x0.shape
     c, alpha = prior
     fy = np.fft.fftfreq(hh)[:, None]
     fx = np.fft.rfftfreq(hw)[None, :]
     fr = np.hypot(fy, fx)
     prec = np.where(fr > 0, np.maximum(fr, 1e-6) ** alpha / c, 0.0)
-    ops = []
-    for i in range(n):  # one operator per frame
-        op = FrameOperator(homographies[i], frames[i].shape, (hh, hw), p, p, blur_sigma)
-        m = op.valid.astype(np.float64)
-        if masks is not None:
-            m = m * np.asarray(masks[i], dtype=bool)
-        ops.append((op, m))
+    ops = _masked_operators(frames, homographies, p, blur_sigma, masks, (hh, hw))
     inv_var = 1.0 / noise_sigma**2
 
     def normal(x: np.ndarray) -> np.ndarray:
@@ -85,6 +78,33 @@ def _cg_map(
     b = np.zeros((hh, hw))
     for (op, m), y in zip(ops, frames):
         b += inv_var * op.adjoint(m * y)
+    return _conjugate_gradients(normal, b, x0, iters)
+
+
+def _masked_operators(
+    frames: np.ndarray,
+    homographies: np.ndarray,
+    p: int,
+    blur_sigma: float,
+    masks: Sequence[np.ndarray] | None,
+    hr_shape: tuple[int, int],
+) -> list[tuple[FrameOperator, np.ndarray]]:
+    """Return each frame's operator and its mask (footprint inside the HR grid, and given)."""
+    ops = []
+    for i in range(frames.shape[0]):  # one operator per frame
+        op = FrameOperator(homographies[i], frames[i].shape, hr_shape, p, p, blur_sigma)
+        m = op.valid.astype(np.float64)
+        if masks is not None:
+            m = m * np.asarray(masks[i], dtype=bool)
+        ops.append((op, m))
+    return ops
+
+
+def _conjugate_gradients(normal, b: np.ndarray, x0: np.ndarray, iters: int) -> np.ndarray:
+    """Solve ``normal(x) = b`` by at most ``iters`` CG steps from ``x0``.
+
+    Stops early once the squared residual falls below 1e-12 of the initial one.
+    """
     x = x0.copy()
     r = b - normal(x)
     d = r.copy()

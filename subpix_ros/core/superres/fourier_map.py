@@ -200,8 +200,7 @@ def _fourier_map(
     ``C_n``), noise variance ``v_n = HW sigma^2 + sum_m |a_nm|^2 P_m (1 - E_nm^2)`` and the
     prior ``E|X_m|^2 = P_m = c |f_m|^-alpha`` (DC unregularised). The MAP solution
     ``X = (A^H V^-1 A + reg P^-1)^-1 A^H V^-1 Y`` (or eq. 9's form
-    ``X = P A^H (A P A^H + V/reg)^-1 Y`` when N < p^2, identical) is computed for all bins
-    at once.
+    ``X = P A^H (A P A^H + V/reg)^-1 Y`` when N < p^2, identical), all bins at once.
     """
     h, w = frames.shape[1:]
     hp = cv2.getOptimalDFTSize(h + 2 * pad)

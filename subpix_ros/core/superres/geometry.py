@@ -98,14 +98,27 @@ def _refine_shifts(
             g,
             iters=iters,
         )
-        for i in range(1, n):  # per frame: accept or flag
-            s, sg, rv = s_all[i - 1], sg_all[i - 1], rv_all[i - 1]
-            if np.isfinite(sg) and np.abs(s - resid[i]).max() < 0.5:
-                out[i], sig[i], resvar[i] = s, sg, rv
-            else:
-                sig[i] = np.inf
+        _accept(out, sig, resvar, resid, s_all, sg_all, rv_all)
     noise = float(np.sqrt(np.nanmedian(resvar))) if np.isfinite(resvar).any() else float("nan")
     return out, sig, noise, resvar
+
+
+def _accept(
+    out: np.ndarray,
+    sig: np.ndarray,
+    resvar: np.ndarray,
+    resid: np.ndarray,
+    s_all: np.ndarray,
+    sg_all: np.ndarray,
+    rv_all: np.ndarray,
+) -> None:
+    """Take each frame's refined shift, or flag it (std inf) when it moved 0.5 px or failed."""
+    for i in range(1, out.shape[0]):  # per frame: accept or flag
+        s, sg, rv = s_all[i - 1], sg_all[i - 1], rv_all[i - 1]
+        if np.isfinite(sg) and np.abs(s - resid[i]).max() < 0.5:
+            out[i], sig[i], resvar[i] = s, sg, rv
+        else:
+            sig[i] = np.inf
 
 
 def detect_geometry(

@@ -106,16 +106,22 @@ def _lk_batch(
             break
         ii = np.rint(s[act]).astype(np.int64)
         frac = s[act] - ii
-        movc = []
-        for m, (iu, iv) in zip(act, ii):  # pairs (windows), not pixels
-            key = (int(keys[m]), int(iu), int(iv))
-            if key not in cache:
-                cache[key] = mov_window(*key)
-            movc.append(cache[key])
+        movc = _moving_windows(cache, mov_window, keys, act, ii)
         pred = _shifted_references(spec[ref_of[act]], frac, inner, pad, width)
         zz, npx = _normal_sums(pred, movc, inner)
         _gauss_newton_step(zz, npx, act, s, sig, resvar, active, g2, tol)
     return s, sig, resvar
+
+
+def _moving_windows(cache: dict, mov_window, keys: np.ndarray, act: np.ndarray, ii: np.ndarray):
+    """Return the active pairs' moving windows at their integer shifts (cached per key)."""
+    movc = []
+    for m, (iu, iv) in zip(act, ii):  # pairs (windows), not pixels
+        key = (int(keys[m]), int(iu), int(iv))
+        if key not in cache:
+            cache[key] = mov_window(*key)
+        movc.append(cache[key])
+    return movc
 
 
 def _reference_spectra(refs: list[np.ndarray], pad: int) -> np.ndarray:

@@ -90,13 +90,36 @@ def reconstruct(
         frames, :func:`subpix_ros.core.blur.estimate_blur`; only "map" uses a blur), or a
         :class:`subpix_ros.core.blur.BlurEstimate` (e.g. a flight's calibration).
     **kw
-        Options of :func:`_reconstruct` (method, masks, shift_cov, homographies,
-        noise_sigma, reg, refine_shifts, geometry, window, pad, cg_iters).
+        Keyword-only options:
+
+        - ``method``: "map" (default, eq. 9), "windowed" (eq. 7, normalised), "pinv"
+          (eq. 6, reference only) or "bicubic";
+        - ``masks``: a bool array per frame (True = valid); forces the CG solver;
+        - ``shift_cov``: (N, 2, 2) registration-error covariance of the given shifts
+          (LR px^2); ignored when ``refine_shifts`` (the refinement's own is used);
+        - ``homographies``: (N, 3, 3) reference -> frame LR pixel coordinates (replaces
+          shifts; forces the CG solver);
+        - ``noise_sigma``: per-pixel noise std (DN); estimated from the frames if None;
+        - ``reg``: prior strength multiplier (1 = the prior fitted to the data);
+        - ``refine_shifts``: refine the shifts against frame 0 (default True);
+        - ``geometry``: "auto" (default) checks by tile registration
+          (:func:`detect_geometry`) whether the frames are related by more than a
+          translation and if so solves with each frame's fitted affine (CG);
+          "translation" skips the check;
+        - ``window``: eq. 7 window w (default factor + 2);
+        - ``pad``: reflected padding of the Fourier solve (LR px, default 16);
+        - ``cg_iters``: conjugate-gradient iterations (default 30).
 
     Returns
     -------
     SRResult
         With the blur used and its source (``blur_sigma``, ``blur_source``, ``blur_reason``).
+
+    Raises
+    ------
+    ValueError
+        On malformed input (fewer than 2 frames, mismatched shapes, factor outside 2..4,
+        bad shifts, unknown method).
     """
     est = _resolve_blur(blur_sigma, frames, shifts, kw.get("method", "map"))
     res = _reconstruct(frames, shifts, factor, blur_sigma=est.sigma, **kw)
@@ -143,52 +166,7 @@ def _reconstruct(
     pad: int = 16,
     cg_iters: int = 30,
 ) -> SRResult:
-    """Reconstruct with a numeric blur; the options of :func:`reconstruct`.
-
-    Parameters
-    ----------
-    frames, shifts, factor
-        As :func:`reconstruct`.
-    method : {"map", "windowed", "pinv", "bicubic"}
-        "map" (eq. 9), "windowed" (eq. 7, normalised), "pinv" (eq. 6, reference only),
-        "bicubic".
-    masks : sequence of numpy.ndarray, optional
-        A bool array per frame (True = valid); forces the CG solver.
-    shift_cov : numpy.ndarray, optional
-        (N, 2, 2) registration-error covariance of the given shifts (LR px^2); ignored
-        when ``refine_shifts`` (the refined shifts' own uncertainty is used).
-    homographies : numpy.ndarray, optional
-        (N, 3, 3) reference -> frame LR pixel coordinates (replaces shifts; forces the CG
-        solver).
-    noise_sigma : float, optional
-        Per-pixel noise std (DN); estimated from the frames if None.
-    blur_sigma : float
-        Optics blur std (LR px).
-    reg : float
-        Prior strength multiplier (1 = the prior fitted to the data).
-    refine_shifts : bool
-        Refine the shifts against frame 0 (translation only).
-    geometry : {"auto", "translation"}
-        "auto" checks by tile registration (:func:`detect_geometry`) whether the frames are
-        related by more than a translation and if so solves with each frame's fitted
-        affine (CG); "translation" skips the check.
-    window : int, optional
-        Eq. 7 window w (default factor + 2: w + p - 1 odd).
-    pad : int
-        Reflected padding of the Fourier solve (LR px).
-    cg_iters : int
-        Conjugate-gradient iterations.
-
-    Returns
-    -------
-    SRResult
-
-    Raises
-    ------
-    ValueError
-        On malformed input (fewer than 2 frames, mismatched shapes, factor outside 2..4,
-        bad shifts, unknown method).
-    """
+    """Reconstruct with a numeric blur; the options of :func:`reconstruct`."""
     arrs, rel, p = _validate(frames, shifts, factor, masks, shift_cov, homographies)
     n = len(arrs)
     _check_options(method, geometry, blur_sigma, reg, noise_sigma)

@@ -44,15 +44,13 @@ def _solve_separable(
         (p, hp) and (p, wc) signed HR frequencies of the aliases (cycles / HR px).
     c, alpha : float
         Prior ``P(f) = c |f|^-alpha`` (HR DFT units).
-    reg : float
-        Prior strength multiplier.
-    noise_power : float
-        Noise variance v of every bin (DFT units).
+    reg, noise_power : float
+        Prior strength multiplier; noise variance v of every bin (DFT units).
     block_bins : int, optional
-        Bins per block of whole spectrum rows (the working arrays stay in cache).
+        Bins per block of whole spectrum rows (cache-sized working arrays).
     shifts : numpy.ndarray, optional
         (N, 2) fractional shifts (LR px) that ``ay``/``ax`` were built with: the Gram
-        entries are then formed as outer products (the same values to round-off).
+        entries are then outer products (:func:`_rank_one_gram_factors`).
 
     Returns
     -------
@@ -69,11 +67,6 @@ def _solve_separable(
     is a (rows x N) @ (N x wc) matrix product: only the k (k+1) / 2 lower-triangle entries
     are formed, one complex ``cv2.gemm`` per row-factor pair. The right-hand side is
     ``sum_n conj(ay[n,m1]) (conj(ax[n,m2]) Y_n)``, a batched product per spectrum row.
-
-    With ``shifts``, ``a[n, m] = h[m] exp(-2 pi i f_m p s_n)``: the frame-dependent factor
-    ``exp(2 pi i (f_m - f_m') p s_n)`` depends on the bin only through the integer class
-    ``p (f_m - f_m')``, so ``G[m, m'](ky, kx) = gy(ky) gx(kx) T[cls_y(ky), cls_x(kx)]`` with
-    ``T[cy, cx] = sum_n exp(2 pi i (cy u_n + cx v_n)) / v``.
     """
     n, p, hp = ay.shape
     wc = ax.shape[2]
@@ -83,17 +76,13 @@ def _solve_separable(
     ax32 = ax.astype(np.complex64)
     cay = np.conj(ay32) * np.float32(1.0 / noise_power)  # 1/v folded into the row factors
     cax = np.conj(ax32)
-    if shifts is None:
-        col_fac = _column_factors(cax, ax32)
-    else:
-        col_fac = _rank_one_gram_factors(
-            ay, ax, fy, fx, np.asarray(shifts, dtype=np.float64), noise_power
-        )
-    lam_cols = [
-        (fy[m1].astype(np.float64) ** 2, fx[m2].astype(np.float64) ** 2)
-        for m1 in range(p)
-        for m2 in range(p)
-    ]
+    col_fac = (
+        _column_factors(cax, ax32)
+        if shifts is None
+        else _rank_one_gram_factors(ay, ax, fy, fx, np.asarray(shifts, np.float64), noise_power)
+    )
+    idx = [(m1, m2) for m1 in range(p) for m2 in range(p)]
+    lam_cols = [(fy[m1].astype(np.float64) ** 2, fx[m2].astype(np.float64) ** 2) for m1, m2 in idx]
     for r0 in range(0, hp, rows):  # blocks of spectrum rows (cache), not pixels
         r1 = min(hp, r0 + rows)
         _solve_separable_block(
@@ -171,7 +160,15 @@ def _rank_one_gram_factors(
     shifts: np.ndarray,
     noise_power: float,
 ) -> _RankOneGram:
-    """Return the factors of the rank-one Gram entries (lower triangle), given the shifts."""
+    """Return the factors of the rank-one Gram entries (lower triangle), given the shifts.
+
+    With ``a[n, m] = h[m] exp(-2 pi i f_m p s_n)`` the frame-dependent factor
+    ``exp(2 pi i (f_m - f_m') p s_n)`` depends on the bin only through the integer class
+    ``p (f_m - f_m')`` (one value per alias pair for even p, two for odd p), so
+    ``G[m, m'](ky, kx) = gy(ky) gx(kx) T[cls_y(ky), cls_x(kx)]`` with the small table
+    ``T[cy, cx] = sum_n exp(2 pi i (cy u_n + cx v_n)) / v``: an outer product instead of a
+    rank-N matrix product (the same values to round-off).
+    """
     p = ay.shape[1]
     u, v = shifts[:, 0], shifts[:, 1]
     # shift-free transfers h[m] = a[0, m] exp(+2 pi i f_m p s_0) (frame 0's phase removed)

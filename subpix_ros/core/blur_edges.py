@@ -170,7 +170,26 @@ def find_edge_rois(
 def measure_edge(
     frame: np.ndarray, roi: tuple[int, int, int, int], noise: float
 ) -> tuple[float, str]:
-    """Measure the blur of one edge in one frame: ``(sigma, "")`` or ``(NaN, why not)``."""
+    """Measure the blur of one edge in one frame.
+
+    Parameters
+    ----------
+    frame : numpy.ndarray
+        2-D frame.
+    roi : (int, int, int, int)
+        ``(x, y, w, h)`` around the edge.
+    noise : float
+        Per-pixel noise std (DN).
+
+    Returns
+    -------
+    sigma : float
+        The edge's blur (px, :func:`edge_sigma`), or NaN.
+    why_not : str
+        Empty, or why the edge was rejected: no slanted-edge measurement, not straight
+        (``MAX_LINE_RMS``), textured beside the edge (``MAX_TEXTURE``), or a step below
+        ``MIN_CONTRAST_SNR`` times the noise.
+    """
     try:
         r = slanted_edge_mtf(frame, roi)
     except ValueError as exc:

@@ -78,7 +78,7 @@ def test_tiled_reconstruction_fits_the_budget_and_keeps_the_gain(seq):
     p_full = psnr(full.image[inner], seq.truth[inner])
     p_tiled = psnr(tiled.image[inner], seq.truth[inner])
     p_bic = psnr(bicubic_upscale(seq.frames[0], 2)[inner], seq.truth[inner])
-    # the tiles keep the super-resolution gain (each tile fits its own spectrum prior: not bit-equal)
+    # the tiles keep the super-resolution gain (each tile fits its own prior: not bit-equal)
     assert p_full - p_bic > 1.0
     assert p_tiled > p_full - 0.3
 

@@ -61,7 +61,7 @@ def test_separable_solve_equals_dense_per_bin_solve(p, n, block):
     ref = _dense_map(spec, *args[1:])
     fast = _solve_separable(*args, block_bins=block)  # small blocks: several row blocks
     assert np.abs(fast - ref).max() < 1e-4 * np.abs(ref).max()
-    # rank-one Gram entries from the shifts the transfers were built with (frame 0 not at zero shift here)
+    # rank-one Gram entries from the shifts the transfers were built with (frame 0 not at 0 here)
     shifts[0] = rng.uniform(-0.5, 0.5, 2)
     ay = np.stack([frame_transfer_1d(hp, p, s, 0.4)[0] for s in shifts[:, 0]])
     ax = np.stack([frame_transfer_1d(wp, p, s, 0.4)[0][:, :wc] for s in shifts[:, 1]])
@@ -88,7 +88,7 @@ def test_assemble_hr_inverts_the_alias_split(p, hp, wp):
 
 
 def _interleave_reference(frames, offsets, p, q):
-    """The eq. 3 interleave as documented, with the hole fill as whole-array cyclic rolls."""
+    """Build the eq. 3 interleave as documented, the hole fill as whole-array cyclic rolls."""
     h, w = frames[0].shape
     acc = np.zeros((h * p, w * q))
     cnt = np.zeros((h * p, w * q))
@@ -188,7 +188,7 @@ def test_bicubic_rim_equals_whole_frame_bicubic(p):
     np.testing.assert_array_equal(out[p:-p, p:-p], inner)  # the inside is untouched
     rim = np.ones(out.shape, bool)
     rim[p:-p, p:-p] = False
-    # strips vs whole frame: OpenCV computes the cubic weights in single precision from absolute coordinates
+    # strips vs whole frame: OpenCV's cubic weights are single precision, from absolute coordinates
     assert np.abs(out[rim] - bic[rim]).max() < 0.02
 
 
@@ -215,7 +215,10 @@ def test_refined_shifts_do_not_depend_on_batching(crops):
 
 
 def _fit_one_exponent(alpha, psd_obs, amp, logf, noise_sigma):
-    """(misfit, c, sigma^2) of one exponent: 3 passes of weighted least squares, as fit_spectrum documents."""
+    """Return (misfit, c, sigma^2) of one exponent: 3 passes of weighted least squares.
+
+    As fit_spectrum documents.
+    """
     q = np.sum(amp * np.exp(-alpha * logf), axis=0)
     wgt = 1.0 / np.maximum(psd_obs, 1e-12) ** 2
     for _ in range(3):
@@ -285,8 +288,10 @@ def test_fit_spectrum_equals_per_exponent_loop(crops, p, noise_sigma):
     [((0, 0), (0, 0)), ((1, -2), (0, 0)), ((0, 0), (-1, 1)), ((0, 0), (2, -3)), ((2, 1), (1, -1))],
 )
 def test_lowpass_window_from_whole_lowpass_equals_direct(pre, post):
-    """Windows sliced (or reflected) from the shared whole-frame low-pass equal the per-window filtering
-    (to the shared low-pass's single-precision round-off: values ~100, float32 eps 1.2e-7)."""
+    """Windows sliced (or reflected) from the shared low-pass equal the per-window filtering.
+
+    To the shared low-pass's single-precision round-off: values ~100, float32 eps 1.2e-7.
+    """
     rng = np.random.default_rng(7)
     frames = rng.normal(size=(2, 60, 70)) * 30 + 100
     g = gaussian_kernel(1.0)
@@ -308,7 +313,7 @@ def test_lowpass_window_from_whole_lowpass_equals_direct(pre, post):
 
 
 def test_lk_residual_variance_equals_direct_residual(crops):
-    """_lk_batch's noise variance from the z z^T sums equals var(F - R - d . grad R) computed on the pixels."""
+    """_lk_batch's noise variance from the z z^T sums equals var(F - R - d . grad R) on pixels."""
     seq = render_sequence(
         crops["crop_trees"][: 2 * 96, : 2 * 96],
         2,
@@ -350,7 +355,7 @@ def test_lk_residual_variance_equals_direct_residual(crops):
 
 
 def test_noise_estimate_of_8bit_frames_equals_float_path():
-    """The histogram median of 8-bit frames gives exactly the float path's np.median value (odd and even counts)."""
+    """The histogram median of 8-bit frames is exactly the float path's np.median (odd, even n)."""
     rng = np.random.default_rng(8)
     for h, w in [(3, 3), (4, 5), (17, 30), (64, 64), (101, 37)]:
         for spread in (0.3, 5.0, 60.0):

@@ -43,7 +43,7 @@ def test_strip_masks_match_the_unmasked_solution(crops):
     assert fast.method == "map"  # the Fourier-domain solver, not conjugate gradients
     b = 16
     inner = (slice(2 * 3 + b, 2 * h - b), slice(b, 2 * (w - 2) - b))
-    # inside the common rectangle it is the unmasked solution up to the rectangle's own border effects
+    # inside the common rectangle: the unmasked solution up to the rectangle's own border effects
     assert (
         psnr(fast.image[inner], seq.truth[inner]) > psnr(full.image[inner], seq.truth[inner]) - 0.3
     )

@@ -206,22 +206,26 @@ def _fourier_map(
     hp = cv2.getOptimalDFTSize(h + 2 * pad)
     wp = cv2.getOptimalDFTSize(w + 2 * pad)
     wc = wp // 2 + 1
-    reg_ = _register(frames, shifts, shift_cov, noise_sigma, refine_shifts, lowpassed)
-    n = reg_.frames.shape[0]
-    padded = _consistent_padding(reg_.frames, reg_.ishift, reg_.resid, pad, hp, wp)
+    registered = _register(frames, shifts, shift_cov, noise_sigma, refine_shifts, lowpassed)
+    n = registered.frames.shape[0]
+    padded = _consistent_padding(
+        registered.frames, registered.ishift, registered.resid, pad, hp, wp
+    )
     spec = np.empty((n, hp, wc), np.complex64)
     for i in range(n):  # per frame: single-precision DFT, rfft half
         spec[i] = _rfft2_32(padded[i])
-    c_psd, alpha, noise_sigma = _fit_prior(reg_, p, blur_sigma, noise_sigma, integer_valued)
+    c_psd, alpha, noise_sigma = _fit_prior(registered, p, blur_sigma, noise_sigma, integer_valued)
     noise_power = hp * wp * noise_sigma**2
     c = c_psd * p * p * hp * wp  # prior in HR DFT units: E|X|^2 = (p hp)(p wp) S_x
-    cov = _error_covariance(reg_.shift_cov, reg_.shift_sigma, refine_shifts)
+    cov = _error_covariance(registered.shift_cov, registered.shift_sigma, refine_shifts)
     xs, wsum, resid_ratio = _solve_bins(
-        spec, reg_.resid, p, blur_sigma, cov, c, alpha, reg, noise_power, (hp, wp)
+        spec, registered.resid, p, blur_sigma, cov, c, alpha, reg, noise_power, (hp, wp)
     )
     img = _assemble_hr(xs, hp, wp)
     out = img[p * pad : p * (pad + h), p * pad : p * (pad + w)].astype(np.float64)
-    return _per_input_frame(out, shifts, reg_, cov, wsum, resid_ratio, (c_psd, alpha), noise_sigma)
+    return _per_input_frame(
+        out, shifts, registered, cov, wsum, resid_ratio, (c_psd, alpha), noise_sigma
+    )
 
 
 def _register(
@@ -273,7 +277,7 @@ def _register(
 
 
 def _fit_prior(
-    reg_: _Registered,
+    registered: _Registered,
     p: int,
     blur_sigma: float,
     noise_sigma: float | None,
@@ -287,7 +291,7 @@ def _fit_prior(
     ``1/sqrt(12)`` DN of integer data (0.05 DN otherwise; the prior is refitted with the
     floor); the result is never below 0.05 DN.
     """
-    frames, ishift = reg_.frames, reg_.ishift
+    frames, ishift = registered.frames, registered.ishift
     n, h, w = frames.shape
     ch, cw = min(h, _SPECTRUM_CROP), min(w, _SPECTRUM_CROP)
     rc, cc = (h - ch) // 2, (w - cw) // 2
@@ -299,8 +303,8 @@ def _fit_prior(
             for i in range(min(n, 2))
         ]
     )
-    if noise_sigma is None and np.isfinite(reg_.lk_noise):
-        noise_sigma = reg_.lk_noise
+    if noise_sigma is None and np.isfinite(registered.lk_noise):
+        noise_sigma = registered.lk_noise
     c_psd, alpha, sig_fit = fit_spectrum(pre, p, blur_sigma, noise_sigma)
     if noise_sigma is None:
         if integer_valued is None:  # integer dtypes are known to be; float data are checked
@@ -467,7 +471,7 @@ def _solve_rows(
 def _per_input_frame(
     image: np.ndarray,
     shifts: np.ndarray,
-    reg_: _Registered,
+    registered: _Registered,
     cov: np.ndarray,
     wsum: np.ndarray,
     resid_ratio: np.ndarray,
@@ -475,10 +479,10 @@ def _per_input_frame(
     noise_sigma: float,
 ) -> MapSolution:
     """Report the solve per input frame: dropped frames get weight 0, their shift, std inf."""
-    keep = reg_.keep
+    keep = registered.keep
     shift_sigma = np.sqrt(np.maximum(cov[:, 0, 0], cov[:, 1, 1]))
     weights = wsum / max(wsum[0], 1e-30)
-    used = reg_.ishift + reg_.resid
+    used = registered.ishift + registered.resid
     if keep.all():
         return MapSolution(image, used, shift_sigma, weights, prior, noise_sigma, keep, resid_ratio)
     w_full = np.zeros(keep.size)

@@ -39,6 +39,7 @@ References
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import cv2
@@ -198,22 +199,19 @@ def _reconstruct(
             )
     if method in ("windowed", "pinv"):
         return _paper_method(arrs, rel, p, method, window, sigma)
-    return _map_method(
-        arrs,
-        rel,
-        p,
-        sigma,
-        noise_sigma,
-        masks,
-        shift_cov,
-        homographies,
-        blur_sigma,
-        reg,
-        refine_shifts,
-        geometry,
-        pad,
-        cg_iters,
+    opts = _MapOptions(
+        noise_sigma=noise_sigma,
+        masks=masks,
+        shift_cov=shift_cov,
+        homographies=homographies,
+        blur_sigma=blur_sigma,
+        reg=reg,
+        refine_shifts=refine_shifts,
+        geometry=geometry,
+        pad=pad,
+        cg_iters=cg_iters,
     )
+    return _map_method(arrs, rel, p, sigma, opts)
 
 
 def _paper_method(
@@ -263,32 +261,42 @@ def _paper_method(
     )
 
 
+@dataclass
+class _MapOptions:
+    """The options of a MAP reconstruction (see :func:`reconstruct`)."""
+
+    noise_sigma: float | None
+    masks: Sequence[np.ndarray] | None
+    shift_cov: np.ndarray | None
+    homographies: np.ndarray | None
+    blur_sigma: float
+    reg: float
+    refine_shifts: bool
+    geometry: str
+    pad: int
+    cg_iters: int
+
+
 def _map_method(
-    arrs: list[np.ndarray],
-    rel: np.ndarray | None,
-    p: int,
-    sigma: float,
-    noise_sigma: float | None,
-    masks: Sequence[np.ndarray] | None,
-    shift_cov: np.ndarray | None,
-    homographies: np.ndarray | None,
-    blur_sigma: float,
-    reg: float,
-    refine_shifts: bool,
-    geometry: str,
-    pad: int,
-    cg_iters: int,
+    arrs: list[np.ndarray], rel: np.ndarray | None, p: int, sigma: float, opts: _MapOptions
 ) -> SRResult:
-    """Reconstruct by the MAP estimate: Fourier solve, then CG with geometry or masks."""
+    """Reconstruct by the MAP estimate: Fourier solve, then CG with geometry or masks.
+
+    ``sigma`` is the noise level reported by a fallback before the solve.
+    """
     n = len(arrs)
     ref = np.asarray(arrs[0], dtype=np.float64)
     stack = _stack64(arrs)
-    cov = np.zeros((n, 2, 2)) if shift_cov is None else np.asarray(shift_cov, dtype=np.float64)
+    cov = (
+        np.zeros((n, 2, 2))
+        if opts.shift_cov is None
+        else np.asarray(opts.shift_cov, dtype=np.float64)
+    )
     lowpassed = _WholeLowpass(stack)  # shared by the geometry check and the shift refinement
     homographies, trans, noise_sigma, reason = _map_geometry(
-        stack, rel, homographies, geometry, noise_sigma, lowpassed
+        stack, rel, opts.homographies, opts.geometry, opts.noise_sigma, lowpassed
     )
-    use_cg = masks is not None or homographies is not None
+    use_cg = opts.masks is not None or homographies is not None
     try:
         ints = (
             True
@@ -299,12 +307,12 @@ def _map_method(
             stack,
             trans,
             p,
-            blur_sigma,
+            opts.blur_sigma,
             noise_sigma,
             cov,
-            reg,
-            refine_shifts and not use_cg,
-            pad,
+            opts.reg,
+            opts.refine_shifts and not use_cg,
+            opts.pad,
             integer_valued=ints,
             lowpassed=lowpassed,
         )
@@ -319,7 +327,16 @@ def _map_method(
             else np.stack([translation_homography(*si) for si in rel])
         )
         img = _cg_map(
-            stack, hs, p, blur_sigma, sol.noise_sigma, masks, sol.prior, reg, img, cg_iters
+            stack,
+            hs,
+            p,
+            opts.blur_sigma,
+            sol.noise_sigma,
+            opts.masks,
+            sol.prior,
+            opts.reg,
+            img,
+            opts.cg_iters,
         )
         method_used = "map-cg"
     return _map_result(img, ref, p, sol, method_used, reason, rel)

@@ -42,8 +42,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_pipeline import STEP, make_frames  # noqa: E402
 
 from subpix_ros.core import superres  # noqa: E402
-from subpix_ros.core.superres_budget import reconstruct_within_budget  # noqa: E402
-from subpix_ros.core.superres_masks import reconstruct_aligned  # noqa: E402
+from subpix_ros.core.superres import fourier_map, reconstruction  # noqa: E402
+from subpix_ros.core.superres.budget import reconstruct_within_budget  # noqa: E402
+from subpix_ros.core.superres.masks import reconstruct_aligned  # noqa: E402
 from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
 KW = dict(method="map", geometry="translation", refine_shifts=False)
@@ -105,18 +106,18 @@ def main() -> None:
             return res.image
 
         row(f"budget {b:g} MB", run, b)
-    orig_stack = superres._stack64
-    superres._stack64 = _stack32
+    orig_stack = reconstruction._stack64
+    reconstruction._stack64 = _stack32
     try:
         row("(patch) stack32, whole", lambda: reconstruct_aligned(frames, shifts, 2, **KW).image)
     finally:
-        superres._stack64 = orig_stack
+        reconstruction._stack64 = orig_stack
     # shared prior: the whole set's fit_spectrum result and noise level given to every tile
-    orig_fit = superres.fit_spectrum
+    orig_fit = fourier_map.fit_spectrum
     fits = []
-    superres.fit_spectrum = lambda *a, **k: fits.append(orig_fit(*a, **k)) or fits[-1]
+    fourier_map.fit_spectrum = lambda *a, **k: fits.append(orig_fit(*a, **k)) or fits[-1]
     noise = reconstruct_aligned(frames, shifts, 2, **KW).noise_sigma
-    superres.fit_spectrum = lambda *a, **k: fits[-1]
+    fourier_map.fit_spectrum = lambda *a, **k: fits[-1]
     try:
         for b in args.budgets[-1:]:
 
@@ -127,7 +128,7 @@ def main() -> None:
 
             row(f"(patch) shared prior, budget {b:g} MB", run_shared)
     finally:
-        superres.fit_spectrum = orig_fit
+        fourier_map.fit_spectrum = orig_fit
 
     m = 64 * 2
     inner = (slice(m, -m), slice(m, -m))

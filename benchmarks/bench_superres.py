@@ -37,7 +37,7 @@ import numpy as np
 
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct
-from subpix_ros.core.superres_model import FrameOperator, translation_homography
+from subpix_ros.core.superres.model import FrameOperator, translation_homography
 from subpix_ros.data import CROP_NAMES, load_crop, seneca_frame_paths
 from subpix_ros.runtime import add_malloc_argument, allocator_line
 
@@ -49,7 +49,7 @@ def grid(p):
 
 
 def tikhonov_cg(frames, shifts, p, lam, iters=60, blur_sigma=0.4):
-    """Reference: argmin sum ||A_n x - y_n||^2 + lam ||grad x||^2 by scipy CG.
+    """Solve the reference argmin sum ||A_n x - y_n||^2 + lam ||grad x||^2 by scipy CG.
 
     ``A_n``: the package's operators (pixel box, Gaussian optics of ``blur_sigma`` LR px; 0: none).
     """
@@ -158,7 +158,7 @@ def quality(quick: bool) -> None:
 
 
 def speed_source(h, w):
-    """An HR source image of at least h x w: full-resolution original if present, else bundled frames."""
+    """Load an HR source of at least h x w: full-resolution original if present, else bundled."""
     cands = sorted(FULLRES.glob("IMG_*.jpg")) if FULLRES.is_dir() else []
     src = cv2.imread(str(cands[0] if cands else seneca_frame_paths()[0]), cv2.IMREAD_GRAYSCALE)
     if src.shape[0] < h or src.shape[1] < w:
@@ -234,8 +234,8 @@ def speed(quick: bool, repeats: int) -> None:
 
 
 def pipeline_case(repeats: int) -> None:
-    """The reconstruction node's call: 8 aligned 1920x1080 frames with border-strip masks, x2 (3840x2160 out)."""
-    from subpix_ros.core.superres_masks import reconstruct_aligned
+    """Time the reconstruction node's call: 8 aligned 1920x1080 frames, strip masks, x2."""
+    from subpix_ros.core.superres.masks import reconstruct_aligned
 
     h, w = 1080, 1920
     rng = np.random.default_rng(7)

@@ -17,7 +17,7 @@ Two passes over the same frames:
 Printed: a table with CPU ms per frame and peak MB per stage, the total CPU
 s/frame and the process's maximum resident set size; ``--cprofile N`` adds the
 top N functions by cumulative time. ``--max-memory-mb`` reconstructs through
-:func:`subpix_ros.core.superres_budget.reconstruct_within_budget` (and prints
+:func:`subpix_ros.core.superres.budget.reconstruct_within_budget` (and prints
 the plans).
 
 Usage: python benchmarks/profile_pipeline.py [--frames 48] [--set 16] [--size 1920x1080]
@@ -49,7 +49,7 @@ from subpix_ros.core.luminance import luminance  # noqa: E402
 from subpix_ros.core.mosaic import Mosaic  # noqa: E402
 from subpix_ros.core.motion import MotionTracker  # noqa: E402
 from subpix_ros.core.shift import estimate_shift  # noqa: E402
-from subpix_ros.core.superres_budget import reconstruct_within_budget  # noqa: E402
+from subpix_ros.core.superres.budget import reconstruct_within_budget  # noqa: E402
 from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
 STAGES = ("reference", "register", "align", "gray", "shift", "reconstruct", "mosaic")

@@ -16,26 +16,24 @@ function falls to 0.3 (MTF30), read off edge targets. Steps here:
    is moved to the centre to first order, ``ESF_k -= ESF'_k delta_k``;
 4. line spread function (LSF): central difference of the ESF, times a
    Tukey window (flat over the central half) centred on the LSF centroid,
-   half-width ``max(3 px, 3 x the ESF's 10-90 % rise)``: wide enough to
-   leave a Gaussian-like LSF untouched (flat to +-3.8 std), narrow enough
-   that the ESF noise far from the edge stays out;
+   half-width ``max(3 px, 3 x the ESF's 10-90 % rise)``, widened to cover
+   lobes of the LSF above its noise;
 5. MTF = |FFT(LSF)| normalised to 1 at zero frequency, divided by the
    transfer of the central difference (``sinc(2 f d)``) and of the binning
    (``sinc(f d)``), ``d = 1/4`` px; frequencies in cycles/pixel along the
    edge normal.
 
-Measured against the analytic MTF of pixel-integrated Gaussian-blurred
-edges (100x80 px, 2.5-30 deg, blur 0.3-2 px; ``benchmarks/bench_mtf.py``):
-MTF30 error <= 0.004 cycles/px noise-free and <= 0.01 with 1 DN noise and
-8-bit rounding down to blur 0.3 px, where MTF30 lies beyond Nyquist. Without
-steps 3's correction and 4's narrow window (a Hamming window over the whole
-ESF, as before) it was 0.010 noise-free (bin phase, at 8 deg) and 0.018 with
-noise at 0.3 px (noise let in by the wide window, the error growing with the
-frequency the read-out sits at).
-
 MTF50 / MTF30 are the first frequencies where the MTF falls to 0.5 / 0.3
 (linear interpolation between samples); with a pixel pitch they are also
-given in cycles (line pairs) per mm.
+given in cycles (line pairs) per mm. Accuracy against the analytic MTF:
+``benchmarks/bench_mtf.py`` and docs/design-notes.md.
+
+References
+----------
+.. [1] ISO 12233:2017, Photography -- Electronic still picture imaging -- Resolution
+   and spatial frequency responses.
+.. [2] P. D. Burns, "Slanted-edge MTF for digital camera and scanner analysis",
+   Proc. IS&T PICS 2000, pp. 135-138.
 """
 
 from __future__ import annotations
@@ -43,6 +41,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from .filters import tukey_taper
 
 __all__ = ["MTFResult", "slanted_edge_mtf", "mtf_crossing", "gaussian_pixel_mtf"]
 
@@ -54,31 +54,74 @@ SUPPORT_SIGMAS = 5.0  # LSF lobes this far above the noise widen the window
 
 @dataclass
 class MTFResult:
-    """Result of :func:`slanted_edge_mtf` (frequencies in cycles/pixel)."""
+    """Result of :func:`slanted_edge_mtf` (frequencies in cycles/pixel along the edge normal).
+
+    Attributes
+    ----------
+    freqs, mtf : numpy.ndarray
+        The MTF, up to 1 cycle/px.
+    mtf50, mtf30 : float
+        First frequencies where the MTF falls to 0.5 and 0.3.
+    angle_deg : float
+        Edge angle from the pixel column (or row, if transposed) direction.
+    transposed : bool
+        True when the edge was closer to horizontal (rows and columns swapped).
+    esf : numpy.ndarray
+        Oversampled edge spread function (bin width 1/OVERSAMPLE px).
+    lsf : numpy.ndarray
+        Windowed line spread function.
+    pixel_pitch_m : float or None
+        Pixel pitch given (m).
+    mtf50_lp_mm, mtf30_lp_mm : float or None
+        MTF50 and MTF30 in line pairs per mm (with a pixel pitch).
+    line_rms_px : float
+        RMS of the per-row edge positions about the fitted line (px).
+    contrast : float
+        Step height between the ESF's plateaus (intensity units).
+    texture : float
+        RMS of the pixels more than 2 px from the edge about the ESF, relative to the step.
+
+    Notes
+    -----
+    The last three describe the edge's quality; :mod:`subpix_ros.core.blur` screens edges by
+    them.
+    """
 
     freqs: np.ndarray
     mtf: np.ndarray
     mtf50: float
     mtf30: float
-    angle_deg: float  # edge angle from the pixel column (or row, if transposed) direction
-    transposed: bool  # True when the edge was closer to horizontal (rows and columns swapped)
-    esf: np.ndarray  # oversampled edge spread function (bin width 1/OVERSAMPLE px)
-    lsf: np.ndarray  # windowed line spread function
+    angle_deg: float
+    transposed: bool
+    esf: np.ndarray
+    lsf: np.ndarray
     pixel_pitch_m: float | None = None
     mtf50_lp_mm: float | None = None
     mtf30_lp_mm: float | None = None
-    # edge quality (what core/blur.py screens edges by): RMS of the per-row edge positions about the
-    # fitted line (px), step height between the ESF's plateaus (intensity units), and the RMS of the
-    # pixels about the ESF beyond 2 px from the edge, relative to that step (texture beside the edge)
     line_rms_px: float = float("nan")
     contrast: float = float("nan")
     texture: float = float("nan")
 
 
 def mtf_crossing(freqs: np.ndarray, mtf: np.ndarray, level: float) -> float:
-    """First frequency where ``mtf`` falls to ``level`` (linear interpolation).
+    """Return the first frequency where ``mtf`` falls to ``level`` (linear interpolation).
 
-    Raises ValueError if the curve never reaches ``level`` in the measured range.
+    Parameters
+    ----------
+    freqs, mtf : numpy.ndarray
+        The curve.
+    level : float
+        Level to cross, e.g. 0.5 or 0.3.
+
+    Returns
+    -------
+    float
+        Frequency (units of ``freqs``).
+
+    Raises
+    ------
+    ValueError
+        If the curve never falls to ``level`` in the measured range.
     """
     below = np.flatnonzero(mtf < level)
     if below.size == 0 or below[0] == 0:
@@ -89,9 +132,23 @@ def mtf_crossing(freqs: np.ndarray, mtf: np.ndarray, level: float) -> float:
 
 
 def gaussian_pixel_mtf(freqs: np.ndarray, sigma_px: float, angle_deg: float) -> np.ndarray:
-    """Analytic MTF of Gaussian optics (std ``sigma_px``) times the square pixel aperture, along the
-    normal of an edge at ``angle_deg``: ``exp(-2 pi^2 sigma^2 f^2) |sinc(f cos a) sinc(f sin a)|``
-    (``freqs`` in cycles/pixel). The reference the slanted-edge method is validated against."""
+    """Return the analytic MTF of Gaussian optics times the square pixel aperture.
+
+    Parameters
+    ----------
+    freqs : numpy.ndarray
+        Frequencies (cycles/pixel) along the normal of the edge.
+    sigma_px : float
+        Optics std (px).
+    angle_deg : float
+        Edge angle from the pixel grid.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``exp(-2 pi^2 sigma^2 f^2) |sinc(f cos a) sinc(f sin a)|``: the reference the
+        slanted-edge method is validated against.
+    """
     f = np.asarray(freqs, dtype=np.float64)
     th = np.deg2rad(angle_deg)
     return np.exp(-2 * np.pi**2 * sigma_px**2 * f**2) * np.abs(
@@ -100,13 +157,13 @@ def gaussian_pixel_mtf(freqs: np.ndarray, sigma_px: float, angle_deg: float) -> 
 
 
 def _edge_centroids(img: np.ndarray, half_window: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """Per-row edge position (column, px): centroid of |d/dc| in a Hamming window.
+    """Locate the edge in every row: the centroid of |d/dc| in a Hamming window.
 
-    First pass: the column of the largest smoothed derivative in each row and a
-    robust straight-line fit through them (median of row-pair slopes); second
-    pass: the derivative centroid within +-``half_window`` px of that line,
-    weighted by a Hamming window (ISO 12233). Keeping the centroid local stops
-    noise far from the edge from pulling it towards the ROI centre.
+    Returns ``(rows, column of the edge per row)`` (NaN where a row has no derivative). First
+    pass: the column of the largest smoothed derivative in each row and a robust line through
+    them (median of row-pair slopes); second pass: the derivative centroid within
+    +-``half_window`` px of that line, Hamming-weighted (ISO 12233), so noise far from the
+    edge does not pull it towards the ROI centre.
     """
     d = np.zeros_like(img)
     d[:, 1:-1] = 0.5 * (img[:, 2:] - img[:, :-2])
@@ -116,7 +173,7 @@ def _edge_centroids(img: np.ndarray, half_window: int = 8) -> tuple[np.ndarray, 
     sm = d.copy()
     sm[:, 1:-1] = (d[:, :-2] + 2 * d[:, 1:-1] + d[:, 2:]) / 4
     peak = np.argmax(sm, axis=1).astype(np.float64)
-    # robust line through the per-row peaks: slope = median of slopes between rows half the ROI apart
+    # robust line through the per-row peaks: median slope between rows half the ROI apart
     half = img.shape[0] // 2
     slope = float(np.median((peak[half : half * 2] - peak[:half]) / half)) if half else 0.0
     icpt = float(np.median(peak - slope * rows))
@@ -131,10 +188,10 @@ def _edge_centroids(img: np.ndarray, half_window: int = 8) -> tuple[np.ndarray, 
 
 
 def _rise_10_90(esf: np.ndarray) -> float:
-    """10-90 % rise distance (pixels) of a dark-to-bright ESF sampled in 1/OVERSAMPLE px bins.
+    """Return the 10-90 % rise distance (px) of a dark-to-bright ESF in 1/OVERSAMPLE px bins.
 
-    Levels from the means of the first and last 2 px; the ESF is made
-    monotone (running maximum) first so noise cannot cross a level twice.
+    Levels from the means of the first and last 2 px; the ESF is made monotone (running
+    maximum) first so noise cannot cross a level twice.
     """
     n = 2 * OVERSAMPLE
     lo, hi = float(esf[:n].mean()), float(esf[-n:].mean())
@@ -144,16 +201,14 @@ def _rise_10_90(esf: np.ndarray) -> float:
 
 
 def _window_half_width(lsf: np.ndarray, centre: float, rise_px: float) -> float:
-    """Half-width (bins) of the LSF window: covers the rise and every part of the LSF above its noise.
+    """Return the LSF window's half-width (bins): the rise and every LSF part above its noise.
 
-    Core: ``WINDOW_RISES`` 10-90 % rises, at least ``WINDOW_MIN_PX`` px. Support:
-    the farthest distance from ``centre`` where the LSF, averaged over 1 px,
-    exceeds ``SUPPORT_SIGMAS`` times its noise there (noise std of the single
-    bins from the MAD of the LSF outside the core, divided by 2 for the
-    4-bin average). Deconvolved or sharpened images ring: their lobes lie
-    beyond the core and must stay inside the flat part of the window (the
-    half-width is at least twice the support); the flat-to-zero ESF of
-    a blurred edge has no such lobes, so noise alone is kept out.
+    Core: ``WINDOW_RISES`` 10-90 % rises, at least ``WINDOW_MIN_PX`` px. Support: the farthest
+    distance from ``centre`` where the LSF, averaged over 1 px, exceeds ``SUPPORT_SIGMAS``
+    times its noise there (noise std of the single bins from the MAD of the LSF outside the
+    core, divided by 2 for the 4-bin average). Ringing lobes of deconvolved or sharpened
+    images must stay inside the flat part of the window (the half-width is at least twice the
+    support); a blurred edge has no such lobes, so noise alone is kept out.
     """
     pos = np.arange(lsf.size, dtype=np.float64) - centre
     core = max(WINDOW_MIN_PX, WINDOW_RISES * rise_px) * OVERSAMPLE
@@ -168,41 +223,38 @@ def _window_half_width(lsf: np.ndarray, centre: float, rise_px: float) -> float:
     return min(hw, lsf.size / 2.0)
 
 
-def _tukey_window(x: np.ndarray, half_width: float) -> np.ndarray:
-    """Tukey window: 1 for ``|x| <= half_width/2``, cosine taper to 0 at ``|x| = half_width``."""
-    t = np.clip((np.abs(x) / half_width - 0.5) / 0.5, 0.0, 1.0)
-    return 0.5 + 0.5 * np.cos(np.pi * t)
-
-
 def slanted_edge_mtf(
     image: np.ndarray,
     roi: tuple[int, int, int, int] | None = None,
     pixel_pitch_m: float | None = None,
     min_contrast: float = 0.05,
 ) -> MTFResult:
-    """MTF of a straight, slanted edge in ``image`` (mono 2-D, or BGR: luminance used).
+    """Measure the MTF of a straight, slanted edge in an image.
 
-    roi: ``(x, y, w, h)`` in pixels (x = column); the ROI must contain one
-    edge crossing it from side to side, tilted a few degrees (2-40 deg) from
-    the pixel grid. pixel_pitch_m: pixel pitch (m) for line-pairs/mm
-    read-outs. Raises ValueError when there is no usable edge (contrast
-    below ``min_contrast`` of the intensity range, too few rows, edge too
-    close to the grid direction to oversample, or the MTF never falls to 0.3).
+    Parameters
+    ----------
+    image : numpy.ndarray
+        Mono 2-D image, or HxWx3 BGR (its luminance is used).
+    roi : (int, int, int, int), optional
+        ``(x, y, w, h)`` in pixels (x = column). The ROI must contain one edge crossing it
+        from side to side, tilted 2-40 deg from the pixel grid.
+    pixel_pitch_m : float, optional
+        Pixel pitch (m) for line-pairs/mm read-outs.
+    min_contrast : float, optional
+        Least edge contrast, as a fraction of the image's intensity range.
+
+    Returns
+    -------
+    MTFResult
+        Frequencies in cycles/pixel along the edge normal.
+
+    Raises
+    ------
+    ValueError
+        When there is no usable edge: contrast below ``min_contrast``, too few rows, the
+        edge too close to the grid direction to oversample, or the MTF never falls to 0.3.
     """
-    img = np.asarray(image, dtype=np.float64)
-    if img.ndim == 3 and img.shape[2] == 3:
-        img = img @ np.array([0.114, 0.587, 0.299])  # BGR -> luminance (ITU-R BT.601)
-    if img.ndim != 2:
-        raise ValueError(f"image must be 2-D (or HxWx3 BGR), got shape {np.shape(image)}")
-    if roi is not None:
-        x, y, w, h = (int(v) for v in roi)
-        if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > img.shape[1] or y + h > img.shape[0]:
-            raise ValueError(f"roi {roi} outside the image {img.shape[1]}x{img.shape[0]}")
-        img = img[y : y + h, x : x + w]
-    if min(img.shape) < 16:
-        raise ValueError(f"ROI too small for an edge measurement: {img.shape}")
-    if not np.isfinite(img).all():
-        raise ValueError("image contains NaN or infinite values")
+    img = _roi_image(image, roi)
     # orientation: the edge should cross rows (strong horizontal gradient), else transpose
     gx = np.abs(np.diff(img, axis=1)).sum()
     gy = np.abs(np.diff(img, axis=0)).sum()
@@ -213,75 +265,10 @@ def slanted_edge_mtf(
     span = float(np.ptp(np.asarray(image, dtype=np.float64))) or 1.0
     if hi - lo < min_contrast * max(span, 1e-12) or hi - lo <= 0:
         raise ValueError("no edge: contrast too low in the ROI")
-    rows, cent = _edge_centroids(img)
-    good = np.isfinite(cent)
-    if good.sum() < 8:
-        raise ValueError("no edge found in enough rows")
-    b, a = np.polyfit(rows[good], cent[good], 1)
-    resid = cent[good] - (a + b * rows[good])
-    keep = np.abs(resid) < max(3 * np.std(resid), 1.0)  # drop rows where the centroid failed
-    b, a = np.polyfit(rows[good][keep], cent[good][keep], 1)
-    line_rms = float(np.sqrt(np.mean((cent[good][keep] - (a + b * rows[good][keep])) ** 2)))
+    rows, a, b, line_rms = _fit_edge_line(img)
     angle = float(np.degrees(np.arctan(b)))
-    # coverage of the sub-pixel phases: the edge must move >= 1 px over the rows used
-    if abs(b) * img.shape[0] < OVERSAMPLE:
-        raise ValueError(
-            f"edge angle {angle:.2f} deg too close to the pixel grid for {OVERSAMPLE}x oversampling "
-            f"over {img.shape[0]} rows (tilt it a few degrees)"
-        )
-    if abs(angle) > 40:
-        raise ValueError(f"edge angle {angle:.1f} deg too far from the pixel grid (use 2-40 deg)")
-    cc, rr = np.meshgrid(np.arange(img.shape[1], dtype=np.float64), rows)
-    dist = (cc - (a + b * rr)) / np.sqrt(1.0 + b * b)  # signed distance along the edge normal, px
-    # use a band of +-half-width around the edge that is fully inside the ROI in every row
-    edge_c = a + b * rows
-    half = min(edge_c.min(), (img.shape[1] - 1 - edge_c).min()) / np.sqrt(1.0 + b * b)
-    if half < 4:
-        raise ValueError("edge too close to the ROI border")
-    nb = int(np.floor(half * OVERSAMPLE))
-    sel = np.abs(dist) < nb / OVERSAMPLE
-    idx = np.floor(dist[sel] * OVERSAMPLE).astype(np.int64) + nb
-    cnt = np.bincount(idx, minlength=2 * nb)[: 2 * nb]
-    acc = np.bincount(idx, weights=img[sel], minlength=2 * nb)[: 2 * nb]
-    filled = cnt > 0
-    if filled.sum() < 0.9 * cnt.size:
-        raise ValueError("edge spread function has too many empty bins")
-    centres = np.arange(2 * nb)
-    esf = np.interp(centres, centres[filled], acc[filled] / cnt[filled])
-    # bin phase: mean position of each bin's samples relative to the bin centre, in bins (0 if empty)
-    pos_in_bin = dist[sel] * OVERSAMPLE - np.floor(dist[sel] * OVERSAMPLE) - 0.5
-    delta = np.bincount(idx, weights=pos_in_bin, minlength=2 * nb)[: 2 * nb] / np.maximum(cnt, 1)
-    esf = esf - np.gradient(esf) * delta  # first-order move of each bin mean to its bin centre
-    # texture beside the edge: pixels more than 2 px from it about the ESF, relative to the step
-    far = np.abs(dist[sel]) > 2.0
-    n_pl = min(2 * OVERSAMPLE, esf.size // 4)
-    step = abs(float(esf[-n_pl:].mean() - esf[:n_pl].mean()))
-    texture = (
-        float(np.sqrt(np.mean((img[sel][far] - esf[idx[far]]) ** 2)) / max(step, 1e-12))
-        if far.any()
-        else np.inf
-    )
-    if esf[-OVERSAMPLE:].mean() < esf[:OVERSAMPLE].mean():
-        esf = esf[::-1]  # dark-to-bright along +distance
-    lsf = np.zeros_like(esf)
-    lsf[1:-1] = 0.5 * (esf[2:] - esf[:-2])
-    if lsf.sum() <= 0:
-        raise ValueError("edge spread function is not monotone enough to measure")
-    pos = np.arange(lsf.size, dtype=np.float64)
-    centre = float((lsf * pos).sum() / lsf.sum())
-    hw = _window_half_width(lsf, centre, _rise_10_90(esf))
-    lsfw = lsf * _tukey_window(pos - centre, hw)
-    spec = np.abs(np.fft.rfft(lsfw))
-    if spec[0] <= 0:
-        raise ValueError("line spread function has no area")
-    mtf = spec / spec[0]
-    d = 1.0 / OVERSAMPLE
-    freqs = np.fft.rfftfreq(lsf.size, d=d)  # cycles / pixel
-    # remove the transfer of the central difference (sin(2 pi f d)/(2 pi f d)) and of the binning (sinc f d)
-    corr = np.sinc(2 * freqs * d) * np.sinc(freqs * d)
-    keep_f = freqs <= 1.0
-    mtf = (mtf / np.where(np.abs(corr) > 0.1, corr, 1.0))[keep_f]
-    freqs = freqs[keep_f]
+    esf, step, texture = _edge_spread(img, rows, a, b)
+    freqs, mtf, lsfw = _mtf_from_esf(esf)
     mtf50 = mtf_crossing(freqs, mtf, 0.5)
     mtf30 = mtf_crossing(freqs, mtf, 0.3)
     res = MTFResult(
@@ -305,3 +292,119 @@ def slanted_edge_mtf(
         res.mtf50_lp_mm = mtf50 * per_mm
         res.mtf30_lp_mm = mtf30 * per_mm
     return res
+
+
+def _roi_image(image: np.ndarray, roi: tuple[int, int, int, int] | None) -> np.ndarray:
+    """Return the ROI of the image's luminance as float64; ValueError if unusable."""
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim == 3 and img.shape[2] == 3:
+        img = img @ np.array([0.114, 0.587, 0.299])  # BGR -> luminance (ITU-R BT.601)
+    if img.ndim != 2:
+        raise ValueError(f"image must be 2-D (or HxWx3 BGR), got shape {np.shape(image)}")
+    if roi is not None:
+        x, y, w, h = (int(v) for v in roi)
+        if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > img.shape[1] or y + h > img.shape[0]:
+            raise ValueError(f"roi {roi} outside the image {img.shape[1]}x{img.shape[0]}")
+        img = img[y : y + h, x : x + w]
+    if min(img.shape) < 16:
+        raise ValueError(f"ROI too small for an edge measurement: {img.shape}")
+    if not np.isfinite(img).all():
+        raise ValueError("image contains NaN or infinite values")
+    return img
+
+
+def _fit_edge_line(img: np.ndarray) -> tuple[np.ndarray, float, float, float]:
+    """Fit the edge line ``c = a + b r``; return ``(rows, a, b, rms of the row positions)``.
+
+    Rows whose centroid lies beyond ``max(3 std, 1 px)`` of a first fit are dropped and the
+    line refitted. ValueError when too few rows have an edge, or the edge's angle does not
+    suit the 4x oversampling (it must move >= 1 px over the rows; at most 40 deg).
+    """
+    rows, cent = _edge_centroids(img)
+    good = np.isfinite(cent)
+    if good.sum() < 8:
+        raise ValueError("no edge found in enough rows")
+    b, a = np.polyfit(rows[good], cent[good], 1)
+    resid = cent[good] - (a + b * rows[good])
+    keep = np.abs(resid) < max(3 * np.std(resid), 1.0)  # drop rows where the centroid failed
+    b, a = np.polyfit(rows[good][keep], cent[good][keep], 1)
+    line_rms = float(np.sqrt(np.mean((cent[good][keep] - (a + b * rows[good][keep])) ** 2)))
+    angle = float(np.degrees(np.arctan(b)))
+    if abs(b) * img.shape[0] < OVERSAMPLE:
+        raise ValueError(
+            f"edge angle {angle:.2f} deg too close to the pixel grid for {OVERSAMPLE}x "
+            f"oversampling over {img.shape[0]} rows (tilt it a few degrees)"
+        )
+    if abs(angle) > 40:
+        raise ValueError(f"edge angle {angle:.1f} deg too far from the pixel grid (use 2-40 deg)")
+    return rows, a, b, line_rms
+
+
+def _edge_spread(
+    img: np.ndarray, rows: np.ndarray, a: float, b: float
+) -> tuple[np.ndarray, float, float]:
+    """Return the oversampled, bin-phase-corrected ESF (dark to bright), step height, texture.
+
+    Pixels within the band of +-half-width around the edge that lies inside the ROI in
+    every row are binned by their distance along the edge normal (``1/OVERSAMPLE`` px
+    bins). Texture: RMS of the pixels more than 2 px from the edge about the ESF, relative
+    to the step between the ESF's plateaus.
+    """
+    cc, rr = np.meshgrid(np.arange(img.shape[1], dtype=np.float64), rows)
+    dist = (cc - (a + b * rr)) / np.sqrt(1.0 + b * b)  # signed distance along the normal, px
+    edge_c = a + b * rows
+    half = min(edge_c.min(), (img.shape[1] - 1 - edge_c).min()) / np.sqrt(1.0 + b * b)
+    if half < 4:
+        raise ValueError("edge too close to the ROI border")
+    nb = int(np.floor(half * OVERSAMPLE))
+    sel = np.abs(dist) < nb / OVERSAMPLE
+    idx = np.floor(dist[sel] * OVERSAMPLE).astype(np.int64) + nb
+    cnt = np.bincount(idx, minlength=2 * nb)[: 2 * nb]
+    acc = np.bincount(idx, weights=img[sel], minlength=2 * nb)[: 2 * nb]
+    filled = cnt > 0
+    if filled.sum() < 0.9 * cnt.size:
+        raise ValueError("edge spread function has too many empty bins")
+    centres = np.arange(2 * nb)
+    esf = np.interp(centres, centres[filled], acc[filled] / cnt[filled])
+    # bin phase: mean position of each bin's samples relative to the bin centre, in bins
+    pos_in_bin = dist[sel] * OVERSAMPLE - np.floor(dist[sel] * OVERSAMPLE) - 0.5
+    delta = np.bincount(idx, weights=pos_in_bin, minlength=2 * nb)[: 2 * nb] / np.maximum(cnt, 1)
+    esf = esf - np.gradient(esf) * delta  # first-order move of each bin mean to its bin centre
+    far = np.abs(dist[sel]) > 2.0
+    n_pl = min(2 * OVERSAMPLE, esf.size // 4)
+    step = abs(float(esf[-n_pl:].mean() - esf[:n_pl].mean()))
+    texture = (
+        float(np.sqrt(np.mean((img[sel][far] - esf[idx[far]]) ** 2)) / max(step, 1e-12))
+        if far.any()
+        else np.inf
+    )
+    if esf[-OVERSAMPLE:].mean() < esf[:OVERSAMPLE].mean():
+        esf = esf[::-1]  # dark-to-bright along +distance
+    return esf, step, texture
+
+
+def _mtf_from_esf(esf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return ``(freqs, mtf, windowed lsf)`` of an ESF, up to 1 cycle/px.
+
+    The LSF (central difference) is windowed (:func:`~subpix_ros.core.filters.tukey_taper`)
+    about its centroid; the MTF is divided by the transfers of the central difference
+    ``sinc(2 f d)`` and of the binning ``sinc(f d)``, ``d = 1/OVERSAMPLE``.
+    """
+    lsf = np.zeros_like(esf)
+    lsf[1:-1] = 0.5 * (esf[2:] - esf[:-2])
+    if lsf.sum() <= 0:
+        raise ValueError("edge spread function is not monotone enough to measure")
+    pos = np.arange(lsf.size, dtype=np.float64)
+    centre = float((lsf * pos).sum() / lsf.sum())
+    hw = _window_half_width(lsf, centre, _rise_10_90(esf))
+    lsfw = lsf * tukey_taper(pos - centre, hw)
+    spec = np.abs(np.fft.rfft(lsfw))
+    if spec[0] <= 0:
+        raise ValueError("line spread function has no area")
+    mtf = spec / spec[0]
+    d = 1.0 / OVERSAMPLE
+    freqs = np.fft.rfftfreq(lsf.size, d=d)  # cycles / pixel
+    corr = np.sinc(2 * freqs * d) * np.sinc(freqs * d)
+    keep_f = freqs <= 1.0
+    mtf = (mtf / np.where(np.abs(corr) > 0.1, corr, 1.0))[keep_f]
+    return freqs[keep_f], mtf, lsfw

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from subpix_ros.core.blur import BLUR_SIGMA_MAX, BlurCalibration, parse_blur_sigma
-from subpix_ros.core.superres_budget import reconstruct_within_budget
+from subpix_ros.core.superres import reconstruct_within_budget
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
 from subpix_ros.stages.stats import ReconstructionStats

@@ -88,7 +88,7 @@ def test_paper_evaluation_reconstruction_reaches_optics_limit(crops, p):
 @pytest.mark.parametrize("sigma", [0.3, 0.4, 0.6])
 @pytest.mark.parametrize("angle", [2.5, 5.0, 8.0, 15.0, 30.0])
 def test_noisy_8bit_edge_within_001(angle, sigma):
-    # 1 DN noise and 8-bit rounding, down to blur 0.3 px (MTF30 beyond Nyquist): error <= 0.01 cycles/pixel
+    # 1 DN noise and 8-bit rounding, down to blur 0.3 px (MTF30 beyond Nyquist): error <= 0.01 c/px
     for seed in (3, 4):
         img = np.clip(np.rint(edge_image(100, 80, angle, sigma, noise=1.0, seed=seed)), 0, 255)
         r = slanted_edge_mtf(img)

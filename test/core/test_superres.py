@@ -17,7 +17,7 @@ from subpix_ros.core.superres import (
     reconstruct,
     reconstruct_colour,
 )
-from subpix_ros.core.superres_model import translation_homography
+from subpix_ros.core.superres.model import translation_homography
 from subpix_ros.data import CROP_NAMES
 
 
@@ -89,7 +89,7 @@ def test_x2_grid_with_shift_errors(crops, err, target):
 
 
 def test_x2_shift_errors_without_refinement_use_covariance(crops):
-    # the given shifts as they are (0.05 px error), their covariance in the model: still above bicubic
+    # the given shifts as they are (0.05 px error), their covariance in the model: above bicubic
     g = gains(
         crops,
         2,

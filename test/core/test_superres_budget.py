@@ -5,12 +5,12 @@ import pytest
 
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres import bicubic_upscale, psnr
-from subpix_ros.core.superres_budget import (
+from subpix_ros.core.superres.budget import (
     estimate_peak_mb,
     plan_reconstruction,
     reconstruct_within_budget,
 )
-from subpix_ros.core.superres_masks import reconstruct_aligned
+from subpix_ros.core.superres.masks import reconstruct_aligned
 
 SHIFTS8 = [
     (0, 0),
@@ -78,7 +78,7 @@ def test_tiled_reconstruction_fits_the_budget_and_keeps_the_gain(seq):
     p_full = psnr(full.image[inner], seq.truth[inner])
     p_tiled = psnr(tiled.image[inner], seq.truth[inner])
     p_bic = psnr(bicubic_upscale(seq.frames[0], 2)[inner], seq.truth[inner])
-    # the tiles keep the super-resolution gain (each tile fits its own spectrum prior: not bit-equal)
+    # the tiles keep the super-resolution gain (each tile fits its own prior: not bit-equal)
     assert p_full - p_bic > 1.0
     assert p_tiled > p_full - 0.3
 

@@ -1,7 +1,7 @@
 """The fast paths of the super-resolution solver equal their direct definitions.
 
 Each vectorised / blocked / windowed helper of :mod:`subpix_ros.core.superres`
-and :func:`subpix_ros.core.superres_paper.interleave` is compared with a
+and :func:`subpix_ros.core.superres.paper.interleave` is compared with a
 plain reference written here from its docstring (dense per-bin solves,
 whole-frame filtering, an array-wide roll-based hole fill, a per-exponent
 least-squares loop). Random inputs; tolerances are the single-precision
@@ -13,9 +13,17 @@ import numpy as np
 import pytest
 
 from subpix_ros.core import superres as sr
+from subpix_ros.core.filters import fractional_shift, tukey
 from subpix_ros.core.render import render_sequence
-from subpix_ros.core.superres_model import frame_transfer_1d, gaussian_kernel
-from subpix_ros.core.superres_paper import interleave
+from subpix_ros.core.superres.dft import _assemble_hr
+from subpix_ros.core.superres.geometry import _refine_shifts
+from subpix_ros.core.superres.lowpass import _integer_preshift, _lowpass_window, _WholeLowpass
+from subpix_ros.core.superres.lucas_kanade import _lk_batch, _lk_context, _lk_inner
+from subpix_ros.core.superres.model import frame_transfer_1d, gaussian_kernel
+from subpix_ros.core.superres.paper import interleave
+from subpix_ros.core.superres.result import _bicubic_rim
+from subpix_ros.core.superres.separable import _solve_separable
+from subpix_ros.core.superres.spectrum import _spectrum_bins
 
 
 def _dense_map(spec, ay, ax, fy, fx, c, alpha, reg, noise_power):
@@ -51,15 +59,15 @@ def test_separable_solve_equals_dense_per_bin_solve(p, n, block):
     spec = (rng.normal(size=(n, hp, wc)) + 1j * rng.normal(size=(n, hp, wc))) * 100
     args = (spec.astype(np.complex64), ay, ax, fy, fx, 3.0e5, 2.5, 1.0, hp * wp * 0.5)
     ref = _dense_map(spec, *args[1:])
-    fast = sr._solve_separable(*args, block_bins=block)  # small blocks: several row blocks
+    fast = _solve_separable(*args, block_bins=block)  # small blocks: several row blocks
     assert np.abs(fast - ref).max() < 1e-4 * np.abs(ref).max()
-    # rank-one Gram entries from the shifts the transfers were built with (frame 0 not at zero shift here)
+    # rank-one Gram entries from the shifts the transfers were built with (frame 0 not at 0 here)
     shifts[0] = rng.uniform(-0.5, 0.5, 2)
     ay = np.stack([frame_transfer_1d(hp, p, s, 0.4)[0] for s in shifts[:, 0]])
     ax = np.stack([frame_transfer_1d(wp, p, s, 0.4)[0][:, :wc] for s in shifts[:, 1]])
     args = (spec.astype(np.complex64), ay, ax, fy, fx, 3.0e5, 2.5, 1.0, hp * wp * 0.5)
     ref = _dense_map(spec, *args[1:])
-    fast = sr._solve_separable(*args, block_bins=block, shifts=shifts)
+    fast = _solve_separable(*args, block_bins=block, shifts=shifts)
     assert np.abs(fast - ref).max() < 1e-4 * np.abs(ref).max()
 
 
@@ -74,13 +82,13 @@ def test_assemble_hr_inverts_the_alias_split(p, hp, wp):
     for m1 in range(p):
         for m2 in range(p):
             xs[m1, m2] = spec[m1 * hp : (m1 + 1) * hp, m2 * wp : m2 * wp + wc]
-    out = sr._assemble_hr(xs, hp, wp)
+    out = _assemble_hr(xs, hp, wp)
     assert out.shape == img.shape
     assert np.abs(out - img).max() < 1e-4
 
 
 def _interleave_reference(frames, offsets, p, q):
-    """The eq. 3 interleave as documented, with the hole fill as whole-array cyclic rolls."""
+    """Build the eq. 3 interleave as documented, the hole fill as whole-array cyclic rolls."""
     h, w = frames[0].shape
     acc = np.zeros((h * p, w * q))
     cnt = np.zeros((h * p, w * q))
@@ -136,9 +144,9 @@ def test_lowpass_window_equals_whole_frame_filter(pre, post):
     frame = rng.normal(size=(60, 70))
     g = gaussian_kernel(1.0)
     whole = cv2.sepFilter2D(
-        sr._integer_preshift(frame, *pre), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
+        _integer_preshift(frame, *pre), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
     )
-    whole = sr._integer_preshift(whole, *post)
+    whole = _integer_preshift(whole, *post)
     for rows, cols in [
         (slice(20, 40), slice(25, 50)),
         (slice(0, 30), slice(0, 20)),
@@ -146,7 +154,7 @@ def test_lowpass_window_equals_whole_frame_filter(pre, post):
         (slice(2, 58), slice(1, 69)),
     ]:
         np.testing.assert_allclose(
-            sr._lowpass_window(frame, g, pre, post, rows, cols),
+            _lowpass_window(frame, g, pre, post, rows, cols),
             whole[rows, cols],
             rtol=0,
             atol=1e-12,
@@ -156,7 +164,7 @@ def test_lowpass_window_equals_whole_frame_filter(pre, post):
 def test_fractional_shift_window_equals_whole_image():
     rng = np.random.default_rng(6)
     img = rng.uniform(0, 255, (50, 64)).astype(np.float32)
-    whole = sr._fractional_shift(img, 0.3, -0.45)
+    whole = fractional_shift(img, 0.3, -0.45)
     for win in [
         (slice(0, 10), slice(0, 64)),
         (slice(40, 50), slice(0, 64)),
@@ -165,7 +173,7 @@ def test_fractional_shift_window_equals_whole_image():
         (slice(20, 30), slice(20, 30)),
     ]:
         np.testing.assert_allclose(
-            sr._fractional_shift(img, 0.3, -0.45, window=win), whole[win], rtol=0, atol=1e-3
+            fractional_shift(img, 0.3, -0.45, window=win), whole[win], rtol=0, atol=1e-3
         )
 
 
@@ -175,12 +183,12 @@ def test_bicubic_rim_equals_whole_frame_bicubic(p):
     ref = rng.uniform(0, 255, (40, 52))
     img = rng.normal(size=(40 * p, 52 * p))
     inner = img[p:-p, p:-p].copy()
-    out = sr._bicubic_rim(img.copy(), ref, p)
+    out = _bicubic_rim(img.copy(), ref, p)
     bic = sr.bicubic_upscale(ref, p)
     np.testing.assert_array_equal(out[p:-p, p:-p], inner)  # the inside is untouched
     rim = np.ones(out.shape, bool)
     rim[p:-p, p:-p] = False
-    # strips vs whole frame: OpenCV computes the cubic weights in single precision from absolute coordinates
+    # strips vs whole frame: OpenCV's cubic weights are single precision, from absolute coordinates
     assert np.abs(out[rim] - bic[rim]).max() < 0.02
 
 
@@ -197,9 +205,9 @@ def test_refined_shifts_do_not_depend_on_batching(crops):
     given = seq.shifts + np.array([[0, 0], [0.05, -0.04], [-0.03, 0.06], [0.02, 0.03]])
     ishift = np.rint(given).astype(np.int64)
     resid = given - ishift
-    together = sr._refine_shifts(frames, ishift, resid)
+    together = _refine_shifts(frames, ishift, resid)
     for i in range(1, 4):  # each frame alone against the reference
-        alone = sr._refine_shifts(frames[[0, i]], ishift[[0, i]], resid[[0, i]])
+        alone = _refine_shifts(frames[[0, i]], ishift[[0, i]], resid[[0, i]])
         np.testing.assert_allclose(alone[0][1], together[0][i], rtol=0, atol=1e-12)
         np.testing.assert_allclose(alone[1][1], together[1][i], rtol=1e-9)
         np.testing.assert_allclose(alone[3][1], together[3][i], rtol=1e-9)
@@ -207,7 +215,10 @@ def test_refined_shifts_do_not_depend_on_batching(crops):
 
 
 def _fit_one_exponent(alpha, psd_obs, amp, logf, noise_sigma):
-    """(misfit, c, sigma^2) of one exponent: 3 passes of weighted least squares, as fit_spectrum documents."""
+    """Return (misfit, c, sigma^2) of one exponent: 3 passes of weighted least squares.
+
+    As fit_spectrum documents.
+    """
     q = np.sum(amp * np.exp(-alpha * logf), axis=0)
     wgt = 1.0 / np.maximum(psd_obs, 1e-12) ** 2
     for _ in range(3):
@@ -246,13 +257,13 @@ def test_fit_spectrum_equals_per_exponent_loop(crops, p, noise_sigma):
     c, alpha, sigma = sr.fit_spectrum(frames, p, 0.4, noise_sigma)
     # the same observation and model terms, built as fit_spectrum's docstring states
     h = w = frames.shape[1]
-    win = np.outer(sr._tukey(h), sr._tukey(w))
+    win = np.outer(tukey(h), tukey(w))
     x = (frames - frames.mean(axis=(1, 2), keepdims=True)) * win
     psd = np.mean([np.abs(np.fft.rfft2(f)) ** 2 for f in x], axis=0) / float(np.sum(win**2))
     ay, fy = frame_transfer_1d(h, p, 0.0, 0.4)
     ax, fx = frame_transfer_1d(w, p, 0.0, 0.4)
     wc = w // 2 + 1
-    sel = sr._spectrum_bins(h, w, 8000)
+    sel = _spectrum_bins(h, w, 8000)
     ky, kx = np.unravel_index(sel, (h, wc))
     amp = (np.abs(ay[:, None, ky] * ax[:, :wc][None, :, kx]) ** 2).reshape(p * p, -1) * p * p
     logf = np.log(
@@ -277,12 +288,14 @@ def test_fit_spectrum_equals_per_exponent_loop(crops, p, noise_sigma):
     [((0, 0), (0, 0)), ((1, -2), (0, 0)), ((0, 0), (-1, 1)), ((0, 0), (2, -3)), ((2, 1), (1, -1))],
 )
 def test_lowpass_window_from_whole_lowpass_equals_direct(pre, post):
-    """Windows sliced (or reflected) from the shared whole-frame low-pass equal the per-window filtering
-    (to the shared low-pass's single-precision round-off: values ~100, float32 eps 1.2e-7)."""
+    """Windows sliced (or reflected) from the shared low-pass equal the per-window filtering.
+
+    To the shared low-pass's single-precision round-off: values ~100, float32 eps 1.2e-7.
+    """
     rng = np.random.default_rng(7)
     frames = rng.normal(size=(2, 60, 70)) * 30 + 100
     g = gaussian_kernel(1.0)
-    lp = sr._WholeLowpass(frames)
+    lp = _WholeLowpass(frames)
     assert lp.get(1, 1.0) is not None and lp.get(1, 0.5) is None  # another low-pass: not shared
     for rows, cols in [
         (slice(20, 40), slice(25, 50)),
@@ -291,8 +304,8 @@ def test_lowpass_window_from_whole_lowpass_equals_direct(pre, post):
         (slice(2, 58), slice(1, 69)),
         (slice(0, 60), slice(0, 70)),
     ]:
-        direct = sr._lowpass_window(frames[1], g, pre, post, rows, cols)
-        shared = sr._lowpass_window(frames[1], g, pre, post, rows, cols, whole=lp.get(1, 1.0))
+        direct = _lowpass_window(frames[1], g, pre, post, rows, cols)
+        shared = _lowpass_window(frames[1], g, pre, post, rows, cols, whole=lp.get(1, 1.0))
         assert shared.shape == direct.shape
         if pre == (0, 0):  # always served from the shared (single-precision) low-pass
             assert shared.dtype == np.float32
@@ -300,7 +313,7 @@ def test_lowpass_window_from_whole_lowpass_equals_direct(pre, post):
 
 
 def test_lk_residual_variance_equals_direct_residual(crops):
-    """_lk_batch's noise variance from the z z^T sums equals var(F - R - d . grad R) computed on the pixels."""
+    """_lk_batch's noise variance from the z z^T sums equals var(F - R - d . grad R) on pixels."""
     seq = render_sequence(
         crops["crop_trees"][: 2 * 96, : 2 * 96],
         2,
@@ -312,14 +325,14 @@ def test_lk_residual_variance_equals_direct_residual(crops):
     frames = np.stack(seq.frames).astype(np.float64)
     g = gaussian_kernel(1.0)
     sl = (slice(24, 72), slice(24, 72))
-    ctx = sr._lk_context(sl, 96, 96)
-    inner = sr._lk_inner(sl, ctx)
-    ref = sr._lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx)
+    ctx = _lk_context(sl, 96, 96)
+    inner = _lk_inner(sl, ctx)
+    ref = _lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx)
 
     def mov(_k, iu, iv):
-        return sr._lowpass_window(frames[1], g, (0, 0), (iu, iv), *ctx)
+        return _lowpass_window(frames[1], g, (0, 0), (iu, iv), *ctx)
 
-    s, sig, rv = sr._lk_batch(
+    s, sig, rv = _lk_batch(
         [ref], np.zeros(1, int), mov, np.arange(1), np.array([[0.25, -0.35]]), inner, g, iters=1
     )
     # the same single Gauss-Newton step written out on the pixels (Fourier shift by the start value)
@@ -342,7 +355,7 @@ def test_lk_residual_variance_equals_direct_residual(crops):
 
 
 def test_noise_estimate_of_8bit_frames_equals_float_path():
-    """The histogram median of 8-bit frames gives exactly the float path's np.median value (odd and even counts)."""
+    """The histogram median of 8-bit frames is exactly the float path's np.median (odd, even n)."""
     rng = np.random.default_rng(8)
     for h, w in [(3, 3), (4, 5), (17, 30), (64, 64), (101, 37)]:
         for spread in (0.3, 5.0, 60.0):

@@ -6,7 +6,8 @@ import numpy as np
 
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres import psnr, reconstruct
-from subpix_ros.core.superres_masks import common_valid_box, reconstruct_aligned
+from subpix_ros.core.superres.masks import reconstruct_aligned
+from subpix_ros.core.validity import common_valid_box
 
 
 def test_common_valid_box():
@@ -42,7 +43,7 @@ def test_strip_masks_match_the_unmasked_solution(crops):
     assert fast.method == "map"  # the Fourier-domain solver, not conjugate gradients
     b = 16
     inner = (slice(2 * 3 + b, 2 * h - b), slice(b, 2 * (w - 2) - b))
-    # inside the common rectangle it is the unmasked solution up to the rectangle's own border effects
+    # inside the common rectangle: the unmasked solution up to the rectangle's own border effects
     assert (
         psnr(fast.image[inner], seq.truth[inner]) > psnr(full.image[inner], seq.truth[inner]) - 0.3
     )
@@ -53,7 +54,7 @@ def test_strip_masks_match_the_unmasked_solution(crops):
 
 def test_strips_outside_the_box_are_the_whole_frame_bicubic():
     from subpix_ros.core.superres import bicubic_upscale
-    from subpix_ros.core.superres_masks import _bicubic_outside
+    from subpix_ros.core.superres.masks import bicubic_outside as _bicubic_outside
 
     rng = np.random.default_rng(8)
     for ref in (rng.uniform(0, 255, (40, 52)), rng.uniform(0, 255, (40, 52, 3))):

@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 
 from subpix_ros.core.render import render_sequence
-from subpix_ros.core.superres_model import (
+from subpix_ros.core.superres.model import (
     FrameOperator,
     box_sum,
     box_sum_adjoint,
     frame_transfer_1d,
     translation_homography,
 )
-from subpix_ros.core.superres_paper import (
+from subpix_ros.core.superres.paper import (
     band_matrix,
     grid_offsets,
     interleave,

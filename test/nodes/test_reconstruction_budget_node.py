@@ -7,7 +7,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 
 from subpix_ros.core.render import render_sequence
-from subpix_ros.core.superres_budget import estimate_peak_mb
+from subpix_ros.core.superres import estimate_peak_mb
 from subpix_ros.io import cdr
 from subpix_ros.nodes.common import latched_qos
 

@@ -7,7 +7,7 @@ import pytest
 from conftest import SET_SHIFTS, rendered_set
 
 from subpix_ros.core.evaluate import gain_over_bicubic
-from subpix_ros.core.superres_budget import estimate_peak_mb
+from subpix_ros.core.superres import estimate_peak_mb
 from subpix_ros.data import load_crop
 from subpix_ros.stages import Aligned, Frame, ReconstructionStage, Shift
 

@@ -27,6 +27,7 @@ centre at LR coordinate ``(k + 0.5)/p - 0.5``.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import cv2
@@ -46,10 +47,19 @@ __all__ = [
 
 
 def box_sum(x: np.ndarray, p: int, q: int) -> np.ndarray:
-    """Eq. 3/5: ``Y = T1 X T2``, ``y[k, l] = sum_{a<p, b<q} x[k+a, l+b]``.
+    """Apply eq. 3/5, ``Y = T1 X T2``: ``y[k, l] = sum_{a<p, b<q} x[k+a, l+b]``.
 
-    ``x`` is (n_x+p-1) x (n_y+q-1); the result n_x x n_y ("valid" box sum,
-    sums not means, exactly as in the paper). Vectorised by cumulative sums.
+    Parameters
+    ----------
+    x : numpy.ndarray
+        (n_x + p - 1, n_y + q - 1) HR sub-pixels.
+    p, q : int
+        Box size along rows and columns.
+
+    Returns
+    -------
+    numpy.ndarray
+        (n_x, n_y) "valid" box sums (sums, not means, as in the paper), by cumulative sums.
     """
     x = np.asarray(x, dtype=np.float64)
     if x.ndim != 2 or x.shape[0] < p or x.shape[1] < q:
@@ -60,14 +70,30 @@ def box_sum(x: np.ndarray, p: int, q: int) -> np.ndarray:
 
 
 def box_sum_adjoint(y: np.ndarray, p: int, q: int) -> np.ndarray:
-    """Adjoint of :func:`box_sum`: ``T1^T Y T2^T`` ("full" box sum), (n_x+p-1) x (n_y+q-1)."""
+    """Apply the adjoint of :func:`box_sum`, ``T1^T Y T2^T`` ("full" box sum).
+
+    Returns an (n_x + p - 1, n_y + q - 1) array for an (n_x, n_y) ``y``.
+    """
     y = np.asarray(y, dtype=np.float64)
     padded = np.pad(y, ((p - 1, p - 1), (q - 1, q - 1)))
     return box_sum(padded, p, q)
 
 
 def gaussian_kernel(sigma: float, radius: int | None = None) -> np.ndarray:
-    """Normalised 1-D Gaussian ``g[k] ~ exp(-k^2 / (2 sigma^2))``, sigma in samples."""
+    """Return the normalised 1-D Gaussian ``g[k] ~ exp(-k^2 / (2 sigma^2))``.
+
+    Parameters
+    ----------
+    sigma : float
+        Std in samples; ``[1]`` for sigma <= 0.
+    radius : int, optional
+        Half-length (default ``ceil(4 sigma)``).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 taps, summing to 1.
+    """
     if sigma <= 0:
         return np.ones(1)
     r = int(np.ceil(4.0 * sigma)) if radius is None else radius
@@ -77,10 +103,10 @@ def gaussian_kernel(sigma: float, radius: int | None = None) -> np.ndarray:
 
 
 def blur(x: np.ndarray, sigma: float) -> np.ndarray:
-    """Separable Gaussian blur (sigma in pixels of ``x``) with a zero border.
+    """Blur with a separable Gaussian (sigma in pixels of ``x``) and a zero border.
 
-    The kernel is symmetric and the border constant zero, so the operator is
-    self-adjoint (needed by the conjugate-gradient solver).
+    The kernel is symmetric and the border constant zero, so the operator is self-adjoint
+    (as the conjugate-gradient solver needs).
     """
     if sigma <= 0:
         return np.asarray(x, dtype=np.float64)
@@ -91,32 +117,45 @@ def blur(x: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def decimate_mean(z: np.ndarray, p: int, q: int) -> np.ndarray:
-    """Detector integration ``D_pq``: mean of each p x q block (eq. 3 / (p q))."""
+    """Apply detector integration ``D_pq``: the mean of each p x q block (eq. 3 / (p q))."""
     h, w = z.shape[0] // p, z.shape[1] // q
     return z[: h * p, : w * q].reshape(h, p, w, q).mean(axis=(1, 3))
 
 
 def decimate_mean_adjoint(y: np.ndarray, p: int, q: int) -> np.ndarray:
-    """Adjoint of :func:`decimate_mean`: each LR value spread over its block, divided by p q."""
+    """Apply the adjoint of :func:`decimate_mean`: each value spread over its block, / (p q)."""
     return np.repeat(np.repeat(np.asarray(y, dtype=np.float64), p, axis=0), q, axis=1) / (p * q)
 
 
 def translation_homography(u: float, v: float) -> np.ndarray:
-    """Homography of a pure shift (u rows, v cols) in the project convention."""
+    """Return the homography of a pure shift (u rows, v cols), project convention."""
     return np.array([[1.0, 0.0, v], [0.0, 1.0, u], [0.0, 0.0, 1.0]])
 
 
 @dataclass
 class FrameOperator:
-    """``A_n = D_pq S_n B``: HR image (reference grid) -> LR frame n, and its adjoint.
+    """The frame operator ``A_n = D_pq S_n B``: HR image (reference grid) -> LR frame n.
 
-    ``homography`` maps reference LR pixel coordinates to frame-n LR pixel
-    coordinates. ``lr_shape`` is frame n's shape, ``hr_shape`` the HR grid.
-    Sub-pixels of frame n whose scene position falls outside the HR grid (or
-    within ``border`` HR pixels of its edge, where the zero-border blur is
-    wrong) are invalid; :attr:`valid` marks the LR pixels all of whose
-    sub-pixels are valid. Resampling is bilinear (4 taps per sub-pixel), its
-    adjoint a weighted scatter (``np.bincount``): both vectorised.
+    Parameters
+    ----------
+    homography : numpy.ndarray
+        (3, 3) reference LR pixel coordinates -> frame-n LR pixel coordinates.
+    lr_shape : (int, int)
+        Frame n's shape.
+    hr_shape : (int, int)
+        The HR grid's shape.
+    p, q : int
+        Factors along rows and columns.
+    blur_sigma : float
+        Optics blur std (LR px).
+
+    Notes
+    -----
+    Sub-pixels of frame n whose scene position falls outside the HR grid (or within
+    ``3 blur_sigma max(p, q)`` HR px of its edge, where the zero-border blur is wrong) are
+    invalid; :attr:`valid` marks the LR pixels all of whose sub-pixels are valid.
+    Resampling is bilinear (4 taps per sub-pixel), its adjoint a weighted scatter
+    (``np.bincount``).
     """
 
     homography: np.ndarray
@@ -130,6 +169,7 @@ class FrameOperator:
     valid: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        """Precompute the bilinear taps and weights of every sub-pixel, and :attr:`valid`."""
         p, q = self.p, self.q
         h, w = self.lr_shape
         hh, hw = self.hr_shape
@@ -160,7 +200,7 @@ class FrameOperator:
         self.valid = decimate_mean(ok.astype(np.float64), p, q) > 1.0 - 1e-9
 
     def forward(self, x: np.ndarray) -> np.ndarray:
-        """``A_n x``: HR image (hr_shape) -> LR frame (lr_shape), invalid pixels 0."""
+        """Apply ``A_n x``: HR image (hr_shape) -> LR frame (lr_shape), invalid pixels 0."""
         bx = blur(x, self.blur_sigma * self.p).ravel()
         sub = (
             (bx[self._idx] * self._wts)
@@ -170,7 +210,7 @@ class FrameOperator:
         return decimate_mean(sub, self.p, self.q) * self.valid
 
     def adjoint(self, y: np.ndarray) -> np.ndarray:
-        """``A_n^T y``: LR frame -> HR image; exact adjoint of :meth:`forward`."""
+        """Apply ``A_n^T y``: LR frame -> HR image; the exact adjoint of :meth:`forward`."""
         sub = decimate_mean_adjoint(
             np.asarray(y, dtype=np.float64) * self.valid, self.p, self.q
         ).ravel()
@@ -184,20 +224,38 @@ class FrameOperator:
 def frame_transfer_1d(
     n_lr: int, p: int, shift: float, blur_sigma: float, shift_var: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-axis Fourier transfer of eq. 3 with blur and shift, folded onto LR bins.
+    """Return the per-axis Fourier transfer of eq. 3 with blur and shift, folded onto LR bins.
 
-    For an LR DFT of length ``n_lr`` and HR DFT of length ``p * n_lr``, LR bin
-    ``k`` receives the p aliased HR bins ``K_m = k + m n_lr`` (m = 0..p-1):
-    ``Y[k] = sum_m a[m, k] X[K_m]`` per axis with
+    Parameters
+    ----------
+    n_lr : int
+        LR DFT length (the HR one is ``p n_lr``).
+    p : int
+        Factor.
+    shift : float
+        Frame shift (LR px).
+    blur_sigma : float
+        Optics blur std (LR px).
+    shift_var : float, optional
+        Variance of a Gaussian shift error (LR px^2).
 
-        a[m, k] = (1/p) * Hbox(f) * G(f) * exp(-2 pi i f s) * exp(-2 pi^2 f^2 var_s)
+    Returns
+    -------
+    a : numpy.ndarray
+        complex (p, n_lr): ``Y[k] = sum_m a[m, k] X[K_m]``.
+    f : numpy.ndarray
+        (p, n_lr) signed HR frequency of ``K_m`` (cycles / HR px).
 
-    where ``f`` is the signed HR frequency of ``K_m`` (cycles / HR pixel),
-    ``Hbox(f) = (1/p) sum_{a<p} exp(2 pi i f a)`` (mean over the block that
-    starts at HR pixel p*i), ``G(f) = exp(-2 pi^2 (p sigma)^2 f^2)`` the optics,
-    ``s = p * shift`` HR px and ``var_s = p^2 shift_var`` (expected transfer
-    under a Gaussian shift error, METHODS eq. 9 with registration noise). The
-    leading 1/p is the DFT aliasing factor. Returns ``(a, f)``, both (p, n_lr).
+    Notes
+    -----
+    LR bin ``k`` receives the p aliased HR bins ``K_m = k + m n_lr`` (m = 0..p-1)::
+
+        a[m, k] = (1/p) Hbox(f) G(f) exp(-2 pi i f s) exp(-2 pi^2 f^2 var_s)
+
+    with ``Hbox(f) = (1/p) sum_{a<p} exp(2 pi i f a)`` (mean over the block that starts at
+    HR pixel p i), ``G(f) = exp(-2 pi^2 (p sigma)^2 f^2)`` the optics, ``s = p shift`` HR px
+    and ``var_s = p^2 shift_var`` (expected transfer under a Gaussian shift error, METHODS
+    eq. 9 with registration noise). The leading 1/p is the DFT aliasing factor.
     """
     f_all = np.fft.fftfreq(p * n_lr)
     k = np.arange(n_lr)
@@ -208,3 +266,28 @@ def frame_transfer_1d(
     if shift_var > 0:
         a = a * np.exp(-2.0 * np.pi**2 * f**2 * p * p * shift_var)
     return a / p, f
+
+
+@functools.lru_cache(maxsize=32)
+def _transfer_base(n_lr: int, p: int, blur_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Return :func:`frame_transfer_1d` at zero shift, ``(a0, f)`` (cached, read-only)."""
+    a0, f = frame_transfer_1d(n_lr, p, 0.0, blur_sigma)
+    a0.flags.writeable = False
+    f.flags.writeable = False
+    return a0, f
+
+
+def _frame_transfers(
+    n_lr: int, p: int, shifts: np.ndarray, blur_sigma: float, keep: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return :func:`frame_transfer_1d` for every shift at once, and f.
+
+    ``a[n] = a0 exp(-2 pi i f p s_n)``, (N, p, keep): ``a0`` is the zero-shift transfer
+    (cached); the shift enters as the phase factor only, as in ``frame_transfer_1d`` (the same
+    values to round-off). ``keep``: the first columns only (the rfft half).
+    """
+    a0, f = _transfer_base(n_lr, p, float(blur_sigma))
+    if keep is not None:
+        a0, f = a0[:, :keep], f[:, :keep]
+    s = np.asarray(shifts, dtype=np.float64)
+    return a0[None] * np.exp((-2j * np.pi * p) * f[None] * s[:, None, None]), f

@@ -19,7 +19,7 @@ reconstruction that fits:
    image alone is what is left) and the result says why.
 
 :func:`reconstruct_within_budget` runs the plan through
-:func:`subpix_ros.core.superres_masks.reconstruct_aligned` and returns the
+:func:`subpix_ros.core.superres.reconstruct_aligned` and returns the
 result together with the plan, whose ``reductions`` say what was given up.
 
 Notes
@@ -45,8 +45,8 @@ whose effect fades within ``overlap`` px.
 
 References
 ----------
-docs/METHODS.md (super-resolution, the MAP estimate of eq. 9);
-docs/design-notes.md ("Onboard budget": the measured memory model).
+.. [1] docs/METHODS.md, B (super-resolution, the MAP estimate of eq. 9).
+.. [2] docs/design-notes.md, "Onboard budget" (the measured memory model).
 """
 
 from __future__ import annotations
@@ -57,9 +57,9 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from subpix_ros.core.superres import SRResult, bicubic_upscale
-from subpix_ros.core.superres_masks import bicubic_outside, reconstruct_aligned
-from subpix_ros.core.validity import common_valid_box
+from ..validity import common_valid_box
+from .masks import bicubic_outside, reconstruct_aligned
+from .result import SRResult, bicubic_upscale
 
 __all__ = ["BudgetPlan", "estimate_peak_mb", "plan_reconstruction", "reconstruct_within_budget"]
 
@@ -73,13 +73,11 @@ _FIXED_B = {
     (4, False): 300,
 }
 _PER_FRAME_B = 21  # B per LR px per frame
-_BASE_MB = (
-    28.0  # fixed overheads (caches, small arrays; small tiles measured up to +10 MB over the rest)
-)
+_BASE_MB = 28.0  # fixed overheads (caches, small arrays)
 
 
 def estimate_peak_mb(n_frames: int, shape: tuple[int, int], factor: int, colour: bool) -> float:
-    """Predicted working memory (MB, 1e6 B) of one MAP reconstruction of ``n_frames`` frames of ``shape``.
+    """Predict the working memory of one MAP reconstruction (MB, 1e6 B).
 
     Parameters
     ----------
@@ -103,7 +101,7 @@ def estimate_peak_mb(n_frames: int, shape: tuple[int, int], factor: int, colour:
 
 
 def _output_mb(shape: tuple[int, int], factor: int, colour: bool) -> float:
-    """The stitched float32 HR output of a tiled reconstruction, MB."""
+    """Return the size of the stitched float32 HR output of a tiled reconstruction, MB."""
     return float(shape[0]) * shape[1] * factor * factor * (3 if colour else 1) * 4 / 1e6
 
 
@@ -111,12 +109,24 @@ def _output_mb(shape: tuple[int, int], factor: int, colour: bool) -> float:
 class BudgetPlan:
     """How a set is reconstructed within ``max_memory_mb`` (see :func:`plan_reconstruction`).
 
-    ``n_frames``: frames used (the first ones of the set); ``grid``: tiles along
-    rows and columns ((1, 1): the whole frame at once); ``overlap``: context LR px
-    on each inner side of a tile; ``estimate_mb``: predicted working memory of
-    the plan; ``unbounded_mb``: of the whole set at once; ``bicubic``: nothing
-    fits, the reference is upscaled; ``reductions``: what was given up, in words
-    (empty: nothing).
+    Attributes
+    ----------
+    n_frames : int
+        Frames used (the first ones of the set).
+    grid : (int, int)
+        Tiles along rows and columns ((1, 1): the whole frame at once).
+    overlap : int
+        Context LR px on each inner side of a tile.
+    estimate_mb : float
+        Predicted working memory of the plan.
+    unbounded_mb : float
+        Predicted working memory of the whole set at once.
+    max_memory_mb : float or None
+        The budget.
+    bicubic : bool
+        Nothing fits: the reference is upscaled.
+    reductions : list of str
+        What was given up, in words (empty: nothing).
     """
 
     n_frames: int
@@ -130,9 +140,11 @@ class BudgetPlan:
 
     @property
     def reduced(self) -> bool:
+        """Whether the plan gives anything up."""
         return bool(self.reductions)
 
     def as_dict(self) -> dict:
+        """Return the plan as a JSON-friendly dict (memory figures rounded to 0.1 MB)."""
         return {
             "n_frames": self.n_frames,
             "grid": list(self.grid),
@@ -148,7 +160,7 @@ class BudgetPlan:
 def _tiled_mb(
     n: int, shape: tuple[int, int], grid: tuple[int, int], overlap: int, factor: int, colour: bool
 ) -> float:
-    """Predicted working memory of a tiled plan: the largest tile with its overlap, plus the output."""
+    """Predict a tiled plan's working memory: the largest tile with its overlap, plus the output."""
     th = -(-shape[0] // grid[0]) + (2 * overlap if grid[0] > 1 else 0)
     tw = -(-shape[1] // grid[1]) + (2 * overlap if grid[1] > 1 else 0)
     return estimate_peak_mb(n, (min(th, shape[0]), min(tw, shape[1])), factor, colour) + _output_mb(
@@ -167,7 +179,7 @@ def plan_reconstruction(
     overlap: int = 32,
     min_tile: int = 128,
 ) -> BudgetPlan:
-    """Plan a reconstruction of ``n_frames`` frames of ``shape`` (LR rows, cols) within ``max_memory_mb``.
+    """Plan a reconstruction of ``n_frames`` frames of ``shape`` within ``max_memory_mb``.
 
     Parameters
     ----------
@@ -191,14 +203,12 @@ def plan_reconstruction(
     Returns
     -------
     BudgetPlan
-        Tiles are preferred to dropping frames (they keep the information of
-        every frame); the grid is the one with the fewest tiles that fits,
-        nearly square tiles first.
+        Tiles are preferred to dropping frames (they keep every frame's information);
+        the grid with the fewest tiles that fits, nearly square tiles first.
 
     Notes
     -----
-    Predicted memory from :func:`estimate_peak_mb`; a plan is accepted when
-    ``estimate_mb <= max_memory_mb``.
+    A plan is accepted when its :func:`estimate_peak_mb` is at most ``max_memory_mb``.
     """
     if n_frames < 2:
         raise ValueError(f"n_frames must be >= 2, got {n_frames}")
@@ -208,11 +218,7 @@ def plan_reconstruction(
     if max_memory_mb is None or max_memory_mb <= 0 or unbounded <= max_memory_mb:
         return plan
     min_frames = int(min(max(2, min_frames), n_frames))
-    max_r, max_c = max(1, h // min_tile), max(1, w // min_tile)
-    grids = sorted(
-        ((r, c) for r in range(1, max_r + 1) for c in range(1, max_c + 1) if (r, c) != (1, 1)),
-        key=lambda g: (g[0] * g[1], abs(h / g[0] - w / g[1])),
-    )
+    grids = _tile_grids(h, w, min_tile)
     for n in range(n_frames, min_frames - 1, -1):  # all frames first, then fewer
         whole = estimate_peak_mb(n, (h, w), factor, colour)
         options = [((1, 1), whole)] + [
@@ -244,8 +250,17 @@ def plan_reconstruction(
     )
 
 
+def _tile_grids(h: int, w: int, min_tile: int) -> list[tuple[int, int]]:
+    """Return the grids other than (1, 1) with tiles >= ``min_tile``: fewest, squarest first."""
+    max_r, max_c = max(1, h // min_tile), max(1, w // min_tile)
+    return sorted(
+        ((r, c) for r in range(1, max_r + 1) for c in range(1, max_c + 1) if (r, c) != (1, 1)),
+        key=lambda g: (g[0] * g[1], abs(h / g[0] - w / g[1])),
+    )
+
+
 def _spans(n: int, parts: int) -> list[tuple[int, int]]:
-    """``parts`` contiguous spans covering 0..n (sizes differ by at most one)."""
+    """Return ``parts`` contiguous spans covering 0..n (sizes differ by at most one)."""
     edges = np.linspace(0, n, parts + 1).round().astype(int)
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
@@ -262,13 +277,14 @@ def reconstruct_within_budget(
     min_tile: int = 128,
     **kw,
 ) -> tuple[SRResult, BudgetPlan]:
-    """:func:`~subpix_ros.core.superres_masks.reconstruct_aligned` planned to fit ``max_memory_mb``.
+    """Reconstruct with ``reconstruct_aligned``, planned to fit a memory budget.
 
     Parameters
     ----------
     frames, shifts, factor, masks
-        As :func:`~subpix_ros.core.superres_masks.reconstruct_aligned` (frame 0 is the reference;
-        ``shifts`` (N, 2) ``(u, v)`` LR px: content at (r, c) in frame 0 is at (r + u, c + v) in frame n).
+        As :func:`~subpix_ros.core.superres.reconstruct_aligned` (frame 0 is the reference;
+        ``shifts`` (N, 2) ``(u, v)`` LR px: content at (r, c) in frame 0 is at
+        (r + u, c + v) in frame n).
     max_memory_mb : float or None
         Working-memory budget (MB); None or <= 0: unbounded (the plain reconstruction).
     min_frames, overlap, min_tile
@@ -278,19 +294,20 @@ def reconstruct_within_budget(
 
     Returns
     -------
-    (SRResult, BudgetPlan)
-        The result on the usual output grid (LR pixel i of frame 0 covers output
-        pixels ``factor*i .. factor*i + factor - 1``), and the plan it followed.
-        A tiled result reports the first tile's weights, shifts and noise level,
-        and ``fell_back`` with the reason if any tile fell back to bicubic.
+    result : SRResult
+        On the usual output grid (LR pixel i of frame 0 covers output pixels
+        ``factor i .. factor i + factor - 1``). A tiled result reports the first tile's
+        weights, shifts and noise level, and ``fell_back`` with the reason if any tile fell
+        back to bicubic.
+    plan : BudgetPlan
+        The plan it followed.
 
     Notes
     -----
-    Tiles are cut from the rectangle valid in every frame (the whole frame
-    without masks); outside it the output is the bicubic upscale of the
-    reference, as in :func:`reconstruct_aligned`. Masks that are not a
-    rectangle cannot be tiled (the masked CG solver); such a set is only
-    reduced in frames.
+    Tiles are cut from the rectangle valid in every frame (the whole frame without masks);
+    outside it the output is the bicubic upscale of the reference, as in
+    ``reconstruct_aligned``. Masks that are not a rectangle cannot be tiled (the masked CG
+    solver); such a set is only reduced in frames.
     """
     if frames is None or len(frames) < 2:
         raise ValueError("need at least 2 frames")
@@ -310,35 +327,60 @@ def reconstruct_within_budget(
         min_tile=min_tile if box is not None else max(h, w) + 1,
     )
     if plan.bicubic:
-        # float32 for colour, as the colour reconstruction returns (and half the memory of float64)
-        up = (
-            bicubic_upscale(ref, factor)
-            if not colour
-            else cv2.resize(
-                ref.astype(np.float32), (w * factor, h * factor), interpolation=cv2.INTER_CUBIC
-            )
-        )
-        res = SRResult(
-            up,
-            "bicubic",
-            True,
-            plan.reductions[0],
-            weights=np.r_[1.0, np.zeros(len(frames) - 1)],
-            shifts=np.asarray(shifts, float),
-            shift_sigma=np.zeros(len(frames)),
-            factor=factor,
-        )
-        return res, plan
+        return _bicubic_result(ref, len(frames), shifts, factor, plan), plan
     n = plan.n_frames
     frames_n = list(frames[:n])
     shifts_n = np.asarray(shifts, dtype=np.float64)[:n]
     masks_n = None if masks is None else list(masks[:n])
     if plan.grid == (1, 1):
         return reconstruct_aligned(frames_n, shifts_n, factor, masks=masks_n, **kw), plan
+    return _reconstruct_tiles(frames_n, shifts_n, factor, box, plan, **kw), plan
+
+
+def _bicubic_result(
+    ref: np.ndarray, n: int, shifts: np.ndarray, factor: int, plan: BudgetPlan
+) -> SRResult:
+    """Return the bicubic upscale of the reference as the result of a plan that fits nothing."""
+    h, w = ref.shape[:2]
+    # float32 for colour, as the colour reconstruction returns (and half the memory of float64)
+    up = (
+        bicubic_upscale(ref, factor)
+        if ref.ndim != 3
+        else cv2.resize(
+            ref.astype(np.float32), (w * factor, h * factor), interpolation=cv2.INTER_CUBIC
+        )
+    )
+    return SRResult(
+        up,
+        "bicubic",
+        True,
+        plan.reductions[0],
+        weights=np.r_[1.0, np.zeros(n - 1)],
+        shifts=np.asarray(shifts, float),
+        shift_sigma=np.zeros(n),
+        factor=factor,
+    )
+
+
+def _reconstruct_tiles(
+    frames: list[np.ndarray],
+    shifts: np.ndarray,
+    factor: int,
+    box: tuple[int, int, int, int],
+    plan: BudgetPlan,
+    **kw,
+) -> SRResult:
+    """Reconstruct the box tile by tile with ``plan.overlap`` px of context; stitch the tiles.
+
+    The central tile goes first: its noise estimate is passed to the others, so the tiles
+    agree. Outside the box the output is the bicubic upscale of the reference.
+    """
+    ref = np.asarray(frames[0])
+    colour = ref.ndim == 3
+    h, w = ref.shape[:2]
     r0, r1, c0, c1 = box
-    p = factor
+    p, overlap = factor, plan.overlap
     rows, cols = _spans(r1 - r0, plan.grid[0]), _spans(c1 - c0, plan.grid[1])
-    # the central tile first: its noise estimate is passed to the others, so the tiles agree
     order = sorted(
         ((i, j) for i in range(len(rows)) for j in range(len(cols))),
         key=lambda t: abs(t[0] - (len(rows) - 1) / 2) + abs(t[1] - (len(cols) - 1) / 2),
@@ -355,7 +397,7 @@ def reconstruct_within_budget(
         if first is not None and tkw.get("noise_sigma") is None and np.isfinite(first.noise_sigma):
             tkw["noise_sigma"] = float(first.noise_sigma)
         res = reconstruct_aligned(
-            [np.asarray(f)[e0:e1, f0:f1] for f in frames_n], shifts_n, factor, **tkw
+            [np.asarray(f)[e0:e1, f0:f1] for f in frames], shifts, factor, **tkw
         )
         if out is None:
             out = np.empty(
@@ -372,4 +414,4 @@ def reconstruct_within_budget(
     if (r0, r1, c0, c1) != (0, h, 0, w):
         bicubic_outside(out, ref, p, box)
     reason = "; ".join(fell) if fell else first.reason
-    return replace(first, image=out, fell_back=bool(fell) or first.fell_back, reason=reason), plan
+    return replace(first, image=out, fell_back=bool(fell) or first.fell_back, reason=reason)

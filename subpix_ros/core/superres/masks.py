@@ -3,7 +3,7 @@
 Pixel alignment by an integer crop (:func:`subpix_ros.core.registration.align`)
 leaves each moving frame with invalid strips along its borders. Passing those
 masks to :func:`subpix_ros.core.superres.reconstruct` would force its general
-conjugate-gradient solver (about 30x slower than the Fourier-domain MAP
+conjugate-gradient solver (far slower than the Fourier-domain MAP
 solution). When the pixels valid in *every* frame form a rectangle, this
 module reconstructs that rectangle with the fast solver (no masks needed
 there) and fills the rest of the output with the bicubic upscale of the
@@ -20,8 +20,9 @@ from typing import Sequence
 
 import numpy as np
 
-from subpix_ros.core.superres import SRResult, bicubic_upscale, reconstruct, reconstruct_colour
-from subpix_ros.core.validity import common_valid_box
+from ..validity import common_valid_box
+from .reconstruction import reconstruct, reconstruct_colour
+from .result import SRResult, bicubic_upscale
 
 __all__ = ["reconstruct_aligned", "bicubic_outside"]
 
@@ -35,7 +36,33 @@ def reconstruct_aligned(
     masks: Sequence[np.ndarray] | None = None,
     **kw,
 ) -> SRResult:
-    """:func:`reconstruct` (mono) or :func:`reconstruct_colour` (BGR) with strip masks handled fast."""
+    """Reconstruct mono or BGR frames whose validity masks are border strips, on the fast path.
+
+    Parameters
+    ----------
+    frames : sequence of numpy.ndarray
+        Mono 2-D or HxWx3 BGR frames of one shape; frame 0 the reference.
+    shifts : numpy.ndarray
+        (N, 2) shifts ``(u, v)`` (LR px): content at (r, c) in frame 0 is at (r + u, c + v)
+        in frame n.
+    factor : int
+        Resolution factor.
+    masks : sequence of numpy.ndarray, optional
+        A bool array per frame (True = valid).
+    **kw
+        Passed to :func:`~subpix_ros.core.superres.reconstruct` (or ``reconstruct_colour``).
+
+    Returns
+    -------
+    SRResult
+        On the usual output grid.
+
+    Notes
+    -----
+    When the pixels valid in every frame form a rectangle of at least ``MIN_SIDE`` LR px,
+    that rectangle is reconstructed without masks and the rest is the bicubic upscale of the
+    reference (:func:`bicubic_outside`); other masks go to the masked (CG) solver.
+    """
     colour = np.asarray(frames[0]).ndim == 3
     solve = reconstruct_colour if colour else reconstruct
     if masks is None:
@@ -57,18 +84,31 @@ def reconstruct_aligned(
 def bicubic_outside(
     out: np.ndarray, ref: np.ndarray, p: int, box: tuple[int, int, int, int]
 ) -> None:
-    """Fill ``out`` outside the output box of ``box`` with the bicubic upscale of ``ref`` (in place).
+    """Fill ``out`` outside the output box of ``box`` with the bicubic upscale of ``ref``.
 
-    Only the strips are upscaled, each from the reference strip plus 4 LR px
-    of context (bicubic taps reach 2 LR px), so the values are those of
-    upscaling the whole frame (to OpenCV's single-precision weights) at a
-    fraction of the cost. ``ref`` mono or BGR.
+    Parameters
+    ----------
+    out : numpy.ndarray
+        HR output, ``(p H, p W[, 3])``; modified in place.
+    ref : numpy.ndarray
+        Reference frame, mono or BGR.
+    p : int
+        Resolution factor.
+    box : (int, int, int, int)
+        ``(r0, r1, c0, c1)`` LR rectangle left as it is.
+
+    Notes
+    -----
+    Only the strips are upscaled, each from the reference strip plus 4 LR px of context
+    (bicubic taps reach 2 LR px), so the values are those of upscaling the whole frame (to
+    OpenCV's single-precision weights).
     """
     h, w = ref.shape[:2]
     r0, r1, c0, c1 = box
     ctx = 4
 
-    def strip(a0: int, a1: int, b0: int, b1: int) -> None:  # out rows p*a0..p*a1, cols p*b0..p*b1
+    def strip(a0: int, a1: int, b0: int, b1: int) -> None:
+        """Upscale the LR rectangle rows a0..a1, cols b0..b1 into ``out``."""
         if a1 <= a0 or b1 <= b0:
             return
         e0, e1, f0, f1 = max(a0 - ctx, 0), min(a1 + ctx, h), max(b0 - ctx, 0), min(b1 + ctx, w)
@@ -81,6 +121,3 @@ def bicubic_outside(
     strip(r1, h, 0, w)  # bottom
     strip(r0, r1, 0, c0)  # left
     strip(r0, r1, c1, w)  # right
-
-
-_bicubic_outside = bicubic_outside  # the former private name

@@ -1,0 +1,477 @@
+"""Super-resolution reconstruction from sub-pixel shifted frames (METHODS.md B).
+
+Entry points :func:`reconstruct` (mono) and :func:`reconstruct_colour` (BGR). Methods:
+
+* ``"map"`` (default): the MAP estimate of eq. 9 with a stationary Gaussian prior,
+  solved in the Fourier domain (:mod:`.fourier_map`): per LR frequency bin a
+  factor^2 x factor^2 (or N x N, eq. 9's own form, whichever is smaller) Hermitian
+  system, O(pixels log pixels). Data-driven settings: shifts refined against frame 0
+  (:mod:`.geometry`), the noise std from the residual of that registration, the prior
+  ``S_x(f) = c |f|^-alpha`` fitted to the frames' spectrum (:mod:`.spectrum`).
+  Frames that fail registration or disagree with the reference are left out; a
+  registration-error covariance enters the model as an expected transfer
+  ``exp(-2 pi^2 f^T C f)`` plus an extra noise term. With homographies (given, or
+  affines detected by tile registration, ``geometry="auto"``) or masks, the same
+  objective is solved by conjugate gradients (``"map-cg"``, :mod:`.cg_map`) with each
+  frame's geometry inside the forward model, warm-started from the Fourier solution.
+* ``"windowed"``: eq. 7 (normalised) as one separable filter on the interleaved grid,
+  then a Gaussian of ``WINDOWED_SMOOTH_LR_PX`` LR px (eq. 9's Gaussian
+  regularisation); needs shifts on the k/p grid.
+* ``"pinv"``: eq. 6, reference only (unstable; O(n^3)).
+* ``"bicubic"``: bicubic upscaling of the reference frame (the baseline).
+
+No sub-pixel diversity, no frame registrable to the reference, a solver failure, or
+shifts off the grid for eqs. 6/7 return the bicubic image with ``fell_back=True`` and
+a reason. Frames that agree with each other under a wrong common model (e.g. a much
+wrong ``blur_sigma``) are not detected.
+
+Output grid: LR pixel i of frame 0 covers output pixels ``factor i .. factor i +
+factor - 1`` (pixel centres aligned as in ``cv2.resize``); the outermost LR-pixel
+ring of a MAP result is bicubic (only the reference observes it). Intensities keep
+the input scale (eq. 3 taken as a mean, not a sum).
+
+References
+----------
+.. [1] S. A. Stankevich, S. V. Shklyar, N. S. Lubskyi, "Increasing the spatial
+   resolution of aerial imaging by sub-pixel image registration", 2013
+   (docs/METHODS.md, B: eqs. 3-9).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from ..blur import BlurEstimate, estimate_blur, parse_blur_sigma
+from .cg_map import _cg_map
+from .fourier_map import MapSolution, _fourier_map
+from .geometry import detect_geometry
+from .lowpass import _WholeLowpass
+from .model import translation_homography
+from .paper import grid_offsets, interleave, pinv_solution, windowed_solution
+from .result import (
+    BLUR_AUTO,
+    WINDOWED_SMOOTH_LR_PX,
+    SRResult,
+    _bicubic_rim,
+    _fallback,
+    bicubic_upscale,
+)
+from .spectrum import estimate_noise_sigma
+from .validation import _check_options, _small_ints, _stack64, _validate
+
+__all__ = ["reconstruct", "reconstruct_colour"]
+
+
+def reconstruct(
+    frames: Sequence[np.ndarray],
+    shifts: np.ndarray | Sequence[Sequence[float]] | None,
+    factor: int,
+    *,
+    blur_sigma=0.4,
+    **kw,
+) -> SRResult:
+    """Reconstruct a factor-x super-resolved image from N >= 2 shifted LR frames.
+
+    Parameters
+    ----------
+    frames : sequence of numpy.ndarray
+        N 2-D frames of one shape (any numeric dtype, DN); frame 0 is the reference.
+    shifts : array_like or None
+        (N, 2) shifts ``(u, v)`` in LR px: content at (r, c) in frame 0 is at
+        (r + u, c + v) in frame n. None with ``homographies``.
+    factor : int
+        Resolution factor, 2 to 4.
+    blur_sigma : float, str or BlurEstimate, optional
+        Optics blur std in LR px (Gaussian PSF of the model): a number (e.g. a lab
+        calibration), ``"auto"`` (:data:`BLUR_AUTO`: measured on straight edges in the
+        frames, :func:`subpix_ros.core.blur.estimate_blur`; only "map" uses a blur), or a
+        :class:`subpix_ros.core.blur.BlurEstimate` (e.g. a flight's calibration).
+    **kw
+        Keyword-only options:
+
+        - ``method``: "map" (default, eq. 9), "windowed" (eq. 7, normalised), "pinv"
+          (eq. 6, reference only) or "bicubic";
+        - ``masks``: a bool array per frame (True = valid); forces the CG solver;
+        - ``shift_cov``: (N, 2, 2) registration-error covariance of the given shifts
+          (LR px^2); ignored when ``refine_shifts`` (the refinement's own is used);
+        - ``homographies``: (N, 3, 3) reference -> frame LR pixel coordinates (replaces
+          shifts; forces the CG solver);
+        - ``noise_sigma``: per-pixel noise std (DN); estimated from the frames if None;
+        - ``reg``: prior strength multiplier (1 = the prior fitted to the data);
+        - ``refine_shifts``: refine the shifts against frame 0 (default True);
+        - ``geometry``: "auto" (default) checks by tile registration
+          (:func:`detect_geometry`) whether the frames are related by more than a
+          translation and if so solves with each frame's fitted affine (CG);
+          "translation" skips the check;
+        - ``window``: eq. 7 window w (default factor + 2);
+        - ``pad``: reflected padding of the Fourier solve (LR px, default 16);
+        - ``cg_iters``: conjugate-gradient iterations (default 30).
+
+    Returns
+    -------
+    SRResult
+        With the blur used and its source (``blur_sigma``, ``blur_source``, ``blur_reason``).
+
+    Raises
+    ------
+    ValueError
+        On malformed input (fewer than 2 frames, mismatched shapes, factor outside 2..4,
+        bad shifts, unknown method).
+    """
+    est = _resolve_blur(blur_sigma, frames, shifts, kw.get("method", "map"))
+    res = _reconstruct(frames, shifts, factor, blur_sigma=est.sigma, **kw)
+    res.blur_sigma, res.blur_source, res.blur_reason = float(est.sigma), est.source, est.reason
+    return res
+
+
+def _resolve_blur(blur_sigma, frames, shifts, method: str) -> BlurEstimate:
+    """Turn a ``blur_sigma`` setting into a :class:`BlurEstimate` (measured for "auto")."""
+    if isinstance(blur_sigma, BlurEstimate):
+        return blur_sigma
+    value = parse_blur_sigma(blur_sigma)
+    if value != BLUR_AUTO:
+        return BlurEstimate(float(value), "parameter", reason="given")
+    if (
+        method == "map"
+        and frames is not None
+        and len(frames) >= 2
+        and all(np.ndim(f) == 2 for f in frames)
+    ):
+        sh = None if shifts is None else np.asarray(shifts, dtype=np.float64)
+        if sh is not None and (sh.shape != (len(frames), 2) or not np.isfinite(sh).all()):
+            sh = None  # malformed shifts: _reconstruct says why
+        return estimate_blur(frames, sh)
+    # the blur is not used (or the input is malformed: _reconstruct says why)
+    return BlurEstimate(0.0, "unused", reason="the method does not model the blur")
+
+
+def _reconstruct(
+    frames: Sequence[np.ndarray],
+    shifts: np.ndarray | Sequence[Sequence[float]] | None,
+    factor: int,
+    *,
+    method: str = "map",
+    masks: Sequence[np.ndarray] | None = None,
+    shift_cov: np.ndarray | None = None,
+    homographies: np.ndarray | None = None,
+    noise_sigma: float | None = None,
+    blur_sigma: float = 0.4,
+    reg: float = 1.0,
+    refine_shifts: bool = True,
+    geometry: str = "auto",
+    window: int | None = None,
+    pad: int = 16,
+    cg_iters: int = 30,
+) -> SRResult:
+    """Reconstruct with a numeric blur; the options of :func:`reconstruct`."""
+    arrs, rel, p = _validate(frames, shifts, factor, masks, shift_cov, homographies)
+    n = len(arrs)
+    _check_options(method, geometry, blur_sigma, reg, noise_sigma)
+    # single-frame estimate for the non-MAP paths and fallbacks (MAP estimates it jointly)
+    sigma = float("nan") if noise_sigma is None else float(noise_sigma)
+    if noise_sigma is None and method != "map":
+        sigma = estimate_noise_sigma(arrs[0], max_size=256)
+    ref = np.asarray(arrs[0], dtype=np.float64)
+    if method == "bicubic":
+        return SRResult(
+            bicubic_upscale(ref, p),
+            "bicubic",
+            noise_sigma=sigma,
+            weights=np.r_[1.0, np.zeros(n - 1)],
+            shifts=np.zeros((n, 2)) if rel is None else rel,
+            shift_sigma=np.zeros(n),
+            factor=p,
+        )
+    if rel is not None and homographies is None:
+        phase = (rel - rel[0] + 0.5) % 1.0 - 0.5  # sub-pixel phase relative to frame 0, LR px
+        if np.max(np.abs(phase)) < 0.05:
+            return _fallback(
+                ref,
+                p,
+                "all frames have the same sub-pixel phase: no new information",
+                sigma,
+                n,
+                rel,
+            )
+    if method in ("windowed", "pinv"):
+        return _paper_method(arrs, rel, p, method, window, sigma)
+    opts = _MapOptions(
+        noise_sigma=noise_sigma,
+        masks=masks,
+        shift_cov=shift_cov,
+        homographies=homographies,
+        blur_sigma=blur_sigma,
+        reg=reg,
+        refine_shifts=refine_shifts,
+        geometry=geometry,
+        pad=pad,
+        cg_iters=cg_iters,
+    )
+    return _map_method(arrs, rel, p, sigma, opts)
+
+
+def _paper_method(
+    arrs: list[np.ndarray],
+    rel: np.ndarray | None,
+    p: int,
+    method: str,
+    window: int | None,
+    sigma: float,
+) -> SRResult:
+    """Reconstruct by eq. 7 ("windowed", then eq. 9's Gaussian) or eq. 6 ("pinv").
+
+    Both need pure translations on the k/p grid; otherwise the bicubic fallback.
+    """
+    n = len(arrs)
+    ref = np.asarray(arrs[0], dtype=np.float64)
+    if rel is None:
+        return _fallback(ref, p, f"{method} needs pure translations", sigma, n, rel)
+    offs = grid_offsets(rel, p, p)
+    if offs is None:
+        eq = 7 if method == "windowed" else 6
+        return _fallback(
+            ref, p, f"{method} (eq. {eq}) needs shifts on the k/{p} grid", sigma, n, rel
+        )
+    # 8/16-bit frames: float32 holds the sums exactly; half the memory traffic
+    y, _ = interleave(arrs, offs, p, p, dtype=np.float32 if _small_ints(arrs) else np.float64)
+    if method == "windowed":
+        x = windowed_solution(y, p, p, w=p + 2 if window is None else window)
+        # eq. 9's Gaussian regularisation: without it eq. 7 amplifies noise and aliasing
+        x = cv2.GaussianBlur(
+            x, (0, 0), WINDOWED_SMOOTH_LR_PX * p, borderType=cv2.BORDER_REFLECT_101
+        )
+    else:
+        h2 = (y.shape[0] // p) * p - (p - 1)
+        w2 = (y.shape[1] // p) * p - (p - 1)
+        x = np.zeros(y.shape)
+        sol = pinv_solution(y[:h2, :w2], p, p)
+        x[: sol.shape[0], : sol.shape[1]] = sol
+    return SRResult(
+        x,
+        method,
+        noise_sigma=sigma,
+        weights=np.ones(n),
+        shifts=rel,
+        shift_sigma=np.zeros(n),
+        factor=p,
+    )
+
+
+@dataclass
+class _MapOptions:
+    """The options of a MAP reconstruction (see :func:`reconstruct`)."""
+
+    noise_sigma: float | None
+    masks: Sequence[np.ndarray] | None
+    shift_cov: np.ndarray | None
+    homographies: np.ndarray | None
+    blur_sigma: float
+    reg: float
+    refine_shifts: bool
+    geometry: str
+    pad: int
+    cg_iters: int
+
+
+def _map_method(
+    arrs: list[np.ndarray], rel: np.ndarray | None, p: int, sigma: float, opts: _MapOptions
+) -> SRResult:
+    """Reconstruct by the MAP estimate: Fourier solve, then CG with geometry or masks.
+
+    ``sigma`` is the noise level reported by a fallback before the solve.
+    """
+    n = len(arrs)
+    ref = np.asarray(arrs[0], dtype=np.float64)
+    stack = _stack64(arrs)
+    cov = (
+        np.zeros((n, 2, 2))
+        if opts.shift_cov is None
+        else np.asarray(opts.shift_cov, dtype=np.float64)
+    )
+    lowpassed = _WholeLowpass(stack)  # shared by the geometry check and the shift refinement
+    homographies, trans, noise_sigma, reason = _map_geometry(
+        stack, rel, opts.homographies, opts.geometry, opts.noise_sigma, lowpassed
+    )
+    use_cg = opts.masks is not None or homographies is not None
+    try:
+        ints = (
+            True
+            if all(np.issubdtype(a.dtype, np.integer) or a.dtype == bool for a in arrs)
+            else None
+        )
+        sol = _fourier_map(
+            stack,
+            trans,
+            p,
+            opts.blur_sigma,
+            noise_sigma,
+            cov,
+            opts.reg,
+            opts.refine_shifts and not use_cg,
+            opts.pad,
+            integer_valued=ints,
+            lowpassed=lowpassed,
+        )
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return _fallback(ref, p, f"MAP solve failed: {exc}", sigma, n, rel)
+    img = sol.image
+    method_used = "map"
+    if use_cg:
+        hs = (
+            np.asarray(homographies, dtype=np.float64)
+            if homographies is not None
+            else np.stack([translation_homography(*si) for si in rel])
+        )
+        img = _cg_map(
+            stack,
+            hs,
+            p,
+            opts.blur_sigma,
+            sol.noise_sigma,
+            opts.masks,
+            sol.prior,
+            opts.reg,
+            img,
+            opts.cg_iters,
+        )
+        method_used = "map-cg"
+    return _map_result(img, ref, p, sol, method_used, reason, rel)
+
+
+def _map_geometry(
+    stack: np.ndarray,
+    rel: np.ndarray | None,
+    homographies: np.ndarray | None,
+    geometry: str,
+    noise_sigma: float | None,
+    lowpassed: _WholeLowpass,
+) -> tuple[np.ndarray | None, np.ndarray, float | None, str]:
+    """Settle the geometry of a MAP solve: ``(homographies, translations, noise_sigma, reason)``.
+
+    With ``geometry="auto"`` and frames of at least 96 px, affines detected by tile
+    registration replace the translations. With homographies, the Fourier solve uses
+    the translation each applies at the frame centre, and an unknown noise level comes
+    from the tile registration (where a local translation fits).
+    """
+    n, h, w = stack.shape
+    reason = ""
+    if homographies is None and geometry == "auto" and min(h, w) >= 96:
+        affines, _, tile_noise = detect_geometry(stack, rel, lowpassed=lowpassed)
+        if affines is not None:
+            homographies = affines
+            reason = (
+                "frames related by more than a translation: affine geometry fitted per frame, "
+                "solved by CG"
+            )
+            if noise_sigma is None and np.isfinite(tile_noise):
+                noise_sigma = tile_noise
+    trans = rel
+    if homographies is not None:
+        hs = np.asarray(homographies, dtype=np.float64)
+        centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0, 1.0])
+        trans = np.empty((n, 2))
+        for i in range(n):  # the translation each homography applies at the frame centre
+            q = hs[i] @ centre
+            trans[i] = (q[1] / q[2] - centre[1], q[0] / q[2] - centre[0])
+        if noise_sigma is None and min(h, w) >= 96:
+            _, _, tile_noise = detect_geometry(stack, trans, lowpassed=lowpassed)
+            if np.isfinite(tile_noise):
+                noise_sigma = tile_noise
+    return homographies, trans, noise_sigma, reason
+
+
+def _map_result(
+    img: np.ndarray,
+    ref: np.ndarray,
+    p: int,
+    sol: MapSolution,
+    method_used: str,
+    reason: str,
+    rel: np.ndarray | None,
+) -> SRResult:
+    """Check a MAP image (finite, frames other than the reference contributing) and report it."""
+    n = sol.kept.size
+    sigma = sol.noise_sigma
+    if not np.isfinite(img).all():
+        return _fallback(ref, p, "MAP solution not finite", sigma, n, rel)
+    img = _bicubic_rim(img, ref, p)
+    if not sol.kept.all():
+        dropped = ", ".join(str(i) for i in np.flatnonzero(~sol.kept))
+        reason = (
+            reason + "; " if reason else ""
+        ) + f"frames {dropped} left out (registration failed or they disagree with the reference)"
+    if float(np.sum(sol.weights[1:])) < 0.05:
+        return _fallback(
+            ref,
+            p,
+            "no frame other than the reference agrees with it (registration errors too large)",
+            sigma,
+            n,
+            sol.shifts,
+        )
+    return SRResult(
+        image=img,
+        method=method_used,
+        noise_sigma=sigma,
+        weights=sol.weights,
+        shifts=sol.shifts,
+        shift_sigma=sol.shift_sigma,
+        factor=p,
+        reason=reason,
+    )
+
+
+def reconstruct_colour(
+    frames_bgr: Sequence[np.ndarray],
+    shifts: np.ndarray | Sequence[Sequence[float]] | None,
+    factor: int,
+    **kwargs,
+) -> SRResult:
+    """Super-resolve colour frames: luminance by :func:`reconstruct`, chroma upscaled.
+
+    Parameters
+    ----------
+    frames_bgr : sequence of numpy.ndarray
+        HxWx3 BGR frames (OpenCV order), or 2-D frames (then this is :func:`reconstruct`).
+    shifts, factor
+        As :func:`reconstruct`.
+    **kwargs
+        Passed to :func:`reconstruct`.
+
+    Returns
+    -------
+    SRResult
+        ``image`` float32 BGR, ``(factor H, factor W, 3)``, on the same output grid;
+        ``method``, ``fell_back`` and ``reason`` are those of the luminance reconstruction.
+
+    Notes
+    -----
+    Each frame's luminance Y (ITU-R BT.601, as ``cv2.COLOR_BGR2YCrCb`` on the frames' own
+    scale, single precision) is reconstructed; Cr and Cb of the reference frame are
+    bicubic-upscaled (chroma needs far less resolution and would triple the cost).
+    Single precision holds 8- and 16-bit data and halves the cost of the largest arrays.
+    """
+    if frames_bgr is None or len(frames_bgr) == 0:
+        raise ValueError("no frames")
+    arrs = [np.asarray(f) for f in frames_bgr]
+    if all(a.ndim == 2 for a in arrs):
+        return reconstruct(arrs, shifts, factor, **kwargs)
+    if any(a.ndim != 3 or a.shape[2] != 3 for a in arrs):
+        raise ValueError("colour frames must all be HxWx3 (BGR)")
+    # luminance of every frame (Y of YCrCb is BGR2GRAY's weighted sum), chroma of the reference
+    ys = [cv2.cvtColor(a.astype(np.float32), cv2.COLOR_BGR2GRAY) for a in arrs]
+    res = reconstruct(ys, shifts, factor, **kwargs)
+    p = res.factor
+    h, w = arrs[0].shape[:2]
+    ycc0 = cv2.cvtColor(arrs[0].astype(np.float32), cv2.COLOR_BGR2YCrCb)
+    chroma = cv2.resize(
+        np.ascontiguousarray(ycc0[..., 1:]), (w * p, h * p), interpolation=cv2.INTER_CUBIC
+    )
+    # OpenCV's YCrCb offset depends on the data's scale: converting back with OpenCV keeps it
+    merged = cv2.merge([res.image.astype(np.float32), chroma[..., 0], chroma[..., 1]])
+    res.image = cv2.cvtColor(merged, cv2.COLOR_YCrCb2BGR)
+    return res

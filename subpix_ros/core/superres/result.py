@@ -1,0 +1,166 @@
+"""The result of a super-resolution, its bicubic baseline and fallback, and PSNR."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .spectrum import estimate_noise_sigma
+
+__all__ = ["SRResult", "psnr", "bicubic_upscale", "METHODS", "BLUR_AUTO", "MAX_FACTOR"]
+
+METHODS = ("map", "windowed", "pinv", "bicubic")
+WINDOWED_SMOOTH_LR_PX = 0.35  # Gaussian std (LR px) applied to the windowed eq. 7 solution
+BLUR_AUTO = "auto"  # blur_sigma setting: estimate the blur from the frames (core/blur.py)
+MAX_FACTOR = 4
+
+
+@dataclass
+class SRResult:
+    """Result of :func:`~subpix_ros.core.superres.reconstruct`.
+
+    Attributes
+    ----------
+    image : numpy.ndarray
+        float64 (float32 BGR from ``reconstruct_colour``), ``(factor H, factor W)``, on the
+        frames' intensity scale.
+    method : str
+        The method actually used: "map", "map-cg", "windowed", "pinv" or "bicubic".
+    fell_back : bool
+        True when the result fell back to bicubic upscaling; ``reason`` says why.
+    reason : str
+        Why it fell back, or what else the solver decided (e.g. frames left out).
+    noise_sigma : float
+        Per-pixel noise std used (DN; estimated unless given).
+    weights : numpy.ndarray
+        (N,) each frame's relative weight (1 = as good as the reference, 0 = left out).
+    shifts : numpy.ndarray
+        (N, 2) shifts used (LR px; refined if ``refine_shifts``).
+    shift_sigma : numpy.ndarray
+        (N,) registration error std the model assumed per frame (LR px).
+    factor : int
+        Resolution factor.
+    blur_sigma : float
+        Optics blur the model used (LR px).
+    blur_source : str
+        Where the blur came from: "parameter", "edges", "fallback" or "unused".
+    blur_reason : str
+        A one-line account of the blur (see :mod:`subpix_ros.core.blur`).
+    """
+
+    image: np.ndarray
+    method: str
+    fell_back: bool = False
+    reason: str = ""
+    noise_sigma: float = float("nan")
+    weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    shifts: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    shift_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    factor: int = 1
+    blur_sigma: float = float("nan")
+    blur_source: str = ""
+    blur_reason: str = ""
+
+
+def psnr(image: np.ndarray, truth: np.ndarray, border: int = 0, peak: float = 255.0) -> float:
+    """Return the peak signal-to-noise ratio of an image against the truth.
+
+    Parameters
+    ----------
+    image, truth : numpy.ndarray
+        Arrays of one shape.
+    border : int, optional
+        Pixels cut from every side before comparing.
+    peak : float, optional
+        Peak value (255 for 8-bit data).
+
+    Returns
+    -------
+    float
+        ``10 log10(peak^2 / MSE)`` in dB (inf for identical arrays).
+    """
+    a = np.asarray(image, dtype=np.float64)
+    b = np.asarray(truth, dtype=np.float64)
+    if border:
+        a, b = a[border:-border, border:-border], b[border:-border, border:-border]
+    mse = float(np.mean((a - b) ** 2))
+    return float("inf") if mse == 0 else 10.0 * np.log10(peak**2 / mse)
+
+
+def bicubic_upscale(frame: np.ndarray, factor: int) -> np.ndarray:
+    """Upscale one frame bicubically onto the project's output grid.
+
+    Parameters
+    ----------
+    frame : numpy.ndarray
+        2-D frame (or HxWxC).
+    factor : int
+        Resolution factor.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, ``(factor H, factor W)``: LR pixel i covers output pixels
+        ``factor i .. factor i + factor - 1`` (``cv2.resize``, ``INTER_CUBIC``).
+    """
+    f = np.asarray(frame, dtype=np.float64)
+    return cv2.resize(f, (f.shape[1] * factor, f.shape[0] * factor), interpolation=cv2.INTER_CUBIC)
+
+
+def _bicubic_rim(img: np.ndarray, ref: np.ndarray, p: int) -> np.ndarray:
+    """Replace the outermost LR-pixel ring of ``img`` by the bicubic upscale of ``ref``.
+
+    Parameters
+    ----------
+    img : numpy.ndarray
+        HR image, ``(p H, p W)``; modified in place and returned.
+    ref : numpy.ndarray
+        The reference frame, ``(H, W)``.
+    p : int
+        Resolution factor (the ring is p output px wide).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``img``.
+
+    Notes
+    -----
+    Frames shifted towards the inside leave that ring observed by the reference alone
+    (the rest is padding). Only 4-LR-pixel strips of the reference are upscaled: the
+    ring's bicubic taps reach 2 LR px inwards, so the values equal those of upscaling
+    the whole frame.
+    """
+    h, w = ref.shape
+    if min(h, w) < 8:
+        bic = bicubic_upscale(ref, p)
+        img[:p], img[-p:], img[:, :p], img[:, -p:] = bic[:p], bic[-p:], bic[:, :p], bic[:, -p:]
+        return img
+    img[:p] = bicubic_upscale(ref[:4], p)[:p]
+    img[-p:] = bicubic_upscale(ref[-4:], p)[-p:]
+    img[:, :p] = bicubic_upscale(ref[:, :4], p)[:, :p]
+    img[:, -p:] = bicubic_upscale(ref[:, -4:], p)[:, -p:]
+    return img
+
+
+def _fallback(ref: np.ndarray, factor: int, reason: str, noise: float, n: int, shifts) -> SRResult:
+    """Return the bicubic upscale of the reference as a fallen-back result, with the reason.
+
+    ``noise`` is estimated on the reference if not finite; the reference has weight 1, the
+    other ``n - 1`` frames 0; ``shifts`` (or zeros) are reported as given.
+    """
+    if not np.isfinite(noise):
+        noise = estimate_noise_sigma(ref, max_size=256)
+    return SRResult(
+        image=bicubic_upscale(ref, factor),
+        method="bicubic",
+        fell_back=True,
+        reason=reason,
+        noise_sigma=noise,
+        weights=np.r_[1.0, np.zeros(n - 1)],
+        shifts=np.zeros((n, 2)) if shifts is None else np.asarray(shifts, dtype=np.float64),
+        shift_sigma=np.zeros(n),
+        factor=factor,
+    )

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from subpix_ros.core.blur import MAX_LINE_RMS, MAX_TEXTURE, find_edge_rois
+from subpix_ros.core.blur_edges import MAX_LINE_RMS, MAX_TEXTURE, find_edge_rois
 from subpix_ros.core.mtf import slanted_edge_mtf
 
 __all__ = ["EdgeSharpness", "edge_sharpness"]

@@ -32,7 +32,7 @@ class Stage:
     def from_params(cls, params: Mapping[str, Any] | None = None):
         return cls(**dict(params or {}))
 
-    def p(self, name: str) -> Any:
+    def param(self, name: str) -> Any:
         return self.params[name]
 
     def configure(self, **changes: Any) -> None:

@@ -59,9 +59,9 @@ class MosaicStage(Stage):
         self.last_stamp_ns = 0  # the latest frame drawn
 
     def _new_mosaic(self) -> Mosaic:
-        fmax = self.p("frame_max_px")
+        fmax = self.param("frame_max_px")
         return Mosaic(
-            max_size_px=self.p("max_size_px"), frame_max_px=max(64, fmax) if fmax else None
+            max_size_px=self.param("max_size_px"), frame_max_px=max(64, fmax) if fmax else None
         )
 
     def reset(self) -> None:
@@ -75,7 +75,7 @@ class MosaicStage(Stage):
         """The gate: True if ``frame`` is at least ``min_interval_s`` after the last frame taken."""
         self.stats.frames_in += 1
         last = self._last_taken_ns
-        if last is not None and 0 <= frame.stamp_ns - last < self.p("min_interval_s") * 1e9:
+        if last is not None and 0 <= frame.stamp_ns - last < self.param("min_interval_s") * 1e9:
             self.stats.skip("min_interval")  # by design, not a drop
             return False
         self._last_taken_ns = (

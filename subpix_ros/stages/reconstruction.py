@@ -165,7 +165,9 @@ class ReconstructionStage(Stage):
         self.clock = clock
         self.solver_options, self.ignored = _solver_options(self.extra)
         self._told_ignored = False
-        self.blur = BlurCalibration(self.p("blur_sigma"))  # measured once, refreshed every 10 sets
+        self.blur = BlurCalibration(
+            self.param("blur_sigma")
+        )  # measured once, refreshed every 10 sets
         self.sets: dict[int, list[tuple[Shift, Aligned]]] = {}
         self.matcher = ShiftFrameMatcher(self._tolerance_ns())
         self._closed: collections.OrderedDict[int, None] = collections.OrderedDict()
@@ -173,13 +175,13 @@ class ReconstructionStage(Stage):
         self._last_stamp_in: dict[int, int] = {}  # reference -> its newest member's stamp
 
     def _tolerance_ns(self) -> int:
-        return int(self.p("time_tolerance_s") * 1e9)
+        return int(self.param("time_tolerance_s") * 1e9)
 
     def configure(self, **changes) -> None:
         super().configure(**changes)
         self.matcher.tolerance_ns = self._tolerance_ns()
-        if parse_blur_sigma(self.p("blur_sigma")) != self.blur.setting:
-            self.blur = BlurCalibration(self.p("blur_sigma"))
+        if parse_blur_sigma(self.param("blur_sigma")) != self.blur.setting:
+            self.blur = BlurCalibration(self.param("blur_sigma"))
         self.solver_options, self.ignored = _solver_options(self.extra)
 
     def reset(self) -> None:
@@ -243,7 +245,7 @@ class ReconstructionStage(Stage):
         members = self.sets.setdefault(key, [])
         members.append((s, a))
         self._last_stamp_in[key] = max(s.stamp_ns, self._last_stamp_in.get(key, s.stamp_ns))
-        if len(members) + 1 >= self.p("n_frames"):
+        if len(members) + 1 >= self.param("n_frames"):
             ready += self._close(key, "complete")
         self.stats.pending_sets = len(self.sets)
         return ready
@@ -257,13 +259,13 @@ class ReconstructionStage(Stage):
                 self._closed.popitem(last=False)
         self.stats.pending_sets = len(self.sets)
         n = len(members) + 1
-        complete = n >= self.p("n_frames")
-        if not complete and n < self.p("min_frames"):
+        complete = n >= self.param("n_frames")
+        if not complete and n < self.param("min_frames"):
             self.stats.sets_dropped += 1
             self.stats.dropped += len(members)
             self.warn(
                 f"set of reference {key / 1e9:.3f} s dropped: {n} frames "
-                f"< min_frames {self.p('min_frames')}"
+                f"< min_frames {self.param('min_frames')}"
             )
             return []
         if complete:
@@ -285,7 +287,7 @@ class ReconstructionStage(Stage):
         each set's newest member. A set below ``min_frames`` stays open (it
         may still grow, or the next reference drops it).
         """
-        wait = self.p("flush_after_s")
+        wait = self.param("flush_after_s")
         if now_s is None and stamp_ns is None:
             now_s = self.clock()
         wall_idle = (
@@ -296,7 +298,7 @@ class ReconstructionStage(Stage):
         ready = []
         for key in sorted(self.sets):
             stream_idle = stamp_ns is not None and stamp_ns - self._last_stamp_in[key] >= wait * 1e9
-            if (wall_idle or stream_idle) and len(self.sets[key]) + 1 >= self.p("min_frames"):
+            if (wall_idle or stream_idle) and len(self.sets[key]) + 1 >= self.param("min_frames"):
                 ready += self._close(key, "idle")
         return ready
 
@@ -341,13 +343,13 @@ class ReconstructionStage(Stage):
         res, plan = reconstruct_within_budget(
             frames,
             shifts,
-            self.p("factor"),
+            self.param("factor"),
             masks=masks,
-            max_memory_mb=self.p("max_memory_mb") or None,
-            min_frames=min(self.p("min_frames"), len(frames)),
-            method=self.p("method"),
-            geometry="auto" if self.p("check_geometry") else "translation",
-            refine_shifts=self.p("refine_shifts"),
+            max_memory_mb=self.param("max_memory_mb") or None,
+            min_frames=min(self.param("min_frames"), len(frames)),
+            method=self.param("method"),
+            geometry="auto" if self.param("check_geometry") else "translation",
+            refine_shifts=self.param("refine_shifts"),
             blur_sigma=blur,
             **self.solver_options,
         )
@@ -377,7 +379,7 @@ class ReconstructionStage(Stage):
             res.method,
             res.fell_back,
             res.reason,
-            self.p("factor"),
+            self.param("factor"),
             None if blur is None else float(blur),
             getattr(res, "blur_source", None),
             dt,

@@ -72,17 +72,17 @@ class ShiftStage(Stage):
             )
             self.error(why)
             return self._skip(a, "size", why)
-        prior = a.prior if self.p("use_prior") else None
+        prior = a.prior if self.param("use_prior") else None
         t0 = time.monotonic()
         if self._ref_gray is None or self._ref_gray[0] != ref.stamp_ns:
             self._ref_gray = (ref.stamp_ns, gray(ref.image))
         r = estimate_shift(
-            self._ref_gray[1], gray(a.image), mask=a.mask, method=self.p("method"), prior=prior
+            self._ref_gray[1], gray(a.image), mask=a.mask, method=self.param("method"), prior=prior
         )
         if not r.ok:
             self.warn(f"shift not estimated: {r.reason}")
             return self._skip(a, "failed", r.reason)
-        limit = self.p("max_std_px")
+        limit = self.param("max_std_px")
         if r.misfit or not (r.u_std <= limit and r.v_std <= limit):
             why = (
                 "residual misfit (rotation/deformation left)"

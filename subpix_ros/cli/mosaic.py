@@ -1,4 +1,4 @@
-"""``subpix mosaic FRAME... -o mosaic.png``: incremental overview mosaic with per-frame seam residuals."""
+"""``subpix mosaic FRAME... -o mosaic.png``: incremental overview mosaic, seam residuals."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ MAX_SIZE_DEFAULT = 16384
 
 
 def run(args: argparse.Namespace) -> int:
+    """Build the mosaic of the given frames, print each seam residual and write the image."""
     from ..core.mosaic import Mosaic
 
     if len(args.frames) < 2:
@@ -59,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
-    p = sub.add_parser(
+    """Add the ``subpix mosaic`` subcommand to the CLI's subparsers ``sub``."""
+    parser = sub.add_parser(
         "mosaic",
         help="build an overview mosaic from consecutive overlapping frames",
         description="Register each frame to its predecessor and draw it onto one canvas at the "
@@ -67,13 +69,13 @@ def register(sub) -> None:
         f"(default "
         f"{MAX_SIZE_DEFAULT}); a larger mosaic is scaled down to fit, and the command says so.",
     )
-    p.add_argument("frames", nargs="+", help="frames in flight order")
-    p.add_argument("-o", "--output", required=True, help="mosaic image to write (PNG)")
-    p.add_argument(
+    parser.add_argument("frames", nargs="+", help="frames in flight order")
+    parser.add_argument("-o", "--output", required=True, help="mosaic image to write (PNG)")
+    parser.add_argument(
         "--max-size",
         type=int,
         default=MAX_SIZE_DEFAULT,
         help=f"maximum canvas side, px (default {MAX_SIZE_DEFAULT}; a bgr8 canvas of that size "
         "takes 3 bytes per px: 805 MB at 16384x16384)",
     )
-    p.set_defaults(func=run)
+    parser.set_defaults(func=run)

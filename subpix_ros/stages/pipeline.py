@@ -49,6 +49,7 @@ class Pipeline:
             stage.on_problem = self._reporter(name)
 
     def stages(self) -> dict:
+        """Return the stages by their node's name (``registration_node``, ...), in order."""
         out = {
             "registration_node": self.registration,
             "shift_node": self.shift,
@@ -59,25 +60,37 @@ class Pipeline:
         return out
 
     def _reporter(self, name: str):
+        """Return the ``on_problem`` callback of stage ``name``: its problems as events."""
+
         def report(level: str, message: str) -> None:
             self._emit("error" if level == "error" else "warning", (name, message))
 
         return report
 
     def on(self, kind: str, callback: Callable[[Any], None]) -> "Pipeline":
+        """Call ``callback(payload)`` on every event of ``kind`` (one of ``KINDS``); return self.
+
+        Raises
+        ------
+        ValueError
+            On an unknown kind.
+        """
         if kind not in KINDS:
             raise ValueError(f"unknown kind {kind!r}: one of {', '.join(KINDS)}")
         self._callbacks[kind].append(callback)
         return self
 
     def _emit(self, kind: str, payload: Any) -> None:
+        """Pass an event to the callbacks of its kind."""
         for cb in self._callbacks[kind]:
             cb(payload)
 
     def add_telemetry(self, sample: TelemetrySample) -> None:
+        """Give the registration stage a telemetry sample (frame selection)."""
         self.registration.add_telemetry(sample)
 
     def _guard(self, name: str, call: Callable[[], Any]) -> Any:
+        """Run a stage's step; an exception becomes that stage's error and None."""
         try:
             return call()
         except Exception as exc:  # noqa: BLE001 - one bad frame must not stop the stream
@@ -107,6 +120,7 @@ class Pipeline:
         return images
 
     def _after_aligned(self, a: Aligned) -> list[SuperResolved]:
+        """Run an aligned frame through the shift and reconstruction stages."""
         s = self._guard("shift_node", lambda: self.shift.add(a))
         if isinstance(s, Skipped):
             self._emit("skipped", ("shift_node", s))
@@ -118,6 +132,7 @@ class Pipeline:
         )
 
     def _emit_images(self, images: list[SuperResolved] | None) -> list[SuperResolved]:
+        """Emit the images a step completed and return them as a list."""
         for sr in images or []:
             self._emit("super_resolved", sr)
         return list(images or [])
@@ -127,6 +142,7 @@ class Pipeline:
         return self._emit_images(self._guard("reconstruction_node", self.reconstruction.flush))
 
     def stats(self) -> dict[str, StageStats]:
+        """Return each stage's statistics by its node's name."""
         return {name: stage.stats for name, stage in self.stages().items()}
 
     def reset(self) -> None:

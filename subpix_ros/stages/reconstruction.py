@@ -63,8 +63,8 @@ PARAMS = (
         "max_memory_mb",
         0.0,
         "working-memory budget of one reconstruction (MB; 0: unbounded): a set that would need "
-        "more is reconstructed in tiles, then with fewer frames (not below min_frames), then as the "
-        "bicubic reference",
+        "more is reconstructed in tiles, then with fewer frames (not below min_frames), "
+        "then as the bicubic reference",
         0.0,
         1.0e6,
     ),
@@ -99,6 +99,7 @@ class FrameSet:
 
     @property
     def n_frames(self) -> int:
+        """Frames in the set, the reference included."""
         return 1 + len(self.members)
 
 
@@ -113,14 +114,17 @@ class ShiftFrameMatcher:
         self.shifts: list[Shift] = []
 
     def add_frame(self, a: Aligned) -> list[tuple[Shift, Aligned]]:
+        """Take an aligned frame; return the (shift, frame) pairs now matched."""
         self.frames[a.stamp_ns] = a
         return self._match()
 
     def add_shift(self, s: Shift) -> list[tuple[Shift, Aligned]]:
+        """Take a shift; return the (shift, frame) pairs now matched."""
         self.shifts.append(s)
         return self._match()
 
     def _match(self) -> list[tuple[Shift, Aligned]]:
+        """Pair each shift with the nearest frame within tolerance; keep the rest (bounded)."""
         pairs, still = [], []
         for s in self.shifts:
             stamp = min(self.frames, key=lambda t: abs(t - s.stamp_ns), default=None)
@@ -137,6 +141,7 @@ class ShiftFrameMatcher:
         return pairs
 
     def clear(self) -> None:
+        """Forget every unmatched shift and frame."""
         self.frames.clear()
         self.shifts.clear()
 
@@ -165,9 +170,8 @@ class ReconstructionStage(Stage):
         self.clock = clock
         self.solver_options, self.ignored = _solver_options(self.extra)
         self._told_ignored = False
-        self.blur = BlurCalibration(
-            self.param("blur_sigma")
-        )  # measured once, refreshed every 10 sets
+        # measured once, refreshed every 10 sets
+        self.blur = BlurCalibration(self.param("blur_sigma"))
         self.sets: dict[int, list[tuple[Shift, Aligned]]] = {}
         self.matcher = ShiftFrameMatcher(self._tolerance_ns())
         self._closed: collections.OrderedDict[int, None] = collections.OrderedDict()
@@ -175,9 +179,11 @@ class ReconstructionStage(Stage):
         self._last_stamp_in: dict[int, int] = {}  # reference -> its newest member's stamp
 
     def _tolerance_ns(self) -> int:
+        """Return ``time_tolerance_s`` in ns."""
         return int(self.param("time_tolerance_s") * 1e9)
 
     def configure(self, **changes) -> None:
+        """Change parameters at run time (matching tolerance, blur, solver options follow)."""
         super().configure(**changes)
         self.matcher.tolerance_ns = self._tolerance_ns()
         if parse_blur_sigma(self.param("blur_sigma")) != self.blur.setting:
@@ -185,6 +191,7 @@ class ReconstructionStage(Stage):
         self.solver_options, self.ignored = _solver_options(self.extra)
 
     def reset(self) -> None:
+        """Forget every open set and unmatched input."""
         super().reset()
         self.sets.clear()
         self.matcher.clear()
@@ -194,30 +201,32 @@ class ReconstructionStage(Stage):
 
     # ---------------------------------------------------------------- assembly
     def add_aligned(self, a: Aligned) -> list[SuperResolved]:
-        """An aligned frame whose shift may come before or after it."""
+        """Take an aligned frame whose shift may come before or after it; return the images made."""
         return self._run(self.offer_aligned(a))
 
     def add_shift(self, s: Shift) -> list[SuperResolved]:
-        """A shift whose aligned frame may come before or after it (non-finite: rejected)."""
+        """Take a shift whose aligned frame may come before or after it (non-finite: rejected)."""
         return self._run(self.offer_shift(s))
 
     def add(self, shift: Shift, aligned: Aligned) -> list[SuperResolved]:
-        """One (shift, aligned frame) pair: the images of the sets this closes."""
+        """Take one (shift, aligned frame) pair; return the images of the sets this closes."""
         return self._run(self.assemble(shift, aligned))
 
     def offer_aligned(self, a: Aligned) -> list[FrameSet]:
+        """Match and assemble an aligned frame; return the sets it closes (not solved)."""
         return [fs for pair in self.match_aligned(a) for fs in self.assemble(*pair)]
 
     def offer_shift(self, s: Shift) -> list[FrameSet]:
+        """Match and assemble a shift; return the sets it closes (not solved)."""
         return [fs for pair in self.match_shift(s) for fs in self.assemble(*pair)]
 
     def match_aligned(self, a: Aligned) -> list[tuple[Shift, Aligned]]:
-        """The (shift, frame) pairs an aligned frame completes (within ``time_tolerance_s``)."""
+        """Return the (shift, frame) pairs an aligned frame completes (``time_tolerance_s``)."""
         self._last_input_wall = self.clock()
         return self.matcher.add_frame(a)
 
     def match_shift(self, s: Shift) -> list[tuple[Shift, Aligned]]:
-        """The (shift, frame) pairs a shift completes; a non-finite shift is rejected (error)."""
+        """Return the (shift, frame) pairs a shift completes; a non-finite one is an error."""
         self._last_input_wall = self.clock()
         if not (np.isfinite(s.u) and np.isfinite(s.v)):
             self.error("shift message with non-finite u/v ignored")
@@ -305,7 +314,7 @@ class ReconstructionStage(Stage):
     def tick(
         self, now_s: float | None = None, *, stamp_ns: int | None = None
     ) -> list[SuperResolved]:
-        """The images of the sets idle for ``flush_after_s`` (see :meth:`idle_sets`)."""
+        """Reconstruct the sets idle for ``flush_after_s`` (:meth:`idle_sets`); return images."""
         return self._run(self.idle_sets(now_s, stamp_ns=stamp_ns))
 
     def flush_sets(self) -> list[FrameSet]:
@@ -316,9 +325,11 @@ class ReconstructionStage(Stage):
         return ready
 
     def flush(self) -> list[SuperResolved]:
+        """End of stream: reconstruct every open set with ``min_frames`` or more."""
         return self._run(self.flush_sets())
 
     def _run(self, sets: list[FrameSet]) -> list[SuperResolved]:
+        """Reconstruct sets; return the images made."""
         return [sr for sr in map(self.reconstruct, sets) if sr is not None]
 
     # ---------------------------------------------------------------- solve

@@ -151,17 +151,21 @@ class RegistrationStage(Stage):
         )
 
     def _make_buffer(self) -> TelemetryBuffer:
+        """Return an empty telemetry buffer (stale after ``telemetry_timeout_s``)."""
         return TelemetryBuffer(max_age_s=60.0, stale_after_s=self.param("telemetry_timeout_s"))
 
     def configure(self, **changes) -> None:
+        """Change parameters at run time; a new frame selector when its parameters change."""
         super().configure(**changes)
         if any(k in self.SELECTOR_PARAMS for k in changes):
             self.selector = self._make_selector()  # takes effect from the next frame
 
     def add_telemetry(self, sample: TelemetrySample) -> None:
+        """Keep a telemetry sample for frame selection."""
         self.telemetry.add(sample)
 
     def reset(self) -> None:
+        """Forget the reference, the motion, the selection and the telemetry."""
         super().reset()
         self.reference = None
         self._ref_prepared = None
@@ -172,7 +176,7 @@ class RegistrationStage(Stage):
 
     # ---------------------------------------------------------------- selection
     def _image_rate(self, stamp_s: float):
-        """Expected image motion (u, v) px/s at the frame's stamp, or (None, reason)."""
+        """Return the expected image motion (u, v) px/s at the frame's stamp, or (None, reason)."""
         s, why = self.telemetry.at(stamp_s + self.param("telemetry_time_offset_s"))
         if s is None:
             return None, f"telemetry: {why}"

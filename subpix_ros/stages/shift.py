@@ -54,14 +54,17 @@ class ShiftStage(Stage):
         self._ref_gray: tuple[int, np.ndarray] | None = None  # the reference's luminance, once
 
     def reset(self) -> None:
+        """Forget the reference's luminance."""
         super().reset()
         self._ref_gray = None
 
     def _skip(self, a: Aligned, reason: str, detail: str) -> Skipped:
+        """Count a skip and return it."""
         self.stats.skip(reason)
         return Skipped(a.stamp_ns, reason, detail)
 
     def add(self, a: Aligned) -> Shift | Skipped:
+        """Estimate the shift of an aligned frame against its reference (see the class)."""
         self.stats.frames_in += 1
         self.check_time(a.stamp_ns)
         ref = a.reference

@@ -49,7 +49,7 @@ def grid(p):
 
 
 def tikhonov_cg(frames, shifts, p, lam, iters=60, blur_sigma=0.4):
-    """Reference: argmin sum ||A_n x - y_n||^2 + lam ||grad x||^2 by scipy CG.
+    """Solve the reference problem argmin sum ||A_n x - y_n||^2 + lam ||grad x||^2 by scipy CG.
 
     ``A_n``: the package's operators (pixel box, Gaussian optics of ``blur_sigma`` LR px; 0: none).
     """
@@ -158,7 +158,7 @@ def quality(quick: bool) -> None:
 
 
 def speed_source(h, w):
-    """An HR source image of at least h x w: full-resolution original if present, else bundled frames."""
+    """Return an HR source image of at least h x w (full-resolution original, else bundled)."""
     cands = sorted(FULLRES.glob("IMG_*.jpg")) if FULLRES.is_dir() else []
     src = cv2.imread(str(cands[0] if cands else seneca_frame_paths()[0]), cv2.IMREAD_GRAYSCALE)
     if src.shape[0] < h or src.shape[1] < w:
@@ -234,7 +234,7 @@ def speed(quick: bool, repeats: int) -> None:
 
 
 def pipeline_case(repeats: int) -> None:
-    """The reconstruction node's call: 8 aligned 1920x1080 frames with border-strip masks, x2 (3840x2160 out)."""
+    """Time the reconstruction node's call: 8 aligned 1080p frames, strip masks, x2 (4K out)."""
     from subpix_ros.core.superres_masks import reconstruct_aligned
 
     h, w = 1080, 1920

@@ -197,17 +197,8 @@ def _subpixel_flight(
     """Replay the rendered sub-pixel pass: shifts and super-resolved images."""
     pipeline = procs[0]
     t0 = time.monotonic()
-    replay = subprocess.Popen(
-        _replay_cmd(
-            bags / "subpixel",
-            args.rate,
-            "--wait-for",
-            "/camera/image_raw",
-            "--wait-timeout",
-            "60",
-        ),
-        env=env,
-    )
+    wait = ("--wait-for", "/camera/image_raw", "--wait-timeout", "60")
+    replay = subprocess.Popen(_replay_cmd(bags / "subpixel", args.rate, *wait), env=env)
     procs.append(replay)
     _spin_until(node, lambda: replay.poll() is not None, args.timeout, [pipeline])
     if replay.returncode != 0:
@@ -230,18 +221,9 @@ def _subpixel_flight(
 def _seneca_flight(node, col: _Collector, bags: Path, args, env, pipeline, timings: dict):
     """Replay the real Seneca strip: the overview mosaic; return the diagnostics and the mosaic."""
     t0 = time.monotonic()
-    replay = subprocess.run(
-        _replay_cmd(
-            bags / "seneca",
-            args.seneca_rate,
-            "--topics",
-            "/camera/image_raw",
-            "--wait-for",
-            "/camera/image_raw",
-        ),
-        env=env,
-        timeout=args.timeout,
-    )
+    only_camera = ("--topics", "/camera/image_raw", "--wait-for", "/camera/image_raw")
+    cmd = _replay_cmd(bags / "seneca", args.seneca_rate, *only_camera)
+    replay = subprocess.run(cmd, env=env, timeout=args.timeout)
     if replay.returncode != 0:
         raise CliError(f"replay of the seneca flight failed (status {replay.returncode})")
 

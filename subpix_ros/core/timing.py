@@ -272,12 +272,8 @@ def expected_shift_px(
         Ground speed ``V``, m/s.
     course_rad : float
         Ground-track course, rad clockwise from north.
-    height_m : float
-        Height above ground ``H``, m.
-    focal_length_m : float
-        Focal length ``f``, m.
-    pixel_pitch_m : float
-        Detector pixel pitch ``a``, m.
+    height_m, focal_length_m, pixel_pitch_m : float
+        ``H``, ``f`` and ``a`` as in :func:`image_speed_px_s`, m.
     dt_s : float
         Time between the two frames, s (>= 0).
     image_heading_rad : float

@@ -109,26 +109,26 @@ class Pipeline:
                 "reconstruction_node", lambda: self.reconstruction.tick(stamp_ns=frame.stamp_ns)
             )
         )
-        r = self._guard("registration_node", lambda: self.registration.add(frame))
-        if isinstance(r, Skipped):
-            self._emit("skipped", ("registration_node", r))
-        elif isinstance(r, NewReference):
-            self._emit("reference", r)
-        elif isinstance(r, Aligned):
-            self._emit("aligned", r)
-            images += self._after_aligned(r)
+        outcome = self._guard("registration_node", lambda: self.registration.add(frame))
+        if isinstance(outcome, Skipped):
+            self._emit("skipped", ("registration_node", outcome))
+        elif isinstance(outcome, NewReference):
+            self._emit("reference", outcome)
+        elif isinstance(outcome, Aligned):
+            self._emit("aligned", outcome)
+            images += self._after_aligned(outcome)
         return images
 
-    def _after_aligned(self, a: Aligned) -> list[SuperResolved]:
+    def _after_aligned(self, aligned: Aligned) -> list[SuperResolved]:
         """Run an aligned frame through the shift and reconstruction stages."""
-        s = self._guard("shift_node", lambda: self.shift.add(a))
-        if isinstance(s, Skipped):
-            self._emit("skipped", ("shift_node", s))
-        if not isinstance(s, Shift):
+        shift = self._guard("shift_node", lambda: self.shift.add(aligned))
+        if isinstance(shift, Skipped):
+            self._emit("skipped", ("shift_node", shift))
+        if not isinstance(shift, Shift):
             return []
-        self._emit("shift", (s, a))
+        self._emit("shift", (shift, aligned))
         return self._emit_images(
-            self._guard("reconstruction_node", lambda: self.reconstruction.add(s, a))
+            self._guard("reconstruction_node", lambda: self.reconstruction.add(shift, aligned))
         )
 
     def _emit_images(self, images: list[SuperResolved] | None) -> list[SuperResolved]:

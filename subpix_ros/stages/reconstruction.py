@@ -113,27 +113,27 @@ class ShiftFrameMatcher:
         self.frames: dict[int, Aligned] = {}
         self.shifts: list[Shift] = []
 
-    def add_frame(self, a: Aligned) -> list[tuple[Shift, Aligned]]:
+    def add_frame(self, aligned: Aligned) -> list[tuple[Shift, Aligned]]:
         """Take an aligned frame; return the (shift, frame) pairs now matched."""
-        self.frames[a.stamp_ns] = a
+        self.frames[aligned.stamp_ns] = aligned
         return self._match()
 
-    def add_shift(self, s: Shift) -> list[tuple[Shift, Aligned]]:
+    def add_shift(self, shift: Shift) -> list[tuple[Shift, Aligned]]:
         """Take a shift; return the (shift, frame) pairs now matched."""
-        self.shifts.append(s)
+        self.shifts.append(shift)
         return self._match()
 
     def _match(self) -> list[tuple[Shift, Aligned]]:
         """Pair each shift with the nearest frame within tolerance; keep the rest (bounded)."""
         pairs, still = [], []
-        for s in self.shifts:
-            stamp = min(self.frames, key=lambda t: abs(t - s.stamp_ns), default=None)
-            if stamp is not None and abs(stamp - s.stamp_ns) <= self.tolerance_ns:
-                a = self.frames.pop(stamp)
-                s.reference_stamp_ns = a.reference.stamp_ns
-                pairs.append((s, a))
+        for shift in self.shifts:
+            stamp = min(self.frames, key=lambda t: abs(t - shift.stamp_ns), default=None)
+            if stamp is not None and abs(stamp - shift.stamp_ns) <= self.tolerance_ns:
+                aligned = self.frames.pop(stamp)
+                shift.reference_stamp_ns = aligned.reference.stamp_ns
+                pairs.append((shift, aligned))
             else:
-                still.append(s)
+                still.append(shift)
         self.shifts = still[-self.KEEP :]
         if len(self.frames) > self.KEEP:
             for t in sorted(self.frames)[: -self.KEEP]:
@@ -200,49 +200,49 @@ class ReconstructionStage(Stage):
         self.stats.pending_sets = 0
 
     # ---------------------------------------------------------------- assembly
-    def add_aligned(self, a: Aligned) -> list[SuperResolved]:
+    def add_aligned(self, aligned: Aligned) -> list[SuperResolved]:
         """Take an aligned frame whose shift may come before or after it; return the images made."""
-        return self._run(self.offer_aligned(a))
+        return self._run(self.offer_aligned(aligned))
 
-    def add_shift(self, s: Shift) -> list[SuperResolved]:
+    def add_shift(self, shift: Shift) -> list[SuperResolved]:
         """Take a shift whose aligned frame may come before or after it (non-finite: rejected)."""
-        return self._run(self.offer_shift(s))
+        return self._run(self.offer_shift(shift))
 
     def add(self, shift: Shift, aligned: Aligned) -> list[SuperResolved]:
         """Take one (shift, aligned frame) pair; return the images of the sets this closes."""
         return self._run(self.assemble(shift, aligned))
 
-    def offer_aligned(self, a: Aligned) -> list[FrameSet]:
+    def offer_aligned(self, aligned: Aligned) -> list[FrameSet]:
         """Match and assemble an aligned frame; return the sets it closes (not solved)."""
-        return [fs for pair in self.match_aligned(a) for fs in self.assemble(*pair)]
+        return [fs for pair in self.match_aligned(aligned) for fs in self.assemble(*pair)]
 
-    def offer_shift(self, s: Shift) -> list[FrameSet]:
+    def offer_shift(self, shift: Shift) -> list[FrameSet]:
         """Match and assemble a shift; return the sets it closes (not solved)."""
-        return [fs for pair in self.match_shift(s) for fs in self.assemble(*pair)]
+        return [fs for pair in self.match_shift(shift) for fs in self.assemble(*pair)]
 
-    def match_aligned(self, a: Aligned) -> list[tuple[Shift, Aligned]]:
+    def match_aligned(self, aligned: Aligned) -> list[tuple[Shift, Aligned]]:
         """Return the (shift, frame) pairs an aligned frame completes (``time_tolerance_s``)."""
         self._last_input_wall = self.clock()
-        return self.matcher.add_frame(a)
+        return self.matcher.add_frame(aligned)
 
-    def match_shift(self, s: Shift) -> list[tuple[Shift, Aligned]]:
+    def match_shift(self, shift: Shift) -> list[tuple[Shift, Aligned]]:
         """Return the (shift, frame) pairs a shift completes; a non-finite one is an error."""
         self._last_input_wall = self.clock()
-        if not (np.isfinite(s.u) and np.isfinite(s.v)):
+        if not (np.isfinite(shift.u) and np.isfinite(shift.v)):
             self.error("shift message with non-finite u/v ignored")
             return []
-        return self.matcher.add_shift(s)
+        return self.matcher.add_shift(shift)
 
-    def assemble(self, s: Shift, a: Aligned) -> list[FrameSet]:
+    def assemble(self, shift: Shift, aligned: Aligned) -> list[FrameSet]:
         """Add a pair to its reference's set: the sets this closes (the solve not done yet)."""
         self.stats.frames_in += 1
         self._last_input_wall = self.clock()
-        self.check_time(s.stamp_ns)
-        key = a.reference.stamp_ns
+        self.check_time(shift.stamp_ns)
+        key = aligned.reference.stamp_ns
         if key in self._closed:  # its set was flushed incomplete: no second image of the rest
             self.stats.skip("late")
             self.warn(
-                f"frame {s.stamp_ns / 1e9:.3f} s came after the incomplete set of reference "
+                f"frame {shift.stamp_ns / 1e9:.3f} s came after the incomplete set of reference "
                 f"{key / 1e9:.3f} s was flushed: skipped"
             )
             return []
@@ -252,8 +252,8 @@ class ReconstructionStage(Stage):
         for old in sorted(k for k in self.sets if k < key):
             ready += self._close(old, "next reference")
         members = self.sets.setdefault(key, [])
-        members.append((s, a))
-        self._last_stamp_in[key] = max(s.stamp_ns, self._last_stamp_in.get(key, s.stamp_ns))
+        members.append((shift, aligned))
+        self._last_stamp_in[key] = max(shift.stamp_ns, self._last_stamp_in.get(key, shift.stamp_ns))
         if len(members) + 1 >= self.param("n_frames"):
             ready += self._close(key, "complete")
         self.stats.pending_sets = len(self.sets)
@@ -431,8 +431,8 @@ def _solver_options(extra: dict) -> tuple[dict, dict]:
     for fn in (superres.reconstruct, superres._reconstruct):
         taken |= {
             k
-            for k, p in inspect.signature(fn).parameters.items()
-            if p.kind is inspect.Parameter.KEYWORD_ONLY
+            for k, arg in inspect.signature(fn).parameters.items()
+            if arg.kind is inspect.Parameter.KEYWORD_ONLY
         }
     taken -= _SET_HERE
     return (

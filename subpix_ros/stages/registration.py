@@ -177,22 +177,22 @@ class RegistrationStage(Stage):
     # ---------------------------------------------------------------- selection
     def _image_rate(self, stamp_s: float):
         """Return the expected image motion (u, v) px/s at the frame's stamp, or (None, reason)."""
-        s, why = self.telemetry.at(stamp_s + self.param("telemetry_time_offset_s"))
-        if s is None:
+        sample, why = self.telemetry.at(stamp_s + self.param("telemetry_time_offset_s"))
+        if sample is None:
             return None, f"telemetry: {why}"
-        ok, why = validate_sample(s)
+        ok, why = validate_sample(sample)
         if not ok:
             return None, f"telemetry: {why}"
-        if s.ground_speed_mps < self.param("min_speed_mps"):
-            return None, f"hovering ({s.ground_speed_mps:.3f} m/s < min_speed_mps)"
-        heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(
-            self.param("camera_yaw_offset_deg")
-        )
+        if sample.ground_speed_mps < self.param("min_speed_mps"):
+            return None, f"hovering ({sample.ground_speed_mps:.3f} m/s < min_speed_mps)"
+        heading = (
+            sample.yaw_rad if sample.yaw_rad is not None else sample.course_rad
+        ) + math.radians(self.param("camera_yaw_offset_deg"))
         try:
             rate = expected_shift_px(
-                s.ground_speed_mps,
-                s.course_rad,
-                s.height_agl_m,
+                sample.ground_speed_mps,
+                sample.course_rad,
+                sample.height_agl_m,
                 self.param("focal_length_mm") * 1e-3,
                 self.param("pixel_pitch_um") * 1e-6,
                 1.0,

@@ -261,7 +261,7 @@ def configure_ros_environment(environ=None) -> list[str]:
         env[PROFILE_VARS[0]] = str(profile)
         done.append(f"{PROFILE_VARS[0]}={profile}")
     prefix = Path(sys.prefix) / "subpix_prefix"
-    paths = [p for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    paths = [entry for entry in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if entry]
     if (prefix / "share" / "ament_index").is_dir() and str(prefix) not in paths:
         env["AMENT_PREFIX_PATH"] = os.pathsep.join([str(prefix), *paths])
         done.append(f"AMENT_PREFIX_PATH+={prefix}")

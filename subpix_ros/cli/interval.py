@@ -30,11 +30,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--p", type=float, required=True, help="sub-pixel steps per pixel (step = 1/p px), p >= 2"
     )
-    g = parser.add_mutually_exclusive_group()
-    g.add_argument(
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument(
         "--phi-deg", type=float, default=0.0, help="detector angle phi (degrees, default 0)"
     )
-    g.add_argument(
+    group.add_argument(
         "--rotate", action="store_true", help="use the eq. 2 detector angle arctan(1/(p-1))"
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -50,18 +50,18 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(str(exc)) from None
     else:
         phi = math.radians(args.phi_deg)
-    r = frame_interval(
+    result = frame_interval(
         args.pixel_um * 1e-6, args.height_m, args.focal_mm * 1e-3, args.speed_mps, args.p, phi
     )
     if args.json:
-        print(json.dumps(r.as_dict()))
-    if not r.ok:
-        raise CliError(r.reason)
+        print(json.dumps(result.as_dict()))
+    if not result.ok:
+        raise CliError(result.reason)
     if not args.json:
-        print(f"t = {r.interval_s * 1e3:.4g} ms ({r.frame_rate_hz:.4g} frames/s)")
-        print(f"phi = {r.phi_deg:.4g} deg")
+        print(f"t = {result.interval_s * 1e3:.4g} ms ({result.frame_rate_hz:.4g} frames/s)")
+        print(f"phi = {result.phi_deg:.4g} deg")
         print(
-            f"image motion {r.shift_px_per_s:.4g} px/s; "
-            f"step per interval {r.step_px:.4g} px (cos(phi)/p)"
+            f"image motion {result.shift_px_per_s:.4g} px/s; "
+            f"step per interval {result.step_px:.4g} px (cos(phi)/p)"
         )
     return 0

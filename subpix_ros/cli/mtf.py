@@ -110,22 +110,24 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--pixel-um must be > 0")
     pitch = args.pixel_um * 1e-6 if args.pixel_um else None
     try:
-        r = slanted_edge_mtf(img, roi=roi, pixel_pitch_m=pitch)
+        result = slanted_edge_mtf(img, roi=roi, pixel_pitch_m=pitch)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     print(
-        f"edge angle {r.angle_deg:+.2f} deg"
-        + (" (edge near horizontal: rows/cols swapped)" if r.transposed else "")
+        f"edge angle {result.angle_deg:+.2f} deg"
+        + (" (edge near horizontal: rows/cols swapped)" if result.transposed else "")
     )
     print(
-        f"MTF50 {r.mtf50:.4f} cycles/pixel"
-        + (f"  {r.mtf50_lp_mm:.1f} lp/mm" if r.mtf50_lp_mm else "")
+        f"MTF50 {result.mtf50:.4f} cycles/pixel"
+        + (f"  {result.mtf50_lp_mm:.1f} lp/mm" if result.mtf50_lp_mm else "")
     )
     print(
-        f"MTF30 {r.mtf30:.4f} cycles/pixel"
-        + (f"  {r.mtf30_lp_mm:.1f} lp/mm" if r.mtf30_lp_mm else "")
+        f"MTF30 {result.mtf30:.4f} cycles/pixel"
+        + (f"  {result.mtf30_lp_mm:.1f} lp/mm" if result.mtf30_lp_mm else "")
     )
     if args.plot:
-        plot_mtf(r.freqs, r.mtf, args.plot, {"MTF50": r.mtf50, "MTF30": r.mtf30})
+        plot_mtf(
+            result.freqs, result.mtf, args.plot, {"MTF50": result.mtf50, "MTF30": result.mtf30}
+        )
         print(f"plot: {args.plot}")
     return 0

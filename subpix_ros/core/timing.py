@@ -67,10 +67,8 @@ class IntervalResult:
 
     Parameters
     ----------
-    ok : bool
-        Whether an interval could be computed.
-    reason : str
-        Why not ('' when ok).
+    ok, reason : bool, str
+        Whether an interval could be computed, and why not ('' when ok).
     interval_s : float or None
         Time between frames, s; None when ``ok`` is False.
     phi_rad : float
@@ -80,8 +78,7 @@ class IntervalResult:
     shift_px_per_s : float or None
         Image speed ``f V / (H a)``, pixels/s.
     step_px : float or None
-        Along-track image displacement during ``interval_s``: ``cos(phi) / p``
-        pixels by construction of eq. (1).
+        Along-track image step during ``interval_s``: ``cos(phi) / p`` px by eq. (1).
     frame_rate_hz : float or None
         ``1 / interval_s``, Hz.
     """
@@ -145,12 +142,8 @@ def image_speed_px_s(
     ----------
     speed_mps : float
         Ground speed ``V``, m/s; may be 0 (hovering).
-    height_m : float
-        Height above ground ``H``, m.
-    focal_length_m : float
-        Focal length ``f``, m.
-    pixel_pitch_m : float
-        Detector pixel pitch ``a``, m.
+    height_m, focal_length_m, pixel_pitch_m : float
+        Height above ground ``H``, focal length ``f`` and detector pixel pitch ``a``, m.
 
     Returns
     -------
@@ -187,12 +180,8 @@ def frame_interval(
 
     Parameters
     ----------
-    pixel_pitch_m : float
-        Detector pixel pitch ``a``, m.
-    height_m : float
-        Height above ground ``H``, m.
-    focal_length_m : float
-        Focal length ``f``, m.
+    pixel_pitch_m, height_m, focal_length_m : float
+        Pixel pitch ``a``, height above ground ``H`` and focal length ``f``, m.
     speed_mps : float
         Ground speed ``V``, m/s.
     p : float
@@ -310,13 +299,10 @@ class FrameDecision:
 
     Parameters
     ----------
-    keep : bool
-        Whether the frame is kept.
-    reason : str
-        Why.
+    keep, reason : bool, str
+        Whether the frame is kept, and why.
     step_px : tuple of float or None
-        The (u, v) shift predicted since the last kept frame, pixels (None
-        when unknown).
+        The (u, v) shift predicted since the last kept frame, px (None when unknown).
     step_norm_px : float or None
         Its length, pixels.
     """

@@ -91,7 +91,7 @@ print(json.dumps(out), flush=True)
 
 
 def plain_env(extra: dict[str, str], domain: str) -> dict[str, str]:
-    """This environment as `source .venv/bin/activate` leaves it, without any ROS / DDS setting."""
+    """Return the environment as `source .venv/bin/activate` leaves it, without ROS / DDS vars."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(DROP_PREFIXES)}
     env["VIRTUAL_ENV"] = str(VENV)
     env["PATH"] = f"{VENV / 'bin'}:{env.get('PATH', '')}"

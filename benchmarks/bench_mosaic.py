@@ -1,5 +1,7 @@
-"""Overview mosaic benchmark: ours vs OpenCV Stitcher (SCANS) on the Seneca strip, and time per
-added frame as the mosaic grows (9 and, by reusing frames back and forth, 200 additions).
+"""Overview mosaic benchmark: ours vs OpenCV Stitcher (SCANS) on the Seneca strip.
+
+Also the time per added frame as the mosaic grows (9 and, by reusing frames back and forth,
+200 additions).
 
 Last table: every strip the data gives, ours and the Stitcher on each: the 9 frames forward and
 reversed (flown the other way), at half resolution (bundled) and at full resolution (3600x2700,

@@ -41,7 +41,7 @@ SET = 16  # frames per super-resolved image (the reference and 15 aligned frames
 
 
 def make_frames(n: int, w: int = 1920, h: int = 1080) -> list[np.ndarray]:
-    """n frames of a real scene drifting by STEP px per frame (bilinear warp of an upscaled Seneca frame)."""
+    """N frames of a real scene drifting by STEP px per frame (bilinear warp of an upscaled Seneca frame)."""
     scene = cv2.imread(str(ROOT / "data" / "seneca" / "IMG_0463.jpg"), cv2.IMREAD_COLOR)
     scene = cv2.resize(scene, (2400, 1800), interpolation=cv2.INTER_CUBIC)
     out = []

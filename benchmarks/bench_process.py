@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
-"""`subpix process` throughput (issue 20): one 1080p 10 Hz flight in one process, and 4 flights
-with --jobs 2 against one after another.
+"""`subpix process` throughput (issue 20).
+
+One 1080p 10 Hz flight in one process, and 4 flights with --jobs 2 against one after another.
 
 Synthesises flight bags (rosbag2, mcap): 1920x1080 bgr8 frames at 10 Hz of a real Seneca
 frame (upscaled) drifting by (0.41, 0.27) px per frame, with the telemetry that drift
@@ -51,7 +52,7 @@ CAMERA = dict(
 
 
 def build_flight(path: Path, seconds: float, seed: int) -> int:
-    """A 1080p 10 Hz flight bag at ``path``; returns the number of frames."""
+    """Write a 1080p 10 Hz flight bag at ``path``; return the number of frames."""
     import build_sample_flight as bsf
 
     scene = cv2.imread(str(ROOT / "data" / "seneca" / "IMG_0463.jpg"), cv2.IMREAD_COLOR)

@@ -147,11 +147,14 @@ def real_rows(paths, repeat, label, lam=None):
 
 
 def strip_time(ims, repeat) -> tuple[np.ndarray, float]:
-    """Per-pair seconds registering a strip with each frame prepared once (prepare_reference), used as the
+    """Time a strip's registration with each frame prepared once (prepare_reference).
+
+    Per-pair seconds; each prepared frame is used as the
     moving frame of one pair and the reference of the next: pair i costs preparing frame i + 1 plus
     register(prepared i, prepared i + 1) (the steady state of a video stream or a mosaic). Best of
     ``repeat`` per pair, like the from-scratch row, whose median over pairs it is compared with; the first
-    frame's preparation (a one-off at the start of the stream) is returned separately (best of repeats)."""
+    frame's preparation (a one-off at the start of the stream) is returned separately (best of repeats).
+    """
     per = np.full((repeat, len(ims) - 1), np.inf)
     first = np.inf
     for k in range(repeat):
@@ -221,7 +224,7 @@ def synthetic_rows():
 
 
 def to_1080p(img: np.ndarray) -> np.ndarray:
-    """A 1920x1080 frame from a 1800x1350 one: resized to 1920x1440 (area), centre 1080 rows."""
+    """Make a 1920x1080 frame from a 1800x1350 one: resized to 1920x1440 (area), 1080 centre rows."""
     big = cv2.resize(img, (1920, 1440), interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(big[180:1260])
 

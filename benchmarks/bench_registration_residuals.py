@@ -95,7 +95,7 @@ def row_explained(rows: np.ndarray, a: np.ndarray, deg: int = 8) -> float:
 
 
 def anatomy(ref: np.ndarray, r) -> dict:
-    """The columns of the first table for one pair: ``r`` = register(ref, moving), successful."""
+    """Return the columns of the first table for one pair: ``r`` = register(ref, moving), ok."""
     pr, pm = r.points[:, :2], r.points[:, 2:]
     h, w = ref.shape[:2]
     t = r.baseline_px()  # moving centre -> reference: minus the scene motion
@@ -161,7 +161,7 @@ def inlier_residuals(ours: list) -> np.ndarray:
 
 
 def quality_table(ims: list, ours: list) -> None:
-    """The third table: residual RMS over the inliers whose own match correlates at least ``t``."""
+    """Print the third table: residual RMS of the inliers whose match correlates at least ``t``."""
     res = inlier_residuals(ours)
     ncc = np.concatenate([match_ncc(ims[i], ims[i + 1], r) for i, r in enumerate(ours)])
     print(
@@ -193,7 +193,7 @@ def _brown_undistort(p: np.ndarray, k: np.ndarray, c: np.ndarray, scale: float) 
 def _local_scale(
     p: np.ndarray, k: np.ndarray, c: np.ndarray, scale: float, e: float = 0.5
 ) -> np.ndarray:
-    """sqrt |det| of the undistortion's Jacobian at ``p`` (undistorted px per image px)."""
+    """Sqrt |det| of the undistortion's Jacobian at ``p`` (undistorted px per image px)."""
     a = _brown_undistort(p + [e, 0], k, c, scale) - _brown_undistort(p - [e, 0], k, c, scale)
     b = _brown_undistort(p + [0, e], k, c, scale) - _brown_undistort(p - [0, e], k, c, scale)
     return np.sqrt(np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])) / (2 * e)
@@ -239,7 +239,7 @@ def joint_lens_fit(pairs: list, shape: tuple) -> list:
 
 
 def lens_table(ims: list, ours: list) -> None:
-    """The second table: ``ours[i]`` = register(ims[i], ims[i + 1]) (all successful)."""
+    """Print the second table: ``ours[i]`` = register(ims[i], ims[i + 1]) (all successful)."""
     pts = []
     for i in range(len(ims) - 1):
         r0 = register(ims[i], ims[i + 1], distortion=False, inlier_px=3.0)

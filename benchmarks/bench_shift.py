@@ -158,8 +158,10 @@ def render_set(n_per_crop, max_shift, blur, seed, snr_db=None, noise=0.0, clean=
 
 
 def render_noisy_set(n_per_crop, max_shift, blur, seed, noise):
-    """Pairs with fresh noise on both frames (the noise model of render_frame:
-    Gaussian, rounded, clipped to uint8); the clean reference is kept."""
+    """Return pairs with fresh noise on both frames; the clean reference is kept.
+
+    The noise model of render_frame: Gaussian, rounded, clipped to uint8.
+    """
     rng = np.random.default_rng(seed)
     out = []
 
@@ -219,8 +221,11 @@ def central_gradients(a):
 
 
 def crb_diag(clean, sigma, border=0, gradients=fft_gradients):
-    """diag(2 sigma^2 J^-1), J the gradient energy matrix of the noise-free frame
-    (``gradients``: spectral by default), over the frame minus ``border`` px on each side."""
+    """Return the shift variance bound diag(2 sigma^2 J^-1).
+
+    J is the gradient energy matrix of the noise-free frame (``gradients``: spectral by default),
+    over the frame minus ``border`` px on each side.
+    """
     g0, g1 = gradients(clean)
     if border:
         g0, g1 = g0[border:-border, border:-border], g1[border:-border, border:-border]
@@ -371,7 +376,7 @@ def accuracy(quick: bool):
 
 
 def big_pair(w, h, shift=(1.37, -2.61), noise=1.0, seed=1):
-    """(reference, moving) uint8 of size w x h with an exact Fourier shift, noise sigma ``noise`` DN."""
+    """Return (reference, moving), uint8 w x h, with an exact Fourier shift, ``noise`` DN noise."""
     src = None
     if FULLRES.is_dir() and (FULLRES / "IMG_0464.jpg").is_file():
         src = cv2.imread(str(FULLRES / "IMG_0464.jpg"), cv2.IMREAD_GRAYSCALE)

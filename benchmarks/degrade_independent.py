@@ -72,7 +72,8 @@ def shift_layout(
 ) -> list[tuple[float, float]]:
     """Shifts (LR px): ``"grid"`` the p x p k/p grid, ``"random"`` n uniform in [-1, 1)^2.
 
-    The first shift is (0, 0) (the reference)."""
+    The first shift is (0, 0) (the reference).
+    """
     if kind == "grid":
         return [(a / p, b / p) for a in range(p) for b in range(p)]
     if kind == "random":
@@ -85,7 +86,7 @@ def shift_layout(
 def scene_crop(
     hr: np.ndarray, factor: int, lr: int, margin: int, offset: tuple[int, int] = (0, 0)
 ) -> np.ndarray:
-    """The part of an HR image that :func:`degrade` needs for ``lr`` x ``lr`` LR frames."""
+    """Return the part of an HR image that :func:`degrade` needs for ``lr`` x ``lr`` LR frames."""
     n = (lr + 2 * margin) * factor
     r, c = offset
     out = np.asarray(hr, dtype=np.float64)[r : r + n, c : c + n]

@@ -56,7 +56,7 @@ STAGES = ("reference", "register", "align", "gray", "shift", "reconstruct", "mos
 
 
 def gray(image: np.ndarray) -> np.ndarray:
-    """The shift node's luminance (float32)."""
+    """Return the shift node's luminance (float32)."""
     return luminance(image, order="bgr" if image.ndim == 3 else "mono", dtype=np.float32)
 
 

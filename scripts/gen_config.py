@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
-"""Write config/<node>.yaml, the default parameters of every node, from the
-nodes' declared parameters (test/nodes/test_config.py checks they agree)."""
+"""Write config/<node>.yaml, the default parameters of every node.
+
+They come from the nodes' declared parameters (test/nodes/test_config.py checks they agree).
+"""
 
 from __future__ import annotations
 

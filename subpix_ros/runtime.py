@@ -1,37 +1,14 @@
 """Process-level settings of subpix_ros processes (nodes, ``subpix`` commands, benchmarks).
 
-Why: the frames pass through frame-sized numpy/OpenCV temporaries (an 1800x1350
-float32 luminance is 9.7 MB, its pyramid and Harris buffers a few MB more).
-glibc's allocator serves blocks above its mmap threshold (128 KiB, raised on
-the fly up to the size of the largest block freed so far) straight from the
-kernel with ``mmap`` and returns them with ``munmap`` when they are freed, and
-it gives the top of the heap back to the kernel once more than its trim
-threshold is free. So a fresh frame-sized buffer is often new memory, which
-the kernel maps in page by page on first touch: measured on this project's
-2-core VM, 3300-6300 minor page faults per registered 1800x1350 pair and
-97-103 ms per pair (median of all runs), against 0-20 faults and 80-84 ms once
-freed blocks stay in the heap and are reused (``benchmarks/bench_registration.py``,
-best of 2 runs per pair, median over the pairs: 0.091-0.103 s with
-``--default-malloc``, 0.080-0.089 s without). Sub-pixel shift estimation, which reuses its
-buffers already, is unchanged (12 ms at 1080p either way).
-
-:func:`keep_freed_memory` sets glibc's mmap threshold to 64 MiB (blocks up to
-that size come from the heap: a 4K or a full-resolution Seneca float32 frame
-is 33-39 MB; at full resolution the faults per pair drop from 890 to 300)
-and the trim threshold to 64 MiB (the process keeps up to that much freed
-heap on top for reuse instead of returning it; 32 MiB already gave the whole
-gain, 512 MiB only raised the resident memory). Resident memory hardly
-changes: in the 10-minute 30 Hz 1080p soak (``benchmarks/soak.py``) the RSS
-peaked at 2.10-2.41 GB with it (3 runs) and 2.25 GB without (1 run); the
-lowest RSS of each minute (measured in one run with it) came back to
-1.44-1.50 GB from the first minute to the eighth (single minutes read up to
-1.72 GB), so nothing accumulates. The same runs processed as many frames either way
-(5335-5836 against 5585 shifts).
-
-Every node's ``main``, the ``subpix`` command and the benchmarks call it.
-It is a no-op where glibc's ``mallopt`` is missing (musl, macOS, Windows),
-and an operator's own ``MALLOC_MMAP_THRESHOLD_`` / ``MALLOC_TRIM_THRESHOLD_``
-or ``GLIBC_TUNABLES=glibc.malloc.*`` environment settings win, and
+:func:`keep_freed_memory` keeps freed frame-sized buffers in the heap for
+reuse: glibc's mmap and trim thresholds are raised to 64 MiB, so the
+frame-sized numpy/OpenCV temporaries of each frame are not fresh pages the
+kernel maps in on first touch (the measurements behind it are in
+docs/design-notes.md, "Process settings (runtime.py)"). Every node's
+``main``, the ``subpix`` command and the benchmarks call it. It is a no-op
+where glibc's ``mallopt`` is missing (musl, macOS, Windows), an operator's
+own ``MALLOC_MMAP_THRESHOLD_`` / ``MALLOC_TRIM_THRESHOLD_`` or
+``GLIBC_TUNABLES=glibc.malloc.*`` environment settings win, and
 ``SUBPIX_DEFAULT_MALLOC=1`` opts out: nothing is changed then.
 
 :func:`configure_ros_environment` (also called by every entry point, before
@@ -40,6 +17,9 @@ nodes need to exchange camera frames: the package's Fast DDS profile
 (``config/fastdds_profile.xml``, a shared-memory segment that holds whole
 frames; see docs/design-notes.md, "Camera frames between processes") and the
 venv's ament prefix. Settings the operator made are kept.
+
+:func:`clean_stale_shm_segments` removes the Fast DDS shared-memory segments
+that killed processes left in ``/dev/shm``.
 """
 
 from __future__ import annotations
@@ -64,6 +44,8 @@ __all__ = [
     "fastdds_profile",
     "PROFILE_VARS",
     "RuntimeSetupError",
+    "remove_stale_shm_segments",
+    "clean_stale_shm_segments",
 ]
 
 #: glibc's ``mallopt`` parameter numbers (malloc.h).
@@ -77,12 +59,12 @@ TRIM_THRESHOLD = 64 * 1024 * 1024
 
 _ENV = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 
-#: Set to 1 to leave glibc's allocator alone (inherited by child processes, e.g. the nodes a benchmark starts).
+#: Set to 1 to leave glibc's allocator alone (inherited by child processes: a benchmark's nodes).
 OPT_OUT = "SUBPIX_DEFAULT_MALLOC"
 
 
 def _operator_set() -> bool:
-    """True if the environment opts out or sets glibc's malloc thresholds (old variables or the tunables)."""
+    """Tell whether the environment opts out or sets glibc's malloc thresholds (or tunables)."""
     return (
         os.environ.get(OPT_OUT, "") not in ("", "0")
         or any(os.environ.get(k) for k in _ENV)
@@ -91,7 +73,7 @@ def _operator_set() -> bool:
 
 
 def _mallopt():
-    """glibc's ``mallopt`` or None."""
+    """Return glibc's ``mallopt``, or None where there is none."""
     if not sys.platform.startswith("linux"):
         return None
     try:
@@ -107,12 +89,28 @@ def _mallopt():
 def keep_freed_memory(
     mmap_threshold: int = MMAP_THRESHOLD, trim_threshold: int = TRIM_THRESHOLD
 ) -> bool:
-    """Keep freed frame buffers in the heap for reuse (glibc ``mallopt``); see the module docstring.
+    """Keep freed frame buffers in the heap for reuse (glibc ``mallopt``).
 
-    ``mmap_threshold`` / ``trim_threshold`` in bytes. Returns True if both were
-    applied, False if this is not glibc, if the operator set glibc's malloc
-    tunables in the environment (theirs are kept), or if glibc refused a
-    value. Process-wide and harmless to call twice.
+    Process-wide and harmless to call twice.
+
+    Parameters
+    ----------
+    mmap_threshold : int
+        Blocks up to this size (bytes) come from the heap.
+    trim_threshold : int
+        Freed heap kept on top for reuse before it is returned to the kernel, bytes.
+
+    Returns
+    -------
+    bool
+        True if both were applied; False if this is not glibc, if the operator
+        set glibc's malloc tunables in the environment (theirs are kept), or if
+        glibc refused a value.
+
+    Raises
+    ------
+    ValueError
+        If a threshold is not positive or does not fit a C int.
     """
     if not (0 < int(mmap_threshold) <= 2**31 - 1 and 0 < int(trim_threshold) <= 2**31 - 1):
         raise ValueError("thresholds must be positive and fit a C int (bytes)")
@@ -127,7 +125,15 @@ def keep_freed_memory(
 
 
 def add_malloc_argument(parser, where: str = "") -> None:
-    """For benchmarks: the ``--default-malloc`` flag (``where``: which processes it reaches, for the help)."""
+    """Add the benchmarks' ``--default-malloc`` flag to ``parser``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The benchmark's parser.
+    where : str
+        Which processes the flag reaches, for the help text.
+    """
     parser.add_argument(
         "--default-malloc",
         action="store_true",
@@ -136,15 +142,29 @@ def add_malloc_argument(parser, where: str = "") -> None:
 
 
 def allocator_line(default_malloc: bool = False) -> str:
-    """For benchmarks: apply :func:`keep_freed_memory` (as the nodes and ``subpix`` do) unless
-    ``default_malloc``, and return a one-line description of the allocator the timings ran with."""
+    """Apply :func:`keep_freed_memory` for a benchmark, as the nodes and ``subpix`` do.
+
+    Parameters
+    ----------
+    default_malloc : bool
+        Leave glibc's defaults instead (also in the processes this one starts).
+
+    Returns
+    -------
+    str
+        One line describing the allocator the timings ran with.
+    """
     if default_malloc:
         os.environ[OPT_OUT] = "1"  # and in the processes this one starts
-        return "allocator: glibc defaults (--default-malloc; the nodes and subpix keep freed frame buffers)"
+        return (
+            "allocator: glibc defaults (--default-malloc; the nodes and subpix keep freed "
+            "frame buffers)"
+        )
     if keep_freed_memory():
         return (
             f"allocator: freed frame buffers kept for reuse, as in the nodes and subpix "
-            f"(mmap threshold {MMAP_THRESHOLD >> 20} MiB, trim threshold {TRIM_THRESHOLD >> 20} MiB; "
+            f"(mmap threshold {MMAP_THRESHOLD >> 20} MiB, "
+            f"trim threshold {TRIM_THRESHOLD >> 20} MiB; "
             f"--default-malloc for glibc's defaults)"
         )
     return (
@@ -167,7 +187,7 @@ class RuntimeSetupError(RuntimeError):
 
 
 def fastdds_profile() -> Path | None:
-    """The package's Fast DDS profile, or None if none is found.
+    """Find the package's Fast DDS profile.
 
     Returns
     -------
@@ -186,7 +206,7 @@ def fastdds_profile() -> Path | None:
 
 
 def configure_ros_environment(environ=None) -> list[str]:
-    """Defaults for a plainly activated venv, set before rclpy creates a participant.
+    """Set the defaults a plainly activated venv needs, before rclpy creates a participant.
 
     Parameters
     ----------
@@ -210,8 +230,11 @@ def configure_ros_environment(environ=None) -> list[str]:
       ``AMENT_PREFIX_PATH``, so ``get_package_share_directory('subpix_ros')`` and ``ros2``
       tools started from this process find the package.
 
-    Raises :class:`RuntimeSetupError` when the profile the operator named does not exist (Fast
-    DDS would go on with its defaults after a log line).
+    Raises
+    ------
+    RuntimeSetupError
+        When the profile the operator named does not exist (Fast DDS would go on with its
+        defaults after a log line), or the package's profile is not found.
     """
     env = os.environ if environ is None else environ
     done: list[str] = []
@@ -238,7 +261,7 @@ def configure_ros_environment(environ=None) -> list[str]:
         env[PROFILE_VARS[0]] = str(profile)
         done.append(f"{PROFILE_VARS[0]}={profile}")
     prefix = Path(sys.prefix) / "subpix_prefix"
-    paths = [p for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    paths = [entry for entry in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if entry]
     if (prefix / "share" / "ament_index").is_dir() and str(prefix) not in paths:
         env["AMENT_PREFIX_PATH"] = os.pathsep.join([str(prefix), *paths])
         done.append(f"AMENT_PREFIX_PATH+={prefix}")
@@ -308,9 +331,14 @@ def remove_stale_shm_segments(shm_dir: str | Path = "/dev/shm", min_age_s: float
 
 
 def clean_stale_shm_segments() -> int:
-    """:func:`remove_stale_shm_segments` at an entry point's start (``SUBPIX_KEEP_SHM=1``: not).
+    """Run :func:`remove_stale_shm_segments` at an entry point's start (``SUBPIX_KEEP_SHM=1``: not).
 
-    Quiet: the commands' own stderr stays theirs (scripts read it); returns the count removed.
+    Quiet: the commands' own stderr stays theirs (scripts read it).
+
+    Returns
+    -------
+    int
+        Segments removed.
     """
     if os.environ.get("SUBPIX_KEEP_SHM", "") not in ("", "0"):
         return 0

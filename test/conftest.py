@@ -14,7 +14,7 @@ from subpix_ros.data import CROP_NAMES, load_crop  # noqa: E402
 
 @pytest.fixture(scope="session")
 def crops():
-    """The four real full-resolution Seneca luminance crops (uint8, 768x768)."""
+    """Return the four real full-resolution Seneca luminance crops (uint8, 768x768)."""
     return {name: load_crop(name) for name in CROP_NAMES}
 
 
@@ -41,7 +41,7 @@ def ros_isolation():
 
 @pytest.fixture(scope="session")
 def sample_bags(tmp_path_factory):
-    """The bundled sample flights (data/bags, built by `make sample`; built here if missing)."""
+    """Return the bundled sample flights (data/bags, built by `make sample`; here if missing)."""
     import subprocess
 
     bags = ROOT / "data" / "bags"
@@ -59,8 +59,10 @@ def sample_bags(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def flight(sample_bags):
-    """The 24 frames of the rendered subpixel flight as stage Frames, and its truth
-    (stamp -> (u, v))."""
+    """Return the 24 frames of the rendered subpixel flight as stage Frames, and its truth.
+
+    The truth maps stamp -> (u, v).
+    """
     import json
 
     from subpix_ros.io import cdr
@@ -89,16 +91,20 @@ SET_SHIFTS = [
 
 
 def rendered_set(crop, seed=5):
-    """Eight frames of a real crop (its top-left 256 x 256) rendered at :data:`SET_SHIFTS`
-    (factor 2, blur 0.4 LR px, 40 dB)."""
+    """Render eight frames of a real crop (its top-left 256 x 256) at :data:`SET_SHIFTS`.
+
+    Factor 2, blur 0.4 LR px, 40 dB.
+    """
     from subpix_ros.core.render import render_sequence
 
     return render_sequence(crop[:256, :256], 2, SET_SHIFTS, 0.4, snr_db=40, seed=seed)
 
 
 def scene_frames(offsets, w=960, h=720):
-    """Frames of a real Seneca scene whose content moves by ``offsets[k]`` = (rows, cols) px
-    relative to frame 0 (BGR, ``w`` x ``h``)."""
+    """Return frames of a real Seneca scene whose content moves by ``offsets[k]``.
+
+    ``offsets[k]`` = (rows, cols) px relative to frame 0 (BGR, ``w`` x ``h``).
+    """
     import cv2
     import numpy as np
 
@@ -114,7 +120,7 @@ def scene_frames(offsets, w=960, h=720):
 
 @pytest.fixture
 def rclpy_node():
-    """An initialised rclpy context with one node in this (the test) process."""
+    """Yield one node in an initialised rclpy context in this (the test) process."""
     import rclpy
 
     rclpy.init()
@@ -125,7 +131,7 @@ def rclpy_node():
 
 
 def subpix_cmd(*args: str) -> list[str]:
-    """The `subpix` command line (run as a module so the checkout's code is used)."""
+    """Return the `subpix` command line (run as a module so the checkout's code is used)."""
     return [sys.executable, "-m", "subpix_ros.cli", *args]
 
 
@@ -144,7 +150,7 @@ class ImageMsg:
 
 @pytest.fixture
 def ctx():
-    """rclpy initialised for one test (the nodes under test live in this process)."""
+    """Rclpy initialised for one test (the nodes under test live in this process)."""
     import rclpy
 
     rclpy.init()
@@ -215,9 +221,11 @@ def processed(sample_bags, tmp_path_factory):
 
 
 class AlignedFeed:
-    """Stands in for the registration and shift nodes on ``h`` (an rclpy node): publishes
-    ``aligned/reference``, the ``aligned/reference_stamp`` links, ``aligned`` frames with their
-    full masks, and ``shift``, with the QoS the real nodes use."""
+    """Stand in for the registration and shift nodes on ``h`` (an rclpy node).
+
+    Publishes ``aligned/reference``, the ``aligned/reference_stamp`` links, ``aligned`` frames
+    with their full masks, and ``shift``, with the QoS the real nodes use.
+    """
 
     def __init__(self, h):
         from geometry_msgs.msg import Vector3Stamped

@@ -46,6 +46,7 @@ class CliError(Exception):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """Return the ``subpix`` parser with every installed subcommand registered."""
     parser = argparse.ArgumentParser(
         prog="subpix", description="Sub-pixel processing of drone imagery (subpix_ros)."
     )
@@ -63,6 +64,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``subpix`` command line.
+
+    Parameters
+    ----------
+    argv : sequence of str or None
+        Arguments (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        Exit status: the subcommand's, 2 when the ROS environment cannot be
+        set up, a :class:`CliError`'s code, 130 on Ctrl-C.
+    """
     keep_freed_memory()  # frame buffers reused, not re-faulted per frame (subpix_ros.runtime)
     parser = build_parser()
     args = parser.parse_args(argv)

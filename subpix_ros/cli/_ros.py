@@ -10,7 +10,7 @@ from typing import Iterable, Iterator
 
 @contextlib.contextmanager
 def ros_node(name: str, use_sim_time: bool = False) -> Iterator[object]:
-    """An initialised rclpy context and one node, torn down on exit."""
+    """Yield one node in an initialised rclpy context, torn down on exit."""
     import rclpy
     from rclpy.parameter import Parameter
 
@@ -31,11 +31,11 @@ def ros_node(name: str, use_sim_time: bool = False) -> Iterator[object]:
 def stop_processes(procs: Iterable[subprocess.Popen], timeout: float = 10.0) -> None:
     """SIGINT every process still running (a node's clean shutdown), wait, and kill what hangs."""
     procs = list(procs)
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGINT)
-    for p in procs:
+    for proc in procs:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+    for proc in procs:
         try:
-            p.wait(timeout)
+            proc.wait(timeout)
         except subprocess.TimeoutExpired:
-            p.kill()
+            proc.kill()

@@ -22,275 +22,102 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import os
-import subprocess
-import sys
-import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from subpix_ros.cli import CliError
-from subpix_ros.cli._ros import stop_processes
+from subpix_ros.cli._demo_flights import Captured, run_flights
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    """Add the ``subpix demo`` subcommand to the CLI's subparsers ``sub``."""
+    parser = sub.add_parser(
         "demo",
         help="run the pipeline on the bundled sample flights and write the results",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    p.add_argument(
+    parser.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    parser.add_argument(
         "--bags", default=None, help="folder of the sample bags (default: the bundled data/bags)"
     )
-    p.add_argument(
+    parser.add_argument(
         "--rate", type=float, default=0.5, help="replay speed of the subpixel flight (default 0.5)"
     )
-    p.add_argument(
+    parser.add_argument(
         "--seneca-rate",
         type=float,
         default=4.0,
         help="replay speed of the Seneca strip (default 4)",
     )
-    p.add_argument(
+    parser.add_argument(
         "--timeout", type=float, default=240.0, help="give up after this many seconds per flight"
     )
-    p.set_defaults(func=run)
+    parser.set_defaults(func=run)
 
 
-class _Collector:
-    """Subscribes to the pipeline's outputs and keeps what the demo writes."""
+@dataclass
+class _Inputs:
+    """The sample flights and the rendered flight's truth."""
 
-    def __init__(self, node) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray
-        from geometry_msgs.msg import Vector3Stamped
-        from sensor_msgs.msg import CompressedImage, Image
-        from std_msgs.msg import Float64
-
-        from subpix_ros.nodes.common import latched_qos, reliable_qos
-
-        self.lock = threading.Lock()
-        self.sr: list = []
-        self.shifts: list = []
-        self.mosaic = None
-        self.mosaic_jpeg = 0
-        self.interval = None
-        self.aligned = 0
-        self.refs: list[int] = []
-        self.diag: dict[str, dict[str, str]] = {}
-        q = reliable_qos(50)
-        node.create_subscription(Image, "/super_resolved", self._on_sr, latched_qos(), raw=True)
-        node.create_subscription(Vector3Stamped, "/shift", self._on_shift, q, raw=True)
-        node.create_subscription(Image, "/aligned", self._on_aligned, q, raw=True)
-        node.create_subscription(
-            Image, "/aligned/reference", self._on_reference, latched_qos(), raw=True
-        )
-        node.create_subscription(Image, "/mosaic", self._on_mosaic, latched_qos(), raw=True)
-        node.create_subscription(
-            CompressedImage, "/mosaic/compressed", self._on_mosaic_c, latched_qos(), raw=True
-        )
-        node.create_subscription(Float64, "/telemetry/frame_interval", self._on_interval, q)
-        node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, q)
-
-    def _on_sr(self, raw) -> None:
-        from subpix_ros.io import cdr
-
-        img, header = cdr.cdr_to_image(raw)
-        with self.lock:
-            self.sr.append((cdr.header_to_ns(header), img.copy()))
-
-    def _on_shift(self, raw) -> None:
-        from subpix_ros.io import cdr
-
-        vec, header = cdr.cdr_to_vector3_stamped(raw)
-        with self.lock:
-            self.shifts.append((cdr.header_to_ns(header), *map(float, vec), self.interval))
-
-    def _on_aligned(self, raw) -> None:
-        self.aligned += 1
-
-    def _on_reference(self, raw) -> None:
-        from subpix_ros.io import cdr
-
-        with self.lock:
-            self.refs.append(cdr.header_to_ns(cdr.cdr_to_image_msg(raw).header))
-
-    def _on_mosaic(self, raw) -> None:
-        from subpix_ros.io import cdr
-
-        img, _ = cdr.cdr_to_image(raw)
-        self.mosaic = img.copy()
-
-    def _on_mosaic_c(self, raw) -> None:
-        self.mosaic_jpeg += 1
-
-    def _on_interval(self, msg) -> None:
-        self.interval = float(msg.data)
-
-    def _on_diag(self, msg) -> None:
-        for st in msg.status:
-            self.diag[st.name] = {kv.key: kv.value for kv in st.values} | {"_message": st.message}
+    root: Path  # the source tree (config/demo.yaml)
+    bags: Path
+    out: Path
+    truth: dict  # subpixel/truth.json
+    factor: int
+    frames: dict  # stamp (ns) -> camera message of the subpixel flight
+    true_shift: dict  # stamp (ns) -> true (u, v), px
+    truth_hr: Any  # the HR scene the flight was rendered from (BGR)
 
 
-def _spin_until(node, cond, timeout: float, procs=()) -> bool:
-    import rclpy
-
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        rclpy.spin_once(node, timeout_sec=0.05)
-        if cond():
-            return True
-        for p in procs:
-            if p.poll() is not None and p.returncode != 0:
-                raise CliError(
-                    f"{p.args[2] if len(p.args) > 2 else p.args[0]} exited with status {p.returncode}"
-                )
-    return False
-
-
-def _pipeline_cmd(root: Path) -> list[str]:
-    return [
-        sys.executable,
-        "-m",
-        "subpix_ros.nodes.pipeline",
-        "--no-telemetry",
-        "--ros-args",
-        "-r",
-        "image:=/camera/image_raw",
-        "--params-file",
-        str(root / "config" / "demo.yaml"),
-        "--log-level",
-        "error",
-    ]
-
-
-def run(args: argparse.Namespace) -> int:
+def _load_inputs(args: argparse.Namespace) -> _Inputs:
+    """Check the sample bags are there and read the subpixel flight with its truth."""
     import cv2
-    import numpy as np
 
-    from subpix_ros.cli._ros import ros_node
-    from subpix_ros.core.evaluate import gain_over_bicubic, truth_on_grid, wrapped_error
-    from subpix_ros.core.superres import bicubic_upscale
     from subpix_ros.data import bags_dir
-    from subpix_ros.io import cdr
     from subpix_ros.io.bags import read_messages
 
-    root = Path(__file__).resolve().parents[2]
     bags = Path(args.bags) if args.bags else bags_dir()
     for name in ("subpixel", "seneca"):
         if not (bags / name / "metadata.yaml").is_file():
             raise CliError(
-                f"sample bag {bags / name} missing: run `make sample` (scripts/build_sample_flight.py)"
+                f"sample bag {bags / name} missing: run `make sample` "
+                "(scripts/build_sample_flight.py)"
             )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     truth = json.loads((bags / "subpixel" / "truth.json").read_text())
-    factor = int(truth["factor"])
-    frames = {m.timestamp_ns: m for m in read_messages(bags / "subpixel", [truth["topic"]])}
-    true_shift = {f["stamp_ns"]: (f["u"], f["v"]) for f in truth["frames"]}
-    truth_hr = cv2.imread(str(bags / "subpixel" / "truth_hr.png"), cv2.IMREAD_COLOR)
-    env = dict(os.environ)
-    timings: dict[str, float] = {}
-    t_start = time.monotonic()
-    pipeline = subprocess.Popen(_pipeline_cmd(root), env=env)
-    procs = [pipeline]
-    try:
-        with ros_node("subpix_demo") as node:
-            col = _Collector(node)
-            outputs = ("/aligned/reference", "/shift", "/super_resolved", "/mosaic")
-            if not _spin_until(
-                node, lambda: all(node.count_publishers(t) for t in outputs), 60.0, [pipeline]
-            ):
-                raise CliError("the pipeline did not come up within 60 s")
-            _spin_until(node, lambda: False, 1.0, [pipeline])
-            # ---- flight 1: the rendered sub-pixel pass -> shifts and super-resolution
-            t0 = time.monotonic()
-            replay = subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "subpix_ros.cli",
-                    "replay",
-                    str(bags / "subpixel"),
-                    "--rate",
-                    str(args.rate),
-                    "--wait-for",
-                    "/camera/image_raw",
-                    "--wait-timeout",
-                    "60",
-                ],
-                env=env,
-            )
-            procs.append(replay)
-            expected_sets = len(truth["frames"]) // 8
-            _spin_until(node, lambda: replay.poll() is not None, args.timeout, [pipeline])
-            if replay.returncode != 0:
-                raise CliError(f"replay of the subpixel flight failed (status {replay.returncode})")
-            _spin_until(node, lambda: len(col.sr) >= expected_sets, args.timeout, [pipeline])
-            timings["subpixel flight (s)"] = time.monotonic() - t0
-            _spin_until(node, lambda: False, 1.2, [pipeline])  # one more /diagnostics round
-            with col.lock:
-                shifts = list(col.shifts)
-                srs = list(col.sr)
-                refs = sorted(col.refs)
-                diag_subpixel = {k: dict(v) for k, v in col.diag.items()}
-            # ---- flight 2: the real Seneca strip -> the overview mosaic
-            t0 = time.monotonic()
-            replay2 = subprocess.run(
-                [
-                    sys.executable,
-                    "-m",
-                    "subpix_ros.cli",
-                    "replay",
-                    str(bags / "seneca"),
-                    "--rate",
-                    str(args.seneca_rate),
-                    "--topics",
-                    "/camera/image_raw",
-                    "--wait-for",
-                    "/camera/image_raw",
-                ],
-                env=env,
-                timeout=args.timeout,
-            )
-            if replay2.returncode != 0:
-                raise CliError(f"replay of the seneca flight failed (status {replay2.returncode})")
+    return _Inputs(
+        root=Path(__file__).resolve().parents[2],
+        bags=bags,
+        out=out,
+        truth=truth,
+        factor=int(truth["factor"]),
+        frames={m.timestamp_ns: m for m in read_messages(bags / "subpixel", [truth["topic"]])},
+        true_shift={f["stamp_ns"]: (f["u"], f["v"]) for f in truth["frames"]},
+        truth_hr=cv2.imread(str(bags / "subpixel" / "truth_hr.png"), cv2.IMREAD_COLOR),
+    )
 
-            def mosaic_done() -> bool:
-                d = col.diag.get("mosaic_node", {})
-                return (
-                    d.get("frames_added") == "9"
-                    and col.mosaic is not None
-                    and col.mosaic.shape[1] > 1000
-                )
 
-            _spin_until(node, mosaic_done, 60.0, [pipeline])
-            time.sleep(1.5)
-            _spin_until(
-                node, lambda: False, 1.5, [pipeline]
-            )  # let the last mosaic publication arrive
-            timings["seneca flight (s)"] = time.monotonic() - t0
-            diag = dict(col.diag)
-            mosaic = col.mosaic
-    finally:
-        stop_processes(procs)
+def _shift_rows(inp: _Inputs, cap: Captured) -> tuple[list[dict], list]:
+    """Return the shifts.csv rows and the (u, v) errors against the truth, wrapped."""
+    import numpy as np
 
-    # ---- write what the operator looks at
-    summary: dict = {"frames_in": {"subpixel": len(frames), "seneca": 9}, "timing_s": timings}
+    from subpix_ros.core.evaluate import wrapped_error
 
     def reference_of(stamp: int) -> int | None:
-        earlier = [r for r in refs if r <= stamp]
+        earlier = [r for r in cap.refs if r <= stamp]
         return max(earlier) if earlier else None
 
     rows, errs = [], []
-    for stamp, u, v, z, interval in shifts:
+    for stamp, u, v, z, interval in cap.shifts:
         ref = reference_of(stamp)
-        if stamp not in true_shift or ref is None:
+        if stamp not in inp.true_shift or ref is None:
             continue
-        tu, tv = np.subtract(
-            true_shift[stamp], true_shift[ref]
-        )  # truth against the frame's reference
+        # truth against the frame's reference
+        tu, tv = np.subtract(inp.true_shift[stamp], inp.true_shift[ref])
         eu, ev = wrapped_error(np.array([u, v]), np.array([tu, tv]))
         errs.append((eu, ev))
         rows.append(
@@ -307,20 +134,25 @@ def run(args: argparse.Namespace) -> int:
                 "frame_interval_s": "" if interval is None else f"{interval:.4f}",
             }
         )
-    with open(out / "shifts.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["stamp_ns"])
-        w.writeheader()
-        w.writerows(rows)
-    summary["shifts_out"] = len(rows)
-    if errs:
-        summary["shift_rmse_px"] = float(np.sqrt(np.mean(np.asarray(errs) ** 2)))
-    summary["super_resolved_out"] = len(srs)
+    return rows, errs
+
+
+def _psnr_gains(inp: _Inputs, srs: list) -> list[dict]:
+    """Return the PSNR of each super-resolved image and of bicubic; write the first pair."""
+    import cv2
+    import numpy as np
+
+    from subpix_ros.core.evaluate import gain_over_bicubic, truth_on_grid
+    from subpix_ros.core.superres import bicubic_upscale
+    from subpix_ros.io import cdr
+
+    factor, out = inp.factor, inp.out
     gains = []
     for i, (ref_stamp, sr) in enumerate(srs):  # each image carries its reference frame's stamp
-        if ref_stamp not in frames:
+        if ref_stamp not in inp.frames:
             continue
-        ref_img = cdr.cdr_to_image(frames[ref_stamp].raw)[0]
-        truth_k = truth_on_grid(truth_hr, true_shift[ref_stamp], factor)
+        ref_img = cdr.cdr_to_image(inp.frames[ref_stamp].raw)[0]
+        truth_k = truth_on_grid(inp.truth_hr, inp.true_shift[ref_stamp], factor)
         p_sr, p_bic = gain_over_bicubic(sr, ref_img, truth_k, factor, border=24)
         gains.append(
             {
@@ -338,47 +170,50 @@ def run(args: argparse.Namespace) -> int:
             cv2.imwrite(str(out / "superres.png"), sr)
             cv2.imwrite(str(out / "bicubic.png"), bic)
             cv2.imwrite(str(out / "side_by_side.png"), np.hstack([bic, sr]))
-    summary["psnr"] = gains
-    if mosaic is not None:
-        cv2.imwrite(str(out / "mosaic.png"), mosaic)
-        summary["mosaic_px"] = list(mosaic.shape[:2])
-    stage_keys = {
-        "registration_node": "registration_ms",
-        "shift_node": "estimate_ms",
-        "reconstruction_node": "reconstruction_ms",
-        "mosaic_node": "add_ms",
-    }
+    return gains
+
+
+_STAGE_KEYS = {
+    "registration_node": "registration_ms",
+    "shift_node": "estimate_ms",
+    "reconstruction_node": "reconstruction_ms",
+    "mosaic_node": "add_ms",
+}
+
+
+def _stage_summary(summary: dict, cap: Captured, truth: dict) -> None:
+    """Add each stage's median time, the dropped frames and the blur used to ``summary``."""
 
     def _ms(d, n, k):
         v = d.get(n, {}).get(f"{k}_p50")
         return None if v is None else round(float(v), 1)
 
-    # each stage's median time over the flight, as its last /diagnostics reported it (machine load included)
+    # each stage's median over the flight, as its last /diagnostics said (machine load included)
     summary["stage_ms_subpixel"] = {
-        n: _ms(diag_subpixel, n, k) for n, k in stage_keys.items() if n != "mosaic_node"
+        n: _ms(cap.diag_subpixel, n, k) for n, k in _STAGE_KEYS.items() if n != "mosaic_node"
     }
     summary["stage_ms_seneca"] = {
-        n: _ms(diag, n, k)
-        for n, k in stage_keys.items()
+        n: _ms(cap.diag, n, k)
+        for n, k in _STAGE_KEYS.items()
         if n in ("registration_node", "mosaic_node")
     }
-    summary["dropped_frames"] = {n: diag.get(n, {}).get("dropped_frames") for n in stage_keys}
-    rec = diag_subpixel.get("reconstruction_node", {})
-    if (
-        "blur_sigma" in rec
-    ):  # the blur the reconstruction used (blur_sigma: auto) and where it came from
+    summary["dropped_frames"] = {n: cap.diag.get(n, {}).get("dropped_frames") for n in _STAGE_KEYS}
+    rec = cap.diag_subpixel.get("reconstruction_node", {})
+    if "blur_sigma" in rec:  # the blur the reconstruction used (blur_sigma: auto) and its source
         summary["blur"] = {
             "sigma_px": float(rec["blur_sigma"]),
             "source": rec.get("blur_source", ""),
             "reason": rec.get("blur_reason", ""),
             "rendered_px": truth.get("blur_sigma_lr_px"),
         }
-    summary["elapsed_s"] = time.monotonic() - t_start
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
-    lines = []
-    lines.append("subpix_ros demo: bundled sample flights through the pipeline over DDS")
+
+
+def _summary_text(summary: dict, inp: _Inputs, n_sr: int) -> str:
+    """Return the summary the demo prints (and writes to summary.txt)."""
+    gains = summary["psnr"]
+    lines = ["subpix_ros demo: bundled sample flights through the pipeline over DDS"]
     lines.append(
-        f"  subpixel flight: {len(frames)} frames in, {len(rows)} shifts out"
+        f"  subpixel flight: {len(inp.frames)} frames in, {summary['shifts_out']} shifts out"
         + (
             f", shift RMSE vs truth {summary['shift_rmse_px']:.4f} px"
             if "shift_rmse_px" in summary
@@ -386,7 +221,8 @@ def run(args: argparse.Namespace) -> int:
         )
     )
     lines.append(
-        f"  super-resolved images (x{factor}): {len(srs)}; PSNR gain over bicubic of the reference frame: "
+        f"  super-resolved images (x{inp.factor}): {n_sr}; "
+        "PSNR gain over bicubic of the reference frame: "
         + ", ".join(
             f"{g['gain_db']:+.2f} dB ({g['psnr_sr_db']:.2f} vs {g['psnr_bicubic_db']:.2f})"
             for g in gains
@@ -395,8 +231,8 @@ def run(args: argparse.Namespace) -> int:
     if "blur" in summary:
         b = summary["blur"]
         lines.append(
-            f"  optics blur used: {b['sigma_px']:.3f} px ({b['source']}: {b['reason']}); the flight was "
-            f"rendered with {b['rendered_px']} px"
+            f"  optics blur used: {b['sigma_px']:.3f} px ({b['source']}: {b['reason']}); "
+            f"the flight was rendered with {b['rendered_px']} px"
         )
     lines.append(f"  seneca strip: 9 frames in, mosaic {summary.get('mosaic_px', 'not produced')}")
     lines.append(
@@ -411,13 +247,63 @@ def run(args: argparse.Namespace) -> int:
     )
     lines.append(f"  frames dropped by the queues: {summary['dropped_frames']}")
     lines.append(
-        f"  outputs in {out}/: superres.png, bicubic.png, side_by_side.png, mosaic.png, shifts.csv, summary.json"
+        f"  outputs in {inp.out}/: superres.png, bicubic.png, side_by_side.png, mosaic.png, "
+        "shifts.csv, summary.json"
     )
-    text = "\n".join(lines)
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the demo: both flights over DDS, the outputs written, then ``subpix process``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed ``subpix demo`` arguments.
+
+    Returns
+    -------
+    int
+        0.
+
+    Raises
+    ------
+    CliError
+        When a sample bag is missing, the pipeline does not come up, a replay
+        fails, or an output was not produced.
+    """
+    import cv2
+    import numpy as np
+
+    inp = _load_inputs(args)
+    t_start = time.monotonic()
+    cap = run_flights(inp.root, inp.bags, len(inp.truth["frames"]) // 8, args)
+    out = inp.out
+    summary: dict = {
+        "frames_in": {"subpixel": len(inp.frames), "seneca": 9},
+        "timing_s": cap.timings,
+    }
+    rows, errs = _shift_rows(inp, cap)
+    with open(out / "shifts.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["stamp_ns"])
+        w.writeheader()
+        w.writerows(rows)
+    summary["shifts_out"] = len(rows)
+    if errs:
+        summary["shift_rmse_px"] = float(np.sqrt(np.mean(np.asarray(errs) ** 2)))
+    summary["super_resolved_out"] = len(cap.srs)
+    summary["psnr"] = _psnr_gains(inp, cap.srs)
+    if cap.mosaic is not None:
+        cv2.imwrite(str(out / "mosaic.png"), cap.mosaic)
+        summary["mosaic_px"] = list(cap.mosaic.shape[:2])
+    _stage_summary(summary, cap, inp.truth)
+    summary["elapsed_s"] = time.monotonic() - t_start
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    text = _summary_text(summary, inp, len(cap.srs))
     (out / "summary.txt").write_text(text + "\n")
     print(text)
-    _flight_report(root, bags, out / "flights")  # prints the report's path
-    if not srs or mosaic is None:
+    _flight_report(inp.root, inp.bags, out / "flights")  # prints the report's path
+    if not cap.srs or cap.mosaic is None:
         raise CliError(
             "the demo did not produce every output (see summary.txt and the pipeline's log)"
         )
@@ -425,7 +311,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _flight_report(root: Path, bags: Path, out: Path) -> Path:
-    """``subpix process`` of both sample flights into ``out``; prints and returns the subpixel report's path."""
+    """Run ``subpix process`` on both sample flights into ``out``.
+
+    Returns
+    -------
+    Path
+        The subpixel flight's report (its path is printed).
+
+    Raises
+    ------
+    CliError
+        When a flight fails.
+    """
     from subpix_ros.process.batch import run_batch
     from subpix_ros.process.flight import load_params
 

@@ -1,4 +1,4 @@
-"""``subpix mosaic FRAME... -o mosaic.png``: incremental overview mosaic with per-frame seam residuals."""
+"""``subpix mosaic FRAME... -o mosaic.png``: incremental overview mosaic, seam residuals."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ MAX_SIZE_DEFAULT = 16384
 
 
 def run(args: argparse.Namespace) -> int:
+    """Build the mosaic of the given frames, print each seam residual and write the image."""
     from ..core.mosaic import Mosaic
 
     if len(args.frames) < 2:
@@ -21,7 +22,7 @@ def run(args: argparse.Namespace) -> int:
     if args.max_size < 64:
         raise CliError(f"--max-size must be at least 64, got {args.max_size}")
     # scale=1: the canvas starts at the input resolution; it shrinks only beyond max_size
-    m = Mosaic(max_size_px=args.max_size, scale=1.0)
+    mosaic = Mosaic(max_size_px=args.max_size, scale=1.0)
     n_ok = 0
     scale = 1.0
     print("frame  ok  inliers  rms_px  seam_px  overlap_px  time_ms  file")
@@ -29,29 +30,30 @@ def run(args: argparse.Namespace) -> int:
         img = cv2.imread(path, cv2.IMREAD_COLOR)
         if img is None:
             raise CliError(f"cannot read image {path!r}")
-        u = m.add(img)
-        n_ok += u.ok
-        rms = "-" if u.rms_px is None else f"{u.rms_px:.3f}"
-        seam = "-" if u.seam_residual_px is None else f"{u.seam_residual_px:.3f}"
-        over = "-" if u.overlap_residual_px is None else f"{u.overlap_residual_px:.3f}"
+        update = mosaic.add(img)
+        n_ok += update.ok
+        rms = "-" if update.rms_px is None else f"{update.rms_px:.3f}"
+        seam = "-" if update.seam_residual_px is None else f"{update.seam_residual_px:.3f}"
+        over = "-" if update.overlap_residual_px is None else f"{update.overlap_residual_px:.3f}"
         print(
-            f"{i:5d}  {'yes' if u.ok else 'NO ':3s} {u.inliers:7d}  {rms:>6s}  {seam:>7s}  "
+            f"{i:5d}  {'yes' if update.ok else 'NO ':3s} {update.inliers:7d}  "
+            f"{rms:>6s}  {seam:>7s}  "
             f"{over:>10s}  "
-            f"{u.time_s * 1000:7.0f}  {path}" + ("" if u.ok else f"  ({u.reason})")
+            f"{update.time_s * 1000:7.0f}  {path}" + ("" if update.ok else f"  ({update.reason})")
         )
-        if m.scale < scale - 1e-9:
-            scale = m.scale
-            h, w = m.image().shape[:2]
+        if mosaic.scale < scale - 1e-9:
+            scale = mosaic.scale
+            h, w = mosaic.image().shape[:2]
             print(
                 f"       scaled to {scale:.3f} canvas px per frame px ({w}x{h}) to stay within "
                 f"--max-size {args.max_size}"
             )
-    if not cv2.imwrite(args.output, m.image()):
+    if not cv2.imwrite(args.output, mosaic.image()):
         raise CliError(f"cannot write {args.output!r}")
     print(
         f"{n_ok}/{len(args.frames)} frames in the mosaic -> {args.output} "
-        f"({m.image().shape[1]}x{m.image().shape[0]}, "
-        f"scale {m.scale:.3f} canvas px per frame px)"
+        f"({mosaic.image().shape[1]}x{mosaic.image().shape[0]}, "
+        f"scale {mosaic.scale:.3f} canvas px per frame px)"
     )
     if n_ok < 2:
         raise CliError("no frame could be registered to its predecessor")
@@ -59,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
-    p = sub.add_parser(
+    """Add the ``subpix mosaic`` subcommand to the CLI's subparsers ``sub``."""
+    parser = sub.add_parser(
         "mosaic",
         help="build an overview mosaic from consecutive overlapping frames",
         description="Register each frame to its predecessor and draw it onto one canvas at the "
@@ -67,13 +70,13 @@ def register(sub) -> None:
         f"(default "
         f"{MAX_SIZE_DEFAULT}); a larger mosaic is scaled down to fit, and the command says so.",
     )
-    p.add_argument("frames", nargs="+", help="frames in flight order")
-    p.add_argument("-o", "--output", required=True, help="mosaic image to write (PNG)")
-    p.add_argument(
+    parser.add_argument("frames", nargs="+", help="frames in flight order")
+    parser.add_argument("-o", "--output", required=True, help="mosaic image to write (PNG)")
+    parser.add_argument(
         "--max-size",
         type=int,
         default=MAX_SIZE_DEFAULT,
         help=f"maximum canvas side, px (default {MAX_SIZE_DEFAULT}; a bgr8 canvas of that size "
         "takes 3 bytes per px: 805 MB at 16384x16384)",
     )
-    p.set_defaults(func=run)
+    parser.set_defaults(func=run)

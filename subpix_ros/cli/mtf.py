@@ -12,24 +12,27 @@ from subpix_ros.cli import CliError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    """Add the ``subpix mtf`` subcommand to the CLI's subparsers ``sub``."""
+    parser = sub.add_parser(
         "mtf",
         help="slanted-edge MTF, MTF50 and MTF30 of an image region",
         description="Measure the MTF of a straight edge tilted a few degrees from the pixel grid "
         "(ISO 12233 slanted-edge method). Frequencies in cycles/pixel; with --pixel-um "
         "also line pairs per mm.",
     )
-    p.add_argument("image", metavar="IMAGE", help="image file (colour is converted to luminance)")
-    p.add_argument(
+    parser.add_argument(
+        "image", metavar="IMAGE", help="image file (colour is converted to luminance)"
+    )
+    parser.add_argument(
         "--roi",
         default=None,
         help="x,y,w,h of the region holding one edge (pixels; default: whole image)",
     )
-    p.add_argument(
+    parser.add_argument(
         "--pixel-um", type=float, default=None, help="pixel pitch in micrometres (for lp/mm)"
     )
-    p.add_argument("--plot", default=None, help="write the MTF curve as a PNG plot")
-    p.set_defaults(func=run)
+    parser.add_argument("--plot", default=None, help="write the MTF curve as a PNG plot")
+    parser.set_defaults(func=run)
 
 
 def _parse_roi(text: str) -> tuple[int, int, int, int]:
@@ -90,6 +93,7 @@ def plot_mtf(freqs: np.ndarray, mtf: np.ndarray, path: str, marks: dict[str, flo
 
 
 def run(args: argparse.Namespace) -> int:
+    """Measure the slanted-edge MTF in the given region, print it and plot it when asked."""
     from subpix_ros.core.mtf import slanted_edge_mtf
 
     if not Path(args.image).is_file():
@@ -106,21 +110,24 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--pixel-um must be > 0")
     pitch = args.pixel_um * 1e-6 if args.pixel_um else None
     try:
-        r = slanted_edge_mtf(img, roi=roi, pixel_pitch_m=pitch)
+        result = slanted_edge_mtf(img, roi=roi, pixel_pitch_m=pitch)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     print(
-        f"edge angle {r.angle_deg:+.2f} deg{' (edge near horizontal: rows/cols swapped)' if r.transposed else ''}"
+        f"edge angle {result.angle_deg:+.2f} deg"
+        + (" (edge near horizontal: rows/cols swapped)" if result.transposed else "")
     )
     print(
-        f"MTF50 {r.mtf50:.4f} cycles/pixel"
-        + (f"  {r.mtf50_lp_mm:.1f} lp/mm" if r.mtf50_lp_mm else "")
+        f"MTF50 {result.mtf50:.4f} cycles/pixel"
+        + (f"  {result.mtf50_lp_mm:.1f} lp/mm" if result.mtf50_lp_mm else "")
     )
     print(
-        f"MTF30 {r.mtf30:.4f} cycles/pixel"
-        + (f"  {r.mtf30_lp_mm:.1f} lp/mm" if r.mtf30_lp_mm else "")
+        f"MTF30 {result.mtf30:.4f} cycles/pixel"
+        + (f"  {result.mtf30_lp_mm:.1f} lp/mm" if result.mtf30_lp_mm else "")
     )
     if args.plot:
-        plot_mtf(r.freqs, r.mtf, args.plot, {"MTF50": r.mtf50, "MTF30": r.mtf30})
+        plot_mtf(
+            result.freqs, result.mtf, args.plot, {"MTF50": result.mtf50, "MTF30": result.mtf30}
+        )
         print(f"plot: {args.plot}")
     return 0

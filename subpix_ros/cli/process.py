@@ -28,45 +28,48 @@ from subpix_ros.cli import CliError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    """Add the ``subpix process`` subcommand to the CLI's subparsers ``sub``."""
+    parser = sub.add_parser(
         "process",
         help="flight bags -> products and a flight report (no DDS)",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("bags", nargs="+", metavar="BAG", help="rosbag2 bag folder, .mcap or .db3")
-    p.add_argument("-o", "--out", required=True, metavar="OUTDIR", help="output folder")
-    p.add_argument(
+    parser.add_argument("bags", nargs="+", metavar="BAG", help="rosbag2 bag folder, .mcap or .db3")
+    parser.add_argument("-o", "--out", required=True, metavar="OUTDIR", help="output folder")
+    parser.add_argument(
         "--params",
         default=None,
         metavar="FILE.yaml",
         help="stage parameters (config/*.yaml layout: node: ros__parameters: ...); default: the "
         "nodes' defaults",
     )
-    p.add_argument(
+    parser.add_argument(
         "--jobs", type=int, default=1, metavar="N", help="bags processed in parallel (default 1)"
     )
-    p.add_argument(
+    parser.add_argument(
         "--camera-topic",
         default=None,
         metavar="T",
         help="image topic (default /camera/image_raw, else the bag's image topic)",
     )
-    p.add_argument(
+    parser.add_argument(
         "--telemetry",
         choices=("tlog", "topics"),
         default=None,
         help="telemetry source (default: the bag's /telemetry/* topics, else a .tlog beside it)",
     )
-    p.add_argument("--force", action="store_true", help="redo bags whose products are complete")
-    p.add_argument(
+    parser.add_argument(
+        "--force", action="store_true", help="redo bags whose products are complete"
+    )
+    parser.add_argument(
         "--skip-corrupt",
         action="store_true",
         help="go on past damaged chunks/records of a bag (default: stop the bag at the first "
         "one); what was skipped is in the summary and the report, and the bag counts as partial",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.add_argument(
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.add_argument(
         "--serve",
         type=int,
         nargs="?",
@@ -76,10 +79,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="serve the processing live to Foxglove on ws://127.0.0.1:PORT (default 8765; "
         "the monitor_node's view: mosaic, SR vs bicubic, camera, shifts, GPS); --jobs 1 only",
     )
-    p.set_defaults(func=run)
+    parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    """Process the given bags (or folders of bags) into products and reports."""
     from subpix_ros.process.batch import Progress, interrupt_on_signals, run_batch
     from subpix_ros.process.flight import check_params, load_params
     from subpix_ros.process.inputs import InputError, bag_name

@@ -13,7 +13,8 @@ from subpix_ros.io.bags import BagError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    """Add the ``subpix record`` subcommand to the CLI's subparsers ``sub``."""
+    parser = sub.add_parser(
         "record",
         help="record topics (raw CDR) into a rosbag2 mcap file",
         description="Subscribe to TOPICs without deserialising and write a rosbag2 bag that "
@@ -23,24 +24,24 @@ def register(sub: argparse._SubParsersAction) -> None:
         "publisher's QoS) and recorded from then on. Ctrl-C or SIGTERM "
         "stops it with a complete bag.",
     )
-    p.add_argument("-o", "--output", required=True, help="OUT.mcap file, or a bag folder name")
-    p.add_argument("topics", nargs="+", metavar="TOPIC")
-    p.add_argument(
+    parser.add_argument("-o", "--output", required=True, help="OUT.mcap file, or a bag folder name")
+    parser.add_argument("topics", nargs="+", metavar="TOPIC")
+    parser.add_argument(
         "--storage",
         choices=("mcap", "sqlite3"),
         default="mcap",
         help="bag folder storage (default mcap)",
     )
-    p.add_argument(
+    parser.add_argument(
         "--duration",
         type=float,
         default=0.0,
         help="stop this many seconds after the first topic was subscribed (0: until Ctrl-C)",
     )
-    p.add_argument(
+    parser.add_argument(
         "--count", type=int, default=0, help="stop after this many messages (0: no limit)"
     )
-    p.add_argument(
+    parser.add_argument(
         "--discover-timeout",
         type=float,
         default=None,
@@ -48,10 +49,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="give up (non-zero exit) if not every TOPIC has a publisher within S seconds; the bag "
         "keeps what was recorded (default: wait for the topics indefinitely)",
     )
-    p.set_defaults(func=run)
+    parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    """Record the given topics into a bag until interrupted (or ``--duration``/``--count`` ends)."""
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
     from subpix_ros.cli._ros import ros_node

@@ -1,4 +1,4 @@
-"""``subpix register REF MOVING [--json] [-o aligned.png]``: automatic co-registration of two frames."""
+"""``subpix register REF MOVING [--json] [-o aligned.png]``: co-register two frames."""
 
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ def _read(path: str) -> np.ndarray:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Co-register MOVING to REF, print the result and write the aligned frame when asked."""
     from ..core.registration import align, register
 
     ref, mov = _read(args.ref), _read(args.moving)
@@ -47,8 +48,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         h = res.homography
         print(
-            f"inliers {res.inliers}  rms {res.rms_px:.3f} px (projective only {res.rms_px_projective:.3f} px)  "
-            f"overlap {res.overlap:.2f}  distortion lambda {res.distortion:+.4f}  {res.time_s * 1000:.0f} ms"
+            f"inliers {res.inliers}  rms {res.rms_px:.3f} px "
+            f"(projective only {res.rms_px_projective:.3f} px)  "
+            f"overlap {res.overlap:.2f}  distortion lambda {res.distortion:+.4f}  "
+            f"{res.time_s * 1000:.0f} ms"
         )
         ac = res.residual_along_cross()
         if ac is not None:
@@ -70,15 +73,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:  # noqa: A001 - the CLI module protocol's name
-    p = sub.add_parser(
+    """Add the ``subpix register`` subcommand to the CLI's subparsers ``sub``."""
+    parser = sub.add_parser(
         "register", help="co-register two overlapping frames (homography moving -> ref)"
     )
-    p.add_argument("ref", help="reference frame (image file)")
-    p.add_argument("moving", help="moving frame (image file)")
-    p.add_argument("--json", action="store_true", help="print the result as one JSON object")
-    p.add_argument("-o", "--output", help="write the moving frame aligned onto the reference grid")
-    p.add_argument("--model", choices=("projective", "affine"), default="projective")
-    p.add_argument(
+    parser.add_argument("ref", help="reference frame (image file)")
+    parser.add_argument("moving", help="moving frame (image file)")
+    parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    parser.add_argument(
+        "-o", "--output", help="write the moving frame aligned onto the reference grid"
+    )
+    parser.add_argument("--model", choices=("projective", "affine"), default="projective")
+    parser.add_argument(
         "--no-distortion", action="store_true", help="do not estimate the radial distortion term"
     )
-    p.set_defaults(func=run)
+    parser.set_defaults(func=run)

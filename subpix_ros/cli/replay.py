@@ -11,23 +11,31 @@ from subpix_ros.io.bags import BagCorrupt, BagError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    """Add the ``subpix replay`` subcommand to the CLI's subparsers ``sub``."""
+    parser = sub.add_parser(
         "replay",
         help="publish a bag's messages with their original timing (raw CDR pass-through)",
-        description="Publish a rosbag2 bag (mcap or sqlite3; a bag folder or one .mcap file) with its "
-        "original timing. Messages are published as the recorded bytes, never re-serialised.",
+        description="Publish a rosbag2 bag (mcap or sqlite3; a bag folder or one .mcap file) "
+        "with its original timing. "
+        "Messages are published as the recorded bytes, never re-serialised.",
     )
-    p.add_argument("bag", help="bag folder (with metadata.yaml) or .mcap/.db3 file")
-    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1.0)")
-    p.add_argument("--loop", action="store_true", help="replay again and again until interrupted")
-    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all)")
-    p.add_argument(
+    parser.add_argument("bag", help="bag folder (with metadata.yaml) or .mcap/.db3 file")
+    parser.add_argument(
+        "--rate", type=float, default=1.0, help="playback speed factor (default 1.0)"
+    )
+    parser.add_argument(
+        "--loop", action="store_true", help="replay again and again until interrupted"
+    )
+    parser.add_argument(
+        "--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all)"
+    )
+    parser.add_argument(
         "--clock", action="store_true", help="also publish /clock (bag time) for use_sim_time nodes"
     )
-    p.add_argument(
+    parser.add_argument(
         "--remap", nargs="+", default=[], metavar="FROM:=TO", help="publish topic FROM under TO"
     )
-    p.add_argument(
+    parser.add_argument(
         "--wait-for",
         nargs="+",
         default=[],
@@ -37,39 +45,41 @@ def register(sub: argparse._SubParsersAction) -> None:
         "one (replay anyway after --wait-timeout), since a subscriber still being "
         "discovered would miss the first messages",
     )
-    p.add_argument(
+    parser.add_argument(
         "--no-wait", action="store_true", help="start at once, matched subscribers or not"
     )
-    p.add_argument(
+    parser.add_argument(
         "--wait-timeout",
         type=float,
         default=15.0,
         help="seconds to wait for subscribers (default 15)",
     )
-    p.add_argument(
+    parser.add_argument(
         "--delay",
         type=float,
         default=0.5,
         help="seconds to wait before the first message (discovery)",
     )
-    p.add_argument(
+    parser.add_argument(
         "--ack-timeout",
         type=float,
         default=10.0,
-        help="after the last message, wait up to this many seconds until every reliable subscriber has "
-        "acknowledged everything (a slow subscriber still gets the end of the bag); default 10",
+        help="after the last message, wait up to this many seconds until every reliable "
+        "subscriber has acknowledged everything "
+        "(a slow subscriber still gets the end of the bag); default 10",
     )
-    p.add_argument(
+    parser.add_argument(
         "--skip-corrupt",
         action="store_true",
         help="replay what can be read from a damaged bag and report the skipped "
         "records at the end (the exit status is still non-zero); default: stop at the "
         "first damaged record",
     )
-    p.set_defaults(func=run)
+    parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    """Publish the bag's messages with their original timing (at ``--rate``)."""
     import time
 
     from subpix_ros.cli._ros import ros_node
@@ -134,8 +144,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"{corrupt} (replayed {stats.published} messages before it)", code=3)
     if not acked and not interrupted:
         print(
-            f"subpix replay: warning: not every reliable subscriber acknowledged every message within "
-            f"{args.ack_timeout:g} s (a subscriber is slow, stalled or gone)",
+            "subpix replay: warning: not every reliable subscriber acknowledged every message "
+            f"within {args.ack_timeout:g} s (a subscriber is slow, stalled or gone)",
             file=sys.stderr,
         )
     print(f"replayed {stats.published} messages from {args.bag} ({stats.loops} pass(es))")

@@ -14,19 +14,21 @@ from subpix_ros.cli import CliError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    """Add the ``subpix report`` subcommand to the CLI's subparsers ``sub``."""
+    parser = sub.add_parser(
         "report",
         help="write report.html of processed flights",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument(
+    parser.add_argument(
         "outdir", metavar="OUTDIR", help="a flight's product folder or `subpix process` -o folder"
     )
-    p.set_defaults(func=run)
+    parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    """Write report.html of one processed flight, or of every flight in a batch folder."""
     from subpix_ros.process.products import is_complete
     from subpix_ros.process.report import write_report
 

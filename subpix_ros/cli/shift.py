@@ -15,32 +15,35 @@ from subpix_ros.core.shift import METHODS, estimate_shift
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    """Add the ``subpix shift`` subcommand to the CLI's subparsers ``sub``."""
+    parser = sub.add_parser(
         "shift",
         help="sub-pixel shift (u rows, v columns) from REF to MOVING (METHODS.md A)",
-        description="Estimate how far the scene content moved from REF to MOVING: a feature at (r, c) in REF "
-        "appears at (r + u, c + v) in MOVING (pixels). Colour images are reduced to the seed's luminance "
+        description="Estimate how far the scene content moved from REF to MOVING: "
+        "a feature at (r, c) in REF "
+        "appears at (r + u, c + v) in MOVING (pixels). "
+        "Colour images are reduced to the seed's luminance "
         "0.2989 R + 0.587 G + 0.1141 B. Prints u, v, their standard errors and the fit quality.",
     )
-    p.add_argument("reference", metavar="REF", help="reference image file")
-    p.add_argument("moving", metavar="MOVING", help="moving image file (same size)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument(
+    parser.add_argument("reference", metavar="REF", help="reference image file")
+    parser.add_argument("moving", metavar="MOVING", help="moving image file (same size)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument(
         "--method",
         choices=METHODS,
         default="default",
         help="estimator (seed = the paper's single solve)",
     )
-    p.add_argument(
+    parser.add_argument(
         "--prior", nargs=2, type=float, metavar=("U", "V"), default=None, help="starting guess (px)"
     )
-    p.add_argument(
+    parser.add_argument(
         "--mask",
         default=None,
         metavar="MASK.png",
         help="validity mask for both frames (non-zero = valid)",
     )
-    p.set_defaults(func=run)
+    parser.set_defaults(func=run)
 
 
 def _read(path: str, what: str) -> np.ndarray:
@@ -58,6 +61,7 @@ def _read(path: str, what: str) -> np.ndarray:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Estimate and print the sub-pixel shift between the two images."""
     ref = _read(args.reference, "reference")
     mov = _read(args.moving, "moving")
     if ref.shape != mov.shape:
@@ -81,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"z = {res.z:+.3f} (intensity offset, moving - reference)")
         conv = "yes" if res.converged else "no"
         print(
-            f"method {res.method}; converged: {conv} ({res.iterations} iterations); pixels used: {res.n_pixels}; "
+            f"method {res.method}; converged: {conv} ({res.iterations} iterations); "
+            f"pixels used: {res.n_pixels}; "
             f"cond(A) = {res.cond:.3g}; residual rms = {res.residual_rms:.3g}"
         )
         if res.misfit:

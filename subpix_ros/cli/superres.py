@@ -27,47 +27,51 @@ luminance is super-resolved, chroma bicubic-upscaled from the first frame.
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    """Add the ``subpix superres`` subcommand to the CLI's subparsers ``sub``."""
+    parser = sub.add_parser(
         "superres",
         help="super-resolve sub-pixel shifted frames (METHODS.md B)",
         description=HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("frames", nargs="+", metavar="FRAME", help="input images (2 or more, same size)")
-    p.add_argument("--factor", type=int, default=2, help="resolution factor 2..4 (default 2)")
-    p.add_argument(
+    parser.add_argument(
+        "frames", nargs="+", metavar="FRAME", help="input images (2 or more, same size)"
+    )
+    parser.add_argument("--factor", type=int, default=2, help="resolution factor 2..4 (default 2)")
+    parser.add_argument(
         "--method",
         default="map",
         choices=["map", "windowed", "pinv", "bicubic"],
         help="map: MAP estimate (eq. 9, default); windowed: eq. 7; pinv: eq. 6 (reference only); "
         "bicubic: the reference frame upscaled",
     )
-    p.add_argument(
+    parser.add_argument(
         "--shifts",
         default="auto",
         help="'auto' (estimate with subpix_ros.core.shift.estimate_shift, default) or a JSON file "
         "with one [u, v] per frame relative to the first frame (rows, cols; px)",
     )
-    p.add_argument(
+    parser.add_argument(
         "--blur-sigma",
         default="auto",
-        help="optics blur std of the model, input px: 'auto' (default: measured on straight edges in "
+        help="optics blur std of the model, input px: "
+        "'auto' (default: measured on straight edges in "
         "the frames, biased low; a low fallback when none is in view) or a number in 0..3 "
         "(a lab calibration)",
     )
-    p.add_argument(
+    parser.add_argument(
         "--noise-sigma", type=float, default=None, help="noise std in DN (default: estimated)"
     )
-    p.add_argument(
+    parser.add_argument(
         "--no-refine", action="store_true", help="use the shifts as given (no refinement)"
     )
-    p.add_argument(
+    parser.add_argument(
         "-o",
         "--output",
         required=True,
         help="output file: .png (8-bit, clipped), .tif/.tiff (32-bit float) or .npy (float64)",
     )
-    p.set_defaults(func=run)
+    parser.set_defaults(func=run)
 
 
 def _read(path: str) -> np.ndarray:
@@ -142,6 +146,7 @@ def _write(path: str, image: np.ndarray) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Super-resolve the given frames into one image and write it."""
     from subpix_ros.core.superres import MAX_FACTOR, reconstruct_colour
 
     if not 2 <= args.factor <= MAX_FACTOR:

@@ -20,6 +20,14 @@ Conventions (used throughout subpix_ros):
   appears at (r + u, c + v) in the moving frame.
 * Output grid: LR pixel ``i`` of the unshifted frame covers HR pixels
   ``factor*i .. factor*i + factor - 1`` of the returned truth.
+
+References
+----------
+.. [1] S. A. Stankevich, S. V. Shklyar, M. S. Lubskyi, "Increasing the spatial
+   resolution of aerial imaging by sub-pixel image registration", 2013
+   (docs/METHODS.md B, eq. 3).
+.. [2] ISO 12233, "Photography -- Electronic still picture imaging --
+   Resolution and spatial frequency responses" (slanted-edge target).
 """
 
 from __future__ import annotations
@@ -46,13 +54,35 @@ def fourier_shift_blur(
     blur_sigma: float = 0.0,
     pad: int = 64,
 ) -> np.ndarray:
-    """Shift an image's content by ``shift`` (rows, cols; pixels) and blur it.
+    """Shift an image's content by a known amount and blur it.
 
-    Implements ``I'(x) = (G_sigma * I)(x - shift)`` in the Fourier domain:
+    Parameters
+    ----------
+    image : ndarray
+        2-D image.
+    shift : tuple of float
+        ``(u, v)``: rows, columns; pixels.
+    blur_sigma : float
+        Gaussian blur sigma, pixels (0: none).
+    pad : int
+        Reflect padding, pixels: must exceed ``|shift| + 4 sigma`` so the
+        periodic wrap of the FFT stays away from the returned area.
+
+    Returns
+    -------
+    ndarray of float64
+        The shifted, blurred image, same shape.
+
+    Raises
+    ------
+    ValueError
+        If ``pad`` is too small for the shift and blur.
+
+    Notes
+    -----
+    ``I'(x) = (G_sigma * I)(x - shift)`` in the Fourier domain:
     ``F[I'](k) = F[I](k) exp(-2 pi i k.shift) exp(-2 pi^2 sigma^2 |k|^2)`` with
-    ``k`` in cycles/pixel. The image is reflect-padded by ``pad`` pixels first
-    so the periodic wrap of the FFT stays away from the returned area (the
-    ``pad`` must exceed ``|shift| + 4 sigma``). float64 in, float64 out.
+    ``k`` in cycles/pixel.
     """
     img = np.asarray(image, dtype=np.float64)
     if abs(shift[0]) + 4 * blur_sigma >= pad or abs(shift[1]) + 4 * blur_sigma >= pad:
@@ -79,10 +109,24 @@ def fourier_shift_blur(
 
 
 def box_integrate(image: np.ndarray, factor: int) -> np.ndarray:
-    """Detector pixel integration (METHODS.md B, eq. 3, as a mean).
+    """Integrate over detector pixels (METHODS.md B, eq. 3, as a mean).
 
-    ``y[i, j] = mean(x[factor*i : factor*(i+1), factor*j : factor*(j+1)])``.
-    Trailing rows/columns that do not fill a block are dropped.
+    Parameters
+    ----------
+    image : ndarray
+        HR image.
+    factor : int
+        Sub-pixels per detector pixel along each axis.
+
+    Returns
+    -------
+    ndarray of float64
+        ``y[i, j] = mean(x[factor*i : factor*(i+1), factor*j : factor*(j+1)])``;
+        trailing rows/columns that do not fill a block are dropped.
+
+    Notes
+    -----
+    Eq. (3) of [1]_ sums each block; the mean keeps intensities on their scale.
     """
     h, w = image.shape[0] // factor, image.shape[1] // factor
     x = np.asarray(image, dtype=np.float64)[: h * factor, : w * factor]
@@ -90,7 +134,7 @@ def box_integrate(image: np.ndarray, factor: int) -> np.ndarray:
 
 
 def noise_sigma_for_snr(signal: np.ndarray, snr_db: float) -> float:
-    """Noise standard deviation giving ``snr_db = 20 log10(std(signal) / sigma)``."""
+    """Return the noise standard deviation giving ``snr_db = 20 log10(std(signal) / sigma)``."""
     return float(np.std(signal) / 10.0 ** (snr_db / 20.0))
 
 
@@ -104,11 +148,31 @@ def render_frame(
     quantize: bool = True,
     pad: int = 64,
 ) -> np.ndarray:
-    """Render one LR frame from an HR scene (see module docstring).
+    """Render one LR frame from an HR scene (the steps of the module docstring).
 
-    ``shift`` and ``blur_sigma`` are in LR pixels; ``noise_sigma`` in output
-    digital numbers (DN). With ``quantize`` the result is rounded and clipped
-    to uint8, else float64.
+    Parameters
+    ----------
+    hr : ndarray
+        Sharp HR scene.
+    factor : int
+        HR pixels per LR pixel along each axis.
+    shift : tuple of float
+        ``(u, v)``, LR pixels.
+    blur_sigma : float
+        Optics blur sigma, LR pixels.
+    noise_sigma : float
+        Gaussian read noise, output digital numbers (DN).
+    rng : numpy.random.Generator or None
+        Noise source (default: a fresh one).
+    quantize : bool
+        Round and clip to uint8 (else float64).
+    pad : int
+        Reflect padding for the Fourier shift, HR pixels.
+
+    Returns
+    -------
+    ndarray
+        The LR frame, uint8 with ``quantize``, else float64.
     """
     hr_shift = (shift[0] * factor, shift[1] * factor)
     blurred = fourier_shift_blur(hr, hr_shift, blur_sigma * factor, pad=pad)
@@ -123,12 +187,30 @@ def render_frame(
 
 @dataclass
 class RenderedSequence:
-    """LR frames with their true shifts and the HR truths on the output grid."""
+    """LR frames with their true shifts and the HR truths on the output grid.
+
+    Parameters
+    ----------
+    frames : list of ndarray
+        The LR frames.
+    shifts : ndarray, shape (N, 2)
+        True (u, v) per frame, LR px, relative to frame 0.
+    truth : ndarray
+        Sharp HR truth (float64), ``factor`` times the LR shape.
+    truth_blurred : ndarray
+        HR truth through the optics blur only.
+    factor : int
+        HR pixels per LR pixel.
+    blur_sigma : float
+        Optics blur sigma, LR pixels.
+    noise_sigma : float
+        Read noise, DN.
+    """
 
     frames: list[np.ndarray]
-    shifts: np.ndarray  # (N, 2) true (u, v) per frame, LR px, relative to frame 0
-    truth: np.ndarray  # sharp HR truth (float64), factor * LR shape
-    truth_blurred: np.ndarray  # HR truth through the optics blur only
+    shifts: np.ndarray
+    truth: np.ndarray
+    truth_blurred: np.ndarray
     factor: int
     blur_sigma: float
     noise_sigma: float
@@ -145,13 +227,41 @@ def render_sequence(
     margin: int = 8,
     quantize: bool = True,
 ) -> RenderedSequence:
-    """Render N LR frames of ``hr`` with the given shifts (LR px, rows/cols).
+    """Render N LR frames of an HR scene with the given shifts.
 
-    The first shift is normally (0, 0): frame 0 is the reference whose grid
-    defines the truth. ``margin`` LR pixels are cut from every side after
-    rendering (so no wrap or padding artefact reaches the frames); the truths
-    are cut identically. ``snr_db``, if given, overrides ``noise_sigma`` with
-    ``noise_sigma_for_snr(reference frame, snr_db)``.
+    Parameters
+    ----------
+    hr : ndarray
+        Sharp HR scene.
+    factor : int
+        HR pixels per LR pixel (>= 1).
+    shifts : sequence of tuple of float
+        ``(u, v)`` per frame, LR px; the first is normally (0, 0): frame 0 is
+        the reference whose grid defines the truth.
+    blur_sigma : float
+        Optics blur sigma, LR pixels.
+    noise_sigma : float
+        Read noise, DN.
+    snr_db : float or None
+        If given, overrides ``noise_sigma`` with
+        ``noise_sigma_for_snr(reference frame, snr_db)``.
+    seed : int
+        Seed of the noise.
+    margin : int
+        LR pixels cut from every side after rendering (so no wrap or padding
+        artefact reaches the frames); the truths are cut identically.
+    quantize : bool
+        Round and clip the frames to uint8.
+
+    Returns
+    -------
+    RenderedSequence
+        The frames, their shifts and the truths.
+
+    Raises
+    ------
+    ValueError
+        If ``factor < 1``.
     """
     if factor < 1:
         raise ValueError("factor must be >= 1")
@@ -196,14 +306,31 @@ def slanted_edge_scene(
     margin: int = 8,
     levels: tuple[float, float] = (50.0, 210.0),
 ) -> tuple[np.ndarray, tuple[int, int, int, int]]:
-    """A real scene with a slanted-edge target (ISO 12233 style) pasted in its middle.
+    """Paste a slanted-edge target (ISO 12233 style [2]_) in the middle of a real scene.
 
-    The first ``(lr + 2 margin) * factor`` rows/columns of ``base`` (HR px)
-    get a square half their size holding a straight edge tilted ``angle_deg``
-    from the columns, dark ``levels[0]`` / bright ``levels[1]`` DN, area-sampled
-    4x4 per pixel. Returns the float64 scene and the edge ROI ``(x, y, w, h)``
-    in LR px of frames rendered from it by :func:`render_sequence` with the
-    same ``factor`` and ``margin``.
+    Parameters
+    ----------
+    base : ndarray
+        HR scene; its first ``(lr + 2 margin) * factor`` rows/columns are used.
+    factor : int
+        HR pixels per LR pixel.
+    lr : int
+        LR frame side, px (before the margin is cut).
+    angle_deg : float
+        Tilt of the edge from the columns, degrees.
+    margin : int
+        The ``margin`` that :func:`render_sequence` will cut, LR px.
+    levels : tuple of float
+        Dark and bright sides, DN.
+
+    Returns
+    -------
+    scene : ndarray of float64
+        The scene with a square half its size holding the straight edge,
+        area-sampled 4x4 per pixel.
+    roi : tuple of int
+        Edge ROI ``(x, y, w, h)`` in LR px of frames rendered from the scene by
+        :func:`render_sequence` with the same ``factor`` and ``margin``.
     """
     n = (lr + 2 * margin) * factor
     scene = np.asarray(base, dtype=np.float64)[:n, :n].copy()

@@ -28,6 +28,12 @@ Conventions
 Nothing here returns a negative, infinite or NaN interval silently: bad input
 gives a result with ``ok=False`` and a reason (or ``ValueError`` where the
 function returns a bare number).
+
+References
+----------
+.. [1] S. A. Stankevich, S. V. Shklyar, M. S. Lubskyi, "Increasing the spatial
+   resolution of aerial imaging by sub-pixel image registration", 2013
+   (docs/METHODS.md B, eqs. 1 and 2).
 """
 
 from __future__ import annotations
@@ -48,6 +54,7 @@ __all__ = [
 
 
 def _finite_positive(x: float) -> bool:
+    """Tell whether ``x`` is a finite number > 0 (False for anything that is not a number)."""
     try:
         return math.isfinite(float(x)) and float(x) > 0.0
     except (TypeError, ValueError):
@@ -58,10 +65,22 @@ def _finite_positive(x: float) -> bool:
 class IntervalResult:
     """Outcome of :func:`frame_interval`.
 
-    ``interval_s`` is None when ``ok`` is False (``reason`` says why).
-    ``shift_px_per_s`` is the image speed ``f V / (H a)`` (pixels/s) and
-    ``step_px`` the along-track image displacement during ``interval_s``
-    (``cos(phi) / p`` pixels by construction of eq. 1).
+    Parameters
+    ----------
+    ok, reason : bool, str
+        Whether an interval could be computed, and why not ('' when ok).
+    interval_s : float or None
+        Time between frames, s; None when ``ok`` is False.
+    phi_rad : float
+        Angle between the detector's long axis and the ground track, rad.
+    p : float
+        Sub-pixel factor: the target step is ``1/p`` pixel.
+    shift_px_per_s : float or None
+        Image speed ``f V / (H a)``, pixels/s.
+    step_px : float or None
+        Along-track image step during ``interval_s``: ``cos(phi) / p`` px by eq. (1).
+    frame_rate_hz : float or None
+        ``1 / interval_s``, Hz.
     """
 
     ok: bool
@@ -75,21 +94,39 @@ class IntervalResult:
 
     @property
     def phi_deg(self) -> float:
+        """Angle ``phi_rad`` in degrees."""
         return math.degrees(self.phi_rad)
 
     def as_dict(self) -> dict:
+        """Return the fields as a plain dict, with ``phi_deg`` added."""
         d = asdict(self)
         d["phi_deg"] = self.phi_deg
         return d
 
 
 def detector_angle(p: float) -> float:
-    """Detector rotation for ``p`` sub-pixel steps, METHODS.md B eq. (2).
+    """Return the detector rotation for ``p`` sub-pixel steps, METHODS.md B eq. (2).
 
-    ``phi = arctan(1 / (p - 1))`` radians: the image then steps ``1/p`` pixel
-    across and ``(p - 1)/p`` pixel along the detector's long axis. Raises
-    ``ValueError`` for ``p < 2`` or non-finite ``p`` (p = 1 would need 90 deg,
-    i.e. no sub-pixel step at all).
+    Parameters
+    ----------
+    p : float
+        Sub-pixel factor, finite and >= 2 (p = 1 would need 90 deg, i.e. no
+        sub-pixel step at all).
+
+    Returns
+    -------
+    float
+        ``phi``, rad.
+
+    Raises
+    ------
+    ValueError
+        For ``p < 2`` or a non-finite ``p``.
+
+    Notes
+    -----
+    ``phi = arctan(1 / (p - 1))``: the image then steps ``1/p`` pixel across
+    and ``(p - 1)/p`` pixel along the detector's long axis [1]_.
     """
     if not (isinstance(p, (int, float)) and math.isfinite(p)) or p < 2:
         raise ValueError(f"p must be a finite number >= 2 (got {p!r})")
@@ -99,10 +136,25 @@ def detector_angle(p: float) -> float:
 def image_speed_px_s(
     speed_mps: float, height_m: float, focal_length_m: float, pixel_pitch_m: float
 ) -> float:
-    """Image motion rate ``s = f V / (H a)`` in pixels per second (METHODS.md B, text of eq. 1).
+    """Return the image motion rate in pixels per second (METHODS.md B, text of eq. 1).
 
-    ``speed_mps`` may be 0 (hovering); negative or non-finite speed, and
-    non-positive height, focal length or pitch raise ``ValueError``.
+    Parameters
+    ----------
+    speed_mps : float
+        Ground speed ``V``, m/s; may be 0 (hovering).
+    height_m, focal_length_m, pixel_pitch_m : float
+        Height above ground ``H``, focal length ``f`` and detector pixel pitch ``a``, m.
+
+    Returns
+    -------
+    float
+        ``s = f V / (H a)``, pixels/s.
+
+    Raises
+    ------
+    ValueError
+        On a negative or non-finite speed, or a non-positive height, focal
+        length or pitch.
     """
     if not (math.isfinite(speed_mps) and speed_mps >= 0.0):
         raise ValueError(f"ground speed must be finite and >= 0 m/s (got {speed_mps!r})")
@@ -124,17 +176,31 @@ def frame_interval(
     p: float,
     phi_rad: float = 0.0,
 ) -> IntervalResult:
-    """Time between frames for a ``1/p`` pixel step, METHODS.md B eq. (1).
+    """Return the time between frames for a ``1/p`` pixel step, METHODS.md B eq. (1).
 
-    ``t = a H cos(phi) / (p f V)`` seconds with ``a`` the pixel pitch (m),
-    ``H`` the height above ground (m), ``f`` the focal length (m), ``V`` the
-    ground speed (m/s) and ``phi`` (rad) the angle between the detector's
-    long axis and the ground-track velocity (use :func:`detector_angle` for
-    eq. 2). During ``t`` the image moves ``f V t / (H a) = cos(phi)/p`` pixels.
+    Parameters
+    ----------
+    pixel_pitch_m, height_m, focal_length_m : float
+        Pixel pitch ``a``, height above ground ``H`` and focal length ``f``, m.
+    speed_mps : float
+        Ground speed ``V``, m/s.
+    p : float
+        Sub-pixel factor (>= 2).
+    phi_rad : float
+        Angle between the detector's long axis and the ground-track velocity,
+        rad (use :func:`detector_angle` for eq. 2).
 
-    Returns ``ok=False`` with a reason (never a negative, zero or infinite
-    time) when V <= 0 or non-finite, H, f or a <= 0 or non-finite, p < 2, or
-    ``cos(phi) <= 0`` (|phi| >= 90 deg).
+    Returns
+    -------
+    IntervalResult
+        The interval, or ``ok=False`` with a reason (never a negative, zero or
+        infinite time) when V <= 0 or non-finite, H, f or a <= 0 or
+        non-finite, p < 2, or ``cos(phi) <= 0`` (|phi| >= 90 deg).
+
+    Notes
+    -----
+    ``t = a H cos(phi) / (p f V)`` s [1]_. During ``t`` the image moves
+    ``f V t / (H a) = cos(phi) / p`` pixels.
     """
     phi = float(phi_rad) if isinstance(phi_rad, (int, float)) else float("nan")
 
@@ -153,7 +219,8 @@ def frame_interval(
         return fail(f"ground speed is not a finite number ({speed_mps!r})")
     if speed_mps <= 0:
         return fail(
-            f"ground speed {speed_mps:g} m/s <= 0: the carrier does not move, no interval gives a 1/p step"
+            f"ground speed {speed_mps:g} m/s <= 0: the carrier does not move, "
+            "no interval gives a 1/p step"
         )
     for name, val in (
         ("height", height_m),
@@ -167,7 +234,8 @@ def frame_interval(
     c = math.cos(phi)
     if c <= 1e-12:
         return fail(
-            f"cos(phi) <= 0 for phi = {math.degrees(phi):g} deg: the detector axis is across the track"
+            f"cos(phi) <= 0 for phi = {math.degrees(phi):g} deg: "
+            "the detector axis is across the track"
         )
     t = pixel_pitch_m * height_m * c / (p * focal_length_m * speed_mps)
     if not (math.isfinite(t) and t > 0):
@@ -185,14 +253,36 @@ def expected_shift_px(
     dt_s: float,
     image_heading_rad: float = 0.0,
 ) -> Tuple[float, float]:
-    """Expected scene shift ``(u, v)`` (rows, cols; pixels) over ``dt_s`` seconds.
+    """Return the expected scene shift over ``dt_s`` seconds.
 
+    Parameters
+    ----------
+    speed_mps : float
+        Ground speed ``V``, m/s.
+    course_rad : float
+        Ground-track course, rad clockwise from north.
+    height_m, focal_length_m, pixel_pitch_m : float
+        ``H``, ``f`` and ``a`` as in :func:`image_speed_px_s`, m.
+    dt_s : float
+        Time between the two frames, s (>= 0).
+    image_heading_rad : float
+        Where the image's top points, rad clockwise from north.
+
+    Returns
+    -------
+    tuple of float
+        ``(u, v)``: rows, columns; pixels.
+
+    Raises
+    ------
+    ValueError
+        On non-finite or out-of-range input (negative speed, non-positive
+        height/f/pitch, negative dt).
+
+    Notes
+    -----
     ``u = s dt cos(course - heading)``, ``v = -s dt sin(course - heading)``
-    with ``s = f V / (H a)`` (see the module docstring for the angle
-    convention: compass angles, clockwise from north; ``image_heading_rad``
-    is where the image's top points). Raises ``ValueError`` on non-finite or
-    out-of-range input (negative speed, non-positive height/f/pitch,
-    negative dt).
+    with ``s = f V / (H a)`` (angle convention: module docstring).
     """
     if not (math.isfinite(dt_s) and dt_s >= 0):
         raise ValueError(f"dt_s must be finite and >= 0 (got {dt_s!r})")
@@ -207,8 +297,14 @@ def expected_shift_px(
 class FrameDecision:
     """One decision of :class:`FrameSelector`.
 
-    ``step_px`` is the (u, v) shift predicted since the last kept frame (None
-    when unknown), ``step_norm_px`` its length.
+    Parameters
+    ----------
+    keep, reason : bool, str
+        Whether the frame is kept, and why.
+    step_px : tuple of float or None
+        The (u, v) shift predicted since the last kept frame, px (None when unknown).
+    step_norm_px : float or None
+        Its length, pixels.
     """
 
     keep: bool
@@ -217,21 +313,38 @@ class FrameDecision:
     step_norm_px: Optional[float] = None
 
     def as_dict(self) -> dict:
+        """Return the fields as a plain dict."""
         return asdict(self)
 
 
 @dataclass
 class FrameSelector:
-    """Which frames of a fixed-rate stream to keep so kept frames step by ~1/p px.
+    """Choose which frames of a fixed-rate stream to keep so kept frames step by ~1/p px.
 
+    Parameters
+    ----------
+    p : float
+        Sub-pixel factor (>= 2): the target step is ``1/p`` pixel.
+    mode : {"step", "phase"}
+        What is matched to the target (Notes).
+    max_age_s : float
+        Telemetry older than this relative to the frame stamp is stale, s.
+    tolerance_px : float or None
+        Tolerance around the target, pixels (default ``0.25 / p``).
+
+    Raises
+    ------
+    ValueError
+        On ``p < 2``, an unknown mode or a non-positive age or tolerance.
+
+    Notes
+    -----
     The inverse of eq. (1): instead of choosing the frame interval, the
     selector integrates the expected image motion (pixels/s, from telemetry
     via :func:`expected_shift_px` with ``dt_s=1``) between frames and keeps a
     frame when the predicted shift since the last kept frame is the closest
     it will get to the target.
 
-    Modes
-    -----
     ``"step"`` (default): target ``1/p`` pixel. A frame is kept when
     ``|acc| + |next| / 2 >= 1/p``, where ``acc`` is the accumulated shift
     since the last kept frame and ``next`` the shift predicted for the next
@@ -285,6 +398,7 @@ class FrameSelector:
     def _keep(
         self, stamp_s: float, reason: str, step: Optional[Tuple[float, float]]
     ) -> FrameDecision:
+        """Keep the frame: restart the accumulation from it."""
         self._prev_stamp = stamp_s
         self._acc = (0.0, 0.0)
         self._have_kept = True
@@ -297,12 +411,27 @@ class FrameSelector:
         rate_px_s: Optional[Sequence[float]] = None,
         rate_stamp_s: Optional[float] = None,
     ) -> FrameDecision:
-        """Keep or skip the frame stamped ``stamp_s`` (seconds).
+        """Keep or skip a frame.
 
-        ``rate_px_s`` is the expected image motion (u, v) in pixels per second
-        (e.g. ``expected_shift_px(..., dt_s=1.0)``), or None without
-        telemetry; ``rate_stamp_s`` the time that telemetry refers to (None:
-        assumed current).
+        Parameters
+        ----------
+        stamp_s : float
+            Frame stamp, s.
+        rate_px_s : sequence of float or None
+            Expected image motion (u, v), pixels/s (e.g.
+            ``expected_shift_px(..., dt_s=1.0)``), or None without telemetry.
+        rate_stamp_s : float or None
+            Time the telemetry refers to, s (None: assumed current).
+
+        Returns
+        -------
+        FrameDecision
+            Keep or skip, with the reason and the predicted step.
+
+        Raises
+        ------
+        ValueError
+            On a non-finite frame stamp.
         """
         if not math.isfinite(stamp_s):
             raise ValueError(f"frame stamp must be finite (got {stamp_s!r})")
@@ -323,27 +452,38 @@ class FrameSelector:
             if not math.isfinite(age) or age > self.max_age_s:
                 return self._keep(
                     stamp_s,
-                    f"telemetry stale ({age:.3g} s old > {self.max_age_s:g} s): keeping every frame",
+                    f"telemetry stale ({age:.3g} s old > {self.max_age_s:g} s): "
+                    "keeping every frame",
                     None,
                 )
         # Integrate the motion since the previous frame (kept or not).
         acc = (self._acc[0] + ru * dt, self._acc[1] + rv * dt)
         self._prev_stamp = stamp_s
-        norm = math.hypot(*acc)
         nxt = math.hypot(ru, rv) * dt
-        target = self.target_px
         if self.mode == "step":
-            if nxt > target + self.tolerance_px:
-                return self._keep(
-                    stamp_s,
-                    f"frame rate too low for a 1/p step: {nxt:.3g} px per frame > {target:.3g} px; keeping every frame",
-                    acc,
-                )
-            if norm + 0.5 * nxt >= target:
-                return self._keep(stamp_s, f"step {norm:.3g} px ~ 1/p = {target:.3g} px", acc)
-            self._acc = acc
-            return FrameDecision(False, f"step {norm:.3g} px < 1/p = {target:.3g} px", acc, norm)
-        # phase mode
+            return self._decide_step(stamp_s, acc, nxt)
+        return self._decide_phase(stamp_s, acc)
+
+    def _decide_step(self, stamp_s: float, acc: Tuple[float, float], nxt: float) -> FrameDecision:
+        """Keep the frame closest to a ``1/p`` step (``acc`` so far, ``nxt`` px to the next)."""
+        norm = math.hypot(*acc)
+        target = self.target_px
+        if nxt > target + self.tolerance_px:
+            return self._keep(
+                stamp_s,
+                f"frame rate too low for a 1/p step: {nxt:.3g} px per frame > {target:.3g} px; "
+                "keeping every frame",
+                acc,
+            )
+        if norm + 0.5 * nxt >= target:
+            return self._keep(stamp_s, f"step {norm:.3g} px ~ 1/p = {target:.3g} px", acc)
+        self._acc = acc
+        return FrameDecision(False, f"step {norm:.3g} px < 1/p = {target:.3g} px", acc, norm)
+
+    def _decide_phase(self, stamp_s: float, acc: Tuple[float, float]) -> FrameDecision:
+        """Keep the frame whose sub-pixel phase of ``|acc|`` is within tolerance of ``1/p``."""
+        norm = math.hypot(*acc)
+        target = self.target_px
         frac = norm - math.floor(norm)
         dist = abs(((frac - target) + 0.5) % 1.0 - 0.5)
         if norm >= target - self.tolerance_px and dist <= self.tolerance_px:
@@ -355,7 +495,8 @@ class FrameSelector:
         self._acc = acc
         return FrameDecision(
             False,
-            f"sub-pixel phase {frac:.3g} px not within {self.tolerance_px:.3g} of 1/p = {target:.3g}",
+            f"sub-pixel phase {frac:.3g} px not within {self.tolerance_px:.3g} "
+            f"of 1/p = {target:.3g}",
             acc,
             norm,
         )

@@ -68,7 +68,7 @@ class StageNode(Node):
         self.diag = Diagnostics(self)
         self.params = declare_params(self, self.PARAMS, self._on_param_change)
         if subscribe_inputs and self.MAIN_INPUTS:
-            self.diag.watch_inputs(self.MAIN_INPUTS, lambda: self.p("input_timeout_s"))
+            self.diag.watch_inputs(self.MAIN_INPUTS, lambda: self.param("input_timeout_s"))
         self._listeners: dict[str, list[Callable[[Any], None]]] = defaultdict(list)
         self._last_stamp_ns: int | None = None
         self.worker: DropOldestWorker | None = None
@@ -76,7 +76,7 @@ class StageNode(Node):
 
     def make_stage(self, cls: type[Stage]) -> Stage:
         """The node's stage, built from its current parameters; its problems go to /diagnostics."""
-        self.stage = cls.from_params({name: self.p(name) for name in self.params})
+        self.stage = cls.from_params({name: self.param(name) for name in self.params})
         self.stage.on_problem = self._stage_problem
         return self.stage
 
@@ -84,7 +84,7 @@ class StageNode(Node):
         (self.diag.error if level == "error" else self.diag.warn)(message)
 
     # ---------------------------------------------------------------- parameters
-    def p(self, name: str) -> Any:
+    def param(self, name: str) -> Any:
         return self.get_parameter(name).value
 
     def _on_param_change(self, name: str, value: Any) -> None:

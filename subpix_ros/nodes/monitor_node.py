@@ -152,7 +152,7 @@ class MonitorNode(StageNode):
 
     def __init__(self, *, subscribe_inputs: bool = True, name: str = "monitor_node", **kw) -> None:
         super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
-        cfg = MonitorConfig.from_mapping({p: self.p(p) for p in (q.name for q in _MONITOR_PARAMS)})
+        cfg = MonitorConfig.from_mapping({q.name: self.param(q.name) for q in _MONITOR_PARAMS})
         # MonitorError (exposure, port in use) ends the process in main()
         self.monitor = Monitor(cfg)
         self.get_logger().info(
@@ -181,7 +181,7 @@ class MonitorNode(StageNode):
             reliability=ReliabilityPolicy.BEST_EFFORT,
             history=qos_profile_sensor_data.history,
         )
-        if self.p("mosaic_compressed"):
+        if self.param("mosaic_compressed"):
             self.create_subscription(
                 CompressedImage,
                 "mosaic/compressed",
@@ -208,7 +208,7 @@ class MonitorNode(StageNode):
                 Image,
                 "image",
                 self._guard(self._on_camera),
-                camera_qos(self.p("camera_reliable"), depth=1),
+                camera_qos(self.param("camera_reliable"), depth=1),
                 raw=True,
             )
             self.create_subscription(
@@ -333,7 +333,7 @@ class MonitorNode(StageNode):
     def _footprint(self, w: int, h: int, stamp: int) -> None:
         if self._fix is None or self._height is None or not self._height > 0:
             return
-        heading = (self._course or 0.0) + math.radians(self.p("camera_yaw_offset_deg"))
+        heading = (self._course or 0.0) + math.radians(self.param("camera_yaw_offset_deg"))
         self.monitor.on_footprint(
             footprint_lonlat(
                 self._fix[0],
@@ -342,8 +342,8 @@ class MonitorNode(StageNode):
                 heading,
                 w,
                 h,
-                self.p("focal_length_mm"),
-                self.p("pixel_pitch_um"),
+                self.param("focal_length_mm"),
+                self.param("pixel_pitch_um"),
             ),
             stamp,
         )

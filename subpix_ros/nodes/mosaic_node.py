@@ -47,10 +47,12 @@ class MosaicNode(StageNode):
         self._dirty = False
         self.pub = self.create_publisher(Image, "mosaic", latched_qos())
         self.pub_c = self.create_publisher(CompressedImage, "mosaic/compressed", latched_qos())
-        self.make_worker(self._process, self.p("queue_size"))
-        self.timer = self.create_timer(1.0 / self.p("publish_rate_hz"), self._publish)
+        self.make_worker(self._process, self.param("queue_size"))
+        self.timer = self.create_timer(1.0 / self.param("publish_rate_hz"), self._publish)
         if subscribe_inputs:
-            q = camera_qos(self.p("camera_reliable"), depth=30 if self.p("camera_reliable") else 5)
+            q = camera_qos(
+                self.param("camera_reliable"), depth=30 if self.param("camera_reliable") else 5
+            )
             self.create_subscription(Image, "image", self._on_image, q, raw=True)
             self.create_subscription(
                 CompressedImage, "image/compressed", self._on_compressed, q, raw=True
@@ -110,7 +112,7 @@ class MosaicNode(StageNode):
         stamp = self.stage.last_stamp_ns
         self.pub.publish(pl.image_cdr(img, stamp, "mosaic"))
         self.pub_c.publish(
-            cdr.compressed_to_cdr(img, stamp, "mosaic", "jpeg", self.p("jpeg_quality"))
+            cdr.compressed_to_cdr(img, stamp, "mosaic", "jpeg", self.param("jpeg_quality"))
         )
         self.diag.rate("output").tick()
 

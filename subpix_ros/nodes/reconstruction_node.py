@@ -59,7 +59,7 @@ class ReconstructionNode(StageNode):
             threading.Lock()
         )  # set assembly: subscriptions, the idle timer, the pipeline's shift worker
         self.pub = self.create_publisher(Image, "super_resolved", latched_qos())
-        self.make_worker(self._process, self.p("queue_size"))
+        self.make_worker(self._process, self.param("queue_size"))
         self.idle_timer = self.create_timer(IDLE_CHECK_S, self._on_idle_check)
         self.inputs = None
         if subscribe_inputs:

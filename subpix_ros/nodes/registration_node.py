@@ -86,10 +86,10 @@ class RegistrationNode(StageNode):
         self.pub_link = self.create_publisher(
             TimeReference, "aligned/reference_stamp", latched_qos(LINK_HISTORY)
         )
-        self.make_worker(self._process, self.p("queue_size"))
+        self.make_worker(self._process, self.param("queue_size"))
         if subscribe_inputs:
             qos = camera_qos(
-                self.p("camera_reliable"), depth=30 if self.p("camera_reliable") else 5
+                self.param("camera_reliable"), depth=30 if self.param("camera_reliable") else 5
             )
             self.create_subscription(
                 Image, "image", self._on_image, qos, raw=True, event_callbacks=sub_ev

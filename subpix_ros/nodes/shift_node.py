@@ -41,7 +41,7 @@ class ShiftNode(StageNode):
         self.make_stage(ShiftStage)
         self.pub = self.create_publisher(Vector3Stamped, "shift", reliable_qos(20))
         self.pub_std = self.create_publisher(Vector3Stamped, "shift/std", reliable_qos(20))
-        self.make_worker(self._process, self.p("queue_size"))
+        self.make_worker(self._process, self.param("queue_size"))
         self.inputs = AlignedInput(self, self.handle_aligned) if subscribe_inputs else None
 
     published = property(lambda self: self.stage.stats.kept)

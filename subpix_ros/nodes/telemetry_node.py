@@ -106,12 +106,12 @@ class TelemetryNode(StageNode):
         }
         self.pub_shift = self.create_publisher(Vector3Stamped, "telemetry/expected_shift", q)
         self.pub_angle = self.create_publisher(Float64, "telemetry/detector_angle", latched_qos())
-        self.pub_angle.publish(Float64(data=detector_angle(self.p("p"))))
+        self.pub_angle.publish(Float64(data=detector_angle(self.param("p"))))
         self.samples = 0
         self.reader = None
         self._lock = threading.Lock()
         self._mavros: dict[str, object] = {}
-        if self.p("source") == "mavlink":
+        if self.param("source") == "mavlink":
             self._start_mavlink()
         else:
             self._start_mavros()
@@ -121,23 +121,25 @@ class TelemetryNode(StageNode):
     def _start_mavlink(self) -> None:
         from subpix_ros.io.mavlink import MavlinkReader
 
-        url = self.p("connection")
+        url = self.param("connection")
         if url.endswith(".tlog") and not Path(url).is_file():
             self.diag.error(f"tlog file not found: {url}")
             return
         try:
-            rate = self.p("tlog_rate") if url.endswith(".tlog") else None
+            rate = self.param("tlog_rate") if url.endswith(".tlog") else None
             self.reader = MavlinkReader(
                 url,
-                baud=self.p("baud"),
-                system_id=self.p("system_id") or None,
-                link_timeout_s=self.p("link_timeout_s"),
+                baud=self.param("baud"),
+                system_id=self.param("system_id") or None,
+                link_timeout_s=self.param("link_timeout_s"),
                 on_sample=self.handle_sample,
                 on_status=self._on_link,
                 rate=rate or None,
             )
-            if url.endswith(".tlog") and self.p("tlog_start_delay_s") > 0:
-                self._delay = self.create_timer(self.p("tlog_start_delay_s"), self._start_reader)
+            if url.endswith(".tlog") and self.param("tlog_start_delay_s") > 0:
+                self._delay = self.create_timer(
+                    self.param("tlog_start_delay_s"), self._start_reader
+                )
             else:
                 self.reader.start()
         except (ValueError, OSError) as exc:
@@ -151,19 +153,22 @@ class TelemetryNode(StageNode):
     def _start_mavros(self) -> None:
         q = reliable_qos(20)
         self.create_subscription(
-            NavSatFix, self.p("mavros_fix_topic"), lambda m: self._mavros.__setitem__("fix", m), q
+            NavSatFix,
+            self.param("mavros_fix_topic"),
+            lambda m: self._mavros.__setitem__("fix", m),
+            q,
         )
         self.create_subscription(
             Float64,
-            self.p("mavros_height_topic"),
+            self.param("mavros_height_topic"),
             lambda m: self._mavros.__setitem__("h", m.data),
             q,
         )
         self.create_subscription(
-            Imu, self.p("mavros_imu_topic"), lambda m: self._mavros.__setitem__("imu", m), q
+            Imu, self.param("mavros_imu_topic"), lambda m: self._mavros.__setitem__("imu", m), q
         )
         self.create_subscription(
-            TwistStamped, self.p("mavros_velocity_topic"), self._on_mavros_velocity, q
+            TwistStamped, self.param("mavros_velocity_topic"), self._on_mavros_velocity, q
         )
 
     def _on_mavros_velocity(self, msg: TwistStamped) -> None:
@@ -206,15 +211,19 @@ class TelemetryNode(StageNode):
         if not ok:
             self.diag.warn(f"telemetry sample rejected: {why}")
             return
-        f_m, a_m, p = self.p("focal_length_mm") * 1e-3, self.p("pixel_pitch_um") * 1e-6, self.p("p")
+        f_m, a_m, p = (
+            self.param("focal_length_mm") * 1e-3,
+            self.param("pixel_pitch_um") * 1e-6,
+            self.param("p"),
+        )
         iv = frame_interval(
-            a_m, s.height_agl_m, f_m, s.ground_speed_mps, p, math.radians(self.p("phi_deg"))
+            a_m, s.height_agl_m, f_m, s.ground_speed_mps, p, math.radians(self.param("phi_deg"))
         )
         with self._lock:
             for topic, msgtype, raw in tm.sample_messages(s, iv.interval_s if iv.ok else None):
                 self.pubs[topic.split("/", 1)[1]].publish(raw)
             heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(
-                self.p("camera_yaw_offset_deg")
+                self.param("camera_yaw_offset_deg")
             )
             try:
                 u, v = expected_shift_px(
@@ -223,12 +232,12 @@ class TelemetryNode(StageNode):
                     s.height_agl_m,
                     f_m,
                     a_m,
-                    1.0 / self.p("camera_rate_hz"),
+                    1.0 / self.param("camera_rate_hz"),
                     heading,
                 )
                 self.pub_shift.publish(
                     cdr.vector3_stamped_to_cdr(
-                        (u, v, math.hypot(u, v) * self.p("camera_rate_hz")),
+                        (u, v, math.hypot(u, v) * self.param("camera_rate_hz")),
                         int(round(s.t * 1e9)),
                         "camera",
                     )

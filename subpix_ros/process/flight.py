@@ -569,7 +569,7 @@ def _run(
     # as 8-bit previews (the core mosaic draws uint8).
     pipe = Pipeline(pparams, with_mosaic=False)
     mosaic = MosaicStage.from_params(pparams["mosaic_node"])
-    reg_params = {k: pipe.registration.p(k) for k in EXPECTED_SHIFT_PARAMS}
+    reg_params = {k: pipe.registration.param(k) for k in EXPECTED_SHIFT_PARAMS}
     col = _Collector(w, reg_params, pipe.registration.stats)
     for kind, cb in (
         ("reference", col.on_reference),

@@ -29,6 +29,7 @@ class StampMatcher:
         self.maxlen = maxlen
 
     def _put(self, mine, other, stamp, item):
+        """Return the partner waiting in ``other``, or keep ``item`` in ``mine`` (None)."""
         if stamp in other:
             return other.pop(stamp)
         mine[stamp] = item
@@ -37,14 +38,17 @@ class StampMatcher:
         return None
 
     def add_a(self, stamp: int, item):
+        """Offer an item of stream a; return ``(item, partner)`` once paired, else None."""
         b = self._put(self.a, self.b, stamp, item)
         return None if b is None else (item, b)
 
     def add_b(self, stamp: int, item):
+        """Offer an item of stream b; return ``(partner, item)`` once paired, else None."""
         a = self._put(self.b, self.a, stamp, item)
         return None if a is None else (a, item)
 
     def clear(self) -> None:
+        """Forget every unpaired item."""
         self.a.clear()
         self.b.clear()
 
@@ -59,18 +63,21 @@ class ReferenceCache:
         self.maxlen = maxlen
 
     def add(self, frame: Frame) -> None:
+        """Keep a reference (the ``maxlen`` latest by stamp are kept)."""
         self.refs[frame.stamp_ns] = frame
         self.refs = collections.OrderedDict(sorted(self.refs.items())[-self.maxlen :])
 
     def get(self, stamp_ns: int) -> Frame | None:
-        """The reference of exactly this stamp, if it has arrived."""
+        """Return the reference of exactly this stamp, if it has arrived."""
         return self.refs.get(stamp_ns)
 
     def for_stamp(self, stamp_ns: int) -> Frame | None:
+        """Return the latest reference not later than ``stamp_ns``, if any."""
         earlier = [s for s in self.refs if s <= stamp_ns]
         return self.refs[max(earlier)] if earlier else None
 
     def clear(self) -> None:
+        """Forget every reference."""
         self.refs.clear()
 
 
@@ -96,23 +103,24 @@ class AlignedAssembler:
         self.error = error
         self.refs = ReferenceCache()
         self.matcher = StampMatcher()
-        self.links: collections.OrderedDict[int, int] = (
-            collections.OrderedDict()
-        )  # frame -> reference
-        self.unlinked: collections.OrderedDict[int, tuple] = (
-            collections.OrderedDict()
-        )  # awaiting a link
-        self.waiting: collections.OrderedDict[tuple[int, int], tuple] = (
-            collections.OrderedDict()
-        )  # a ref
+        # frame stamp -> its reference's stamp
+        self.links: collections.OrderedDict[int, int] = collections.OrderedDict()
+        # (frame, mask) awaiting a link
+        self.unlinked: collections.OrderedDict[int, tuple] = collections.OrderedDict()
+        # (frame, mask) awaiting a reference, by (reference stamp, frame stamp)
+        self.waiting: collections.OrderedDict[tuple[int, int], tuple] = collections.OrderedDict()
         self.newest_link = -1  # stamp of the latest frame whose link arrived
 
-    def add_reference(self, f: Frame) -> None:
-        self.refs.add(f)
-        for key in [k for k in self.waiting if k[0] == f.stamp_ns]:  # its frames that came first
-            self._deliver(*self.waiting.pop(key), f)
+    def add_reference(self, frame: Frame) -> None:
+        """Take a reference frame; deliver the frames that were waiting for it."""
+        self.refs.add(frame)
+        for key in [
+            k for k in self.waiting if k[0] == frame.stamp_ns
+        ]:  # its frames that came first
+            self._deliver(*self.waiting.pop(key), frame)
 
     def add_link(self, stamp: int, ref_stamp: int) -> None:
+        """Take the link naming the reference (``ref_stamp``) of the frame stamped ``stamp``."""
         if stamp in self.unlinked:
             self._with_reference(*self.unlinked.pop(stamp), ref_stamp)
         else:
@@ -129,30 +137,32 @@ class AlignedAssembler:
             self._link_lost(len(lost))
 
     def _link_lost(self, n: int) -> None:
+        """Warn that ``n`` frames lost their link and were skipped."""
         self.warn(f"{n} aligned frame(s) whose aligned/reference_stamp never came: skipped")
 
-    def add_frame(self, f: Frame) -> None:
-        pair = self.matcher.add_a(f.stamp_ns, f)
+    def add_frame(self, frame: Frame) -> None:
+        """Take an aligned frame's pixels (paired with its mask by stamp)."""
+        pair = self.matcher.add_a(frame.stamp_ns, frame)
         if pair:
             self._pair(*pair)
 
-    def add_mask(self, m: Frame) -> None:
-        if m.image.ndim != 2:
+    def add_mask(self, mask: Frame) -> None:
+        """Take an aligned frame's mask (mono, nonzero where valid)."""
+        if mask.image.ndim != 2:
             self.error("bad mask image: not mono8")
             return
-        pair = self.matcher.add_b(m.stamp_ns, m.image > 0)
+        pair = self.matcher.add_b(mask.stamp_ns, mask.image > 0)
         if pair:
             self._pair(*pair)
 
     def _pair(self, frame: Frame, mask: np.ndarray) -> None:
+        """Find the reference of a frame with its mask: by its link, or the latest before it."""
         if mask.shape != frame.image.shape[:2]:
             self.error(f"mask shape {mask.shape} does not match image {frame.image.shape[:2]}")
             return
         if frame.stamp_ns in self.links:
             self._with_reference(frame, mask, self.links.pop(frame.stamp_ns))
-        elif (
-            frame.stamp_ns < self.newest_link
-        ):  # a later frame's link came first: this one's is lost
+        elif frame.stamp_ns < self.newest_link:  # a later frame's link came first: this one's lost
             self._link_lost(1)
         elif self.has_link_publisher():  # its link is on the way
             if bounded_put(self.unlinked, frame.stamp_ns, (frame, mask), self.MAX_PENDING):
@@ -165,6 +175,7 @@ class AlignedAssembler:
             self._deliver(frame, mask, ref)
 
     def _with_reference(self, frame: Frame, mask: np.ndarray, ref_stamp: int) -> None:
+        """Deliver a linked frame, or hold it until its reference arrives."""
         ref = self.refs.get(ref_stamp)
         if ref is not None:
             self._deliver(frame, mask, ref)
@@ -174,6 +185,7 @@ class AlignedAssembler:
             self.warn("aligned frames whose reference never arrived: oldest dropped")
 
     def _deliver(self, frame: Frame, mask: np.ndarray, ref: Frame) -> None:
+        """Hand the assembled :class:`Aligned` to ``deliver``."""
         self.deliver(
             Aligned(
                 frame.stamp_ns,
@@ -188,6 +200,7 @@ class AlignedAssembler:
         )
 
     def clear(self) -> None:
+        """Forget everything held (a reset)."""
         self.refs.clear()
         self.matcher.clear()
         self.links.clear()
@@ -197,7 +210,7 @@ class AlignedAssembler:
 
 
 def bounded_put(store: collections.OrderedDict, key, value, maxlen: int) -> bool:
-    """``store[key] = value``, dropping the oldest beyond ``maxlen``; True if any was dropped."""
+    """Set ``store[key] = value``, drop the oldest beyond ``maxlen``; True if any was dropped."""
     store[key] = value
     dropped = False
     while len(store) > maxlen:

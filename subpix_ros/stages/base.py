@@ -30,9 +30,11 @@ class Stage:
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any] | None = None):
+        """Build the stage from a mapping of parameter names to values (missing: defaults)."""
         return cls(**dict(params or {}))
 
-    def p(self, name: str) -> Any:
+    def param(self, name: str) -> Any:
+        """Return the current value of the parameter ``name``."""
         return self.params[name]
 
     def configure(self, **changes: Any) -> None:
@@ -41,12 +43,14 @@ class Stage:
         self.params, self.extra = values, extra
 
     def warn(self, message: str) -> None:
+        """Count a warning and pass it to ``on_problem``."""
         self.stats.warnings += 1
         self.stats.last_warning = message
         if self.on_problem is not None:
             self.on_problem("warn", message)
 
     def error(self, message: str) -> None:
+        """Count an error and pass it to ``on_problem``."""
         self.stats.errors += 1
         self.stats.last_error = message
         if self.on_problem is not None:

@@ -59,12 +59,14 @@ class MosaicStage(Stage):
         self.last_stamp_ns = 0  # the latest frame drawn
 
     def _new_mosaic(self) -> Mosaic:
-        fmax = self.p("frame_max_px")
+        """Return an empty mosaic sized by the parameters."""
+        fmax = self.param("frame_max_px")
         return Mosaic(
-            max_size_px=self.p("max_size_px"), frame_max_px=max(64, fmax) if fmax else None
+            max_size_px=self.param("max_size_px"), frame_max_px=max(64, fmax) if fmax else None
         )
 
     def reset(self) -> None:
+        """Start a new canvas."""
         super().reset()
         with self._lock:
             self.mosaic = self._new_mosaic()
@@ -72,15 +74,14 @@ class MosaicStage(Stage):
         self.stats.in_canvas = 0
 
     def take(self, frame: Frame) -> bool:
-        """The gate: True if ``frame`` is at least ``min_interval_s`` after the last frame taken."""
+        """Gate a frame: True if it is at least ``min_interval_s`` after the last frame taken."""
         self.stats.frames_in += 1
         last = self._last_taken_ns
-        if last is not None and 0 <= frame.stamp_ns - last < self.p("min_interval_s") * 1e9:
+        if last is not None and 0 <= frame.stamp_ns - last < self.param("min_interval_s") * 1e9:
             self.stats.skip("min_interval")  # by design, not a drop
             return False
-        self._last_taken_ns = (
-            frame.stamp_ns
-        )  # on what was taken: frames arriving meanwhile wait their turn
+        # on what was taken: frames arriving meanwhile wait their turn
+        self._last_taken_ns = frame.stamp_ns
         return True
 
     def draw(self, frame: Frame) -> bool:
@@ -104,7 +105,7 @@ class MosaicStage(Stage):
         return self.take(frame) and self.draw(frame)
 
     def canvas(self) -> np.ndarray | None:
-        """The current mosaic (BGR), or None before the first frame."""
+        """Return the current mosaic (BGR), or None before the first frame."""
         with self._lock:
             img = self.mosaic.image()
         return None if img is None or img.size == 0 else img

@@ -71,6 +71,7 @@ class Pipeline:
             )
 
     def stages(self) -> dict:
+        """Return the stages by their node's name (``registration_node``, ...), in order."""
         out = {
             "registration_node": self.registration,
             "shift_node": self.shift,
@@ -81,6 +82,8 @@ class Pipeline:
         return out
 
     def _reporter(self, name: str):
+        """Return the ``on_problem`` callback of stage ``name``: its problems as events."""
+
         def report(level: str, message: str) -> None:
             self._emit("error" if level == "error" else "warning", (name, message))
 
@@ -99,19 +102,29 @@ class Pipeline:
         return problem
 
     def on(self, kind: str, callback: Callable[[Any], None]) -> "Pipeline":
+        """Call ``callback(payload)`` on every event of ``kind`` (one of ``KINDS``); return self.
+
+        Raises
+        ------
+        ValueError
+            On an unknown kind.
+        """
         if kind not in KINDS:
             raise ValueError(f"unknown kind {kind!r}: one of {', '.join(KINDS)}")
         self._callbacks[kind].append(callback)
         return self
 
     def _emit(self, kind: str, payload: Any) -> None:
+        """Pass an event to the callbacks of its kind."""
         for cb in self._callbacks[kind]:
             cb(payload)
 
     def add_telemetry(self, sample: TelemetrySample) -> None:
+        """Give the registration stage a telemetry sample (frame selection)."""
         self.registration.add_telemetry(sample)
 
     def _guard(self, name: str, call: Callable[[], Any]) -> Any:
+        """Run a stage's step; an exception becomes that stage's error and None."""
         try:
             return call()
         except Exception as exc:  # noqa: BLE001 - one bad frame must not stop the stream
@@ -131,25 +144,26 @@ class Pipeline:
                 lambda: self.reconstruction.idle_sets(stamp_ns=frame.stamp_ns),
             )
         )
-        r = self._guard("registration_node", lambda: self.registration.add(frame))
-        if isinstance(r, Skipped):
-            self._emit("skipped", ("registration_node", r))
-        elif isinstance(r, NewReference):
-            self._emit("reference", r)
-        elif isinstance(r, Aligned):
-            self._emit("aligned", r)
-            images += self._after_aligned(r)
+        outcome = self._guard("registration_node", lambda: self.registration.add(frame))
+        if isinstance(outcome, Skipped):
+            self._emit("skipped", ("registration_node", outcome))
+        elif isinstance(outcome, NewReference):
+            self._emit("reference", outcome)
+        elif isinstance(outcome, Aligned):
+            self._emit("aligned", outcome)
+            images += self._after_aligned(outcome)
         return images
 
-    def _after_aligned(self, a: Aligned) -> list[SuperResolved]:
-        s = self._guard("shift_node", lambda: self.shift.add(a))
-        if isinstance(s, Skipped):
-            self._emit("skipped", ("shift_node", s))
-        if not isinstance(s, Shift):
+    def _after_aligned(self, aligned: Aligned) -> list[SuperResolved]:
+        """Run an aligned frame through the shift and reconstruction stages."""
+        shift = self._guard("shift_node", lambda: self.shift.add(aligned))
+        if isinstance(shift, Skipped):
+            self._emit("skipped", ("shift_node", shift))
+        if not isinstance(shift, Shift):
             return []
-        self._emit("shift", (s, a))
+        self._emit("shift", (shift, aligned))
         return self._solve(
-            self._guard("reconstruction_node", lambda: self.reconstruction.assemble(s, a))
+            self._guard("reconstruction_node", lambda: self.reconstruction.assemble(shift, aligned))
         )
 
     def _solve(self, sets: list[FrameSet] | None) -> list[SuperResolved]:
@@ -167,6 +181,7 @@ class Pipeline:
         return self._collect(keep=1)
 
     def _solve_on_worker(self, fs: FrameSet) -> tuple[SuperResolved | None, list, str | None]:
+        """Reconstruct one set on the worker: (image or None, problems raised, failure)."""
         self._in_worker.problems = problems = []
         try:
             return self.reconstruction.reconstruct(fs), problems, None
@@ -189,6 +204,7 @@ class Pipeline:
         return self._emit_images(images)
 
     def _emit_images(self, images: list[SuperResolved | None]) -> list[SuperResolved]:
+        """Emit the images a step completed and return them as a list."""
         done = [sr for sr in images if sr is not None]
         for sr in done:
             self._emit("super_resolved", sr)
@@ -213,6 +229,7 @@ class Pipeline:
         self.close()
 
     def stats(self) -> dict[str, StageStats]:
+        """Return each stage's statistics by its node's name."""
         return {name: stage.stats for name, stage in self.stages().items()}
 
     def reset(self) -> None:

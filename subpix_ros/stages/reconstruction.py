@@ -63,8 +63,8 @@ PARAMS = (
         "max_memory_mb",
         0.0,
         "working-memory budget of one reconstruction (MB; 0: unbounded): a set that would need "
-        "more is reconstructed in tiles, then with fewer frames (not below min_frames), then as the "
-        "bicubic reference",
+        "more is reconstructed in tiles, then with fewer frames (not below min_frames), "
+        "then as the bicubic reference",
         0.0,
         1.0e6,
     ),
@@ -99,6 +99,7 @@ class FrameSet:
 
     @property
     def n_frames(self) -> int:
+        """Frames in the set, the reference included."""
         return 1 + len(self.members)
 
 
@@ -112,24 +113,27 @@ class ShiftFrameMatcher:
         self.frames: dict[int, Aligned] = {}
         self.shifts: list[Shift] = []
 
-    def add_frame(self, a: Aligned) -> list[tuple[Shift, Aligned]]:
-        self.frames[a.stamp_ns] = a
+    def add_frame(self, aligned: Aligned) -> list[tuple[Shift, Aligned]]:
+        """Take an aligned frame; return the (shift, frame) pairs now matched."""
+        self.frames[aligned.stamp_ns] = aligned
         return self._match()
 
-    def add_shift(self, s: Shift) -> list[tuple[Shift, Aligned]]:
-        self.shifts.append(s)
+    def add_shift(self, shift: Shift) -> list[tuple[Shift, Aligned]]:
+        """Take a shift; return the (shift, frame) pairs now matched."""
+        self.shifts.append(shift)
         return self._match()
 
     def _match(self) -> list[tuple[Shift, Aligned]]:
+        """Pair each shift with the nearest frame within tolerance; keep the rest (bounded)."""
         pairs, still = [], []
-        for s in self.shifts:
-            stamp = min(self.frames, key=lambda t: abs(t - s.stamp_ns), default=None)
-            if stamp is not None and abs(stamp - s.stamp_ns) <= self.tolerance_ns:
-                a = self.frames.pop(stamp)
-                s.reference_stamp_ns = a.reference.stamp_ns
-                pairs.append((s, a))
+        for shift in self.shifts:
+            stamp = min(self.frames, key=lambda t: abs(t - shift.stamp_ns), default=None)
+            if stamp is not None and abs(stamp - shift.stamp_ns) <= self.tolerance_ns:
+                aligned = self.frames.pop(stamp)
+                shift.reference_stamp_ns = aligned.reference.stamp_ns
+                pairs.append((shift, aligned))
             else:
-                still.append(s)
+                still.append(shift)
         self.shifts = still[-self.KEEP :]
         if len(self.frames) > self.KEEP:
             for t in sorted(self.frames)[: -self.KEEP]:
@@ -137,6 +141,7 @@ class ShiftFrameMatcher:
         return pairs
 
     def clear(self) -> None:
+        """Forget every unmatched shift and frame."""
         self.frames.clear()
         self.shifts.clear()
 
@@ -165,7 +170,8 @@ class ReconstructionStage(Stage):
         self.clock = clock
         self.solver_options, self.ignored = _solver_options(self.extra)
         self._told_ignored = False
-        self.blur = BlurCalibration(self.p("blur_sigma"))  # measured once, refreshed every 10 sets
+        # measured once, refreshed every 10 sets
+        self.blur = BlurCalibration(self.param("blur_sigma"))
         self.sets: dict[int, list[tuple[Shift, Aligned]]] = {}
         self.matcher = ShiftFrameMatcher(self._tolerance_ns())
         self._closed: collections.OrderedDict[int, None] = collections.OrderedDict()
@@ -173,16 +179,19 @@ class ReconstructionStage(Stage):
         self._last_stamp_in: dict[int, int] = {}  # reference -> its newest member's stamp
 
     def _tolerance_ns(self) -> int:
-        return int(self.p("time_tolerance_s") * 1e9)
+        """Return ``time_tolerance_s`` in ns."""
+        return int(self.param("time_tolerance_s") * 1e9)
 
     def configure(self, **changes) -> None:
+        """Change parameters at run time (matching tolerance, blur, solver options follow)."""
         super().configure(**changes)
         self.matcher.tolerance_ns = self._tolerance_ns()
-        if parse_blur_sigma(self.p("blur_sigma")) != self.blur.setting:
-            self.blur = BlurCalibration(self.p("blur_sigma"))
+        if parse_blur_sigma(self.param("blur_sigma")) != self.blur.setting:
+            self.blur = BlurCalibration(self.param("blur_sigma"))
         self.solver_options, self.ignored = _solver_options(self.extra)
 
     def reset(self) -> None:
+        """Forget every open set and unmatched input."""
         super().reset()
         self.sets.clear()
         self.matcher.clear()
@@ -191,47 +200,49 @@ class ReconstructionStage(Stage):
         self.stats.pending_sets = 0
 
     # ---------------------------------------------------------------- assembly
-    def add_aligned(self, a: Aligned) -> list[SuperResolved]:
-        """An aligned frame whose shift may come before or after it."""
-        return self._run(self.offer_aligned(a))
+    def add_aligned(self, aligned: Aligned) -> list[SuperResolved]:
+        """Take an aligned frame whose shift may come before or after it; return the images made."""
+        return self._run(self.offer_aligned(aligned))
 
-    def add_shift(self, s: Shift) -> list[SuperResolved]:
-        """A shift whose aligned frame may come before or after it (non-finite: rejected)."""
-        return self._run(self.offer_shift(s))
+    def add_shift(self, shift: Shift) -> list[SuperResolved]:
+        """Take a shift whose aligned frame may come before or after it (non-finite: rejected)."""
+        return self._run(self.offer_shift(shift))
 
     def add(self, shift: Shift, aligned: Aligned) -> list[SuperResolved]:
-        """One (shift, aligned frame) pair: the images of the sets this closes."""
+        """Take one (shift, aligned frame) pair; return the images of the sets this closes."""
         return self._run(self.assemble(shift, aligned))
 
-    def offer_aligned(self, a: Aligned) -> list[FrameSet]:
-        return [fs for pair in self.match_aligned(a) for fs in self.assemble(*pair)]
+    def offer_aligned(self, aligned: Aligned) -> list[FrameSet]:
+        """Match and assemble an aligned frame; return the sets it closes (not solved)."""
+        return [fs for pair in self.match_aligned(aligned) for fs in self.assemble(*pair)]
 
-    def offer_shift(self, s: Shift) -> list[FrameSet]:
-        return [fs for pair in self.match_shift(s) for fs in self.assemble(*pair)]
+    def offer_shift(self, shift: Shift) -> list[FrameSet]:
+        """Match and assemble a shift; return the sets it closes (not solved)."""
+        return [fs for pair in self.match_shift(shift) for fs in self.assemble(*pair)]
 
-    def match_aligned(self, a: Aligned) -> list[tuple[Shift, Aligned]]:
-        """The (shift, frame) pairs an aligned frame completes (within ``time_tolerance_s``)."""
+    def match_aligned(self, aligned: Aligned) -> list[tuple[Shift, Aligned]]:
+        """Return the (shift, frame) pairs an aligned frame completes (``time_tolerance_s``)."""
         self._last_input_wall = self.clock()
-        return self.matcher.add_frame(a)
+        return self.matcher.add_frame(aligned)
 
-    def match_shift(self, s: Shift) -> list[tuple[Shift, Aligned]]:
-        """The (shift, frame) pairs a shift completes; a non-finite shift is rejected (error)."""
+    def match_shift(self, shift: Shift) -> list[tuple[Shift, Aligned]]:
+        """Return the (shift, frame) pairs a shift completes; a non-finite one is an error."""
         self._last_input_wall = self.clock()
-        if not (np.isfinite(s.u) and np.isfinite(s.v)):
+        if not (np.isfinite(shift.u) and np.isfinite(shift.v)):
             self.error("shift message with non-finite u/v ignored")
             return []
-        return self.matcher.add_shift(s)
+        return self.matcher.add_shift(shift)
 
-    def assemble(self, s: Shift, a: Aligned) -> list[FrameSet]:
+    def assemble(self, shift: Shift, aligned: Aligned) -> list[FrameSet]:
         """Add a pair to its reference's set: the sets this closes (the solve not done yet)."""
         self.stats.frames_in += 1
         self._last_input_wall = self.clock()
-        self.check_time(s.stamp_ns)
-        key = a.reference.stamp_ns
+        self.check_time(shift.stamp_ns)
+        key = aligned.reference.stamp_ns
         if key in self._closed:  # its set was flushed incomplete: no second image of the rest
             self.stats.skip("late")
             self.warn(
-                f"frame {s.stamp_ns / 1e9:.3f} s came after the incomplete set of reference "
+                f"frame {shift.stamp_ns / 1e9:.3f} s came after the incomplete set of reference "
                 f"{key / 1e9:.3f} s was flushed: skipped"
             )
             return []
@@ -241,9 +252,9 @@ class ReconstructionStage(Stage):
         for old in sorted(k for k in self.sets if k < key):
             ready += self._close(old, "next reference")
         members = self.sets.setdefault(key, [])
-        members.append((s, a))
-        self._last_stamp_in[key] = max(s.stamp_ns, self._last_stamp_in.get(key, s.stamp_ns))
-        if len(members) + 1 >= self.p("n_frames"):
+        members.append((shift, aligned))
+        self._last_stamp_in[key] = max(shift.stamp_ns, self._last_stamp_in.get(key, shift.stamp_ns))
+        if len(members) + 1 >= self.param("n_frames"):
             ready += self._close(key, "complete")
         self.stats.pending_sets = len(self.sets)
         return ready
@@ -257,13 +268,13 @@ class ReconstructionStage(Stage):
                 self._closed.popitem(last=False)
         self.stats.pending_sets = len(self.sets)
         n = len(members) + 1
-        complete = n >= self.p("n_frames")
-        if not complete and n < self.p("min_frames"):
+        complete = n >= self.param("n_frames")
+        if not complete and n < self.param("min_frames"):
             self.stats.sets_dropped += 1
             self.stats.dropped += len(members)
             self.warn(
                 f"set of reference {key / 1e9:.3f} s dropped: {n} frames "
-                f"< min_frames {self.p('min_frames')}"
+                f"< min_frames {self.param('min_frames')}"
             )
             return []
         if complete:
@@ -285,7 +296,7 @@ class ReconstructionStage(Stage):
         each set's newest member. A set below ``min_frames`` stays open (it
         may still grow, or the next reference drops it).
         """
-        wait = self.p("flush_after_s")
+        wait = self.param("flush_after_s")
         if now_s is None and stamp_ns is None:
             now_s = self.clock()
         wall_idle = (
@@ -296,14 +307,14 @@ class ReconstructionStage(Stage):
         ready = []
         for key in sorted(self.sets):
             stream_idle = stamp_ns is not None and stamp_ns - self._last_stamp_in[key] >= wait * 1e9
-            if (wall_idle or stream_idle) and len(self.sets[key]) + 1 >= self.p("min_frames"):
+            if (wall_idle or stream_idle) and len(self.sets[key]) + 1 >= self.param("min_frames"):
                 ready += self._close(key, "idle")
         return ready
 
     def tick(
         self, now_s: float | None = None, *, stamp_ns: int | None = None
     ) -> list[SuperResolved]:
-        """The images of the sets idle for ``flush_after_s`` (see :meth:`idle_sets`)."""
+        """Reconstruct the sets idle for ``flush_after_s`` (:meth:`idle_sets`); return images."""
         return self._run(self.idle_sets(now_s, stamp_ns=stamp_ns))
 
     def flush_sets(self) -> list[FrameSet]:
@@ -314,9 +325,11 @@ class ReconstructionStage(Stage):
         return ready
 
     def flush(self) -> list[SuperResolved]:
+        """End of stream: reconstruct every open set with ``min_frames`` or more."""
         return self._run(self.flush_sets())
 
     def _run(self, sets: list[FrameSet]) -> list[SuperResolved]:
+        """Reconstruct sets; return the images made."""
         return [sr for sr in map(self.reconstruct, sets) if sr is not None]
 
     # ---------------------------------------------------------------- solve
@@ -341,13 +354,13 @@ class ReconstructionStage(Stage):
         res, plan = reconstruct_within_budget(
             frames,
             shifts,
-            self.p("factor"),
+            self.param("factor"),
             masks=masks,
-            max_memory_mb=self.p("max_memory_mb") or None,
-            min_frames=min(self.p("min_frames"), len(frames)),
-            method=self.p("method"),
-            geometry="auto" if self.p("check_geometry") else "translation",
-            refine_shifts=self.p("refine_shifts"),
+            max_memory_mb=self.param("max_memory_mb") or None,
+            min_frames=min(self.param("min_frames"), len(frames)),
+            method=self.param("method"),
+            geometry="auto" if self.param("check_geometry") else "translation",
+            refine_shifts=self.param("refine_shifts"),
             blur_sigma=blur,
             **self.solver_options,
         )
@@ -377,7 +390,7 @@ class ReconstructionStage(Stage):
             res.method,
             res.fell_back,
             res.reason,
-            self.p("factor"),
+            self.param("factor"),
             None if blur is None else float(blur),
             getattr(res, "blur_source", None),
             dt,
@@ -418,8 +431,8 @@ def _solver_options(extra: dict) -> tuple[dict, dict]:
     for fn in (superres.reconstruct, superres._reconstruct):
         taken |= {
             k
-            for k, p in inspect.signature(fn).parameters.items()
-            if p.kind is inspect.Parameter.KEYWORD_ONLY
+            for k, arg in inspect.signature(fn).parameters.items()
+            if arg.kind is inspect.Parameter.KEYWORD_ONLY
         }
     taken -= _SET_HERE
     return (

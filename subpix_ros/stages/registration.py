@@ -143,25 +143,29 @@ class RegistrationStage(Stage):
         self.since_reference = 0
 
     def _make_selector(self) -> FrameSelector:
-        mode = self.p("selection")
+        mode = self.param("selection")
         return FrameSelector(
-            p=self.p("p"),
+            p=self.param("p"),
             mode="step" if mode == "all" else mode,
-            max_age_s=self.p("telemetry_timeout_s"),
+            max_age_s=self.param("telemetry_timeout_s"),
         )
 
     def _make_buffer(self) -> TelemetryBuffer:
-        return TelemetryBuffer(max_age_s=60.0, stale_after_s=self.p("telemetry_timeout_s"))
+        """Return an empty telemetry buffer (stale after ``telemetry_timeout_s``)."""
+        return TelemetryBuffer(max_age_s=60.0, stale_after_s=self.param("telemetry_timeout_s"))
 
     def configure(self, **changes) -> None:
+        """Change parameters at run time; a new frame selector when its parameters change."""
         super().configure(**changes)
         if any(k in self.SELECTOR_PARAMS for k in changes):
             self.selector = self._make_selector()  # takes effect from the next frame
 
     def add_telemetry(self, sample: TelemetrySample) -> None:
+        """Keep a telemetry sample for frame selection."""
         self.telemetry.add(sample)
 
     def reset(self) -> None:
+        """Forget the reference, the motion, the selection and the telemetry."""
         super().reset()
         self.reference = None
         self._ref_prepared = None
@@ -172,25 +176,25 @@ class RegistrationStage(Stage):
 
     # ---------------------------------------------------------------- selection
     def _image_rate(self, stamp_s: float):
-        """Expected image motion (u, v) px/s at the frame's stamp, or (None, reason)."""
-        s, why = self.telemetry.at(stamp_s + self.p("telemetry_time_offset_s"))
-        if s is None:
+        """Return the expected image motion (u, v) px/s at the frame's stamp, or (None, reason)."""
+        sample, why = self.telemetry.at(stamp_s + self.param("telemetry_time_offset_s"))
+        if sample is None:
             return None, f"telemetry: {why}"
-        ok, why = validate_sample(s)
+        ok, why = validate_sample(sample)
         if not ok:
             return None, f"telemetry: {why}"
-        if s.ground_speed_mps < self.p("min_speed_mps"):
-            return None, f"hovering ({s.ground_speed_mps:.3f} m/s < min_speed_mps)"
-        heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(
-            self.p("camera_yaw_offset_deg")
-        )
+        if sample.ground_speed_mps < self.param("min_speed_mps"):
+            return None, f"hovering ({sample.ground_speed_mps:.3f} m/s < min_speed_mps)"
+        heading = (
+            sample.yaw_rad if sample.yaw_rad is not None else sample.course_rad
+        ) + math.radians(self.param("camera_yaw_offset_deg"))
         try:
             rate = expected_shift_px(
-                s.ground_speed_mps,
-                s.course_rad,
-                s.height_agl_m,
-                self.p("focal_length_mm") * 1e-3,
-                self.p("pixel_pitch_um") * 1e-6,
+                sample.ground_speed_mps,
+                sample.course_rad,
+                sample.height_agl_m,
+                self.param("focal_length_mm") * 1e-3,
+                self.param("pixel_pitch_um") * 1e-6,
                 1.0,
                 heading,
             )
@@ -199,7 +203,7 @@ class RegistrationStage(Stage):
         return rate, ""
 
     def _select(self, frame: Frame) -> Skipped | None:
-        if self.p("selection") == "all":
+        if self.param("selection") == "all":
             return None
         rate, why = self._image_rate(frame.stamp_s)
         decision = self.selector.decide(frame.stamp_s, rate, None)
@@ -220,15 +224,15 @@ class RegistrationStage(Stage):
         if skipped is not None:
             return skipped
         self.stats.kept += 1
-        if self.reference is None or self.since_reference >= self.p("max_frames_per_reference"):
+        if self.reference is None or self.since_reference >= self.param("max_frames_per_reference"):
             return self._new_reference(
                 frame, "first frame" if self.reference is None else "set complete"
             )
         t0 = time.monotonic()
-        prior = self.motion.predict(frame.stamp_s) if self.p("tracking") else None
+        prior = self.motion.predict(frame.stamp_s) if self.param("tracking") else None
         if prior is not None:
             ov = reg.overlap_fraction(prior, self.reference.image.shape, frame.image.shape)
-            if ov < 0.5 * self.p(
+            if ov < 0.5 * self.param(
                 "min_overlap"
             ):  # would fail on overlap: no search that cannot succeed
                 self.stats.references_predicted += 1
@@ -238,12 +242,12 @@ class RegistrationStage(Stage):
         result = reg.register(
             self._ref_prepared,
             frame.image,
-            model=self.p("model"),
-            n_points=self.p("n_points"),
-            distortion=self.p("distortion"),
+            model=self.param("model"),
+            n_points=self.param("n_points"),
+            distortion=self.param("distortion"),
             prior=prior,
-            track_radius=self.p("track_radius_px"),
-            want_inliers=self.p("want_inliers"),
+            track_radius=self.param("track_radius_px"),
+            want_inliers=self.param("want_inliers"),
         )
         if prior is not None:
             if result.tracked:
@@ -259,7 +263,10 @@ class RegistrationStage(Stage):
             return self._new_reference(frame, why)
         self.motion.update(result.homography, frame.stamp_s)
         al = reg.align(
-            self.reference.image, frame.image, result, warp_threshold_px=self.p("warp_threshold_px")
+            self.reference.image,
+            frame.image,
+            result,
+            warp_threshold_px=self.param("warp_threshold_px"),
         )
         out = Aligned(
             frame.stamp_ns,
@@ -285,12 +292,12 @@ class RegistrationStage(Stage):
         """Why a registration result is not good enough to align to (empty if it is)."""
         if not result.ok:
             return result.reason or "registration failed"
-        if result.inliers < self.p("min_inliers"):
-            return f"{result.inliers} inliers < {self.p('min_inliers')}"
-        if not result.rms_px <= self.p("max_rms_px"):
-            return f"residual {result.rms_px:.2f} px > {self.p('max_rms_px')}"
-        if result.overlap < self.p("min_overlap"):
-            return f"overlap {result.overlap:.2f} < {self.p('min_overlap')}"
+        if result.inliers < self.param("min_inliers"):
+            return f"{result.inliers} inliers < {self.param('min_inliers')}"
+        if not result.rms_px <= self.param("max_rms_px"):
+            return f"residual {result.rms_px:.2f} px > {self.param('max_rms_px')}"
+        if result.overlap < self.param("min_overlap"):
+            return f"overlap {result.overlap:.2f} < {self.param('min_overlap')}"
         return ""
 
     def _new_reference(self, frame: Frame, why: str, predicted: bool = False) -> NewReference:

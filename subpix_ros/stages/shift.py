@@ -54,50 +54,65 @@ class ShiftStage(Stage):
         self._ref_gray: tuple[int, np.ndarray] | None = None  # the reference's luminance, once
 
     def reset(self) -> None:
+        """Forget the reference's luminance."""
         super().reset()
         self._ref_gray = None
 
-    def _skip(self, a: Aligned, reason: str, detail: str) -> Skipped:
+    def _skip(self, aligned: Aligned, reason: str, detail: str) -> Skipped:
+        """Count a skip and return it."""
         self.stats.skip(reason)
-        return Skipped(a.stamp_ns, reason, detail)
+        return Skipped(aligned.stamp_ns, reason, detail)
 
-    def add(self, a: Aligned) -> Shift | Skipped:
+    def add(self, aligned: Aligned) -> Shift | Skipped:
+        """Estimate the shift of an aligned frame against its reference (see the class)."""
         self.stats.frames_in += 1
-        self.check_time(a.stamp_ns)
-        ref = a.reference
-        if ref.image.shape[:2] != a.image.shape[:2]:
+        self.check_time(aligned.stamp_ns)
+        ref = aligned.reference
+        if ref.image.shape[:2] != aligned.image.shape[:2]:
             why = (
-                f"aligned frame {a.image.shape[:2]} and reference {ref.image.shape[:2]} "
+                f"aligned frame {aligned.image.shape[:2]} and reference {ref.image.shape[:2]} "
                 "differ in size"
             )
             self.error(why)
-            return self._skip(a, "size", why)
-        prior = a.prior if self.p("use_prior") else None
+            return self._skip(aligned, "size", why)
+        prior = aligned.prior if self.param("use_prior") else None
         t0 = time.monotonic()
         if self._ref_gray is None or self._ref_gray[0] != ref.stamp_ns:
             self._ref_gray = (ref.stamp_ns, gray(ref.image))
-        r = estimate_shift(
-            self._ref_gray[1], gray(a.image), mask=a.mask, method=self.p("method"), prior=prior
+        result = estimate_shift(
+            self._ref_gray[1],
+            gray(aligned.image),
+            mask=aligned.mask,
+            method=self.param("method"),
+            prior=prior,
         )
-        if not r.ok:
-            self.warn(f"shift not estimated: {r.reason}")
-            return self._skip(a, "failed", r.reason)
-        limit = self.p("max_std_px")
-        if r.misfit or not (r.u_std <= limit and r.v_std <= limit):
+        if not result.ok:
+            self.warn(f"shift not estimated: {result.reason}")
+            return self._skip(aligned, "failed", result.reason)
+        limit = self.param("max_std_px")
+        if result.misfit or not (result.u_std <= limit and result.v_std <= limit):
             why = (
                 "residual misfit (rotation/deformation left)"
-                if r.misfit
-                else f"standard error {max(r.u_std, r.v_std):.3g} px > {limit}"
+                if result.misfit
+                else f"standard error {max(result.u_std, result.v_std):.3g} px > {limit}"
             )
             self.warn(f"shift not published: {why}")
-            return self._skip(a, "misfit" if r.misfit else "std", why)
+            return self._skip(aligned, "misfit" if result.misfit else "std", why)
         st = self.stats
         st.kept += 1
         st.times.add(1000 * (time.monotonic() - t0))
-        st.u, st.v, st.u_std, st.v_std = r.u, r.v, r.u_std, r.v_std
-        st.cond, st.pixels, st.iterations = float(r.cond), r.n_pixels, r.iterations
+        st.u, st.v, st.u_std, st.v_std = result.u, result.v, result.u_std, result.v_std
+        st.cond, st.pixels, st.iterations = float(result.cond), result.n_pixels, result.iterations
         return Shift(
-            a.stamp_ns, ref.stamp_ns, r.u, r.v, r.z, r.u_std, r.v_std, a.frame_id, a.received
+            aligned.stamp_ns,
+            ref.stamp_ns,
+            result.u,
+            result.v,
+            result.z,
+            result.u_std,
+            result.v_std,
+            aligned.frame_id,
+            aligned.received,
         )
 
     @property

@@ -13,24 +13,30 @@ class StageTimes:
         self._d: collections.deque[float] = collections.deque(maxlen=history)
 
     def add(self, ms: float) -> None:
+        """Record one duration, ms."""
         self._d.append(float(ms))
 
     def clear(self) -> None:
+        """Forget every duration."""
         self._d.clear()
 
     @property
     def last(self) -> float | None:
+        """The latest duration, ms (None before the first)."""
         return self._d[-1] if self._d else None
 
     @property
     def p50(self) -> float | None:
+        """The median of the kept durations (the upper one of an even count), ms."""
         return sorted(self._d)[len(self._d) // 2] if self._d else None
 
     @property
     def max(self) -> float | None:
+        """The longest kept duration, ms."""
         return max(self._d) if self._d else None
 
     def as_dict(self) -> dict:
+        """Return last, p50, max (ms) and the count ``n`` as a dict."""
         return {"last": self.last, "p50": self.p50, "max": self.max, "n": len(self._d)}
 
 
@@ -60,12 +66,15 @@ class StageStats:
 
     @property
     def skipped(self) -> int:
+        """Inputs skipped for any reason."""
         return sum(self.skipped_by_reason.values())
 
     def skip(self, reason: str) -> None:
+        """Count one input skipped for ``reason``."""
         self.skipped_by_reason[reason] = self.skipped_by_reason.get(reason, 0) + 1
 
     def as_dict(self) -> dict:
+        """Return every counter as plain values (``times`` as a dict), with ``skipped`` added."""
         out = {}
         for f in fields(self):
             v = getattr(self, f.name)
@@ -123,9 +132,8 @@ class ReconstructionStats(StageStats):
     fell_back: bool | None = None
     fallback_reason: str = ""
     noise_sigma: float | None = None
-    frames: int | None = (
-        None  # frames used in the last image (fewer than the set under max_memory_mb)
-    )
+    # frames used in the last image (fewer than the set under max_memory_mb)
+    frames: int | None = None
     memory_estimate_mb: float | None = None  # predicted working memory of the last reconstruction
     memory_reduction: str = ""  # what max_memory_mb gave up in the last one ("" nothing)
     memory_reduced: int = 0  # images made with a reduction

@@ -26,6 +26,7 @@ class Frame:
 
     @property
     def stamp_s(self) -> float:
+        """The stamp in seconds."""
         return self.stamp_ns * 1e-9
 
 
@@ -78,6 +79,7 @@ class NewReference:
 
     @property
     def stamp_ns(self) -> int:
+        """The stamp of the new reference frame, ns."""
         return self.frame.stamp_ns
 
 
@@ -119,14 +121,17 @@ class SuperResolved:
 
     @property
     def stamp_ns(self) -> int:
+        """The stamp of the reference frame, ns."""
         return self.reference.stamp_ns
 
     @property
     def n_frames(self) -> int:
+        """Frames the image was made from, the reference included."""
         return 1 + len(self.members)
 
     @property
     def bicubic(self) -> np.ndarray:
+        """The reference upsampled bicubically to the image's size and type (made on first use)."""
         if self._bicubic is None:
             import cv2
 

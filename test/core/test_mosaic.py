@@ -33,8 +33,11 @@ def test_strip_keeps_every_frame_with_small_seam_residual(strip_mosaic):
 
 
 def test_reversed_strip_keeps_every_frame_with_small_seam_residual(frames):
-    """The same strip flown the other way (frames 8..0): the new frame's overlap is now on its other
-    side and the h(y) transition runs the other way round; every frame is kept all the same."""
+    """Keep every frame of the same strip flown the other way (frames 8..0).
+
+    The new frame's overlap is now on its other side and the h(y) transition runs the other way
+    round; every frame is kept all the same.
+    """
     m = Mosaic(max_size_px=1200)
     ups = [m.add(f) for f in frames[::-1]]
     assert all(u.ok for u in ups), [u.reason for u in ups if not u.ok]
@@ -95,8 +98,10 @@ def test_bad_input_raises():
 
 
 def _h_forward(dy: float, persp: float) -> np.ndarray:
-    """Frame k px -> frame k-1 px for a 200x300 (HxW) frame advanced by ``dy`` rows, with a small
-    rotation and perspective (so that H is not a similarity)."""
+    """Return frame k px -> frame k-1 px for a 200x300 (HxW) frame advanced by ``dy`` rows.
+
+    With a small rotation and perspective (so that H is not a similarity).
+    """
     th = np.deg2rad(2.0)
     h = np.array([[np.cos(th), -np.sin(th), 3.0], [np.sin(th), np.cos(th), dy], [0.0, persp, 1.0]])
     return h
@@ -146,8 +151,11 @@ def test_transition_weight_and_maps_follow_eq3():
 
 
 def test_seam_is_exact_and_own_geometry_reverses():
-    """Frame k+1 drawn with h = 1 at its seam lands exactly on frame k's own geometry; going back
-    over the same pair reverses the similarity exactly (no drift from the construction)."""
+    """Frame k+1 drawn with h = 1 at its seam lands exactly on frame k's own geometry.
+
+    Going back over the same pair reverses the similarity exactly (no drift from the
+    construction).
+    """
     shape = (200, 300)
     hk, hk1 = PairModel(_h_forward(120.0, 2e-4)), PairModel(_h_forward(110.0, -1e-4))
     geo_k = FrameGeometry.chained(np.eye(3), hk, shape, shape, hk1, shape)
@@ -159,8 +167,11 @@ def test_seam_is_exact_and_own_geometry_reverses():
 
 
 def test_strip_visible_parts_match_their_frames(strip_mosaic, frames):
-    """Where each frame stays visible (not covered by later ones), the canvas sampled through the
-    frame's drawing map reproduces that frame; a 2-canvas-px displacement does not."""
+    """Sampled through a frame's drawing map, the canvas reproduces the frame where it is visible.
+
+    Where each frame stays visible (not covered by later ones); a 2-canvas-px displacement does
+    not.
+    """
     m, _ = strip_mosaic
     img = m.image()
     hh, ww = frames[0].shape[:2]
@@ -198,8 +209,11 @@ def test_strip_visible_parts_match_their_frames(strip_mosaic, frames):
 
 
 def test_back_and_forth_placement_does_not_drift_like_the_homography_chain(frames):
-    """Frames 0..4..0: frame 0's placement on return vs the first time (corner displacement, frame px),
-    against the plain homography chain over the same registrations."""
+    """Frames 0..4..0: frame 0's placement on return vs the first time.
+
+    Corner displacement, frame px, against the plain homography chain over the same
+    registrations.
+    """
     m = Mosaic(max_size_px=800)
     seq = [0, 1, 2, 3, 4, 3, 2, 1, 0]
     chain = [np.eye(3)]

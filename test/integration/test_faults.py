@@ -1,5 +1,8 @@
-"""Faults across processes (issue 7): a node killed and restarted mid-stream, a looped
-bag (time jumps back), and use_sim_time with `subpix replay --clock`."""
+"""Faults across processes (issue 7).
+
+A node killed and restarted mid-stream, a looped bag (time jumps back), and use_sim_time with
+`subpix replay --clock`.
+"""
 
 import subprocess
 import sys

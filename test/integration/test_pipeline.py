@@ -97,7 +97,7 @@ class Outputs:
         self.subs = []
 
     def report(self):
-        """What the stages said about drops and failures: the first thing to read when a count is short."""
+        """Return what the stages said about drops and failures (read it when a count is short)."""
         keys = (
             "input_total",
             "output_total",
@@ -224,7 +224,7 @@ def _run_layout(ros, bags, layout):
 
 @pytest.fixture(scope="module")
 def separate(ros, sample_bags):
-    """The subpixel flight through registration, shift and reconstruction nodes, each its own process."""
+    """Run the subpixel flight through registration, shift and reconstruction, one process each."""
     return _run_layout(ros, sample_bags, "separate")
 
 

@@ -76,7 +76,7 @@ except (KeyboardInterrupt, ExternalShutdownException):
 
 
 def readme_commands():
-    """The command lines of the README's "Running the nodes" bash block, in order."""
+    """Return the command lines of the README's "Running the nodes" bash block, in order."""
     text = (ROOT / "README.md").read_text()
     section = text.split("## Running the nodes", 1)[1]
     block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)

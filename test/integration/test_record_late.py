@@ -1,5 +1,7 @@
-"""`subpix record` started before the publishers, as one starts `ros2 bag record` before a flight
-(issue 19, item 4): real processes over real DDS."""
+"""`subpix record` started before the publishers (issue 19, item 4).
+
+As one starts `ros2 bag record` before a flight: real processes over real DDS.
+"""
 
 import os
 import signal
@@ -45,8 +47,10 @@ def _wait(proc, timeout):
 
 
 def test_recorder_waits_for_a_publisher_that_starts_late(sample_bags, tmp_path):
-    """Recorder first, publisher 12 s later: every message recorded (was: exit after 10 s, 'no
-    publisher found')."""
+    """Recorder first, publisher 12 s later: every message recorded.
+
+    (Was: exit after 10 s, 'no publisher found'.)
+    """
     bag = sample_bags / "subpixel"
     original = {t: [m.raw for m in read_messages(bag, [t])] for t in TOPICS}
     total = sum(len(v) for v in original.values())
@@ -76,8 +80,11 @@ def test_recorder_waits_for_a_publisher_that_starts_late(sample_bags, tmp_path):
 def test_recorder_subscribes_each_topic_when_it_appears_and_stops_cleanly_on_sigint(
     sample_bags, tmp_path
 ):
-    """Two topics published one after the other, a third never: both recorded, then SIGINT leaves a
-    complete bag (readable, every chunk checked) and a warning naming the missing topic."""
+    """Two topics published one after the other, a third never: both recorded.
+
+    Then SIGINT leaves a complete bag (readable, every chunk checked) and a warning naming the
+    missing topic.
+    """
     bag = sample_bags / "subpixel"
     first, second = TOPICS
     original = {t: [m.raw for m in read_messages(bag, [t])] for t in TOPICS}
@@ -151,9 +158,11 @@ def test_recorder_discover_timeout(tmp_path):
 
 
 def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path, rclpy_node):
-    """A transient-local publisher that published before the recorder started: the recorder
-    subscribes transient local (as the publisher offers) and gets its last messages, stores the
-    offered QoS in the bag, and `subpix replay` offers the topic transient local again."""
+    """A transient-local publisher that published before the recorder started.
+
+    The recorder subscribes transient local (as the publisher offers) and gets its last messages,
+    stores the offered QoS in the bag, and `subpix replay` offers the topic transient local again.
+    """
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from rosbags.interfaces import QosDurability, QosReliability

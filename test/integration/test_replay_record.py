@@ -187,8 +187,10 @@ def test_replay_errors_are_one_line(sample_bags, tmp_path, args, message):
 
 
 def _damaged_bag(tmp_path, n=45):
-    """A bag of ``n`` 256x256 images (3 chunks for 45) with bytes of its second chunk overwritten;
-    returns (bag, offset of that chunk, messages before it, messages after it)."""
+    """Write a bag of ``n`` 256x256 images (3 chunks for 45), its second chunk overwritten.
+
+    Returns (bag, offset of that chunk, messages before it, messages after it).
+    """
     import numpy as np
 
     from subpix_ros.io import _mcap
@@ -214,8 +216,10 @@ def _damaged_bag(tmp_path, n=45):
 
 
 def test_replay_stops_at_a_damaged_chunk(tmp_path):
-    """Issue 19 item 2: the first bad offset and the count read, one line, non-zero exit (was: the
-    damaged chunk's messages lost without a word, exit 0)."""
+    """Issue 19 item 2: the first bad offset and the count read, one line, non-zero exit.
+
+    (Was: the damaged chunk's messages lost without a word, exit 0.)
+    """
     bag, offset, before, _ = _damaged_bag(tmp_path)
     r = subprocess.run(
         # no subscriber here: --no-wait, or the replay waits 15 s for one and says so
@@ -276,10 +280,12 @@ def test_replay_unknown_message_type(tmp_path):
 
 
 def _replay_to_a_stalled_recorder(node, bag, out, *replay_args, count=0):
-    """`subpix record` of /camera/image_raw into ``out`` and `subpix replay` of ``bag`` (rate 10), the recorder
-    stopped (SIGSTOP) after it subscribed and BEFORE the first frame: replay also waits for a /clock
-    subscriber, which this process creates only once the recorder is stopped. Returns (rec, play, t) with
-    ``t`` the time the replay was let go."""
+    """Run `subpix record` of /camera/image_raw into ``out`` and `subpix replay` of ``bag``.
+
+    Rate 10, the recorder stopped (SIGSTOP) after it subscribed and BEFORE the first frame:
+    replay also waits for a /clock subscriber, which this process creates only once the recorder
+    is stopped. Returns (rec, play, t) with ``t`` the time the replay was let go.
+    """
     import signal
 
     import rclpy
@@ -349,9 +355,12 @@ def _finish(*procs):
 def test_replay_waits_until_a_stalled_subscriber_has_every_message(
     sample_bags, rclpy_node, tmp_path
 ):
-    """A reliable subscriber that falls behind (here: its process stopped while the bag plays, 14 MB of
-    frames) still gets every message: replay waits for the acknowledgements before it exits, instead of
-    tearing its writers down with samples the subscriber has yet to receive."""
+    """A reliable subscriber that falls behind still gets every message.
+
+    Here its process is stopped while the bag plays (14 MB of frames): replay waits for the
+    acknowledgements before it exits, instead of tearing its writers down with samples the
+    subscriber has yet to receive.
+    """
     import signal
 
     bag = sample_bags / "subpixel"
@@ -394,9 +403,11 @@ def test_replay_gives_up_on_a_subscriber_that_stays_stalled_and_says_so(
 
 
 def test_replay_waits_for_a_subscriber_by_default(sample_bags, rclpy_node):
-    """Without --wait-for the replay still holds its first message until some replayed topic is
-    matched (issue 19: an 8-frame bag replayed at once was lost whole while discovery was going
-    on). Old code: the bag was over before the subscriber came."""
+    """Without --wait-for the replay holds its first message until some replayed topic is matched.
+
+    (Issue 19: an 8-frame bag replayed at once was lost whole while discovery was going on.)
+    Old code: the bag was over before the subscriber came.
+    """
     from sensor_msgs.msg import Image
 
     bag = sample_bags / "subpixel"

@@ -311,13 +311,13 @@ def test_registration_parameters_at_run_time(ctx):
     )
     try:
         assert (
-            node.p("p") == 2.0 and node.p("model") == "projective"
+            node.param("p") == 2.0 and node.param("model") == "projective"
         )  # rejected at start: defaults kept
         assert node.selector.p == 2.0
         bad = node.set_parameters([Parameter("p", value=40.0)])[0]
-        assert not bad.successful and node.p("p") == 2.0 and node.selector.p == 2.0
+        assert not bad.successful and node.param("p") == 2.0 and node.selector.p == 2.0
         bad = node.set_parameters([Parameter("selection", value=5)])[0]
-        assert not bad.successful and node.p("selection") == "step"
+        assert not bad.successful and node.param("selection") == "step"
         good = node.set_parameters([Parameter("p", value=3.0)])[0]
         assert good.successful and node.selector.p == 3.0  # the frame selection follows
     finally:
@@ -335,10 +335,12 @@ def test_reconstruction_blur_sigma_parameter(ctx, crops):
         subscribe_inputs=False, parameter_overrides=[Parameter("blur_sigma", value="sharp")]
     )
     try:
-        assert node.p("blur_sigma") == "auto"  # rejected at start: default kept
+        assert node.param("blur_sigma") == "auto"  # rejected at start: default kept
         for bad in ("5", "-0.2", "blurry"):
             r = node.set_parameters([Parameter("blur_sigma", value=bad)])[0]
-            assert not r.successful and "blur_sigma" in r.reason and node.p("blur_sigma") == "auto"
+            assert (
+                not r.successful and "blur_sigma" in r.reason and node.param("blur_sigma") == "auto"
+            )
         fl = degrade(
             scene_crop(crops["crop_road"], 2, 96, 8, (280, 280)),
             2,

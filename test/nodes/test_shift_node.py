@@ -56,14 +56,14 @@ def test_parameters_rejected_at_start_and_run_time(ctx):
     )
     try:
         assert (
-            node.p("max_std_px") == 0.1 and node.p("queue_size") == 4
+            node.param("max_std_px") == 0.1 and node.param("queue_size") == 4
         )  # bad start values: defaults kept
         r = node.set_parameters([Parameter("max_std_px", value=50.0)])[0]
-        assert not r.successful and node.p("max_std_px") == 0.1
+        assert not r.successful and node.param("max_std_px") == 0.1
         r = node.set_parameters([Parameter("method", value="magic")])[0]
-        assert not r.successful and "not one of" in r.reason and node.p("method") == "default"
+        assert not r.successful and "not one of" in r.reason and node.param("method") == "default"
         r = node.set_parameters([Parameter("max_std_px", value=0.05)])[0]
-        assert r.successful and node.p("max_std_px") == 0.05
+        assert r.successful and node.param("max_std_px") == 0.05
     finally:
         node.close()
         node.destroy_node()

@@ -12,8 +12,11 @@ PARAMS = {
 
 
 def test_the_flight_with_a_lost_frame_still_gives_its_last_image(flight):
-    """Issue 19 item 3 on the stages: 24 frames in sets of 8, frame 20 lost: the last set (7 frames)
-    never completes; the end-of-stream flush reconstructs it. Shifts match the bag's truth."""
+    """Issue 19 item 3 on the stages: the end-of-stream flush reconstructs a set cut short.
+
+    24 frames in sets of 8, frame 20 lost: the last set (7 frames) never completes; the flush
+    reconstructs it. Shifts match the bag's truth.
+    """
     frames, truth = flight
     pipe = Pipeline(PARAMS, with_mosaic=True)
     got = {

@@ -22,7 +22,7 @@ def seq():
 
 
 def _set(seq, ref_k=0, t0=T0, n=None, jitter_ns=0):
-    """(reference Frame, [(Shift, Aligned)]) of the rendered frames, the reference at ``t0``."""
+    """Return (reference Frame, [(Shift, Aligned)]) of the rendered frames, reference at ``t0``."""
     n = len(SET_SHIFTS) if n is None else n
     ref = Frame(t0, seq.frames[ref_k])
     pairs = []
@@ -153,9 +153,11 @@ def test_time_jumping_back_forgets_the_open_sets(seq):
 
 
 def test_shifts_and_frames_pair_by_stamp_in_any_arrival_order(seq):
-    """Shifts (stamped within time_tolerance_s of their frame) and aligned frames, each stream in
-    its
-    own order (one topic each), interleaved every way: every order gives the same set and image."""
+    """Shifts and aligned frames interleaved every way give the same set and image.
+
+    Shifts are stamped within time_tolerance_s of their frame; each stream keeps its own order
+    (one topic each).
+    """
     _, pairs = _set(seq, n=5, jitter_ns=300_000)  # 0.3 ms off: within the 1 ms tolerance
     images = []
     # every interleaving of the 4 shifts and the 4 frames: where the shifts go among 8 arrivals

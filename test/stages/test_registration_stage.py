@@ -138,7 +138,7 @@ def test_parameters_are_checked_and_selection_follows_a_change():
             assert next(iter(bad)) in str(exc)
         else:
             raise AssertionError(f"{bad} accepted")
-    assert stage.p("p") == 2.0
+    assert stage.param("p") == 2.0
     stage.configure(p=3.0)
     assert stage.selector.p == 3.0 and math.isclose(stage.selector.target_px, 1 / 3)
 

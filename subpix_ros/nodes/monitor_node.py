@@ -168,7 +168,7 @@ class MonitorNode(StageNode):
         self._fix: tuple[float, float] | None = None
         self._last_camera_ns = 0
         self._timer = self.create_timer(1.0, self._publish_own_health)
-        self._shift_join = ShiftStdJoin(self._serve_shift, wait_s=self.p("shift_std_wait_s"))
+        self._shift_join = ShiftStdJoin(self._serve_shift, wait_s=self.param("shift_std_wait_s"))
         self._join_timer = self.create_timer(0.1, self._expire_shifts)
         self._subscribe(subscribe_inputs)
 

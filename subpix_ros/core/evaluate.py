@@ -51,8 +51,10 @@ def gain_over_bicubic(
 
 
 def wrapped_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """``estimate - truth`` folded into [-0.5, 0.5): compares sub-pixel parts
-    when whole pixels were removed by alignment."""
+    """Return ``estimate - truth`` folded into [-0.5, 0.5).
+
+    Compares sub-pixel parts when whole pixels were removed by alignment.
+    """
     d = np.asarray(estimate, np.float64) - np.asarray(truth, np.float64)
     return (d + 0.5) % 1.0 - 0.5
 
@@ -90,7 +92,9 @@ def mtf30_evaluation(
     snr_db: float = 40.0,
     seed: int = 1,
 ) -> dict[str, float]:
-    """The paper's resolution measurement (METHODS B): MTF30 of a slanted-edge target through the degradation.
+    """Measure MTF30 of a slanted-edge target through the degradation (METHODS B).
+
+    The paper's resolution measurement.
 
     A slanted edge is put into the real ``crop`` (:func:`~subpix_ros.core.render.slanted_edge_scene`),
     ``factor^2`` frames on the k/factor grid are rendered (optics blur ``blur_sigma`` LR px, pixel

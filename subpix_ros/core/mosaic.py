@@ -68,9 +68,15 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .registration import RegistrationResult, prepare_reference, register
-from .registration_fit import Normaliser, distort_points, undistort_points
-from .registration_points import apply_h
+from .registration import (
+    Normaliser,
+    RegistrationResult,
+    apply_h,
+    distort_points,
+    prepare_reference,
+    register,
+    undistort_points,
+)
 
 __all__ = ["Mosaic", "MosaicUpdate", "FrameGeometry", "PairModel"]
 

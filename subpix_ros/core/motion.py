@@ -49,7 +49,9 @@ def frame_motion(h_prev: np.ndarray | None, h: np.ndarray) -> np.ndarray:
 
 
 def scale_motion(motion: np.ndarray, ratio: float) -> np.ndarray:
-    """The motion over ``ratio`` times the time it was measured over: ``D^ratio ~ I + ratio (D - I)``.
+    """Scale a motion to ``ratio`` times the time it was measured over: ``D^ratio``.
+
+    ``D^ratio ~ I + ratio (D - I)``.
 
     First order in ``D - I`` (exact for translations; consecutive frames
     differ by a small rotation/scale, so the neglected term is tiny next to
@@ -97,20 +99,26 @@ class MotionTracker:
         self.last_t: float | None = None  # stamp of the last frame of the chain
 
     def restart(self, t: float) -> None:
+        """Restart the chain at stamp ``t`` (a new reference: the identity); keep the motion."""
         self.h_last, self.last_t = None, t
 
     def forget(self) -> None:
+        """Forget the motion (after a failed registration)."""
         self.motion = None
 
     def update(self, h: np.ndarray, t: float) -> None:
+        """Record the homography ``h`` of the frame at stamp ``t`` and the motion since the last."""
         h = _normalised(h)
         self.motion = frame_motion(self.h_last, h)
         self.motion_dt = t - self.last_t if self.last_t is not None else 0.0
         self.h_last, self.last_t = h, t
 
     def predict(self, t: float) -> np.ndarray | None:
-        """``H_k D^ratio`` with ``ratio`` = (t - last stamp) / the motion's interval; the last
-        homography (constant position) while no motion is known; None without a basis."""
+        """Predict the homography at stamp ``t``: ``H_k D^ratio``.
+
+        ``ratio`` = (t - last stamp) / the motion's interval; the last homography (constant
+        position) while no motion is known; None without a basis or beyond ``max_ratio``.
+        """
         if self.motion is None or self.last_t is None or self.motion_dt <= 0:
             return self.h_last
         ratio = (t - self.last_t) / self.motion_dt

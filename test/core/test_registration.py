@@ -7,8 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from subpix_ros.core.registration import align, register
-from subpix_ros.core.registration_points import apply_h
+from subpix_ros.core.registration import align, apply_h, register
 from subpix_ros.core.render import render_sequence
 from subpix_ros.data import seneca_frame_paths
 
@@ -191,7 +190,7 @@ def test_low_overlap_pair_registers_through_the_last_resort(seneca):
 def test_align_warp_map_equals_the_exact_model(seneca):
     """align()'s warp map, the full model (homography and radial term) sampled every 8 px and
     interpolated, is the exact per-pixel model to 0.005 px on a real pair with lens distortion."""
-    from subpix_ros.core.registration import _warp_maps
+    from subpix_ros.core.registration.align import _warp_maps
 
     res = register(seneca[4], seneca[5])
     assert res.ok and res.distortion != 0.0
@@ -323,8 +322,8 @@ def test_align_warps_rotation_but_keeps_subpixel_translation(crops):
 
 def _distort_frame(img: np.ndarray, lam: float) -> np.ndarray:
     """The frame a lens with division-model ``lam`` records: distorted pixel x_d shows the
-    undistorted image at U(x_d) (registration_fit.undistort_points), bicubic."""
-    from subpix_ros.core.registration_fit import Normaliser, undistort_points
+    undistorted image at U(x_d) (registration.undistort_points), bicubic."""
+    from subpix_ros.core.registration import Normaliser, undistort_points
 
     h, w = img.shape
     ys, xs = np.mgrid[0:h, 0:w]
@@ -343,8 +342,12 @@ def _distort_frame(img: np.ndarray, lam: float) -> np.ndarray:
 def test_radial_distortion_estimated_and_calibrated(crops):
     """Frames of a distorting lens (lambda = -0.03, ~8 px at the corners): the per-pair estimate and the
     pooled calibration recover lambda, and a fixed calibration registers the pair to the full model."""
-    from subpix_ros.core.registration import calibrate_distortion
-    from subpix_ros.core.registration_fit import Normaliser, distort_points, undistort_points
+    from subpix_ros.core.registration import (
+        Normaliser,
+        calibrate_distortion,
+        distort_points,
+        undistort_points,
+    )
 
     lam = -0.03
     norm = Normaliser.for_shape((384, 384))
@@ -477,7 +480,7 @@ def test_tracked_real_pairs_agree_with_full(seneca, i):
 
 def test_correlate_batch_equals_direct_sum():
     """The row-wise batched correlation in ncc_match is the plain sum over template pixels."""
-    from subpix_ros.core.registration_points import _correlate_batch
+    from subpix_ros.core.registration.points import _correlate_batch
 
     rng = np.random.default_rng(3)
     for n, pp, k in ((5, 15, 7), (3, 29, 9), (4, 5, 1)):
@@ -503,7 +506,7 @@ def test_correlate_batch_equals_direct_sum():
 def test_ncc_and_gauss_newton_with_more_rows_than_remap_allows(crops):
     """1500 points with 29 px templates stack 55,500 window rows, beyond cv2.remap's 32,767-row limit:
     matching and refinement still work and find the known translation."""
-    from subpix_ros.core.registration_points import ncc_match, refine_gauss_newton
+    from subpix_ros.core.registration import ncc_match, refine_gauss_newton
 
     img = cv2.GaussianBlur(crops["crop_trees"].astype(np.float32), (0, 0), 1.0)
     ref = img[40:700, 40:700].copy()
@@ -524,7 +527,7 @@ def test_ncc_and_gauss_newton_with_more_rows_than_remap_allows(crops):
 
 def test_harris_response_is_the_plain_formula():
     """The buffer-reusing Harris response equals R = a c - b^2 - k (a + c)^2 written out."""
-    from subpix_ros.core.registration_points import harris_response
+    from subpix_ros.core.registration import harris_response
 
     img = cv2.GaussianBlur(
         np.random.default_rng(5).normal(100, 30, (120, 150)).astype(np.float32), (0, 0), 1.5
@@ -541,7 +544,7 @@ def test_harris_response_is_the_plain_formula():
 def test_overlap_mask_matches_the_pointwise_definition():
     """The filled quadrilateral is the set of reference pixels whose prediction lies inside the moving
     frame with the margin (checked pointwise, away from the polygon's 1 px boundary)."""
-    from subpix_ros.core.registration import _valid_ref_points
+    from subpix_ros.core.registration.geometry import _valid_ref_points
 
     h = _known_h(12.0, 40.0, -25.0, p=(3e-5, -2e-5))
     mask = _valid_ref_points((300, 400), (280, 360), h, 5, 10.0)

@@ -404,7 +404,7 @@ def test_inf_pixels_are_ignored_like_a_mask(set_b05):
         res = estimate_shift(rf, bad)
         assert res.ok and (res.u, res.v) == (ref.u, ref.v)
     # the check itself: huge finite values are valid (their sum does not overflow), one NaN is not
-    from subpix_ros.core.shift import _as_working
+    from subpix_ros.core.shift.inputs import _as_working
 
     big = np.full((64, 64), 3e38, np.float32)
     assert _as_working(big, "big")[1] is None
@@ -543,7 +543,7 @@ def test_rectangular_mask_is_a_crop(set_b05):
 def test_block_centres_known_layout():
     """16x16 blocks of a 40x50 region at (10, 20), the last ones partial: centres at the middle of each
     block as it is cut (rows 8, 24, 36; cols 8, 24, 40, 49 inside the region), rect by rect, row-major."""
-    from subpix_ros.core.shift import _Level
+    from subpix_ros.core.shift.level import _Level
 
     rr, cc = _Level.block_centres([(10, 50, 20, 70), (100, 140, 0, 50)])
     rows, cols = np.array([18.0, 34.0, 46.0]), np.array([28.0, 44.0, 60.0, 69.0])

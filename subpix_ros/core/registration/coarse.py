@@ -87,6 +87,12 @@ def orientation_hypotheses(
 
 @dataclass
 class CoarseResult:
+    """Outcome of a coarse search: ``transform`` (3x3, coarse-level moving -> reference) or why not.
+
+    ``n_consistent``: fragments or features that agree; ``mad``: their mean absolute gradient
+    difference (fragments; 0 for ORB).
+    """
+
     ok: bool
     reason: str
     transform: np.ndarray | None  # 3x3 coarse-level moving -> reference

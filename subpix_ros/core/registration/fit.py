@@ -31,7 +31,7 @@ from typing import Callable
 
 import numpy as np
 
-from .registration_points import apply_h
+from .geometry import apply_h
 
 __all__ = [
     "Normaliser",
@@ -54,22 +54,25 @@ class Normaliser:
 
     @classmethod
     def for_shape(cls, shape: tuple[int, ...]) -> "Normaliser":
+        """Return the normaliser of a frame of ``shape``: centre and half-diagonal."""
         h, w = shape[:2]
         return cls((w - 1) / 2.0, (h - 1) / 2.0, 0.5 * float(np.hypot(w, h)))
 
     @property
     def t(self) -> np.ndarray:
+        """The 3x3 matrix ``T`` taking pixel to normalised coordinates."""
         return np.array(
             [[1 / self.s, 0, -self.cx / self.s], [0, 1 / self.s, -self.cy / self.s], [0, 0, 1.0]]
         )
 
     def to_pixel_h(self, hn: np.ndarray) -> np.ndarray:
-        """``H_px = T^-1 H_n T`` (normalised-coordinate homography to pixel coordinates)."""
+        """Return ``H_px = T^-1 H_n T`` (normalised-coordinate homography to pixel coordinates)."""
         t = self.t
         h = np.linalg.inv(t) @ hn @ t
         return h / h[2, 2]
 
     def to_norm_h(self, h: np.ndarray) -> np.ndarray:
+        """Return ``H_n = T H_px T^-1`` (pixel homography to normalised coordinates)."""
         t = self.t
         hn = t @ h @ np.linalg.inv(t)
         return hn / hn[2, 2]

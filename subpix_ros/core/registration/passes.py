@@ -1,0 +1,526 @@
+"""One registration pass at input resolution (stage 3 of :func:`.register`), as objects.
+
+A :class:`_Pass` owns what every step of registering one moving frame to one reference needs
+(the prepared frames, the validated options, the start time); :class:`_InputStage` owns the
+state of the input-resolution stage (scales, tie points, the model being fitted) and runs its
+steps: first matching, robust start, sub-pixel refinement and fit with the radial term, the
+second pass over the points the first one missed, the final checks.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .fit import (
+    Normaliser,
+    check_homography,
+    distort_points,
+    fit_homography_distortion_lm,
+    fit_homography_lm,
+    undistort_points,
+)
+from .frames import ReferenceFrame
+from .geometry import _inside, _scale_h, _valid_ref_points, apply_h, overlap_fraction
+from .harris import harris_peaks, select_spread
+from .points import ncc_match, refine_gauss_newton
+from .result import RegistrationResult, _fail
+from .robust import (
+    _fit_fixed_lambda,
+    _full_residuals,
+    _model_residuals,
+    _refit_distortion,
+    _residuals,
+    _robust,
+    _spread,
+)
+
+
+@dataclass(frozen=True)
+class _Options:
+    """The validated options of :func:`.register` (see there)."""
+
+    model: str
+    fixed_lam: float | None  # None: lambda estimated per pair; else a fixed camera lambda
+    distortion: bool | float
+    n_points: int
+    coarse_size: int
+    detect_size: int
+    template_half: int
+    inlier_px: float
+    min_inliers: int
+    min_spread: float
+    want_inliers: int
+    coarse_method: str
+    angles: list[float] | None
+    track_radius: int  # validated (an integer in [1, 64]) only when a prior is given
+    track_min_fraction: float
+
+    @property
+    def affine(self) -> bool:
+        """True for the affine model."""
+        return self.model == "affine"
+
+
+@dataclass
+class _Pass:
+    """One registration of ``mov`` to ``ref``: prepared frames, options, start time."""
+
+    ref: ReferenceFrame
+    mov: ReferenceFrame
+    opts: _Options
+    t0: float
+
+    @property
+    def shapes(self) -> tuple:
+        """(reference shape, moving shape)."""
+        return (self.ref.gray.shape, self.mov.gray.shape)
+
+    def fail(self, reason: str) -> RegistrationResult:
+        """Return a failed result saying why."""
+        return _fail(reason, self.t0, self.shapes, self.opts.model)
+
+
+@dataclass
+class _Seeds:
+    """Where the input-resolution stage starts: tie points and a model at pyramid level ``level``.
+
+    ``pts``: reference tie points (x, y) at that level; ``h``: moving -> reference there;
+    ``radius``: NCC search radius (input px) of the points without a match; ``pred``
+    (optional, same length as ``pts``): each point's matched moving position at that level
+    (NaN where it did not match); ``extra``: further candidates at that level for weak
+    texture.
+    """
+
+    pts: np.ndarray
+    h: np.ndarray
+    level: int
+    radius: int
+    pred: np.ndarray | None = None
+    extra: np.ndarray | None = None
+
+
+def _refine_levels(
+    ps: _Pass,
+    p_r: np.ndarray,
+    p_m: np.ndarray,
+    h: np.ndarray,
+    top: int,
+    bottom: int,
+    half: int,
+    iterations: int = 6,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Refine tie points to sub-pixel (:func:`.refine_gauss_newton`), coarse to fine.
+
+    Parameters
+    ----------
+    ps : _Pass
+        The pass (frames, ``template_half`` above the input level).
+    p_r : ndarray, shape (N, 2)
+        Reference points (integer input px, divisible by ``2^top``).
+    p_m : ndarray, shape (N, 2)
+        Their moving positions (input px).
+    h : ndarray, shape (3, 3)
+        Moving -> reference at input resolution.
+    top, bottom : int
+        Pyramid levels refined, ``top`` down to ``bottom``; a point must converge at each.
+    half : int
+        Template half-size at the input level (level 0).
+    iterations : int
+        Most Gauss-Newton iterations per level.
+
+    Returns
+    -------
+    p_m : ndarray, shape (N, 2)
+        Refined moving positions (input px).
+    converged : ndarray of bool, shape (N,)
+    """
+    p_m = p_m.copy()
+    conv = np.ones(len(p_r), bool)
+    for lev in range(top, bottom - 1, -1):
+        scale = 2.0**lev
+        idx = np.nonzero(conv)[0]
+        m_l, c_l = refine_gauss_newton(
+            ps.ref.level(lev),
+            ps.mov.level(lev),
+            p_r[idx] / scale,
+            p_m[idx] / scale,
+            _scale_h(h, 1.0 / scale),
+            half=ps.opts.template_half if lev > 0 else half,
+            iterations=iterations,
+        )
+        p_m[idx[c_l]] = m_l[c_l] * scale
+        conv[idx[~c_l]] = False
+    return p_m, conv
+
+
+def _finer_candidates(
+    ps: _Pass, lev: int, h: np.ndarray, taken: np.ndarray, n_target: int, margin: float
+) -> np.ndarray:
+    """Return Harris maxima of level ``lev`` (finer than detection) inside the overlap of ``h``.
+
+    At least 4 level px from the points in ``taken`` (input px, the same corners seen one level
+    up); grid quota of ``n_target``; input px (x, y). The Harris response is computed on the
+    overlap's bounding box only (plus a 16 px border, more than the filters' and the non-maximum
+    suppression's reach), not cached.
+    """
+    scale = 2.0**lev
+    ref_l = ps.ref.level(lev)
+    valid = _valid_ref_points(
+        ref_l.shape,
+        ps.mov.level(lev).shape,
+        _scale_h(h, 1.0 / scale),
+        int(np.ceil(margin / scale)),
+        margin / scale,
+    )
+    t = np.rint(taken / scale).astype(np.intp)
+    t = t[_inside(t.astype(float), ref_l.shape, 0)]
+    near = np.zeros(ref_l.shape, np.uint8)
+    near[t[:, 1], t[:, 0]] = 1
+    valid &= cv2.dilate(near, np.ones((9, 9), np.uint8)) == 0
+    if valid.sum() < 64:
+        return np.zeros((0, 2))
+    rows, cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+    y0, y1 = max(0, rows[0] - 16), min(ref_l.shape[0], rows[-1] + 17)
+    x0, x1 = max(0, cols[0] - 16), min(ref_l.shape[1], cols[-1] + 17)
+    xs, ys, resp = harris_peaks(np.ascontiguousarray(ref_l[y0:y1, x0:x1]))
+    return select_spread((xs + x0, ys + y0, resp), valid, n_target=n_target) * scale
+
+
+def _point_key(q: np.ndarray) -> np.ndarray:
+    """Return one number per integer pixel position (x, y) of ``q`` (N, 2), for set operations."""
+    return np.rint(q[:, 1]) * 1e6 + np.rint(q[:, 0])
+
+
+def _per_point(pts: np.ndarray, p_r: np.ndarray, p_m: np.ndarray) -> np.ndarray:
+    """Put matches ``p_m`` of ``p_r`` (a subset of ``pts``) back in the order of ``pts``.
+
+    Points without a match get NaN.
+    """
+    out = np.full((len(pts), 2), np.nan)
+    if len(p_r):
+        key_all = _point_key(pts)
+        order = np.argsort(key_all, kind="stable")
+        pos = np.searchsorted(key_all[order], _point_key(p_r))
+        out[order[np.clip(pos, 0, len(pts) - 1)]] = p_m
+    return out
+
+
+def _candidates(
+    peaks, valid: np.ndarray, n_points: int, want_inliers: int
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Return ``n_points`` spread tie points and the next ``2 n_points`` tier (or None).
+
+    The second tier (only when ``want_inliers`` > 0) holds candidates for the second pass on
+    weak texture.
+    """
+    if want_inliers <= 0:
+        return select_spread(peaks, valid, n_target=n_points), None
+    return select_spread(peaks, valid, n_target=n_points, n_more=2 * n_points)
+
+
+class _InputStage:
+    """State and steps of the input-resolution stage of one pass (:func:`_final_stage`)."""
+
+    def __init__(self, ps: _Pass, seeds: _Seeds):
+        tmpl = ps.opts.template_half
+        self.ps = ps
+        self.gr, self.gm = ps.ref.gray, ps.mov.gray
+        self.f = 2.0**seeds.level
+        self.h = _scale_h(seeds.h, self.f)
+        # Above the detection size the texture per pixel is finer and blurrier: the template
+        # keeps its ground footprint of the detection level's double (level m_lev, NCC's).
+        self.half = int(round(tmpl * max(1.0, self.f / 2)))
+        self.m_lev = max(0, seeds.level - 1)
+        self.fm = 2.0**self.m_lev
+        self.half_m = tmpl if self.m_lev > 0 else self.half
+        self.margin = self.half + seeds.radius + 3
+        self.norm = Normaliser.for_shape(self.gr.shape)
+        # thresholds before the radial term is fitted grow with the resolution above the
+        # detection level's double: the unmodelled lens distortion (and parallax) grows with it
+        self.pre = max(1.0, self.f / 2)
+        self.hu, self.lam = None, 0.0
+
+    def residuals(self, p_m: np.ndarray, p_r: np.ndarray) -> np.ndarray:
+        """Transfer residuals of the current model (full once the radial term is fitted)."""
+        return _model_residuals(self.h, self.hu, self.lam, self.norm, p_m, p_r)
+
+    def seed_positions(self, seeds: _Seeds):
+        """Return the input-px points inside both frames, their predictions and seeded mask."""
+        pts0 = np.rint(seeds.pts * self.f)
+        pred = apply_h(np.linalg.inv(self.h), pts0)
+        seeded = np.zeros(len(pts0), bool)
+        if seeds.pred is not None:
+            own = seeds.pred * self.f
+            near = np.hypot(*(own - pred).T) <= 2 * seeds.radius
+            seeded = np.isfinite(own).all(axis=1) & near
+            pred[seeded] = own[seeded]
+        ok_in = _inside(pts0, self.gr.shape, self.margin) & _inside(
+            pred, self.gm.shape, self.margin
+        )
+        return pts0[ok_in], pred[ok_in], seeded[ok_in]
+
+    def match_unseeded(self, pts0, pred, seeded, radius: int):
+        """Match the points without a detection-level match by NCC at level ``m_lev``.
+
+        The detection-level matches (to ~0.2 level px) start the refinement directly.
+        """
+        fm = self.fm
+        q_r, q_m, _ = ncc_match(
+            self.ps.ref.level(self.m_lev),
+            self.ps.mov.level(self.m_lev),
+            pts0[~seeded] / fm,
+            _scale_h(self.h, 1.0 / fm),
+            half=self.half_m,
+            radius=int(np.ceil(radius / fm)),
+            pred_mov=pred[~seeded] / fm,
+        )
+        return np.vstack([pts0[seeded], q_r * fm]), np.vstack([pred[seeded], q_m * fm])
+
+    def robust_start(self, p_r, p_m) -> str | tuple:
+        """MAGSAC, then LM from the identity (METHODS C) guarded by the robust estimate.
+
+        Returns the reason of a failure, or the inlier points ``(p_r, p_m)``.
+        """
+        opts = self.ps.opts
+        hn, inl = _robust(p_m, p_r, 2.0 * self.pre, opts.affine)
+        if hn is None or inl.sum() < opts.min_inliers:
+            return (
+                f"too few tie points: {int(inl.sum())} consistent matches (need {opts.min_inliers})"
+            )
+        p_r, p_m = p_r[inl], p_m[inl]
+        h_id = fit_homography_lm(p_m, p_r, self.norm, opts.affine)
+        h_rb = fit_homography_lm(p_m, p_r, self.norm, opts.affine, h0=hn)
+        rms_id = np.sqrt(np.mean(_residuals(h_id, p_m, p_r) ** 2))
+        self.h = (
+            h_id if rms_id <= np.sqrt(np.mean(_residuals(h_rb, p_m, p_r) ** 2)) + 1e-9 else h_rb
+        )
+        return p_r, p_m
+
+    def refine_and_fit(self, p_r, p_m) -> str | None:
+        """Refine the tie points to sub-pixel and fit the final model (with the radial term).
+
+        Sets ``p_r``, ``p_m``, ``h``, ``hu``, ``lam``, ``res``, ``inl``; returns the reason of
+        a failure or None.
+        """
+        opts = self.ps.opts
+        affine, norm = opts.affine, self.norm
+        # seeds from the detection level start up to ~0.5 level px off: up to 10 iterations
+        p_m2, conv = _refine_levels(
+            self.ps, p_r, p_m, self.h, self.m_lev, 0, self.half, iterations=10
+        )
+        p_r, p_m = p_r[conv], p_m2[conv]
+        if len(p_r) < opts.min_inliers:
+            return f"too few tie points after sub-pixel refinement ({len(p_r)})"
+        h = fit_homography_lm(p_m, p_r, norm, affine, h0=self.h)
+        inl = _residuals(h, p_m, p_r) <= 2 * opts.inlier_px * self.pre
+        h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
+        lam, hu = 0.0, None
+        res = _residuals(h, p_m, p_r)
+        if opts.fixed_lam is not None and opts.fixed_lam != 0.0:
+            # shared calibration: lambda known, only H_u fitted
+            lam = opts.fixed_lam
+            hu = _fit_fixed_lambda(p_m[inl], p_r[inl], lam, norm, affine, h)
+            res = _full_residuals(hu, lam, norm, p_m, p_r)
+        elif opts.fixed_lam is None and opts.distortion and inl.sum() >= 40:
+            hu_c, lam_c = fit_homography_distortion_lm(p_m[inl], p_r[inl], norm, h, affine)
+            if np.isfinite(lam_c) and abs(lam_c) < 0.3:
+                res_c = _full_residuals(hu_c, lam_c, norm, p_m, p_r)
+                if np.sqrt(np.mean(res_c[inl] ** 2)) < np.sqrt(np.mean(res[inl] ** 2)):
+                    lam, hu, res = lam_c, hu_c, res_c
+        inl = res <= opts.inlier_px
+        if lam != 0.0 and inl.sum() >= (8 if opts.fixed_lam is not None else 40):
+            hu, lam = _refit_distortion(p_m[inl], p_r[inl], lam, hu, opts.fixed_lam, norm, affine)
+            res = _full_residuals(hu, lam, norm, p_m, p_r)
+            inl = res <= opts.inlier_px
+        if inl.sum() >= 8:
+            h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
+        self.p_r, self.p_m, self.h, self.hu, self.lam, self.res, self.inl = (
+            p_r,
+            p_m,
+            h,
+            hu,
+            lam,
+            res,
+            inl,
+        )
+        return None
+
+    def missed_points(self, pts0, extra) -> np.ndarray:
+        """Return the points without an inlier match, plus further candidates on weak texture."""
+        opts = self.ps.opts
+        miss = pts0[~np.isin(_point_key(pts0), _point_key(self.p_r[self.inl]))]
+        if self.inl.sum() < opts.want_inliers:
+            if self.m_lev > 0:  # input finer than the detection level's double: level m_lev
+                # as many as the deficit needs, 15 per missing inlier (design notes)
+                deficit = opts.want_inliers - self.inl.sum()
+                n_fine = int(np.clip(15 * deficit, opts.n_points // 2, 3 * opts.n_points))
+                ex = _finer_candidates(self.ps, self.m_lev, self.h, pts0, n_fine, self.margin)
+            else:
+                ex = np.zeros((0, 2)) if extra is None else np.rint(extra * self.f)
+            ex = ex[_inside(ex, self.gr.shape, self.margin)]
+            miss = np.vstack([miss, ex[~np.isin(_point_key(ex), _point_key(miss))]])
+        return miss
+
+    def match_missed(self, miss: np.ndarray):
+        """Search ``miss`` by NCC around the model's prediction, refine; return new tie points."""
+        inlier_px = self.ps.opts.inlier_px
+        lam, hu, norm, fm = self.lam, self.hu, self.norm, self.fm
+        if lam != 0.0 and hu is not None:
+            pred2 = distort_points(
+                apply_h(np.linalg.inv(hu), undistort_points(miss, lam, norm)), lam, norm
+            )
+        else:
+            pred2 = apply_h(np.linalg.inv(self.h), miss)
+        inside = _inside(pred2, self.gm.shape, self.margin)
+        miss, pred2 = miss[inside], pred2[inside]
+        r2, m2, _ = ncc_match(
+            self.ps.ref.level(self.m_lev),
+            self.ps.mov.level(self.m_lev),
+            miss / fm,
+            _scale_h(self.h, 1.0 / fm),
+            half=self.half_m,
+            radius=2,
+            pred_mov=pred2 / fm,
+        )
+        r2, m2 = r2 * fm, m2 * fm
+        if self.m_lev > 0:
+            # refined first at the NCC level (cheap); only matches that can be inliers (0.5 px
+            # to spare for that level's precision) are refined at the input resolution
+            m2, c = _refine_levels(self.ps, r2, m2, self.h, self.m_lev, 1, self.half)
+            r2, m2 = r2[c], m2[c]
+            near = self.residuals(m2, r2) <= inlier_px + 0.5
+        else:
+            # Gauss-Newton moves a point by less than 1 px (it rejects larger moves), so a match
+            # further than inlier_px + 1 px from the model cannot become an inlier
+            near = self.residuals(m2, r2) <= inlier_px + 1.5
+        r2, m2 = r2[near], m2[near]
+        m2, conv2 = _refine_levels(self.ps, r2, m2, self.h, 0, 0, self.half, iterations=10)
+        return r2[conv2], m2[conv2]
+
+    def second_pass(self, pts0, extra) -> None:
+        """Search the points the first pass missed around this model, and refit if any fit.
+
+        The coarser level's projective prediction was a few px off for them (e.g. at the frame
+        edges under lens distortion), so their NCC peak fell outside the window.
+        """
+        opts = self.ps.opts
+        if self.inl.sum() < opts.min_inliers:
+            return
+        miss = self.missed_points(pts0, extra)
+        if not len(miss):
+            return
+        r2, m2 = self.match_missed(miss)
+        if not (self.residuals(m2, r2) <= opts.inlier_px).any():
+            return
+        keep_old = ~np.isin(_point_key(self.p_r), _point_key(r2))
+        self.p_r = np.vstack([self.p_r[keep_old], r2])
+        self.p_m = np.vstack([self.p_m[keep_old], m2])
+        p_r, p_m, norm, affine = self.p_r, self.p_m, self.norm, opts.affine
+        inl = self.residuals(p_m, p_r) <= opts.inlier_px
+        if self.hu is not None:
+            self.hu, self.lam = _refit_distortion(
+                p_m[inl], p_r[inl], self.lam, self.hu, opts.fixed_lam, norm, affine
+            )
+        else:
+            self.h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=self.h)
+        self.res = self.residuals(p_m, p_r)
+        self.inl = self.res <= opts.inlier_px
+        self.h = fit_homography_lm(p_m[self.inl], p_r[self.inl], norm, affine, h0=self.h)
+
+    def result(self) -> RegistrationResult:
+        """Check the final model and return the result."""
+        ps, opts = self.ps, self.ps.opts
+        p_r, p_m, inl, h, hu, lam, res = (
+            self.p_r,
+            self.p_m,
+            self.inl,
+            self.h,
+            self.hu,
+            self.lam,
+            self.res,
+        )
+        n_in = int(inl.sum())
+        if n_in < opts.min_inliers:
+            return ps.fail(f"too few inliers: {n_in} (need {opts.min_inliers})")
+        reason = check_homography(h, self.gm.shape)
+        if reason:
+            return ps.fail(reason)
+        spread = _spread(p_r[inl], h, self.gr.shape, self.gm.shape)
+        if spread < opts.min_spread:
+            return ps.fail(
+                f"tie points badly spread: {spread:.2f} of the overlap cells "
+                f"(need {opts.min_spread})"
+            )
+        rms_full = float(np.sqrt(np.mean(res[inl] ** 2)))
+        rms_proj = float(np.sqrt(np.mean(_residuals(h, p_m[inl], p_r[inl]) ** 2)))
+        if opts.fixed_lam is None and lam != 0.0 and rms_full > rms_proj:
+            # the estimated term was fitted on an earlier inlier set: refit it on the final one
+            # from the projective fit and lambda = 0 (LM only accepts improvements)
+            hu, lam = fit_homography_distortion_lm(p_m[inl], p_r[inl], self.norm, h, opts.affine)
+            res = _full_residuals(hu, lam, self.norm, p_m, p_r)
+            rms_full = float(np.sqrt(np.mean(res[inl] ** 2)))
+        return RegistrationResult(
+            ok=True,
+            homography=h,
+            inliers=n_in,
+            rms_px=rms_full,
+            overlap=overlap_fraction(h, self.gr.shape, self.gm.shape),
+            points=np.hstack([p_r[inl], p_m[inl]]),
+            model=opts.model,
+            distortion=float(lam),
+            homography_undistorted=hu,
+            rms_px_projective=rms_proj,
+            median_px=float(np.median(res[inl])),
+            spread=spread,
+            ref_shape=self.gr.shape,
+            mov_shape=self.gm.shape,
+            time_s=time.perf_counter() - ps.t0,
+        )
+
+
+def _final_stage(ps: _Pass, seeds: _Seeds) -> tuple[RegistrationResult, int]:
+    """Run the input-resolution stage of :func:`.register` (stage 3).
+
+    MAGSAC, LM, Gauss-Newton, final LM with the radial term, second pass, checks.
+
+    Parameters
+    ----------
+    ps : _Pass
+        The pass.
+    seeds : _Seeds
+        Tie points and model at their pyramid level. The matches ``seeds.pred``, scaled to
+        input resolution, seed the Gauss-Newton refinement directly (coarse to fine from level
+        ``seeds.level - 1``); the points without one are matched by NCC within
+        ``seeds.radius`` input px of the model's prediction.
+
+    Returns
+    -------
+    result : RegistrationResult
+    n_try : int
+        Tie points of the first pass.
+
+    Notes
+    -----
+    The second pass searches the points without an inlier match (and, when the first pass
+    has fewer than ``want_inliers`` inliers, further candidates: ``seeds.extra``, or, when
+    the input is finer than the detection level's double, Harris maxima of level
+    ``seeds.level - 1``) by NCC at level ``seeds.level - 1`` around the model's prediction,
+    refines them and refits. It also runs when tracking: without it the frame edges, where
+    the projective prior misses the lens distortion by a few px, keep almost no tie points.
+    """
+    stage = _InputStage(ps, seeds)
+    pts0, pred, seeded = stage.seed_positions(seeds)
+    n_try = len(pts0)
+    p_r, p_m = stage.match_unseeded(pts0, pred, seeded, seeds.radius)
+    start = stage.robust_start(p_r, p_m)
+    if isinstance(start, str):
+        return ps.fail(start), n_try
+    why = stage.refine_and_fit(*start)
+    if why:
+        return ps.fail(why), n_try
+    stage.second_pass(pts0, seeds.extra)
+    return stage.result(), n_try

@@ -96,7 +96,8 @@ def mtf30_evaluation(
 
     The paper's resolution measurement.
 
-    A slanted edge is put into the real ``crop`` (:func:`~subpix_ros.core.render.slanted_edge_scene`),
+    A slanted edge is put into the real ``crop``
+    (:func:`~subpix_ros.core.render.slanted_edge_scene`),
     ``factor^2`` frames on the k/factor grid are rendered (optics blur ``blur_sigma`` LR px, pixel
     integration, noise at ``snr_db``) and reconstructed. Returns MTF30 in cycles per *input* pixel
     for ``"input"`` (one frame), ``"ceiling"`` (the optics-blurred HR truth: no pixel aperture),

@@ -101,6 +101,21 @@ def _mean_motion(registration: RegistrationResult, ref_shape, mov_shape):
     return mean, float(np.max(np.hypot(*(motion - mean).T)))
 
 
+def _checked_frames(reference, moving, registration: RegistrationResult):
+    """Return the frames as arrays; ValueError if the registration failed or shapes differ."""
+    registration._require_ok()
+    ref = np.asarray(reference)
+    mov = np.asarray(moving)
+    if ref.shape[:2] != tuple(registration.ref_shape) or mov.shape[:2] != tuple(
+        registration.mov_shape
+    ):
+        raise ValueError(
+            f"frame shapes {ref.shape[:2]}, {mov.shape[:2]} differ from the registration's "
+            f"{tuple(registration.ref_shape)}, {tuple(registration.mov_shape)}"
+        )
+    return ref, mov
+
+
 def align(
     reference: np.ndarray,
     moving: np.ndarray,
@@ -142,16 +157,7 @@ def align(
     crop, no resampling); otherwise ``aligned(x) = moving(M^-1(x - f))`` (bicubic): rotation,
     scale and perspective are removed but the content stays displaced by exactly ``f``.
     """
-    registration._require_ok()
-    ref = np.asarray(reference)
-    mov = np.asarray(moving)
-    if ref.shape[:2] != tuple(registration.ref_shape) or mov.shape[:2] != tuple(
-        registration.mov_shape
-    ):
-        raise ValueError(
-            f"frame shapes {ref.shape[:2]}, {mov.shape[:2]} differ from the registration's "
-            f"{tuple(registration.ref_shape)}, {tuple(registration.mov_shape)}"
-        )
+    ref, mov = _checked_frames(reference, moving, registration)
     hr, wr = ref.shape[:2]
     hm, wm = mov.shape[:2]
     s0, dev = _mean_motion(registration, (hr, wr), (hm, wm))

@@ -132,7 +132,11 @@ def _mad_refine(big: np.ndarray, frag: np.ndarray, x: int, y: int) -> tuple[int,
 def _fragment_search(
     gref: np.ndarray, gcan: np.ndarray, vcan: np.ndarray, frag: int, min_energy: float
 ):
-    """Forward/backward fragment search; returns (src centres, dst centres, mads) of consistent fragments."""
+    """Search fragments forward and backward.
+
+    Returns the centres (moving canvas, reference) and the mean absolute differences of the
+    fragments the reverse search confirms.
+    """
     hc, wc = gcan.shape
     stride = max(int(frag * 0.75), 1)
     src, dst, mads = [], [], []
@@ -267,15 +271,29 @@ def _orb_u8(img: np.ndarray) -> np.ndarray:
 def orb_features(
     img: np.ndarray, n_features: int = 1500, fast_threshold: int = 20
 ) -> tuple[tuple, np.ndarray | None]:
-    """ORB keypoints and descriptors of one pyramid level (CLAHE-equalised 8-bit copy), for :func:`coarse_orb`.
+    """Detect ORB keypoints and descriptors of one pyramid level, for :func:`coarse_orb`.
 
+    Parameters
+    ----------
+    img : ndarray
+        One pyramid level (float32); a CLAHE-equalised 8-bit copy is used.
+    n_features : int
+        Most keypoints.
+    fast_threshold : int
+        FAST threshold (of 255, on the equalised copy).
+
+    Returns
+    -------
+    keypoints : tuple of cv2.KeyPoint
+    descriptors : ndarray or None
+
+    Notes
+    -----
     Depends only on the frame, so a fixed reference frame computes it once. Four ORB scales
-    (1.2^3 = 1.7x) cover the scale change between overlapping frames of one flight; a FAST
-    threshold of 20 (of 255, on the equalised copy) drops the weak corners, which never gave
-    consistent matches (measured on the Seneca strip, half and full resolution: as many consistent
-    matches as 6 scales / threshold 3, with ~1000 instead of 1500 features on the lawn frames, so
-    detection takes 40% and the quadratic matching about half the time). :func:`register`'s last
-    resort for low overlap asks for more and weaker corners (``n_features``, ``fast_threshold``).
+    (1.2^3 = 1.7x) cover the scale change between overlapping frames of one flight; the FAST
+    threshold of 20 drops the weak corners, which never gave consistent matches (design
+    notes, "Registration"). :func:`.register`'s last resort for low overlap asks for more and
+    weaker corners.
     """
     orb = cv2.ORB_create(
         nfeatures=n_features,
@@ -296,7 +314,7 @@ def coarse_orb(
     ref_features: tuple[tuple, np.ndarray | None] | None = None,
     mov_features: tuple[tuple, np.ndarray | None] | None = None,
 ) -> CoarseResult:
-    """Rotation-invariant coarse alignment: ORB features + USAC/MAGSAC similarity, at a low pyramid level.
+    """Align coarsely, rotation-invariant: ORB features + RANSAC similarity on a low level.
 
     Used instead of (before) the paper's translation-only fragment search,
     because camera yaw between consecutive drone frames (up to 32 degrees on
@@ -313,7 +331,7 @@ def coarse_orb(
         return CoarseResult(False, "no texture: too few coarse features", None, 0, np.inf)
     if len(ka) < 2:
         return CoarseResult(False, "no texture: too few coarse features", None, 0, np.inf)
-    # Two nearest reference descriptors (Hamming) of every moving descriptor, Lowe's ratio test 0.85.
+    # the two nearest reference descriptors (Hamming) of every moving one; Lowe's ratio test
     dist, idx = cv2.batchDistance(db, da, -1, normType=cv2.NORM_HAMMING, K=2)[:2]
     good = dist[:, 0] < 0.85 * dist[:, 1]
     if int(good.sum()) < min_inliers:

@@ -85,7 +85,9 @@ def levenberg_marquardt(
     tol: float = 1e-12,
     jac: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Minimise ``|fun(p)|^2`` by Levenberg-Marquardt (``jac(p)`` if given, else forward differences).
+    """Minimise ``|fun(p)|^2`` by Levenberg-Marquardt.
+
+    The Jacobian is ``jac(p)`` if given, else forward differences.
 
     Damped normal equations ``(J^T J + mu diag(J^T J)) dp = -J^T r``; ``mu``
     is divided by 3 after an accepted step and multiplied by 4 after a rejected
@@ -145,7 +147,9 @@ def _params_from_h(h: np.ndarray, affine: bool) -> np.ndarray:
 
 
 def _jacobian_eq_p(q: np.ndarray, m: np.ndarray, affine: bool) -> np.ndarray:
-    """Analytic Jacobian of the eq. P residuals (rows ``u0, v0, u1, v1, ...``) w.r.t. the parameters.
+    """Return the analytic Jacobian of the eq. P residuals with respect to the parameters.
+
+    Rows ``u0, v0, u1, v1, ...``.
 
     With ``w = c0 x + c1 y + 1``: ``du/da_i = (x, y, 1) / w``, ``dv/dd_i = (x, y, 1) / w``,
     ``du/dc = -u (x, y) / w``, ``dv/dc = -v (x, y) / w``.
@@ -172,7 +176,7 @@ def fit_homography_lm(
     affine: bool = False,
     h0: np.ndarray | None = None,
 ) -> np.ndarray:
-    """LM fit of eq. P (or its affine case) to tie points; returns the pixel 3x3 H (moving -> reference).
+    """Fit eq. P (or its affine case) to tie points by LM; return the pixel 3x3 H (moving -> ref).
 
     Starts from the identity (METHODS C) unless ``h0`` (pixel H) is given.
     Residual: ``H(x_m) - x_r`` in normalised units (= px / s).
@@ -266,7 +270,8 @@ def fit_homography_distortion_lm(
         lam, um, ur, hq, y, wgt = parts(q)
         n = len(m)
         jh = _jacobian_eq_p(q[:-1], um, affine).reshape(n, 2, -1) * wgt[:, None, None]
-        # d/dlam: w (dH/du dU(m)/dlam - dU(r)/dlam) + r^2 (H(U(m)) - U(r)), dU(p)/dlam = -p rp^2 / (1 + lam rp^2)^2
+        # d/dlam: w (dH/du dU(m)/dlam - dU(r)/dlam) + r^2 (H(U(m)) - U(r)),
+        # with dU(p)/dlam = -p rp^2 / (1 + lam rp^2)^2
         w = hq[2, 0] * um[:, 0] + hq[2, 1] * um[:, 1] + 1.0
         a = np.empty((n, 2, 2))
         a[:, 0, 0] = (hq[0, 0] - y[:, 0] * hq[2, 0]) / w
@@ -325,7 +330,10 @@ def check_homography(
         sv = np.linalg.svd(j, compute_uv=False)
         det = sv[0] * sv[1]
         if not (1 / max_scale**2 <= det <= max_scale**2):
-            return f"degenerate fit: local scale {np.sqrt(det):.2f} outside [1/{max_scale}, {max_scale}]"
+            return (
+                f"degenerate fit: local scale {np.sqrt(det):.2f} "
+                f"outside [1/{max_scale}, {max_scale}]"
+            )
         if sv[0] > max_aniso * sv[1]:
             return f"degenerate fit: shear/anisotropy {sv[0] / sv[1]:.2f} > {max_aniso}"
     return ""

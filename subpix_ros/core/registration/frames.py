@@ -17,9 +17,23 @@ from .harris import harris_peaks
 def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
     """Validate a frame and return its luminance as float32 HxW (digital numbers).
 
-    Mono HxW passes through; HxWx3 is OpenCV BGR and reduced with the seed
-    weights ``gray = 0.2989 R + 0.587 G + 0.1141 B`` (METHODS A, :func:`.luminance.luminance`). Raises
-    ``ValueError`` for other shapes, non-numeric dtypes or non-finite values.
+    Parameters
+    ----------
+    image : ndarray
+        Mono HxW (passes through) or HxWx3 OpenCV BGR, reduced with the seed weights
+        ``gray = 0.2989 R + 0.587 G + 0.1141 B`` (METHODS A, :func:`subpix_ros.core.luminance.luminance`).
+    name : str
+        The frame's name, for error messages.
+
+    Returns
+    -------
+    ndarray of float32
+        Contiguous HxW luminance.
+
+    Raises
+    ------
+    ValueError
+        For other shapes, frames under 32x32, non-numeric dtypes or non-finite values.
     """
     img = np.asarray(image)
     if img.dtype == bool or not (
@@ -104,13 +118,28 @@ def _levels(shape: tuple[int, int], coarse_size: int, detect_size: int) -> tuple
 def prepare_reference(
     reference: np.ndarray | ReferenceFrame, *, coarse_size: int = 128, detect_size: int = 1000
 ) -> ReferenceFrame:
-    """Luminance, pyramid, Harris maxima (detection and refinement levels) and coarse ORB features of a reference.
+    """Prepare a reference for many registrations.
 
-    Pass the result to :func:`register` (as ``reference``) for every frame
-    registered to the same reference, so this work is done once. Raises
-    ``ValueError`` for bad input (as :func:`to_gray32`). ``coarse_size`` /
-    ``detect_size`` must match the ones given to :func:`register` for the
-    eager part to be reused (other levels are computed on demand).
+    Luminance, pyramid, Harris maxima (detection and refinement levels) and coarse ORB
+    features, computed once.
+
+    Parameters
+    ----------
+    reference : ndarray or ReferenceFrame
+        The frame (a prepared one is returned as it is).
+    coarse_size, detect_size : int
+        Must match the ones given to :func:`.register` for the eager part to be reused
+        (other levels are computed on demand).
+
+    Returns
+    -------
+    ReferenceFrame
+        Pass it to :func:`.register` (as ``reference``) for every frame registered to it.
+
+    Raises
+    ------
+    ValueError
+        For bad input (as :func:`to_gray32`).
     """
     if isinstance(reference, ReferenceFrame):
         return reference
@@ -148,7 +177,7 @@ _POOL_LOCK = threading.Lock()
 
 
 def _pool() -> ThreadPoolExecutor:
-    """One worker thread, made on first use: it prepares the reference while the caller prepares the moving frame."""
+    """Return the worker thread (made on first use) that prepares a pair's reference."""
     global _POOL
     with _POOL_LOCK:
         if _POOL is None:
@@ -159,14 +188,13 @@ def _pool() -> ThreadPoolExecutor:
 def _prepare_pair(
     reference: np.ndarray, moving: np.ndarray, coarse_size: int, detect_size: int
 ) -> tuple[ReferenceFrame, ReferenceFrame]:
-    """Both frames of a one-off pair prepared at the same time (two threads).
+    """Prepare both frames of a one-off pair at the same time (two threads).
 
-    The reference as :func:`prepare_reference` in the worker; in the calling thread
-    the moving frame's share of :func:`register`'s full pipeline (luminance, pyramid,
-    coarse ORB features). OpenCV and numpy release the GIL in this work, so on two
-    cores the two preparations take about the time of one (measured at 1800x1350:
-    35 ms one after the other, 20 ms together). The same work as on one thread, so
-    the same result. Bad input raises ``ValueError`` as before, the reference's first.
+    The reference as :func:`prepare_reference` in the worker; in the calling thread the
+    moving frame's share of :func:`.register`'s full pipeline (luminance, pyramid, coarse ORB
+    features). OpenCV and numpy release the GIL in this work, so on two cores the two
+    preparations take about the time of one. The same work as on one thread, so the same
+    result. Bad input raises ``ValueError`` as before, the reference's first.
     """
     fut = _pool().submit(
         prepare_reference, reference, coarse_size=coarse_size, detect_size=detect_size

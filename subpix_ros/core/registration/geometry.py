@@ -24,7 +24,21 @@ def apply_h(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
 def overlap_fraction(
     h_mr: np.ndarray, shape_ref: tuple[int, ...], shape_mov: tuple[int, ...]
 ) -> float:
-    """Fraction of the reference frame's area covered by the moving frame mapped through ``h_mr``."""
+    """Return the fraction of the reference frame's area the moving frame covers.
+
+    Parameters
+    ----------
+    h_mr : ndarray, shape (3, 3)
+        Moving -> reference homography (px).
+    shape_ref, shape_mov : tuple of int
+        Frame shapes (rows, cols, ...).
+
+    Returns
+    -------
+    float
+        Area of the intersection of the reference frame and the moving frame's image under
+        ``h_mr``, over the reference frame's area (0 for a non-finite image).
+    """
     hm, wm = shape_mov[:2]
     hr, wr = shape_ref[:2]
     q = apply_h(h_mr, np.array([[0, 0], [wm - 1, 0], [wm - 1, hm - 1], [0, hm - 1]], float)).astype(

@@ -17,8 +17,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-#: Relative Harris floor (fraction of the strongest maximum in the overlap): the NIR lawn's maxima are
-#: ~1e-5 of a roof corner's (R ~ contrast^4), and 1e-4 left the field pairs with 50-80 inliers.
+#: Relative Harris floor (fraction of the strongest maximum in the overlap; design notes).
 REL_FLOOR = 1e-6
 
 
@@ -56,7 +55,9 @@ def harris_response(gray: np.ndarray, window: int = 11, k: float = 0.04) -> np.n
 def harris_peaks(
     gray: np.ndarray, window: int = 11, nms_radius: int = 4
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Local maxima of the Harris response over the whole frame: ``(xs, ys, R)`` (int, int, float32).
+    """Find the local maxima of the Harris response over the whole frame.
+
+    Returns ``(xs, ys, R)`` (int, int, float32).
 
     Non-maximum suppression keeps pixels equal to the maximum of their
     ``(2 nms_radius + 1)^2`` neighbourhood with a positive response
@@ -80,7 +81,7 @@ def harris_peaks(
 
 
 def _quota_rank(peaks, valid: np.ndarray, grid: tuple[int, int]):
-    """Harris maxima inside ``valid`` above the relative floor, with each one's strength rank in its grid cell."""
+    """Return the maxima inside ``valid`` above the floor and their strength rank in their cell."""
     xs, ys, r = peaks
     inv = valid[ys, xs]
     xs, ys, r = xs[inv], ys[inv], r[inv]

@@ -1,8 +1,8 @@
 """One registration pass at input resolution (stage 3 of :func:`.register`), as objects.
 
-A :class:`_Pass` owns what every step of registering one moving frame to one reference needs
-(the prepared frames, the validated options, the start time); :class:`_InputStage` owns the
-state of the input-resolution stage (scales, tie points, the model being fitted) and runs its
+A :class:`.state._Pass` owns what every step of registering one moving frame to one reference
+needs (the prepared frames, the validated options, the start time); :class:`_InputStage` owns
+the state of the input-resolution stage (scales, tie points, the model being fitted) and runs its
 steps: first matching, robust start, sub-pixel refinement and fit with the radial term, the
 second pass over the points the first one missed, the final checks.
 """
@@ -10,9 +10,7 @@ second pass over the points the first one missed, the final checks.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from .fit import (
@@ -23,11 +21,9 @@ from .fit import (
     fit_homography_lm,
     undistort_points,
 )
-from .frames import ReferenceFrame
-from .geometry import _inside, _scale_h, _valid_ref_points, apply_h, overlap_fraction
-from .harris import harris_peaks, select_spread
-from .points import ncc_match, refine_gauss_newton
-from .result import RegistrationResult, _fail
+from .geometry import _inside, _scale_h, apply_h, overlap_fraction
+from .points import ncc_match
+from .result import RegistrationResult
 from .robust import (
     _fit_fixed_lambda,
     _full_residuals,
@@ -37,189 +33,8 @@ from .robust import (
     _robust,
     _spread,
 )
-
-
-@dataclass(frozen=True)
-class _Options:
-    """The validated options of :func:`.register` (see there)."""
-
-    model: str
-    fixed_lam: float | None  # None: lambda estimated per pair; else a fixed camera lambda
-    distortion: bool | float
-    n_points: int
-    coarse_size: int
-    detect_size: int
-    template_half: int
-    inlier_px: float
-    min_inliers: int
-    min_spread: float
-    want_inliers: int
-    coarse_method: str
-    angles: list[float] | None
-    track_radius: int  # validated (an integer in [1, 64]) only when a prior is given
-    track_min_fraction: float
-
-    @property
-    def affine(self) -> bool:
-        """True for the affine model."""
-        return self.model == "affine"
-
-
-@dataclass
-class _Pass:
-    """One registration of ``mov`` to ``ref``: prepared frames, options, start time."""
-
-    ref: ReferenceFrame
-    mov: ReferenceFrame
-    opts: _Options
-    t0: float
-
-    @property
-    def shapes(self) -> tuple:
-        """(reference shape, moving shape)."""
-        return (self.ref.gray.shape, self.mov.gray.shape)
-
-    def fail(self, reason: str) -> RegistrationResult:
-        """Return a failed result saying why."""
-        return _fail(reason, self.t0, self.shapes, self.opts.model)
-
-
-@dataclass
-class _Seeds:
-    """Where the input-resolution stage starts: tie points and a model at pyramid level ``level``.
-
-    ``pts``: reference tie points (x, y) at that level; ``h``: moving -> reference there;
-    ``radius``: NCC search radius (input px) of the points without a match; ``pred``
-    (optional, same length as ``pts``): each point's matched moving position at that level
-    (NaN where it did not match); ``extra``: further candidates at that level for weak
-    texture.
-    """
-
-    pts: np.ndarray
-    h: np.ndarray
-    level: int
-    radius: int
-    pred: np.ndarray | None = None
-    extra: np.ndarray | None = None
-
-
-def _refine_levels(
-    ps: _Pass,
-    p_r: np.ndarray,
-    p_m: np.ndarray,
-    h: np.ndarray,
-    top: int,
-    bottom: int,
-    half: int,
-    iterations: int = 6,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Refine tie points to sub-pixel (:func:`.refine_gauss_newton`), coarse to fine.
-
-    Parameters
-    ----------
-    ps : _Pass
-        The pass (frames, ``template_half`` above the input level).
-    p_r : ndarray, shape (N, 2)
-        Reference points (integer input px, divisible by ``2^top``).
-    p_m : ndarray, shape (N, 2)
-        Their moving positions (input px).
-    h : ndarray, shape (3, 3)
-        Moving -> reference at input resolution.
-    top, bottom : int
-        Pyramid levels refined, ``top`` down to ``bottom``; a point must converge at each.
-    half : int
-        Template half-size at the input level (level 0).
-    iterations : int
-        Most Gauss-Newton iterations per level.
-
-    Returns
-    -------
-    p_m : ndarray, shape (N, 2)
-        Refined moving positions (input px).
-    converged : ndarray of bool, shape (N,)
-    """
-    p_m = p_m.copy()
-    conv = np.ones(len(p_r), bool)
-    for lev in range(top, bottom - 1, -1):
-        scale = 2.0**lev
-        idx = np.nonzero(conv)[0]
-        m_l, c_l = refine_gauss_newton(
-            ps.ref.level(lev),
-            ps.mov.level(lev),
-            p_r[idx] / scale,
-            p_m[idx] / scale,
-            _scale_h(h, 1.0 / scale),
-            half=ps.opts.template_half if lev > 0 else half,
-            iterations=iterations,
-        )
-        p_m[idx[c_l]] = m_l[c_l] * scale
-        conv[idx[~c_l]] = False
-    return p_m, conv
-
-
-def _finer_candidates(
-    ps: _Pass, lev: int, h: np.ndarray, taken: np.ndarray, n_target: int, margin: float
-) -> np.ndarray:
-    """Return Harris maxima of level ``lev`` (finer than detection) inside the overlap of ``h``.
-
-    At least 4 level px from the points in ``taken`` (input px, the same corners seen one level
-    up); grid quota of ``n_target``; input px (x, y). The Harris response is computed on the
-    overlap's bounding box only (plus a 16 px border, more than the filters' and the non-maximum
-    suppression's reach), not cached.
-    """
-    scale = 2.0**lev
-    ref_l = ps.ref.level(lev)
-    valid = _valid_ref_points(
-        ref_l.shape,
-        ps.mov.level(lev).shape,
-        _scale_h(h, 1.0 / scale),
-        int(np.ceil(margin / scale)),
-        margin / scale,
-    )
-    t = np.rint(taken / scale).astype(np.intp)
-    t = t[_inside(t.astype(float), ref_l.shape, 0)]
-    near = np.zeros(ref_l.shape, np.uint8)
-    near[t[:, 1], t[:, 0]] = 1
-    valid &= cv2.dilate(near, np.ones((9, 9), np.uint8)) == 0
-    if valid.sum() < 64:
-        return np.zeros((0, 2))
-    rows, cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
-    y0, y1 = max(0, rows[0] - 16), min(ref_l.shape[0], rows[-1] + 17)
-    x0, x1 = max(0, cols[0] - 16), min(ref_l.shape[1], cols[-1] + 17)
-    xs, ys, resp = harris_peaks(np.ascontiguousarray(ref_l[y0:y1, x0:x1]))
-    return select_spread((xs + x0, ys + y0, resp), valid, n_target=n_target) * scale
-
-
-def _point_key(q: np.ndarray) -> np.ndarray:
-    """Return one number per integer pixel position (x, y) of ``q`` (N, 2), for set operations."""
-    return np.rint(q[:, 1]) * 1e6 + np.rint(q[:, 0])
-
-
-def _per_point(pts: np.ndarray, p_r: np.ndarray, p_m: np.ndarray) -> np.ndarray:
-    """Put matches ``p_m`` of ``p_r`` (a subset of ``pts``) back in the order of ``pts``.
-
-    Points without a match get NaN.
-    """
-    out = np.full((len(pts), 2), np.nan)
-    if len(p_r):
-        key_all = _point_key(pts)
-        order = np.argsort(key_all, kind="stable")
-        pos = np.searchsorted(key_all[order], _point_key(p_r))
-        out[order[np.clip(pos, 0, len(pts) - 1)]] = p_m
-    return out
-
-
-def _candidates(
-    peaks, valid: np.ndarray, n_points: int, want_inliers: int
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Return ``n_points`` spread tie points and the next ``2 n_points`` tier (or None).
-
-    The second tier (only when ``want_inliers`` > 0) holds candidates for the second pass on
-    weak texture.
-    """
-    if want_inliers <= 0:
-        return select_spread(peaks, valid, n_target=n_points), None
-    return select_spread(peaks, valid, n_target=n_points, n_more=2 * n_points)
+from .state import _Pass, _Seeds
+from .tiepoints import _finer_candidates, _point_key, _refine_levels
 
 
 class _InputStage:

@@ -78,7 +78,7 @@ _REMAP_MAX = 32000
 
 
 def _remap(img: np.ndarray, x: np.ndarray, y: np.ndarray, interp: int) -> np.ndarray:
-    """``cv2.remap`` of ``img`` at float32 positions ``x, y`` of any shape (..., W); float32, same shape.
+    """Sample ``img`` with ``cv2.remap`` at positions ``x, y`` of any shape (..., W); float32.
 
     Each output sample depends only on its own position, so the maps are laid
     out as rows of ``W`` samples, in blocks of fewer than ``SHRT_MAX`` rows
@@ -127,7 +127,7 @@ def _patch_grid(half: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _ref_patches(ref: np.ndarray, pts: np.ndarray, half: int, dtype=np.float64) -> np.ndarray:
-    """Integer-position patches (N, P, P) of ``ref`` centred at rounded ``pts`` (inside the frame)."""
+    """Return the patches (N, P, P) of ``ref`` centred at the rounded ``pts`` (inside the frame)."""
     win = np.lib.stride_tricks.sliding_window_view(ref, (2 * half + 1, 2 * half + 1))
     x0 = np.rint(pts[:, 0]).astype(np.intp) - half
     y0 = np.rint(pts[:, 1]).astype(np.intp) - half
@@ -135,7 +135,10 @@ def _ref_patches(ref: np.ndarray, pts: np.ndarray, half: int, dtype=np.float64) 
 
 
 def _local_affine(h: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``h`` at ``pts`` and its 2x2 Jacobian there (analytic, eq. P): ``h(p + q) = c + J q + O(|h_20| q^2)``."""
+    """Return ``h`` at ``pts`` and its 2x2 Jacobian there (analytic, eq. P).
+
+    ``h(p + q) = c + J q + O(|h_20| q^2)``.
+    """
     c = apply_h(h, pts)
     w = h[2, 0] * pts[:, 0] + h[2, 1] * pts[:, 1] + h[2, 2]
     j = np.empty((len(pts), 2, 2))
@@ -373,17 +376,8 @@ def refine_gauss_newton(
     tpl, tpl_grad = _normalised_template(ref, p, half)
     d = apply_h(h_mr, pts_mov) - p  # current displacement in reference px
     d0 = d.copy()
-    qx, qy = _patch_grid(half + 1)
     hinv = np.linalg.inv(h_mr)
-    # Sampling positions H^-1(p + d + q) = c + J (q + d) + O(|c_h| |q + d|^2): the local affine
-    # expansion of H^-1 about p (c = H^-1 p, J its Jacobian, c_h the perspective row of H^-1).
-    # The second-order term is ~6e-4 px for |q| <= 8 px and |c_h| ~ 1e-5 px^-1, and even in q,
-    # so it does not move the patch's centre; remap quantises positions to 1/32 px anyway.
-    c, jac = _local_affine(hinv, p)  # jac (n, 2, 2): d(moving x, y) / d(d_x, d_y)
-    c, jq = c.astype(np.float32), jac.astype(np.float32)
-    qx, qy = qx.astype(np.float32), qy.astype(np.float32)
-    bx = c[:, 0, None, None] + jq[:, 0, 0, None, None] * qx + jq[:, 0, 1, None, None] * qy
-    by = c[:, 1, None, None] + jq[:, 1, 0, None, None] * qx + jq[:, 1, 1, None, None] * qy
+    bx, by, jac = _patch_positions(hinv, p, half + 1)
     good = np.ones(n, bool)
     done = np.zeros(n, bool)
     for _ in range(iterations):
@@ -402,6 +396,24 @@ def refine_gauss_newton(
     good &= done
     pm = apply_h(hinv, p + d)
     return pm, good
+
+
+def _patch_positions(hinv, p, big: int):
+    """Return the moving-frame positions (x, y; float32) of the patch grid about each ``p``.
+
+    Also the local Jacobian ``J`` (n, 2, 2) of ``H^-1`` at ``p``: d(moving x, y) / d(d_x, d_y).
+    """
+    qx, qy = _patch_grid(big)
+    # Sampling positions H^-1(p + d + q) = c + J (q + d) + O(|c_h| |q + d|^2): the local affine
+    # expansion of H^-1 about p (c = H^-1 p, J its Jacobian, c_h the perspective row of H^-1).
+    # The second-order term is ~6e-4 px for |q| <= 8 px and |c_h| ~ 1e-5 px^-1, and even in q,
+    # so it does not move the patch's centre; remap quantises positions to 1/32 px anyway.
+    c, jac = _local_affine(hinv, p)
+    c, jq = c.astype(np.float32), jac.astype(np.float32)
+    qx, qy = qx.astype(np.float32), qy.astype(np.float32)
+    bx = c[:, 0, None, None] + jq[:, 0, 0, None, None] * qx + jq[:, 0, 1, None, None] * qy
+    by = c[:, 1, None, None] + jq[:, 1, 0, None, None] * qx + jq[:, 1, 1, None, None] * qy
+    return bx, by, jac
 
 
 def _normalised_template(ref, p, half: int):

@@ -19,12 +19,15 @@ from .fit import check_homography
 from .frames import ReferenceFrame, _levels, _prepare_pair, prepare_reference, to_gray32
 from .geometry import _scale_h, _valid_ref_points, apply_h
 from .harris import select_spread
-from .passes import _candidates, _final_stage, _Options, _Pass, _per_point, _Seeds
+from .passes import _final_stage
 from .points import ncc_match
 from .result import RegistrationResult
 from .robust import _robust
+from .state import _Options, _Pass, _Seeds
+from .tiepoints import _candidates, _per_point
 
 
+# long: the numpydoc Parameters of 17 options; the body is ~30 lines
 def register(
     reference: np.ndarray | ReferenceFrame,
     moving: np.ndarray | ReferenceFrame,

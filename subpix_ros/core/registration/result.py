@@ -76,7 +76,7 @@ class RegistrationResult:
         return Normaliser.for_shape(self.ref_shape)
 
     def transfer(self, pts_mov: np.ndarray) -> np.ndarray:
-        """Map (N, 2) moving pixel coordinates (x, y) to reference pixel coordinates (full model)."""
+        """Map (N, 2) moving pixel coordinates (x, y) to the reference (full model)."""
         self._require_ok()
         pts = np.asarray(pts_mov, dtype=np.float64).reshape(-1, 2)
         if self.distortion == 0.0 or self.homography_undistorted is None:
@@ -89,7 +89,7 @@ class RegistrationResult:
         )
 
     def inverse_transfer(self, pts_ref: np.ndarray) -> np.ndarray:
-        """Map (N, 2) reference pixel coordinates (x, y) to moving pixel coordinates (full model)."""
+        """Map (N, 2) reference pixel coordinates (x, y) to the moving frame (full model)."""
         self._require_ok()
         pts = np.asarray(pts_ref, dtype=np.float64).reshape(-1, 2)
         if self.distortion == 0.0 or self.homography_undistorted is None:
@@ -152,7 +152,9 @@ class RegistrationResult:
             "ok": self.ok,
             "reason": self.reason,
             "homography": None if self.homography is None else self.homography.tolist(),
-            "homography_convention": "maps MOVING pixel (x=col, y=row, 1) to REFERENCE pixel coordinates",
+            "homography_convention": (
+                "maps MOVING pixel (x=col, y=row, 1) to REFERENCE pixel coordinates"
+            ),
             "inliers": int(self.inliers),
             "rms_px": self.rms_px,
             "rms_px_projective": self.rms_px_projective,

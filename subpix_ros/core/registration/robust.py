@@ -74,7 +74,7 @@ def _spread(pr: np.ndarray, h_mr: np.ndarray, shape_ref, shape_mov, cells: int =
 def _full_residuals(
     hu: np.ndarray, lam: float, norm: Normaliser, pm: np.ndarray, pr: np.ndarray
 ) -> np.ndarray:
-    """Transfer residuals ``|D(H_u(U(x_m))) - x_r|`` (reference px); inf where the model is invalid."""
+    """Return the residuals ``|D(H_u(U(x_m))) - x_r|`` (reference px); inf where invalid."""
     res = np.hypot(
         *(distort_points(apply_h(hu, undistort_points(pm, lam, norm)), lam, norm) - pr).T
     )
@@ -89,14 +89,14 @@ def _model_residuals(
     pm: np.ndarray,
     pr: np.ndarray,
 ) -> np.ndarray:
-    """Transfer residuals of the current model: the full one (``hu``, ``lam``) once fitted, else ``h``."""
+    """Return the residuals of the current model: ``(hu, lam)`` once fitted, else ``h``."""
     return _full_residuals(hu, lam, norm, pm, pr) if hu is not None else _residuals(h, pm, pr)
 
 
 def _fit_fixed_lambda(
     pm: np.ndarray, pr: np.ndarray, lam: float, norm: Normaliser, affine: bool, h0: np.ndarray
 ) -> np.ndarray:
-    """``H_u`` for a known division-model ``lam``: eq. P fitted by LM between the undistorted points.
+    """Fit ``H_u`` for a known division-model ``lam``: eq. P by LM between undistorted points.
 
     The residual is measured between undistorted coordinates; with |lam| << 1
     it differs from the distorted-space residual by a factor ``1 + O(lam)``.

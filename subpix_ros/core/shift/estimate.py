@@ -40,6 +40,7 @@ class _Options:
     misfit_px: float
 
 
+# long: the numpydoc Parameters of 13 options; the body is ~40 lines
 def estimate_shift(
     reference: np.ndarray,
     moving: np.ndarray,

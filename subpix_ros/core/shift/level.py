@@ -175,7 +175,10 @@ class _Level:
 
     # -- reference side (fixed while the tile set is fixed) -----------------
     def prepare_reference(self, rects):
-        """Filter the reference with ``H_0`` and take its central-difference gradients on ``rects``."""
+        """Filter the reference with ``H_0`` and take its central-difference gradients.
+
+        On the working rectangles ``rects``; kept until the rectangles change.
+        """
         if self._ref_key == rects:
             return
         self._ref_key = rects

@@ -317,8 +317,8 @@ def coarse_orb(
     """Align coarsely, rotation-invariant: ORB features + RANSAC similarity on a low level.
 
     Used instead of (before) the paper's translation-only fragment search,
-    because camera yaw between consecutive drone frames (up to 32 degrees on
-    the Seneca strip) defeats a translation search on gradient magnitude at
+    because camera yaw between consecutive drone frames (tens of degrees)
+    defeats a translation search on gradient magnitude at
     a level coarse enough to be cheap. Inputs: float32 images of one pyramid
     level; output transform in that level's pixels (moving -> reference), a
     4-dof similarity (rotation, scale, translation). Accuracy only needs to

@@ -44,19 +44,19 @@ class _InputStage:
         tmpl = ps.opts.template_half
         self.ps = ps
         self.gr, self.gm = ps.ref.gray, ps.mov.gray
-        self.f = 2.0**seeds.level
-        self.h = _scale_h(seeds.h, self.f)
+        self.scale = 2.0**seeds.level
+        self.h = _scale_h(seeds.h, self.scale)
         # Above the detection size the texture per pixel is finer and blurrier: the template
-        # keeps its ground footprint of the detection level's double (level m_lev, NCC's).
-        self.half = int(round(tmpl * max(1.0, self.f / 2)))
-        self.m_lev = max(0, seeds.level - 1)
-        self.fm = 2.0**self.m_lev
-        self.half_m = tmpl if self.m_lev > 0 else self.half
+        # keeps its ground footprint of the detection level's double (level ncc_level, where NCC runs).
+        self.half = int(round(tmpl * max(1.0, self.scale / 2)))
+        self.ncc_level = max(0, seeds.level - 1)
+        self.ncc_scale = 2.0**self.ncc_level
+        self.ncc_half = tmpl if self.ncc_level > 0 else self.half
         self.margin = self.half + seeds.radius + 3
         self.norm = Normaliser.for_shape(self.gr.shape)
         # thresholds before the radial term is fitted grow with the resolution above the
         # detection level's double: the unmodelled lens distortion (and parallax) grows with it
-        self.pre = max(1.0, self.f / 2)
+        self.threshold_scale = max(1.0, self.scale / 2)
         self.hu, self.lam = None, 0.0
 
     def residuals(self, p_m: np.ndarray, p_r: np.ndarray) -> np.ndarray:
@@ -65,11 +65,11 @@ class _InputStage:
 
     def seed_positions(self, seeds: _Seeds):
         """Return the input-px points inside both frames, their predictions and seeded mask."""
-        pts0 = np.rint(seeds.pts * self.f)
+        pts0 = np.rint(seeds.pts * self.scale)
         pred = apply_h(np.linalg.inv(self.h), pts0)
         seeded = np.zeros(len(pts0), bool)
         if seeds.pred is not None:
-            own = seeds.pred * self.f
+            own = seeds.pred * self.scale
             near = np.hypot(*(own - pred).T) <= 2 * seeds.radius
             seeded = np.isfinite(own).all(axis=1) & near
             pred[seeded] = own[seeded]
@@ -79,21 +79,23 @@ class _InputStage:
         return pts0[ok_in], pred[ok_in], seeded[ok_in]
 
     def match_unseeded(self, pts0, pred, seeded, radius: int):
-        """Match the points without a detection-level match by NCC at level ``m_lev``.
+        """Match the points without a detection-level match by NCC at level ``ncc_level``.
 
         The detection-level matches (to ~0.2 level px) start the refinement directly.
         """
-        fm = self.fm
+        ncc_scale = self.ncc_scale
         q_r, q_m, _ = ncc_match(
-            self.ps.ref.level(self.m_lev),
-            self.ps.mov.level(self.m_lev),
-            pts0[~seeded] / fm,
-            _scale_h(self.h, 1.0 / fm),
-            half=self.half_m,
-            radius=int(np.ceil(radius / fm)),
-            pred_mov=pred[~seeded] / fm,
+            self.ps.ref.level(self.ncc_level),
+            self.ps.mov.level(self.ncc_level),
+            pts0[~seeded] / ncc_scale,
+            _scale_h(self.h, 1.0 / ncc_scale),
+            half=self.ncc_half,
+            radius=int(np.ceil(radius / ncc_scale)),
+            pred_mov=pred[~seeded] / ncc_scale,
         )
-        return np.vstack([pts0[seeded], q_r * fm]), np.vstack([pred[seeded], q_m * fm])
+        return np.vstack([pts0[seeded], q_r * ncc_scale]), np.vstack(
+            [pred[seeded], q_m * ncc_scale]
+        )
 
     def robust_start(self, p_r, p_m) -> str | tuple:
         """MAGSAC, then LM from the identity (METHODS C) guarded by the robust estimate.
@@ -101,7 +103,7 @@ class _InputStage:
         Returns the reason of a failure, or the inlier points ``(p_r, p_m)``.
         """
         opts = self.ps.opts
-        hn, inl = _robust(p_m, p_r, 2.0 * self.pre, opts.affine)
+        hn, inl = _robust(p_m, p_r, 2.0 * self.threshold_scale, opts.affine)
         if hn is None or inl.sum() < opts.min_inliers:
             return (
                 f"too few tie points: {int(inl.sum())} consistent matches (need {opts.min_inliers})"
@@ -125,13 +127,13 @@ class _InputStage:
         affine, norm = opts.affine, self.norm
         # seeds from the detection level start up to ~0.5 level px off: up to 10 iterations
         p_m2, conv = _refine_levels(
-            self.ps, p_r, p_m, self.h, self.m_lev, 0, self.half, iterations=10
+            self.ps, p_r, p_m, self.h, self.ncc_level, 0, self.half, iterations=10
         )
         p_r, p_m = p_r[conv], p_m2[conv]
         if len(p_r) < opts.min_inliers:
             return f"too few tie points after sub-pixel refinement ({len(p_r)})"
         h = fit_homography_lm(p_m, p_r, norm, affine, h0=self.h)
-        inl = _residuals(h, p_m, p_r) <= 2 * opts.inlier_px * self.pre
+        inl = _residuals(h, p_m, p_r) <= 2 * opts.inlier_px * self.threshold_scale
         h = fit_homography_lm(p_m[inl], p_r[inl], norm, affine, h0=h)
         lam, hu = 0.0, None
         res = _residuals(h, p_m, p_r)
@@ -169,13 +171,13 @@ class _InputStage:
         opts = self.ps.opts
         miss = pts0[~np.isin(_point_key(pts0), _point_key(self.p_r[self.inl]))]
         if self.inl.sum() < opts.want_inliers:
-            if self.m_lev > 0:  # input finer than the detection level's double: level m_lev
+            if self.ncc_level > 0:  # input finer than the detection level's double
                 # as many as the deficit needs, 15 per missing inlier (design notes)
                 deficit = opts.want_inliers - self.inl.sum()
                 n_fine = int(np.clip(15 * deficit, opts.n_points // 2, 3 * opts.n_points))
-                ex = _finer_candidates(self.ps, self.m_lev, self.h, pts0, n_fine, self.margin)
+                ex = _finer_candidates(self.ps, self.ncc_level, self.h, pts0, n_fine, self.margin)
             else:
-                ex = np.zeros((0, 2)) if extra is None else np.rint(extra * self.f)
+                ex = np.zeros((0, 2)) if extra is None else np.rint(extra * self.scale)
             ex = ex[_inside(ex, self.gr.shape, self.margin)]
             miss = np.vstack([miss, ex[~np.isin(_point_key(ex), _point_key(miss))]])
         return miss
@@ -183,7 +185,7 @@ class _InputStage:
     def match_missed(self, miss: np.ndarray):
         """Search ``miss`` by NCC around the model's prediction, refine; return new tie points."""
         inlier_px = self.ps.opts.inlier_px
-        lam, hu, norm, fm = self.lam, self.hu, self.norm, self.fm
+        lam, hu, norm, ncc_scale = self.lam, self.hu, self.norm, self.ncc_scale
         if lam != 0.0 and hu is not None:
             pred2 = distort_points(
                 apply_h(np.linalg.inv(hu), undistort_points(miss, lam, norm)), lam, norm
@@ -193,19 +195,19 @@ class _InputStage:
         inside = _inside(pred2, self.gm.shape, self.margin)
         miss, pred2 = miss[inside], pred2[inside]
         r2, m2, _ = ncc_match(
-            self.ps.ref.level(self.m_lev),
-            self.ps.mov.level(self.m_lev),
-            miss / fm,
-            _scale_h(self.h, 1.0 / fm),
-            half=self.half_m,
+            self.ps.ref.level(self.ncc_level),
+            self.ps.mov.level(self.ncc_level),
+            miss / ncc_scale,
+            _scale_h(self.h, 1.0 / ncc_scale),
+            half=self.ncc_half,
             radius=2,
-            pred_mov=pred2 / fm,
+            pred_mov=pred2 / ncc_scale,
         )
-        r2, m2 = r2 * fm, m2 * fm
-        if self.m_lev > 0:
+        r2, m2 = r2 * ncc_scale, m2 * ncc_scale
+        if self.ncc_level > 0:
             # refined first at the NCC level (cheap); only matches that can be inliers (0.5 px
             # to spare for that level's precision) are refined at the input resolution
-            m2, c = _refine_levels(self.ps, r2, m2, self.h, self.m_lev, 1, self.half)
+            m2, c = _refine_levels(self.ps, r2, m2, self.h, self.ncc_level, 1, self.half)
             r2, m2 = r2[c], m2[c]
             near = self.residuals(m2, r2) <= inlier_px + 0.5
         else:

@@ -349,9 +349,9 @@ def _track_seeds(ps: _Pass, prior: np.ndarray, radius: int) -> _Seeds | str:
     if reason:
         return f"prior rejected: {reason}"
     _, det_lev, _ = _levels(ref.gray.shape, opts.coarse_size, opts.detect_size)
-    f = 2.0**det_lev
-    h_det = _scale_h(prior, 1.0 / f)
-    r_det = int(np.ceil(radius / f)) + 1  # the NCC peak must be inside the window
+    scale = 2.0**det_lev
+    h_det = _scale_h(prior, 1.0 / scale)
+    r_det = int(np.ceil(radius / scale)) + 1  # the NCC peak must be inside the window
     mov_l = mov.level(det_lev)
     ref_l = ref.level(det_lev)
     margin = opts.template_half + r_det + 2
@@ -367,7 +367,7 @@ def _track_seeds(ps: _Pass, prior: np.ndarray, radius: int) -> _Seeds | str:
     reason = check_homography(hn, mov_l.shape)
     if reason:
         return reason
-    return _Seeds(pts, hn, det_lev, 2 + int(f) // 2, _per_point(pts, p_r, p_m), extra)
+    return _Seeds(pts, hn, det_lev, 2 + int(scale) // 2, _per_point(pts, p_r, p_m), extra)
 
 
 def _register_tracked(ps: _Pass, prior: np.ndarray) -> RegistrationResult:

@@ -35,12 +35,14 @@ are ``(u, v)`` = (rows, cols) in px: content at (r, c) in the reference appears 
 
 References
 ----------
-.. [1] C. Harris and M. Stephens, "A combined corner and edge detector", Proc. Alvey Vision
+.. [1] Ryzhikov, Kuznetsov, "Operational forming of overview images from aerial photography"
+   (docs/METHODS.md C, the seed).
+.. [2] C. Harris and M. Stephens, "A combined corner and edge detector", Proc. Alvey Vision
    Conference, 147-151, 1988. https://doi.org/10.5244/C.2.23
-.. [2] D. Barath, J. Noskova, M. Ivashechkin and J. Matas, "MAGSAC++, a fast, reliable and
+.. [3] D. Barath, J. Noskova, M. Ivashechkin and J. Matas, "MAGSAC++, a fast, reliable and
    accurate robust estimator", Proc. CVPR, 1304-1312, 2020.
    https://doi.org/10.1109/CVPR42600.2020.00138
-.. [3] A. W. Fitzgibbon, "Simultaneous linear estimation of multiple view geometry and lens
+.. [4] A. W. Fitzgibbon, "Simultaneous linear estimation of multiple view geometry and lens
    distortion", Proc. CVPR, I-125-I-132, 2001. https://doi.org/10.1109/CVPR.2001.990465
 """
 

@@ -40,7 +40,7 @@ __all__ = [
 
 
 def gradient_magnitude(gray: np.ndarray) -> np.ndarray:
-    """Sobel gradient magnitude ``sqrt(Gx^2 + Gy^2)`` (intensity/px), float32."""
+    """Compute the Sobel gradient magnitude ``sqrt(Gx^2 + Gy^2)`` (intensity/px), float32."""
     gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
     return cv2.magnitude(gx, gy)
@@ -61,13 +61,29 @@ def _orientation_hist(gray: np.ndarray, bins: int) -> np.ndarray:
 def orientation_hypotheses(
     ref: np.ndarray, mov: np.ndarray, n: int = 4, bins: int = 180
 ) -> list[float]:
-    """Candidate rotation angles (radians) from moving to reference.
+    """Return candidate rotation angles (radians) from moving to reference.
 
-    ``c(k) = sum_i h_m(i) h_r(i + k)`` (circular cross-correlation of the
-    magnitude-weighted gradient-orientation histograms, via FFT); the ``n``
-    strongest peaks at least 20 degrees apart. Rotation sign: the angle
-    ``theta`` such that ``R(theta) = [[cos, -sin], [sin, cos]]`` (image
-    coordinates, y down) turns moving directions into reference directions.
+    Parameters
+    ----------
+    ref, mov : ndarray of float32
+        The two frames at a coarse level.
+    n : int
+        Most hypotheses.
+    bins : int
+        Orientation histogram bins.
+
+    Returns
+    -------
+    list of float
+        The ``n`` strongest peaks of the histograms' cross-correlation, at least 20 degrees
+        apart.
+
+    Notes
+    -----
+    ``c(k) = sum_i h_m(i) h_r(i + k)`` (circular cross-correlation of the magnitude-weighted
+    gradient-orientation histograms, via FFT). Rotation sign: the angle ``theta`` such that
+    ``R(theta) = [[cos, -sin], [sin, cos]]`` (image coordinates, y down) turns moving
+    directions into reference directions.
     """
     hr = _orientation_hist(ref, bins)
     hm = _orientation_hist(mov, bins)
@@ -221,14 +237,28 @@ def coarse_overlap(
     frag_frac: float = 0.3,
     min_consistent: int = 3,
 ) -> CoarseResult:
-    """Fragment search (METHODS C, stage 1) over rotation hypotheses ``angles``.
+    """Search fragments (METHODS C, stage 1) over rotation hypotheses ``angles``.
 
-    ``gref``, ``gmov``: coarse-level gradient magnitudes (float32). Fragment
-    side ``frag_frac * min(h, w)`` (the paper: half the expected overlap).
-    Fragments that pass the reverse check vote for a similarity (consensus
-    over all pairs of fragments, :func:`_consensus_similarity`); the
-    hypothesis with most agreeing fragments (ties: lower MAD) wins, and at
-    least ``min_consistent`` must agree.
+    Parameters
+    ----------
+    gref, gmov : ndarray of float32
+        Coarse-level gradient magnitudes.
+    angles : list of float
+        Rotation hypotheses (radians).
+    frag_frac : float
+        Fragment side as a fraction of ``min(h, w)`` (the paper: half the expected overlap).
+    min_consistent : int
+        Fewest agreeing fragments.
+
+    Returns
+    -------
+    CoarseResult
+
+    Notes
+    -----
+    Fragments that pass the reverse check vote for a similarity (consensus over all pairs of
+    fragments, :func:`_consensus_similarity`); the hypothesis with most agreeing fragments
+    (ties: lower MAD) wins.
     """
     h, w = gmov.shape
     frag = max(8, int(round(frag_frac * min(h, w))))
@@ -316,14 +346,29 @@ def coarse_orb(
 ) -> CoarseResult:
     """Align coarsely, rotation-invariant: ORB features + RANSAC similarity on a low level.
 
-    Used instead of (before) the paper's translation-only fragment search,
-    because camera yaw between consecutive drone frames (tens of degrees)
-    defeats a translation search on gradient magnitude at
-    a level coarse enough to be cheap. Inputs: float32 images of one pyramid
-    level; output transform in that level's pixels (moving -> reference), a
-    4-dof similarity (rotation, scale, translation). Accuracy only needs to
-    be a few pixels: the pyramid refinement takes it from there.
-    ``ref_features`` / ``mov_features``: the frames' :func:`orb_features` when already known.
+    Parameters
+    ----------
+    ref, mov : ndarray of float32
+        One pyramid level of each frame.
+    n_features : int
+        ORB features when they are computed here.
+    min_inliers : int
+        Fewest consistent matches.
+    ref_features, mov_features : tuple, optional
+        The frames' :func:`orb_features` when already known.
+
+    Returns
+    -------
+    CoarseResult
+        Transform in that level's pixels (moving -> reference), a 4-dof similarity
+        (rotation, scale, translation).
+
+    Notes
+    -----
+    Used before the paper's translation-only fragment search, because camera yaw between
+    consecutive drone frames (tens of degrees) defeats a translation search on gradient
+    magnitude at a level coarse enough to be cheap. Accuracy only needs to be a few pixels:
+    the pyramid refinement takes it from there.
     """
     ka, da = ref_features if ref_features is not None else orb_features(ref, n_features)
     kb, db = mov_features if mov_features is not None else orb_features(mov, n_features)

@@ -21,7 +21,8 @@ def to_gray32(image: np.ndarray, name: str = "image") -> np.ndarray:
     ----------
     image : ndarray
         Mono HxW (passes through) or HxWx3 OpenCV BGR, reduced with the seed weights
-        ``gray = 0.2989 R + 0.587 G + 0.1141 B`` (METHODS A, :func:`subpix_ros.core.luminance.luminance`).
+        ``gray = 0.2989 R + 0.587 G + 0.1141 B`` (METHODS A,
+        :func:`subpix_ros.core.luminance.luminance`).
     name : str
         The frame's name, for error messages.
 

@@ -11,7 +11,20 @@ import numpy as np
 
 
 def apply_h(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Apply a 3x3 homography to (N, 2) points (x, y): ``p' = (H [x, y, 1]^T)`` dehomogenised."""
+    """Apply a 3x3 homography to points.
+
+    Parameters
+    ----------
+    h : ndarray, shape (3, 3)
+        The homography.
+    pts : ndarray, shape (N, 2)
+        Points (x, y).
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        ``p' = H [x, y, 1]^T`` dehomogenised (float64).
+    """
     p = np.asarray(pts, dtype=np.float64)
     x, y = p[:, 0], p[:, 1]
     w = h[2, 0] * x + h[2, 1] * y + h[2, 2]

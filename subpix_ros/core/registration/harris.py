@@ -22,12 +22,26 @@ REL_FLOOR = 1e-6
 
 
 def harris_response(gray: np.ndarray, window: int = 11, k: float = 0.04) -> np.ndarray:
-    """Harris corner response ``R = det(I) - k trace(I)^2`` (METHODS C, stage 2).
+    """Compute the Harris corner response ``R = det(I) - k trace(I)^2`` (METHODS C, stage 2).
 
-    ``I = G_w * [[Vx^2, Vx Vy], [Vx Vy, Vy^2]]`` where ``Vx, Vy`` are Sobel
-    derivatives of the 3x3-Gaussian-smoothed image and ``G_w`` a
-    ``window x window`` Gaussian. Input float32 HxW (any intensity scale),
-    output float32 HxW in (intensity/px)^4.
+    Parameters
+    ----------
+    gray : ndarray of float32, shape (H, W)
+        The frame (any intensity scale).
+    window : int
+        Side of the Gaussian window ``G_w`` (px).
+    k : float
+        Harris constant.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W)
+        The response, in (intensity/px)^4.
+
+    Notes
+    -----
+    ``I = G_w * [[Vx^2, Vx Vy], [Vx Vy, Vy^2]]`` where ``Vx, Vy`` are Sobel derivatives of the
+    3x3-Gaussian-smoothed image (Harris and Stephens, 1988).
     """
     g = cv2.GaussianBlur(gray, (3, 3), 0)
     vx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
@@ -55,13 +69,27 @@ def harris_peaks(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Find the local maxima of the Harris response over the whole frame.
 
-    Returns ``(xs, ys, R)`` (int, int, float32).
+    Parameters
+    ----------
+    gray : ndarray of float32
+        The frame.
+    window : int
+        Harris window (:func:`harris_response`).
+    nms_radius : int
+        Non-maximum suppression keeps pixels equal to the maximum of their
+        ``(2 nms_radius + 1)^2`` neighbourhood with a positive response.
 
-    Non-maximum suppression keeps pixels equal to the maximum of their
-    ``(2 nms_radius + 1)^2`` neighbourhood with a positive response
-    (METHODS C, stage 2). The result depends only on the frame, so a fixed
-    reference frame computes it once (:func:`select_spread` then picks per
-    overlap).
+    Returns
+    -------
+    xs, ys : ndarray of int
+        Positions, row by row.
+    response : ndarray of float32
+        The response there.
+
+    Notes
+    -----
+    The result depends only on the frame, so a fixed reference frame computes it once
+    (:func:`select_spread` then picks per overlap).
     """
     resp = harris_response(gray, window)
     k = 2 * nms_radius + 1
@@ -106,15 +134,32 @@ def select_spread(
     grid: tuple[int, int] = (12, 16),
     n_more: int = 0,
 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-    """Grid-quota selection of Harris maxima inside ``valid``; returns (N, 2) float64 (x, y).
+    """Select Harris maxima inside ``valid`` by a grid quota.
 
-    Maxima weaker than ``REL_FLOOR`` (1e-6) of the strongest one inside
-    ``valid`` are dropped (flat noise; the response scales as contrast^4).
-    The bounding box of ``valid`` is cut into ``grid`` (rows, cols) cells and
-    each cell keeps at most ``ceil(n_target / cells)`` of its strongest
-    maxima, so no single textured field takes all the points. With
-    ``n_more > 0`` also returns the next tier: the points a quota of
-    ``ceil((n_target + n_more) / cells)`` adds (candidates for weak texture).
+    Parameters
+    ----------
+    peaks : tuple of ndarray
+        ``(xs, ys, response)`` from :func:`harris_peaks`.
+    valid : ndarray of bool
+        Where points may lie.
+    n_target : int
+        Points wanted: each cell keeps at most ``ceil(n_target / cells)`` of its strongest
+        maxima, so no single textured field takes all the points.
+    grid : tuple of int
+        (rows, cols) cells over the bounding box of ``valid``.
+    n_more : int
+        With ``n_more > 0`` also return the next tier: the points a quota of
+        ``ceil((n_target + n_more) / cells)`` adds (candidates for weak texture).
+
+    Returns
+    -------
+    ndarray, shape (N, 2), or tuple of two
+        Points (x, y), float64; with ``n_more > 0`` the pair (points, next tier).
+
+    Notes
+    -----
+    Maxima weaker than ``REL_FLOOR`` (1e-6) of the strongest one inside ``valid`` are dropped
+    (flat noise; the response scales as contrast^4).
     """
     xs, ys, rank = _quota_rank(peaks, valid, grid)
     cells = grid[0] * grid[1]
@@ -134,10 +179,14 @@ def harris_points(
     window: int = 11,
     nms_radius: int = 4,
 ) -> np.ndarray:
-    """Harris maxima spread over ``valid`` by a grid quota; returns (N, 2) float64 (x, y).
+    """Detect Harris maxima spread over ``valid`` by a grid quota.
 
-    :func:`harris_peaks` (response, non-maximum suppression) followed by
-    :func:`select_spread` (relative floor, grid quota over ``valid``'s
-    bounding box).
+    :func:`harris_peaks` (response, non-maximum suppression) followed by :func:`select_spread`
+    (relative floor, grid quota over ``valid``'s bounding box); parameters as there.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        Points (x, y), float64.
     """
     return select_spread(harris_peaks(gray, window, nms_radius), valid, n_target, grid)

@@ -47,7 +47,7 @@ class _InputStage:
         self.scale = 2.0**seeds.level
         self.h = _scale_h(seeds.h, self.scale)
         # Above the detection size the texture per pixel is finer and blurrier: the template
-        # keeps its ground footprint of the detection level's double (level ncc_level, where NCC runs).
+        # keeps its ground footprint of the detection level's double (ncc_level, where NCC runs)
         self.half = int(round(tmpl * max(1.0, self.scale / 2)))
         self.ncc_level = max(0, seeds.level - 1)
         self.ncc_scale = 2.0**self.ncc_level

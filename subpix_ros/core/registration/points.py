@@ -48,11 +48,20 @@ def _keys(t: np.ndarray) -> np.ndarray:
 
 
 def sample_bicubic(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Keys bicubic interpolation of ``img`` at float coordinates (x=col, y=row), float64.
+    """Interpolate ``img`` bicubically (Keys, a = -0.5) at float coordinates; float64.
 
-    Exact positions (no fixed-point quantisation of the fraction, unlike
-    ``cv2.remap``). Coordinates are clamped to the image (callers only sample
-    inside it).
+    Parameters
+    ----------
+    img : ndarray, shape (H, W)
+        The image.
+    x, y : ndarray
+        Columns and rows (clamped to the image; callers only sample inside it).
+
+    Returns
+    -------
+    ndarray
+        Samples, shape of ``x``. Exact positions (no fixed-point quantisation of the fraction,
+        unlike ``cv2.remap``).
     """
     h, w = img.shape
     x = np.clip(x, 0, w - 1)
@@ -108,7 +117,7 @@ def _remap(img: np.ndarray, x: np.ndarray, y: np.ndarray, interp: int) -> np.nda
 
 
 def sample_linear_cv(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear sampling with ``cv2.remap`` (fast; fraction quantised to 1/32 px). float32."""
+    """Sample bilinearly with ``cv2.remap`` (fraction quantised to 1/32 px); float32."""
     return _remap(img, x, y, cv2.INTER_LINEAR)
 
 

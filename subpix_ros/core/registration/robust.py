@@ -126,14 +126,34 @@ def _refit_distortion(
 
 
 def calibrate_distortion(results: list[RegistrationResult], lam_range: float = 0.1) -> float:
-    """One division-model lambda for a camera, from the tie points of several registrations.
+    """Estimate one division-model lambda for a camera from several registrations.
 
-    Minimises the pooled sum of squared transfer residuals
-    ``sum_pairs sum_i |D(H_u,p(U(x_m,i))) - x_r,i|^2`` over ``lam`` in
-    ``[-lam_range, lam_range]`` (golden-section search; each pair's ``H_u``
-    refitted for each ``lam``). lambda is dimensionless (radius in
-    half-diagonals), so a value from half-resolution frames holds at full
-    resolution. Raises ``ValueError`` without at least one successful result.
+    Parameters
+    ----------
+    results : list of RegistrationResult
+        Registrations of frames of one camera (failed ones and those with fewer than 8 tie
+        points are ignored).
+    lam_range : float
+        Search interval ``[-lam_range, lam_range]``.
+
+    Returns
+    -------
+    float
+        Lambda (dimensionless, radius in half-diagonals), so a value from half-resolution
+        frames holds at full resolution.
+
+    Raises
+    ------
+    ValueError
+        Without at least one usable result.
+
+    Notes
+    -----
+    Minimises the pooled sum of squared transfer residuals (each clipped at 10 px)::
+
+        sum_pairs sum_i |D(H_u,p(U(x_m,i))) - x_r,i|^2
+
+    over ``lam`` by golden-section search, each pair's ``H_u`` refitted for each ``lam``.
     """
     use = [r for r in results if r.ok and len(r.points) >= 8]
     if not use:

@@ -38,7 +38,9 @@ docs/design-notes.md, "Shift estimation".
 
 References
 ----------
-.. [1] B. D. Lucas and T. Kanade, "An iterative image registration technique with an
+.. [1] S. A. Stankevich, S. V. Shklyar, A. R. Lysenko, "Software module for estimating the
+   sub-pixel shift of images acquired from a quadcopter", 2018 (METHODS.md A, the seed).
+.. [2] B. D. Lucas and T. Kanade, "An iterative image registration technique with an
    application to stereo vision", Proc. IJCAI, 674-679, 1981.
 """
 

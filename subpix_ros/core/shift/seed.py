@@ -9,6 +9,11 @@ against known shifts).
 
 ``method="seed-iterated"`` re-solves the seed's normal equations after warping the moving frame
 by the current estimate with OpenCV INTER_CUBIC, 3 solves (biased by the cubic warp).
+
+References
+----------
+.. [1] S. A. Stankevich, S. V. Shklyar, A. R. Lysenko, "Software module for estimating the
+   sub-pixel shift of images acquired from a quadcopter", 2018 (docs/METHODS.md A).
 """
 
 from __future__ import annotations

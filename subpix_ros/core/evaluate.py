@@ -16,7 +16,7 @@ from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct
 
 
 def truth_on_grid(truth0: np.ndarray, shift_lr: tuple[float, float], factor: int) -> np.ndarray:
-    """HR truth on the grid of a frame shifted by ``shift_lr`` (LR px) from frame 0.
+    """Return the HR truth on the grid of a frame shifted by ``shift_lr`` (LR px) from frame 0.
 
     ``T_k(X) = T_0(X - factor * s_k)`` (band-limited Fourier shift; the
     border of width ``factor * |s_k|`` wraps and must be excluded).
@@ -33,7 +33,7 @@ def truth_on_grid(truth0: np.ndarray, shift_lr: tuple[float, float], factor: int
 def gain_over_bicubic(
     sr: np.ndarray, reference_lr: np.ndarray, truth: np.ndarray, factor: int, border: int
 ) -> tuple[float, float]:
-    """(PSNR of ``sr``, PSNR of bicubic(``reference_lr``)) against ``truth`` (luminance, dB).
+    """Return (PSNR of ``sr``, PSNR of bicubic(``reference_lr``)) against ``truth`` (luminance, dB).
 
     Colour inputs (BGR) are compared on luminance; ``border`` HR pixels are
     cut from every side.
@@ -62,7 +62,7 @@ def wrapped_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
 def max_bin_bias(
     err: np.ndarray, truth: np.ndarray, nbins: int = 5, min_count: int = 5
 ) -> tuple[float, int]:
-    """Bias of a shift estimator across the sub-pixel phase.
+    """Measure the bias of a shift estimator across the sub-pixel phase.
 
     ``err`` and ``truth`` are (N, 2) arrays (px). The fractional part of the
     true shift is split into ``nbins`` bins per axis; returns the largest

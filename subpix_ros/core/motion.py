@@ -34,7 +34,7 @@ def _normalised(h: np.ndarray) -> np.ndarray:
 
 
 def frame_motion(h_prev: np.ndarray | None, h: np.ndarray) -> np.ndarray:
-    """``D = H_prev^-1 H`` (frame k -> frame k-1 pixels), normalised to ``D[2, 2] = 1``.
+    """Return ``D = H_prev^-1 H`` (frame k -> frame k-1 pixels), normalised to ``D[2, 2] = 1``.
 
     ``h_prev`` None means the previous frame is the reference itself
     (``H_prev = I``). Raises ``ValueError`` for a singular or non-finite input.
@@ -67,7 +67,7 @@ def scale_motion(motion: np.ndarray, ratio: float) -> np.ndarray:
 def predict_homography(
     h_last: np.ndarray | None, motion: np.ndarray, ratio: float = 1.0
 ) -> np.ndarray:
-    """Constant-velocity prediction ``H_{k+1} = H_k D_k^ratio`` (next frame -> reference pixels).
+    """Predict at constant velocity: ``H_{k+1} = H_k D_k^ratio`` (next frame -> reference pixels).
 
     ``h_last`` None means the last frame was the reference (``H_k = I``);
     ``ratio`` = (time from frame k to k+1) / (time over which ``motion`` was

@@ -183,7 +183,7 @@ def _fragment_search(
 
 
 def _similarity_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Least-squares similarity ``dst = s R src + t`` (Umeyama, no reflection); 3x3."""
+    """Fit the least-squares similarity ``dst = s R src + t`` (Umeyama, no reflection); 3x3."""
     ms, md = src.mean(axis=0), dst.mean(axis=0)
     a, b = src - ms, dst - md
     cov = b.T @ a / len(src)
@@ -203,7 +203,7 @@ def _similarity_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 def _consensus_similarity(
     src: np.ndarray, dst: np.ndarray, tol: float
 ) -> tuple[np.ndarray | None, np.ndarray]:
-    """Similarity supported by most fragment correspondences (exhaustive over pairs, vectorised).
+    """Find the similarity most fragment correspondences support (all pairs, vectorised).
 
     Each pair (i, j) defines ``z -> a z + b`` in complex notation
     (``a = (d_j - d_i) / (s_j - s_i)``); a fragment agrees when its transfer

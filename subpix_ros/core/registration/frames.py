@@ -90,26 +90,26 @@ class ReferenceFrame:
         return self.gray.shape
 
     def level(self, lev: int) -> np.ndarray:
-        """Pyramid level ``lev`` (extended on demand)."""
+        """Return pyramid level ``lev`` (extended on demand)."""
         while len(self.pyramid) <= lev:
             self.pyramid.append(cv2.pyrDown(self.pyramid[-1]))
         return self.pyramid[lev]
 
     def peaks(self, lev: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Harris maxima ``(xs, ys, R)`` of pyramid level ``lev`` (METHODS C, stage 2)."""
+        """Return the Harris maxima ``(xs, ys, R)`` of pyramid level ``lev`` (METHODS C 2)."""
         if lev not in self._peaks:
             self._peaks[lev] = harris_peaks(self.level(lev))
         return self._peaks[lev]
 
     def orb(self, lev: int) -> tuple:
-        """ORB keypoints and descriptors of pyramid level ``lev`` (coarse stage)."""
+        """Return the ORB keypoints and descriptors of pyramid level ``lev`` (coarse stage)."""
         if lev not in self._orb:
             self._orb[lev] = orb_features(self.level(lev))
         return self._orb[lev]
 
 
 def _levels(shape: tuple[int, int], coarse_size: int, detect_size: int) -> tuple[int, int, int]:
-    """(top, detection, middle) pyramid levels of :func:`register` for a reference of ``shape``."""
+    """Return :func:`.register`'s (top, detection, middle) levels for a reference of ``shape``."""
     n_lev = max(0, int(np.ceil(np.log2(max(shape) / coarse_size))))
     det_lev = min(n_lev, max(0, int(np.ceil(np.log2(max(shape) / detect_size)))))
     mid_lev = min(n_lev, max(0, int(np.ceil(np.log2(max(shape) / 480)))))

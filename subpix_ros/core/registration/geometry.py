@@ -67,14 +67,14 @@ def overlap_fraction(
 
 
 def _scale_h(h: np.ndarray, factor: float) -> np.ndarray:
-    """Homography between coordinates scaled by ``factor`` (x' = factor x)."""
+    """Return the homography between coordinates scaled by ``factor`` (x' = factor x)."""
     s = np.diag([factor, factor, 1.0])
     out = s @ h @ np.linalg.inv(s)
     return out / out[2, 2]
 
 
 def _inside(p: np.ndarray, shape: tuple[int, ...], margin: float) -> np.ndarray:
-    """Points (x, y) at least ``margin`` px inside a frame of ``shape`` (finite)."""
+    """Mark the points (x, y) at least ``margin`` px inside a frame of ``shape`` (finite)."""
     return (
         np.isfinite(p).all(axis=1)
         & (p[:, 0] >= margin)
@@ -99,7 +99,7 @@ def _valid_grid(shape_ref, shape_mov, h_mr, margin_mov: float, step: int) -> np.
 def _valid_ref_points(
     shape_ref, shape_mov, h_mr, margin_ref: int, margin_mov: float, step: int = 4
 ) -> np.ndarray:
-    """Bool mask (reference shape) of pixels whose prediction in the moving frame is inside it.
+    """Return the mask (reference shape) of pixels whose prediction lies inside the moving frame.
 
     ``margin_ref`` / ``margin_mov`` px are kept clear of either frame's border. The moving frame
     shrunk by ``margin_mov + 1`` maps to a convex quadrilateral under ``h_mr`` (a homography maps

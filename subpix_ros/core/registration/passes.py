@@ -60,7 +60,7 @@ class _InputStage:
         self.hu, self.lam = None, 0.0
 
     def residuals(self, p_m: np.ndarray, p_r: np.ndarray) -> np.ndarray:
-        """Transfer residuals of the current model (full once the radial term is fitted)."""
+        """Return the residuals of the current model (full once the radial term is fitted)."""
         return _model_residuals(self.h, self.hu, self.lam, self.norm, p_m, p_r)
 
     def seed_positions(self, seeds: _Seeds):
@@ -98,9 +98,10 @@ class _InputStage:
         )
 
     def robust_start(self, p_r, p_m) -> str | tuple:
-        """MAGSAC, then LM from the identity (METHODS C) guarded by the robust estimate.
+        """Reject outliers by MAGSAC, then fit by LM from the identity (METHODS C), guarded.
 
-        Returns the reason of a failure, or the inlier points ``(p_r, p_m)``.
+        The LM fit from MAGSAC's estimate replaces the one from the identity if it fits
+        better. Returns the reason of a failure, or the inlier points ``(p_r, p_m)``.
         """
         opts = self.ps.opts
         hn, inl = _robust(p_m, p_r, 2.0 * self.threshold_scale, opts.affine)

@@ -39,7 +39,7 @@ from .geometry import apply_h
 
 
 def _keys(t: np.ndarray) -> np.ndarray:
-    """Keys cubic convolution kernel (a = -0.5) at distances ``t``."""
+    """Evaluate the Keys cubic convolution kernel (a = -0.5) at distances ``t``."""
     t = np.abs(t)
     t2, t3 = t * t, t * t * t
     return np.where(

@@ -112,7 +112,7 @@ class RegistrationResult:
         return (self.transfer(c) - c)[0]
 
     def residual_components(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """Each inlier's transfer residual (px) along and across the baseline (:meth:`baseline_px`).
+        """Split each inlier's transfer residual (px) along and across :meth:`baseline_px`.
 
         Parallax of relief (a 3-D scene seen from two positions of a
         translating camera) lies along the baseline (the epipolar lines of a
@@ -147,7 +147,7 @@ class RegistrationResult:
             raise ValueError(f"registration failed: {self.reason}")
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON-friendly summary (homography as a nested 3x3 list, moving -> reference px)."""
+        """Return a JSON-friendly summary (homography as a nested 3x3 list, moving -> ref px)."""
         return {
             "ok": self.ok,
             "reason": self.reason,

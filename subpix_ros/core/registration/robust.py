@@ -19,7 +19,7 @@ from .result import RegistrationResult
 def _robust(
     pm: np.ndarray, pr: np.ndarray, thresh: float, affine: bool
 ) -> tuple[np.ndarray | None, np.ndarray]:
-    """USAC/MAGSAC outlier rejection; returns (H or None, inlier mask)."""
+    """Reject outliers by USAC/MAGSAC; return (H or None, inlier mask)."""
     n = len(pm)
     if n < (3 if affine else 4) + 2:
         return None, np.zeros(n, bool)
@@ -47,7 +47,7 @@ def _residuals(h: np.ndarray, pm: np.ndarray, pr: np.ndarray) -> np.ndarray:
 
 
 def _spread(pr: np.ndarray, h_mr: np.ndarray, shape_ref, shape_mov, cells: int = 6) -> float:
-    """Fraction of the overlap's grid cells holding at least one inlier.
+    """Return the fraction of the overlap's grid cells holding at least one inlier.
 
     The bounding box of the overlap (in the reference) is cut into
     ``cells x cells``; only cells whose centre lies in the overlap count.

@@ -24,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from subpix_ros.core.mosaic import Mosaic  # noqa: E402
-from subpix_ros.core.registration_points import apply_h  # noqa: E402
+from subpix_ros.core.registration import apply_h  # noqa: E402
 from subpix_ros.data import seneca_frame_paths  # noqa: E402
 from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 

@@ -33,8 +33,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from subpix_ros.core.registration import calibrate_distortion, prepare_reference, register  # noqa: E402
-from subpix_ros.core.registration_points import apply_h  # noqa: E402
+from subpix_ros.core.registration import (  # noqa: E402
+    apply_h,
+    calibrate_distortion,
+    prepare_reference,
+    register,
+)
 from subpix_ros.data import CROP_NAMES, load_crop, seneca_frame_paths  # noqa: E402
 from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 

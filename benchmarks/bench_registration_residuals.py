@@ -69,9 +69,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from subpix_ros.core.registration import register, to_gray32  # noqa: E402
-from subpix_ros.core.registration_fit import Normaliser, undistort_points  # noqa: E402
-from subpix_ros.core.registration_points import apply_h, sample_linear_cv  # noqa: E402
+from subpix_ros.core.registration import (  # noqa: E402
+    Normaliser,
+    apply_h,
+    register,
+    sample_linear_cv,
+    to_gray32,
+    undistort_points,
+)
 from subpix_ros.core.telemetry import enu_offset_m  # noqa: E402
 from subpix_ros.data import seneca_frame_paths  # noqa: E402
 

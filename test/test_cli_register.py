@@ -65,9 +65,10 @@ def _frames_1200(tmp_path, n=7):
 
 
 def test_mosaic_keeps_input_resolution_by_default(tmp_path, capsys):
-    """Seven 1200x900 frames: the offline mosaic is drawn at 1 canvas px per frame px.
+    """Seven 1200x900 frames.
 
-    (It was 0.43, 594x1128, with the live preview's 2048 px bound as the default.)
+    The offline mosaic is drawn at 1 canvas px per frame px (it was 0.43, 594x1128, with the live
+    preview's 2048 px bound as the default).
     """
     out = tmp_path / "m.png"
     assert main(["mosaic", *_frames_1200(tmp_path), "-o", str(out)]) == 0

@@ -16,7 +16,7 @@ from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct
 
 
 def truth_on_grid(truth0: np.ndarray, shift_lr: tuple[float, float], factor: int) -> np.ndarray:
-    """HR truth on the grid of a frame shifted by ``shift_lr`` (LR px) from frame 0.
+    """Return the HR truth on the grid of a frame shifted by ``shift_lr`` (LR px) from frame 0.
 
     ``T_k(X) = T_0(X - factor * s_k)`` (band-limited Fourier shift; the
     border of width ``factor * |s_k|`` wraps and must be excluded).
@@ -33,7 +33,7 @@ def truth_on_grid(truth0: np.ndarray, shift_lr: tuple[float, float], factor: int
 def gain_over_bicubic(
     sr: np.ndarray, reference_lr: np.ndarray, truth: np.ndarray, factor: int, border: int
 ) -> tuple[float, float]:
-    """(PSNR of ``sr``, PSNR of bicubic(``reference_lr``)) against ``truth`` (luminance, dB).
+    """Return (PSNR of ``sr``, PSNR of bicubic(``reference_lr``)) against ``truth`` (luminance, dB).
 
     Colour inputs (BGR) are compared on luminance; ``border`` HR pixels are
     cut from every side.
@@ -51,8 +51,10 @@ def gain_over_bicubic(
 
 
 def wrapped_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """``estimate - truth`` folded into [-0.5, 0.5): compares sub-pixel parts
-    when whole pixels were removed by alignment."""
+    """Return ``estimate - truth`` folded into [-0.5, 0.5).
+
+    Compares sub-pixel parts when whole pixels were removed by alignment.
+    """
     d = np.asarray(estimate, np.float64) - np.asarray(truth, np.float64)
     return (d + 0.5) % 1.0 - 0.5
 
@@ -60,7 +62,7 @@ def wrapped_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
 def max_bin_bias(
     err: np.ndarray, truth: np.ndarray, nbins: int = 5, min_count: int = 5
 ) -> tuple[float, int]:
-    """Bias of a shift estimator across the sub-pixel phase.
+    """Measure the bias of a shift estimator across the sub-pixel phase.
 
     ``err`` and ``truth`` are (N, 2) arrays (px). The fractional part of the
     true shift is split into ``nbins`` bins per axis; returns the largest
@@ -90,9 +92,12 @@ def mtf30_evaluation(
     snr_db: float = 40.0,
     seed: int = 1,
 ) -> dict[str, float]:
-    """The paper's resolution measurement (METHODS B): MTF30 of a slanted-edge target through the degradation.
+    """Measure MTF30 of a slanted-edge target through the degradation (METHODS B).
 
-    A slanted edge is put into the real ``crop`` (:func:`~subpix_ros.core.render.slanted_edge_scene`),
+    The paper's resolution measurement.
+
+    A slanted edge is put into the real ``crop``
+    (:func:`~subpix_ros.core.render.slanted_edge_scene`),
     ``factor^2`` frames on the k/factor grid are rendered (optics blur ``blur_sigma`` LR px, pixel
     integration, noise at ``snr_db``) and reconstructed. Returns MTF30 in cycles per *input* pixel
     for ``"input"`` (one frame), ``"ceiling"`` (the optics-blurred HR truth: no pixel aperture),

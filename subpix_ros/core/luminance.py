@@ -33,7 +33,7 @@ ORDERS = {
 
 
 def luminance(image: np.ndarray, order: str = "bgr", dtype: type = np.float64) -> np.ndarray:
-    """Seed luminance ``0.2989 R + 0.587 G + 0.1141 B`` as HxW ``dtype`` (float64 or float32).
+    """Return the seed luminance ``0.2989 R + 0.587 G + 0.1141 B`` as HxW float64 or float32.
 
     ``order`` names the channel layout of an HxWxC array: ``"bgr"`` (OpenCV,
     ROS ``bgr8``), ``"rgb"`` (ROS ``rgb8``), ``"bgra"``, ``"rgba"`` (alpha is

@@ -34,7 +34,7 @@ def _normalised(h: np.ndarray) -> np.ndarray:
 
 
 def frame_motion(h_prev: np.ndarray | None, h: np.ndarray) -> np.ndarray:
-    """``D = H_prev^-1 H`` (frame k -> frame k-1 pixels), normalised to ``D[2, 2] = 1``.
+    """Return ``D = H_prev^-1 H`` (frame k -> frame k-1 pixels), normalised to ``D[2, 2] = 1``.
 
     ``h_prev`` None means the previous frame is the reference itself
     (``H_prev = I``). Raises ``ValueError`` for a singular or non-finite input.
@@ -49,7 +49,9 @@ def frame_motion(h_prev: np.ndarray | None, h: np.ndarray) -> np.ndarray:
 
 
 def scale_motion(motion: np.ndarray, ratio: float) -> np.ndarray:
-    """The motion over ``ratio`` times the time it was measured over: ``D^ratio ~ I + ratio (D - I)``.
+    """Scale a motion to ``ratio`` times the time it was measured over: ``D^ratio``.
+
+    ``D^ratio ~ I + ratio (D - I)``.
 
     First order in ``D - I`` (exact for translations; consecutive frames
     differ by a small rotation/scale, so the neglected term is tiny next to
@@ -65,7 +67,7 @@ def scale_motion(motion: np.ndarray, ratio: float) -> np.ndarray:
 def predict_homography(
     h_last: np.ndarray | None, motion: np.ndarray, ratio: float = 1.0
 ) -> np.ndarray:
-    """Constant-velocity prediction ``H_{k+1} = H_k D_k^ratio`` (next frame -> reference pixels).
+    """Predict at constant velocity: ``H_{k+1} = H_k D_k^ratio`` (next frame -> reference pixels).
 
     ``h_last`` None means the last frame was the reference (``H_k = I``);
     ``ratio`` = (time from frame k to k+1) / (time over which ``motion`` was
@@ -97,20 +99,26 @@ class MotionTracker:
         self.last_t: float | None = None  # stamp of the last frame of the chain
 
     def restart(self, t: float) -> None:
+        """Restart the chain at stamp ``t`` (a new reference: the identity); keep the motion."""
         self.h_last, self.last_t = None, t
 
     def forget(self) -> None:
+        """Forget the motion (after a failed registration)."""
         self.motion = None
 
     def update(self, h: np.ndarray, t: float) -> None:
+        """Record the homography ``h`` of the frame at stamp ``t`` and the motion since the last."""
         h = _normalised(h)
         self.motion = frame_motion(self.h_last, h)
         self.motion_dt = t - self.last_t if self.last_t is not None else 0.0
         self.h_last, self.last_t = h, t
 
     def predict(self, t: float) -> np.ndarray | None:
-        """``H_k D^ratio`` with ``ratio`` = (t - last stamp) / the motion's interval; the last
-        homography (constant position) while no motion is known; None without a basis."""
+        """Predict the homography at stamp ``t``: ``H_k D^ratio``.
+
+        ``ratio`` = (t - last stamp) / the motion's interval; the last homography (constant
+        position) while no motion is known; None without a basis or beyond ``max_ratio``.
+        """
         if self.motion is None or self.last_t is None or self.motion_dt <= 0:
             return self.h_last
         ratio = (t - self.last_t) / self.motion_dt

@@ -16,8 +16,19 @@ __all__ = ["common_valid_box"]
 
 
 def common_valid_box(masks: Sequence[np.ndarray]) -> tuple[int, int, int, int] | None:
-    """``(r0, r1, c0, c1)`` (rows r0..r1-1, columns c0..c1-1) if the pixels valid in every mask
-    form exactly that rectangle, else None (also for no mask or no valid pixel)."""
+    """Return the rectangle the pixels valid in every mask form, if they form one.
+
+    Parameters
+    ----------
+    masks : sequence of ndarray of bool
+        Validity masks of equal shape.
+
+    Returns
+    -------
+    tuple of int or None
+        ``(r0, r1, c0, c1)`` (rows r0..r1-1, columns c0..c1-1), or None if the valid pixels are
+        not exactly a rectangle (also for no mask or no valid pixel).
+    """
     if len(masks) == 0:
         return None
     valid = np.logical_and.reduce([np.asarray(m, bool) for m in masks])

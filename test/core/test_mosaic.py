@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from subpix_ros.core.mosaic import FrameGeometry, Mosaic, PairModel
-from subpix_ros.core.registration_points import apply_h
+from subpix_ros.core.registration import apply_h
 from subpix_ros.data import seneca_frame_paths
 
 

@@ -1,5 +1,7 @@
-"""Co-registration (METHODS C stages 1-3) and align(): synthetic pairs with known geometry,
-real Seneca pairs, failure cases."""
+"""Co-registration (METHODS C stages 1-3) and align().
+
+Synthetic pairs with known geometry, real Seneca pairs, failure cases.
+"""
 
 from __future__ import annotations
 
@@ -7,8 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from subpix_ros.core.registration import align, register
-from subpix_ros.core.registration_points import apply_h
+from subpix_ros.core.registration import align, apply_h, register
 from subpix_ros.core.render import render_sequence
 from subpix_ros.data import seneca_frame_paths
 
@@ -16,7 +17,7 @@ CORNERS = np.array([[0, 0], [383, 0], [383, 383], [0, 383]], float)
 
 
 def _synthetic_pair(hr: np.ndarray, h384: np.ndarray, noise: float = 1.0, seed: int = 0):
-    """Reference and moving 384x384 frames with moving(x) = reference(H x), H = moving -> reference.
+    """Render 384x384 reference and moving frames, moving(x) = reference(H x) (H: moving -> ref).
 
     The 768x768 crop is warped with Lanczos-4 (inverse map), then both frames are
     box-integrated 2x (LR pixel i covers HR pixels 2i, 2i+1: x_hr = 2 x_lr + 0.5), so the
@@ -113,8 +114,11 @@ def test_real_seneca_pairs_all_register(seneca):
 
 
 def test_residual_along_cross_decomposes_the_inlier_residual():
-    """Known residuals about a known baseline: the frame moves (+30, +40) px (|t| = 50, direction
-    (0.6, 0.8)); each inlier is off by 0.5 px along it and +-0.2 px across."""
+    """Known residuals about a known baseline.
+
+    The frame moves (+30, +40) px (|t| = 50, direction (0.6, 0.8)); each inlier is off by 0.5 px
+    along it and +-0.2 px across.
+    """
     from subpix_ros.core.registration import RegistrationResult
 
     h = np.array([[1.0, 0, 30], [0, 1, 40], [0, 0, 1]])
@@ -143,10 +147,13 @@ def test_residual_along_cross_decomposes_the_inlier_residual():
 
 @pytest.mark.parametrize("i", [0, 4])
 def test_real_frame_with_the_real_pairs_geometry_registers_to_a_hundredth_of_a_pixel(seneca, i):
-    """Control for the real pairs' ~0.7 px residual: the reference frame warped by the pair's own
-    homography (same real texture, same geometry, no relief parallax or view change) registers with
-    a residual and a model error of ~0.01 px, so the real pairs' residual is the scene, not the method
-    (benchmarks/bench_registration_residuals.py prints both per pair)."""
+    """Control for the real pairs' ~0.7 px residual.
+
+    The reference frame warped by the pair's own homography (same real texture, same geometry, no
+    relief parallax or view change) registers with a residual and a model error of ~0.01 px, so the
+    real pairs' residual is the scene, not the method (benchmarks/bench_registration_residuals.py
+    prints both per pair).
+    """
     real = register(seneca[i], seneca[i + 1])
     assert real.ok, real.reason
     h, w = seneca[i].shape[:2]
@@ -165,9 +172,12 @@ def test_real_frame_with_the_real_pairs_geometry_registers_to_a_hundredth_of_a_p
 
 
 def test_low_overlap_pair_registers_through_the_last_resort(seneca):
-    """A 1920x1080 centre crop of Seneca pair 1 overlaps ~22 % on weak infrared texture: the ORB and
-    fragment coarse stages both fail (4 consistent matches, no confirmed fragment offset); the richer
-    ORB retry one level finer registers it, and the model agrees with the half-resolution pair's."""
+    """A 1920x1080 centre crop of Seneca pair 1 overlaps ~22 % on weak infrared texture.
+
+    The ORB and fragment coarse stages both fail (4 consistent matches, no confirmed fragment
+    offset); the richer ORB retry one level finer registers it, and the model agrees with the
+    half-resolution pair's.
+    """
     k = 1920 / 1800
 
     def crop(img):
@@ -189,9 +199,12 @@ def test_low_overlap_pair_registers_through_the_last_resort(seneca):
 
 
 def test_align_warp_map_equals_the_exact_model(seneca):
-    """align()'s warp map, the full model (homography and radial term) sampled every 8 px and
-    interpolated, is the exact per-pixel model to 0.005 px on a real pair with lens distortion."""
-    from subpix_ros.core.registration import _warp_maps
+    """align()'s interpolated warp map is the exact per-pixel model to 0.005 px.
+
+    The full model (homography and radial term) sampled every 8 px and interpolated, on a real
+    pair with lens distortion.
+    """
+    from subpix_ros.core.registration.align import _warp_maps
 
     res = register(seneca[4], seneca[5])
     assert res.ok and res.distortion != 0.0
@@ -232,8 +245,11 @@ def test_no_overlap_fails(crops):
 
 
 def test_repeated_texture_is_not_silently_wrong():
-    """A strictly periodic grating shifted by 1.3 periods is ambiguous: either a failure, or a
-    homography that maps the grating onto itself (any period multiple), never a made-up geometry."""
+    """A strictly periodic grating shifted by 1.3 periods is ambiguous.
+
+    Either a failure, or a homography that maps the grating onto itself (any period multiple), never
+    a made-up geometry.
+    """
     y, x = np.mgrid[0:384, 0:384].astype(np.float64)
     period = 12.0
 
@@ -276,9 +292,11 @@ def test_bad_input_raises():
 
 @pytest.mark.parametrize("shift", [(3.3, -5.6), (-2.7, 1.2), (0.45, 7.55)])
 def test_align_translation_prior_matches_known_subpixel_shift(crops, shift):
-    """Rendered pair with a known (u, v): align() crops by the integer part and its prior is the
-    sub-pixel remainder in the project convention (content at (r, c) in the reference is at
-    (r + u, c + v) in the moving frame)."""
+    """Rendered pair with a known (u, v).
+
+    align() crops by the integer part and its prior is the sub-pixel remainder in the project
+    convention (content at (r, c) in the reference is at (r + u, c + v) in the moving frame).
+    """
     seq = render_sequence(
         crops["crop_field_edge"], 2, [(0.0, 0.0), shift], blur_sigma=0.4, noise_sigma=0.5, seed=1
     )
@@ -322,9 +340,12 @@ def test_align_warps_rotation_but_keeps_subpixel_translation(crops):
 
 
 def _distort_frame(img: np.ndarray, lam: float) -> np.ndarray:
-    """The frame a lens with division-model ``lam`` records: distorted pixel x_d shows the
-    undistorted image at U(x_d) (registration_fit.undistort_points), bicubic."""
-    from subpix_ros.core.registration_fit import Normaliser, undistort_points
+    """Render the frame a lens with division-model ``lam`` records.
+
+    Distorted pixel x_d shows the undistorted image at U(x_d) (registration.undistort_points),
+    bicubic.
+    """
+    from subpix_ros.core.registration import Normaliser, undistort_points
 
     h, w = img.shape
     ys, xs = np.mgrid[0:h, 0:w]
@@ -341,10 +362,17 @@ def _distort_frame(img: np.ndarray, lam: float) -> np.ndarray:
 
 
 def test_radial_distortion_estimated_and_calibrated(crops):
-    """Frames of a distorting lens (lambda = -0.03, ~8 px at the corners): the per-pair estimate and the
-    pooled calibration recover lambda, and a fixed calibration registers the pair to the full model."""
-    from subpix_ros.core.registration import calibrate_distortion
-    from subpix_ros.core.registration_fit import Normaliser, distort_points, undistort_points
+    """Frames of a distorting lens (lambda = -0.03, ~8 px at the corners).
+
+    The per-pair estimate and the pooled calibration recover lambda, and a fixed calibration
+    registers the pair to the full model.
+    """
+    from subpix_ros.core.registration import (
+        Normaliser,
+        calibrate_distortion,
+        distort_points,
+        undistort_points,
+    )
 
     lam = -0.03
     norm = Normaliser.for_shape((384, 384))
@@ -410,8 +438,10 @@ def test_prepared_reference_gives_the_same_result(crops):
 
 @pytest.mark.parametrize("name", ["crop_field_edge", "crop_rows"])
 def test_tracked_equals_full_on_synthetic_pairs(crops, name):
-    """With a prior a couple of px off the truth, the tracking path (no coarse stage, no pyramid)
-    gives the full pipeline's homography within 0.02 px at the frame corners."""
+    """Tracking from a prior a couple of px off gives the full pipeline's homography.
+
+    The tracking path (no coarse stage, no pyramid) agrees within 0.02 px at the frame corners.
+    """
     from subpix_ros.core.registration import prepare_reference
 
     h_true = _known_h(-3.0, 6.7, 9.4)
@@ -445,11 +475,14 @@ def test_wrong_prior_falls_back_to_the_full_pipeline(crops):
 
 @pytest.mark.parametrize("i", [1, 2])
 def test_tracked_real_pairs_agree_with_full(seneca, i):
-    """Real half-resolution pairs, one prepared reference, a fixed camera lambda (as the registration
-    node runs): tracking from a prior 1.5 px off gives the full pipeline's model over the overlap.
-    The models leave 0.45-0.7 px RMS on these pairs (relief parallax), so two full runs with different
-    tie-point sets (n_points 500 vs 600) already differ by 0.02-0.05 px over the overlap; the tolerance
-    is a small multiple of that, not the synthetic 0.02 px at the corners."""
+    """Tracking on real pairs gives the full pipeline's model over the overlap.
+
+    Real half-resolution pairs, one prepared reference, a fixed camera lambda (as the
+    registration node runs), a prior 1.5 px off. The models leave 0.45-0.7 px RMS on these pairs
+    (relief parallax), so two full runs with different tie-point sets (n_points 500 vs 600)
+    already differ by 0.02-0.05 px over the overlap; the tolerance is a small multiple of that,
+    not the synthetic 0.02 px at the corners.
+    """
     from subpix_ros.core.registration import prepare_reference
 
     ref = prepare_reference(seneca[i])
@@ -477,7 +510,7 @@ def test_tracked_real_pairs_agree_with_full(seneca, i):
 
 def test_correlate_batch_equals_direct_sum():
     """The row-wise batched correlation in ncc_match is the plain sum over template pixels."""
-    from subpix_ros.core.registration_points import _correlate_batch
+    from subpix_ros.core.registration.points import _correlate_batch
 
     rng = np.random.default_rng(3)
     for n, pp, k in ((5, 15, 7), (3, 29, 9), (4, 5, 1)):
@@ -501,9 +534,11 @@ def test_correlate_batch_equals_direct_sum():
 
 
 def test_ncc_and_gauss_newton_with_more_rows_than_remap_allows(crops):
-    """1500 points with 29 px templates stack 55,500 window rows, beyond cv2.remap's 32,767-row limit:
-    matching and refinement still work and find the known translation."""
-    from subpix_ros.core.registration_points import ncc_match, refine_gauss_newton
+    """Matching and refinement work beyond cv2.remap's 32,767-row limit.
+
+    1500 points with 29 px templates stack 55,500 window rows; both find the known translation.
+    """
+    from subpix_ros.core.registration import ncc_match, refine_gauss_newton
 
     img = cv2.GaussianBlur(crops["crop_trees"].astype(np.float32), (0, 0), 1.0)
     ref = img[40:700, 40:700].copy()
@@ -524,7 +559,7 @@ def test_ncc_and_gauss_newton_with_more_rows_than_remap_allows(crops):
 
 def test_harris_response_is_the_plain_formula():
     """The buffer-reusing Harris response equals R = a c - b^2 - k (a + c)^2 written out."""
-    from subpix_ros.core.registration_points import harris_response
+    from subpix_ros.core.registration import harris_response
 
     img = cv2.GaussianBlur(
         np.random.default_rng(5).normal(100, 30, (120, 150)).astype(np.float32), (0, 0), 1.5
@@ -539,9 +574,12 @@ def test_harris_response_is_the_plain_formula():
 
 
 def test_overlap_mask_matches_the_pointwise_definition():
-    """The filled quadrilateral is the set of reference pixels whose prediction lies inside the moving
-    frame with the margin (checked pointwise, away from the polygon's 1 px boundary)."""
-    from subpix_ros.core.registration import _valid_ref_points
+    """The filled quadrilateral is the pointwise overlap mask.
+
+    The set of reference pixels whose prediction lies inside the moving frame with the margin
+    (checked pointwise, away from the polygon's 1 px boundary).
+    """
+    from subpix_ros.core.registration.geometry import _valid_ref_points
 
     h = _known_h(12.0, 40.0, -25.0, p=(3e-5, -2e-5))
     mask = _valid_ref_points((300, 400), (280, 360), h, 5, 10.0)
@@ -560,10 +598,13 @@ def test_overlap_mask_matches_the_pointwise_definition():
 
 
 def test_input_finer_than_twice_the_detection_level(seneca):
-    """Input 3.6x the detection size (the full-resolution case, here a half-resolution pair with
-    detect_size=500): NCC one level below the detection level, Gauss-Newton coarse to fine, and, short of
-    want_inliers, Harris candidates of that finer level. Without them this pair has fewer than 200
-    inliers; with them at least 200, and the model agrees with the default-level registration."""
+    """Input 3.6x the detection size searches Harris candidates of the finer level.
+
+    The full-resolution case, here a half-resolution pair with detect_size=500: NCC one level
+    below the detection level, Gauss-Newton coarse to fine, and, short of want_inliers, Harris
+    candidates of that finer level. Without them this pair has fewer than 200 inliers; with them
+    at least 200, and the model agrees with the default-level registration.
+    """
     base = register(seneca[2], seneca[3])
     few = register(seneca[2], seneca[3], detect_size=500, want_inliers=0)
     res = register(seneca[2], seneca[3], detect_size=500)

@@ -75,11 +75,13 @@ def set_big(crops):
 
 @pytest.fixture(scope="module")
 def set_noisy(crops):
-    """Noise sigma 10 DN on the full 768 px crops at factor 4 (176 px LR frames):
-    large enough that every scene is in the asymptotic (high-information) regime.
-    Fresh noise on BOTH frames of every pair (a reference shared by all pairs
-    would add its one noise draw to every error and hide the scatter); the
-    fourth element is the noise-free reference (for the Cramer-Rao bound)."""
+    """Noise sigma 10 DN on the full 768 px crops at factor 4 (176 px LR frames).
+
+    Large enough that every scene is in the asymptotic (high-information) regime. Fresh noise on
+    BOTH frames of every pair (a reference shared by all pairs would add its one noise draw to every
+    error and hide the scatter); the fourth element is the noise-free reference (for the Cramer-Rao
+    bound).
+    """
     rng = np.random.default_rng(400)
     pairs = []
 
@@ -103,9 +105,11 @@ def set_noisy(crops):
 
 
 def _crb(clean: np.ndarray, sigma: float) -> np.ndarray:
-    """diag(2 sigma^2 J^-1): J the gradient energy matrix of the noise-free frame
-    (spectral derivative of the reflect-padded frame, i.e. of its band-limited
-    interpolant), the factor 2 because both frames carry noise."""
+    """diag(2 sigma^2 J^-1).
+
+    J the gradient energy matrix of the noise-free frame (spectral derivative of the reflect-padded
+    frame, i.e. of its band-limited interpolant), the factor 2 because both frames carry noise.
+    """
     pad = 32
     p = np.pad(np.asarray(clean, np.float64), pad, mode="reflect")
     F = np.fft.fft2(p)
@@ -243,8 +247,11 @@ def test_prior_replaces_the_coarse_stage(set_big):
 
 
 def test_noisy_pairs_unbiased_with_calibrated_std(set_noisy):
-    """Noise sigma 10 DN: no bias, and the reported standard errors describe the
-    actual errors within 30 % (RMS over 80 independent pairs, both axes)."""
+    """Noise sigma 10 DN.
+
+    No bias, and the reported standard errors describe the actual errors within 30 % (RMS over 80
+    independent pairs, both axes).
+    """
     err, truth, res = _errors(set_noisy)
     se = err.std(axis=0) / math.sqrt(len(err))
     assert np.all(np.abs(err.mean(axis=0)) < 4 * se)
@@ -261,11 +268,13 @@ def test_noisy_pairs_unbiased_with_calibrated_std(set_noisy):
 
 
 def test_noisy_pairs_near_the_cramer_rao_bound(set_noisy):
-    """RMSE against 2 sigma^2 J^-1 (per pair, noise-free J). The noise-adaptive
-    prefilter (default) beats the fixed aliasing prefilter on the same pairs.
-    No estimator that does not know the scene reaches the bound itself at this
-    noise (the noise x noise term of two noisy frames; benchmarks/bench_shift.py
-    prints the attainable bound); measured here 1.54x (fixed 0.8 px: 1.59x)."""
+    """RMSE against 2 sigma^2 J^-1 (per pair, noise-free J).
+
+    The noise-adaptive prefilter (default) beats the fixed aliasing prefilter on the same pairs. No
+    estimator that does not know the scene reaches the bound itself at this noise (the noise x noise
+    term of two noisy frames; benchmarks/bench_shift.py prints the attainable bound); measured here
+    1.54x (fixed 0.8 px: 1.59x).
+    """
     crb = np.array([_crb(p[3], 10.0) for p in set_noisy])
     err, _, _ = _errors(set_noisy)
     err_fixed, _, _ = _errors(set_noisy, prefilter_sigma=0.8)
@@ -404,7 +413,7 @@ def test_inf_pixels_are_ignored_like_a_mask(set_b05):
         res = estimate_shift(rf, bad)
         assert res.ok and (res.u, res.v) == (ref.u, ref.v)
     # the check itself: huge finite values are valid (their sum does not overflow), one NaN is not
-    from subpix_ros.core.shift import _as_working
+    from subpix_ros.core.shift.inputs import _as_working
 
     big = np.full((64, 64), 3e38, np.float32)
     assert _as_working(big, "big")[1] is None
@@ -520,8 +529,10 @@ def test_fractional_shift_kernel_delays_a_smooth_signal():
 
 
 def test_rectangular_mask_is_a_crop(set_b05):
-    """A mask that is a rectangle (integer-crop alignment) gives exactly the estimate on the cropped frames,
-    as accurate as the unmasked one; odd crop sizes included."""
+    """A rectangular mask (integer-crop alignment) gives exactly the estimate on the crop.
+
+    As accurate as the unmasked one; odd crop sizes included.
+    """
     errs = []
     for ref, mov, true, _ in set_b05[:24]:
         mask = np.zeros(ref.shape, bool)
@@ -541,9 +552,12 @@ def test_rectangular_mask_is_a_crop(set_b05):
 
 
 def test_block_centres_known_layout():
-    """16x16 blocks of a 40x50 region at (10, 20), the last ones partial: centres at the middle of each
-    block as it is cut (rows 8, 24, 36; cols 8, 24, 40, 49 inside the region), rect by rect, row-major."""
-    from subpix_ros.core.shift import _Level
+    """16x16 blocks of a 40x50 region at (10, 20), the last ones partial.
+
+    Centres at the middle of each block as it is cut (rows 8, 24, 36; cols 8, 24, 40, 49 inside the
+    region), rect by rect, row-major.
+    """
+    from subpix_ros.core.shift.level import _Level
 
     rr, cc = _Level.block_centres([(10, 50, 20, 70), (100, 140, 0, 50)])
     rows, cols = np.array([18.0, 34.0, 46.0]), np.array([28.0, 44.0, 60.0, 69.0])

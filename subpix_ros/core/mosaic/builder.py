@@ -14,8 +14,12 @@ from subpix_ros.core.mosaic.geometry import (
     _border,
     _local_scale,
 )
-from subpix_ros.core.registration import RegistrationResult, prepare_reference, register
-from subpix_ros.core.registration_points import apply_h
+from subpix_ros.core.registration import (
+    RegistrationResult,
+    apply_h,
+    prepare_reference,
+    register,
+)
 
 __all__ = ["Mosaic", "MosaicUpdate"]
 

@@ -6,9 +6,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from subpix_ros.core.registration import RegistrationResult
-from subpix_ros.core.registration_fit import Normaliser, distort_points, undistort_points
-from subpix_ros.core.registration_points import apply_h
+from subpix_ros.core.registration import (
+    Normaliser,
+    RegistrationResult,
+    apply_h,
+    distort_points,
+    undistort_points,
+)
 
 __all__ = ["PairModel", "FrameGeometry"]
 

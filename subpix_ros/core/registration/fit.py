@@ -31,7 +31,7 @@ from typing import Callable
 
 import numpy as np
 
-from .registration_points import apply_h
+from .geometry import apply_h
 
 __all__ = [
     "Normaliser",
@@ -54,22 +54,25 @@ class Normaliser:
 
     @classmethod
     def for_shape(cls, shape: tuple[int, ...]) -> "Normaliser":
+        """Return the normaliser of a frame of ``shape``: centre and half-diagonal."""
         h, w = shape[:2]
         return cls((w - 1) / 2.0, (h - 1) / 2.0, 0.5 * float(np.hypot(w, h)))
 
     @property
     def t(self) -> np.ndarray:
+        """The 3x3 matrix ``T`` taking pixel to normalised coordinates."""
         return np.array(
             [[1 / self.s, 0, -self.cx / self.s], [0, 1 / self.s, -self.cy / self.s], [0, 0, 1.0]]
         )
 
     def to_pixel_h(self, hn: np.ndarray) -> np.ndarray:
-        """``H_px = T^-1 H_n T`` (normalised-coordinate homography to pixel coordinates)."""
+        """Return ``H_px = T^-1 H_n T`` (normalised-coordinate homography to pixel coordinates)."""
         t = self.t
         h = np.linalg.inv(t) @ hn @ t
         return h / h[2, 2]
 
     def to_norm_h(self, h: np.ndarray) -> np.ndarray:
+        """Return ``H_n = T H_px T^-1`` (pixel homography to normalised coordinates)."""
         t = self.t
         hn = t @ h @ np.linalg.inv(t)
         return hn / hn[2, 2]
@@ -82,11 +85,35 @@ def levenberg_marquardt(
     tol: float = 1e-12,
     jac: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Minimise ``|fun(p)|^2`` by Levenberg-Marquardt (``jac(p)`` if given, else forward differences).
+    """Minimise ``|fun(p)|^2`` by Levenberg-Marquardt.
 
-    Damped normal equations ``(J^T J + mu diag(J^T J)) dp = -J^T r``; ``mu``
-    is divided by 3 after an accepted step and multiplied by 4 after a rejected
-    one. Stops when the relative cost decrease falls below ``tol``.
+    Parameters
+    ----------
+    fun : callable
+        Residual vector of the parameters.
+    p0 : ndarray
+        Start.
+    iterations : int
+        Most Jacobian evaluations.
+    tol : float
+        Stop when the relative cost decrease falls below this.
+    jac : callable, optional
+        Jacobian of ``fun``; forward differences without it.
+
+    Returns
+    -------
+    ndarray
+        The parameters.
+
+    Notes
+    -----
+    Damped normal equations ``(J^T J + mu diag(J^T J)) dp = -J^T r``; ``mu`` is divided by 3
+    after an accepted step and multiplied by 4 after a rejected one [1]_.
+
+    References
+    ----------
+    .. [1] D. W. Marquardt, "An algorithm for least-squares estimation of nonlinear
+       parameters", J. SIAM 11(2), 431-441, 1963. https://doi.org/10.1137/0111030
     """
     p = np.asarray(p0, dtype=np.float64).copy()
     r = fun(p)
@@ -142,7 +169,9 @@ def _params_from_h(h: np.ndarray, affine: bool) -> np.ndarray:
 
 
 def _jacobian_eq_p(q: np.ndarray, m: np.ndarray, affine: bool) -> np.ndarray:
-    """Analytic Jacobian of the eq. P residuals (rows ``u0, v0, u1, v1, ...``) w.r.t. the parameters.
+    """Return the analytic Jacobian of the eq. P residuals with respect to the parameters.
+
+    Rows ``u0, v0, u1, v1, ...``.
 
     With ``w = c0 x + c1 y + 1``: ``du/da_i = (x, y, 1) / w``, ``dv/dd_i = (x, y, 1) / w``,
     ``du/dc = -u (x, y) / w``, ``dv/dc = -v (x, y) / w``.
@@ -169,10 +198,27 @@ def fit_homography_lm(
     affine: bool = False,
     h0: np.ndarray | None = None,
 ) -> np.ndarray:
-    """LM fit of eq. P (or its affine case) to tie points; returns the pixel 3x3 H (moving -> reference).
+    """Fit eq. P (or its affine case) to tie points by Levenberg-Marquardt.
 
-    Starts from the identity (METHODS C) unless ``h0`` (pixel H) is given.
-    Residual: ``H(x_m) - x_r`` in normalised units (= px / s).
+    Parameters
+    ----------
+    pts_mov, pts_ref : ndarray, shape (N, 2)
+        Tie points (x, y) in the moving and reference frames (px).
+    norm : Normaliser
+        Coordinate normalisation.
+    affine : bool
+        Fix ``c0 = c1 = 0``.
+    h0 : ndarray, shape (3, 3), optional
+        Start (pixel H); the identity (METHODS C) without it.
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        Pixel homography, moving -> reference.
+
+    Notes
+    -----
+    Residual ``H(x_m) - x_r`` in normalised units (px / s).
     """
     t = norm.t
     m = apply_h(t, pts_mov)
@@ -190,7 +236,22 @@ def fit_homography_lm(
 
 
 def undistort_points(pts: np.ndarray, lam: float, norm: Normaliser) -> np.ndarray:
-    """Division model ``x_u = c + (x_d - c) / (1 + lam r_d^2)`` (px in, px out)."""
+    """Undistort points with the division model ``x_u = c + (x_d - c) / (1 + lam r_d^2)``.
+
+    Parameters
+    ----------
+    pts : ndarray, shape (N, 2)
+        Distorted points (px).
+    lam : float
+        Division-model lambda.
+    norm : Normaliser
+        Centre ``c`` and scale (``r_d`` in half-diagonals).
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        Undistorted points (px).
+    """
     c = np.array([norm.cx, norm.cy])
     d = (pts - c) / norm.s
     r2 = (d * d).sum(axis=1, keepdims=True)
@@ -198,10 +259,25 @@ def undistort_points(pts: np.ndarray, lam: float, norm: Normaliser) -> np.ndarra
 
 
 def distort_points(pts: np.ndarray, lam: float, norm: Normaliser) -> np.ndarray:
-    """Inverse of :func:`undistort_points` (closed form of the division model).
+    """Distort points: the inverse of :func:`undistort_points` in closed form.
 
+    Parameters
+    ----------
+    pts : ndarray, shape (N, 2)
+        Undistorted points (px).
+    lam : float
+        Division-model lambda.
+    norm : Normaliser
+        Centre and scale.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        Distorted points (px); inf beyond the model's validity (negative discriminant).
+
+    Notes
+    -----
     With ``r_u = r_d / (1 + lam r_d^2)``: ``r_d = (1 - sqrt(1 - 4 lam r_u^2)) / (2 lam r_u)``.
-    Points beyond the model's validity (negative discriminant) become inf.
     """
     c = np.array([norm.cx, norm.cy])
     u = (pts - c) / norm.s
@@ -225,19 +301,35 @@ def distort_points(pts: np.ndarray, lam: float, norm: Normaliser) -> np.ndarray:
 def fit_homography_distortion_lm(
     pts_mov: np.ndarray, pts_ref: np.ndarray, norm: Normaliser, h0: np.ndarray, affine: bool = False
 ) -> tuple[np.ndarray, float]:
-    """Joint LM fit of ``H_u`` (eq. P on undistorted points) and the division-model ``lam``.
+    """Fit ``H_u`` (eq. P on undistorted points) and the division-model ``lam`` jointly.
 
-    Residual, in normalised units, measured in the undistorted reference frame
-    and scaled back to distorted units to first order:
+    Parameters
+    ----------
+    pts_mov, pts_ref : ndarray, shape (N, 2)
+        Tie points (px).
+    norm : Normaliser
+        Coordinate normalisation (centre of distortion, half-diagonal).
+    h0 : ndarray, shape (3, 3)
+        Start (pixel H), with ``lam = 0``.
+    affine : bool
+        Fix ``c0 = c1 = 0``.
+
+    Returns
+    -------
+    h_u : ndarray, shape (3, 3)
+        Maps UNDISTORTED moving pixel coordinates to UNDISTORTED reference pixel coordinates.
+    lam : float
+
+    Notes
+    -----
+    Residual, in normalised units, measured in the undistorted reference frame and scaled back
+    to distorted units to first order::
 
         e_i = (1 + lam r_i^2) (H_u(U(x_m,i)) - U(x_r,i)),   r_i = |x_r,i - c| / s
 
-    (``D`` divides radii by ``1 / (1 + lam r_d^2)`` near ``U(x_r)``, so ``e_i``
-    equals ``D(H_u(U(x_m))) - x_r`` up to O(lam e); the factor keeps lambda
-    from shrinking all residuals by shrinking the coordinates). The Jacobian
-    is analytic, starting point ``(h0, lam = 0)``. Returns ``(H_u pixel 3x3,
-    lam)``; ``H_u`` maps UNDISTORTED moving pixel coordinates to UNDISTORTED
-    reference pixel coordinates.
+    (``D`` divides radii by ``1 / (1 + lam r_d^2)`` near ``U(x_r)``, so ``e_i`` equals
+    ``D(H_u(U(x_m))) - x_r`` up to O(lam e); the factor keeps lambda from shrinking all
+    residuals by shrinking the coordinates). The Jacobian is analytic.
     """
     t = norm.t
     m = apply_h(t, pts_mov)  # normalised coordinates: centre 0, half-diagonal 1
@@ -263,7 +355,8 @@ def fit_homography_distortion_lm(
         lam, um, ur, hq, y, wgt = parts(q)
         n = len(m)
         jh = _jacobian_eq_p(q[:-1], um, affine).reshape(n, 2, -1) * wgt[:, None, None]
-        # d/dlam: w (dH/du dU(m)/dlam - dU(r)/dlam) + r^2 (H(U(m)) - U(r)), dU(p)/dlam = -p rp^2 / (1 + lam rp^2)^2
+        # d/dlam: w (dH/du dU(m)/dlam - dU(r)/dlam) + r^2 (H(U(m)) - U(r)),
+        # with dU(p)/dlam = -p rp^2 / (1 + lam rp^2)^2
         w = hq[2, 0] * um[:, 0] + hq[2, 1] * um[:, 1] + 1.0
         a = np.empty((n, 2, 2))
         a[:, 0, 0] = (hq[0, 0] - y[:, 0] * hq[2, 0]) / w
@@ -284,13 +377,30 @@ def fit_homography_distortion_lm(
 def check_homography(
     h: np.ndarray, shape_mov: tuple[int, ...], max_scale: float = 3.0, max_aniso: float = 2.0
 ) -> str:
-    """Sanity check of a moving->reference homography; returns '' if sane, else the reason.
+    """Check a moving -> reference homography for sanity.
 
-    Checks: finite; the moving frame's corners map to a convex, same-orientation
-    quadrilateral (no fold, the perspective horizon stays outside the frame);
-    the local linear part at every corner has ``|det|`` in
-    ``[1/max_scale^2, max_scale^2]`` and singular-value ratio (shear /
-    anisotropy) at most ``max_aniso``.
+    Parameters
+    ----------
+    h : ndarray, shape (3, 3)
+        The homography.
+    shape_mov : tuple of int
+        Moving frame shape.
+    max_scale : float
+        Largest local scale (and its inverse the smallest).
+    max_aniso : float
+        Largest singular-value ratio (shear / anisotropy) of the local linear part.
+
+    Returns
+    -------
+    str
+        '' if sane, else the reason.
+
+    Notes
+    -----
+    Checks: finite; the moving frame's corners map to a convex, same-orientation quadrilateral
+    (no fold, the perspective horizon stays outside the frame); the local linear part at every
+    corner has ``|det|`` in ``[1/max_scale^2, max_scale^2]`` and singular-value ratio at most
+    ``max_aniso``.
     """
     if h is None or not np.isfinite(h).all():
         return "homography is not finite"
@@ -322,7 +432,10 @@ def check_homography(
         sv = np.linalg.svd(j, compute_uv=False)
         det = sv[0] * sv[1]
         if not (1 / max_scale**2 <= det <= max_scale**2):
-            return f"degenerate fit: local scale {np.sqrt(det):.2f} outside [1/{max_scale}, {max_scale}]"
+            return (
+                f"degenerate fit: local scale {np.sqrt(det):.2f} "
+                f"outside [1/{max_scale}, {max_scale}]"
+            )
         if sv[0] > max_aniso * sv[1]:
             return f"degenerate fit: shear/anisotropy {sv[0] / sv[1]:.2f} > {max_aniso}"
     return ""

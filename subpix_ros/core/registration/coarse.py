@@ -40,7 +40,7 @@ __all__ = [
 
 
 def gradient_magnitude(gray: np.ndarray) -> np.ndarray:
-    """Sobel gradient magnitude ``sqrt(Gx^2 + Gy^2)`` (intensity/px), float32."""
+    """Compute the Sobel gradient magnitude ``sqrt(Gx^2 + Gy^2)`` (intensity/px), float32."""
     gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
     return cv2.magnitude(gx, gy)
@@ -61,13 +61,29 @@ def _orientation_hist(gray: np.ndarray, bins: int) -> np.ndarray:
 def orientation_hypotheses(
     ref: np.ndarray, mov: np.ndarray, n: int = 4, bins: int = 180
 ) -> list[float]:
-    """Candidate rotation angles (radians) from moving to reference.
+    """Return candidate rotation angles (radians) from moving to reference.
 
-    ``c(k) = sum_i h_m(i) h_r(i + k)`` (circular cross-correlation of the
-    magnitude-weighted gradient-orientation histograms, via FFT); the ``n``
-    strongest peaks at least 20 degrees apart. Rotation sign: the angle
-    ``theta`` such that ``R(theta) = [[cos, -sin], [sin, cos]]`` (image
-    coordinates, y down) turns moving directions into reference directions.
+    Parameters
+    ----------
+    ref, mov : ndarray of float32
+        The two frames at a coarse level.
+    n : int
+        Most hypotheses.
+    bins : int
+        Orientation histogram bins.
+
+    Returns
+    -------
+    list of float
+        The ``n`` strongest peaks of the histograms' cross-correlation, at least 20 degrees
+        apart.
+
+    Notes
+    -----
+    ``c(k) = sum_i h_m(i) h_r(i + k)`` (circular cross-correlation of the magnitude-weighted
+    gradient-orientation histograms, via FFT). Rotation sign: the angle ``theta`` such that
+    ``R(theta) = [[cos, -sin], [sin, cos]]`` (image coordinates, y down) turns moving
+    directions into reference directions.
     """
     hr = _orientation_hist(ref, bins)
     hm = _orientation_hist(mov, bins)
@@ -87,6 +103,12 @@ def orientation_hypotheses(
 
 @dataclass
 class CoarseResult:
+    """Outcome of a coarse search: ``transform`` (3x3, coarse-level moving -> reference) or why not.
+
+    ``n_consistent``: fragments or features that agree; ``mad``: their mean absolute gradient
+    difference (fragments; 0 for ORB).
+    """
+
     ok: bool
     reason: str
     transform: np.ndarray | None  # 3x3 coarse-level moving -> reference
@@ -126,7 +148,11 @@ def _mad_refine(big: np.ndarray, frag: np.ndarray, x: int, y: int) -> tuple[int,
 def _fragment_search(
     gref: np.ndarray, gcan: np.ndarray, vcan: np.ndarray, frag: int, min_energy: float
 ):
-    """Forward/backward fragment search; returns (src centres, dst centres, mads) of consistent fragments."""
+    """Search fragments forward and backward.
+
+    Returns the centres (moving canvas, reference) and the mean absolute differences of the
+    fragments the reverse search confirms.
+    """
     hc, wc = gcan.shape
     stride = max(int(frag * 0.75), 1)
     src, dst, mads = [], [], []
@@ -157,7 +183,7 @@ def _fragment_search(
 
 
 def _similarity_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Least-squares similarity ``dst = s R src + t`` (Umeyama, no reflection); 3x3."""
+    """Fit the least-squares similarity ``dst = s R src + t`` (Umeyama, no reflection); 3x3."""
     ms, md = src.mean(axis=0), dst.mean(axis=0)
     a, b = src - ms, dst - md
     cov = b.T @ a / len(src)
@@ -177,7 +203,7 @@ def _similarity_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 def _consensus_similarity(
     src: np.ndarray, dst: np.ndarray, tol: float
 ) -> tuple[np.ndarray | None, np.ndarray]:
-    """Similarity supported by most fragment correspondences (exhaustive over pairs, vectorised).
+    """Find the similarity most fragment correspondences support (all pairs, vectorised).
 
     Each pair (i, j) defines ``z -> a z + b`` in complex notation
     (``a = (d_j - d_i) / (s_j - s_i)``); a fragment agrees when its transfer
@@ -211,14 +237,28 @@ def coarse_overlap(
     frag_frac: float = 0.3,
     min_consistent: int = 3,
 ) -> CoarseResult:
-    """Fragment search (METHODS C, stage 1) over rotation hypotheses ``angles``.
+    """Search fragments (METHODS C, stage 1) over rotation hypotheses ``angles``.
 
-    ``gref``, ``gmov``: coarse-level gradient magnitudes (float32). Fragment
-    side ``frag_frac * min(h, w)`` (the paper: half the expected overlap).
-    Fragments that pass the reverse check vote for a similarity (consensus
-    over all pairs of fragments, :func:`_consensus_similarity`); the
-    hypothesis with most agreeing fragments (ties: lower MAD) wins, and at
-    least ``min_consistent`` must agree.
+    Parameters
+    ----------
+    gref, gmov : ndarray of float32
+        Coarse-level gradient magnitudes.
+    angles : list of float
+        Rotation hypotheses (radians).
+    frag_frac : float
+        Fragment side as a fraction of ``min(h, w)`` (the paper: half the expected overlap).
+    min_consistent : int
+        Fewest agreeing fragments.
+
+    Returns
+    -------
+    CoarseResult
+
+    Notes
+    -----
+    Fragments that pass the reverse check vote for a similarity (consensus over all pairs of
+    fragments, :func:`_consensus_similarity`); the hypothesis with most agreeing fragments
+    (ties: lower MAD) wins.
     """
     h, w = gmov.shape
     frag = max(8, int(round(frag_frac * min(h, w))))
@@ -261,15 +301,29 @@ def _orb_u8(img: np.ndarray) -> np.ndarray:
 def orb_features(
     img: np.ndarray, n_features: int = 1500, fast_threshold: int = 20
 ) -> tuple[tuple, np.ndarray | None]:
-    """ORB keypoints and descriptors of one pyramid level (CLAHE-equalised 8-bit copy), for :func:`coarse_orb`.
+    """Detect ORB keypoints and descriptors of one pyramid level, for :func:`coarse_orb`.
 
+    Parameters
+    ----------
+    img : ndarray
+        One pyramid level (float32); a CLAHE-equalised 8-bit copy is used.
+    n_features : int
+        Most keypoints.
+    fast_threshold : int
+        FAST threshold (of 255, on the equalised copy).
+
+    Returns
+    -------
+    keypoints : tuple of cv2.KeyPoint
+    descriptors : ndarray or None
+
+    Notes
+    -----
     Depends only on the frame, so a fixed reference frame computes it once. Four ORB scales
-    (1.2^3 = 1.7x) cover the scale change between overlapping frames of one flight; a FAST
-    threshold of 20 (of 255, on the equalised copy) drops the weak corners, which never gave
-    consistent matches (measured on the Seneca strip, half and full resolution: as many consistent
-    matches as 6 scales / threshold 3, with ~1000 instead of 1500 features on the lawn frames, so
-    detection takes 40% and the quadratic matching about half the time). :func:`register`'s last
-    resort for low overlap asks for more and weaker corners (``n_features``, ``fast_threshold``).
+    (1.2^3 = 1.7x) cover the scale change between overlapping frames of one flight; the FAST
+    threshold of 20 drops the weak corners, which never gave consistent matches (design
+    notes, "Registration"). :func:`.register`'s last resort for low overlap asks for more and
+    weaker corners.
     """
     orb = cv2.ORB_create(
         nfeatures=n_features,
@@ -290,16 +344,31 @@ def coarse_orb(
     ref_features: tuple[tuple, np.ndarray | None] | None = None,
     mov_features: tuple[tuple, np.ndarray | None] | None = None,
 ) -> CoarseResult:
-    """Rotation-invariant coarse alignment: ORB features + USAC/MAGSAC similarity, at a low pyramid level.
+    """Align coarsely, rotation-invariant: ORB features + RANSAC similarity on a low level.
 
-    Used instead of (before) the paper's translation-only fragment search,
-    because camera yaw between consecutive drone frames (up to 32 degrees on
-    the Seneca strip) defeats a translation search on gradient magnitude at
-    a level coarse enough to be cheap. Inputs: float32 images of one pyramid
-    level; output transform in that level's pixels (moving -> reference), a
-    4-dof similarity (rotation, scale, translation). Accuracy only needs to
-    be a few pixels: the pyramid refinement takes it from there.
-    ``ref_features`` / ``mov_features``: the frames' :func:`orb_features` when already known.
+    Parameters
+    ----------
+    ref, mov : ndarray of float32
+        One pyramid level of each frame.
+    n_features : int
+        ORB features when they are computed here.
+    min_inliers : int
+        Fewest consistent matches.
+    ref_features, mov_features : tuple, optional
+        The frames' :func:`orb_features` when already known.
+
+    Returns
+    -------
+    CoarseResult
+        Transform in that level's pixels (moving -> reference), a 4-dof similarity
+        (rotation, scale, translation).
+
+    Notes
+    -----
+    Used before the paper's translation-only fragment search, because camera yaw between
+    consecutive drone frames (tens of degrees) defeats a translation search on gradient
+    magnitude at a level coarse enough to be cheap. Accuracy only needs to be a few pixels:
+    the pyramid refinement takes it from there.
     """
     ka, da = ref_features if ref_features is not None else orb_features(ref, n_features)
     kb, db = mov_features if mov_features is not None else orb_features(mov, n_features)
@@ -307,7 +376,7 @@ def coarse_orb(
         return CoarseResult(False, "no texture: too few coarse features", None, 0, np.inf)
     if len(ka) < 2:
         return CoarseResult(False, "no texture: too few coarse features", None, 0, np.inf)
-    # Two nearest reference descriptors (Hamming) of every moving descriptor, Lowe's ratio test 0.85.
+    # the two nearest reference descriptors (Hamming) of every moving one; Lowe's ratio test
     dist, idx = cv2.batchDistance(db, da, -1, normType=cv2.NORM_HAMMING, K=2)[:2]
     good = dist[:, 0] < 0.85 * dist[:, 1]
     if int(good.sum()) < min_inliers:

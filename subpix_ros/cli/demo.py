@@ -68,7 +68,7 @@ class _Collector:
         from sensor_msgs.msg import CompressedImage, Image
         from std_msgs.msg import Float64
 
-        from subpix_ros.nodes.common import latched_qos, reliable_qos
+        from subpix_ros.nodes.qos import latched_qos, reliable_qos
 
         self.lock = threading.Lock()
         self.sr: list = []
@@ -427,7 +427,7 @@ def run(args: argparse.Namespace) -> int:
 def _flight_report(root: Path, bags: Path, out: Path) -> Path:
     """``subpix process`` of both sample flights into ``out``; prints and returns the subpixel report's path."""
     from subpix_ros.process.batch import run_batch
-    from subpix_ros.process.flight import load_params
+    from subpix_ros.process.params import load_params
 
     params = load_params(root / "config" / "demo.yaml")
     results = run_batch([bags / "subpixel", bags / "seneca"], out, params, force=True)

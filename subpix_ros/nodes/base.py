@@ -18,13 +18,10 @@ from typing import Any, Callable, Sequence
 
 from rclpy.node import Node
 
-from subpix_ros.nodes.common import (
-    Diagnostics,
-    DropOldestWorker,
-    Param,
-    declare_params,
-    qos_event_callbacks,
-)
+from subpix_ros.nodes.diagnostics import Diagnostics
+from subpix_ros.nodes.params import Param, declare_params
+from subpix_ros.nodes.qos import qos_event_callbacks
+from subpix_ros.nodes.worker import DropOldestWorker
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
 

@@ -17,7 +17,9 @@ from sensor_msgs.msg import CompressedImage, Image
 from subpix_ros.io import cdr
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode, ros_params
-from subpix_ros.nodes.common import Param, camera_qos, latched_qos, run_nodes
+from subpix_ros.nodes.params import Param
+from subpix_ros.nodes.qos import camera_qos, latched_qos
+from subpix_ros.nodes.run import run_nodes
 from subpix_ros.stages import MosaicStage
 
 

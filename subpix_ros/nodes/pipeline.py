@@ -21,7 +21,7 @@ from __future__ import annotations
 import sys
 from typing import Sequence
 
-from subpix_ros.nodes.common import run_nodes
+from subpix_ros.nodes.run import run_nodes
 
 
 def build(with_telemetry: bool = True, with_monitor: bool = False):

@@ -30,7 +30,9 @@ from sensor_msgs.msg import Image
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.aligned_input import AlignedInput
 from subpix_ros.nodes.base import StageNode, ros_params
-from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes
+from subpix_ros.nodes.params import Param
+from subpix_ros.nodes.qos import latched_qos, reliable_qos
+from subpix_ros.nodes.run import run_nodes
 from subpix_ros.stages import ReconstructionStage
 from subpix_ros.stages.reconstruction import FrameSet
 

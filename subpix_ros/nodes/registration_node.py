@@ -36,14 +36,9 @@ from subpix_ros.core.telemetry import TelemetrySample
 from subpix_ros.io.telemetry_msgs import TelemetryFromTopics
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode, ros_params
-from subpix_ros.nodes.common import (
-    Param,
-    camera_qos,
-    latched_qos,
-    publish_if_subscribed,
-    reliable_qos,
-    run_nodes,
-)
+from subpix_ros.nodes.params import Param
+from subpix_ros.nodes.qos import camera_qos, latched_qos, publish_if_subscribed, reliable_qos
+from subpix_ros.nodes.run import run_nodes
 from subpix_ros.stages import Aligned, NewReference, RegistrationStage, Skipped
 
 LINK_HISTORY = 100  # aligned/reference_stamp messages a late-joining consumer still gets

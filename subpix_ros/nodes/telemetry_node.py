@@ -35,7 +35,10 @@ from subpix_ros.core.timing import detector_angle, expected_shift_px, frame_inte
 from subpix_ros.io import cdr
 from subpix_ros.io import telemetry_msgs as tm
 from subpix_ros.nodes.base import StageNode
-from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes, stamp_to_ns
+from subpix_ros.nodes.params import Param
+from subpix_ros.nodes.qos import latched_qos, reliable_qos
+from subpix_ros.nodes.run import run_nodes
+from subpix_ros.nodes.stamps import stamp_to_ns
 
 
 class TelemetryNode(StageNode):

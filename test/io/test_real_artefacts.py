@@ -283,7 +283,7 @@ def test_telemetry_node_replays_the_ardupilot_sitl_log(rclpy_node):
     from sensor_msgs.msg import NavSatFix
     from std_msgs.msg import Float64
 
-    from subpix_ros.nodes.common import reliable_qos
+    from subpix_ros.nodes.qos import reliable_qos
 
     path = DATA / "tlog" / "arducopter_sitl_flight_excerpt.tlog"
     gpi = _gpi(path)

@@ -24,7 +24,7 @@ from subpix_ros.io import cdr
 from subpix_ros.io.bags import read_messages
 from subpix_ros.monitor import TOPICS
 from subpix_ros.monitor.client import FoxgloveClient
-from subpix_ros.nodes.common import reliable_qos
+from subpix_ros.nodes.qos import reliable_qos
 
 PARAMS = str(ROOT / "config" / "demo.yaml")
 

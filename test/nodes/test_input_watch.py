@@ -16,7 +16,7 @@ from sensor_msgs.msg import Image
 
 from subpix_ros.cli._ros import stop_processes
 from subpix_ros.io import cdr
-from subpix_ros.nodes.common import reliable_qos
+from subpix_ros.nodes.qos import reliable_qos
 
 WARN = 1
 

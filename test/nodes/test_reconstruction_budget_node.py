@@ -9,7 +9,7 @@ from sensor_msgs.msg import Image
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres_budget import estimate_peak_mb
 from subpix_ros.io import cdr
-from subpix_ros.nodes.common import latched_qos
+from subpix_ros.nodes.qos import latched_qos
 
 T0 = 1_700_000_000_000_000_000
 SHIFTS = [

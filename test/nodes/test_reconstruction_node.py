@@ -11,7 +11,7 @@ from sensor_msgs.msg import Image
 
 from subpix_ros.io import cdr
 from subpix_ros.nodes import payloads as pl
-from subpix_ros.nodes.common import latched_qos
+from subpix_ros.nodes.qos import latched_qos
 
 T0 = 1_700_000_000_000_000_000
 

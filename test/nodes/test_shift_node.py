@@ -12,7 +12,7 @@ from rclpy.parameter import Parameter
 from subpix_ros.core.render import render_sequence
 from subpix_ros.io import cdr
 from subpix_ros.nodes import payloads as pl
-from subpix_ros.nodes.common import latched_qos, reliable_qos
+from subpix_ros.nodes.qos import latched_qos, reliable_qos
 
 
 def _harness(node):

@@ -1,0 +1,228 @@
+"""What the stage pipeline reports for each frame, collected into per-frame records."""
+
+from __future__ import annotations
+
+import math
+import re
+import threading
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from subpix_ros.process.products import ProductWriter, rounded
+
+__all__ = ["reason_key"]
+
+
+def reason_key(reason: str) -> str:
+    """A reason without its numbers, for counting reasons of one kind together."""
+    return re.sub(r"[-+]?\d+(\.\d+)?(e[-+]?\d+)?", "#", str(reason)).strip() or "unspecified"
+
+
+def _clean(o: Any) -> Any:
+    """JSON-safe copy: floats to 10 significant digits (:func:`rounded`), non-finite -> None,
+    numpy scalars -> Python."""
+    if isinstance(o, dict):
+        return {str(k): _clean(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_clean(v) for v in o]
+    if isinstance(o, (np.floating, float)):
+        return rounded(o) if math.isfinite(float(o)) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.bool_):
+        return bool(o)
+    return o
+
+
+def _stats_dict(st: Any) -> dict:
+    if st is None:
+        return {}
+    if hasattr(st, "as_dict"):
+        return dict(st.as_dict())
+    if isinstance(st, dict):
+        return dict(st)
+    return dict(getattr(st, "__dict__", {}))
+
+
+_TIME_KEY = re.compile(r"(^times$|_ms$|time_s$)")  # stage figures that are processing times
+
+
+@dataclass
+class _FrameRec:
+    index: int
+    stamp_ns: int
+    status: str = "in"
+    reason: str = ""
+    reference_stamp_ns: int | None = None
+    inliers: int | None = None
+    rms_px: float | None = None
+    rms_along_px: float | None = None
+    rms_cross_px: float | None = None
+    tracked: bool | None = None
+    mosaic: bool | None = None
+
+
+class _Collector:
+    """Turns the pipeline's events for the frame being added into records and products."""
+
+    def __init__(self, writer: ProductWriter, reg_params: dict, reg_stats: Any = None) -> None:
+        self.w = writer
+        self.reg_stats = reg_stats
+        self._tracked = self._fallbacks = 0
+        self.reg_params = reg_params
+        self.frames: list[_FrameRec] = []
+        self.current: _FrameRec | None = None
+        self.shifts: dict[int, dict] = {}
+        self.references: list[dict] = []
+        self.sets: list[dict] = []
+        self.sr_images: list[Any] = []
+        self.errors: list[str] = []
+        self.homographies: dict[int, np.ndarray] = {}
+        self.priors: dict[int, tuple[float, float] | None] = {}
+        self.ref_of: dict[int, int] = {}
+        self.dtype: str | None = None
+        self.shape: tuple = (0, 0)
+        self.warnings: Counter = Counter()
+        self.lock = threading.Lock()
+        self.warning_examples: dict[str, str] = {}
+
+    # --------------------------------------------------------- pipeline callbacks
+    def on_reference(self, ev: Any) -> None:
+        frame = getattr(ev, "frame", ev)
+        reason = str(getattr(ev, "reason", "") or "")
+        stamp = int(getattr(frame, "stamp_ns"))
+        self.references.append({"stamp_ns": stamp, "reason": reason})
+        rec = self.current
+        if rec is not None and rec.stamp_ns == stamp:
+            rec.status, rec.reason, rec.reference_stamp_ns = "reference", reason, stamp
+
+    def on_aligned(self, a: Any) -> None:
+        rec = self.current
+        ref = int(a.reference.stamp_ns)
+        self.ref_of[int(a.stamp_ns)] = ref
+        self.homographies[int(a.stamp_ns)] = np.asarray(a.homography, np.float64).reshape(3, 3)
+        self.priors[int(a.stamp_ns)] = (
+            tuple(a.prior) if getattr(a, "prior", None) is not None else None
+        )
+        self.w.homography(a.stamp_ns, a.homography)
+        self.w.reference_link(a.stamp_ns, ref, getattr(a, "frame_id", ""))
+        if rec is not None and rec.stamp_ns == int(a.stamp_ns):
+            rec.status, rec.reference_stamp_ns = "aligned", ref
+            st = self.reg_stats  # the registration stage's figures of the frame just aligned
+            if st is not None:
+                rec.inliers, rec.rms_px = st.inliers, st.rms_px
+                rec.rms_along_px, rec.rms_cross_px = st.rms_along_px, st.rms_cross_px
+                tracked, fallbacks = st.tracked, st.fallbacks
+                if tracked > self._tracked:
+                    rec.tracked = True
+                elif fallbacks > self._fallbacks:
+                    rec.tracked = False
+                self._tracked, self._fallbacks = tracked, fallbacks
+        self.shifts[int(a.stamp_ns)] = {
+            "stamp_ns": int(a.stamp_ns),
+            "reference_stamp_ns": ref,
+            "converged": False,
+            "reason": "no shift reported",
+        }
+
+    def on_skipped(self, item: Any) -> None:
+        stage, sk = item if isinstance(item, tuple) else ("", item)
+        rec = self.current
+        reason = str(getattr(sk, "reason", sk))
+        detail = str(getattr(sk, "detail", "") or "")
+        if detail:
+            reason = f"{reason}: {detail}"
+        stamp = getattr(sk, "stamp_ns", None)
+        stamp = rec.stamp_ns if stamp is None and rec is not None else stamp
+        if stamp is not None and int(stamp) in self.shifts and (not stage or "shift" in stage):
+            self.shifts[int(stamp)].update(converged=False, reason=reason)
+            return
+        if rec is not None and (stamp is None or int(stamp) == rec.stamp_ns):
+            rec.status, rec.reason = "skipped", reason
+
+    def on_shift(self, item: Any) -> None:
+        s = item[0] if isinstance(item, tuple) else item
+        row = self.shifts.setdefault(int(s.stamp_ns), {"stamp_ns": int(s.stamp_ns)})
+        row.update(
+            reference_stamp_ns=int(s.reference_stamp_ns),
+            u_px=rounded(s.u),
+            v_px=rounded(s.v),
+            u_std_px=rounded(s.u_std),
+            v_std_px=rounded(s.v_std),
+            converged=True,
+            reason="",
+        )
+        self.w.shift(s.stamp_ns, s.u, s.v, s.z, getattr(s, "frame_id", ""))
+
+    def on_super_resolved(self, sr: Any) -> None:
+        ref = sr.reference
+        stamp = int(ref.stamp_ns)
+        img = np.asarray(sr.image)
+        bic = np.asarray(sr.bicubic)
+        self.w.png(f"superres/{stamp}.png", img)
+        self.w.png(f"bicubic/{stamp}.png", bic)
+        self.w.image("/super_resolved", img, stamp, getattr(ref, "frame_id", ""))
+        members = []
+        for s, a in getattr(sr, "members", []) or []:
+            members.append(
+                {"stamp_ns": int(s.stamp_ns), "u_px": rounded(s.u), "v_px": rounded(s.v)}
+            )
+        self.sets.append(
+            {
+                "reference_stamp_ns": stamp,
+                "frames": 1 + len(members),
+                "members": members,
+                "method": str(getattr(sr, "method", "")),
+                "fell_back": bool(getattr(sr, "fell_back", False)),
+                "reason": str(getattr(sr, "reason", "") or ""),
+                "blur_sigma": getattr(sr, "blur_sigma", None),
+                "blur_source": getattr(sr, "blur_source", None),
+                "superres": f"superres/{stamp}.png",
+                "bicubic": f"bicubic/{stamp}.png",
+                "shape": list(img.shape),
+                "dtype": str(img.dtype),
+            }
+        )
+        self.sr_images.append((stamp, img, ref))
+
+    def on_warning(self, item: Any) -> None:
+        stage, msg = item if isinstance(item, tuple) else ("", item)
+        key = f"{stage}: {reason_key(msg)}" if stage else reason_key(msg)
+        with self.lock:  # the mosaic thread warns too
+            self.warnings[key] += 1
+            self.warning_examples.setdefault(key, f"{stage}: {msg}" if stage else str(msg))
+
+    def on_error(self, err: Any) -> None:
+        if isinstance(err, tuple):
+            err = f"{err[0]}: {err[1]}"
+        text = " ".join(str(err).split())[:200]
+        self.errors.append(text)
+        rec = self.current
+        if rec is not None and rec.status in ("in",):
+            rec.status, rec.reason = "dropped", f"stage error: {text}"
+
+
+def _pipe_stats(pipe: Any) -> dict:
+    try:
+        st = pipe.stats()
+    except Exception:  # noqa: BLE001
+        return {}
+    return dict(st) if isinstance(st, dict) else {}
+
+
+def _diag_statuses(stats: dict) -> dict[str, tuple[int, str, dict]]:
+    out = {}
+    for name, st in stats.items():
+        d = {k: v for k, v in _stats_dict(st).items() if not _TIME_KEY.search(k)}
+        flat = {}
+        for k, v in d.items():
+            if isinstance(v, dict):
+                flat.update({f"{k}.{kk}": vv for kk, vv in v.items()})
+            else:
+                flat[k] = v
+        err = d.get("last_error") or ""
+        out[str(name)] = (1 if err else 0, f"last error: {err}" if err else "ok", flat)
+    return out

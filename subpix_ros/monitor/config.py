@@ -40,6 +40,7 @@ class MonitorConfig:
 
     @classmethod
     def from_mapping(cls, values: dict[str, Any]) -> "MonitorConfig":
+        """Build a config from the keys of ``values`` that are its fields (others ignored)."""
         names = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in values.items() if k in names})
 

@@ -1,4 +1,4 @@
-"""Images and stamps as the monitor sends them: 8-bit BGR, shrunk, labelled, JPEG in foxglove messages."""
+"""Images and stamps as the monitor sends them: 8-bit BGR, shrunk, labelled, JPEG."""
 
 from __future__ import annotations
 

@@ -121,6 +121,7 @@ class Monitor(_Sender):
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
+        """Open the server (and the MCAP recording) and start the sender thread."""
         cfg = self.cfg
         self._ws_ctx = foxglove.Context()
         contexts = [self._ws_ctx]
@@ -184,10 +185,12 @@ class Monitor(_Sender):
 
     @property
     def port(self) -> int:
+        """Port the server listens on (0 before start)."""
         return self.server.port if self.server is not None else 0
 
     @property
     def url(self) -> str:
+        """The ``ws://`` or ``wss://`` URL of the server."""
         scheme = "wss" if self._tls[0] else "ws"
         return f"{scheme}://{self.cfg.host}:{self.port}"
 
@@ -211,17 +214,20 @@ class Monitor(_Sender):
         self.close()
 
     def set_bandwidth_kbps(self, kbps: float) -> None:
+        """Change the link budget (kbit/s)."""
         self.cfg.bandwidth_kbps = float(kbps)
         self.bucket.set_rate(kbps * 125.0)
 
     # ---------------------------------------------------------- server listener (SDK threads)
     def on_subscribe(self, client, channel) -> None:
+        """Note a client's subscription and resend the channel's latest message (SDK thread)."""
         with self._lock:
             self._subs.setdefault(channel.id, set()).add(client.id)
             self._resend.add(channel.id)
         self._wake.set()
 
     def on_unsubscribe(self, client, channel) -> None:
+        """Note that a client left a channel (SDK thread)."""
         with self._lock:
             self._subs.get(channel.id, set()).discard(client.id)
 
@@ -230,13 +236,16 @@ class Monitor(_Sender):
             return len(set().union(*self._subs.values())) if self._subs else 0
 
     def clients(self, topic: str) -> int:
+        """Return how many clients subscribe to ``topic``."""
         with self._lock:
             return len(self._subs.get(self.outs[topic].ws_id, ()))
 
     # ------------------------------------------------------------------ inputs
     def on_mosaic(self, bgr: np.ndarray, stamp_ns: int | None = None) -> None:
-        """The latest mosaic (H x W x 3 or H x W, uint8); sent when changed, every
-        mosaic_period_s at most."""
+        """Keep the latest mosaic (H x W x 3 or H x W, uint8).
+
+        Sent when it changed, every mosaic_period_s at most.
+        """
         self._put("mosaic", (_to_bgr(bgr), stamp_ns if stamp_ns is not None else time.time_ns()))
 
     def on_super_resolved(
@@ -246,8 +255,10 @@ class Monitor(_Sender):
         stamp_ns: int,
         factor: int | None = None,
     ) -> None:
-        """A super-resolved image and the bicubic enlargement of its reference (same size) or
-        None."""
+        """Keep a super-resolved image and the bicubic enlargement of its reference.
+
+        The bicubic image has the same size, or is None.
+        """
         sr = _to_bgr(sr_image)
         bic = None if bicubic_image is None else _to_bgr(bicubic_image)
         if bic is not None and bic.shape[:2] != sr.shape[:2]:
@@ -257,7 +268,7 @@ class Monitor(_Sender):
         self._put("sr", (sr, bic, stamp_ns, factor))
 
     def on_camera(self, image: np.ndarray, stamp_ns: int) -> None:
-        """The current camera frame (kept; the newest is sent every camera_period_s)."""
+        """Keep the current camera frame (the newest is sent every camera_period_s)."""
         self._put("camera", (_to_bgr(image), stamp_ns))
 
     def _put(self, name: str, item: Any) -> None:
@@ -296,15 +307,17 @@ class Monitor(_Sender):
         self._essential("/shift", msg)
 
     def on_telemetry(self, stamp_ns: int, **values: float | None) -> None:
-        """Telemetry figures (``frame_interval_s``, ``expected_u``, ``expected_v``, ``height_m``,
-        ``speed_mps``); the latest of each is repeated in every message."""
+        """Send telemetry figures; the latest of each is repeated in every message.
+
+        Keys: ``frame_interval_s``, ``expected_u``, ``expected_v``, ``height_m``, ``speed_mps``.
+        """
         with self._lock:
             self._telemetry.update({k: _num(v) for k, v in values.items()})
             msg = {"timestamp": _ts_json(stamp_ns), **self._telemetry}
         self._essential("/telemetry", msg)
 
     def on_fix(self, lat: float, lon: float, alt: float, stamp_ns: int) -> None:
-        """A GNSS fix (degrees, m): served as LocationFix, and added to the track."""
+        """Send a GNSS fix (degrees, m) as LocationFix and add it to the track."""
         if not (
             math.isfinite(lat) and math.isfinite(lon) and -90 <= lat <= 90 and -180 <= lon <= 180
         ):
@@ -327,7 +340,7 @@ class Monitor(_Sender):
     def on_footprint(
         self, corners_lonlat: Sequence[tuple[float, float]], stamp_ns: int | None = None
     ) -> None:
-        """A frame's ground footprint, closed (lon, lat) ring (see :func:`geo.footprint_lonlat`)."""
+        """Add a frame's ground footprint: a closed (lon, lat) ring (:func:`geo.footprint_lonlat`)."""
         ring = [(float(x), float(y)) for x, y in corners_lonlat]
         if len(ring) < 4 or not all(math.isfinite(x) and math.isfinite(y) for x, y in ring):
             raise ValueError("monitor: a footprint needs a closed ring of finite (lon, lat)")
@@ -360,7 +373,7 @@ class Monitor(_Sender):
     def on_log(
         self, level: int | str, text: str, name: str = "subpix_ros", stamp_ns: int | None = None
     ) -> None:
-        """A log entry (level 0-3 as diagnostics, or debug/info/warning/error/fatal)."""
+        """Send a log entry (level 0-3 as diagnostics, or debug/info/warning/error/fatal)."""
         lv = {
             "debug": LogLevel.Debug,
             "info": LogLevel.Info,

@@ -164,8 +164,11 @@ class _Sender:
         return avail * w * max(getattr(self.cfg, s.period_attr, 0.0), 1.0) / clients
 
     def _encode_to_fit(self, s: _Stream, item, now: float) -> list:
-        """Encode at the stream's rung; step down the ladder while the message is 25 % over its
-        target, and one rung up for next time when it is under half of it."""
+        """Encode ``item`` at the stream's rung, stepping down the ladder until it fits.
+
+        The rung goes down while the message is 25 % over its target, and one rung up for next
+        time when it is under half of it.
+        """
         target = self.target_bytes(s, now)
         msgs = self._encode(s, item)
         size = sum(len(m) for _, m in msgs)
@@ -242,7 +245,7 @@ class _Sender:
 
     # ------------------------------------------------------------------ health
     def link_stats(self) -> dict:
-        """The budget (kbit/s), bytes/s per channel, total, and each image stream's rung."""
+        """Return the budget (kbit/s), bytes/s per channel, total, and each image stream's rung."""
         per = {t: round(o.meter.rate(), 1) for t, o in self.outs.items()}
         return {
             "budget_kbps": self.cfg.bandwidth_kbps,

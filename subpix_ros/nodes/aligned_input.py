@@ -93,4 +93,5 @@ class AlignedInput:
             self.assembler.add_mask(m)
 
     def clear(self) -> None:
+        """Drop the frames and masks waiting to be assembled."""
         self.assembler.clear()

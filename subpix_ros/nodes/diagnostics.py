@@ -74,6 +74,7 @@ class Diagnostics:
         self.timer = node.create_timer(period_s, self.publish, clock=steady)
 
     def rate(self, name: str) -> RateMeter:
+        """Return the rate meter ``name`` (created on first use)."""
         return self.rates.setdefault(name, RateMeter())
 
     def watch_inputs(
@@ -111,7 +112,7 @@ class Diagnostics:
         return f"{word} on {' or '.join(names)} for over {limit:g} s (input_timeout_s) from {what}"
 
     def check_inputs(self, now: float | None = None) -> str | None:
-        """The input problem now (and report it), or None; called at every publication."""
+        """Return the input problem now (and report it), or None; called at every publication."""
         if self._watch is None:
             return None
         _, timeout_s, since = self._watch
@@ -142,13 +143,18 @@ class Diagnostics:
         return problem
 
     def attach(self, worker: DropOldestWorker) -> None:
+        """Report the queue depth, drops and errors of ``worker``."""
         self.worker = worker
 
     def latency(self, seconds: float) -> None:
+        """Record one end-to-end latency (s)."""
         self._latencies.append(seconds)
 
     def stage_time(self, key: str, ms: float) -> None:
-        """A stage's duration in ms: published as ``key`` (last), ``key_p50`` and ``key_max`` (last 200)."""
+        """Record a stage's duration in ms.
+
+        Published as ``key`` (last), ``key_p50`` and ``key_max`` (of the last 200).
+        """
         ms = float(ms)
         if not math.isfinite(ms) or ms < 0:
             raise ValueError(f"stage_time {key!r}: duration must be finite and >= 0, got {ms}")
@@ -162,20 +168,24 @@ class Diagnostics:
             self._durations.clear()
 
     def set(self, **values: Any) -> None:
+        """Set key/values of the status (floats to 6 significant digits)."""
         with self._lock:
             for k, v in values.items():
                 self._status.values[k] = f"{v:.6g}" if isinstance(v, float) else str(v)
 
     def ok(self, message: str = "ok") -> None:
+        """Return to OK with ``message`` unless a problem was reported in the last ``hold_s``."""
         with self._lock:
             if time.monotonic() - self._status.last_error_time > self.hold_s:
                 self._status.level = OK
                 self._status.message = message
 
     def warn(self, message: str) -> None:
+        """Report a warning (logged, throttled, held for ``hold_s``)."""
         self._report(WARN, message)
 
     def error(self, message: str) -> None:
+        """Report an error (logged, throttled, held for ``hold_s``)."""
         self._report(ERROR, message)
 
     def _hold(self, level: int, message: str) -> None:
@@ -212,13 +222,16 @@ class Diagnostics:
 
     @property
     def level(self) -> int:
+        """Current level (0 OK, 1 WARN, 2 ERROR)."""
         return int(self._status.level)
 
     @property
     def message(self) -> str:
+        """Current status message."""
         return self._status.message
 
     def snapshot(self) -> DiagnosticStatus:
+        """Build the DiagnosticStatus as of now (levels past ``hold_s`` fall back to OK)."""
         with self._lock:
             if (
                 self._status.level != OK
@@ -257,6 +270,7 @@ class Diagnostics:
         return st
 
     def publish(self) -> None:
+        """Check the inputs and publish the status on /diagnostics (the 1 Hz timer)."""
         try:
             self.check_inputs()
         except Exception as exc:  # noqa: BLE001 - the graph query fails during shutdown

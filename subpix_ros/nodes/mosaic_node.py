@@ -24,6 +24,8 @@ from subpix_ros.stages import MosaicStage
 
 
 class MosaicNode(StageNode):
+    """The mosaic stage as a node: camera frames in, the mosaic preview out."""
+
     MAIN_INPUTS = ("image", "image/compressed")
     PARAMS = (
         Param(
@@ -83,11 +85,13 @@ class MosaicNode(StageNode):
         self.handle_frame(frame)
 
     def handle_frame(self, frame: pl.Frame) -> None:
+        """Queue a frame that passes the stage's interval gate."""
         self.diag.rate("input").tick()
         if self.stage.take(frame):  # the min_interval_s gate, by stamp (a skip is not a drop)
             self.worker.put(frame)
 
     def reset(self) -> None:
+        """Start a new mosaic (time jumped back)."""
         self.stage.reset()  # frames queued behind the one that jumped back belong to the new stream
 
     def _process(self, frame: pl.Frame) -> None:
@@ -118,6 +122,7 @@ class MosaicNode(StageNode):
 
 
 def main(args=None) -> int:
+    """Run the mosaic node (console entry point)."""
     return run_nodes([MosaicNode], args)
 
 

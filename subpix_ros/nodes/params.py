@@ -29,6 +29,7 @@ class Param(Spec):
     """
 
     def descriptor(self) -> ParameterDescriptor:
+        """Return the ROS descriptor: description, read-only flag, range, choices."""
         d = ParameterDescriptor(
             name=self.name, description=self.description, read_only=self.read_only
         )

@@ -59,6 +59,7 @@ def build(with_telemetry: bool = True, with_monitor: bool = False):
 
 
 def main(args: Sequence[str] | None = None) -> int:
+    """Run the in-process pipeline (console entry point)."""
     argv = list(sys.argv if args is None else args)
     with_telemetry = "--no-telemetry" not in argv
     with_monitor = "--monitor" in argv

@@ -39,6 +39,7 @@ def camera_qos(reliable: bool, depth: int = 5) -> QoSProfile:
 
 
 def reliable_qos(depth: int = 10) -> QoSProfile:
+    """Reliable, volatile, keep-last ``depth``."""
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
         depth=depth,
@@ -48,8 +49,11 @@ def reliable_qos(depth: int = 10) -> QoSProfile:
 
 
 def latched_qos(depth: int = 1) -> QoSProfile:
-    """Reliable + transient-local: a late joiner gets the latest message (a publisher's depth 1). A
-    subscriber's ``depth`` > 1 keeps messages that arrive faster than it takes them."""
+    """Reliable and transient-local: a late joiner gets the latest message.
+
+    A publisher's depth is 1; a subscriber's ``depth`` > 1 keeps messages that arrive faster
+    than it takes them.
+    """
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
         depth=depth,

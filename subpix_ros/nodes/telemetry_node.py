@@ -42,6 +42,8 @@ from subpix_ros.nodes.stamps import stamp_to_ns
 
 
 class TelemetryNode(StageNode):
+    """MAVLink (or mavros) telemetry in, the telemetry topics and expected shift out."""
+
     PARAMS = (
         Param("source", "mavlink", "telemetry source", choices=("mavlink", "mavros")),
         Param(
@@ -267,6 +269,7 @@ class TelemetryNode(StageNode):
             self.diag.warn("MAVLink link lost")
 
     def close(self) -> None:
+        """Stop the MAVLink reader and the node's worker."""
         if self.reader is not None:
             self.reader.stop()
         super().close()
@@ -279,6 +282,7 @@ def _cls(msgtype: str):
 
 
 def main(args=None) -> int:
+    """Run the telemetry node (console entry point)."""
     return run_nodes([TelemetryNode], args)
 
 

@@ -22,11 +22,13 @@ class RateMeter:
         self.last: float | None = None  # time.monotonic() of the latest event
 
     def tick(self, now: float | None = None) -> None:
+        """Count one event at ``now`` (time.monotonic() by default)."""
         self.last = time.monotonic() if now is None else now
         self._t.append(self.last)
         self.total += 1
 
     def rate(self, now: float | None = None) -> float:
+        """Return the events per second over the window."""
         now = time.monotonic() if now is None else now
         while self._t and now - self._t[0] > self.window_s:
             self._t.popleft()
@@ -75,14 +77,17 @@ class DropOldestWorker:
         return not dropped
 
     def clear(self) -> None:
+        """Drop every queued item."""
         with self._cv:
             self._q.clear()
 
     @property
     def depth(self) -> int:
+        """Items waiting in the queue."""
         return len(self._q)
 
     def idle(self) -> bool:
+        """Return True if nothing is queued or being handled."""
         return not self._q and not self.busy
 
     def _run(self) -> None:
@@ -115,6 +120,7 @@ class DropOldestWorker:
         return 1000.0 * self.cpu_s / n if n else 0.0
 
     def stop(self, timeout: float = 2.0) -> None:
+        """Stop the worker thread (waits up to ``timeout`` s)."""
         with self._cv:
             self._stop = True
             self._cv.notify_all()

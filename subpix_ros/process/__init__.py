@@ -1,2 +1,4 @@
-"""Post-flight processing (``subpix process``, ``subpix report``): flight bags through the ROS-free
-stage pipeline into products and a flight report, without DDS."""
+"""Post-flight processing (``subpix process``, ``subpix report``), without DDS.
+
+Flight bags go through the ROS-free stage pipeline into products and a flight report.
+"""

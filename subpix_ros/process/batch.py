@@ -40,6 +40,7 @@ class Progress:
         self._slots: list[str | None] = []
 
     def update(self, name: str, done: int, total: int) -> None:
+        """Show that ``name`` has ``done`` of ``total`` frames processed."""
         if self.quiet:
             return
         if self.tty:
@@ -82,6 +83,7 @@ class Progress:
             )
 
     def finish(self, name: str, line: str) -> None:
+        """Show the result line of ``name`` (and close its bar)."""
         bar = self._bars.pop(name, None)
         if bar is not None:
             bar.close()

@@ -17,13 +17,16 @@ __all__ = ["reason_key"]
 
 
 def reason_key(reason: str) -> str:
-    """A reason without its numbers, for counting reasons of one kind together."""
+    """Return ``reason`` without its numbers, for counting reasons of one kind together."""
     return re.sub(r"[-+]?\d+(\.\d+)?(e[-+]?\d+)?", "#", str(reason)).strip() or "unspecified"
 
 
 def _clean(o: Any) -> Any:
-    """JSON-safe copy: floats to 10 significant digits (:func:`rounded`), non-finite -> None,
-    numpy scalars -> Python."""
+    """Return a JSON-safe copy of ``o``.
+
+    Floats to 10 significant digits (:func:`rounded`), non-finite to None, numpy scalars to
+    Python.
+    """
     if isinstance(o, dict):
         return {str(k): _clean(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):

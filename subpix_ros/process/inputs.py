@@ -52,8 +52,11 @@ def bag_name(path: str | Path) -> str:
 
 
 def find_tlog(path: str | Path) -> Path | None:
-    """The MAVLink log that belongs to bag ``path``: ``<bag>.tlog`` beside it, else the single
-    ``*.tlog`` inside the bag directory; None if there is none."""
+    """Find the MAVLink log that belongs to bag ``path``.
+
+    ``<bag>.tlog`` beside it, else the single
+    ``*.tlog`` inside the bag directory; None if there is none.
+    """
     p = Path(path)
     beside = p.parent / f"{bag_name(p)}.tlog"
     if beside.is_file():
@@ -106,12 +109,16 @@ class Flight:
 
     @property
     def has_telemetry(self) -> bool:
+        """Whether the flight has telemetry (topics or a .tlog)."""
         return self.telemetry_source != "none"
 
     def events(self) -> Iterator[tuple[str, object]]:
-        """``("telemetry", sample)``, ``("frame", Frame)`` and ``("bad_frame", (stamp_ns, reason))``
-        in time order. Raises :class:`BagError` if the storage turns out corrupt while reading
-        (after yielding everything before the damage)."""
+        """Yield the flight's telemetry samples and frames in time order.
+
+        Items ``("telemetry", sample)``, ``("frame", Frame)`` and
+        ``("bad_frame", (stamp_ns, reason))``. Raises :class:`BagError` if the storage turns out corrupt while reading
+        (after yielding everything before the damage).
+        """
         from subpix_ros.nodes.payloads import frame_from_cdr, frame_from_compressed_cdr
 
         topics = [self.camera_topic] if self.camera_topic else []

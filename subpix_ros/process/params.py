@@ -49,7 +49,7 @@ _TRANSPORT = {"camera_reliable", "queue_size", "publish_rate_hz", "jpeg_quality"
 
 
 def pipeline_params(params: dict[str, dict]) -> dict[str, dict]:
-    """The stage pipeline's parameters: the four processing nodes, transport keys left out."""
+    """Return the stage pipeline's parameters: the four processing nodes, transport keys left out."""
     keep = ("registration_node", "shift_node", "reconstruction_node", "mosaic_node")
     return {n: {k: v for k, v in params.get(n, {}).items() if k not in _TRANSPORT} for n in keep}
 

@@ -44,7 +44,7 @@ class _MonitorFeed:
 
 
 def _preview(frame: Any) -> Any:
-    """The frame as the mosaic draws it: 8 bit (16-bit frames scaled by 255/65535)."""
+    """Return the frame as the mosaic draws it: 8 bit (16-bit frames scaled by 255/65535)."""
     if frame.image.dtype == np.uint8:
         return frame
     from subpix_ros.stages import Frame
@@ -53,7 +53,7 @@ def _preview(frame: Any) -> Any:
 
 
 def _to8(img: np.ndarray) -> np.ndarray:
-    """An image as 8 bit (16-bit values scaled by 255/65535), unchanged if already 8 bit."""
+    """Return an image as 8 bit (16-bit values scaled by 255/65535), unchanged if already 8 bit."""
     if img.dtype == np.uint8:
         return img
     return np.clip(np.rint(img.astype(np.float32) * (255.0 / 65535.0)), 0, 255).astype(np.uint8)

@@ -90,7 +90,7 @@ def build_report(folder: str | Path) -> str:
 
 
 def _header(summary: dict, timing: dict) -> list[str]:
-    """The flight table, problems, frames skipped/dropped by reason, and the parameters."""
+    """Build the flight table, problems, frames skipped/dropped by reason, and the parameters."""
     fl = summary.get("flight", {})
     fr = summary.get("frames", {})
     cam = summary.get("camera", {})

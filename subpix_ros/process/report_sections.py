@@ -161,7 +161,7 @@ def _display(img: np.ndarray) -> np.ndarray:
 
 
 def _crop_box(img: np.ndarray, factor: int) -> tuple[int, int, int]:
-    """The crop (row, col, side; output px) with the most detail (gradient energy)."""
+    """Find the crop (row, col, side; output px) with the most detail (gradient energy)."""
     side = min(CROP_LR_PX * factor, img.shape[0], img.shape[1])
     g = img.astype(np.float32)
     if g.ndim == 3:

@@ -14,7 +14,7 @@ if TYPE_CHECKING:
 
 
 def _input_problems(flight: Flight) -> list[str]:
-    """What the flight lacks before any frame is read: images, telemetry."""
+    """List what the flight lacks before any frame is read: images, telemetry."""
     problems: list[str] = []
     if flight.camera_note:
         problems.append(flight.camera_note)
@@ -37,7 +37,7 @@ def _input_problems(flight: Flight) -> list[str]:
 
 
 def _summary(run: _FlightRun, rows: list[dict], mosaic_info: dict) -> dict:
-    """The content of ``summary.json`` (its final ``status`` is set by the caller)."""
+    """Build the content of ``summary.json`` (its final ``status`` is set by the caller)."""
     flight, col = run.flight, run.col
     stage_stats = {
         k: _clean({kk: vv for kk, vv in _stats_dict(v).items() if not _TIME_KEY.search(kk)})

@@ -92,7 +92,7 @@ def prefetch(events: Iterator, depth: int = 4) -> Iterator:
 
 
 def _timing_record(add_ms: list[float], timer: _Timer, stats: dict, flight_s: float) -> dict:
-    """The figures of ``timing.json`` before the wall/CPU totals: per frame, per stage."""
+    """Build the figures of ``timing.json`` before the wall/CPU totals: per frame, per stage."""
     a = np.asarray(add_ms) if add_ms else np.zeros(0)
     return {
         "frames": int(a.size),

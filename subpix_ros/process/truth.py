@@ -10,7 +10,7 @@ from subpix_ros.process.collector import _Collector
 
 
 def _load_truth(bag: Path) -> tuple[dict[int, tuple[float, float]], np.ndarray | None, int] | None:
-    """Rendered ground truth beside the bag (``truth.json`` + ``truth_hr.png``), if any."""
+    """Load the rendered ground truth beside the bag (``truth.json``, ``truth_hr.png``), if any."""
     import json
 
     import cv2

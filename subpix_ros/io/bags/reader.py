@@ -18,8 +18,9 @@ def read_messages(
     skip_corrupt: bool = False,
     report: ReadReport | None = None,
 ) -> Iterator[BagMessage]:
-    """Yield a bag's messages in time order, optionally only ``topics``; every reader of bags
-    in the package goes through here.
+    """Yield a bag's messages in time order, optionally only ``topics``.
+
+    Every reader of bags in the package goes through here.
 
     Parameters
     ----------

@@ -14,6 +14,8 @@ class BagError(Exception):
 
 @dataclass(frozen=True)
 class TopicInfo:
+    """One topic of a bag: name, message type, message count and recorded QoS."""
+
     name: str
     msgtype: str
     count: int
@@ -36,6 +38,8 @@ def _parse_qos(text, where: str) -> tuple:
 
 @dataclass(frozen=True)
 class BagMessage:
+    """One recorded message: topic, type, receive time stamp and its raw CDR bytes."""
+
     topic: str
     msgtype: str
     timestamp_ns: int  # the bag's receive time stamp
@@ -89,6 +93,7 @@ class ReadReport:
     problems: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
+        """Describe what was skipped and why, in one line."""
         lost = (
             f" holding {self.skipped_messages} message(s) by the bag's index"
             if self.skipped_messages

@@ -40,8 +40,11 @@ def _sqlite_bad_pages(con) -> tuple[int | None, str] | None:
 def _sqlite_messages(
     db: Path, topics: set[str] | None, expected: dict[str, int] | None, on_bad
 ) -> Iterator[BagMessage]:
-    """Messages of one sqlite3 storage file in time order; damaged pages are found with
-    ``PRAGMA quick_check`` before anything is delivered, and then every row is read by its id."""
+    """Yield the messages of one sqlite3 storage file in time order.
+
+    Damaged pages are found with ``PRAGMA quick_check`` before anything is delivered, and
+    then every row is read by its id.
+    """
     with _sqlite(db) as con:
         try:
             tmap = {i: (n, t) for i, n, t in con.execute("SELECT id, name, type FROM topics")}

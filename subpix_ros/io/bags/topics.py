@@ -122,8 +122,10 @@ def bag_topics(path: str | Path) -> list[TopicInfo]:
 
 
 def _scan_unindexed(f, buf) -> dict[int, int]:
-    """Messages per channel of an MCAP file without a summary, from its readable chunks (this
-    also collects the channel records inside them)."""
+    """Count the messages per channel of an MCAP file without a summary.
+
+    From its readable chunks; this also collects the channel records inside them.
+    """
     from subpix_ros.io import _mcap
 
     schemas: dict[int, str] = {}

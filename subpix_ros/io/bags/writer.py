@@ -47,9 +47,11 @@ class BagWriter:
         self.count = 0
 
     def add_topic(self, topic: str, msgtype: str, qos: Sequence = ()) -> None:
-        """Declare ``topic`` with the QoS profiles its publishers offered (rosbags ``Qos``),
-        stored as rosbag2's ``offered_qos_profiles``; :meth:`write` declares unknown topics
-        without them."""
+        """Declare ``topic`` with the QoS profiles its publishers offered.
+
+        The profiles (rosbags ``Qos``) are stored as rosbag2's ``offered_qos_profiles``;
+        :meth:`write` declares unknown topics without them.
+        """
         if topic in self._connections:
             raise BagError(f"topic {topic} already in the bag")
         try:
@@ -62,16 +64,19 @@ class BagWriter:
             ) from None
 
     def write(self, topic: str, msgtype: str, timestamp_ns: int, raw: bytes | memoryview) -> None:
+        """Write one message (raw CDR bytes) on ``topic``, adding the topic on first use."""
         if topic not in self._connections:
             self.add_topic(topic, msgtype)
         self._writer.write(self._connections[topic], int(timestamp_ns), raw)
         self.count += 1
 
     def write_all(self, messages: Iterable[BagMessage]) -> None:
+        """Write every message of ``messages`` in the order given."""
         for m in messages:
             self.write(m.topic, m.msgtype, m.timestamp_ns, m.raw)
 
     def close(self) -> None:
+        """Finish the bag: metadata, chunk CRCs, the file moved into place."""
         from subpix_ros.io import _mcap
 
         self._writer.close()

@@ -51,6 +51,7 @@ class FrameFormatTracker:
         self.changes = 0
 
     def update(self, height: int, width: int, encoding: str) -> str | None:
+        """Record the format of the next frame; return a description if it changed, else None."""
         fmt = (int(height), int(width), str(encoding))
         if self.current is None or fmt == self.current:
             self.current = fmt

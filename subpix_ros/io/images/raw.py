@@ -26,7 +26,7 @@ from .encodings import (
 
 
 def _as_byte_buffer(data: Any) -> np.ndarray:
-    """``data`` as a 1-D uint8 array, zero-copy for buffer objects."""
+    """View ``data`` as a 1-D uint8 array, zero-copy for buffer objects."""
     if isinstance(data, np.ndarray):
         if data.dtype != np.uint8:
             raise ImageConversionError(f"image data array must be uint8, got {data.dtype}")
@@ -120,7 +120,7 @@ def _stored_view(msg: Any, *, allow_trailing: bool = False) -> tuple[np.ndarray,
 
 
 def _cv_input(a: np.ndarray) -> np.ndarray:
-    """``a`` if OpenCV can wrap it (rows may be padded), else a contiguous copy."""
+    """Return ``a`` if OpenCV can wrap it (rows may be padded), else a contiguous copy."""
     inner_ok = (
         a.strides[-1] == a.itemsize
         if a.ndim == 2
@@ -235,7 +235,7 @@ def _bayer_mosaic(bgr: np.ndarray, pattern: str) -> np.ndarray:
 
 
 def _stored_from_array(array: np.ndarray, info: EncodingInfo) -> np.ndarray:
-    """The samples to store for ``info``, shape (H, W) or (H, W, C), dtype info.dtype."""
+    """Return the samples to store for ``info``: shape (H, W) or (H, W, C), dtype info.dtype."""
     a = np.asarray(array)
     if a.ndim not in (2, 3) or a.shape[0] == 0 or a.shape[1] == 0:
         raise ImageConversionError(

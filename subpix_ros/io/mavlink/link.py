@@ -33,6 +33,7 @@ class ConnectionSpec:
 
     @property
     def url(self) -> str:
+        """Return the URL as pymavlink takes it."""
         if self.kind in ("serial", "tlog"):
             return self.address
         return f"{self.kind}:{self.address}"
@@ -214,6 +215,7 @@ class MavlinkSender:
         return n
 
     def close(self) -> None:
+        """Close the UDP socket."""
         self._conn.close()
 
     def __enter__(self) -> "MavlinkSender":

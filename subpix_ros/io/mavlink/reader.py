@@ -1,4 +1,4 @@
-"""The MAVLink telemetry reader: a live link or a replayed ``.tlog`` as :class:`TelemetrySample` s."""
+"""The MAVLink telemetry reader: a live link or a replayed ``.tlog`` as telemetry samples."""
 
 from __future__ import annotations
 
@@ -164,14 +164,17 @@ class MavlinkReader:
 
     @property
     def target_system(self) -> int | None:
+        """System id of the vehicle being tracked (None until one is seen)."""
         return self._target
 
     @property
     def latest(self) -> TelemetrySample | None:
+        """Latest accepted sample, or None."""
         return self._latest
 
     @property
     def events(self) -> list[LinkEvent]:
+        """Link events so far (a copy)."""
         with self._lock:
             return list(self._events)
 

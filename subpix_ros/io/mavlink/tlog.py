@@ -31,8 +31,9 @@ def write_tlog(
     packets: Sequence[tuple[float, bytes]] | None = None,
     mavlink1: bool = False,
 ) -> int:
-    """Write a telemetry log: each packet prefixed by its 8-byte big-endian
-    POSIX timestamp in microseconds (the MAVProxy/pymavlink ``.tlog`` format).
+    """Write a telemetry log (the MAVProxy/pymavlink ``.tlog`` format).
+
+    Each packet is prefixed by its 8-byte big-endian POSIX timestamp in microseconds.
 
     Give ``samples`` (encoded with :func:`encode_samples`) or ready
     ``packets`` [(t, bytes)]. Timestamps are written as mavutil does, with the

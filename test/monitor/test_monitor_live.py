@@ -59,7 +59,7 @@ def _spin(node, until, timeout, procs=()):
 
 @pytest.fixture
 def flight(sample_bags):
-    """The nodes and the monitor running; yields (port, procs, test node, shifts seen on /shift)."""
+    """Run the nodes and the monitor; yield (port, procs, test node, shifts seen on /shift)."""
     port = free_port()
     cam = "image:=/camera/image_raw"
     procs = [

@@ -1,5 +1,8 @@
-"""Bad input and faults at the nodes (issue 7): clear diagnostics, the node keeps
-running, nothing garbage is published, valid data beside bad data is not lost."""
+"""Bad input and faults at the nodes (issue 7).
+
+Bad input and faults at the nodes (issue 7): clear diagnostics, the node keeps
+running, nothing garbage is published, valid data beside bad data is not lost.
+"""
 
 import time
 

@@ -63,9 +63,12 @@ def _log(proc):
 
 
 def test_silent_camera_is_reported_with_its_publishers_and_qos(ros):
-    """No publisher: WARN 'no publisher on /x'; a publisher that sends nothing: WARN naming it
+    """Report a silent input: no publisher, or a publisher that sends nothing.
+
+    No publisher: WARN 'no publisher on /x'; a publisher that sends nothing: WARN naming it
     and its QoS; each logged once while it lasts; frames arriving end it. (Old code: status 'ok',
-    nothing logged; with use_sim_time and no /clock no diagnostics at all.)"""
+    nothing logged; with use_sim_time and no /clock no diagnostics at all.)
+    """
     proc = _start(
         "registration_node",
         "-r",

@@ -56,7 +56,6 @@ def test_mcap_middle_half_overwritten(tmp_path, writer):
     """Read the issue's bag, the middle half of the file overwritten.
 
     The issue's bag: 6 Image messages 256x256, the middle half of the file overwritten.
-    Was: 2 messages read without a word.
     """
     if writer == "ours":
         bag = tmp_path / "b.mcap"

@@ -284,9 +284,7 @@ def test_telemetry_node_replays_the_ardupilot_sitl_log(rclpy_node):
     """Run telemetry_node on the ArduPilot SITL excerpt.
 
     telemetry_node in its own process on the SITL excerpt (10x speed): a NavSatFix for every
-    GLOBAL_POSITION_INT of the vehicle, at its position, and heights as the log has them. (Was
-    208 of 209: the one sample without a recent ATTITUDE raised while building its Imu message,
-    and its fix was never published.)
+    GLOBAL_POSITION_INT of the vehicle, at its position, and heights as the log has them.
     """
     import sys
     import time

@@ -66,8 +66,7 @@ def test_silent_camera_is_reported_with_its_publishers_and_qos(ros):
     """Report a silent input: no publisher, or a publisher that sends nothing.
 
     No publisher: WARN 'no publisher on /x'; a publisher that sends nothing: WARN naming it
-    and its QoS; each logged once while it lasts; frames arriving end it. (Old code: status 'ok',
-    nothing logged; with use_sim_time and no /clock no diagnostics at all.)
+    and its QoS; each logged once while it lasts; frames arriving end it.
     """
     proc = _start(
         "registration_node",

@@ -72,7 +72,7 @@ class _Collector:
     """Turns the pipeline's events for the frame being added into records and products."""
 
     def __init__(self, writer: ProductWriter, reg_params: dict, reg_stats: Any = None) -> None:
-        self.w = writer
+        self.writer = writer
         self.reg_stats = reg_stats
         self._tracked = self._fallbacks = 0
         self.reg_params = reg_params
@@ -93,52 +93,54 @@ class _Collector:
         self.warning_examples: dict[str, str] = {}
 
     # --------------------------------------------------------- pipeline callbacks
-    def on_reference(self, ev: Any) -> None:
-        frame = getattr(ev, "frame", ev)
-        reason = str(getattr(ev, "reason", "") or "")
+    def on_reference(self, event: Any) -> None:
+        frame = getattr(event, "frame", event)
+        reason = str(getattr(event, "reason", "") or "")
         stamp = int(getattr(frame, "stamp_ns"))
         self.references.append({"stamp_ns": stamp, "reason": reason})
         rec = self.current
         if rec is not None and rec.stamp_ns == stamp:
             rec.status, rec.reason, rec.reference_stamp_ns = "reference", reason, stamp
 
-    def on_aligned(self, a: Any) -> None:
+    def on_aligned(self, aligned: Any) -> None:
         rec = self.current
-        ref = int(a.reference.stamp_ns)
-        self.ref_of[int(a.stamp_ns)] = ref
-        self.homographies[int(a.stamp_ns)] = np.asarray(a.homography, np.float64).reshape(3, 3)
-        self.priors[int(a.stamp_ns)] = (
-            tuple(a.prior) if getattr(a, "prior", None) is not None else None
+        ref = int(aligned.reference.stamp_ns)
+        self.ref_of[int(aligned.stamp_ns)] = ref
+        self.homographies[int(aligned.stamp_ns)] = np.asarray(
+            aligned.homography, np.float64
+        ).reshape(3, 3)
+        self.priors[int(aligned.stamp_ns)] = (
+            tuple(aligned.prior) if getattr(aligned, "prior", None) is not None else None
         )
-        self.w.homography(a.stamp_ns, a.homography)
-        self.w.reference_link(a.stamp_ns, ref, getattr(a, "frame_id", ""))
-        if rec is not None and rec.stamp_ns == int(a.stamp_ns):
+        self.writer.homography(aligned.stamp_ns, aligned.homography)
+        self.writer.reference_link(aligned.stamp_ns, ref, getattr(aligned, "frame_id", ""))
+        if rec is not None and rec.stamp_ns == int(aligned.stamp_ns):
             rec.status, rec.reference_stamp_ns = "aligned", ref
-            st = self.reg_stats  # the registration stage's figures of the frame just aligned
-            if st is not None:
-                rec.inliers, rec.rms_px = st.inliers, st.rms_px
-                rec.rms_along_px, rec.rms_cross_px = st.rms_along_px, st.rms_cross_px
-                tracked, fallbacks = st.tracked, st.fallbacks
+            stats = self.reg_stats  # the registration stage's figures of the frame just aligned
+            if stats is not None:
+                rec.inliers, rec.rms_px = stats.inliers, stats.rms_px
+                rec.rms_along_px, rec.rms_cross_px = stats.rms_along_px, stats.rms_cross_px
+                tracked, fallbacks = stats.tracked, stats.fallbacks
                 if tracked > self._tracked:
                     rec.tracked = True
                 elif fallbacks > self._fallbacks:
                     rec.tracked = False
                 self._tracked, self._fallbacks = tracked, fallbacks
-        self.shifts[int(a.stamp_ns)] = {
-            "stamp_ns": int(a.stamp_ns),
+        self.shifts[int(aligned.stamp_ns)] = {
+            "stamp_ns": int(aligned.stamp_ns),
             "reference_stamp_ns": ref,
             "converged": False,
             "reason": "no shift reported",
         }
 
     def on_skipped(self, item: Any) -> None:
-        stage, sk = item if isinstance(item, tuple) else ("", item)
+        stage, skip = item if isinstance(item, tuple) else ("", item)
         rec = self.current
-        reason = str(getattr(sk, "reason", sk))
-        detail = str(getattr(sk, "detail", "") or "")
+        reason = str(getattr(skip, "reason", skip))
+        detail = str(getattr(skip, "detail", "") or "")
         if detail:
             reason = f"{reason}: {detail}"
-        stamp = getattr(sk, "stamp_ns", None)
+        stamp = getattr(skip, "stamp_ns", None)
         stamp = rec.stamp_ns if stamp is None and rec is not None else stamp
         if stamp is not None and int(stamp) in self.shifts and (not stage or "shift" in stage):
             self.shifts[int(stamp)].update(converged=False, reason=reason)
@@ -147,31 +149,35 @@ class _Collector:
             rec.status, rec.reason = "skipped", reason
 
     def on_shift(self, item: Any) -> None:
-        s = item[0] if isinstance(item, tuple) else item
-        row = self.shifts.setdefault(int(s.stamp_ns), {"stamp_ns": int(s.stamp_ns)})
+        shift = item[0] if isinstance(item, tuple) else item
+        row = self.shifts.setdefault(int(shift.stamp_ns), {"stamp_ns": int(shift.stamp_ns)})
         row.update(
-            reference_stamp_ns=int(s.reference_stamp_ns),
-            u_px=rounded(s.u),
-            v_px=rounded(s.v),
-            u_std_px=rounded(s.u_std),
-            v_std_px=rounded(s.v_std),
+            reference_stamp_ns=int(shift.reference_stamp_ns),
+            u_px=rounded(shift.u),
+            v_px=rounded(shift.v),
+            u_std_px=rounded(shift.u_std),
+            v_std_px=rounded(shift.v_std),
             converged=True,
             reason="",
         )
-        self.w.shift(s.stamp_ns, s.u, s.v, s.z, getattr(s, "frame_id", ""))
+        self.writer.shift(shift.stamp_ns, shift.u, shift.v, shift.z, getattr(shift, "frame_id", ""))
 
     def on_super_resolved(self, sr: Any) -> None:
         ref = sr.reference
         stamp = int(ref.stamp_ns)
-        img = np.asarray(sr.image)
-        bic = np.asarray(sr.bicubic)
-        self.w.png(f"superres/{stamp}.png", img)
-        self.w.png(f"bicubic/{stamp}.png", bic)
-        self.w.image("/super_resolved", img, stamp, getattr(ref, "frame_id", ""))
+        image = np.asarray(sr.image)
+        bicubic = np.asarray(sr.bicubic)
+        self.writer.png(f"superres/{stamp}.png", image)
+        self.writer.png(f"bicubic/{stamp}.png", bicubic)
+        self.writer.image("/super_resolved", image, stamp, getattr(ref, "frame_id", ""))
         members = []
-        for s, a in getattr(sr, "members", []) or []:
+        for shift, _aligned in getattr(sr, "members", []) or []:
             members.append(
-                {"stamp_ns": int(s.stamp_ns), "u_px": rounded(s.u), "v_px": rounded(s.v)}
+                {
+                    "stamp_ns": int(shift.stamp_ns),
+                    "u_px": rounded(shift.u),
+                    "v_px": rounded(shift.v),
+                }
             )
         self.sets.append(
             {
@@ -185,11 +191,11 @@ class _Collector:
                 "blur_source": getattr(sr, "blur_source", None),
                 "superres": f"superres/{stamp}.png",
                 "bicubic": f"bicubic/{stamp}.png",
-                "shape": list(img.shape),
-                "dtype": str(img.dtype),
+                "shape": list(image.shape),
+                "dtype": str(image.dtype),
             }
         )
-        self.sr_images.append((stamp, img, ref))
+        self.sr_images.append((stamp, image, ref))
 
     def on_warning(self, item: Any) -> None:
         stage, msg = item if isinstance(item, tuple) else ("", item)
@@ -198,10 +204,10 @@ class _Collector:
             self.warnings[key] += 1
             self.warning_examples.setdefault(key, f"{stage}: {msg}" if stage else str(msg))
 
-    def on_error(self, err: Any) -> None:
-        if isinstance(err, tuple):
-            err = f"{err[0]}: {err[1]}"
-        text = " ".join(str(err).split())[:200]
+    def on_error(self, error: Any) -> None:
+        if isinstance(error, tuple):
+            error = f"{error[0]}: {error[1]}"
+        text = " ".join(str(error).split())[:200]
         self.errors.append(text)
         rec = self.current
         if rec is not None and rec.status in ("in",):

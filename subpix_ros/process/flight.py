@@ -179,10 +179,10 @@ def _finish_bag(
 
 
 def _run(
-    flight: Flight, w: ProductWriter, params: dict[str, dict], progress, monitor: Any = None
+    flight: Flight, writer: ProductWriter, params: dict[str, dict], progress, monitor: Any = None
 ) -> BagResult:
     """Feed the flight through the pipeline and write its products (all but timing, report)."""
-    run = _FlightRun(flight, w, params, monitor)
+    run = _FlightRun(flight, writer, params, monitor)
     run.read(progress)
     run.finish()
     rows, mosaic_info = run.write_products()
@@ -198,7 +198,7 @@ class _FlightRun:
         from subpix_ros.stages import MosaicStage, Pipeline
 
         self.flight = flight
-        self.w = writer
+        self.writer = writer
         self.pparams = pipeline_params(params)
         self.problems = _input_problems(flight)
         # The mosaic runs beside the pipeline (not inside it) so that a 16-bit flight's frames
@@ -206,7 +206,7 @@ class _FlightRun:
         self.pipe = Pipeline(self.pparams, with_mosaic=False)
         self.mosaic = MosaicStage.from_params(self.pparams["mosaic_node"])
         self.reg_params = {k: self.pipe.registration.p(k) for k in EXPECTED_SHIFT_PARAMS}
-        self.col = _Collector(writer, self.reg_params, self.pipe.registration.stats)
+        self.collector = _Collector(writer, self.reg_params, self.pipe.registration.stats)
         self._connect(monitor)
         self.mosaic_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="subpix-mosaic")
         self.mosaic_jobs: list[tuple[_FrameRec, Any]] = []
@@ -234,20 +234,20 @@ class _FlightRun:
 
     def _connect(self, monitor: Any) -> None:
         """Route the pipeline's events to the collector (and to the live monitor, if any)."""
-        col = self.col
+        collector = self.collector
         for kind, callback in (
-            ("reference", col.on_reference),
-            ("aligned", col.on_aligned),
-            ("skipped", col.on_skipped),
-            ("shift", col.on_shift),
-            ("super_resolved", col.on_super_resolved),
-            ("error", col.on_error),
-            ("warning", col.on_warning),
+            ("reference", collector.on_reference),
+            ("aligned", collector.on_aligned),
+            ("skipped", collector.on_skipped),
+            ("shift", collector.on_shift),
+            ("super_resolved", collector.on_super_resolved),
+            ("error", collector.on_error),
+            ("warning", collector.on_warning),
         ):
             self.pipe.on(kind, callback)
         # The mosaic runs on its own thread (it needs nothing from the other stages), frames in
         # order; its problems are warnings: a frame missing from the preview loses no product.
-        self.mosaic.on_problem = lambda level, msg: col.on_warning(("mosaic_node", msg))
+        self.mosaic.on_problem = lambda level, msg: collector.on_warning(("mosaic_node", msg))
         self.feed = _MonitorFeed(monitor, self.mosaic) if monitor is not None else None
         if self.feed is not None:
             self.pipe.on("shift", self.feed.shift)
@@ -260,7 +260,7 @@ class _FlightRun:
                 rec.mosaic = bool(fut.result())
             except Exception as exc:  # noqa: BLE001 - the mosaic is a preview: the frame goes on
                 rec.mosaic = False
-                self.col.on_warning(("mosaic_node", f"{type(exc).__name__}: {exc}"))
+                self.collector.on_warning(("mosaic_node", f"{type(exc).__name__}: {exc}"))
         self.mosaic_jobs.clear()
 
     def all_stats(self) -> dict:
@@ -280,8 +280,8 @@ class _FlightRun:
                 self.done += 1
                 if kind == "bad_frame":
                     stamp, why = item
-                    self.col.frames.append(
-                        _FrameRec(len(self.col.frames), int(stamp), "dropped", why)
+                    self.collector.frames.append(
+                        _FrameRec(len(self.collector.frames), int(stamp), "dropped", why)
                     )
                     self._drop(why)
                 else:
@@ -300,14 +300,14 @@ class _FlightRun:
 
     def _frame(self, frame: Any) -> None:
         """One decoded frame: size check, mosaic job, pipeline, diagnostics once a second."""
-        col = self.col
-        rec = _FrameRec(len(col.frames), int(frame.stamp_ns))
-        col.frames.append(rec)
+        collector = self.collector
+        rec = _FrameRec(len(collector.frames), int(frame.stamp_ns))
+        collector.frames.append(rec)
         shape = (frame.image.shape, str(frame.image.dtype))
         if self.size is None:
             self.size = shape
-            col.dtype = str(frame.image.dtype)
-            col.shape = frame.image.shape[:2]
+            collector.dtype = str(frame.image.dtype)
+            collector.shape = frame.image.shape[:2]
         if shape != self.size:
             rec.status = "dropped"
             rec.reason = (
@@ -318,40 +318,42 @@ class _FlightRun:
             return
         self.first_ns = rec.stamp_ns if self.first_ns is None else self.first_ns
         self.last_ns = rec.stamp_ns
-        col.current = rec
+        collector.current = rec
         t0 = time.perf_counter()
         self.mosaic_jobs.append((rec, self.mosaic_pool.submit(self.mosaic.add, _preview(frame))))
         try:
             self.pipe.add(frame)
         except Exception as exc:  # noqa: BLE001 - a stage failure drops the frame, not the flight
-            col.on_error(f"{type(exc).__name__}: {exc}")
+            collector.on_error(f"{type(exc).__name__}: {exc}")
         self.add_ms.append(1000.0 * (time.perf_counter() - t0))
         if self.feed is not None:
             self.feed.frame(frame, len(self.mosaic_jobs))
         if rec.status == "in":
-            rec.status = "dropped" if col.errors else "in"
-        col.current = None
+            rec.status = "dropped" if collector.errors else "in"
+        collector.current = None
         if self.next_diag is None or rec.stamp_ns >= self.next_diag:
             self.next_diag = rec.stamp_ns + DIAGNOSTICS_PERIOD_NS
             self.mosaic_wait()  # the figures as of this frame, whatever the threads' timing
-            self.w.diagnostics(rec.stamp_ns, _diag_statuses(self.all_stats()))
+            self.writer.diagnostics(rec.stamp_ns, _diag_statuses(self.all_stats()))
 
     def finish(self) -> None:
         """End of stream: wait for the mosaic, flush the pipeline, state what went wrong."""
-        col = self.col
-        col.current = None
+        collector = self.collector
+        collector.current = None
         self.mosaic_wait()
         self.mosaic_pool.shutdown(wait=True)
         try:
             self.pipe.flush()
         except Exception as exc:  # noqa: BLE001
-            col.on_error(f"flush: {type(exc).__name__}: {exc}")
+            collector.on_error(f"flush: {type(exc).__name__}: {exc}")
         if self.dropped:
             self.problems.extend(
                 f"{n} frame(s) dropped: {self.examples[k]}" for k, n in sorted(self.dropped.items())
             )
-        if col.errors:
-            self.problems.append(f"{len(col.errors)} stage error(s), last: {col.errors[-1]}")
+        if collector.errors:
+            self.problems.append(
+                f"{len(collector.errors)} stage error(s), last: {collector.errors[-1]}"
+            )
         if self.flight.read_report.skipped_records:
             self.status = "partial"
             self.problems.append(
@@ -360,7 +362,7 @@ class _FlightRun:
 
     def write_products(self) -> tuple[list[dict], dict]:
         """Write the tables, frame intervals, mosaic and last diagnostics; score against truth."""
-        col, w, reg_params = self.col, self.w, self.reg_params
+        collector, writer, reg_params = self.collector, self.writer, self.reg_params
         buf = TelemetryBuffer(
             max_age_s=1e9,
             stale_after_s=float(reg_params["telemetry_timeout_s"]),
@@ -368,42 +370,42 @@ class _FlightRun:
         )
         for sample in self.samples:
             buf.add(sample)
-        rows = _shift_rows(col, buf, reg_params)
-        w.csv("shifts.csv", SHIFT_COLUMNS, rows)
-        for rec in col.frames:
+        rows = _shift_rows(collector, buf, reg_params)
+        writer.csv("shifts.csv", SHIFT_COLUMNS, rows)
+        for rec in collector.frames:
             if rec.status == "in":
                 rec.status = "kept"
-        w.csv("frames.csv", FRAME_COLUMNS, [vars(r) for r in col.frames])
-        w.csv("telemetry.csv", TELEMETRY_COLUMNS, [_telemetry_row(s) for s in self.samples])
-        for rec in col.frames:
+        writer.csv("frames.csv", FRAME_COLUMNS, [vars(r) for r in collector.frames])
+        writer.csv("telemetry.csv", TELEMETRY_COLUMNS, [_telemetry_row(s) for s in self.samples])
+        for rec in collector.frames:
             if rec.status in ("aligned", "reference", "kept") and self.samples:
                 interval = _interval_at(buf, rec.stamp_ns * 1e-9, reg_params)
                 if interval is not None:
-                    w.frame_interval(rec.stamp_ns, interval)
-        mosaic_info = _mosaic(self.mosaic, w, self.last_ns)
+                    writer.frame_interval(rec.stamp_ns, interval)
+        mosaic_info = _mosaic(self.mosaic, writer, self.last_ns)
         if self.last_ns is not None:
-            w.diagnostics(self.last_ns, _diag_statuses(self.all_stats()))
+            writer.diagnostics(self.last_ns, _diag_statuses(self.all_stats()))
         truth = _load_truth(self.flight.path)
         if truth is not None:
-            _score_sets(col, truth)
+            _score_sets(collector, truth)
         return rows, mosaic_info
 
     def result(self, rows: list[dict], mosaic_info: dict) -> BagResult:
         """Write ``summary.json`` and return the result with its one line and its timing."""
-        flight, col = self.flight, self.col
+        flight, collector = self.flight, self.collector
         summary = _summary(self, rows, mosaic_info)
-        if not col.sets and flight.frames_total:
+        if not collector.sets and flight.frames_total:
             self.problems.append("no super-resolved image: no set reached min_frames")
-        if self.status == "ok" and (not flight.frames_total or self.dropped or col.errors):
+        if self.status == "ok" and (not flight.frames_total or self.dropped or collector.errors):
             self.status = "partial"  # part of the input (or all of it) could not be used
         summary["status"] = self.status
-        self.w.json("summary.json", _clean(summary))
+        self.writer.json("summary.json", _clean(summary))
         flight_s = summary["flight"]["duration_s"]
         frames = summary["frames"]
         line = (
             f"{flight.name}: {self.status}: {self.done} frames in, {frames['kept']} kept, "
             f"{frames['skipped']} skipped, {frames['dropped']} dropped, "
-            f"{frames['shifts']} shifts, {len(col.sets)} super-resolved"
+            f"{frames['shifts']} shifts, {len(collector.sets)} super-resolved"
         )
         problems = self.problems
         if problems:

@@ -38,13 +38,13 @@ def _input_problems(flight: Flight) -> list[str]:
 
 def _summary(run: _FlightRun, rows: list[dict], mosaic_info: dict) -> dict:
     """Build the content of ``summary.json`` (its final ``status`` is set by the caller)."""
-    flight, col = run.flight, run.col
+    flight, collector = run.flight, run.collector
     stage_stats = {
         k: _clean({kk: vv for kk, vv in _stats_dict(v).items() if not _TIME_KEY.search(kk)})
         for k, v in run.all_stats().items()
     }
-    statuses = Counter(r.status for r in col.frames)
-    skipped = Counter(reason_key(r.reason) for r in col.frames if r.status == "skipped")
+    statuses = Counter(r.status for r in collector.frames)
+    skipped = Counter(reason_key(r.reason) for r in collector.frames if r.status == "skipped")
     first_ns, last_ns = run.first_ns, run.last_ns
     return {
         "bag": flight.name,
@@ -55,7 +55,7 @@ def _summary(run: _FlightRun, rows: list[dict], mosaic_info: dict) -> dict:
             "topic": flight.camera_topic,
             "type": flight.camera_type,
             "size": _shape_text(run.size) if run.size else None,
-            "dtype": col.dtype,
+            "dtype": collector.dtype,
         },
         "telemetry": {
             "source": flight.telemetry_source,
@@ -80,11 +80,13 @@ def _summary(run: _FlightRun, rows: list[dict], mosaic_info: dict) -> dict:
             "shifts": sum(1 for r in rows if r.get("converged")),
             "shifts_not_converged": sum(1 for r in rows if not r.get("converged")),
         },
-        "references": col.references,
-        "sets": col.sets,
+        "references": collector.references,
+        "sets": collector.sets,
         "mosaic": mosaic_info,
         "stages": stage_stats,
-        "warnings": {col.warning_examples[k]: n for k, n in sorted(col.warnings.items())},
+        "warnings": {
+            collector.warning_examples[k]: n for k, n in sorted(collector.warnings.items())
+        },
         "parameters": _clean(run.pparams),
         "broke_off": run.broke_off,
     }

@@ -27,14 +27,14 @@ def _load_truth(bag: Path) -> tuple[dict[int, tuple[float, float]], np.ndarray |
         return None
 
 
-def _score_sets(col: _Collector, truth) -> None:
+def _score_sets(collector: _Collector, truth) -> None:
     """PSNR of each super-resolved image and of the bicubic reference against the rendered truth."""
     from subpix_ros.core.evaluate import gain_over_bicubic, truth_on_grid
 
     shifts, hr, factor = truth
     if hr is None:
         return
-    for entry, (stamp, img, ref) in zip(col.sets, col.sr_images):
+    for entry, (stamp, img, ref) in zip(collector.sets, collector.sr_images):
         if stamp not in shifts or img.dtype != np.uint8:
             continue
         try:

@@ -108,16 +108,25 @@ class _Sender:
         if now - self._health_sent >= self.cfg.health_period_s:
             self._health_sent = now
             self._essential("/health", self.health_message())
-        for s in self.streams.values():  # encode the newest input of each stream that is due
+        for stream in self.streams.values():  # encode the newest input of each stream that is due
             with self._lock:
-                item, seq = s.item, s.seq
-            due = now - s.last_sent >= getattr(self.cfg, s.period_attr, 0.0)
-            stale = s.pending is not None and seq != s.pending_seq and now - s.pending_t > 0.5
-            if item is not None and seq != s.sent_seq and due and (s.pending is None or stale):
-                if s.pending is None:  # waiting for the link since (kept when replaced by a newer)
-                    s.pending_t = now
-                s.pending = self._encode_to_fit(s, item, now)
-                s.pending_seq = seq
+                item, seq = stream.item, stream.seq
+            due = now - stream.last_sent >= getattr(self.cfg, stream.period_attr, 0.0)
+            stale = (
+                stream.pending is not None
+                and seq != stream.pending_seq
+                and now - stream.pending_t > 0.5
+            )
+            if (
+                item is not None
+                and seq != stream.sent_seq
+                and due
+                and (stream.pending is None or stale)
+            ):
+                if stream.pending is None:  # waiting since (kept when replaced by a newer)
+                    stream.pending_t = now
+                stream.pending = self._encode_to_fit(stream, item, now)
+                stream.pending_seq = seq
         # the track and footprints: small, rate-limited by geo_period_s, charged like the essentials
         if self._geo_dirty and now - self._geo_sent >= self.cfg.geo_period_s:
             with self._lock:
@@ -133,22 +142,28 @@ class _Sender:
             starved = x.pending is not None and now - x.pending_t > max(4.0, 4 * period)
             return (0 if starved else 1, x.priority)
 
-        for s in sorted(self.streams.values(), key=order):
-            if s.pending is None:
+        for stream in sorted(self.streams.values(), key=order):
+            if stream.pending is None:
                 continue
-            n = sum(wire_bytes(len(m)) for _, m in s.pending) * max(
-                1, max(self.clients(t) for t in s.topics)
+            n = sum(wire_bytes(len(m)) for _, m in stream.pending) * max(
+                1, max(self.clients(t) for t in stream.topics)
             )
             if not self.bucket.allows(n, now):
                 break  # strict priority: nothing lower goes while this waits
-            for topic, m in s.pending:
+            for topic, m in stream.pending:
                 self._log(topic, m)
-            s.pending, s.sent_seq, s.last_sent, s.sent = None, s.pending_seq, now, s.sent + 1
+            stream.sent_seq, stream.last_sent, stream.sent = (
+                stream.pending_seq,
+                now,
+                stream.sent + 1,
+            )
+            stream.pending = None
 
-    def target_bytes(self, s: _Stream, now: float) -> float:
-        """Bytes one message of stream ``s`` should take: its share of what the essentials leave.
+    def target_bytes(self, stream: _Stream, now: float) -> float:
+        """Return the bytes one message of ``stream`` should take.
 
-        ``share = max(0.1 B, B - essentials) * w_s / sum(w of streams fed in the last 10 s)``,
+        Its share of what the essentials leave:
+        ``share = max(0.1 B, B - essentials) * w_stream / sum(w of streams fed in the last 10 s)``,
         ``B`` the budget (bytes/s), ``essentials`` the measured bytes/s of health, log, shifts,
         telemetry, fixes and footprints; one message is sized for ``max(period, 1 s)`` of its
         share (divided among the clients subscribed): below that, images come less often
@@ -159,50 +174,52 @@ class _Sender:
         active = [
             x for x in self.streams.values() if x.item is not None and now - x.last_input < 10.0
         ]
-        w = s.weight / max(1e-9, sum(x.weight for x in active) if s in active else s.weight)
-        clients = max(1, max(self.clients(t) for t in s.topics))
-        return avail * w * max(getattr(self.cfg, s.period_attr, 0.0), 1.0) / clients
+        w = stream.weight / max(
+            1e-9, sum(x.weight for x in active) if stream in active else stream.weight
+        )
+        clients = max(1, max(self.clients(t) for t in stream.topics))
+        return avail * w * max(getattr(self.cfg, stream.period_attr, 0.0), 1.0) / clients
 
-    def _encode_to_fit(self, s: _Stream, item, now: float) -> list:
+    def _encode_to_fit(self, stream: _Stream, item, now: float) -> list:
         """Encode ``item`` at the stream's rung, stepping down the ladder until it fits.
 
         The rung goes down while the message is 25 % over its target, and one rung up for next
         time when it is under half of it.
         """
-        target = self.target_bytes(s, now)
-        msgs = self._encode(s, item)
+        target = self.target_bytes(stream, now)
+        msgs = self._encode(stream, item)
         size = sum(len(m) for _, m in msgs)
-        while size > 1.25 * target and s.level < len(LEVELS) - 1:
-            s.level += 1
-            msgs = self._encode(s, item)
+        while size > 1.25 * target and stream.level < len(LEVELS) - 1:
+            stream.level += 1
+            msgs = self._encode(stream, item)
             size = sum(len(m) for _, m in msgs)
-        if size < 0.5 * target and s.level > 0:
-            s.level -= 1
+        if size < 0.5 * target and stream.level > 0:
+            stream.level -= 1
         return msgs
 
-    def _encode(self, s: _Stream, item) -> list:
-        lv = LEVELS[s.level]
-        if s.topics == ("/mosaic",):
+    def _encode(self, stream: _Stream, item) -> list:
+        rung = LEVELS[stream.level]
+        if stream.topics == ("/mosaic",):
             img, stamp = item
             return [
                 (
                     "/mosaic",
                     self._jpeg(
-                        _shrink(_to_u8(img), int(self.cfg.mosaic_max_px * lv.scale)),
-                        lv.quality,
+                        _shrink(_to_u8(img), int(self.cfg.mosaic_max_px * rung.scale)),
+                        rung.quality,
                         stamp,
                         "mosaic",
                     ),
                 )
             ]
-        if s.topics == ("/camera",):
+        if stream.topics == ("/camera",):
             img, stamp = item
             return [
                 (
                     "/camera",
                     self._jpeg(
-                        _shrink(_to_u8(img), int(self.cfg.camera_max_px * lv.scale)),
-                        lv.quality,
+                        _shrink(_to_u8(img), int(self.cfg.camera_max_px * rung.scale)),
+                        rung.quality,
                         stamp,
                         "camera",
                     ),
@@ -215,13 +232,13 @@ class _Sender:
         win = (slice(r0, r0 + crop), slice(c0, c0 + crop))
         f = f" x{factor}" if factor else ""
         where = f" rows {r0}-{min(h, r0 + crop)} cols {c0}-{min(w, c0 + crop)}"
-        side = int(crop * lv.scale)
+        side = int(crop * rung.scale)
         out = [
             (
                 "/super_resolved",
                 self._jpeg(
                     _label(_shrink(_to_u8(sr[win]), side), "super-resolved" + f + where),
-                    lv.quality,
+                    rung.quality,
                     stamp,
                     "super_resolved",
                 ),
@@ -233,7 +250,7 @@ class _Sender:
                     "/bicubic",
                     self._jpeg(
                         _label(_shrink(_to_u8(bic[win]), side), "bicubic" + f + where),
-                        lv.quality,
+                        rung.quality,
                         stamp,
                         "super_resolved",
                     ),
@@ -253,11 +270,11 @@ class _Sender:
             "bytes_per_s": per,
             "levels": {
                 n: {
-                    "quality": LEVELS[s.level].quality,
-                    "scale": LEVELS[s.level].scale,
-                    "sent": s.sent,
+                    "quality": LEVELS[stream.level].quality,
+                    "scale": LEVELS[stream.level].scale,
+                    "sent": stream.sent,
                 }
-                for n, s in self.streams.items()
+                for n, stream in self.streams.items()
             },
             "clients": self._client_count(),
             "errors": list(self.errors[-3:]),

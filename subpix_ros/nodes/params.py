@@ -30,25 +30,25 @@ class Param(Spec):
 
     def descriptor(self) -> ParameterDescriptor:
         """Return the ROS descriptor: description, read-only flag, range, choices."""
-        d = ParameterDescriptor(
+        descriptor = ParameterDescriptor(
             name=self.name, description=self.description, read_only=self.read_only
         )
         if self.min is not None and self.max is not None:
             if isinstance(self.default, bool):
                 pass
             elif isinstance(self.default, int):
-                d.integer_range = [
+                descriptor.integer_range = [
                     IntegerRange(from_value=int(self.min), to_value=int(self.max), step=0)
                 ]
             elif isinstance(self.default, float):
-                d.floating_point_range = [
+                descriptor.floating_point_range = [
                     FloatingPointRange(
                         from_value=float(self.min), to_value=float(self.max), step=0.0
                     )
                 ]
         if self.choices:
-            d.additional_constraints = "one of: " + ", ".join(self.choices)
-        return d
+            descriptor.additional_constraints = "one of: " + ", ".join(self.choices)
+        return descriptor
 
 
 def declare_params(
@@ -56,43 +56,31 @@ def declare_params(
 ) -> dict[str, Param]:
     """Declare ``params`` on ``node`` and guard them at run time.
 
-    A value given at start-up (``--ros-args -p`` or ``--params-file``) that is
-    of the wrong type or out of range is rejected with an error log and the
-    default is kept. Changes at run time are validated by :meth:`Param.check`;
-    a rejected change leaves the old value and returns the reason to the
-    caller of set_parameters. ``on_change(name, value)`` runs after accepted
-    run-time changes.
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node to declare them on.
+    params : iterable of Param
+        The parameters, with defaults, descriptions and ranges.
+    on_change : callable, optional
+        ``on_change(name, value)`` runs after each accepted run-time change.
+
+    Returns
+    -------
+    dict of str to Param
+        The parameters by name.
+
+    Notes
+    -----
+    A value given at start-up (``--ros-args -p`` or ``--params-file``) that is of the wrong
+    type or out of range is rejected with an error log and the default is kept. Changes at run
+    time are validated by :meth:`Param.check`; a rejected change leaves the old value and
+    returns the reason to the caller of set_parameters.
     """
-    spec = {p.name: p for p in params}
-    for p in spec.values():
-        try:
-            node.declare_parameter(p.name, p.default, p.descriptor())
-            bad = p.check(node.get_parameter(p.name).value)
-        except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
-            bad = str(exc).splitlines()[0]
-            node.undeclare_parameter(p.name) if node.has_parameter(p.name) else None
-        if bad:
-            node.get_logger().error(
-                f"parameter rejected at start-up, keeping default {p.default!r}: {bad}"
-            )
-            if node.has_parameter(p.name):
-                node.undeclare_parameter(p.name)
-            node.declare_parameter(p.name, p.default, p.descriptor(), ignore_override=True)
-
-    def validate(changes: list[Parameter]) -> SetParametersResult:
-        for change in changes:
-            p = spec.get(change.name)
-            if p is None:
-                continue
-            if p.read_only:
-                return SetParametersResult(successful=False, reason=f"{p.name} is read-only")
-            why = p.check(change.value)
-            if why:
-                node.get_logger().warning(f"parameter change rejected: {why}")
-                return SetParametersResult(successful=False, reason=why)
-        return SetParametersResult(successful=True)
-
-    node.add_on_set_parameters_callback(validate)
+    spec = {param.name: param for param in params}
+    for param in spec.values():
+        _declare_one(node, param)
+    node.add_on_set_parameters_callback(_validator(node, spec))
     if on_change is not None:
 
         def after(changes: list[Parameter]) -> None:
@@ -102,3 +90,39 @@ def declare_params(
 
         node.add_post_set_parameters_callback(after)
     return spec
+
+
+def _declare_one(node: Node, param: Param) -> None:
+    """Declare ``param``, falling back to its default if the start-up value is rejected."""
+    try:
+        node.declare_parameter(param.name, param.default, param.descriptor())
+        bad = param.check(node.get_parameter(param.name).value)
+    except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
+        bad = str(exc).splitlines()[0]
+        node.undeclare_parameter(param.name) if node.has_parameter(param.name) else None
+    if bad:
+        node.get_logger().error(
+            f"parameter rejected at start-up, keeping default {param.default!r}: {bad}"
+        )
+        if node.has_parameter(param.name):
+            node.undeclare_parameter(param.name)
+        node.declare_parameter(param.name, param.default, param.descriptor(), ignore_override=True)
+
+
+def _validator(node: Node, spec: dict[str, Param]) -> Callable[[list[Parameter]], Any]:
+    """Return the on-set-parameters callback that checks changes against ``spec``."""
+
+    def validate(changes: list[Parameter]) -> SetParametersResult:
+        for change in changes:
+            param = spec.get(change.name)
+            if param is None:
+                continue
+            if param.read_only:
+                return SetParametersResult(successful=False, reason=f"{param.name} is read-only")
+            why = param.check(change.value)
+            if why:
+                node.get_logger().warning(f"parameter change rejected: {why}")
+                return SetParametersResult(successful=False, reason=why)
+        return SetParametersResult(successful=True)
+
+    return validate

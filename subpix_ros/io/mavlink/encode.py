@@ -47,7 +47,7 @@ def _cdeg(angle_rad: float | None) -> int:
     return int(round(math.degrees(angle_rad) % 360.0 * 100.0)) % 36000
 
 
-def _messages_for(s: TelemetrySample, boot_ms: int) -> list:
+def _messages_for(sample: TelemetrySample, boot_ms: int) -> list:
     """ATTITUDE, VFR_HUD and GLOBAL_POSITION_INT for one sample (in send order).
 
     GLOBAL_POSITION_INT goes last: the reader emits a sample on it, combining
@@ -55,42 +55,42 @@ def _messages_for(s: TelemetrySample, boot_ms: int) -> list:
     sample does not define: airspeed = ground speed (no wind model), throttle
     0, body rates 0.
     """
-    heading = s.yaw_rad if s.yaw_rad is not None else s.course_rad
+    heading = sample.yaw_rad if sample.yaw_rad is not None else sample.course_rad
     msgs = []
-    if s.has_attitude:
+    if sample.has_attitude:
         msgs.append(
             mavlink2.MAVLink_attitude_message(
                 boot_ms,
-                float(s.roll_rad),
-                float(s.pitch_rad),
-                float(s.yaw_rad),
+                float(sample.roll_rad),
+                float(sample.pitch_rad),
+                float(sample.yaw_rad),
                 0.0,
                 0.0,
                 0.0,  # type: ignore[arg-type]
             )
         )
-    vn, ve, vd = (float(x) for x in s.vel_ned_mps)
+    vn, ve, vd = (float(x) for x in sample.vel_ned_mps)
     msgs.append(
         mavlink2.MAVLink_vfr_hud_message(
-            float(s.ground_speed_mps),
-            float(s.ground_speed_mps),
+            float(sample.ground_speed_mps),
+            float(sample.ground_speed_mps),
             _cdeg(heading) // 100 if _cdeg(heading) != UINT16_MAX else 0,
             0,
-            float(s.alt_msl_m),
+            float(sample.alt_msl_m),
             -vd,
         )
     )
     msgs.append(
         mavlink2.MAVLink_global_position_int_message(
             boot_ms,
-            _i32("lat", s.lat_deg * 1e7),
-            _i32("lon", s.lon_deg * 1e7),
-            _i32("alt", s.alt_msl_m * 1000.0),
-            _i32("relative_alt", s.height_agl_m * 1000.0),
+            _i32("lat", sample.lat_deg * 1e7),
+            _i32("lon", sample.lon_deg * 1e7),
+            _i32("alt", sample.alt_msl_m * 1000.0),
+            _i32("relative_alt", sample.height_agl_m * 1000.0),
             _i16("vx", vn * 100.0),
             _i16("vy", ve * 100.0),
             _i16("vz", vd * 100.0),
-            _cdeg(s.yaw_rad),
+            _cdeg(sample.yaw_rad),
         )
     )
     return msgs
@@ -153,19 +153,21 @@ def encode_samples(
     boot = samples[0].t if boot_time is None else float(boot_time)
     out: list[tuple[float, bytes]] = []
     next_hb = -math.inf
-    for s in samples:
-        boot_ms = int(round((s.t - boot) * 1000.0))
+    for sample in samples:
+        boot_ms = int(round((sample.t - boot) * 1000.0))
         if not 0 <= boot_ms < 2**32:
             raise ValueError(
-                f"sample t={s.t} is before boot_time={boot} or too late for time_boot_ms"
+                f"sample t={sample.t} is before boot_time={boot} or too late for time_boot_ms"
             )
-        if heartbeat_hz > 0 and s.t >= next_hb:
-            out.append((s.t, packer.pack(_heartbeat())))
+        if heartbeat_hz > 0 and sample.t >= next_hb:
+            out.append((sample.t, packer.pack(_heartbeat())))
             next_hb = (
-                s.t + 1.0 / heartbeat_hz if next_hb == -math.inf else next_hb + 1.0 / heartbeat_hz
+                sample.t + 1.0 / heartbeat_hz
+                if next_hb == -math.inf
+                else next_hb + 1.0 / heartbeat_hz
             )
-            if next_hb <= s.t:  # a gap in the samples: restart the heartbeat clock
-                next_hb = s.t + 1.0 / heartbeat_hz
-        for msg in _messages_for(s, boot_ms):
-            out.append((s.t, packer.pack(msg)))
+            if next_hb <= sample.t:  # a gap in the samples: restart the heartbeat clock
+                next_hb = sample.t + 1.0 / heartbeat_hz
+        for msg in _messages_for(sample, boot_ms):
+            out.append((sample.t, packer.pack(msg)))
     return out

@@ -199,32 +199,14 @@ class _Sender:
 
     def _encode(self, stream: _Stream, item) -> list:
         rung = LEVELS[stream.level]
-        if stream.topics == ("/mosaic",):
-            img, stamp = item
-            return [
-                (
-                    "/mosaic",
-                    self._jpeg(
-                        _shrink(_to_u8(img), int(self.cfg.mosaic_max_px * rung.scale)),
-                        rung.quality,
-                        stamp,
-                        "mosaic",
-                    ),
-                )
-            ]
-        if stream.topics == ("/camera",):
-            img, stamp = item
-            return [
-                (
-                    "/camera",
-                    self._jpeg(
-                        _shrink(_to_u8(img), int(self.cfg.camera_max_px * rung.scale)),
-                        rung.quality,
-                        stamp,
-                        "camera",
-                    ),
-                )
-            ]
+        for topic, max_px, frame_id in (
+            ("/mosaic", self.cfg.mosaic_max_px, "mosaic"),
+            ("/camera", self.cfg.camera_max_px, "camera"),
+        ):
+            if stream.topics == (topic,):
+                img, stamp = item
+                small = _shrink(_to_u8(img), int(max_px * rung.scale))
+                return [(topic, self._jpeg(small, rung.quality, stamp, frame_id))]
         sr, bic, stamp, factor = item
         crop = max(32, int(self.cfg.sr_crop_px))
         h, w = sr.shape[:2]

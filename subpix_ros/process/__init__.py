@@ -8,7 +8,7 @@ exported here lazily, so ``subpix report`` does not load the stages.
 
 from __future__ import annotations
 
-import importlib
+from subpix_ros._lazy import lazy_exports
 
 _EXPORTS = {
     "InputError": "inputs",
@@ -32,9 +32,4 @@ _EXPORTS = {
 
 __all__ = list(_EXPORTS)
 
-
-def __getattr__(name: str):
-    """Import the module that defines ``name`` on first access (PEP 562)."""
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+__getattr__ = lazy_exports(__name__, _EXPORTS)

@@ -25,16 +25,20 @@ def _section_shifts(shifts: list[dict], t0: float | None, has_tel: bool) -> str:
         tot = np.array([_f(r, f"{key}_total_px") for r in shifts])
         std = np.array([_f(r, f"{key}_std_px") for r in shifts])
         exp = np.array([_f(r, f"{key}_expected_px") for r in shifts])
-        axes[0].errorbar(
-            t[conv],
-            tot[conv],
-            yerr=std[conv],
-            fmt="o",
-            ms=3,
-            color=colour,
-            capsize=2,
-            label=f"{ax_label} measured (homography + sub-pixel, +-1 s.e.)",
-        )
+
+        def points(ax, values, label: str, colour=colour, std=std) -> None:
+            ax.errorbar(
+                t[conv],
+                values[conv],
+                yerr=std[conv],
+                fmt="o",
+                ms=3,
+                color=colour,
+                capsize=2,
+                label=label,
+            )
+
+        points(axes[0], tot, f"{ax_label} measured (homography + sub-pixel, +-1 s.e.)")
         if np.isfinite(exp).any():
             axes[0].plot(
                 t,
@@ -45,16 +49,7 @@ def _section_shifts(shifts: list[dict], t0: float | None, has_tel: bool) -> str:
                 label=f"{ax_label} expected from telemetry (eq. 1)",
             )
             res = np.array([_f(r, f"{key}_residual_px") for r in shifts])
-            axes[1].errorbar(
-                t[conv],
-                res[conv],
-                yerr=std[conv],
-                fmt="o",
-                ms=3,
-                color=colour,
-                capsize=2,
-                label=f"{ax_label} measured - expected",
-            )
+            points(axes[1], res, f"{ax_label} measured - expected")
     if (~conv).any():
         axes[0].plot(
             t[~conv], np.zeros((~conv).sum()), "x", color="red", label="no converged shift"

@@ -22,22 +22,24 @@ DIALECT = "ardupilotmega"
 UINT16_MAX = 65535
 
 
-def _i32(name: str, value: float) -> int:
+def _int_field(name: str, value: float, bits: int) -> int:
+    """Round ``value`` for a signed ``bits``-bit MAVLink field; ValueError if it cannot hold it."""
     if not math.isfinite(value):
         raise ValueError(f"cannot encode non-finite {name} ({value}) as an integer MAVLink field")
-    v = int(round(value))
-    if not -(2**31) <= v < 2**31:
-        raise ValueError(f"{name}={value} does not fit the int32 MAVLink field")
-    return v
+    rounded = int(round(value))
+    if not -(2 ** (bits - 1)) <= rounded < 2 ** (bits - 1):
+        raise ValueError(f"{name}={value} does not fit the int{bits} MAVLink field")
+    return rounded
+
+
+def _i32(name: str, value: float) -> int:
+    """Round ``value`` for an int32 field."""
+    return _int_field(name, value, 32)
 
 
 def _i16(name: str, value: float) -> int:
-    if not math.isfinite(value):
-        raise ValueError(f"cannot encode non-finite {name} ({value}) as an integer MAVLink field")
-    v = int(round(value))
-    if not -(2**15) <= v < 2**15:
-        raise ValueError(f"{name}={value} does not fit the int16 MAVLink field")
-    return v
+    """Round ``value`` for an int16 field."""
+    return _int_field(name, value, 16)
 
 
 def _cdeg(angle_rad: float | None) -> int:

@@ -257,13 +257,7 @@ class MavlinkReader:
             if ev.state == "lost":
                 self._stats.link_losses += 1
         self._state = ev.state
-        if self.on_status is not None:
-            try:
-                self.on_status(ev)
-            except Exception as exc:  # noqa: BLE001
-                with self._lock:
-                    self._stats.callback_errors += 1
-                    self._stats.last_error = f"on_status: {type(exc).__name__}: {exc}"
+        self._call("on_status", self.on_status, ev)
 
     def _check_link(self, now: float) -> None:
         if self._state in ("connected", "restored") and self._last_activity is not None:
@@ -435,10 +429,15 @@ class MavlinkReader:
         self._latest = sample
         with self._lock:
             self._stats.samples += 1
-        if self.on_sample is not None:
-            try:
-                self.on_sample(sample)
-            except Exception as exc:  # noqa: BLE001
-                with self._lock:
-                    self._stats.callback_errors += 1
-                    self._stats.last_error = f"on_sample: {type(exc).__name__}: {exc}"
+        self._call("on_sample", self.on_sample, sample)
+
+    def _call(self, name: str, callback: Callable | None, arg) -> None:
+        """Call a user callback on the reader thread; its exceptions are counted, not raised."""
+        if callback is None:
+            return
+        try:
+            callback(arg)
+        except Exception as exc:  # noqa: BLE001 - a callback must not stop the reader
+            with self._lock:
+                self._stats.callback_errors += 1
+                self._stats.last_error = f"{name}: {type(exc).__name__}: {exc}"

@@ -38,16 +38,32 @@ def _codec_of(fmt: str, head: bytes) -> str:
 def compressed_to_numpy(msg: Any, desired: str = "passthrough") -> np.ndarray:
     """Decode a sensor_msgs/CompressedImage-like message (``format``, ``data``).
 
-    ``format`` as image_transport writes it (``"bgr8; jpeg compressed bgr8"``,
-    ``"mono16; png compressed mono16"``) or plain ``"jpeg"`` / ``"png"`` (empty:
-    detected from the data). ``passthrough`` returns what the codec stores: BGR
-    for colour (also when the original encoding was rgb8), ``H x W`` for mono,
-    uint16 for 16-bit PNG, BGRA for PNG with alpha. ``bgr8`` / ``mono8`` /
-    ``mono`` convert as :func:`image_to_numpy` does. Empty, truncated (no
-    JPEG end-of-image marker / PNG IEND chunk), mislabelled or undecodable
-    data raises :class:`ImageConversionError`. Limitation: bytes damaged
-    *inside* a JPEG's entropy-coded scan can still decode (libjpeg only warns
-    and OpenCV does not report it); PNG's per-chunk CRC catches that case.
+    Parameters
+    ----------
+    msg : object
+        ``format`` as image_transport writes it (``"bgr8; jpeg compressed bgr8"``,
+        ``"mono16; png compressed mono16"``) or plain ``"jpeg"`` / ``"png"`` (empty: detected
+        from the data).
+    desired : str
+        ``passthrough`` returns what the codec stores: BGR for colour (also when the original
+        encoding was rgb8), ``H x W`` for mono, uint16 for 16-bit PNG, BGRA for PNG with alpha;
+        ``bgr8`` / ``mono8`` / ``mono`` convert as :func:`image_to_numpy` does.
+
+    Returns
+    -------
+    numpy.ndarray
+        The decoded image.
+
+    Raises
+    ------
+    ImageConversionError
+        Empty, truncated (no JPEG end-of-image marker / PNG IEND chunk), mislabelled or
+        undecodable data.
+
+    Notes
+    -----
+    Bytes damaged *inside* a JPEG's entropy-coded scan can still decode (libjpeg only warns and
+    OpenCV does not report it); PNG's per-chunk CRC catches that case.
     """
     fmt = getattr(msg, "format", None)
     if not isinstance(fmt, str):
@@ -99,13 +115,24 @@ def compressed_to_numpy(msg: Any, desired: str = "passthrough") -> np.ndarray:
 def numpy_to_compressed(
     array: np.ndarray, fmt: str = "jpeg", quality: int = 90, *, png_level: int = 3
 ) -> tuple[str, bytes]:
-    """Compress ``array`` for a sensor_msgs/CompressedImage: ``(format_string, data)``.
+    """Compress ``array`` for a sensor_msgs/CompressedImage.
 
-    The encoding is read from the array: uint8 ``H x W`` mono8, ``H x W x 3``
-    bgr8, ``H x W x 4`` bgra8 (PNG only), uint16 mono16 / bgr16 (PNG only).
-    The format string is image_transport's, e.g. ``"bgr8; jpeg compressed
-    bgr8"``. ``quality`` is the JPEG quality 1..100; ``png_level`` the PNG
-    compression level 0..9.
+    Parameters
+    ----------
+    array : numpy.ndarray
+        uint8 ``H x W`` (mono8), ``H x W x 3`` (bgr8), ``H x W x 4`` (bgra8, PNG only); uint16
+        mono16 / bgr16 (PNG only).
+    fmt : str
+        ``"jpeg"`` or ``"png"``.
+    quality : int
+        JPEG quality 1..100.
+    png_level : int
+        PNG compression level 0..9.
+
+    Returns
+    -------
+    tuple of (str, bytes)
+        image_transport's format string (e.g. ``"bgr8; jpeg compressed bgr8"``) and the data.
     """
     fmt_l = fmt.lower()
     if fmt_l in ("jpg", "jpeg"):

@@ -207,11 +207,26 @@ def image_to_numpy(
 ) -> np.ndarray:
     """Convert a sensor_msgs/Image-like message to a numpy array.
 
-    ``desired`` is one of ``"passthrough"``, ``"raw"``, ``"bgr8"``, ``"mono8"``,
-    ``"mono"`` (see the module docstring for the exact meaning; passthrough of
-    plain encodings is a zero-copy view into ``msg.data``). Honours ``step``
-    (row padding, bytes) and ``is_bigendian``. Raises
-    :class:`ImageConversionError` for any inconsistent message.
+    Parameters
+    ----------
+    msg : object
+        Any object with ``height``, ``width``, ``encoding``, ``is_bigendian``, ``step`` and
+        ``data`` (row padding and byte order are honoured).
+    desired : str
+        ``"passthrough"``, ``"raw"``, ``"bgr8"``, ``"mono8"`` or ``"mono"`` (see the package
+        docstring; passthrough of plain encodings is a zero-copy view into ``msg.data``).
+    allow_trailing : bool
+        Accept and ignore bytes past ``step * height``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``H x W`` or ``H x W x C``.
+
+    Raises
+    ------
+    ImageConversionError
+        Any inconsistent message.
     """
     arr, info = _stored_view(msg, allow_trailing=allow_trailing)
     try:
@@ -284,18 +299,28 @@ def _stored_from_array(array: np.ndarray, info: EncodingInfo) -> np.ndarray:
 def numpy_to_image_fields(
     array: np.ndarray, encoding: str, *, step: int | None = None, bigendian: bool = False
 ) -> dict[str, Any]:
-    """Fields of a sensor_msgs/Image holding ``array`` in ``encoding``.
+    """Build the fields of a sensor_msgs/Image holding ``array`` in ``encoding``.
 
-    Returns ``{"height", "width", "encoding", "is_bigendian", "step", "data"}``
-    with ``data`` a contiguous 1-D uint8 array of ``step * height`` bytes.
-    ``step`` (bytes per row) defaults to the packed row size; a larger step
-    pads each row with zero bytes. ``bigendian`` stores multi-byte samples
-    big-endian. Plain encodings need the matching dtype and channel count (no
-    silent casts). Bayer encodings take a BGR image (mosaiced here, for tests
-    and simulators) or an already-mosaiced ``H x W`` array; YUV 4:2:2 encodings
-    take BGR8 (converted by OpenCV, BT.601) or packed ``H x W x 2`` bytes.
-    When the array is already C-contiguous, unpadded and native-endian,
-    ``data`` is a zero-copy view of it.
+    Parameters
+    ----------
+    array : numpy.ndarray
+        Plain encodings need the matching dtype and channel count (no silent casts). Bayer
+        encodings take a BGR image (mosaiced here, for tests and simulators) or an
+        already-mosaiced ``H x W`` array; YUV 4:2:2 encodings take BGR8 (converted by OpenCV,
+        BT.601) or packed ``H x W x 2`` bytes.
+    encoding : str
+        A ROS image encoding.
+    step : int, optional
+        Bytes per row (default the packed row size); a larger step pads each row with zeros.
+    bigendian : bool
+        Store multi-byte samples big-endian.
+
+    Returns
+    -------
+    dict
+        ``{"height", "width", "encoding", "is_bigendian", "step", "data"}`` with ``data`` a
+        contiguous 1-D uint8 array of ``step * height`` bytes; a zero-copy view of ``array`` when
+        it is already C-contiguous, unpadded and native-endian.
     """
     info = encoding_info(encoding)
     stored = _stored_from_array(array, info)

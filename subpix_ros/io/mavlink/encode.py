@@ -135,16 +135,34 @@ def encode_samples(
     boot_time: float | None = None,
     mavlink1: bool = False,
 ) -> list[tuple[float, bytes]]:
-    """MAVLink packets for ``samples``: a list of (send time, packet bytes).
+    """Encode ``samples`` as MAVLink packets.
 
-    Per sample, in order: HEARTBEAT (quadrotor, generic autopilot; the first
-    sample and then every ``1/heartbeat_hz`` s, none if ``heartbeat_hz`` is
-    0), ATTITUDE (when the sample has attitude), VFR_HUD,
-    GLOBAL_POSITION_INT, each stamped with the sample time ``t``.
-    ``time_boot_ms = round((t - boot_time) * 1000)``, ``boot_time`` defaulting
-    to the first sample's time. MAVLink 2 framing unless ``mavlink1``.
-    Raises ValueError for values a MAVLink field cannot hold (NaN in an
-    integer field, int16 velocity overflow beyond +-327 m/s, ...).
+    Parameters
+    ----------
+    samples : iterable of TelemetrySample
+        The samples, in time order.
+    system_id, component_id : int
+        The sender's ids (1..255 and 0..255).
+    heartbeat_hz : float
+        HEARTBEAT rate (quadrotor, generic autopilot): at the first sample and then every
+        ``1/heartbeat_hz`` s; none if 0.
+    boot_time : float, optional
+        POSIX time of the autopilot's boot (default: the first sample's time);
+        ``time_boot_ms = round((t - boot_time) * 1000)``.
+    mavlink1 : bool
+        MAVLink 1 framing instead of MAVLink 2.
+
+    Returns
+    -------
+    list of (float, bytes)
+        (send time, packet bytes). Per sample, in order: HEARTBEAT when due, ATTITUDE (when the
+        sample has attitude), VFR_HUD, GLOBAL_POSITION_INT, each stamped with the sample time.
+
+    Raises
+    ------
+    ValueError
+        A value a MAVLink field cannot hold (NaN in an integer field, int16 velocity beyond
+        +-327 m/s, ...).
     """
     samples = list(samples)
     if not samples:

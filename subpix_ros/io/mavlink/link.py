@@ -60,14 +60,29 @@ def _host_port(kind: str, rest: str, url: str) -> str:
 def parse_url(url: str, baud: int = 57600) -> ConnectionSpec:
     """Validate a pymavlink-style connection string (no shell, nothing executed).
 
-    Accepted: ``udpin:[HOST:]PORT`` (listen; ``udp:`` is the same),
-    ``udpout:[HOST:]PORT``, ``tcp:[HOST:]PORT`` (connect), ``tcpin:[HOST:]PORT``
-    (listen), a serial device (``/dev/ttyUSB0``, ``/dev/ttyACM0,115200``,
-    ``COM3``; the device must exist) and an existing telemetry log file
-    (``.tlog``, ``.mavlink``, ``.raw``). HOST defaults to 127.0.0.1, so
-    nothing listens on other interfaces unless the URL says so; listeners
-    accept port 0 (ephemeral, see :attr:`MavlinkReader.local_address`).
-    Raises ValueError (FileNotFoundError for a missing file/device).
+    Parameters
+    ----------
+    url : str
+        ``udpin:[HOST:]PORT`` (listen; ``udp:`` is the same), ``udpout:[HOST:]PORT``,
+        ``tcp:[HOST:]PORT`` (connect), ``tcpin:[HOST:]PORT`` (listen), a serial device
+        (``/dev/ttyUSB0``, ``/dev/ttyACM0,115200``, ``COM3``; the device must exist) or an
+        existing telemetry log (``.tlog``, ``.mavlink``, ``.raw``). HOST defaults to 127.0.0.1,
+        so nothing listens on other interfaces unless the URL says so; listeners accept port 0
+        (ephemeral, see :attr:`MavlinkReader.local_address`).
+    baud : int
+        Serial baud rate when the URL gives none.
+
+    Returns
+    -------
+    ConnectionSpec
+        The validated endpoint.
+
+    Raises
+    ------
+    ValueError
+        An unsupported or malformed URL.
+    FileNotFoundError
+        A missing telemetry log or serial device.
     """
     if not isinstance(url, str) or not url.strip():
         raise ValueError("empty MAVLink URL")

@@ -25,37 +25,53 @@ __all__ = ["MavlinkReader"]
 class MavlinkReader:
     """Read MAVLink telemetry on a background thread and emit TelemetrySamples.
 
-    ``url``: see :func:`parse_url`. A sample is emitted for every accepted
-    GLOBAL_POSITION_INT of the tracked system, combined with the latest
-    ATTITUDE (used if its time_boot_ms is within ``attitude_max_age_s``,
-    else the sample has no attitude) and VFR_HUD (its groundspeed is used if
-    received within ``vfr_max_age_s``, else the norm of vx, vy):
+    Parameters
+    ----------
+    url : str
+        The link or log, see :func:`parse_url`.
+    baud : int
+        Serial baud rate when the URL gives none.
+    system_id : int, optional
+        The vehicle to track; None locks onto the first vehicle seen (any frame that is not
+        from system 255 nor a GCS/gimbal/ADS-B/companion HEARTBEAT).
+    link_timeout_s : float
+        Silence after which the link is 'lost'.
+    on_sample, on_status : callable, optional
+        Called with each TelemetrySample / LinkEvent on the reader thread; exceptions they
+        raise are counted, not propagated.
+    rate : float, optional
+        Tlog replay speed (None: as fast as possible, 1.0: real time).
+    attitude_max_age_s, vfr_max_age_s : float
+        How old the latest ATTITUDE (by time_boot_ms) and VFR_HUD (by receive time) may be to
+        be combined with a GLOBAL_POSITION_INT.
+    reboot_threshold_s : float
+        A time_boot_ms this much earlier than the last is an autopilot reboot.
+    poll_s : float
+        Wait for data on a live link between checks.
+
+    Notes
+    -----
+    A sample is emitted for every accepted GLOBAL_POSITION_INT of the tracked system, combined
+    with the latest ATTITUDE (else the sample has no attitude) and VFR_HUD (its groundspeed,
+    else the norm of vx, vy):
 
     * ``t``: the tlog timestamp when replaying a log, else the receive time;
-    * lat/lon = 1e-7 * lat/lon, alt_msl = alt / 1000, height_agl =
-      relative_alt / 1000 (flat terrain), vel_ned = (vx, vy, vz) / 100;
-    * course = atan2(vy, vx) when the horizontal speed is >= 0.1 m/s, else
-      the heading (ATTITUDE yaw, else GLOBAL_POSITION_INT hdg);
-    * time_boot_ms orders the stream: a repeated value is a duplicate, an
-      earlier one is out of order (both rejected and counted), unless it is
-      more than ``reboot_threshold_s`` earlier (an autopilot reboot: accepted).
+    * lat/lon = 1e-7 * lat/lon, alt_msl = alt / 1000, height_agl = relative_alt / 1000 (flat
+      terrain), vel_ned = (vx, vy, vz) / 100;
+    * course = atan2(vy, vx) when the horizontal speed is >= 0.1 m/s, else the heading
+      (ATTITUDE yaw, else GLOBAL_POSITION_INT hdg);
+    * time_boot_ms orders the stream: a repeated value is a duplicate, an earlier one is out
+      of order (both rejected and counted), unless it is more than ``reboot_threshold_s``
+      earlier (a reboot: accepted).
 
-    Samples failing :func:`validate_sample` are rejected with a reason
-    (counted in :attr:`stats`); bad bytes, bad CRCs, unknown messages and
-    frames from other system ids are counted and skipped, never fatal.
-    ``system_id=None`` locks onto the first vehicle seen (any frame that is
-    not from system 255 nor a GCS/gimbal/ADS-B/companion HEARTBEAT).
+    Samples failing :func:`validate_sample` are rejected with a reason (counted in
+    :attr:`stats`); bad bytes, bad CRCs, unknown messages and frames from other system ids are
+    counted and skipped, never fatal.
 
-    Link state: 'connected' at the first vehicle frame, 'lost' when no frame
-    from it arrives for ``link_timeout_s``, 'restored' when frames return
-    (live links: wall clock; tlog replay: gaps in the log's timestamps), and
-    'end_of_log' at the end of a tlog. ``on_status(LinkEvent)`` and
-    ``on_sample(TelemetrySample)`` are called on the reader thread;
-    exceptions they raise are counted, not propagated.
-
-    ``rate``: tlog replay speed (None = as fast as possible, 1.0 = real
-    time). On ``udpout:`` links a GCS HEARTBEAT is sent every second so the
-    vehicle learns where to send.
+    Link state: 'connected' at the first vehicle frame, 'lost' when no frame from it arrives
+    for ``link_timeout_s``, 'restored' when frames return (live links: wall clock; tlog replay:
+    gaps in the log's timestamps), and 'end_of_log' at the end of a tlog. On ``udpout:`` links
+    a GCS HEARTBEAT is sent every second so the vehicle learns where to send.
     """
 
     def __init__(

@@ -33,12 +33,26 @@ def write_tlog(
 ) -> int:
     """Write a telemetry log (the MAVProxy/pymavlink ``.tlog`` format).
 
-    Each packet is prefixed by its 8-byte big-endian POSIX timestamp in microseconds.
+    Parameters
+    ----------
+    path : str or Path
+        The file to write (its folder is created).
+    samples : iterable of TelemetrySample, optional
+        Samples to encode with :func:`encode_samples` (give these or ``packets``).
+    system_id, component_id, heartbeat_hz, mavlink1
+        As in :func:`encode_samples`.
+    packets : sequence of (float, bytes), optional
+        Ready packets with their POSIX times.
 
-    Give ``samples`` (encoded with :func:`encode_samples`) or ready
-    ``packets`` [(t, bytes)]. Timestamps are written as mavutil does, with the
-    two low bits cleared (link id 0): resolution 4 us. Returns the number of
-    packets written.
+    Returns
+    -------
+    int
+        The number of packets written.
+
+    Notes
+    -----
+    Each packet is prefixed by its 8-byte big-endian POSIX timestamp in microseconds, written as
+    mavutil does with the two low bits cleared (link id 0): resolution 4 us.
     """
     if (samples is None) == (packets is None):
         raise ValueError("give exactly one of samples or packets")
@@ -53,10 +67,22 @@ def write_tlog(
 
 
 def read_tlog_packets(path: str | Path) -> list[tuple[float, bytes]]:
-    """Raw (t, packet) pairs of a tlog written by :func:`write_tlog` (for tests/tools).
+    """Read the raw (t, packet) pairs of a tlog written by :func:`write_tlog` (tests, tools).
 
-    Parses each record as 8-byte timestamp + one MAVLink frame (v1 or v2,
-    length from its header); raises ValueError on a malformed record.
+    Parameters
+    ----------
+    path : str or Path
+        The telemetry log.
+
+    Returns
+    -------
+    list of (float, bytes)
+        POSIX time (s) and one MAVLink frame (v1 or v2, its length from its header).
+
+    Raises
+    ------
+    ValueError
+        A malformed record.
     """
     data = Path(path).read_bytes()
     out, i = [], 0

@@ -290,7 +290,21 @@ class Monitor(_Sender):
         expected_u: float | None = None,
         expected_v: float | None = None,
     ) -> None:
-        """One shift estimate (px, rows/columns), its standard errors, telemetry's expectation."""
+        """Send one shift estimate (never throttled).
+
+        Parameters
+        ----------
+        stamp_ns : int
+            The frame's stamp.
+        u, v : float
+            The shift, px (rows, columns).
+        u_std, v_std : float, optional
+            Its standard errors, px.
+        converged : bool
+            Whether the estimator converged.
+        expected_u, expected_v : float, optional
+            Telemetry's expectation, px; the message carries the difference too.
+        """
         eu, ev = _num(expected_u), _num(expected_v)
         msg = {
             "timestamp": _ts_json(stamp_ns),

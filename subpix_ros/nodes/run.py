@@ -26,10 +26,26 @@ def run_nodes(
 ) -> int:
     """Init rclpy, build the nodes, spin them on a MultiThreadedExecutor, shut down cleanly.
 
+    Parameters
+    ----------
+    factories : sequence of callable
+        Each returns one node.
+    args : sequence of str, optional
+        Command-line arguments for ``rclpy.init`` (``--ros-args ...``).
+    threads : int, optional
+        Executor threads (default: rclpy's).
+
+    Returns
+    -------
+    int
+        Exit status: 0, or 2 when the ROS / DDS environment cannot be configured.
+
+    Notes
+    -----
     Freed frame buffers stay in the process's heap for reuse
     (:func:`subpix_ros.runtime.keep_freed_memory`); the ROS / DDS defaults of
     :func:`subpix_ros.runtime.configure_ros_environment` are applied before the participant is
-    created, or the process refuses to start with one line on stderr (exit status 2).
+    created, or the process refuses to start with one line on stderr.
     """
     keep_freed_memory()
     clean_stale_shm_segments()  # segments of killed processes (64 MiB each with our profile)

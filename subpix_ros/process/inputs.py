@@ -201,13 +201,26 @@ def open_flight(
 ) -> Flight:
     """Inspect bag ``path``: camera topic, frame count and telemetry source.
 
-    ``camera_topic`` None picks the bag's image topic (``/camera/image_raw``
-    if present, else the image topic with most messages). ``telemetry``:
-    ``"topics"`` (the bag's ``/telemetry/*``), ``"tlog"`` (the ``.tlog`` beside
-    the bag) or None (topics if the bag has them, else a tlog if one exists,
-    else none). Raises :class:`InputError` (or :class:`BagError`) when the bag
-    cannot be opened or a requested source is missing; a bag without images
-    is not an error here (``camera_topic`` None, ``frames_total`` 0).
+    Parameters
+    ----------
+    path : str or Path
+        The bag (directory, ``.mcap`` or ``.db3``).
+    camera_topic : str, optional
+        None picks the bag's image topic (``/camera/image_raw`` if present, else the image topic
+        with most messages).
+    telemetry : str, optional
+        ``"topics"`` (the bag's ``/telemetry/*``), ``"tlog"`` (the ``.tlog`` beside the bag) or
+        None (topics if the bag has them, else a tlog if one exists, else none).
+
+    Returns
+    -------
+    Flight
+        A bag without images is not an error here (``camera_topic`` None, ``frames_total`` 0).
+
+    Raises
+    ------
+    InputError, BagError
+        The bag cannot be opened or a requested source is missing.
     """
     p = Path(path)
     try:
@@ -215,6 +228,25 @@ def open_flight(
     except BagError:
         raise
     topics = {t.name: (t.msgtype, t.count) for t in infos}
+    cam, note = _choose_camera(p, topics, camera_topic)
+    flight = Flight(
+        p,
+        bag_name(p),
+        cam,
+        topics[cam][0] if cam else None,
+        topics[cam][1] if cam else 0,
+        topics,
+        "none",
+        camera_note=note,
+    )
+    _attach_telemetry(flight, p, topics, telemetry)
+    return flight
+
+
+def _choose_camera(
+    p: Path, topics: dict[str, tuple[str, int]], camera_topic: str | None
+) -> tuple[str | None, str]:
+    """Return the camera topic (the one asked for, else chosen) and a note on the choice."""
     images = {n: tc for n, tc in topics.items() if tc[0] in (IMAGE, COMPRESSED)}
     note = ""
     if camera_topic:
@@ -237,16 +269,13 @@ def open_flight(
             )
     else:
         cam = None
-    flight = Flight(
-        p,
-        bag_name(p),
-        cam,
-        topics[cam][0] if cam else None,
-        topics[cam][1] if cam else 0,
-        topics,
-        "none",
-        camera_note=note,
-    )
+    return cam, note
+
+
+def _attach_telemetry(
+    flight: Flight, p: Path, topics: dict[str, tuple[str, int]], telemetry: str | None
+) -> None:
+    """Set the flight's telemetry source: its topics, the tlog beside the bag, or none."""
     has_topics = "/telemetry/velocity" in topics and "/telemetry/height" in topics
     if telemetry == "topics" or (telemetry is None and has_topics):
         if not has_topics:
@@ -269,4 +298,3 @@ def open_flight(
                 )
     else:
         raise InputError(f"unknown telemetry source {telemetry!r} (tlog or topics)")
-    return flight

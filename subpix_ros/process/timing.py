@@ -52,10 +52,25 @@ class _Timer:
 
 
 def prefetch(events: Iterator, depth: int = 4) -> Iterator:
-    """``events`` read (and decoded) on a background thread, up to ``depth`` items ahead, in order.
+    """Read (and decode) ``events`` on a background thread, up to ``depth`` items ahead, in order.
 
-    Reading the bag and decoding images (JPEG/PNG of a CompressedImage camera) then overlaps
-    the stages' work. An exception of the reader (a corrupt bag) is raised here, in order.
+    Parameters
+    ----------
+    events : iterator
+        The flight's events (:meth:`Flight.events`).
+    depth : int
+        How many items may wait.
+
+    Yields
+    ------
+    object
+        The items of ``events`` in order; an exception of the reader (a corrupt bag) is raised
+        here, in order.
+
+    Notes
+    -----
+    Reading the bag and decoding images (JPEG/PNG of a CompressedImage camera) then overlaps the
+    stages' work.
     """
     q: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()

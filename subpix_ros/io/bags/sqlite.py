@@ -81,41 +81,55 @@ def _sqlite_messages(
                             None,
                         )
             return
-        offset, detail = bad
-        # Damaged: read row by row (a lookup by id stops only at the pages it needs).
+        yield from _damaged_rows(con, db, tmap, where, topics, expected, bad, on_bad)
+
+
+def _damaged_rows(
+    con: sqlite3.Connection,
+    db: Path,
+    tmap: dict,
+    where: str,
+    topics: set[str] | None,
+    expected: dict[str, int] | None,
+    bad: tuple,
+    on_bad,
+) -> Iterator[BagMessage]:
+    """Yield the readable rows of a damaged storage file, read one by one by id."""
+    offset, detail = bad
+    # Damaged: read row by row (a lookup by id stops only at the pages it needs).
+    try:
+        top = con.execute("SELECT max(id) FROM messages").fetchone()[0] or 0
+    except sqlite3.DatabaseError:
+        top = 0
+    top = max(top, sum((expected or {}).values()))
+    good, failed = [], 0
+    for rid in range(1, top + 1):
         try:
-            top = con.execute("SELECT max(id) FROM messages").fetchone()[0] or 0
+            row = con.execute(
+                f"SELECT topic_id, timestamp FROM messages WHERE id = ? AND {where}", (rid,)
+            ).fetchone()
+            if row is not None:
+                con.execute(
+                    "SELECT data FROM messages WHERE id = ?", (rid,)
+                ).fetchone()  # overflow pages too
+                good.append((int(row[1]), rid, row[0]))
         except sqlite3.DatabaseError:
-            top = 0
-        top = max(top, sum((expected or {}).values()))
-        good, failed = [], 0
-        for rid in range(1, top + 1):
-            try:
-                row = con.execute(
-                    f"SELECT topic_id, timestamp FROM messages WHERE id = ? AND {where}", (rid,)
-                ).fetchone()
-                if row is not None:
-                    con.execute(
-                        "SELECT data FROM messages WHERE id = ?", (rid,)
-                    ).fetchone()  # overflow pages too
-                    good.append((int(row[1]), rid, row[0]))
-            except sqlite3.DatabaseError:
-                failed += 1
-        lost = failed
-        if expected:
-            want = sum(n for name, n in expected.items() if topics is None or name in topics)
-            lost = max(failed, want - len(good))
-        on_bad(
-            db,
-            offset,
-            f"{detail} ({len(good)} readable row(s), {lost} unreadable or missing)",
-            lost,
-            len(good),
-        )
-        for ts, rid, tid in sorted(good):
-            try:
-                (data,) = con.execute("SELECT data FROM messages WHERE id = ?", (rid,)).fetchone()
-            except sqlite3.DatabaseError:
-                continue
-            name, typ = tmap[tid]
-            yield BagMessage(name, typ, ts, bytes(data))
+            failed += 1
+    lost = failed
+    if expected:
+        want = sum(n for name, n in expected.items() if topics is None or name in topics)
+        lost = max(failed, want - len(good))
+    on_bad(
+        db,
+        offset,
+        f"{detail} ({len(good)} readable row(s), {lost} unreadable or missing)",
+        lost,
+        len(good),
+    )
+    for ts, rid, tid in sorted(good):
+        try:
+            (data,) = con.execute("SELECT data FROM messages WHERE id = ?", (rid,)).fetchone()
+        except sqlite3.DatabaseError:
+            continue
+        name, typ = tmap[tid]
+        yield BagMessage(name, typ, ts, bytes(data))

@@ -64,12 +64,12 @@ from foxglove.channels import CompressedImageChannel, GeoJsonChannel, LocationFi
 from foxglove.messages import LocationFix, Log, LogLevel
 
 from .budget import TokenBucket
-from .config import LOOPBACK, MonitorConfig, MonitorError, check_exposure
+from .config import MonitorConfig, MonitorError, check_exposure
 from .encoding import _num, _to_bgr, _ts, _ts_json
 from .schemas import HEALTH_SCHEMA, SHIFT_SCHEMA, TELEMETRY_SCHEMA, TOPICS
 from .sender import _Out, _Sender, _Stream
 
-__all__ = ["Monitor", "MonitorConfig", "MonitorError", "TOPICS", "LOOPBACK", "check_exposure"]
+__all__ = ["Monitor"]
 
 
 class Monitor(_Sender):

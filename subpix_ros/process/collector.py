@@ -21,33 +21,34 @@ def reason_key(reason: str) -> str:
     return re.sub(r"[-+]?\d+(\.\d+)?(e[-+]?\d+)?", "#", str(reason)).strip() or "unspecified"
 
 
-def _clean(o: Any) -> Any:
+def _clean(value: Any) -> Any:
     """Return a JSON-safe copy of ``o``.
 
     Floats to 10 significant digits (:func:`rounded`), non-finite to None, numpy scalars to
     Python.
     """
-    if isinstance(o, dict):
-        return {str(k): _clean(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_clean(v) for v in o]
-    if isinstance(o, (np.floating, float)):
-        return rounded(o) if math.isfinite(float(o)) else None
-    if isinstance(o, np.integer):
-        return int(o)
-    if isinstance(o, np.bool_):
-        return bool(o)
-    return o
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        return rounded(value) if math.isfinite(float(value)) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
 
 
-def _stats_dict(st: Any) -> dict:
-    if st is None:
+def _stats_dict(record: Any) -> dict:
+    """Return a stage statistics record (dataclass, dict or object) as a dict."""
+    if record is None:
         return {}
-    if hasattr(st, "as_dict"):
-        return dict(st.as_dict())
-    if isinstance(st, dict):
-        return dict(st)
-    return dict(getattr(st, "__dict__", {}))
+    if hasattr(record, "as_dict"):
+        return dict(record.as_dict())
+    if isinstance(record, dict):
+        return dict(record)
+    return dict(getattr(record, "__dict__", {}))
 
 
 _TIME_KEY = re.compile(r"(^times$|_ms$|time_s$)")  # stage figures that are processing times
@@ -55,6 +56,8 @@ _TIME_KEY = re.compile(r"(^times$|_ms$|time_s$)")  # stage figures that are proc
 
 @dataclass
 class _FrameRec:
+    """One row of ``frames.csv``: what became of a frame and the registration's figures."""
+
     index: int
     stamp_ns: int
     status: str = "in"
@@ -94,6 +97,7 @@ class _Collector:
 
     # --------------------------------------------------------- pipeline callbacks
     def on_reference(self, event: Any) -> None:
+        """Record a new reference and mark the current frame as one."""
         frame = getattr(event, "frame", event)
         reason = str(getattr(event, "reason", "") or "")
         stamp = int(getattr(frame, "stamp_ns"))
@@ -103,6 +107,7 @@ class _Collector:
             rec.status, rec.reason, rec.reference_stamp_ns = "reference", reason, stamp
 
     def on_aligned(self, aligned: Any) -> None:
+        """Record an aligned frame: its homography, reference link and registration figures."""
         rec = self.current
         ref = int(aligned.reference.stamp_ns)
         self.ref_of[int(aligned.stamp_ns)] = ref
@@ -134,6 +139,7 @@ class _Collector:
         }
 
     def on_skipped(self, item: Any) -> None:
+        """Record a skip: of the frame (frame selection) or of its shift (shift stage)."""
         stage, skip = item if isinstance(item, tuple) else ("", item)
         rec = self.current
         reason = str(getattr(skip, "reason", skip))
@@ -149,6 +155,7 @@ class _Collector:
             rec.status, rec.reason = "skipped", reason
 
     def on_shift(self, item: Any) -> None:
+        """Record a converged shift estimate and write it to the results bag."""
         shift = item[0] if isinstance(item, tuple) else item
         row = self.shifts.setdefault(int(shift.stamp_ns), {"stamp_ns": int(shift.stamp_ns)})
         row.update(
@@ -163,6 +170,7 @@ class _Collector:
         self.writer.shift(shift.stamp_ns, shift.u, shift.v, shift.z, getattr(shift, "frame_id", ""))
 
     def on_super_resolved(self, sr: Any) -> None:
+        """Write a super-resolved image and its bicubic reference; record the set."""
         ref = sr.reference
         stamp = int(ref.stamp_ns)
         image = np.asarray(sr.image)
@@ -198,6 +206,7 @@ class _Collector:
         self.sr_images.append((stamp, image, ref))
 
     def on_warning(self, item: Any) -> None:
+        """Count a warning by stage and kind (the mosaic thread warns too)."""
         stage, msg = item if isinstance(item, tuple) else ("", item)
         key = f"{stage}: {reason_key(msg)}" if stage else reason_key(msg)
         with self.lock:  # the mosaic thread warns too
@@ -205,6 +214,7 @@ class _Collector:
             self.warning_examples.setdefault(key, f"{stage}: {msg}" if stage else str(msg))
 
     def on_error(self, error: Any) -> None:
+        """Record a stage error; the current frame, if still undecided, is dropped."""
         if isinstance(error, tuple):
             error = f"{error[0]}: {error[1]}"
         text = " ".join(str(error).split())[:200]
@@ -215,17 +225,19 @@ class _Collector:
 
 
 def _pipe_stats(pipe: Any) -> dict:
+    """Return the pipeline's statistics by node name ({} if it cannot give them)."""
     try:
-        st = pipe.stats()
+        record = pipe.stats()
     except Exception:  # noqa: BLE001
         return {}
-    return dict(st) if isinstance(st, dict) else {}
+    return dict(record) if isinstance(record, dict) else {}
 
 
 def _diag_statuses(stats: dict) -> dict[str, tuple[int, str, dict]]:
+    """Turn stage statistics into /diagnostics statuses: (level, message, flat key values)."""
     out = {}
-    for name, st in stats.items():
-        d = {k: v for k, v in _stats_dict(st).items() if not _TIME_KEY.search(k)}
+    for name, record in stats.items():
+        d = {k: v for k, v in _stats_dict(record).items() if not _TIME_KEY.search(k)}
         flat = {}
         for k, v in d.items():
             if isinstance(v, dict):

@@ -16,7 +16,7 @@ class RateMeter:
 
     def __init__(self, window_s: float = 5.0) -> None:
         self.window_s = window_s
-        self._t: collections.deque[float] = collections.deque(maxlen=10_000)
+        self._times: collections.deque[float] = collections.deque(maxlen=10_000)
         self.total = 0
 
         self.last: float | None = None  # time.monotonic() of the latest event
@@ -24,15 +24,15 @@ class RateMeter:
     def tick(self, now: float | None = None) -> None:
         """Count one event at ``now`` (time.monotonic() by default)."""
         self.last = time.monotonic() if now is None else now
-        self._t.append(self.last)
+        self._times.append(self.last)
         self.total += 1
 
     def rate(self, now: float | None = None) -> float:
         """Return the events per second over the window."""
         now = time.monotonic() if now is None else now
-        while self._t and now - self._t[0] > self.window_s:
-            self._t.popleft()
-        return len(self._t) / self.window_s
+        while self._times and now - self._times[0] > self.window_s:
+            self._times.popleft()
+        return len(self._times) / self.window_s
 
 
 class DropOldestWorker:
@@ -52,7 +52,7 @@ class DropOldestWorker:
     ) -> None:
         self._handler = handler
         self._on_error = on_error
-        self._q: collections.deque = collections.deque()
+        self._queue: collections.deque = collections.deque()
         self._cv = threading.Condition()
         self.maxsize = max(1, int(maxsize))
         self.dropped = 0
@@ -68,36 +68,36 @@ class DropOldestWorker:
         """Queue ``item``; return False if an older item had to be dropped."""
         with self._cv:
             dropped = False
-            while len(self._q) >= self.maxsize:
-                self._q.popleft()
+            while len(self._queue) >= self.maxsize:
+                self._queue.popleft()
                 self.dropped += 1
                 dropped = True
-            self._q.append(item)
+            self._queue.append(item)
             self._cv.notify()
         return not dropped
 
     def clear(self) -> None:
         """Drop every queued item."""
         with self._cv:
-            self._q.clear()
+            self._queue.clear()
 
     @property
     def depth(self) -> int:
         """Items waiting in the queue."""
-        return len(self._q)
+        return len(self._queue)
 
     def idle(self) -> bool:
         """Return True if nothing is queued or being handled."""
-        return not self._q and not self.busy
+        return not self._queue and not self.busy
 
     def _run(self) -> None:
         while True:
             with self._cv:
-                while not self._q and not self._stop:
+                while not self._queue and not self._stop:
                     self._cv.wait(0.5)
                 if self._stop:
                     return
-                item = self._q.popleft()
+                item = self._queue.popleft()
                 self.busy = True
             t_cpu = time.thread_time()
             try:

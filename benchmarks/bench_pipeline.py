@@ -112,7 +112,7 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
 
     from subpix_ros.cli._ros import stop_processes
     from subpix_ros.io import cdr
-    from subpix_ros.nodes.common import latched_qos, reliable_qos
+    from subpix_ros.nodes.qos import latched_qos, reliable_qos
 
     env = dict(os.environ)
     procs = start_layout(layout, env)

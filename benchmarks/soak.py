@@ -67,7 +67,7 @@ def main() -> None:
     from sensor_msgs.msg import Image
 
     from subpix_ros.io import cdr
-    from subpix_ros.nodes.common import latched_qos, reliable_qos
+    from subpix_ros.nodes.qos import latched_qos, reliable_qos
 
     frames = make_frames(64)
     (proc,) = start_layout("single", dict(os.environ))

@@ -231,7 +231,7 @@ class AlignedFeed:
         from geometry_msgs.msg import Vector3Stamped
         from sensor_msgs.msg import Image, TimeReference
 
-        from subpix_ros.nodes.common import latched_qos, reliable_qos
+        from subpix_ros.nodes.qos import latched_qos, reliable_qos
 
         self.ref = h.create_publisher(Image, "/aligned/reference", latched_qos())
         self.link = h.create_publisher(TimeReference, "/aligned/reference_stamp", latched_qos(20))

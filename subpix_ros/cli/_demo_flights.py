@@ -30,7 +30,7 @@ class _Collector:
         from sensor_msgs.msg import CompressedImage, Image
         from std_msgs.msg import Float64
 
-        from subpix_ros.nodes.common import latched_qos, reliable_qos
+        from subpix_ros.nodes.qos import latched_qos, reliable_qos
 
         self.lock = threading.Lock()
         self.sr: list = []

@@ -85,8 +85,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Process the given bags (or folders of bags) into products and reports."""
     from subpix_ros.process.batch import Progress, interrupt_on_signals, run_batch
-    from subpix_ros.process.flight import check_params, load_params
     from subpix_ros.process.inputs import InputError, bag_name
+    from subpix_ros.process.params import check_params, load_params
 
     if args.jobs < 1:
         raise CliError(f"--jobs must be >= 1, got {args.jobs}")

@@ -171,8 +171,10 @@ def open_mcap(path: Path) -> tuple[McapFile, mmap.mmap | bytes]:
 
 
 def _read_summary(f: McapFile, buf, size: int, data_start: int) -> int | None:
-    """Read the summary section; returns its offset, or None (with the reason in f.bad) if the
-    file has no usable summary."""
+    """Read the summary section and return its offset.
+
+    None (with the reason in ``f.bad``) if the file has no usable summary.
+    """
     foot = size - 37
     if size < data_start + 37 or buf[size - 8 :] != MAGIC or buf[foot] != OP_FOOTER:
         return None  # no footer (a recording cut short, a truncated copy): walk the data section
@@ -227,8 +229,10 @@ def _read_summary(f: McapFile, buf, size: int, data_start: int) -> int | None:
 
 
 def _index_counts(buf, offs, end: int, limit: int) -> dict[int, int]:
-    """Messages per channel in a chunk, from its message index records (channel u16 | records
-    length u32 | 16 bytes per message)."""
+    """Count the messages per channel in a chunk.
+
+    From its message index records (channel u16 | records length u32 | 16 bytes per message).
+    """
     counts = {}
     for cid, off in offs:
         if not 0 < off < limit or buf[off] != OP_MESSAGE_INDEX:
@@ -259,8 +263,10 @@ def _plausible_chunk(buf, pos: int, size: int) -> int:
 
 
 def _walk(f: McapFile, buf, pos: int, size: int) -> None:
-    """Walk the data section record by record (no usable summary). After a damaged record,
-    resume at the next plausible chunk record."""
+    """Walk the data section record by record (no usable summary).
+
+    After a damaged record, resume at the next plausible chunk record.
+    """
     schemas: dict[int, str] = {}
     last_time = 0
     while pos < size:
@@ -366,9 +372,12 @@ def _inner_records(buf, c: _Chunk):
 def chunk_messages(
     buf, c: _Chunk, wanted: set[int] | None, schemas: dict[int, str], channels: dict[int, Channel]
 ) -> list[tuple[int, int, int, bytes]]:
-    """Every message of chunk ``c`` as (log_time, index in chunk, channel id, data), after all
-    checks passed (Damaged otherwise). Channel records inside the chunk are added to
-    ``channels``."""
+    """Return every message of chunk ``c``, all checks passed.
+
+    Each as (log_time, index in chunk, channel id, data); :class:`Damaged` if a check
+    fails. Channel records inside the chunk are added to
+    ``channels``.
+    """
     out = []
     found: dict[int, int] = {}
     for op, (data, p), end in _inner_records(buf, c):
@@ -402,9 +411,12 @@ Source = Iterator[tuple[int, tuple, object]]
 def sources(
     f: McapFile, buf, wanted_topics: set[str] | None, on_bad: Callable[[int, str, int | None], None]
 ) -> list[Source]:
-    """One time-ordered generator per chunk / damaged part / run of unchunked messages, for a
+    """Return one time-ordered generator per chunk, damaged part or run of unchunked messages.
+
+    One time-ordered generator per chunk / damaged part / run of unchunked messages, for a
     ``heapq.merge`` over (log_time, order, payload); payload None is a placeholder that only
-    positions the source (nothing is decompressed before the merge reaches it)."""
+    positions the source (nothing is decompressed before the merge reaches it).
+    """
     schemas: dict[int, str] = {}
     out: list[Source] = []
 
@@ -456,9 +468,12 @@ def sources(
 
 
 def write_chunk_crcs(path: Path) -> int:
-    """Fill in the ``uncompressed_crc`` of every chunk of an MCAP file written without them
+    """Fill in the ``uncompressed_crc`` of every chunk of an MCAP file written without them.
+
+    Fill in the ``uncompressed_crc`` of every chunk of an MCAP file written without them
     (rosbags' writer leaves 0, "not set"), so that damage to a chunk is detected on reading.
-    Returns the number of chunks updated."""
+    Returns the number of chunks updated.
+    """
     f, buf = open_mcap(path)
     updates = []
     for c in f.chunks:

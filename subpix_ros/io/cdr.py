@@ -139,18 +139,18 @@ def _split_stamp(stamp_ns: int) -> tuple[int, int]:
 
 
 def _time(stamp_ns: int) -> Any:
-    """A rosbags ``builtin_interfaces/msg/Time`` for ``stamp_ns`` (integer ns since the epoch)."""
+    """Build a rosbags ``builtin_interfaces/msg/Time`` for ``stamp_ns`` (ns since the epoch)."""
     sec, nanosec = _split_stamp(stamp_ns)
     return _Time(sec=sec, nanosec=nanosec)
 
 
 def _time_to_ns(t: Any) -> int:
-    """A builtin_interfaces Time (rosbags or rclpy) as integer nanoseconds: ``sec * 1e9 + nanosec``."""
+    """Convert a builtin_interfaces Time (rosbags or rclpy) to ns: ``sec * 1e9 + nanosec``."""
     return int(t.sec) * _NS + int(t.nanosec)
 
 
 def make_header(stamp_ns: int, frame_id: str = "") -> Any:
-    """A rosbags ``std_msgs/msg/Header`` for ``stamp_ns`` (integer ns since the epoch)."""
+    """Build a rosbags ``std_msgs/msg/Header`` for ``stamp_ns`` (integer ns since the epoch)."""
     stamp = _time(stamp_ns)
     if not isinstance(frame_id, str):
         raise CdrError(f"frame_id must be a string, got {frame_id!r}")
@@ -268,7 +268,7 @@ def cdr_to_compressed_msg(raw: bytes | bytearray | memoryview) -> Any:
 def cdr_to_compressed(
     raw: bytes | bytearray | memoryview, desired: str = "passthrough"
 ) -> tuple[np.ndarray, Any]:
-    """``(decoded array, header)`` from sensor_msgs/msg/CompressedImage CDR bytes."""
+    """Decode sensor_msgs/msg/CompressedImage CDR bytes to ``(array, header)``."""
     msg = cdr_to_compressed_msg(raw)
     return compressed_to_numpy(msg, desired), msg.header
 
@@ -299,7 +299,7 @@ def float64_array_to_cdr(
 
 
 def cdr_to_float64_array(raw: bytes | bytearray | memoryview) -> np.ndarray:
-    """The data of a std_msgs/msg/Float64MultiArray, reshaped by its layout (flat if none)."""
+    """Return the data of a std_msgs/msg/Float64MultiArray, shaped by its layout (flat if none)."""
     msg = deserialize(raw, FLOAT64_MULTI_ARRAY)
     data = np.asarray(msg.data, dtype=np.float64)[int(msg.layout.data_offset) :]
     dims = msg.layout.dim

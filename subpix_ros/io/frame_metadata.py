@@ -78,7 +78,7 @@ def read_frames_csv(csv_path: str | Path) -> FrameFixes:
 def trajectory_from_frames_csv(
     csv_path: str | Path, ground_alt_m: float = 230.0, rate_hz: float = 10.0
 ) -> list[TelemetrySample]:
-    """A smooth trajectory through the per-frame GPS fixes of a ``frames.csv``.
+    """Build a smooth trajectory through the per-frame GPS fixes of a ``frames.csv``.
 
     Parameters
     ----------

@@ -22,7 +22,7 @@ __all__ = ["message_class", "Player", "Recorder", "ReplayStats"]
 
 
 def message_class(msgtype: str):
-    """The rclpy message class for ``pkg/msg/Type`` (BagError if unknown)."""
+    """Return the rclpy message class for ``pkg/msg/Type`` (BagError if unknown)."""
     parts = msgtype.split("/")
     if len(parts) == 2:
         parts = [parts[0], "msg", parts[1]]
@@ -38,6 +38,8 @@ def message_class(msgtype: str):
 
 @dataclass
 class ReplayStats:
+    """Counters of a replay: messages published, loops done, worst lateness (ms)."""
+
     published: int = 0
     loops: int = 0
     late_ms_max: float = 0.0
@@ -116,17 +118,22 @@ class Player:
         self._stop = threading.Event()
 
     def stop(self) -> None:
+        """Ask the replay to stop (it checks between messages)."""
         self._stop.set()
 
     @property
     def stopped(self) -> bool:
+        """Whether a stop was asked for."""
         return self._stop.is_set()
 
     def wait_for_acks(self, timeout_s: float) -> bool:
-        """Block until every reliable subscriber has acknowledged every message published so far
-        (``Publisher.wait_for_all_acked``, the same wait as ``ros2 bag play --wait-for-all-acked``), at
-        most ``timeout_s`` seconds in all. False if some were still unacknowledged: a subscriber that is
-        slow, stalled or gone (a dead reader stays matched until its DDS lease runs out)."""
+        """Wait until every reliable subscriber has acknowledged every message published so far.
+
+        The same wait as ``ros2 bag play --wait-for-all-acked`` (``Publisher.wait_for_all_acked``),
+        at most ``timeout_s`` seconds in all. False if some were still unacknowledged: a
+        subscriber that is slow, stalled or gone (a dead reader stays matched until its DDS lease
+        runs out).
+        """
         from rclpy.duration import Duration
 
         deadline = time.monotonic() + max(0.0, timeout_s)
@@ -155,7 +162,8 @@ class Player:
         Returns False on timeout. The default of ``subpix replay``: a new publisher is matched
         with subscribers already running only after discovery, so a short bag replayed at once
         can be over before anyone receives it (docs/design-notes.md, "Camera frames between
-        processes")."""
+        processes").
+        """
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline and not self._stop.is_set():
             if any(pub.get_subscription_count() > 0 for pub in self.publishers.values()):
@@ -208,8 +216,10 @@ class Player:
 
 
 def _bag_qos(q):
-    """An rclpy QoSProfile as the rosbags ``Qos`` a bag's offered_qos_profiles stores (the
-    policies share rmw's integer values)."""
+    """Convert an rclpy QoSProfile to the rosbags ``Qos`` of a bag's offered_qos_profiles.
+
+    The policies share rmw's integer values.
+    """
     from rosbags.interfaces import (
         Qos,
         QosDurability,
@@ -325,6 +335,7 @@ class Recorder:
         return cb
 
     def close(self) -> None:
+        """Close the recorded bag; later messages are not written."""
         with self._lock:
             if self.writer is not None:
                 self.writer.close()

@@ -55,6 +55,7 @@ def _unknown_cov() -> np.ndarray:
 
 
 def fix_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "gps") -> bytes:
+    """Serialize ``s`` as a sensor_msgs/NavSatFix (CDR; position covariance unknown)."""
     status = T["sensor_msgs/msg/NavSatStatus"](status=0, service=1)
     msg = T[FIX](
         header=make_header(stamp_ns, frame_id),
@@ -69,6 +70,7 @@ def fix_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "gps") -> bytes:
 
 
 def velocity_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "map") -> bytes:
+    """Serialize the velocity of ``s`` as a geometry_msgs/TwistStamped (CDR, ENU)."""
     e, n, u = (float(x) for x in ned_to_enu(np.asarray(s.vel_ned_mps, dtype=np.float64)))
     V3 = T["geometry_msgs/msg/Vector3"]
     twist = T["geometry_msgs/msg/Twist"](linear=V3(x=e, y=n, z=u), angular=V3(x=0.0, y=0.0, z=0.0))
@@ -76,10 +78,12 @@ def velocity_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "map") -> by
 
 
 def float64_cdr(value: float) -> bytes:
+    """Serialize ``value`` as a std_msgs/Float64 (CDR)."""
     return serialize(T[FLOAT64](data=float(value)), FLOAT64)
 
 
 def imu_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "base_link") -> bytes:
+    """Serialize the attitude of ``s`` as a sensor_msgs/Imu orientation (CDR, ENU)."""
     x, y, z, w = attitude_quaternion_enu(s.roll_rad, s.pitch_rad, s.yaw_rad)
     V3 = T["geometry_msgs/msg/Vector3"]
     not_given = np.zeros(9, dtype=np.float64)
@@ -118,8 +122,9 @@ def sample_messages(
 
 
 class TelemetryFromTopics:
-    """TelemetrySamples rebuilt from the telemetry node's topics (the inverse of
-    :func:`sample_messages`), for message objects of rclpy or rosbags alike.
+    """Rebuild TelemetrySamples from the telemetry node's topics.
+
+    The inverse of :func:`sample_messages`, for message objects of rclpy or rosbags alike.
 
     ``telemetry/height`` (Float64), ``telemetry/imu`` (Imu orientation, ENU) and
     ``telemetry/fix`` (NavSatFix) are remembered; each ``telemetry/velocity``
@@ -132,17 +137,21 @@ class TelemetryFromTopics:
         self.fix: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def height(self, msg) -> None:
+        """Remember the height above ground of a ``telemetry/height`` message (None if NaN/Inf)."""
         h = float(msg.data)
         self.height_m = h if math.isfinite(h) else None
 
     def imu(self, msg) -> None:
+        """Remember the heading of a ``telemetry/imu`` orientation."""
         q = msg.orientation
         self.heading_rad = heading_from_quaternion_enu(q.x, q.y, q.z, q.w)
 
     def navsat(self, msg) -> None:
+        """Remember the position of a ``telemetry/fix`` message."""
         self.fix = (float(msg.latitude), float(msg.longitude), float(msg.altitude))
 
     def velocity(self, msg) -> TelemetrySample | None:
+        """Build a sample from a ``telemetry/velocity`` message, or None before any height."""
         if self.height_m is None:
             return None
         v = msg.twist.linear

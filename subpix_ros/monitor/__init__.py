@@ -1,8 +1,10 @@
 """Live operator monitoring over Foxglove (ROS-free): see :mod:`subpix_ros.monitor.monitor`."""
 
 from .budget import LEVELS, ByteMeter, TokenBucket, wire_bytes
+from .config import LOOPBACK, MonitorConfig, MonitorError, check_exposure
 from .geo import feature_collection, footprint_lonlat
-from .monitor import LOOPBACK, TOPICS, Monitor, MonitorConfig, MonitorError, check_exposure
+from .monitor import Monitor
+from .schemas import TOPICS
 
 __all__ = [
     "Monitor",

@@ -65,9 +65,11 @@ class TokenBucket:
 
     @property
     def capacity(self) -> float:
+        """Most bytes the bucket saves up (``rate * burst_s``)."""
         return self.rate * self.burst_s
 
     def set_rate(self, rate_bytes_s: float) -> None:
+        """Change the refill rate (bytes/s), keeping the tokens earned so far."""
         with self._lock:
             self._refill(time.monotonic())
             self.rate = float(rate_bytes_s)
@@ -78,17 +80,19 @@ class TokenBucket:
         self._t = now
 
     def level(self, now: float | None = None) -> float:
+        """Return the tokens (bytes) available now."""
         with self._lock:
             self._refill(time.monotonic() if now is None else now)
             return self.tokens
 
     def charge(self, n: int, now: float | None = None) -> None:
+        """Take ``n`` bytes from the bucket (it may go negative: a debt)."""
         with self._lock:
             self._refill(time.monotonic() if now is None else now)
             self.tokens -= n
 
     def allows(self, n: int, now: float | None = None) -> bool:
-        """True if ``n`` bytes fit now (one larger than the whole saving goes when it is full)."""
+        """Return True if ``n`` bytes fit now (a message over the capacity goes when it is full)."""
         with self._lock:
             self._refill(time.monotonic() if now is None else now)
             return self.tokens >= min(n, self.capacity) and self.tokens > 0
@@ -106,6 +110,7 @@ class ByteMeter:
         self._lock = threading.Lock()
 
     def add(self, n: int, now: float | None = None) -> None:
+        """Count ``n`` bytes sent at ``now``."""
         now = time.monotonic() if now is None else now
         with self._lock:
             self._events.append((now, n))
@@ -119,6 +124,7 @@ class ByteMeter:
             self._sum -= self._events.popleft()[1]
 
     def rate(self, now: float | None = None) -> float:
+        """Return the bytes per second over the window."""
         with self._lock:
             self._trim(time.monotonic() if now is None else now)
             return self._sum / self.window_s

@@ -24,6 +24,8 @@ __all__ = ["FoxgloveClient", "Received"]
 
 @dataclass
 class Received:
+    """One message received: receive time, log time, payload bytes and frame size."""
+
     t: float  # time.monotonic() at arrival
     log_time: int
     payload: bytes
@@ -102,10 +104,12 @@ class FoxgloveClient:
             self.closed = True
 
     def close(self) -> None:
+        """Close the connection and stop the client thread."""
         self._stop.set()
         self._thread.join(5.0)
 
     def wait(self, until, timeout: float) -> bool:
+        """Wait until ``until()`` is true, ``timeout`` s pass or the link closes; return ``until()``."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if until():
@@ -116,6 +120,7 @@ class FoxgloveClient:
         return bool(until())
 
     def messages(self, topic: str) -> list[Received]:
+        """Return the messages received on ``topic`` so far."""
         with self._lock:
             return list(self.received.get(topic, []))
 
@@ -131,7 +136,7 @@ _CLASSES: dict = {}
 
 
 def _message_class(name: str, schema_b64: str):
-    """The protobuf class of ``name`` from its advertised FileDescriptorSet (base64)."""
+    """Return the protobuf class of ``name`` from its advertised FileDescriptorSet (base64)."""
     if name in _CLASSES:
         return _CLASSES[name]
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory

@@ -52,267 +52,27 @@ at start. No client-publish, parameter or service capability is offered.
 
 from __future__ import annotations
 
-import json
 import math
 import threading
 import time
-from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-import cv2
 import foxglove
 import numpy as np
 from foxglove.channels import CompressedImageChannel, GeoJsonChannel, LocationFixChannel, LogChannel
-from foxglove.messages import CompressedImage, GeoJson, LocationFix, Log, LogLevel, Timestamp
+from foxglove.messages import LocationFix, Log, LogLevel
 
-from .budget import LEVELS, ByteMeter, TokenBucket, wire_bytes
-from .geo import feature_collection
+from .budget import TokenBucket
+from .config import MonitorConfig, MonitorError, check_exposure
+from .encoding import _num, _to_bgr, _ts, _ts_json
+from .schemas import HEALTH_SCHEMA, SHIFT_SCHEMA, TELEMETRY_SCHEMA, TOPICS
+from .sender import _Out, _Sender, _Stream
 
-__all__ = ["Monitor", "MonitorConfig", "MonitorError", "TOPICS", "LOOPBACK", "check_exposure"]
-
-LOOPBACK = ("127.0.0.1", "localhost", "::1")
-
-SHIFT_SCHEMA = {
-    "title": "subpix.Shift",
-    "type": "object",
-    "properties": {
-        "timestamp": {
-            "type": "object",
-            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
-        },
-        "u": {
-            "type": "number",
-            "description": "shift along rows, px (content moved from reference to frame)",
-        },
-        "v": {"type": "number", "description": "shift along columns, px"},
-        "u_std": {"type": ["number", "null"]},
-        "v_std": {"type": ["number", "null"]},
-        "converged": {"type": "boolean"},
-        "expected_u": {
-            "type": ["number", "null"],
-            "description": "telemetry's expected shift, px (eq. 1)",
-        },
-        "expected_v": {"type": ["number", "null"]},
-        "du": {"type": ["number", "null"], "description": "u - expected_u"},
-        "dv": {"type": ["number", "null"], "description": "v - expected_v"},
-    },
-}
-TELEMETRY_SCHEMA = {
-    "title": "subpix.Telemetry",
-    "type": "object",
-    "properties": {
-        "timestamp": {
-            "type": "object",
-            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
-        },
-        "frame_interval_s": {"type": ["number", "null"], "description": "METHODS eq. 1"},
-        "expected_u": {"type": ["number", "null"]},
-        "expected_v": {"type": ["number", "null"]},
-        "height_m": {"type": ["number", "null"]},
-        "speed_mps": {"type": ["number", "null"]},
-    },
-}
-HEALTH_SCHEMA = {
-    "title": "subpix.Health",
-    "type": "object",
-    "properties": {
-        "timestamp": {
-            "type": "object",
-            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
-        },
-        "nodes": {
-            "type": "array",
-            "items": {
-                "type": "object",
-                "properties": {
-                    "name": {"type": "string"},
-                    "level": {"type": "string"},
-                    "message": {"type": "string"},
-                    "input_hz": {"type": "string"},
-                    "output_hz": {"type": "string"},
-                    "dropped": {"type": "string"},
-                    "latency_p50_ms": {"type": "string"},
-                    "queue_depth": {"type": "string"},
-                    "last_error": {"type": "string"},
-                },
-            },
-        },
-        "link": {
-            "type": "object",
-            "description": "the monitor's own link budget and bytes/s per channel",
-        },
-        "values": {
-            "type": "object",
-            "description": "every key/value of every node, '<node>/<key>'",
-        },
-    },
-}
-
-TOPICS: dict[str, str] = {
-    "/mosaic": "foxglove.CompressedImage",
-    "/super_resolved": "foxglove.CompressedImage",
-    "/bicubic": "foxglove.CompressedImage",
-    "/camera": "foxglove.CompressedImage",
-    "/shift": "subpix.Shift",
-    "/telemetry": "subpix.Telemetry",
-    "/fix": "foxglove.LocationFix",
-    "/footprints": "foxglove.GeoJSON",
-    "/health": "subpix.Health",
-    "/log": "foxglove.Log",
-}
-ESSENTIAL_TOPICS = ("/shift", "/telemetry", "/fix", "/footprints", "/health", "/log")
-LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+__all__ = ["Monitor"]
 
 
-class MonitorError(RuntimeError):
-    """The monitor cannot start as configured (one line, for the operator)."""
-
-
-@dataclass
-class MonitorConfig:
-    """Settings of a :class:`Monitor` (the ``monitor_node`` parameters of the same names)."""
-
-    host: str = "127.0.0.1"
-    port: int = 8765
-    tls_cert: str = ""
-    tls_key: str = ""
-    allow_insecure: bool = False
-    bandwidth_kbps: float = 2000.0
-    burst_s: float = 0.5
-    backlog_messages: int = 64
-    mosaic_max_px: int = 1024
-    mosaic_period_s: float = 2.0
-    sr_crop_px: int = 512
-    camera_max_px: int = 640
-    camera_period_s: float = 1.0
-    geo_period_s: float = 2.0
-    health_period_s: float = 1.0
-    max_footprints: int = 30
-    record_mcap: str = ""
-    name: str = "subpix_ros monitor"
-
-    @classmethod
-    def from_mapping(cls, values: dict[str, Any]) -> "MonitorConfig":
-        names = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in values.items() if k in names})
-
-
-def check_exposure(cfg: MonitorConfig) -> tuple[bytes | None, bytes | None]:
-    """Refuse an exposed server without TLS; return the PEM certificate and key (or None, None).
-
-    Raises
-    ------
-    MonitorError
-        ``host`` is not a loopback address and neither TLS nor ``allow_insecure`` is set;
-        only one of ``tls_cert`` / ``tls_key`` is set; a file cannot be read.
-    """
-    if bool(cfg.tls_cert) != bool(cfg.tls_key):
-        raise MonitorError("monitor: tls_cert and tls_key must be set together")
-    if cfg.tls_cert:
-        pem = []
-        for what, path in (("tls_cert", cfg.tls_cert), ("tls_key", cfg.tls_key)):
-            p = Path(path)
-            if not p.is_file():
-                raise MonitorError(f"monitor: {what} {path!r} is not a readable file")
-            pem.append(p.read_bytes())
-        return pem[0], pem[1]
-    if cfg.host not in LOOPBACK and not cfg.allow_insecure:
-        raise MonitorError(
-            f"monitor: refusing to serve on {cfg.host!r} without TLS: set tls_cert and tls_key, "
-            "or allow_insecure:=true on a trusted link, or keep host 127.0.0.1 and use an SSH "
-            "tunnel"
-        )
-    return None, None
-
-
-def _ts(stamp_ns: int) -> Timestamp:
-    return Timestamp(sec=int(stamp_ns // 1_000_000_000), nsec=int(stamp_ns % 1_000_000_000))
-
-
-def _ts_json(stamp_ns: int) -> dict:
-    return {"sec": int(stamp_ns // 1_000_000_000), "nsec": int(stamp_ns % 1_000_000_000)}
-
-
-def _num(x: float | None) -> float | None:
-    return None if x is None or not math.isfinite(float(x)) else float(x)
-
-
-def _to_bgr(image: np.ndarray) -> np.ndarray:
-    if image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 1):
-        return image.reshape(image.shape[:2])
-    if image.ndim == 3 and image.shape[2] in (3, 4):
-        return image[:, :, :3]
-    raise ValueError(f"monitor: image of shape {image.shape} is neither mono nor colour")
-
-
-def _to_u8(image: np.ndarray) -> np.ndarray:
-    if image.dtype == np.uint8:
-        return image
-    if image.dtype == np.uint16:
-        return (image >> 8).astype(np.uint8)
-    return np.clip(image, 0, 255).astype(np.uint8)
-
-
-def _shrink(image: np.ndarray, max_px: int) -> np.ndarray:
-    h, w = image.shape[:2]
-    s = max_px / max(h, w)
-    if s >= 1.0:
-        return image
-    return cv2.resize(
-        image, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA
-    )
-
-
-def _label(image: np.ndarray, text: str) -> np.ndarray:
-    out = (
-        cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else np.ascontiguousarray(image)
-    )
-    scale = max(0.4, out.shape[1] / 900)
-    th = max(1, round(scale * 2))
-    (tw, tht), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, th)
-    cv2.rectangle(out, (0, 0), (tw + 8, tht + base + 8), (0, 0, 0), -1)
-    cv2.putText(
-        out, text, (4, tht + 4), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), th, cv2.LINE_AA
-    )
-    return out
-
-
-class _Out:
-    """One served topic: its channel on the server's context and, when recording, on the MCAP's."""
-
-    def __init__(self, topic: str, make, contexts: Sequence[foxglove.Context]) -> None:
-        self.topic = topic
-        self.channels = [make(topic, c) for c in contexts]
-        self.meter = ByteMeter()
-        self.last: Any = None  # the latest message, for a client that subscribes later
-
-    @property
-    def ws_id(self) -> int:
-        return self.channels[0].id()
-
-
-@dataclass
-class _Stream:
-    """An image stream waiting for the link: latest input, encoded message pending, its rung."""
-
-    topics: tuple[str, ...]
-    priority: int
-    period_attr: str
-    seq: int = 0  # bumped by each new input
-    item: Any = None
-    pending: list | None = None  # [(topic, message, wire bytes per client)]
-    pending_seq: int = -1
-    pending_t: float = 0.0
-    sent_seq: int = 0
-    last_sent: float = -1e9
-    weight: float = 1.0  # share of the image budget
-    last_input: float = -1e9
-    level: int = 0
-    sent: int = 0
-
-
-class Monitor:
+class Monitor(_Sender):
     """Serve the flight to Foxglove over one WebSocket server (see the module docstring).
 
     Parameters
@@ -361,6 +121,7 @@ class Monitor:
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
+        """Open the server (and the MCAP recording) and start the sender thread."""
         cfg = self.cfg
         self._ws_ctx = foxglove.Context()
         contexts = [self._ws_ctx]
@@ -424,10 +185,12 @@ class Monitor:
 
     @property
     def port(self) -> int:
+        """Port the server listens on (0 before start)."""
         return self.server.port if self.server is not None else 0
 
     @property
     def url(self) -> str:
+        """The ``ws://`` or ``wss://`` URL of the server."""
         scheme = "wss" if self._tls[0] else "ws"
         return f"{scheme}://{self.cfg.host}:{self.port}"
 
@@ -451,17 +214,20 @@ class Monitor:
         self.close()
 
     def set_bandwidth_kbps(self, kbps: float) -> None:
+        """Change the link budget (kbit/s)."""
         self.cfg.bandwidth_kbps = float(kbps)
         self.bucket.set_rate(kbps * 125.0)
 
     # ---------------------------------------------------------- server listener (SDK threads)
     def on_subscribe(self, client, channel) -> None:
+        """Note a client's subscription and resend the channel's latest message (SDK thread)."""
         with self._lock:
             self._subs.setdefault(channel.id, set()).add(client.id)
             self._resend.add(channel.id)
         self._wake.set()
 
     def on_unsubscribe(self, client, channel) -> None:
+        """Note that a client left a channel (SDK thread)."""
         with self._lock:
             self._subs.get(channel.id, set()).discard(client.id)
 
@@ -470,43 +236,16 @@ class Monitor:
             return len(set().union(*self._subs.values())) if self._subs else 0
 
     def clients(self, topic: str) -> int:
+        """Return how many clients subscribe to ``topic``."""
         with self._lock:
             return len(self._subs.get(self.outs[topic].ws_id, ()))
 
-    # ------------------------------------------------------------------ sending
-    def _log(self, topic: str, msg: Any, *, charge: bool = True, recorded: bool = True) -> int:
-        """Log ``msg`` on ``topic``; count and charge its wire bytes; return them."""
-        out = self.outs[topic]
-        payload = json.dumps(msg, separators=(",", ":")).encode() if isinstance(msg, dict) else msg
-        n = wire_bytes(
-            len(payload if isinstance(payload, bytes) else payload.encode())
-        ) * self.clients(topic)
-        chans = out.channels if recorded else out.channels[:1]
-        for ch in chans:
-            ch.log(payload)
-        out.last = payload
-        if n:
-            out.meter.add(n)
-            if charge:
-                self.bucket.charge(n)
-        return n
-
-    def _essential(self, topic: str, msg: Any) -> None:
-        """Health, log, shifts, telemetry, fixes: never throttled (charged to the bucket)."""
-        try:
-            self._log(topic, msg)
-        except Exception as exc:  # noqa: BLE001 - a monitor must not take its feeder down
-            self._note_error(f"{topic}: {type(exc).__name__}: {exc}")
-
-    def _note_error(self, text: str) -> None:
-        with self._lock:
-            self.errors.append(text)
-            del self.errors[:-20]
-
     # ------------------------------------------------------------------ inputs
     def on_mosaic(self, bgr: np.ndarray, stamp_ns: int | None = None) -> None:
-        """The latest mosaic (H x W x 3 or H x W, uint8); sent when changed, every
-        mosaic_period_s at most."""
+        """Keep the latest mosaic (H x W x 3 or H x W, uint8).
+
+        Sent when it changed, every mosaic_period_s at most.
+        """
         self._put("mosaic", (_to_bgr(bgr), stamp_ns if stamp_ns is not None else time.time_ns()))
 
     def on_super_resolved(
@@ -516,8 +255,10 @@ class Monitor:
         stamp_ns: int,
         factor: int | None = None,
     ) -> None:
-        """A super-resolved image and the bicubic enlargement of its reference (same size) or
-        None."""
+        """Keep a super-resolved image and the bicubic enlargement of its reference.
+
+        The bicubic image has the same size, or is None.
+        """
         sr = _to_bgr(sr_image)
         bic = None if bicubic_image is None else _to_bgr(bicubic_image)
         if bic is not None and bic.shape[:2] != sr.shape[:2]:
@@ -527,7 +268,7 @@ class Monitor:
         self._put("sr", (sr, bic, stamp_ns, factor))
 
     def on_camera(self, image: np.ndarray, stamp_ns: int) -> None:
-        """The current camera frame (kept; the newest is sent every camera_period_s)."""
+        """Keep the current camera frame (the newest is sent every camera_period_s)."""
         self._put("camera", (_to_bgr(image), stamp_ns))
 
     def _put(self, name: str, item: Any) -> None:
@@ -549,7 +290,21 @@ class Monitor:
         expected_u: float | None = None,
         expected_v: float | None = None,
     ) -> None:
-        """One shift estimate (px, rows/columns), its standard errors, telemetry's expectation."""
+        """Send one shift estimate (never throttled).
+
+        Parameters
+        ----------
+        stamp_ns : int
+            The frame's stamp.
+        u, v : float
+            The shift, px (rows, columns).
+        u_std, v_std : float, optional
+            Its standard errors, px.
+        converged : bool
+            Whether the estimator converged.
+        expected_u, expected_v : float, optional
+            Telemetry's expectation, px; the message carries the difference too.
+        """
         eu, ev = _num(expected_u), _num(expected_v)
         msg = {
             "timestamp": _ts_json(stamp_ns),
@@ -566,15 +321,17 @@ class Monitor:
         self._essential("/shift", msg)
 
     def on_telemetry(self, stamp_ns: int, **values: float | None) -> None:
-        """Telemetry figures (``frame_interval_s``, ``expected_u``, ``expected_v``, ``height_m``,
-        ``speed_mps``); the latest of each is repeated in every message."""
+        """Send telemetry figures; the latest of each is repeated in every message.
+
+        Keys: ``frame_interval_s``, ``expected_u``, ``expected_v``, ``height_m``, ``speed_mps``.
+        """
         with self._lock:
             self._telemetry.update({k: _num(v) for k, v in values.items()})
             msg = {"timestamp": _ts_json(stamp_ns), **self._telemetry}
         self._essential("/telemetry", msg)
 
     def on_fix(self, lat: float, lon: float, alt: float, stamp_ns: int) -> None:
-        """A GNSS fix (degrees, m): served as LocationFix, and added to the track."""
+        """Send a GNSS fix (degrees, m) as LocationFix and add it to the track."""
         if not (
             math.isfinite(lat) and math.isfinite(lon) and -90 <= lat <= 90 and -180 <= lon <= 180
         ):
@@ -597,7 +354,7 @@ class Monitor:
     def on_footprint(
         self, corners_lonlat: Sequence[tuple[float, float]], stamp_ns: int | None = None
     ) -> None:
-        """A frame's ground footprint, closed (lon, lat) ring (see :func:`geo.footprint_lonlat`)."""
+        """Add a frame's ground footprint: a closed (lon, lat) ring (:func:`geo.footprint_lonlat`)."""
         ring = [(float(x), float(y)) for x, y in corners_lonlat]
         if len(ring) < 4 or not all(math.isfinite(x) and math.isfinite(y) for x, y in ring):
             raise ValueError("monitor: a footprint needs a closed ring of finite (lon, lat)")
@@ -630,7 +387,7 @@ class Monitor:
     def on_log(
         self, level: int | str, text: str, name: str = "subpix_ros", stamp_ns: int | None = None
     ) -> None:
-        """A log entry (level 0-3 as diagnostics, or debug/info/warning/error/fatal)."""
+        """Send a log entry (level 0-3 as diagnostics, or debug/info/warning/error/fatal)."""
         lv = {
             "debug": LogLevel.Debug,
             "info": LogLevel.Info,
@@ -650,213 +407,3 @@ class Monitor:
             name=name,
         )
         self._essential("/log", msg.encode())
-
-    # ------------------------------------------------------------------ sender thread
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            self._wake.wait(0.02)
-            self._wake.clear()
-            try:
-                self._tick(time.monotonic())
-            except Exception as exc:  # noqa: BLE001 - keep serving
-                self._note_error(f"sender: {type(exc).__name__}: {exc}")
-
-    def _tick(self, now: float) -> None:
-        with self._lock:
-            resend, self._resend = self._resend, set()
-        for cid in resend:  # a client that subscribes later gets the latest message at once
-            out = self._by_ws_id.get(cid)
-            if out is not None and out.last is not None and out.topic not in ("/shift", "/log"):
-                self._log(out.topic, out.last, recorded=False)
-        if now - self._health_sent >= self.cfg.health_period_s:
-            self._health_sent = now
-            self._essential("/health", self.health_message())
-        for s in self.streams.values():  # encode the newest input of each stream that is due
-            with self._lock:
-                item, seq = s.item, s.seq
-            due = now - s.last_sent >= getattr(self.cfg, s.period_attr, 0.0)
-            stale = s.pending is not None and seq != s.pending_seq and now - s.pending_t > 0.5
-            if item is not None and seq != s.sent_seq and due and (s.pending is None or stale):
-                if s.pending is None:  # waiting for the link since (kept when replaced by a newer)
-                    s.pending_t = now
-                s.pending = self._encode_to_fit(s, item, now)
-                s.pending_seq = seq
-        # the track and footprints: small, rate-limited by geo_period_s, charged like the essentials
-        if self._geo_dirty and now - self._geo_sent >= self.cfg.geo_period_s:
-            with self._lock:
-                text = feature_collection(self._track, self._footprints)
-                self._geo_dirty = False
-            self._geo_sent = now
-            self._essential("/footprints", GeoJson(geojson=text).encode())
-
-        def order(x: _Stream) -> tuple[int, int]:
-            # strict priority, except that a stream kept waiting 4 periods (>= 4 s) goes first:
-            # the camera is starved of rate and quality first, but not for ever
-            period = getattr(self.cfg, x.period_attr, 0.0)
-            starved = x.pending is not None and now - x.pending_t > max(4.0, 4 * period)
-            return (0 if starved else 1, x.priority)
-
-        for s in sorted(self.streams.values(), key=order):
-            if s.pending is None:
-                continue
-            n = sum(wire_bytes(len(m)) for _, m in s.pending) * max(
-                1, max(self.clients(t) for t in s.topics)
-            )
-            if not self.bucket.allows(n, now):
-                break  # strict priority: nothing lower goes while this waits
-            for topic, m in s.pending:
-                self._log(topic, m)
-            s.pending, s.sent_seq, s.last_sent, s.sent = None, s.pending_seq, now, s.sent + 1
-
-    def target_bytes(self, s: _Stream, now: float) -> float:
-        """Bytes one message of stream ``s`` should take: its share of what the essentials leave.
-
-        ``share = max(0.1 B, B - essentials) * w_s / sum(w of streams fed in the last 10 s)``,
-        ``B`` the budget (bytes/s), ``essentials`` the measured bytes/s of health, log, shifts,
-        telemetry, fixes and footprints; one message is sized for ``max(period, 1 s)`` of its
-        share (divided among the clients subscribed): below that, images come less often
-        instead of smaller, and the token bucket sets their rate.
-        """
-        essential = sum(self.outs[t].meter.rate(now) for t in ESSENTIAL_TOPICS)
-        avail = max(0.1 * self.bucket.rate, self.bucket.rate - essential)
-        active = [
-            x for x in self.streams.values() if x.item is not None and now - x.last_input < 10.0
-        ]
-        w = s.weight / max(1e-9, sum(x.weight for x in active) if s in active else s.weight)
-        clients = max(1, max(self.clients(t) for t in s.topics))
-        return avail * w * max(getattr(self.cfg, s.period_attr, 0.0), 1.0) / clients
-
-    def _encode_to_fit(self, s: _Stream, item, now: float) -> list:
-        """Encode at the stream's rung; step down the ladder while the message is 25 % over its
-        target, and one rung up for next time when it is under half of it."""
-        target = self.target_bytes(s, now)
-        msgs = self._encode(s, item)
-        size = sum(len(m) for _, m in msgs)
-        while size > 1.25 * target and s.level < len(LEVELS) - 1:
-            s.level += 1
-            msgs = self._encode(s, item)
-            size = sum(len(m) for _, m in msgs)
-        if size < 0.5 * target and s.level > 0:
-            s.level -= 1
-        return msgs
-
-    def _encode(self, s: _Stream, item) -> list:
-        lv = LEVELS[s.level]
-        if s.topics == ("/mosaic",):
-            img, stamp = item
-            return [
-                (
-                    "/mosaic",
-                    self._jpeg(
-                        _shrink(_to_u8(img), int(self.cfg.mosaic_max_px * lv.scale)),
-                        lv.quality,
-                        stamp,
-                        "mosaic",
-                    ),
-                )
-            ]
-        if s.topics == ("/camera",):
-            img, stamp = item
-            return [
-                (
-                    "/camera",
-                    self._jpeg(
-                        _shrink(_to_u8(img), int(self.cfg.camera_max_px * lv.scale)),
-                        lv.quality,
-                        stamp,
-                        "camera",
-                    ),
-                )
-            ]
-        sr, bic, stamp, factor = item
-        crop = max(32, int(self.cfg.sr_crop_px))
-        h, w = sr.shape[:2]
-        r0, c0 = max(0, (h - crop) // 2), max(0, (w - crop) // 2)
-        win = (slice(r0, r0 + crop), slice(c0, c0 + crop))
-        f = f" x{factor}" if factor else ""
-        where = f" rows {r0}-{min(h, r0 + crop)} cols {c0}-{min(w, c0 + crop)}"
-        side = int(crop * lv.scale)
-        out = [
-            (
-                "/super_resolved",
-                self._jpeg(
-                    _label(_shrink(_to_u8(sr[win]), side), "super-resolved" + f + where),
-                    lv.quality,
-                    stamp,
-                    "super_resolved",
-                ),
-            )
-        ]
-        if bic is not None:
-            out.append(
-                (
-                    "/bicubic",
-                    self._jpeg(
-                        _label(_shrink(_to_u8(bic[win]), side), "bicubic" + f + where),
-                        lv.quality,
-                        stamp,
-                        "super_resolved",
-                    ),
-                )
-            )
-        return out
-
-    @staticmethod
-    def _jpeg(img: np.ndarray, quality: int, stamp_ns: int, frame_id: str) -> bytes:
-        ok, buf = cv2.imencode(
-            ".jpg", np.ascontiguousarray(img), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]
-        )
-        if not ok:
-            raise ValueError("JPEG encoding failed")
-        return CompressedImage(
-            timestamp=_ts(stamp_ns), frame_id=frame_id, data=buf.tobytes(), format="jpeg"
-        ).encode()
-
-    # ------------------------------------------------------------------ health
-    def link_stats(self) -> dict:
-        """The budget (kbit/s), bytes/s per channel, total, and each image stream's rung."""
-        per = {t: round(o.meter.rate(), 1) for t, o in self.outs.items()}
-        return {
-            "budget_kbps": self.cfg.bandwidth_kbps,
-            "sent_kbps": round(sum(per.values()) * 8 / 1000, 1),
-            "bytes_per_s": per,
-            "levels": {
-                n: {
-                    "quality": LEVELS[s.level].quality,
-                    "scale": LEVELS[s.level].scale,
-                    "sent": s.sent,
-                }
-                for n, s in self.streams.items()
-            },
-            "clients": self._client_count(),
-            "errors": list(self.errors[-3:]),
-        }
-
-    def health_message(self) -> dict:
-        keys = {
-            "input_hz": "input_hz",
-            "output_hz": "output_hz",
-            "dropped": "dropped_frames",
-            "latency_p50_ms": "latency_p50_ms",
-            "queue_depth": "queue_depth",
-            "last_error": "last_error",
-        }
-        with self._lock:
-            nodes, values = [], {}
-            for name, st in sorted(self._health.items()):
-                v = st["values"]
-                nodes.append(
-                    {
-                        "name": name,
-                        "level": LEVEL_NAMES.get(st["level"], str(st["level"])),
-                        "message": st["message"],
-                        **{k: str(v.get(src, "")) for k, src in keys.items()},
-                    }
-                )
-                values.update({f"{name}/{k}": str(x) for k, x in v.items()})
-        return {
-            "timestamp": _ts_json(time.time_ns()),
-            "nodes": nodes,
-            "link": self.link_stats(),
-            "values": values,
-        }

@@ -15,7 +15,7 @@ from typing import Callable
 from sensor_msgs.msg import Image, TimeReference
 
 from subpix_ros.nodes import payloads as pl
-from subpix_ros.nodes.common import latched_qos, reliable_qos
+from subpix_ros.nodes.qos import latched_qos, reliable_qos
 from subpix_ros.stages.aligned_assembly import AlignedAssembler, ReferenceCache, StampMatcher  # noqa: F401
 from subpix_ros.stages.aligned_assembly import bounded_put as _bounded_put  # noqa: F401
 
@@ -93,4 +93,5 @@ class AlignedInput:
             self.assembler.add_mask(m)
 
     def clear(self) -> None:
+        """Drop the frames and masks waiting to be assembled."""
         self.assembler.clear()

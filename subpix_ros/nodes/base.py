@@ -18,19 +18,16 @@ from typing import Any, Callable, Sequence
 
 from rclpy.node import Node
 
-from subpix_ros.nodes.common import (
-    Diagnostics,
-    DropOldestWorker,
-    Param,
-    declare_params,
-    qos_event_callbacks,
-)
+from subpix_ros.nodes.diagnostics import Diagnostics
+from subpix_ros.nodes.params import Param, declare_params
+from subpix_ros.nodes.qos import qos_event_callbacks
+from subpix_ros.nodes.worker import DropOldestWorker
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
 
 
 def ros_params(specs: Sequence[Spec]) -> tuple[Param, ...]:
-    """A stage's parameter specs as node parameters (same names, defaults, ranges, checks)."""
+    """Turn a stage's parameter specs into node parameters (names, defaults, ranges, checks)."""
     return tuple(
         Param(**{f.name: getattr(s, f.name) for f in dataclasses.fields(Spec)}) for s in specs
     )
@@ -51,6 +48,8 @@ INPUT_PARAMS: tuple[Param, ...] = (
 
 
 class StageNode(Node):
+    """A node around one ROS-free stage: parameters, diagnostics, worker, in-process hand-off."""
+
     PARAMS: Sequence[Param] = ()
     #: The topics of the node's main input (one input: any of them counts), watched for silence
     #: (Diagnostics.watch_inputs) when the node subscribes its inputs itself.
@@ -75,7 +74,7 @@ class StageNode(Node):
         self.stage: Stage | None = None
 
     def make_stage(self, cls: type[Stage]) -> Stage:
-        """The node's stage, built from its current parameters; its problems go to /diagnostics."""
+        """Build the node's stage from its current parameters; its problems go to /diagnostics."""
         self.stage = cls.from_params({name: self.param(name) for name in self.params})
         self.stage.on_problem = self._stage_problem
         return self.stage
@@ -85,6 +84,7 @@ class StageNode(Node):
 
     # ---------------------------------------------------------------- parameters
     def param(self, name: str) -> Any:
+        """Return the current value of parameter ``name``."""
         return self.get_parameter(name).value
 
     def _on_param_change(self, name: str, value: Any) -> None:
@@ -94,14 +94,18 @@ class StageNode(Node):
 
     # ---------------------------------------------------------------- in-process hand-off
     def listen(self, kind: str, callback: Callable[[Any], None]) -> None:
+        """Call ``callback(payload)`` for each ``kind`` this node emits (in-process pipeline)."""
         self._listeners[kind].append(callback)
 
     def emit(self, kind: str, payload: Any) -> None:
+        """Hand ``payload`` to the in-process listeners of ``kind``."""
         for cb in self._listeners[kind]:
             cb(payload)
 
     # ---------------------------------------------------------------- helpers
     def make_worker(self, handler: Callable[[Any], None], maxsize: int) -> DropOldestWorker:
+        """Start the node's drop-oldest worker; its errors go to /diagnostics."""
+
         def on_error(exc: BaseException) -> None:
             self.diag.error(f"{type(exc).__name__}: {exc}")
 
@@ -112,6 +116,7 @@ class StageNode(Node):
         return self.worker
 
     def events(self, topic: str):
+        """Return QoS event callbacks for ``topic`` that report to /diagnostics."""
         return qos_event_callbacks(self, topic, self.diag)
 
     def check_time(self, stamp_ns: int) -> bool:
@@ -138,8 +143,11 @@ class StageNode(Node):
     def output(
         self, kind: str, payload: Any, received: float, time_key: str, **values: Any
     ) -> None:
-        """After publishing: in-process listeners of ``kind``, output rate, latency since
-        ``received``, the stage's last time as ``time_key`` and ``values`` on /diagnostics."""
+        """Report a published result.
+
+        Called after publishing: in-process listeners of ``kind``, output rate, latency since
+        ``received``, the stage's last time as ``time_key`` and ``values`` on /diagnostics.
+        """
         self.emit(kind, payload)
         self.diag.rate("output").tick()
         self.latency_since(received)
@@ -147,8 +155,10 @@ class StageNode(Node):
         self.diag.set(**values)
 
     def latency_since(self, received: float) -> None:
+        """Record the latency since ``received`` (time.monotonic())."""
         self.diag.latency(time.monotonic() - received)
 
     def close(self) -> None:
+        """Stop the worker (called before the node is destroyed)."""
         if self.worker is not None:
             self.worker.stop()

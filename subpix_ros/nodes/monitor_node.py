@@ -32,14 +32,10 @@ from subpix_ros.monitor import Monitor, MonitorConfig, MonitorError
 from subpix_ros.monitor.geo import footprint_lonlat
 from subpix_ros.monitor.join import ShiftStdJoin
 from subpix_ros.nodes.base import StageNode
-from subpix_ros.nodes.common import (
-    Param,
-    camera_qos,
-    latched_qos,
-    reliable_qos,
-    run_nodes,
-    stamp_to_ns,
-)
+from subpix_ros.nodes.params import Param
+from subpix_ros.nodes.qos import camera_qos, latched_qos, reliable_qos
+from subpix_ros.nodes.run import run_nodes
+from subpix_ros.nodes.stamps import stamp_to_ns
 
 # the parameters that are the Monitor's own settings (MonitorConfig fields of the same names)
 _MONITOR_PARAMS = (

@@ -17,11 +17,15 @@ from sensor_msgs.msg import CompressedImage, Image
 from subpix_ros.io import cdr
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode, ros_params
-from subpix_ros.nodes.common import Param, camera_qos, latched_qos, run_nodes
+from subpix_ros.nodes.params import Param
+from subpix_ros.nodes.qos import camera_qos, latched_qos
+from subpix_ros.nodes.run import run_nodes
 from subpix_ros.stages import MosaicStage
 
 
 class MosaicNode(StageNode):
+    """The mosaic stage as a node: camera frames in, the mosaic preview out."""
+
     MAIN_INPUTS = ("image", "image/compressed")
     PARAMS = (
         Param(
@@ -83,11 +87,13 @@ class MosaicNode(StageNode):
         self.handle_frame(frame)
 
     def handle_frame(self, frame: pl.Frame) -> None:
+        """Queue a frame that passes the stage's interval gate."""
         self.diag.rate("input").tick()
         if self.stage.take(frame):  # the min_interval_s gate, by stamp (a skip is not a drop)
             self.worker.put(frame)
 
     def reset(self) -> None:
+        """Start a new mosaic (time jumped back)."""
         self.stage.reset()  # frames queued behind the one that jumped back belong to the new stream
 
     def _process(self, frame: pl.Frame) -> None:
@@ -118,6 +124,7 @@ class MosaicNode(StageNode):
 
 
 def main(args=None) -> int:
+    """Run the mosaic node (console entry point)."""
     return run_nodes([MosaicNode], args)
 
 

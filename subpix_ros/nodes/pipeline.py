@@ -21,7 +21,7 @@ from __future__ import annotations
 import sys
 from typing import Sequence
 
-from subpix_ros.nodes.common import run_nodes
+from subpix_ros.nodes.run import run_nodes
 
 
 def build(with_telemetry: bool = True, with_monitor: bool = False):
@@ -59,6 +59,7 @@ def build(with_telemetry: bool = True, with_monitor: bool = False):
 
 
 def main(args: Sequence[str] | None = None) -> int:
+    """Run the in-process pipeline (console entry point)."""
     argv = list(sys.argv if args is None else args)
     with_telemetry = "--no-telemetry" not in argv
     with_monitor = "--monitor" in argv

@@ -30,7 +30,9 @@ from sensor_msgs.msg import Image
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.aligned_input import AlignedInput
 from subpix_ros.nodes.base import StageNode, ros_params
-from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes
+from subpix_ros.nodes.params import Param
+from subpix_ros.nodes.qos import latched_qos, reliable_qos
+from subpix_ros.nodes.run import run_nodes
 from subpix_ros.stages import ReconstructionStage
 from subpix_ros.stages.reconstruction import FrameSet
 
@@ -38,6 +40,8 @@ IDLE_CHECK_S = 0.2  # how often the idle flush is checked (wall time)
 
 
 class ReconstructionNode(StageNode):
+    """The reconstruction stage as a node: aligned frames in, super-resolved images out."""
+
     MAIN_INPUTS = ("aligned",)
     PARAMS = (
         *ros_params(ReconstructionStage.PARAMS),
@@ -107,6 +111,7 @@ class ReconstructionNode(StageNode):
             self.worker.put(fs)
 
     def reset(self) -> None:
+        """Drop the stage's sets and the frames waiting to be assembled."""
         super().reset()
         if self.inputs is not None:
             self.inputs.clear()
@@ -144,8 +149,11 @@ class ReconstructionNode(StageNode):
             self.diag.ok()
 
     def close(self) -> None:
-        """Shutdown: the open sets (``min_frames`` or more) are reconstructed and published first
-        (when the ROS context is still up: after Ctrl-C nothing can be published any more)."""
+        """Reconstruct and publish the open sets at shutdown.
+
+        The open sets of ``min_frames`` or more are reconstructed and published first (when
+        the ROS context is still up: after Ctrl-C nothing can be published any more).
+        """
         with self._lock:
             sets = self.stage.flush_sets()
         if sets and not self.context.ok():
@@ -159,6 +167,7 @@ class ReconstructionNode(StageNode):
 
 
 def main(args=None) -> int:
+    """Run the reconstruction node (console entry point)."""
     return run_nodes([ReconstructionNode], args)
 
 

@@ -36,20 +36,17 @@ from subpix_ros.core.telemetry import TelemetrySample
 from subpix_ros.io.telemetry_msgs import TelemetryFromTopics
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode, ros_params
-from subpix_ros.nodes.common import (
-    Param,
-    camera_qos,
-    latched_qos,
-    publish_if_subscribed,
-    reliable_qos,
-    run_nodes,
-)
+from subpix_ros.nodes.params import Param
+from subpix_ros.nodes.qos import camera_qos, latched_qos, publish_if_subscribed, reliable_qos
+from subpix_ros.nodes.run import run_nodes
 from subpix_ros.stages import Aligned, NewReference, RegistrationStage, Skipped
 
 LINK_HISTORY = 100  # aligned/reference_stamp messages a late-joining consumer still gets
 
 
 class RegistrationNode(StageNode):
+    """The registration stage as a node: camera frames and telemetry in, aligned frames out."""
+
     MAIN_INPUTS = ("image", "image/compressed")
     PARAMS = (
         Param(
@@ -130,12 +127,16 @@ class RegistrationNode(StageNode):
         self.handle_frame(frame)
 
     def handle_frame(self, frame: pl.Frame) -> None:
-        """Queue one frame (called by the subscription or, in the pipeline, directly); listeners of
-        ``frame`` (the pipeline's mosaic) get it too."""
+        """Queue one frame for registration.
+
+        Called by the subscription or, in the pipeline, directly; listeners of ``frame`` (the
+        pipeline's mosaic) get it too.
+        """
         self.worker.put(frame)
         self.emit("frame", frame)
 
     def handle_telemetry(self, sample: TelemetrySample) -> None:
+        """Hand a telemetry sample to the stage."""
         self.stage.add_telemetry(sample)
 
     def _on_velocity(self, msg: TwistStamped) -> None:
@@ -199,6 +200,7 @@ def _na(value):
 
 
 def main(args=None) -> int:
+    """Run the registration node (console entry point)."""
     return run_nodes([RegistrationNode], args)
 
 

@@ -19,7 +19,9 @@ from geometry_msgs.msg import Vector3Stamped
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.aligned_input import AlignedInput
 from subpix_ros.nodes.base import StageNode, ros_params
-from subpix_ros.nodes.common import Param, reliable_qos, run_nodes
+from subpix_ros.nodes.params import Param
+from subpix_ros.nodes.qos import reliable_qos
+from subpix_ros.nodes.run import run_nodes
 from subpix_ros.stages import Shift, ShiftStage
 
 

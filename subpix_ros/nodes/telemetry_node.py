@@ -35,10 +35,15 @@ from subpix_ros.core.timing import detector_angle, expected_shift_px, frame_inte
 from subpix_ros.io import cdr
 from subpix_ros.io import telemetry_msgs as tm
 from subpix_ros.nodes.base import StageNode
-from subpix_ros.nodes.common import Param, latched_qos, reliable_qos, run_nodes, stamp_to_ns
+from subpix_ros.nodes.params import Param
+from subpix_ros.nodes.qos import latched_qos, reliable_qos
+from subpix_ros.nodes.run import run_nodes
+from subpix_ros.nodes.stamps import stamp_to_ns
 
 
 class TelemetryNode(StageNode):
+    """MAVLink (or mavros) telemetry in, the telemetry topics and expected shift out."""
+
     PARAMS = (
         Param("source", "mavlink", "telemetry source", choices=("mavlink", "mavros")),
         Param(
@@ -273,6 +278,7 @@ class TelemetryNode(StageNode):
             self.diag.warn("MAVLink link lost")
 
     def close(self) -> None:
+        """Stop the MAVLink reader and the node's worker."""
         if self.reader is not None:
             self.reader.stop()
         super().close()
@@ -285,6 +291,7 @@ def _cls(msgtype: str):
 
 
 def main(args=None) -> int:
+    """Run the telemetry node (console entry point)."""
     return run_nodes([TelemetryNode], args)
 
 

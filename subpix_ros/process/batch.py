@@ -40,6 +40,7 @@ class Progress:
         self._slots: list[str | None] = []
 
     def update(self, name: str, done: int, total: int) -> None:
+        """Show that ``name`` has ``done`` of ``total`` frames processed."""
         if self.quiet:
             return
         if self.tty:
@@ -82,6 +83,7 @@ class Progress:
             )
 
     def finish(self, name: str, line: str) -> None:
+        """Show the result line of ``name`` (and close its bar)."""
         bar = self._bars.pop(name, None)
         if bar is not None:
             bar.close()
@@ -163,7 +165,30 @@ def run_batch(
     progress: Progress | None = None,
     on_result: Callable[[BagResult], None] | None = None,
 ) -> list[BagResult]:
-    """Process ``bags`` into ``out``; returns one result per bag in the order given."""
+    """Process ``bags`` into ``out``; return one result per bag in the order given.
+
+    Parameters
+    ----------
+    bags : sequence of str or Path
+        The flight bags.
+    out : str or Path
+        The output folder (one subfolder per bag).
+    params : dict
+        Stage parameters keyed by node name.
+    jobs : int
+        Worker processes; 1 (or a single bag) processes in this process.
+    camera_topic, telemetry, force, skip_corrupt, monitor
+        As in :func:`subpix_ros.process.flight.process_bag` (``monitor`` with one job only).
+    progress : Progress, optional
+        Where progress goes (nothing by default).
+    on_result : callable, optional
+        Called with each bag's result as it finishes.
+
+    Returns
+    -------
+    list of BagResult
+        In the order of ``bags``.
+    """
     progress = progress or Progress(quiet=True)
     bags = [str(b) for b in bags]
     results: dict[int, BagResult] = {}
@@ -174,6 +199,7 @@ def run_batch(
         if on_result is not None:
             on_result(r)
 
+    options = dict(camera_topic=camera_topic, telemetry=telemetry, force=force)
     if jobs <= 1 or len(bags) <= 1:
         for i, b in enumerate(bags):
             from subpix_ros.process.inputs import bag_name
@@ -183,16 +209,28 @@ def run_batch(
                 b,
                 out,
                 params,
-                camera_topic=camera_topic,
-                telemetry=telemetry,
-                force=force,
+                **options,
                 skip_corrupt=skip_corrupt,
                 monitor=monitor,
                 progress=lambda d, t, n=name: progress.update(n, d, t),
             )
             done(i, r)
-        return [results[i] for i in range(len(bags))]
+    else:
+        _run_parallel(bags, out, params, jobs, options, skip_corrupt, progress, done)
+    return [results[i] for i in range(len(bags))]
 
+
+def _run_parallel(
+    bags: list[str],
+    out: str | Path,
+    params: dict,
+    jobs: int,
+    options: dict,
+    skip_corrupt: bool,
+    progress: Progress,
+    done: Callable[[int, BagResult], None],
+) -> None:
+    """Process ``bags`` in ``jobs`` spawned worker processes, one bag per process."""
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")
@@ -207,9 +245,9 @@ def run_batch(
                 b,
                 str(out),
                 params,
-                camera_topic,
-                telemetry,
-                force,
+                options["camera_topic"],
+                options["telemetry"],
+                options["force"],
                 threads,
                 queue,
                 skip_corrupt,
@@ -249,7 +287,6 @@ def run_batch(
         raise
     pool.shutdown(wait=True)
     manager.shutdown()
-    return [results[i] for i in range(len(bags))]
 
 
 def _drain(queue, progress: Progress) -> None:

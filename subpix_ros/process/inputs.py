@@ -52,8 +52,11 @@ def bag_name(path: str | Path) -> str:
 
 
 def find_tlog(path: str | Path) -> Path | None:
-    """The MAVLink log that belongs to bag ``path``: ``<bag>.tlog`` beside it, else the single
-    ``*.tlog`` inside the bag directory; None if there is none."""
+    """Find the MAVLink log that belongs to bag ``path``.
+
+    ``<bag>.tlog`` beside it, else the single
+    ``*.tlog`` inside the bag directory; None if there is none.
+    """
     p = Path(path)
     beside = p.parent / f"{bag_name(p)}.tlog"
     if beside.is_file():
@@ -106,12 +109,16 @@ class Flight:
 
     @property
     def has_telemetry(self) -> bool:
+        """Whether the flight has telemetry (topics or a .tlog)."""
         return self.telemetry_source != "none"
 
     def events(self) -> Iterator[tuple[str, object]]:
-        """``("telemetry", sample)``, ``("frame", Frame)`` and ``("bad_frame", (stamp_ns, reason))``
-        in time order. Raises :class:`BagError` if the storage turns out corrupt while reading
-        (after yielding everything before the damage)."""
+        """Yield the flight's telemetry samples and frames in time order.
+
+        Items ``("telemetry", sample)``, ``("frame", Frame)`` and
+        ``("bad_frame", (stamp_ns, reason))``. Raises :class:`BagError` if the storage turns out corrupt while reading
+        (after yielding everything before the damage).
+        """
         from subpix_ros.nodes.payloads import frame_from_cdr, frame_from_compressed_cdr
 
         topics = [self.camera_topic] if self.camera_topic else []
@@ -194,13 +201,26 @@ def open_flight(
 ) -> Flight:
     """Inspect bag ``path``: camera topic, frame count and telemetry source.
 
-    ``camera_topic`` None picks the bag's image topic (``/camera/image_raw``
-    if present, else the image topic with most messages). ``telemetry``:
-    ``"topics"`` (the bag's ``/telemetry/*``), ``"tlog"`` (the ``.tlog`` beside
-    the bag) or None (topics if the bag has them, else a tlog if one exists,
-    else none). Raises :class:`InputError` (or :class:`BagError`) when the bag
-    cannot be opened or a requested source is missing; a bag without images
-    is not an error here (``camera_topic`` None, ``frames_total`` 0).
+    Parameters
+    ----------
+    path : str or Path
+        The bag (directory, ``.mcap`` or ``.db3``).
+    camera_topic : str, optional
+        None picks the bag's image topic (``/camera/image_raw`` if present, else the image topic
+        with most messages).
+    telemetry : str, optional
+        ``"topics"`` (the bag's ``/telemetry/*``), ``"tlog"`` (the ``.tlog`` beside the bag) or
+        None (topics if the bag has them, else a tlog if one exists, else none).
+
+    Returns
+    -------
+    Flight
+        A bag without images is not an error here (``camera_topic`` None, ``frames_total`` 0).
+
+    Raises
+    ------
+    InputError, BagError
+        The bag cannot be opened or a requested source is missing.
     """
     p = Path(path)
     try:
@@ -208,6 +228,25 @@ def open_flight(
     except BagError:
         raise
     topics = {t.name: (t.msgtype, t.count) for t in infos}
+    cam, note = _choose_camera(p, topics, camera_topic)
+    flight = Flight(
+        p,
+        bag_name(p),
+        cam,
+        topics[cam][0] if cam else None,
+        topics[cam][1] if cam else 0,
+        topics,
+        "none",
+        camera_note=note,
+    )
+    _attach_telemetry(flight, p, topics, telemetry)
+    return flight
+
+
+def _choose_camera(
+    p: Path, topics: dict[str, tuple[str, int]], camera_topic: str | None
+) -> tuple[str | None, str]:
+    """Return the camera topic (the one asked for, else chosen) and a note on the choice."""
     images = {n: tc for n, tc in topics.items() if tc[0] in (IMAGE, COMPRESSED)}
     note = ""
     if camera_topic:
@@ -230,16 +269,13 @@ def open_flight(
             )
     else:
         cam = None
-    flight = Flight(
-        p,
-        bag_name(p),
-        cam,
-        topics[cam][0] if cam else None,
-        topics[cam][1] if cam else 0,
-        topics,
-        "none",
-        camera_note=note,
-    )
+    return cam, note
+
+
+def _attach_telemetry(
+    flight: Flight, p: Path, topics: dict[str, tuple[str, int]], telemetry: str | None
+) -> None:
+    """Set the flight's telemetry source: its topics, the tlog beside the bag, or none."""
     has_topics = "/telemetry/velocity" in topics and "/telemetry/height" in topics
     if telemetry == "topics" or (telemetry is None and has_topics):
         if not has_topics:
@@ -262,4 +298,3 @@ def open_flight(
                 )
     else:
         raise InputError(f"unknown telemetry source {telemetry!r} (tlog or topics)")
-    return flight

@@ -71,7 +71,7 @@ def rounded(x: float) -> float:
 
 
 def is_complete(folder: Path) -> bool:
-    """A product folder is complete if it has a readable summary.json (renamed into place)."""
+    """Return True if a product folder is complete: a readable summary.json (renamed into place)."""
     try:
         json.loads((folder / "summary.json").read_text())
         return True
@@ -90,6 +90,7 @@ def _fmt(x: Any) -> str:
 
 
 def write_csv(path: Path, columns: Sequence[str], rows: Sequence[dict]) -> None:
+    """Write ``rows`` as CSV with ``columns`` (floats to 10 significant digits, NaN empty)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(columns)
@@ -99,6 +100,7 @@ def write_csv(path: Path, columns: Sequence[str], rows: Sequence[dict]) -> None:
 
 
 def read_csv(path: Path) -> list[dict[str, str]]:
+    """Read a CSV product as one dict of strings per row."""
     with open(path, newline="") as fh:
         return list(csv.DictReader(fh))
 
@@ -145,16 +147,19 @@ class ProductWriter:
 
     # ---------------------------------------------------------------- results.mcap
     def shift(self, stamp_ns: int, u: float, v: float, z: float, frame_id: str = "") -> None:
+        """Record a shift estimate in the results bag (``/shift``)."""
         vec = (rounded(u), rounded(v), rounded(z))
         raw = cdr.vector3_stamped_to_cdr(vec, stamp_ns, frame_id)
         self._later(self.bag.write, "/shift", cdr.VECTOR3_STAMPED, stamp_ns, raw)
 
     def homography(self, stamp_ns: int, h: np.ndarray) -> None:
+        """Record a homography in the results bag (``/homography``)."""
         hh = np.array([rounded(x) for x in np.asarray(h, np.float64).ravel()]).reshape(3, 3)
         raw = cdr.float64_array_to_cdr(hh, ["rows", "cols"])
         self._later(self.bag.write, "/homography", cdr.FLOAT64_MULTI_ARRAY, stamp_ns, raw)
 
     def reference_link(self, stamp_ns: int, reference_ns: int, frame_id: str = "") -> None:
+        """Record which reference frame ``stamp_ns`` was aligned to (results bag)."""
         raw = cdr.time_reference_to_cdr(
             stamp_ns, reference_ns, frame_id, "subpix_ros reference frame"
         )
@@ -167,6 +172,7 @@ class ProductWriter:
         )
 
     def image(self, topic: str, image: np.ndarray, stamp_ns: int, frame_id: str = "") -> None:
+        """Queue an image message on ``topic`` of the results bag."""
         enc = {
             (np.dtype(np.uint8), 2): "mono8",
             (np.dtype(np.uint8), 3): "bgr8",
@@ -181,6 +187,7 @@ class ProductWriter:
         self._later(write)
 
     def frame_interval(self, stamp_ns: int, interval_s: float) -> None:
+        """Record the frame interval (s) at ``stamp_ns`` in the results bag."""
         raw = cdr.serialize(_T[_FLOAT64](data=rounded(interval_s)), _FLOAT64)
         self._later(self.bag.write, "/telemetry/frame_interval", _FLOAT64, stamp_ns, raw)
 
@@ -206,6 +213,7 @@ class ProductWriter:
 
     # ---------------------------------------------------------------- files
     def png(self, rel: str, image: np.ndarray) -> None:
+        """Queue writing ``image`` as PNG at ``rel`` in the flight's folder."""
         import cv2
 
         path = self.tmp / rel
@@ -218,14 +226,17 @@ class ProductWriter:
         self._later(write)
 
     def csv(self, rel: str, columns: Sequence[str], rows: Sequence[dict]) -> None:
+        """Write a CSV product at ``rel``."""
         write_csv(self.tmp / rel, columns, rows)
 
     def json(self, rel: str, data: Any) -> None:
+        """Write a JSON product at ``rel``."""
         (self.tmp / rel).write_text(
             json.dumps(data, indent=1, sort_keys=True, default=_json_default) + "\n"
         )
 
     def close_bag(self) -> None:
+        """Finish every queued write and close the results bag."""
         if not self._closed:
             self._closed = True
             try:
@@ -248,6 +259,7 @@ class ProductWriter:
         return self.final
 
     def abort(self) -> None:
+        """Discard the unfinished folder (interrupted or failed bag)."""
         try:
             self.close_bag()
         except Exception:  # noqa: BLE001 - cleaning up after a failure

@@ -16,7 +16,7 @@ from sensor_msgs.msg import Image
 from subpix_ros.cli._ros import stop_processes as _stop
 from subpix_ros.io import cdr
 from subpix_ros.io.bags import read_messages
-from subpix_ros.nodes.common import latched_qos, reliable_qos
+from subpix_ros.nodes.qos import latched_qos, reliable_qos
 
 PARAMS = str(ROOT / "config" / "demo.yaml")
 

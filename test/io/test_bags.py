@@ -147,8 +147,11 @@ def test_sqlite3_sample_build(tmp_path):
     ],
 )
 def test_compressed_bags_read_back(tmp_path, storage, mode):
-    """rosbag2's compression modes (per message, whole file, mcap chunks) as the rosbags writer
-    makes them: the same bytes come back."""
+    """Read back rosbag2's compression modes as the rosbags writer makes them.
+
+    rosbag2's compression modes (per message, whole file, mcap chunks) as the rosbags writer
+    makes them: the same bytes come back.
+    """
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
     raws = [cdr.image_to_cdr(np.full((8, 8), i, np.uint8), "mono8", i, "c") for i in range(5)]

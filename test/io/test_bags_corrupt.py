@@ -1,6 +1,9 @@
-"""Damaged bags: every reader of bags stops at the first damaged record with its offset and the
+"""Damaged bags: stop at the first damaged record, or read past it with skip_corrupt.
+
+Damaged bags: every reader of bags stops at the first damaged record with its offset and the
 number of messages read, or (skip_corrupt) reads what can be read and reports what it skipped
-(issue 19, item 2)."""
+(issue 19, item 2).
+"""
 
 import sqlite3
 import struct
@@ -27,7 +30,7 @@ def _write_ours(path, n, storage="mcap"):
 
 
 def _write_rosbags(folder, n):
-    """The writer of the rosbags library itself (chunks without uncompressed_crc)."""
+    """Return the writer of the rosbags library itself (chunks without uncompressed_crc)."""
     from subpix_ros.io.cdr import TYPESTORE
 
     with Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP) as w:
@@ -50,8 +53,10 @@ def _middle_half(path):
 
 @pytest.mark.parametrize("writer", ["ours", "rosbags"])
 def test_mcap_middle_half_overwritten(tmp_path, writer):
-    """The issue's bag: 6 Image messages 256x256, the middle half of the file overwritten.
-    Was: 2 messages read without a word."""
+    """Read the issue's bag, the middle half of the file overwritten.
+
+    The issue's bag: 6 Image messages 256x256, the middle half of the file overwritten.
+    """
     if writer == "ours":
         bag = tmp_path / "b.mcap"
         _write_ours(bag, 6)
@@ -89,8 +94,11 @@ def _chunks(path):
 
 @pytest.mark.parametrize("damage", ["payload", "length"])
 def test_mcap_damaged_middle_chunk(tmp_path, damage):
-    """Three chunks, the middle one damaged: the first chunk's messages come out, then the error
-    names the middle chunk; with skip_corrupt the third chunk's messages come out too."""
+    """Read three chunks, the middle one damaged.
+
+    Three chunks, the middle one damaged: the first chunk's messages come out, then the error
+    names the middle chunk; with skip_corrupt the third chunk's messages come out too.
+    """
     bag = tmp_path / "b.mcap"
     _write_ours(bag, 45)
     chunks = _chunks(bag)

@@ -362,7 +362,7 @@ SUBSCRIBER = EXPECTED_SRC + textwrap.dedent(
 
 @pytest.fixture
 def ros_env(monkeypatch):
-    """A private DDS domain on this machine for one test (other test runs may share the host)."""
+    """Pick a private DDS domain on this machine for one test (other runs may share the host)."""
     domain = random.randint(1, 100)
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -404,8 +404,11 @@ def _kill(proc):
 
 
 def test_rclpy_raw_subscription_receives_our_bytes(ros_env, rclpy_node):
-    """A child process publishes image_to_cdr bytes (raw) and an rclpy Image (typed);
-    we subscribe with raw=True and get bytes that cdr_to_image turns into the image."""
+    """Receive raw CDR image bytes published by a child process.
+
+    A child process publishes image_to_cdr bytes (raw) and an rclpy Image (typed);
+    we subscribe with raw=True and get bytes that cdr_to_image turns into the image.
+    """
     from sensor_msgs.msg import Image
 
     _, env = ros_env
@@ -442,8 +445,11 @@ def test_rclpy_raw_subscription_receives_our_bytes(ros_env, rclpy_node):
 
 
 def test_rclpy_typed_subscriber_receives_our_raw_publish(ros_env, rclpy_node):
-    """We publish image_to_cdr bytes with publisher.publish(raw); a child process with an
-    ordinary typed rclpy subscription checks the image it receives."""
+    """Publish raw CDR image bytes to a typed subscriber in a child process.
+
+    We publish image_to_cdr bytes with publisher.publish(raw); a child process with an
+    ordinary typed rclpy subscription checks the image it receives.
+    """
     from sensor_msgs.msg import Image
 
     _, env = ros_env

@@ -32,7 +32,7 @@ def msg_of(array, encoding, **kw) -> Msg:
 
 @pytest.fixture(scope="module")
 def colour():
-    """A 96x128 BGR crop of a real bundled Seneca frame."""
+    """Return a 96x128 BGR crop of a real bundled Seneca frame."""
     img = cv2.imread(str(seneca_frame_paths()[0]), cv2.IMREAD_COLOR)
     assert img is not None
     return np.ascontiguousarray(img[600:696, 800:928])
@@ -204,8 +204,11 @@ def test_bayer_mosaic_layout(pattern):
 @pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
 @pytest.mark.parametrize("bits", [8, 16])
 def test_bayer_demosaic_recovers_colour(pattern, bits):
-    """Bilinear demosaicing is exact on linear ramps away from the 1-px border:
-    a swapped pattern (R and B confused) would be off by tens of levels."""
+    """Check that bilinear demosaicing is exact on linear ramps away from the border.
+
+    Bilinear demosaicing is exact on linear ramps away from the 1-px border:
+    a swapped pattern (R and B confused) would be off by tens of levels.
+    """
     bgr = ramps(dtype=np.uint8 if bits == 8 else np.uint16, scale=1 if bits == 8 else 200)
     m = msg_of(bgr, f"bayer_{pattern}{bits}", step=bgr.shape[1] * bits // 8 + 6)
     out = image_to_numpy(m)
@@ -361,8 +364,11 @@ def test_float_nan_inf_are_converted_and_reportable(gray):
 
 @pytest.mark.parametrize("kind", ["black", "saturated", "textureless"])
 def test_degenerate_frames_convert_unchanged(kind):
-    """All-black, saturated and flat frames are valid images: the conversion must not
-    invent texture or fail (rejecting them is the estimators' job)."""
+    """Convert all-black, saturated and flat frames like any other.
+
+    All-black, saturated and flat frames are valid images: the conversion must not
+    invent texture or fail (rejecting them is the estimators' job).
+    """
     value = {"black": 0, "saturated": 255, "textureless": 117}[kind]
     img = np.full((16, 20, 3), value, np.uint8)
     for enc in ("bgr8", "rgb8", "bayer_rggb8", "uyvy"):

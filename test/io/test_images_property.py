@@ -1,5 +1,8 @@
-"""Hypothesis property tests for image conversion: round trips over random shapes,
-dtypes, padded steps, byte orders and containers; every bad size is rejected."""
+"""Hypothesis property tests for image conversion.
+
+Hypothesis property tests for image conversion: round trips over random shapes,
+dtypes, padded steps, byte orders and containers; every bad size is rejected.
+"""
 
 from __future__ import annotations
 
@@ -81,8 +84,11 @@ def test_plain_round_trip_bit_exact(encoding, h, w, pad, bigendian, container, s
     seed=st.integers(0, 2**32 - 1),
 )
 def test_bayer_demosaic_keeps_measured_samples(encoding, hh, hw, pad, seed):
-    """Away from the 1-px border, demosaicing keeps each pixel's own measured colour, so
-    re-mosaicing the decoded image gives back the mosaic (fails if the pattern is wrong)."""
+    """Re-mosaic the demosaiced image and get the mosaic back.
+
+    Away from the 1-px border, demosaicing keeps each pixel's own measured colour, so
+    re-mosaicing the decoded image gives back the mosaic (fails if the pattern is wrong).
+    """
     info = encoding_info(encoding)
     h, w = 2 * hh, 2 * hw
     top = np.iinfo(info.dtype).max

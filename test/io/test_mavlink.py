@@ -38,7 +38,7 @@ def wait_until(pred, timeout=5.0):
 
 
 def make(dt, **kw):
-    """A hand-made sample ``dt`` seconds after boot (time_boot_ms = 1000 dt)."""
+    """Build a hand-made sample ``dt`` seconds after boot (time_boot_ms = 1000 dt)."""
     base = dict(
         t=T0 + dt,
         lat_deg=41.0353080,
@@ -74,7 +74,7 @@ class Collector:
 
 @pytest.fixture
 def udp():
-    """A started reader on an ephemeral loopback UDP port and a sender to it."""
+    """Start a reader on an ephemeral loopback UDP port and a sender to it."""
     made = []
 
     def factory(**kw):

@@ -1,6 +1,9 @@
-"""Bags written by rosbag2 itself and telemetry logs from ArduPilot (test/data/README.md says where
+"""Bags written by rosbag2 itself and telemetry logs from ArduPilot.
+
+Bags written by rosbag2 itself and telemetry logs from ArduPilot (test/data/README.md says where
 each comes from): each is read, replayed or parsed, or refused with one clear line (issue 19,
-item 6)."""
+item 6).
+"""
 
 import subprocess
 from pathlib import Path
@@ -62,8 +65,11 @@ def test_rosbag2_bag_reads_as_its_metadata_says(name, version, storage):
 
 
 def test_rosbag2_mcap_cdr_decodes_with_its_own_definitions():
-    """The bytes read are the real CDR: test_msgs/BasicTypes decodes to the values the rosbag2
-    test wrote (bool_value true, int32 123 ...) with the definition in the file."""
+    """Decode the real CDR of a rosbag2 test bag to the values it wrote.
+
+    The bytes read are the real CDR: test_msgs/BasicTypes decodes to the values the rosbag2
+    test wrote (bool_value true, int32 123 ...) with the definition in the file.
+    """
     from rosbags.typesys import get_types_from_msg
 
     from subpix_ros.io import _mcap
@@ -152,8 +158,11 @@ def test_rosbag2_bag_of_unknown_types_replay_fails_in_one_line():
 
 @pytest.mark.parametrize("name", ["mcap_talker_v4", "sqlite3_talker_v4"])
 def test_rosbag2_talker_replays_to_another_process(name, rclpy_node):
-    """`subpix replay` of a bag rosbag2 wrote: the subscribers in this process get every message,
-    byte for byte, and /rosout is offered transient local, as it was recorded (/topic volatile)."""
+    """Replay a bag rosbag2 wrote, byte for byte and with its recorded QoS.
+
+    `subpix replay` of a bag rosbag2 wrote: the subscribers in this process get every message,
+    byte for byte, and /rosout is offered transient local, as it was recorded (/topic volatile).
+    """
     import time
 
     import rclpy
@@ -272,10 +281,11 @@ def test_ardupilot_tlog_parses(name, n_samples):
 
 
 def test_telemetry_node_replays_the_ardupilot_sitl_log(rclpy_node):
-    """telemetry_node in its own process on the SITL excerpt (10x speed): a NavSatFix for every
-    GLOBAL_POSITION_INT of the vehicle, at its position, and heights as the log has them. (Was
-    208 of 209: the one sample without a recent ATTITUDE raised while building its Imu message,
-    and its fix was never published.)"""
+    """Run telemetry_node on the ArduPilot SITL excerpt.
+
+    telemetry_node in its own process on the SITL excerpt (10x speed): a NavSatFix for every
+    GLOBAL_POSITION_INT of the vehicle, at its position, and heights as the log has them.
+    """
     import sys
     import time
 
@@ -283,7 +293,7 @@ def test_telemetry_node_replays_the_ardupilot_sitl_log(rclpy_node):
     from sensor_msgs.msg import NavSatFix
     from std_msgs.msg import Float64
 
-    from subpix_ros.nodes.common import reliable_qos
+    from subpix_ros.nodes.qos import reliable_qos
 
     path = DATA / "tlog" / "arducopter_sitl_flight_excerpt.tlog"
     gpi = _gpi(path)

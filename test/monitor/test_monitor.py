@@ -275,7 +275,7 @@ def test_layout_panels_use_advertised_topics():
 
     assert sorted(leaves(layout["layout"])) == sorted(panels)
     # a plotted JSON field exists in the schema the monitor advertises
-    from subpix_ros.monitor.monitor import HEALTH_SCHEMA, SHIFT_SCHEMA, TELEMETRY_SCHEMA
+    from subpix_ros.monitor.schemas import HEALTH_SCHEMA, SHIFT_SCHEMA, TELEMETRY_SCHEMA
 
     schema = {"/shift": SHIFT_SCHEMA, "/telemetry": TELEMETRY_SCHEMA, "/health": HEALTH_SCHEMA}
     for cfg in panels.values():

@@ -24,7 +24,7 @@ from subpix_ros.io import cdr
 from subpix_ros.io.bags import read_messages
 from subpix_ros.monitor import TOPICS
 from subpix_ros.monitor.client import FoxgloveClient
-from subpix_ros.nodes.common import reliable_qos
+from subpix_ros.nodes.qos import reliable_qos
 
 PARAMS = str(ROOT / "config" / "demo.yaml")
 
@@ -59,8 +59,10 @@ def _spin(node, until, timeout, procs=()):
 
 @pytest.fixture
 def flight(sample_bags):
-    """The nodes and the monitor running; yields (port, procs, test node, shifts seen on /shift,
-    their standard errors seen on /shift/std)."""
+    """Run the nodes and the monitor.
+
+    Yields (port, procs, test node, shifts seen on /shift, their standard errors on /shift/std).
+    """
     port = free_port()
     cam = "image:=/camera/image_raw"
     procs = [

@@ -15,7 +15,7 @@ from sensor_msgs.msg import CompressedImage, Image, NavSatFix
 
 from subpix_ros.io import cdr
 from subpix_ros.monitor.client import FoxgloveClient
-from subpix_ros.nodes.common import camera_qos, latched_qos, reliable_qos
+from subpix_ros.nodes.qos import camera_qos, latched_qos, reliable_qos
 
 T0 = 1_700_000_000_000_000_000
 

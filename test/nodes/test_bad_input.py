@@ -1,5 +1,8 @@
-"""Bad input and faults at the nodes (issue 7): clear diagnostics, the node keeps
-running, nothing garbage is published, valid data beside bad data is not lost."""
+"""Bad input and faults at the nodes (issue 7).
+
+Bad input and faults at the nodes (issue 7): clear diagnostics, the node keeps
+running, nothing garbage is published, valid data beside bad data is not lost.
+"""
 
 import time
 
@@ -15,7 +18,7 @@ from std_msgs.msg import Float64
 from subpix_ros.core.render import render_sequence
 from subpix_ros.io import cdr
 from subpix_ros.nodes import payloads as pl
-from subpix_ros.nodes.common import latched_qos, reliable_qos
+from subpix_ros.nodes.qos import latched_qos, reliable_qos
 
 T0 = 1_700_000_000_000_000_000
 

@@ -3,7 +3,8 @@
 import threading
 import time
 
-from subpix_ros.nodes.common import DropOldestWorker, Param, RateMeter
+from subpix_ros.nodes.params import Param
+from subpix_ros.nodes.worker import DropOldestWorker, RateMeter
 
 
 def test_param_check_type_and_range():
@@ -69,7 +70,7 @@ def test_rate_meter():
 def test_publish_if_subscribed_builds_nothing_without_subscribers(rclpy_node):
     from std_msgs.msg import String
 
-    from subpix_ros.nodes.common import publish_if_subscribed, reliable_qos
+    from subpix_ros.nodes.qos import publish_if_subscribed, reliable_qos
 
     pub = rclpy_node.create_publisher(String, "/lazy_test", reliable_qos(5))
     built = []
@@ -107,7 +108,7 @@ def test_worker_measures_its_cpu_time_per_item():
 def test_diagnostics_stage_times_report_last_median_and_max(rclpy_node):
     import pytest
 
-    from subpix_ros.nodes.common import Diagnostics
+    from subpix_ros.nodes.diagnostics import Diagnostics
 
     d = Diagnostics(rclpy_node)
 

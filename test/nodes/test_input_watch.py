@@ -16,7 +16,7 @@ from sensor_msgs.msg import Image
 
 from subpix_ros.cli._ros import stop_processes
 from subpix_ros.io import cdr
-from subpix_ros.nodes.common import reliable_qos
+from subpix_ros.nodes.qos import reliable_qos
 
 WARN = 1
 
@@ -63,9 +63,11 @@ def _log(proc):
 
 
 def test_silent_camera_is_reported_with_its_publishers_and_qos(ros):
-    """No publisher: WARN 'no publisher on /x'; a publisher that sends nothing: WARN naming it
-    and its QoS; each logged once while it lasts; frames arriving end it. (Old code: status 'ok',
-    nothing logged; with use_sim_time and no /clock no diagnostics at all.)"""
+    """Report a silent input: no publisher, or a publisher that sends nothing.
+
+    No publisher: WARN 'no publisher on /x'; a publisher that sends nothing: WARN naming it
+    and its QoS; each logged once while it lasts; frames arriving end it.
+    """
     proc = _start(
         "registration_node",
         "-r",

@@ -9,7 +9,7 @@ from sensor_msgs.msg import Image
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres import estimate_peak_mb
 from subpix_ros.io import cdr
-from subpix_ros.nodes.common import latched_qos
+from subpix_ros.nodes.qos import latched_qos
 
 T0 = 1_700_000_000_000_000_000
 SHIFTS = [
@@ -25,8 +25,11 @@ SHIFTS = [
 
 
 def test_max_memory_mb_reduces_the_set_and_reports_it_in_diagnostics(ctx, crops):
-    """Issue 22: a budget below the 8-frame set's working memory: the node publishes an image made
-    from fewer frames (256 px frames are too small to tile) and its diagnostics say what was given up."""
+    """Reconstruct within a memory budget below the set's working memory (issue 22).
+
+    Issue 22: a budget below the 8-frame set's working memory: the node publishes an image made
+    from fewer frames (256 px frames are too small to tile) and its diagnostics say what was given up.
+    """
     from subpix_ros.nodes.reconstruction_node import ReconstructionNode
 
     seq = render_sequence(crops["crop_trees"][:256, :256], 2, SHIFTS, 0.4, snr_db=40, seed=5)

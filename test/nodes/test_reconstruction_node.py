@@ -11,16 +11,19 @@ from sensor_msgs.msg import Image
 
 from subpix_ros.io import cdr
 from subpix_ros.nodes import payloads as pl
-from subpix_ros.nodes.common import latched_qos
+from subpix_ros.nodes.qos import latched_qos
 
 T0 = 1_700_000_000_000_000_000
 
 
 def test_an_incomplete_last_set_is_reconstructed_after_flush_after_s(ctx, crops):
-    """Issue 19 item 3: n_frames 8 and an 8-frame flight with one frame lost (frame 5): the set
+    """Reconstruct an 8-frame flight with one frame lost (issue 19 item 3).
+
+    Issue 19 item 3: n_frames 8 and an 8-frame flight with one frame lost (frame 5): the set
     never
     completes and no next reference comes. After flush_after_s (default 2 s) without a new frame the
-    node reconstructs the 7 frames it has (>= min_frames). The old node waited for ever."""
+    node reconstructs the 7 frames it has (>= min_frames). The old node waited for ever.
+    """
     from subpix_ros.nodes.reconstruction_node import ReconstructionNode
 
     seq = rendered_set(crops["crop_trees"])
@@ -74,8 +77,11 @@ def test_an_incomplete_last_set_is_reconstructed_after_flush_after_s(ctx, crops)
 
 
 def test_close_publishes_the_open_set_first(ctx, crops):
-    """Shutdown (close() while ROS is up, e.g. a node destroyed by its owner): the open set of
-    >= min_frames is reconstructed and published before the node goes."""
+    """Reconstruct and publish the open set at shutdown.
+
+    Shutdown (close() while ROS is up, e.g. a node destroyed by its owner): the open set of
+    >= min_frames is reconstructed and published before the node goes.
+    """
     from subpix_ros.nodes.reconstruction_node import ReconstructionNode
 
     seq = rendered_set(crops["crop_trees"])

@@ -66,9 +66,12 @@ def test_tracking_follows_constant_velocity_and_falls_back_on_a_jump(ctx):
 
 
 def test_predicted_loss_of_overlap_starts_a_new_reference_without_a_failed_search(ctx):
-    """A strip of widely spaced frames (280 px per frame on 640 px): frame 1 overlaps the reference by
+    """Start a new reference at once when the next frame would overlap too little.
+
+    A strip of widely spaced frames (280 px per frame on 640 px): frame 1 overlaps the reference by
     56 %, frame 2 is predicted to keep 12.5 % (< min_overlap / 2): it becomes the reference at once,
-    with no failed registration; frame 3 then registers to it, tracked from the carried-on motion."""
+    with no failed registration; frame 3 then registers to it, tracked from the carried-on motion.
+    """
     from subpix_ros.nodes.registration_node import RegistrationNode
 
     offsets = [(0.0, -280.0 * k) for k in range(4)]

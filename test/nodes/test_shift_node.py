@@ -12,7 +12,7 @@ from rclpy.parameter import Parameter
 from subpix_ros.core.render import render_sequence
 from subpix_ros.io import cdr
 from subpix_ros.nodes import payloads as pl
-from subpix_ros.nodes.common import latched_qos, reliable_qos
+from subpix_ros.nodes.qos import latched_qos, reliable_qos
 
 
 def _harness(node):
@@ -110,8 +110,12 @@ def test_shift_published_for_aligned_frames(ctx, crops):
 
 
 def _recording_shift_node(crops):
-    """A shift node whose aligned input records (frame stamp, reference stamp) instead of estimating, with
-    the harness; and a small image and full mask to publish, and the node's diagnostics."""
+    """Build a shift node whose aligned input records stamps instead of estimating.
+
+    A shift node whose aligned input records (frame stamp, reference stamp) instead of
+    estimating, with the harness; and a small image and full mask to publish, and the node's
+    diagnostics.
+    """
     from subpix_ros.nodes.shift_node import ShiftNode
 
     node = ShiftNode()
@@ -126,10 +130,13 @@ def _recording_shift_node(crops):
 def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_takes_them(
     ctx, crops, executor
 ):
-    """The registration node publishes a new reference before the frames aligned to it, but on another
+    """Pair each frame with its own reference when both wait in the node's queues.
+
+    The registration node publishes a new reference before the frames aligned to it, but on another
     topic: when both wait in the node's queues, the frame must still go with ITS reference, never with the
     previous one (and a reference followed at once by the next one must not be overwritten). On both
-    executors (the nodes spin on a MultiThreadedExecutor)."""
+    executors (the nodes spin on a MultiThreadedExecutor).
+    """
     from rclpy.executors import MultiThreadedExecutor
 
     kind = (
@@ -165,9 +172,12 @@ def test_aligned_frames_get_their_own_reference_whatever_order_the_executor_take
 
 
 def test_aligned_frames_follow_their_reference_link_in_any_arrival_order(ctx, crops):
-    """With the registration node's aligned/reference_stamp links (sensor_msgs/TimeReference), a frame goes
+    """Pair each frame with the reference its aligned/reference_stamp link names.
+
+    With the registration node's aligned/reference_stamp links (sensor_msgs/TimeReference), a frame goes
     with the reference its link names even when the frame arrives BEFORE that reference (it waits; it never
-    goes with the previous one), and when its link arrives after the frame."""
+    goes with the previous one), and when its link arrives after the frame.
+    """
     from sensor_msgs.msg import TimeReference
 
     node, got, img, full, h, pubs, diags = _recording_shift_node(crops)

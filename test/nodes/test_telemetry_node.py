@@ -17,7 +17,7 @@ from std_msgs.msg import Float64
 from subpix_ros.core.telemetry import TelemetrySample
 from subpix_ros.io.frame_metadata import trajectory_from_frames_csv
 from subpix_ros.io.mavlink import MavlinkSender, encode_samples
-from subpix_ros.nodes.common import reliable_qos
+from subpix_ros.nodes.qos import reliable_qos
 
 
 def _free_udp_port() -> int:

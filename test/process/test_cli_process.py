@@ -1,5 +1,8 @@
-"""`subpix process` / `subpix report` on real rosbag2 files: products, determinism, re-runs,
-interruption, and bad input (no images, no telemetry, a corrupt chunk, mixed frame sizes)."""
+"""`subpix process` / `subpix report` on real rosbag2 files.
+
+`subpix process` / `subpix report` on real rosbag2 files: products, determinism, re-runs,
+interruption, and bad input (no images, no telemetry, a corrupt chunk, mixed frame sizes).
+"""
 
 import filecmp
 import json
@@ -162,8 +165,11 @@ def test_results_mcap_replays(processed):
 
 
 def test_deterministic_and_rerun_skips(processed, sample_bags, tmp_path):
-    """Same bag and parameters, one job instead of two: byte-identical products.
-    A re-run skips, --force redoes."""
+    """Process the same bag with one job instead of two: byte-identical products.
+
+    Same bag and parameters, one job instead of two: byte-identical products.
+    A re-run skips, --force redoes.
+    """
     out, _ = processed
     r = _run(str(sample_bags / "subpixel"), "-o", str(tmp_path), "--params", DEMO, "--quiet")
     assert r.returncode == 0, r.stderr
@@ -463,8 +469,11 @@ def test_progress_bars_on_a_terminal_plain_lines_otherwise():
 
 
 def test_serve_shows_the_processing_live_to_a_foxglove_client(sample_bags, tmp_path):
-    """`subpix process --serve`: a foxglove.sdk.v1 client connected while the bag is processed
-    gets the camera, the GPS fix and the shifts, the same values as the products' shifts.csv."""
+    """Serve the processing live to a Foxglove client (`subpix process --serve`).
+
+    `subpix process --serve`: a foxglove.sdk.v1 client connected while the bag is processed
+    gets the camera, the GPS fix and the shifts, the same values as the products' shifts.csv.
+    """
     import re
 
     from subpix_ros.monitor.client import FoxgloveClient

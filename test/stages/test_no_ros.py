@@ -57,7 +57,7 @@ def test_the_rclpy_check_itself_can_fail():
         [
             sys.executable,
             "-c",
-            "import sys, subpix_ros.nodes.common; print('rclpy' in sys.modules)",
+            "import sys, subpix_ros.nodes.qos; print('rclpy' in sys.modules)",
         ],
         capture_output=True,
         text=True,

@@ -1,0 +1,72 @@
+"""Images and stamps as the monitor sends them: 8-bit BGR, shrunk, labelled, JPEG."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+from foxglove.messages import CompressedImage, Timestamp
+
+
+def _ts(stamp_ns: int) -> Timestamp:
+    return Timestamp(sec=int(stamp_ns // 1_000_000_000), nsec=int(stamp_ns % 1_000_000_000))
+
+
+def _ts_json(stamp_ns: int) -> dict:
+    return {"sec": int(stamp_ns // 1_000_000_000), "nsec": int(stamp_ns % 1_000_000_000)}
+
+
+def _num(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(float(x)) else float(x)
+
+
+def _to_bgr(image: np.ndarray) -> np.ndarray:
+    if image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 1):
+        return image.reshape(image.shape[:2])
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        return image[:, :, :3]
+    raise ValueError(f"monitor: image of shape {image.shape} is neither mono nor colour")
+
+
+def _to_u8(image: np.ndarray) -> np.ndarray:
+    if image.dtype == np.uint8:
+        return image
+    if image.dtype == np.uint16:
+        return (image >> 8).astype(np.uint8)
+    return np.clip(image, 0, 255).astype(np.uint8)
+
+
+def _shrink(image: np.ndarray, max_px: int) -> np.ndarray:
+    h, w = image.shape[:2]
+    s = max_px / max(h, w)
+    if s >= 1.0:
+        return image
+    return cv2.resize(
+        image, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA
+    )
+
+
+def _label(image: np.ndarray, text: str) -> np.ndarray:
+    out = (
+        cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else np.ascontiguousarray(image)
+    )
+    scale = max(0.4, out.shape[1] / 900)
+    th = max(1, round(scale * 2))
+    (tw, tht), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, th)
+    cv2.rectangle(out, (0, 0), (tw + 8, tht + base + 8), (0, 0, 0), -1)
+    cv2.putText(
+        out, text, (4, tht + 4), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), th, cv2.LINE_AA
+    )
+    return out
+
+
+def _jpeg(img: np.ndarray, quality: int, stamp_ns: int, frame_id: str) -> bytes:
+    ok, buf = cv2.imencode(
+        ".jpg", np.ascontiguousarray(img), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]
+    )
+    if not ok:
+        raise ValueError("JPEG encoding failed")
+    return CompressedImage(
+        timestamp=_ts(stamp_ns), frame_id=frame_id, data=buf.tobytes(), format="jpeg"
+    ).encode()

@@ -1,0 +1,96 @@
+"""The monitor's channels: topics, the JSON schemas of its own messages, health level names."""
+
+from __future__ import annotations
+
+__all__ = ["TOPICS", "SHIFT_SCHEMA", "TELEMETRY_SCHEMA", "HEALTH_SCHEMA"]
+
+SHIFT_SCHEMA = {
+    "title": "subpix.Shift",
+    "type": "object",
+    "properties": {
+        "timestamp": {
+            "type": "object",
+            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+        },
+        "u": {
+            "type": "number",
+            "description": "shift along rows, px (content moved from reference to frame)",
+        },
+        "v": {"type": "number", "description": "shift along columns, px"},
+        "u_std": {"type": ["number", "null"]},
+        "v_std": {"type": ["number", "null"]},
+        "converged": {"type": "boolean"},
+        "expected_u": {
+            "type": ["number", "null"],
+            "description": "telemetry's expected shift, px (eq. 1)",
+        },
+        "expected_v": {"type": ["number", "null"]},
+        "du": {"type": ["number", "null"], "description": "u - expected_u"},
+        "dv": {"type": ["number", "null"], "description": "v - expected_v"},
+    },
+}
+TELEMETRY_SCHEMA = {
+    "title": "subpix.Telemetry",
+    "type": "object",
+    "properties": {
+        "timestamp": {
+            "type": "object",
+            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+        },
+        "frame_interval_s": {"type": ["number", "null"], "description": "METHODS eq. 1"},
+        "expected_u": {"type": ["number", "null"]},
+        "expected_v": {"type": ["number", "null"]},
+        "height_m": {"type": ["number", "null"]},
+        "speed_mps": {"type": ["number", "null"]},
+    },
+}
+HEALTH_SCHEMA = {
+    "title": "subpix.Health",
+    "type": "object",
+    "properties": {
+        "timestamp": {
+            "type": "object",
+            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+        },
+        "nodes": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "name": {"type": "string"},
+                    "level": {"type": "string"},
+                    "message": {"type": "string"},
+                    "input_hz": {"type": "string"},
+                    "output_hz": {"type": "string"},
+                    "dropped": {"type": "string"},
+                    "latency_p50_ms": {"type": "string"},
+                    "queue_depth": {"type": "string"},
+                    "last_error": {"type": "string"},
+                },
+            },
+        },
+        "link": {
+            "type": "object",
+            "description": "the monitor's own link budget and bytes/s per channel",
+        },
+        "values": {
+            "type": "object",
+            "description": "every key/value of every node, '<node>/<key>'",
+        },
+    },
+}
+
+TOPICS: dict[str, str] = {
+    "/mosaic": "foxglove.CompressedImage",
+    "/super_resolved": "foxglove.CompressedImage",
+    "/bicubic": "foxglove.CompressedImage",
+    "/camera": "foxglove.CompressedImage",
+    "/shift": "subpix.Shift",
+    "/telemetry": "subpix.Telemetry",
+    "/fix": "foxglove.LocationFix",
+    "/footprints": "foxglove.GeoJSON",
+    "/health": "subpix.Health",
+    "/log": "foxglove.Log",
+}
+ESSENTIAL_TOPICS = ("/shift", "/telemetry", "/fix", "/footprints", "/health", "/log")
+LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}

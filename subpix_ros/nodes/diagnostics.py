@@ -1,0 +1,281 @@
+"""One DiagnosticStatus per node on ``/diagnostics`` (the diagnostic_updater equivalent)."""
+
+from __future__ import annotations
+
+import collections
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+
+from .worker import DropOldestWorker, RateMeter
+
+__all__ = ["Diagnostics", "OK", "WARN", "ERROR"]
+
+
+OK, WARN, ERROR = 0, 1, 2  # DiagnosticStatus levels (the message field is one octet)
+
+
+@dataclass
+class _Status:
+    level: int = OK
+    message: str = "ok"
+    last_error: str = ""
+    last_error_time: float = 0.0
+    values: dict[str, str] = field(default_factory=dict)
+    recent: collections.deque = field(default_factory=lambda: collections.deque(maxlen=5))
+    warnings: int = 0
+    errors: int = 0
+
+
+class Diagnostics:
+    """One node's DiagnosticStatus on /diagnostics (diagnostic_updater equivalent).
+
+    Stages report with :meth:`set` (key/values), :meth:`stage_time` (a
+    duration: the last one as ``<key>``, and the median and maximum of the
+    last 200 as ``<key>_p50`` / ``<key>_max``, since one value jumps with the
+    frame and the machine's load), :meth:`warn` / :meth:`error` (with a
+    message that stays visible for ``hold_s`` seconds) and :meth:`ok`. Rates,
+    latency, queue depth and drops come from the meters and worker attached
+    with :meth:`attach`.
+    """
+
+    HISTORY = 200  # durations kept per stage_time key (and latencies)
+
+    def __init__(
+        self,
+        node: Node,
+        hardware_id: str = "subpix_ros",
+        period_s: float = 1.0,
+        hold_s: float = 5.0,
+    ) -> None:
+        self.node = node
+        self.name = f"{node.get_name()}"
+        self.hardware_id = hardware_id
+        self.hold_s = hold_s
+        self._status = _Status()
+        self._lock = threading.Lock()
+        self.rates: dict[str, RateMeter] = {}
+        self.worker: DropOldestWorker | None = None
+        self._latencies: collections.deque[float] = collections.deque(maxlen=self.HISTORY)
+        self._durations: dict[str, collections.deque[float]] = {}
+        self._watch: tuple[tuple[str, ...], Callable[[], float], float] | None = None
+        self._watch_meter = "input"
+        self._episode: str | None = None  # the input problem being reported (logged when it began)
+        self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        # Wall (steady) time, not the node's clock: with use_sim_time and no /clock (the replay
+        # ended or never started) a node must still report, above all that nothing arrives.
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.timer = node.create_timer(period_s, self.publish, clock=steady)
+
+    def rate(self, name: str) -> RateMeter:
+        """Return the rate meter ``name`` (created on first use)."""
+        return self.rates.setdefault(name, RateMeter())
+
+    def watch_inputs(
+        self, topics: Sequence[str], timeout_s: Callable[[], float], meter: str = "input"
+    ) -> None:
+        """Report a silent main input: WARN when nothing ticked ``meter`` for ``timeout_s()`` s.
+
+        ``topics`` (relative names are resolved with the node's remappings) are one input, e.g.
+        a camera's ``image`` and ``image/compressed``. Checked at every publication (1 Hz, wall
+        time): with no publisher on any of them for the timeout the status says
+        ``no publisher on /x``; with publishers but nothing received it names them with their
+        QoS (reliability, durability), as the ROS graph reports them. The status stays WARN
+        while the silence lasts; the log has one line when it begins and one when messages
+        arrive again.
+        """
+        self._watch = (tuple(topics), timeout_s, time.monotonic())
+        self._watch_meter = meter
+
+    def _publishers(self, topic: str) -> list[str]:
+        out = []
+        for info in self.node.get_publishers_info_by_topic(topic):
+            qos = info.qos_profile
+            name = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+            out.append(f"{name} ({qos.reliability.name.lower()}, {qos.durability.name.lower()})")
+        return sorted(out)
+
+    def _input_problem(self, silent: float, limit: float, heard: bool) -> str:
+        topics = self._watch[0]
+        names = [self.node.resolve_topic_name(t) for t in topics]
+        seen = {t: self._publishers(t) for t in names}
+        if not any(seen.values()):
+            return f"no publisher on {' or '.join(names)}"
+        what = "; ".join(f"{t}: {len(p)} publisher(s) {', '.join(p)}" for t, p in seen.items() if p)
+        word = "nothing received since the last message" if heard else "nothing received"
+        return f"{word} on {' or '.join(names)} for over {limit:g} s (input_timeout_s) from {what}"
+
+    def check_inputs(self, now: float | None = None) -> str | None:
+        """Return the input problem now (and report it), or None; called at every publication."""
+        if self._watch is None:
+            return None
+        _, timeout_s, since = self._watch
+        now = time.monotonic() if now is None else now
+        meter = self.rates.get(self._watch_meter)
+        last = meter.last if meter is not None else None
+        silent = now - (last if last is not None else since)
+        limit = float(timeout_s())
+        problem = None
+        if silent >= limit:
+            problem = self._input_problem(silent, limit, last is not None)
+            self.set(input_silent_s=round(silent, 1))
+        else:
+            self.set(input_silent_s=0.0)
+        if problem is None:
+            if self._episode is not None:
+                self.node.get_logger().info(f"input arriving again after: {self._episode}")
+            self._episode = None
+            return None
+        first = problem != self._episode
+        self._episode = problem
+        if first:
+            self._report(WARN, problem, log=False)
+            # once per episode, not throttled together with the node's other warnings
+            self.node.get_logger().warning(problem)
+        else:
+            self._hold(WARN, problem)
+        return problem
+
+    def attach(self, worker: DropOldestWorker) -> None:
+        """Report the queue depth, drops and errors of ``worker``."""
+        self.worker = worker
+
+    def latency(self, seconds: float) -> None:
+        """Record one end-to-end latency (s)."""
+        self._latencies.append(seconds)
+
+    def stage_time(self, key: str, ms: float) -> None:
+        """Record a stage's duration in ms.
+
+        Published as ``key`` (last), ``key_p50`` and ``key_max`` (of the last 200).
+        """
+        ms = float(ms)
+        if not math.isfinite(ms) or ms < 0:
+            raise ValueError(f"stage_time {key!r}: duration must be finite and >= 0, got {ms}")
+        with self._lock:
+            self._durations.setdefault(key, collections.deque(maxlen=self.HISTORY)).append(ms)
+            self._status.values[key] = f"{ms:.6g}"
+
+    def clear_stage_times(self) -> None:
+        """Forget the durations behind ``_p50`` / ``_max`` (a new stream: a looped or another bag)."""
+        with self._lock:
+            self._durations.clear()
+
+    def set(self, **values: Any) -> None:
+        """Set key/values of the status (floats to 6 significant digits)."""
+        with self._lock:
+            for k, v in values.items():
+                self._status.values[k] = f"{v:.6g}" if isinstance(v, float) else str(v)
+
+    def ok(self, message: str = "ok") -> None:
+        """Return to OK with ``message`` unless a problem was reported in the last ``hold_s``."""
+        with self._lock:
+            if time.monotonic() - self._status.last_error_time > self.hold_s:
+                self._status.level = OK
+                self._status.message = message
+
+    def warn(self, message: str) -> None:
+        """Report a warning (logged, throttled, held for ``hold_s``)."""
+        self._report(WARN, message)
+
+    def error(self, message: str) -> None:
+        """Report an error (logged, throttled, held for ``hold_s``)."""
+        self._report(ERROR, message)
+
+    def _hold(self, level: int, message: str) -> None:
+        """Keep reporting a condition already logged and counted (no new log line, no count)."""
+        with self._lock:
+            self._status.level = max(self._status.level, level)
+            if self._status.level == level:
+                self._status.message = message
+            self._status.last_error_time = time.monotonic()
+
+    def _report(self, level: int, message: str, log: bool = True) -> None:
+        with self._lock:
+            now = time.monotonic()
+            held = now - self._status.last_error_time <= self.hold_s
+            if level >= self._status.level or not held:
+                self._status.level = level
+                self._status.message = message
+            self._status.last_error = message
+            self._status.last_error_time = now
+            if message not in self._status.recent:
+                self._status.recent.append(message)
+            if level == ERROR:
+                self._status.errors += 1
+            else:
+                self._status.warnings += 1
+        if not log:
+            return
+        log = self.node.get_logger()
+        # rclpy keys throttling by call site, and one call site may not change severity
+        if level == ERROR:
+            log.error(message, throttle_duration_sec=2.0)
+        else:
+            log.warning(message, throttle_duration_sec=2.0)
+
+    @property
+    def level(self) -> int:
+        """Current level (0 OK, 1 WARN, 2 ERROR)."""
+        return int(self._status.level)
+
+    @property
+    def message(self) -> str:
+        """Current status message."""
+        return self._status.message
+
+    def snapshot(self) -> DiagnosticStatus:
+        """Build the DiagnosticStatus as of now (levels past ``hold_s`` fall back to OK)."""
+        with self._lock:
+            if (
+                self._status.level != OK
+                and time.monotonic() - self._status.last_error_time > self.hold_s
+            ):
+                self._status.level = OK
+                self._status.message = "ok"
+            values = dict(self._status.values)
+            st = DiagnosticStatus(
+                level=bytes([self._status.level]),
+                name=self.name,
+                message=self._status.message,
+                hardware_id=self.hardware_id,
+            )
+            values["last_error"] = self._status.last_error
+            values["recent_problems"] = " | ".join(self._status.recent)
+            values["errors_total"] = str(self._status.errors)
+            values["warnings_total"] = str(self._status.warnings)
+            for key, hist in self._durations.items():
+                d = sorted(hist)
+                values[f"{key}_p50"] = f"{d[len(d) // 2]:.6g}"
+                values[f"{key}_max"] = f"{d[-1]:.6g}"
+        for name, meter in self.rates.items():
+            values[f"{name}_hz"] = f"{meter.rate():.3f}"
+            values[f"{name}_total"] = str(meter.total)
+        if self._latencies:
+            lat = sorted(self._latencies)
+            values["latency_p50_ms"] = f"{1000 * lat[len(lat) // 2]:.1f}"
+            values["latency_max_ms"] = f"{1000 * lat[-1]:.1f}"
+        if self.worker is not None:
+            values["queue_depth"] = str(self.worker.depth)
+            values["dropped_frames"] = str(self.worker.dropped)
+            values["worker_errors"] = str(self.worker.errors)
+            values["worker_cpu_ms_per_item"] = f"{self.worker.cpu_ms_per_item:.1f}"
+        st.values = [KeyValue(key=k, value=v) for k, v in sorted(values.items())]
+        return st
+
+    def publish(self) -> None:
+        """Check the inputs and publish the status on /diagnostics (the 1 Hz timer)."""
+        try:
+            self.check_inputs()
+        except Exception as exc:  # noqa: BLE001 - the graph query fails during shutdown
+            self.node.get_logger().debug(f"input check skipped: {exc}")
+        msg = DiagnosticArray()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.status = [self.snapshot()]
+        self.pub.publish(msg)

@@ -1,0 +1,65 @@
+"""HTML and figure helpers of the flight report: escaping, tables, embedded PNG figures."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+from typing import Any
+
+
+def _esc(x: Any) -> str:
+    return html.escape(str(x))
+
+
+def _fig_png(fig) -> str:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, metadata={"Software": None})
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _img(fig, alt: str) -> str:
+    return f'<img alt="{_esc(alt)}" src="data:image/png;base64,{_fig_png(fig)}">'
+
+
+def _f(row: dict, key: str) -> float:
+    v = row.get(key, "")
+    try:
+        return float(v) if v not in ("", None) else math.nan
+    except ValueError:
+        return math.nan
+
+
+def _table(header: list[str], rows: list[list[Any]]) -> str:
+    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{_esc(c)}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _num(x: Any, fmt: str = "{:.3g}") -> str:
+    if x is None:
+        return "n/a"
+    try:
+        return fmt.format(float(x))
+    except (TypeError, ValueError):
+        return str(x)
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+_CSS = """body{font-family:sans-serif;max-width:1100px;margin:1em auto;color:#222}
+table{border-collapse:collapse;margin:.5em 0}
+td,th{border:1px solid #bbb;padding:2px 8px;font-size:90%}
+th{background:#eee}img{max-width:100%;display:block;margin:.5em 0}.problem{color:#a00}
+h2{border-bottom:1px solid #ccc;margin-top:1.5em}code{background:#f4f4f4}"""

@@ -1,0 +1,316 @@
+"""The sections of the flight report: shifts, registration, super-resolution, mosaic, timing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from subpix_ros.process.report_html import _esc, _f, _img, _num, _plt, _table
+
+CROP_LR_PX = 96  # side of the super-resolution crops, in input pixels
+
+
+def _section_shifts(shifts: list[dict], t0: float | None, has_tel: bool) -> str:
+    plt = _plt()
+    if not shifts:
+        return "<p>No aligned frame: no shift to show.</p>"
+    t = np.array([_f(r, "stamp_ns") for r in shifts]) * 1e-9 - (t0 or 0.0)
+    conv = np.array([r.get("converged") == "1" for r in shifts])
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5.6), sharex=True)
+    for key, colour, ax_label in (
+        ("u", "tab:blue", "u (rows)"),
+        ("v", "tab:orange", "v (columns)"),
+    ):
+        tot = np.array([_f(r, f"{key}_total_px") for r in shifts])
+        std = np.array([_f(r, f"{key}_std_px") for r in shifts])
+        exp = np.array([_f(r, f"{key}_expected_px") for r in shifts])
+
+        def points(ax, values, label: str, colour=colour, std=std) -> None:
+            ax.errorbar(
+                t[conv],
+                values[conv],
+                yerr=std[conv],
+                fmt="o",
+                ms=3,
+                color=colour,
+                capsize=2,
+                label=label,
+            )
+
+        points(axes[0], tot, f"{ax_label} measured (homography + sub-pixel, +-1 s.e.)")
+        if np.isfinite(exp).any():
+            axes[0].plot(
+                t,
+                exp,
+                "-",
+                color=colour,
+                alpha=0.6,
+                label=f"{ax_label} expected from telemetry (eq. 1)",
+            )
+            res = np.array([_f(r, f"{key}_residual_px") for r in shifts])
+            points(axes[1], res, f"{ax_label} measured - expected")
+    if (~conv).any():
+        axes[0].plot(
+            t[~conv], np.zeros((~conv).sum()), "x", color="red", label="no converged shift"
+        )
+    axes[0].set_ylabel("shift against reference (px)")
+    axes[0].legend(fontsize=7, loc="best")
+    axes[0].grid(alpha=0.3)
+    axes[1].set_ylabel("residual (px)")
+    axes[1].set_xlabel("time since the first frame (s)")
+    axes[1].grid(alpha=0.3)
+    if has_tel and axes[1].has_data():
+        axes[1].legend(fontsize=7)
+    else:
+        axes[1].text(
+            0.5,
+            0.5,
+            "no telemetry: no expected shift",
+            ha="center",
+            va="center",
+            transform=axes[1].transAxes,
+        )
+    fig.tight_layout()
+    res_u = np.array([_f(r, "u_residual_px") for r in shifts])
+    res_v = np.array([_f(r, "v_residual_px") for r in shifts])
+    ok = np.isfinite(res_u) & np.isfinite(res_v)
+    text = (
+        f"<p>{int(conv.sum())} of {len(shifts)} aligned frames have a converged shift. "
+        f"Shift = where the reference's content appears in the frame (rows u, columns v)."
+    )
+    if ok.any():
+        text += (
+            f" Residual against telemetry: RMS u {np.sqrt(np.mean(res_u[ok] ** 2)):.3f} px, "
+            f"v {np.sqrt(np.mean(res_v[ok] ** 2)):.3f} px over {int(ok.sum())} frames."
+        )
+    return text + "</p>" + _img(fig, "shift trajectory")
+
+
+def _section_registration(
+    frames: list[dict], refs: list[dict], stages: dict, t0: float | None
+) -> str:
+    plt = _plt()
+    aligned = [r for r in frames if r.get("status") == "aligned"]
+    out = []
+    if aligned:
+        t = np.array([_f(r, "stamp_ns") for r in aligned]) * 1e-9 - (t0 or 0.0)
+        fig, axes = plt.subplots(2, 1, figsize=(9, 4.8), sharex=True)
+        axes[0].plot(t, [_f(r, "inliers") for r in aligned], "o-", ms=3)
+        axes[0].set_ylabel("inlier tie points")
+        axes[1].plot(
+            t, [_f(r, "rms_along_px") for r in aligned], "o-", ms=3, label="along the baseline"
+        )
+        axes[1].plot(
+            t, [_f(r, "rms_cross_px") for r in aligned], "s-", ms=3, label="across the baseline"
+        )
+        axes[1].plot(t, [_f(r, "rms_px") for r in aligned], ":", color="grey", label="inlier RMS")
+        axes[1].set_ylabel("residual (px)")
+        axes[1].set_xlabel("time since the first frame (s)")
+        axes[1].legend(fontsize=7)
+        fb = [r for r in aligned if r.get("tracked") == "0"]
+        for ax in axes:
+            ax.grid(alpha=0.3)
+            for r in refs:
+                ax.axvline(r["stamp_ns"] * 1e-9 - (t0 or 0.0), color="green", alpha=0.35, lw=1)
+            for r in fb:
+                ax.axvline(
+                    _f(r, "stamp_ns") * 1e-9 - (t0 or 0.0), color="red", alpha=0.5, ls="--", lw=1
+                )
+        axes[0].set_title(
+            "green: new reference, red dashed: tracking fell back to the full search", fontsize=8
+        )
+        fig.tight_layout()
+        out.append(_img(fig, "registration quality"))
+    else:
+        out.append("<p>No frame was registered to a reference.</p>")
+    reg = stages.get("registration_node") or stages.get("registration") or {}
+    fallbacks = reg.get("fallbacks", reg.get("tracking_fallbacks"))
+    n_fb = sum(1 for r in aligned if r.get("tracked") == "0")
+    out.append(f"<p>Tracking fallbacks: {_esc(fallbacks if fallbacks is not None else n_fb)}.</p>")
+    rows = []
+    for r in refs:
+        ts = r["stamp_ns"] * 1e-9 - (t0 or 0.0)
+        rows.append([f"{ts:.3f}", r["stamp_ns"], r.get("reason") or "?"])
+    out.append(
+        f"<p>{len(refs)} reference(s) started:</p>" + _table(["t (s)", "stamp (ns)", "why"], rows)
+    )
+    return "".join(out)
+
+
+def _read_image(path: Path):
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return None
+    return img
+
+
+def _display(img: np.ndarray) -> np.ndarray:
+    """RGB float 0..1 for matplotlib from a BGR/mono uint8/uint16 image."""
+    a = img.astype(np.float64) / (65535.0 if img.dtype == np.uint16 else 255.0)
+    if a.ndim == 3:
+        a = a[..., ::-1]
+    return np.clip(a, 0, 1)
+
+
+def _crop_box(img: np.ndarray, factor: int) -> tuple[int, int, int]:
+    """Find the crop (row, col, side; output px) with the most detail (gradient energy)."""
+    side = min(CROP_LR_PX * factor, img.shape[0], img.shape[1])
+    g = img.astype(np.float32)
+    if g.ndim == 3:
+        g = g.mean(axis=2)
+    gy, gx = np.gradient(g)
+    e = gx * gx + gy * gy
+    step = max(factor, side // 2)
+    best, best_rc = -1.0, (0, 0)
+    ii = np.pad(e, ((1, 0), (1, 0))).cumsum(0).cumsum(1)
+    for r in range(0, img.shape[0] - side + 1, step):
+        for c in range(0, img.shape[1] - side + 1, step):
+            s = ii[r + side, c + side] - ii[r, c + side] - ii[r + side, c] + ii[r, c]
+            if s > best:
+                best, best_rc = s, (r, c)
+    return best_rc[0], best_rc[1], side
+
+
+def _section_sets(folder: Path, sets: list[dict], factor: int, t0: float | None) -> str:
+    plt = _plt()
+    if not sets:
+        return "<p>No super-resolved image (no set of frames reached min_frames).</p>"
+    out = []
+    for k, s in enumerate(sets):
+        sr = _read_image(folder / s["superres"])
+        bic = _read_image(folder / s["bicubic"])
+        ts = s["reference_stamp_ns"] * 1e-9 - (t0 or 0.0)
+        head = (
+            f"<h3>Set {k + 1}: reference at {ts:.3f} s, {s['frames']} frames, "
+            f"method {_esc(s.get('method'))}"
+            + (f", fell back: {_esc(s.get('reason'))}" if s.get("fell_back") else "")
+            + "</h3>"
+        )
+        out.append(head)
+        if "psnr_sr_db" in s:
+            out.append(
+                f"<p>Against the rendered truth: PSNR super-resolved {s['psnr_sr_db']:.2f} dB, "
+                "bicubic "
+                f"{s['psnr_bicubic_db']:.2f} dB (gain {s['gain_db']:+.2f} dB).</p>"
+            )
+        else:
+            out.append("<p>No ground truth or edge target in this flight: no PSNR/MTF figure.</p>")
+        if sr is None or bic is None:
+            out.append("<p>Images missing.</p>")
+            continue
+        r, c, side = _crop_box(bic, factor)
+        fig, axes = plt.subplots(1, 3, figsize=(11, 3.9), gridspec_kw={"width_ratios": [1, 1, 0.9]})
+        for ax, im, title in (
+            (axes[0], bic, f"bicubic x{factor} of the reference"),
+            (axes[1], sr, f"super-resolved x{factor} ({s.get('method')})"),
+        ):
+            ax.imshow(
+                _display(im[r : r + side, c : c + side]),
+                interpolation="nearest",
+                cmap="gray" if im.ndim == 2 else None,
+            )
+            ax.set_title(title, fontsize=9)
+            ax.set_xlabel(f"output px {c}..{c + side} (same crop, same scale)", fontsize=7)
+            ax.set_xticks([])
+            ax.set_yticks([])
+        uv = np.array([[0.0, 0.0]] + [[m["u_px"], m["v_px"]] for m in s.get("members", [])])
+        frac = uv - np.floor(uv)
+        ax = axes[2]
+        ax.scatter(frac[1:, 1], frac[1:, 0], s=30, label="frames")
+        ax.scatter([0], [0], marker="*", s=120, color="red", label="reference")
+        for g in np.arange(0, 1.0001, 1.0 / factor):
+            ax.axhline(g, color="grey", lw=0.6)
+            ax.axvline(g, color="grey", lw=0.6)
+        ax.set_xlim(-0.05, 1.05)
+        ax.set_ylim(1.05, -0.05)
+        ax.set_aspect("equal")
+        ax.set_xlabel("fractional v (columns, px)", fontsize=8)
+        ax.set_ylabel("fractional u (rows, px)", fontsize=8)
+        ax.set_title(f"sub-pixel offsets (grid 1/{factor} px)", fontsize=9)
+        ax.legend(fontsize=7, loc="lower right")
+        fig.tight_layout()
+        out.append(_img(fig, f"set {k + 1}: bicubic vs super-resolved"))
+    return "".join(out)
+
+
+def _section_mosaic(folder: Path, mosaic: dict, telemetry: list[dict]) -> str:
+    plt = _plt()
+    parts = []
+    img = _read_image(folder / "mosaic.png") if mosaic.get("written") else None
+    lat = np.array([_f(r, "lat_deg") for r in telemetry])
+    lon = np.array([_f(r, "lon_deg") for r in telemetry])
+    has_gps = (
+        telemetry
+        and np.isfinite(lat).any()
+        and (np.ptp(lat[np.isfinite(lat)]) > 0 or np.ptp(lon[np.isfinite(lon)]) > 0)
+    )
+    n = (img is not None) + bool(has_gps)
+    if n == 0:
+        return "<p>No mosaic and no GPS track.</p>"
+    fig, axes = plt.subplots(1, n, figsize=(5.5 * n, 4.6), squeeze=False)
+    axes = list(axes[0])
+    if img is not None:
+        ax = axes.pop(0)
+        ax.imshow(_display(img), cmap="gray" if img.ndim == 2 else None)
+        for i, fp in enumerate(mosaic.get("footprints", [])):
+            p = np.array(fp + [fp[0]])
+            ax.plot(p[:, 0], p[:, 1], "-", lw=0.8, color="yellow", alpha=0.8)
+        ax.set_title(
+            f"mosaic with {len(mosaic.get('footprints', []))} frame footprints", fontsize=9
+        )
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if has_gps:
+        from subpix_ros.core.telemetry import enu_offset_m
+
+        ok = np.isfinite(lat) & np.isfinite(lon)
+        e, nn = enu_offset_m(float(lat[ok][0]), float(lon[ok][0]), lat[ok], lon[ok])
+        ax = axes.pop(0)
+        ax.plot(e, nn, "-", color="tab:blue")
+        ax.plot(e[:1], nn[:1], "go", label="start")
+        ax.plot(e[-1:], nn[-1:], "rs", label="end")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("east (m)")
+        ax.set_ylabel("north (m)")
+        ax.set_title(f"GPS track ({int(ok.sum())} samples)", fontsize=9)
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    else:
+        parts.append("<p>No GPS track (no telemetry position).</p>")
+    fig.tight_layout()
+    return _img(fig, "mosaic and GPS track") + "".join(parts)
+
+
+def _section_timing(timing: dict) -> str:
+    rows = []
+    for name, st in sorted((timing.get("stages") or {}).items()):
+        rows.append(
+            [
+                name,
+                st.get("calls"),
+                _num(st.get("median_ms"), "{:.1f}"),
+                _num(st.get("p99_ms"), "{:.1f}"),
+                _num(st.get("max_ms"), "{:.1f}"),
+                _num(st.get("total_s"), "{:.2f}"),
+            ]
+        )
+    fm = timing.get("frame_ms") or {}
+    rows.append(
+        [
+            "whole frame (pipeline add)",
+            timing.get("frames"),
+            _num(fm.get("median"), "{:.1f}"),
+            _num(fm.get("p99"), "{:.1f}"),
+            _num(fm.get("max"), "{:.1f}"),
+            "",
+        ]
+    )
+    t = _table(["stage", "calls", "median (ms)", "p99 (ms)", "max (ms)", "total (s)"], rows)
+    return t + (
+        "<p>Peak resident memory of the processing process: "
+        f"{_num(timing.get('peak_rss_mb'), '{:.0f}')} MB; "
+        f"CPU time {_num(timing.get('cpu_s'), '{:.1f}')} s.</p>"
+    )

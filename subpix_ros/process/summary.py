@@ -1,0 +1,92 @@
+"""The content of a processed flight's ``summary.json``: what it lacked, what became of it."""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import TYPE_CHECKING
+
+from subpix_ros.process.collector import _TIME_KEY, _clean, _stats_dict, reason_key
+from subpix_ros.process.inputs import Flight
+from subpix_ros.process.tables import _shape_text
+
+if TYPE_CHECKING:
+    from subpix_ros.process.flight import _FlightRun
+
+
+def _input_problems(flight: Flight) -> list[str]:
+    """List what the flight lacks before any frame is read: images, telemetry."""
+    problems: list[str] = []
+    if flight.camera_note:
+        problems.append(flight.camera_note)
+    if flight.camera_topic is None:
+        problems.append(
+            f"no images: the bag has no sensor_msgs/Image or CompressedImage topic "
+            f"(topics: {', '.join(sorted(flight.topics)) or 'none'})"
+        )
+    elif flight.frames_total == 0:
+        problems.append(f"no images: camera topic {flight.camera_topic} has no messages")
+    if not flight.has_telemetry:
+        problems.append(
+            "no telemetry (no /telemetry/* topics, no .tlog beside the bag"
+            + (f": {flight.telemetry_note}" if flight.telemetry_note else "")
+            + "): every frame kept, no expected shift, no GPS track"
+        )
+    elif flight.telemetry_note:
+        problems.append(f"telemetry: {flight.telemetry_note}")
+    return problems
+
+
+def _summary(run: _FlightRun, rows: list[dict], mosaic_info: dict) -> dict:
+    """Build the content of ``summary.json`` (its final ``status`` is set by the caller)."""
+    flight, collector = run.flight, run.collector
+    stage_stats = {
+        k: _clean({kk: vv for kk, vv in _stats_dict(v).items() if not _TIME_KEY.search(kk)})
+        for k, v in run.all_stats().items()
+    }
+    statuses = Counter(r.status for r in collector.frames)
+    skipped = Counter(reason_key(r.reason) for r in collector.frames if r.status == "skipped")
+    first_ns, last_ns = run.first_ns, run.last_ns
+    return {
+        "bag": flight.name,
+        "bag_path": str(flight.path),
+        "status": run.status,
+        "problems": run.problems,
+        "camera": {
+            "topic": flight.camera_topic,
+            "type": flight.camera_type,
+            "size": _shape_text(run.size) if run.size else None,
+            "dtype": collector.dtype,
+        },
+        "telemetry": {
+            "source": flight.telemetry_source,
+            "samples": len(run.samples),
+            "note": flight.telemetry_note,
+        },
+        "flight": {
+            "first_stamp_ns": first_ns,
+            "last_stamp_ns": last_ns,
+            "duration_s": (last_ns - first_ns) * 1e-9 if first_ns is not None else 0.0,
+        },
+        "frames": {
+            "in": run.done,
+            "total_in_bag": run.total,
+            "kept": statuses["aligned"] + statuses["reference"] + statuses["kept"],
+            "references": statuses["reference"],
+            "aligned": statuses["aligned"],
+            "skipped": statuses["skipped"],
+            "skipped_by_reason": dict(sorted(skipped.items())),
+            "dropped": statuses["dropped"],
+            "dropped_by_reason": dict(sorted(run.dropped.items())),
+            "shifts": sum(1 for r in rows if r.get("converged")),
+            "shifts_not_converged": sum(1 for r in rows if not r.get("converged")),
+        },
+        "references": collector.references,
+        "sets": collector.sets,
+        "mosaic": mosaic_info,
+        "stages": stage_stats,
+        "warnings": {
+            collector.warning_examples[k]: n for k, n in sorted(collector.warnings.items())
+        },
+        "parameters": _clean(run.pparams),
+        "broke_off": run.broke_off,
+    }

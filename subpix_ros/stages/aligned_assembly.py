@@ -13,6 +13,8 @@ latest reference whose stamp is not later than its own.
 from __future__ import annotations
 
 import collections
+import functools
+import threading
 from typing import Callable
 
 import numpy as np
@@ -81,11 +83,24 @@ class ReferenceCache:
         self.refs.clear()
 
 
+def _locked(method):
+    """Run ``method`` under the assembler's lock (a node resets it from its worker thread)."""
+
+    @functools.wraps(method)
+    def call(self, *args, **kwargs):
+        with self._lock:
+            return method(self, *args, **kwargs)
+
+    return call
+
+
 class AlignedAssembler:
     """Frames, masks, references and links in any order -> :class:`Aligned`, to ``deliver``.
 
     ``has_link_publisher()`` says whether links are on the way (a frame without
     one then waits for it); ``warn`` receives the problems an operator should see.
+    Thread-safe: the executor's callbacks and a reset from a node's worker thread
+    (time jumping back) may come at once.
     """
 
     MAX_PENDING = 16  # frames held for a link or for a reference (two sets of 8), each map
@@ -110,7 +125,9 @@ class AlignedAssembler:
         # (frame, mask) awaiting a reference, by (reference stamp, frame stamp)
         self.waiting: collections.OrderedDict[tuple[int, int], tuple] = collections.OrderedDict()
         self.newest_link = -1  # stamp of the latest frame whose link arrived
+        self._lock = threading.RLock()
 
+    @_locked
     def add_reference(self, frame: Frame) -> None:
         """Take a reference frame; deliver the frames that were waiting for it."""
         self.refs.add(frame)
@@ -119,6 +136,7 @@ class AlignedAssembler:
         ]:  # its frames that came first
             self._deliver(*self.waiting.pop(key), frame)
 
+    @_locked
     def add_link(self, stamp: int, ref_stamp: int) -> None:
         """Take the link naming the reference (``ref_stamp``) of the frame stamped ``stamp``."""
         if stamp in self.unlinked:
@@ -140,12 +158,14 @@ class AlignedAssembler:
         """Warn that ``n`` frames lost their link and were skipped."""
         self.warn(f"{n} aligned frame(s) whose aligned/reference_stamp never came: skipped")
 
+    @_locked
     def add_frame(self, frame: Frame) -> None:
         """Take an aligned frame's pixels (paired with its mask by stamp)."""
         pair = self.matcher.add_a(frame.stamp_ns, frame)
         if pair:
             self._pair(*pair)
 
+    @_locked
     def add_mask(self, mask: Frame) -> None:
         """Take an aligned frame's mask (mono, nonzero where valid)."""
         if mask.image.ndim != 2:
@@ -199,6 +219,7 @@ class AlignedAssembler:
             )
         )
 
+    @_locked
     def clear(self) -> None:
         """Forget everything held (a reset)."""
         self.refs.clear()

@@ -16,7 +16,6 @@ Rows:
 * ``budget B``: :func:`reconstruct_within_budget` with ``max_memory_mb=B``;
 * ``(patch) ...``: the same with a change to ``superres.py`` applied by
   monkeypatching in this process only, to measure what it would give:
-  ``stack32`` (the frame stack in float32 instead of float64),
   ``shared prior`` (every tile given the whole set's spectrum prior and noise
   level instead of fitting its own).
 
@@ -42,20 +41,12 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_pipeline import STEP, make_frames  # noqa: E402
 
 from subpix_ros.core import superres  # noqa: E402
-from subpix_ros.core.superres import fourier_map, reconstruction  # noqa: E402
+from subpix_ros.core.superres import fourier_map  # noqa: E402
 from subpix_ros.core.superres.budget import reconstruct_within_budget  # noqa: E402
 from subpix_ros.core.superres.masks import reconstruct_aligned  # noqa: E402
 from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
 KW = dict(method="map", geometry="translation", refine_shifts=False)
-
-
-def _stack32(arrs):
-    """(patch) the frame stack in float32."""
-    out = np.empty((len(arrs),) + arrs[0].shape, np.float32)
-    for i, a in enumerate(arrs):
-        out[i] = a
-    return out
 
 
 def measure(fn, repeat: int) -> tuple[float, float, float, np.ndarray]:
@@ -106,12 +97,6 @@ def main() -> None:
             return res.image
 
         row(f"budget {b:g} MB", run, b)
-    orig_stack = reconstruction._stack64
-    reconstruction._stack64 = _stack32
-    try:
-        row("(patch) stack32, whole", lambda: reconstruct_aligned(frames, shifts, 2, **KW).image)
-    finally:
-        reconstruction._stack64 = orig_stack
     # shared prior: the whole set's fit_spectrum result and noise level given to every tile
     orig_fit = fourier_map.fit_spectrum
     fits = []

@@ -29,10 +29,11 @@ Memory model (working memory beyond the input frames, bytes, fitted with
 factors 2 to 4, and rounded up so that every measured case lies below it;
 figures in docs/design-notes.md, "Onboard budget")::
 
-    M(N, H, W, p) = H W (21 N + c(p, colour)) + 28 MB
+    M(N, H, W, p) = H W (7 N + c(p, colour)) + 28 MB
 
-with ``c = 115, 320, 620`` B per LR px for colour at p = 2, 3, 4 and
-``70, 180, 300`` for mono. A tile reconstruction costs ``M`` of its extent
+with ``c = 165, 345, 660`` B per LR px for colour at p = 2, 3, 4 and
+``70, 120, 255`` for mono (refitted when the frames stopped being held as one float64
+stack: 10 % above every measured case). A tile reconstruction costs ``M`` of its extent
 (tile plus overlap) plus the stitched output, ``H W p^2 C`` float32 values.
 OpenCV-internal scratch (not traced) comes on top, a few frame-sized buffers.
 
@@ -65,14 +66,14 @@ __all__ = ["BudgetPlan", "estimate_peak_mb", "plan_reconstruction", "reconstruct
 
 #: B per LR px of the set's frame-independent working memory, (factor, colour) -> bytes.
 _FIXED_B = {
-    (2, True): 115,
-    (3, True): 320,
-    (4, True): 620,
+    (2, True): 165,
+    (3, True): 345,
+    (4, True): 660,
     (2, False): 70,
-    (3, False): 180,
-    (4, False): 300,
+    (3, False): 120,
+    (4, False): 255,
 }
-_PER_FRAME_B = 21  # B per LR px per frame
+_PER_FRAME_B = 7  # B per LR px per frame
 _BASE_MB = 28.0  # fixed overheads (caches, small arrays)
 
 
@@ -93,7 +94,7 @@ def estimate_peak_mb(n_frames: int, shape: tuple[int, int], factor: int, colour:
     Returns
     -------
     float
-        ``M = H W (21 N + c(p, colour)) / 1e6 + 28`` (see the module notes).
+        ``M = H W (7 N + c(p, colour)) / 1e6 + 28`` (see the module notes).
     """
     p = int(min(max(factor, 2), 4))
     hw = float(shape[0]) * float(shape[1])

@@ -14,6 +14,7 @@ expected transfer and an extra noise term.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -26,6 +27,7 @@ from .lowpass import _preshift_window, _WholeLowpass
 from .model import _frame_transfers
 from .separable import _solve_separable
 from .spectrum import _SPECTRUM_CROP, fit_spectrum
+from .validation import FrameStack
 
 
 @dataclass
@@ -83,8 +85,8 @@ def _solve_hermitian(m: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _consistent_padding(
     frames: np.ndarray, ishift: np.ndarray, resid: np.ndarray, pad: int, hp: int, wp: int
-) -> np.ndarray:
-    """Pad every frame to ``(hp, wp)`` with one consistent extension of the scene.
+) -> Iterator[np.ndarray]:
+    """Pad every frame to ``(hp, wp)`` with one consistent extension of the scene, one by one.
 
     Parameters
     ----------
@@ -97,10 +99,11 @@ def _consistent_padding(
     hp, wp : int
         Padded size.
 
-    Returns
-    -------
+    Yields
+    ------
     numpy.ndarray
-        float32, (N, hp, wp).
+        Each frame padded, float32 (hp, wp), in order (one buffer, overwritten at the next
+        frame: use it before asking for the next).
 
     Notes
     -----
@@ -111,7 +114,7 @@ def _consistent_padding(
     image, as the periodic model assumes. Frame n's own pixels fill the area they cover.
     """
     n, h, w = frames.shape
-    out = np.empty((n, hp, wp), dtype=np.float32)
+    buf = np.empty((hp, wp), dtype=np.float32)
     ref = cv2.copyMakeBorder(
         frames[0].astype(np.float32), pad, hp - h - pad, pad, wp - w - pad, cv2.BORDER_REFLECT_101
     )
@@ -123,7 +126,7 @@ def _consistent_padding(
         c0, c1 = max(0, -iv), min(w, w - iv)
         if r1 > r0 and c1 > c0:
             inner = (slice(pad + r0, pad + r1), slice(pad + c0, pad + c1))
-            out[i][inner] = frames[i, r0 + iu : r1 + iu, c0 + iv : c1 + iv]
+            buf[inner] = frames[i, r0 + iu : r1 + iu, c0 + iv : c1 + iv]
             rest = [
                 (slice(0, inner[0].start), slice(0, wp)),
                 (slice(inner[0].stop, hp), slice(0, wp)),
@@ -136,10 +139,10 @@ def _consistent_padding(
             if win[0].stop <= win[0].start or win[1].stop <= win[1].start:
                 continue
             if i == 0 or (du == 0 and dv == 0):
-                out[i][win] = ref[win]
+                buf[win] = ref[win]
             else:
-                out[i][win] = fractional_shift(ref, du, dv, window=win)
-    return out
+                buf[win] = fractional_shift(ref, du, dv, window=win)
+        yield buf
 
 
 def _fourier_map(
@@ -212,8 +215,8 @@ def _fourier_map(
         registered.frames, registered.ishift, registered.resid, pad, hp, wp
     )
     spec = np.empty((n, hp, wc), np.complex64)
-    for i in range(n):  # per frame: single-precision DFT, rfft half
-        spec[i] = _rfft2_32(padded[i])
+    for i, frame in enumerate(padded):  # per frame: single-precision DFT, rfft half
+        spec[i] = _rfft2_32(frame)
     c_psd, alpha, noise_sigma = _fit_prior(registered, p, blur_sigma, noise_sigma, integer_valued)
     noise_power = hp * wp * noise_sigma**2
     c = c_psd * p * p * hp * wp  # prior in HR DFT units: E|X|^2 = (p hp)(p wp) S_x
@@ -308,7 +311,11 @@ def _fit_prior(
     c_psd, alpha, sig_fit = fit_spectrum(pre, p, blur_sigma, noise_sigma)
     if noise_sigma is None:
         if integer_valued is None:  # integer dtypes are known to be; float data are checked
-            integer_valued = bool(np.all(frames == np.rint(frames)))
+            integer_valued = (
+                frames.all_integer_valued()
+                if isinstance(frames, FrameStack)
+                else bool(np.all(frames == np.rint(frames)))
+            )
         floor = 1.0 / np.sqrt(12.0) if integer_valued else 0.05
         noise_sigma = max(sig_fit, floor)
         if sig_fit < floor:  # refit the prior level with the floor as the noise

@@ -61,7 +61,7 @@ from .result import (
     bicubic_upscale,
 )
 from .spectrum import estimate_noise_sigma
-from .validation import _check_options, _small_ints, _stack64, _validate
+from .validation import FrameStack, _check_options, _small_ints, _validate
 
 __all__ = ["reconstruct", "reconstruct_colour"]
 
@@ -286,7 +286,7 @@ def _map_method(
     """
     n = len(arrs)
     ref = np.asarray(arrs[0], dtype=np.float64)
-    stack = _stack64(arrs)
+    stack = FrameStack(arrs)  # frames read as float64 one at a time, never all at once
     cov = (
         np.zeros((n, 2, 2))
         if opts.shift_cov is None

@@ -167,7 +167,9 @@ class _Collector:
             converged=True,
             reason="",
         )
-        self.writer.shift(shift.stamp_ns, shift.u, shift.v, shift.z, getattr(shift, "frame_id", ""))
+        frame_id = getattr(shift, "frame_id", "")
+        self.writer.shift_std(shift.stamp_ns, shift.u_std, shift.v_std, frame_id)
+        self.writer.shift(shift.stamp_ns, shift.u, shift.v, shift.z, frame_id)
 
     def on_super_resolved(self, sr: Any) -> None:
         """Write a super-resolved image and its bicubic reference; record the set."""
@@ -214,13 +216,18 @@ class _Collector:
             self.warning_examples.setdefault(key, f"{stage}: {msg}" if stage else str(msg))
 
     def on_error(self, error: Any) -> None:
-        """Record a stage error; the current frame, if still undecided, is dropped."""
+        """Record a stage error; the current frame, if still undecided, is dropped.
+
+        A reconstruction error belongs to a set, not to the frame being read when it is
+        reported (the set is solved while later frames are read): no frame is dropped for it.
+        """
+        stage = error[0] if isinstance(error, tuple) else ""
         if isinstance(error, tuple):
             error = f"{error[0]}: {error[1]}"
         text = " ".join(str(error).split())[:200]
         self.errors.append(text)
         rec = self.current
-        if rec is not None and rec.status in ("in",):
+        if rec is not None and rec.status in ("in",) and stage != "reconstruction_node":
             rec.status, rec.reason = "dropped", f"stage error: {text}"
 
 

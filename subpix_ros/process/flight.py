@@ -183,7 +183,11 @@ def _run(
 ) -> BagResult:
     """Feed the flight through the pipeline and write its products (all but timing, report)."""
     run = _FlightRun(flight, writer, params, monitor)
-    run.read(progress)
+    try:
+        run.read(progress)
+    except BaseException:
+        run.pipe.close(emit=False)  # Ctrl-C, a failure: stop the reconstruction worker
+        raise
     run.finish()
     rows, mosaic_info = run.write_products()
     return run.result(rows, mosaic_info)
@@ -203,7 +207,8 @@ class _FlightRun:
         self.problems = _input_problems(flight)
         # The mosaic runs beside the pipeline (not inside it) so that a 16-bit flight's frames
         # reach it as 8-bit previews (the core mosaic draws uint8).
-        self.pipe = Pipeline(self.pparams, with_mosaic=False)
+        # overlap: each set is solved on a worker thread while the next frames are registered
+        self.pipe = Pipeline(self.pparams, with_mosaic=False, overlap=True)
         self.mosaic = MosaicStage.from_params(self.pparams["mosaic_node"])
         self.reg_params = {k: self.pipe.registration.param(k) for k in EXPECTED_SHIFT_PARAMS}
         self.collector = _Collector(writer, self.reg_params, self.pipe.registration.stats)
@@ -218,7 +223,10 @@ class _FlightRun:
             "mosaic": self.mosaic,
         }
         for stage_name, stage in stages.items():
-            self.timer.wrap(stage_name, stage)
+            # the reconstruction's time is its solve (on the pipeline's worker thread)
+            self.timer.wrap(
+                stage_name, stage, "reconstruct" if stage_name == "reconstruction" else "add"
+            )
         self.samples: list[TelemetrySample] = []
         self.dropped: Counter = Counter()
         self.examples: dict[str, str] = {}  # the first full reason of each kind
@@ -346,6 +354,8 @@ class _FlightRun:
             self.pipe.flush()
         except Exception as exc:  # noqa: BLE001
             collector.on_error(f"flush: {type(exc).__name__}: {exc}")
+        finally:
+            self.pipe.close()
         if self.dropped:
             self.problems.extend(
                 f"{n} frame(s) dropped: {self.examples[k]}" for k, n in sorted(self.dropped.items())

@@ -8,7 +8,7 @@ folder ``OUTDIR/<name>`` with ``summary.json`` is complete by construction.
 Products (byte-identical for the same bag and parameters):
 
 * ``results.mcap``: ROS 2 messages, each with the log time (and header
-  stamp) of its source frame: ``/shift`` (Vector3Stamped), ``/homography``
+  stamp) of its source frame: ``/shift`` and ``/shift/std`` (Vector3Stamped), ``/homography``
   (Float64MultiArray), ``/aligned/reference_stamp`` (TimeReference),
   ``/super_resolved`` (Image, the set reference's stamp), ``/mosaic`` (Image,
   the last frame's stamp), ``/telemetry/frame_interval`` (Float64, eq. 1 at
@@ -151,6 +151,12 @@ class ProductWriter:
         vec = (rounded(u), rounded(v), rounded(z))
         raw = cdr.vector3_stamped_to_cdr(vec, stamp_ns, frame_id)
         self._later(self.bag.write, "/shift", cdr.VECTOR3_STAMPED, stamp_ns, raw)
+
+    def shift_std(self, stamp_ns: int, u_std: float, v_std: float, frame_id: str = "") -> None:
+        """Record a shift's standard errors (px) in the results bag (``/shift/std``, as shift_node)."""
+        vec = (rounded(u_std), rounded(v_std), 0.0)
+        raw = cdr.vector3_stamped_to_cdr(vec, stamp_ns, frame_id)
+        self._later(self.bag.write, "/shift/std", cdr.VECTOR3_STAMPED, stamp_ns, raw)
 
     def homography(self, stamp_ns: int, h: np.ndarray) -> None:
         """Record a homography in the results bag (``/homography``)."""

@@ -15,13 +15,14 @@ __all__ = ["prefetch"]
 
 
 class _Timer:
-    """Wall time of every call of a stage's ``add`` (for timing.json: median, p99)."""
+    """Wall time of every call of a stage method, ``add`` by default (timing.json: median, p99)."""
 
     def __init__(self) -> None:
         self.ms: dict[str, list[float]] = {}
 
-    def wrap(self, name: str, obj: Any) -> None:
-        add = obj.add
+    def wrap(self, name: str, obj: Any, method: str = "add") -> None:
+        """Time every call of ``obj.<method>`` under ``name`` (from any thread)."""
+        add = getattr(obj, method)
         times = self.ms.setdefault(name, [])
 
         def timed(*a, **k):
@@ -32,7 +33,7 @@ class _Timer:
                 times.append(1000.0 * (time.perf_counter() - t0))
 
         try:
-            obj.add = timed
+            setattr(obj, method, timed)
         except (AttributeError, TypeError):
             pass
 

@@ -215,12 +215,20 @@ class Pipeline:
         images = self._solve(self._guard("reconstruction_node", self.reconstruction.flush_sets))
         return images + self._collect()
 
-    def close(self) -> None:
-        """Emit what the worker still has and stop it (``overlap=True``; else nothing to do)."""
-        if self._pool is not None:
+    def close(self, emit: bool = True) -> None:
+        """Stop the worker (``overlap=True``; else nothing to do).
+
+        ``emit``: emit the images it still has first; False (an interruption) drops them and
+        waits only for the set being solved.
+        """
+        if self._pool is None:
+            return
+        if emit:
             self._collect()
-            self._pool.shutdown()
-            self._pool = None
+        else:
+            self._pending.clear()
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._pool = None
 
     def __enter__(self) -> "Pipeline":
         return self

@@ -114,6 +114,7 @@ def test_results_mcap_messages_carry_their_source_frames(processed):
     topics = {t.name: t for t in bag_topics(d / "results.mcap")}
     for name in (
         "/shift",
+        "/shift/std",
         "/homography",
         "/super_resolved",
         "/mosaic",
@@ -130,6 +131,15 @@ def test_results_mcap_messages_carry_their_source_frames(processed):
     assert {m.timestamp_ns for m in shifts} == conv
     for m in shifts:
         assert header_to_ns(cdr_to_vector3_stamped(m.raw)[1]) == m.timestamp_ns
+    # their standard errors, as shift_node publishes them, equal shifts.csv's
+    rows = {int(r["stamp_ns"]): r for r in read_csv(d / "shifts.csv")}
+    stds = list(read_messages(d / "results.mcap", ["/shift/std"]))
+    assert {m.timestamp_ns for m in stds} == conv
+    for m in stds:
+        vec, header = cdr_to_vector3_stamped(m.raw)
+        row = rows[m.timestamp_ns]
+        assert header_to_ns(header) == m.timestamp_ns and 0 < vec[0] <= 0.1 and 0 < vec[1] <= 0.1
+        assert (vec[0], vec[1]) == (float(row["u_std_px"]), float(row["v_std_px"]))
     srs = list(read_messages(d / "results.mcap", ["/super_resolved"]))
     assert [m.timestamp_ns for m in srs] == [st["reference_stamp_ns"] for st in s["sets"]]
     img, header = cdr_to_image(srs[0].raw)

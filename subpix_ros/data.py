@@ -16,6 +16,7 @@ CROP_NAMES = ("crop_field_edge", "crop_rows", "crop_trees", "crop_road")
 
 
 def data_root() -> Path:
+    """Return the folder of the bundled data (``SUBPIX_DATA``, the checkout, or the install)."""
     env = os.environ.get("SUBPIX_DATA")
     candidates = [Path(env)] if env else []
     candidates.append(Path(__file__).resolve().parents[1] / "data")
@@ -41,7 +42,7 @@ def bags_dir() -> Path:
 
 
 def load_crop(name: str) -> np.ndarray:
-    """A 768x768 uint8 full-resolution luminance crop of the real Seneca strip."""
+    """Load a 768x768 uint8 full-resolution luminance crop of the real Seneca strip."""
     if name not in CROP_NAMES:
         raise KeyError(f"unknown crop {name!r}; choose from {CROP_NAMES}")
     img = cv2.imread(str(data_root() / "crops" / f"{name}.png"), cv2.IMREAD_GRAYSCALE)
@@ -51,5 +52,5 @@ def load_crop(name: str) -> np.ndarray:
 
 
 def seneca_frame_paths() -> list[Path]:
-    """The nine bundled Seneca frames (1800x1350 JPEG), in flight order."""
+    """Return the nine bundled Seneca frames (1800x1350 JPEG), in flight order."""
     return sorted((data_root() / "seneca").glob("IMG_*.jpg"))

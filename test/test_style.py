@@ -1,6 +1,9 @@
-"""Style, the ROS way (ros2/examples ship test_flake8.py): ruff over the package, tests,
-benchmarks and scripts, with the settings in ruff.toml (100 columns, pycodestyle, pyflakes,
-import order, the formatter's layout)."""
+"""Style, the ROS way (ros2/examples ship test_flake8.py and test_pep257.py).
+
+ruff over the package, tests, benchmarks and scripts, with the settings in ruff.toml (100
+columns, pycodestyle, pyflakes, pydocstyle with the numpy convention, import order, the
+formatter's layout).
+"""
 
 import shutil
 import subprocess

@@ -109,6 +109,8 @@ _MONITOR_PARAMS = (
 
 
 class MonitorNode(StageNode):
+    """The flight served live to Foxglove: ROS topics in, :class:`Monitor` out."""
+
     PARAMS = _MONITOR_PARAMS + (
         Param(
             "mosaic_compressed",
@@ -169,9 +171,12 @@ class MonitorNode(StageNode):
         self._subscribe(subscribe_inputs)
 
     def _subscribe(self, stage_inputs: bool) -> None:
-        """The mosaic, telemetry and /diagnostics always come over DDS; the camera, shifts and
+        """Subscribe the monitor's inputs.
+
+        The mosaic, telemetry and /diagnostics always come over DDS; the camera, shifts and
         super-resolved images too, unless the single-process pipeline hands them over in memory
-        (:meth:`handle_frame`, :meth:`handle_shift`, :meth:`handle_super_resolved`)."""
+        (:meth:`handle_frame`, :meth:`handle_shift`, :meth:`handle_super_resolved`).
+        """
         tel = QoSProfile(
             depth=20,
             reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -309,13 +314,12 @@ class MonitorNode(StageNode):
 
     # ---------------------------------------------------- in memory (single-process pipeline)
     def handle_frame(self, frame) -> None:
-        """A camera frame (``payloads.Frame``) handed over in memory (its array is not written
-        to later)."""
+        """Take a camera frame (``payloads.Frame``) handed over in memory (not written to later)."""
         if self._camera_due():
             self._serve_camera(frame.image, frame.stamp_ns)
 
     def handle_shift(self, shift_and_frame) -> None:
-        """The shift stage's ``(payloads.Shift, Aligned)``: with its standard errors."""
+        """Take the shift stage's ``(payloads.Shift, Aligned)``, with its standard errors."""
         s = shift_and_frame[0]
         e = self._expected
         self.monitor.on_shift(
@@ -323,7 +327,7 @@ class MonitorNode(StageNode):
         )
 
     def handle_super_resolved(self, sr) -> None:
-        """The reconstruction stage's :class:`~subpix_ros.stages.SuperResolved`."""
+        """Take the reconstruction stage's :class:`~subpix_ros.stages.SuperResolved`."""
         self._serve_sr(sr.image, sr.reference.image, sr.reference.stamp_ns)
 
     def _footprint(self, w: int, h: int, stamp: int) -> None:
@@ -421,11 +425,13 @@ class MonitorNode(StageNode):
             self.diag.ok()
 
     def close(self) -> None:
+        """Stop the node and the monitor's server."""
         super().close()
         self.monitor.close()
 
 
 def main(args=None) -> int:
+    """Run monitor_node (console entry point); 2 when the server refuses to start."""
     try:
         return run_nodes([MonitorNode], args)
     except MonitorError as exc:

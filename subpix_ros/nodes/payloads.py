@@ -31,11 +31,13 @@ def frame_from_cdr(raw: bytes, received: float | None = None) -> Frame:
 
 
 def frame_from_compressed_cdr(raw: bytes, received: float | None = None) -> Frame:
+    """Decode a sensor_msgs/CompressedImage into a BGR :class:`Frame`."""
     image, header = cdr.cdr_to_compressed(raw, "bgr8")
     return Frame(cdr.header_to_ns(header), image, header.frame_id, received or time.monotonic())
 
 
 def homography_from_cdr(raw: bytes) -> np.ndarray:
+    """Decode a 3x3 homography (Float64MultiArray, row-major); ValueError if malformed."""
     data = cdr.cdr_to_float64_array(raw)
     if data.size != 9 or not np.all(np.isfinite(data)):
         raise ValueError(f"homography message must hold 9 finite values, got {data.size}")
@@ -43,6 +45,7 @@ def homography_from_cdr(raw: bytes) -> np.ndarray:
 
 
 def shift_from_cdr(raw: bytes) -> Shift:
+    """Decode a ``shift`` message (its standard errors are not on it: NaN)."""
     vec, header = cdr.cdr_to_vector3_stamped(raw)
     return Shift(
         cdr.header_to_ns(header),
@@ -58,6 +61,7 @@ def shift_from_cdr(raw: bytes) -> Shift:
 
 # ---------------------------------------------------------------- payloads -> messages
 def image_cdr(image: np.ndarray, stamp_ns: int, frame_id: str = "") -> bytes:
+    """Encode an image (mono8, bgr8, mono16 or 32FC1, by its dtype and shape)."""
     if image.dtype == np.uint8:
         encoding = "mono8" if image.ndim == 2 else "bgr8"
     elif image.dtype == np.uint16 and image.ndim == 2:
@@ -70,6 +74,7 @@ def image_cdr(image: np.ndarray, stamp_ns: int, frame_id: str = "") -> bytes:
 
 
 def mask_cdr(mask: np.ndarray, stamp_ns: int, frame_id: str = "") -> bytes:
+    """Encode a validity mask as mono8 (255 valid, 0 not)."""
     return cdr.image_to_cdr(np.where(mask, np.uint8(255), np.uint8(0)), "mono8", stamp_ns, frame_id)
 
 
@@ -89,8 +94,10 @@ def shift_std_cdr(s: Shift) -> bytes:
 
 
 def reference_link_cdr(stamp_ns: int, reference_stamp_ns: int, frame_id: str = "") -> bytes:
-    """sensor_msgs/TimeReference naming an aligned frame's reference: header = the aligned frame's (stamp,
-    frame_id), ``time_ref`` = its reference frame's stamp."""
+    """Encode the link naming an aligned frame's reference (sensor_msgs/TimeReference).
+
+    Header = the aligned frame's (stamp, frame_id), ``time_ref`` = its reference frame's stamp.
+    """
     return cdr.time_reference_to_cdr(
         stamp_ns, reference_stamp_ns, frame_id, "subpix_ros reference frame"
     )

@@ -26,6 +26,8 @@ from subpix_ros.stages import Shift, ShiftStage
 
 
 class ShiftNode(StageNode):
+    """Sub-pixel shift of each aligned frame: :class:`ShiftStage` between ROS topics."""
+
     MAIN_INPUTS = ("aligned",)
     PARAMS = (
         Param(
@@ -50,9 +52,11 @@ class ShiftNode(StageNode):
     failed = property(lambda self: self.stage.stats.skipped)
 
     def handle_aligned(self, aligned: pl.Aligned) -> None:
+        """Queue an aligned frame for the worker (the oldest is dropped beyond queue_size)."""
         self.worker.put(aligned)
 
     def reset(self) -> None:
+        """Forget the stream (time jumped back): the stage and the inputs held."""
         super().reset()
         if self.inputs is not None:
             self.inputs.clear()
@@ -84,6 +88,7 @@ class ShiftNode(StageNode):
 
 
 def main(args=None) -> int:
+    """Run shift_node (console entry point)."""
     return run_nodes([ShiftNode], args)
 
 

@@ -1,5 +1,7 @@
-"""Property tests (hypothesis) for the core estimators: invariances that must hold
-for any shift, crop and offset, not just the hand-picked cases."""
+"""Property tests (hypothesis) for the core estimators.
+
+Invariances that must hold for any shift, crop and offset, not just the hand-picked cases.
+"""
 
 import numpy as np
 from hypothesis import HealthCheck, given, settings

@@ -1,5 +1,8 @@
-"""AlignedAssembler under concurrent callers: a reset (``clear``) from a node's worker thread while
-the executor delivers a reference must not raise (it did: KeyError in add_reference)."""
+"""AlignedAssembler under concurrent callers.
+
+A reset (``clear``) from a node's worker thread while the executor delivers a reference must not
+raise (it did: KeyError in add_reference).
+"""
 
 import sys
 import threading

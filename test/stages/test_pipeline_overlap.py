@@ -1,5 +1,8 @@
-"""Pipeline(overlap=True): the reconstruction on a worker thread gives the same events, in the
-same order, one set later, in the caller's thread; failures on the worker are reported."""
+"""Pipeline(overlap=True): the reconstruction on a worker thread.
+
+It gives the same events, in the same order, one set later, in the caller's thread; failures on
+the worker are reported.
+"""
 
 import threading
 

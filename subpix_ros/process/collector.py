@@ -74,8 +74,13 @@ class _FrameRec:
 class _Collector:
     """Turns the pipeline's events for the frame being added into records and products."""
 
-    def __init__(self, writer: ProductWriter, reg_params: dict, reg_stats: Any = None) -> None:
+    def __init__(
+        self, writer: ProductWriter, reg_params: dict, reg_stats: Any = None, score=None
+    ) -> None:
         self.writer = writer
+        # score(entry, stamp, image, reference): figures of a set added to its entry as it
+        # arrives (truth PSNR, edge MTF): the images are not kept
+        self.score = score
         self.reg_stats = reg_stats
         self._tracked = self._fallbacks = 0
         self.reg_params = reg_params
@@ -84,7 +89,6 @@ class _Collector:
         self.shifts: dict[int, dict] = {}
         self.references: list[dict] = []
         self.sets: list[dict] = []
-        self.sr_images: list[Any] = []
         self.errors: list[str] = []
         self.homographies: dict[int, np.ndarray] = {}
         self.priors: dict[int, tuple[float, float] | None] = {}
@@ -205,7 +209,8 @@ class _Collector:
                 "dtype": str(image.dtype),
             }
         )
-        self.sr_images.append((stamp, image, ref))
+        if self.score is not None:
+            self.score(self.sets[-1], stamp, image, bicubic, ref, int(getattr(sr, "factor", 0)))
 
     def on_warning(self, item: Any) -> None:
         """Count a warning by stage and kind (the mosaic thread warns too)."""

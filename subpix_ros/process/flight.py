@@ -56,7 +56,7 @@ from subpix_ros.process.tables import (
     _telemetry_row,
 )
 from subpix_ros.process.timing import _Timer, _timing_record, prefetch
-from subpix_ros.process.truth import _load_truth, _score_sets
+from subpix_ros.process.truth import _load_truth, set_scorer
 
 __all__ = ["BagResult", "process_bag"]
 
@@ -211,7 +211,12 @@ class _FlightRun:
         self.pipe = Pipeline(self.pparams, with_mosaic=False, overlap=True)
         self.mosaic = MosaicStage.from_params(self.pparams["mosaic_node"])
         self.reg_params = {k: self.pipe.registration.param(k) for k in EXPECTED_SHIFT_PARAMS}
-        self.collector = _Collector(writer, self.reg_params, self.pipe.registration.stats)
+        self.collector = _Collector(
+            writer,
+            self.reg_params,
+            self.pipe.registration.stats,
+            score=set_scorer(_load_truth(flight.path)),
+        )
         self._connect(monitor)
         self.mosaic_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="subpix-mosaic")
         self.mosaic_jobs: list[tuple[_FrameRec, Any]] = []
@@ -395,9 +400,6 @@ class _FlightRun:
         mosaic_info = _mosaic(self.mosaic, writer, self.last_ns)
         if self.last_ns is not None:
             writer.diagnostics(self.last_ns, _diag_statuses(self.all_stats()))
-        truth = _load_truth(self.flight.path)
-        if truth is not None:
-            _score_sets(collector, truth)
         return rows, mosaic_info
 
     def result(self, rows: list[dict], mosaic_info: dict) -> BagResult:

@@ -46,3 +46,17 @@ def test_images_of_the_wrong_size_are_refused():
     ref = np.zeros((40, 40))
     with pytest.raises(ValueError, match="must be 2x"):
         edge_sharpness(ref, np.zeros((80, 80)), np.zeros((60, 60)), 2)
+
+
+def test_the_report_states_the_edge_figures_or_why_there_are_none():
+    from subpix_ros.process.report_sections import _edges_text
+
+    edges = [
+        {"mtf50_bicubic": 0.34, "mtf50_sr": 0.68, "mtf30_bicubic": 0.42, "mtf30_sr": 0.74},
+        {"mtf50_bicubic": 0.30, "mtf50_sr": 0.60, "mtf30_bicubic": 0.40, "mtf30_sr": 0.70},
+    ]
+    text = _edges_text(edges, has_truth=False)
+    assert "2 straight edge(s)" in text and "MTF50 bicubic 0.320" in text
+    assert "super-resolved 0.640 (2.00x)" in text
+    assert "no straight edge in the reference and no ground truth" in _edges_text([], False)
+    assert "no ground truth" not in _edges_text([], True)

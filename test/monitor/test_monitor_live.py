@@ -57,6 +57,22 @@ def _spin(node, until, timeout, procs=()):
     return until()
 
 
+def _listen_to_shifts(node):
+    """Subscribe ``node`` to /shift and /shift/std; return the two dicts they fill (stamp -> x, y)."""
+    shifts, stds = {}, {}
+
+    def keep(table):
+        def put(raw):
+            vec, header = cdr.cdr_to_vector3_stamped(raw)
+            table[cdr.header_to_ns(header)] = tuple(vec[:2])
+
+        return put
+
+    node.create_subscription(Vector3Stamped, "/shift", keep(shifts), reliable_qos(100), raw=True)
+    node.create_subscription(Vector3Stamped, "/shift/std", keep(stds), reliable_qos(100), raw=True)
+    return shifts, stds
+
+
 @pytest.fixture
 def flight(sample_bags):
     """Run the nodes and the monitor.
@@ -84,17 +100,7 @@ def flight(sample_bags):
     ]
     rclpy.init()
     node = rclpy.create_node("monitor_test")
-    shifts, stds = {}, {}
-
-    def keep(table):
-        def put(raw):
-            vec, header = cdr.cdr_to_vector3_stamped(raw)
-            table[cdr.header_to_ns(header)] = tuple(vec[:2])
-
-        return put
-
-    node.create_subscription(Vector3Stamped, "/shift", keep(shifts), reliable_qos(100), raw=True)
-    node.create_subscription(Vector3Stamped, "/shift/std", keep(stds), reliable_qos(100), raw=True)
+    shifts, stds = _listen_to_shifts(node)
     try:
         yield port, procs, node, shifts, stds
     finally:
@@ -258,17 +264,7 @@ def test_pipeline_with_monitor_serves_shifts_with_their_errors(sample_bags):
     )
     rclpy.init()
     node = rclpy.create_node("monitor_pipeline_test")
-    shifts, stds = {}, {}
-
-    def keep(table):
-        def put(raw):
-            vec, header = cdr.cdr_to_vector3_stamped(raw)
-            table[cdr.header_to_ns(header)] = tuple(vec[:2])
-
-        return put
-
-    node.create_subscription(Vector3Stamped, "/shift", keep(shifts), reliable_qos(100), raw=True)
-    node.create_subscription(Vector3Stamped, "/shift/std", keep(stds), reliable_qos(100), raw=True)
+    shifts, stds = _listen_to_shifts(node)
     a = None
     try:
         deadline = time.monotonic() + 30

@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+import cv2
+
 from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample
 from subpix_ros.io.bags import BagError
 from subpix_ros.process.collector import (
@@ -207,8 +209,13 @@ class _FlightRun:
         self.problems = _input_problems(flight)
         # The mosaic runs beside the pipeline (not inside it) so that a 16-bit flight's frames
         # reach it as 8-bit previews (the core mosaic draws uint8).
-        # overlap: each set is solved on a worker thread while the next frames are registered
-        self.pipe = Pipeline(self.pparams, with_mosaic=False, overlap=True)
+        # overlap: each set is solved on a worker thread while the next frames are registered,
+        # when this process has a core to spare (a --jobs worker has cores // jobs OpenCV
+        # threads); the products are the same either way (the images are emitted at the same
+        # points)
+        self.pipe = Pipeline(
+            self.pparams, with_mosaic=False, overlap=True, solve_thread=cv2.getNumThreads() > 1
+        )
         self.mosaic = MosaicStage.from_params(self.pparams["mosaic_node"])
         self.reg_params = {k: self.pipe.registration.param(k) for k in EXPECTED_SHIFT_PARAMS}
         self.collector = _Collector(

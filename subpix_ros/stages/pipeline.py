@@ -18,6 +18,19 @@ from subpix_ros.stages.types import Aligned, Frame, NewReference, Shift, Skipped
 KINDS = ("aligned", "reference", "skipped", "shift", "super_resolved", "mosaic", "warning", "error")
 
 
+class _InCaller:
+    """An executor that runs each job at once in the caller's thread (``solve_thread=False``)."""
+
+    def submit(self, fn, *args) -> Future:
+        """Run ``fn(*args)`` now; return its finished future."""
+        fut: Future = Future()
+        fut.set_result(fn(*args))
+        return fut
+
+    def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:
+        """Nothing to stop."""
+
+
 class Pipeline:
     """The processing chain of the nodes, in the caller's thread, without ROS.
 
@@ -44,6 +57,8 @@ class Pipeline:
     :meth:`flush` and at :meth:`reset`: the same events in the same order as
     without overlap, one set later, whatever the timing. At most one set is being
     solved at a time. Call :meth:`close` (or use ``with``) to stop the worker.
+    ``solve_thread=False`` (with ``overlap``) solves in the caller's thread but emits at the
+    same points: the events of a machine without a core to spare are the same as with one.
     """
 
     def __init__(
@@ -51,6 +66,7 @@ class Pipeline:
         params: Mapping[str, Mapping[str, Any]] | None = None,
         with_mosaic: bool = True,
         overlap: bool = False,
+        solve_thread: bool = True,
     ) -> None:
         params = params or {}
         self.registration = RegistrationStage.from_params(params.get("registration_node"))
@@ -65,7 +81,11 @@ class Pipeline:
         self._pending: deque[Future] = deque()
         self._in_worker = threading.local()
         if overlap:
-            self._pool = ThreadPoolExecutor(1, thread_name_prefix="reconstruction")
+            self._pool = (
+                ThreadPoolExecutor(1, thread_name_prefix="reconstruction")
+                if solve_thread
+                else _InCaller()
+            )
             self.reconstruction.on_problem = self._worker_reporter(
                 self._reporter("reconstruction_node")
             )

@@ -17,9 +17,9 @@ PARAMS = {
 }
 
 
-def _run(frames, overlap, params=PARAMS):
+def _run(frames, overlap, params=PARAMS, solve_thread=True):
     events, threads = [], set()
-    with Pipeline(params, with_mosaic=False, overlap=overlap) as pipe:
+    with Pipeline(params, with_mosaic=False, overlap=overlap, solve_thread=solve_thread) as pipe:
         for kind in ("reference", "shift", "super_resolved", "warning", "error"):
             pipe.on(
                 kind,
@@ -102,3 +102,15 @@ def test_close_is_idempotent_and_a_serial_pipeline_has_no_worker():
     pipe.close()
     with pytest.raises(Exception):
         pipe._pool.submit(print)  # noqa: SLF001 - closed: no worker left
+
+
+def test_overlap_without_a_thread_emits_the_same_events_at_the_same_points(flight):
+    frames, _ = flight
+    threaded, _, _, _ = _run(frames, True)
+    inline, _, threads, _ = _run(frames, True, solve_thread=False)
+    assert threads == {threading.main_thread()}
+    assert [k for k, _ in threaded] == [k for k, _ in inline]
+    a = [x for k, x in threaded if k == "super_resolved"]
+    b = [x for k, x in inline if k == "super_resolved"]
+    assert len(a) == len(b) == 3
+    assert all(np.array_equal(x.image, y.image) for x, y in zip(a, b))

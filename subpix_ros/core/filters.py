@@ -1,8 +1,8 @@
 """Windows and fractional delays shared by the core methods.
 
-Tukey (tapered cosine) windows in two parametrisations, and the Lanczos
+Tukey (tapered cosine) windows in two parametrisations, the Lanczos
 fractional delay the super-resolution uses to move a frame's padding by a
-sub-pixel shift.
+sub-pixel shift, and a single-precision real DFT through OpenCV.
 
 The two Tukey forms are not merged: :func:`tukey` samples a window of ``n``
 points with a taper of ``frac n / 2`` samples at each end (spectrum fits),
@@ -19,7 +19,14 @@ import functools
 import cv2
 import numpy as np
 
-__all__ = ["tukey", "tukey_2d", "tukey_taper", "lanczos_delay", "fractional_shift"]
+__all__ = [
+    "tukey",
+    "tukey_2d",
+    "tukey_taper",
+    "lanczos_delay",
+    "fractional_shift",
+    "rfft2_32",
+]
 
 
 def tukey(n: int, frac: float = 0.25) -> np.ndarray:
@@ -166,3 +173,21 @@ def fractional_shift(
         anchor=(a - 1, a - 1),
         borderType=cv2.BORDER_REFLECT_101,
     )
+
+
+def rfft2_32(img: np.ndarray) -> np.ndarray:
+    """Return the half-plane 2-D DFT of an image in single precision.
+
+    Parameters
+    ----------
+    img : numpy.ndarray
+        2-D real image.
+
+    Returns
+    -------
+    numpy.ndarray
+        complex64, shape ``(h, w // 2 + 1)``: the same bins as ``np.fft.rfft2``, computed
+        by ``cv2.dft``.
+    """
+    f = cv2.dft(np.ascontiguousarray(img, dtype=np.float32), flags=cv2.DFT_COMPLEX_OUTPUT)
+    return f.view(np.complex64)[..., 0][:, : img.shape[1] // 2 + 1]

@@ -15,10 +15,10 @@ import pytest
 from subpix_ros.core import superres as sr
 from subpix_ros.core.filters import fractional_shift, tukey
 from subpix_ros.core.render import render_sequence
+from subpix_ros.core.shift import lk_inner_region, lk_window_context, lucas_kanade_batch
 from subpix_ros.core.superres.dft import _assemble_hr
 from subpix_ros.core.superres.geometry import _refine_shifts
 from subpix_ros.core.superres.lowpass import _integer_preshift, _lowpass_window, _WholeLowpass
-from subpix_ros.core.superres.lucas_kanade import _lk_batch, _lk_context, _lk_inner
 from subpix_ros.core.superres.model import frame_transfer_1d, gaussian_kernel
 from subpix_ros.core.superres.paper import interleave
 from subpix_ros.core.superres.result import _bicubic_rim
@@ -313,7 +313,7 @@ def test_lowpass_window_from_whole_lowpass_equals_direct(pre, post):
 
 
 def test_lk_residual_variance_equals_direct_residual(crops):
-    """_lk_batch's noise variance from the z z^T sums equals var(F - R - d . grad R) on pixels."""
+    """lucas_kanade_batch's noise variance from the z z^T sums equals var(F - R - d . grad R) on pixels."""
     seq = render_sequence(
         crops["crop_trees"][: 2 * 96, : 2 * 96],
         2,
@@ -325,14 +325,14 @@ def test_lk_residual_variance_equals_direct_residual(crops):
     frames = np.stack(seq.frames).astype(np.float64)
     g = gaussian_kernel(1.0)
     sl = (slice(24, 72), slice(24, 72))
-    ctx = _lk_context(sl, 96, 96)
-    inner = _lk_inner(sl, ctx)
+    ctx = lk_window_context(sl, 96, 96)
+    inner = lk_inner_region(sl, ctx)
     ref = _lowpass_window(frames[0], g, (0, 0), (0, 0), *ctx)
 
     def mov(_k, iu, iv):
         return _lowpass_window(frames[1], g, (0, 0), (iu, iv), *ctx)
 
-    s, sig, rv = _lk_batch(
+    s, sig, rv = lucas_kanade_batch(
         [ref], np.zeros(1, int), mov, np.arange(1), np.array([[0.25, -0.35]]), inner, g, iters=1
     )
     # the same single Gauss-Newton step written out on the pixels (Fourier shift by the start value)

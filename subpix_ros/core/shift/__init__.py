@@ -31,6 +31,10 @@ Methods of :func:`estimate_shift`:
     4. Quality (:mod:`.covariance`): a cluster-robust sandwich covariance over 16x16-pixel
        blocks and a misfit test from local shifts on a 3x3 grid.
 
+:func:`lucas_kanade_batch` (:mod:`.batch`) estimates many small low-passed window pairs at
+once (a few Gauss-Newton steps each, with each pair's residual noise variance): the
+super-resolution's frame screening, joint noise estimate and tile geometry use it.
+
 Failure: textureless, constant, all-NaN, too small or non-overlapping input gives ``ok=False``
 with a ``reason`` and ``u = v = z = None`` (never NaN or a made-up number). Wrong argument
 types or shapes raise ``ValueError``. Measured figures and rejected alternatives:
@@ -44,6 +48,7 @@ References
    application to stereo vision", Proc. IJCAI, 674-679, 1981.
 """
 
+from .batch import lk_inner_region, lk_window_context, lucas_kanade_batch
 from .coarse import coarse_shift
 from .estimate import METHODS, estimate_shift
 from .prefilter import fractional_shift_kernel, predicted_shift_variance
@@ -58,5 +63,8 @@ __all__ = [
     "fractional_shift_kernel",
     "coarse_shift",
     "predicted_shift_variance",
+    "lucas_kanade_batch",
+    "lk_window_context",
+    "lk_inner_region",
     "METHODS",
 ]

@@ -9,8 +9,9 @@ Modules, by concern:
 * :mod:`.fourier_map`, :mod:`.separable`: the Fourier-domain MAP solve of eq. 9;
 * :mod:`.cg_map`: the same objective by conjugate gradients (homographies, masks);
 * :mod:`.spectrum`: noise level and image prior fitted to the frames;
-* :mod:`.geometry`, :mod:`.lucas_kanade`, :mod:`.lowpass`: shift refinement and the
-  check for more than a translation;
+* :mod:`.geometry`, :mod:`.lowpass`: shift refinement and the check for more than a
+  translation, with the shift package's batched estimator
+  (:func:`subpix_ros.core.shift.lucas_kanade_batch`);
 * :mod:`.masks`, :mod:`.budget`: border-strip masks on the fast path, and a memory budget.
 """
 

@@ -5,23 +5,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..filters import rfft2_32
 
-def _rfft2_32(img: np.ndarray) -> np.ndarray:
-    """Return the half-plane 2-D DFT of an image in single precision.
-
-    Parameters
-    ----------
-    img : numpy.ndarray
-        2-D real image.
-
-    Returns
-    -------
-    numpy.ndarray
-        complex64, shape ``(h, w // 2 + 1)``: the same bins as ``np.fft.rfft2``, computed
-        by ``cv2.dft``.
-    """
-    f = cv2.dft(np.ascontiguousarray(img, dtype=np.float32), flags=cv2.DFT_COMPLEX_OUTPUT)
-    return f.view(np.complex64)[..., 0][:, : img.shape[1] // 2 + 1]
+_rfft2_32 = rfft2_32  # the half-plane DFT the solver's spectra use (core/filters.py)
 
 
 def _as_c2(z: np.ndarray) -> np.ndarray:

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..shift.batch import lk_inner_region, lk_window_context, lucas_kanade_batch
 from .lowpass import _lowpass_window, _WholeLowpass
-from .lucas_kanade import _lk_batch, _lk_context, _lk_inner
 from .model import gaussian_kernel, translation_homography
 
 __all__ = ["detect_geometry"]
@@ -66,7 +66,7 @@ def _refine_shifts(
     -----
     With R the low-passed reference moved by the current shift s (content moves by +s),
     the model ``F ~ R - d . grad R`` gives the step ``d = -(G^T G)^-1 G^T (F - R)``
-    (:func:`~subpix_ros.core.superres.lucas_kanade._lk_batch`). For white noise through
+    (:func:`~subpix_ros.core.shift.lucas_kanade_batch`). For white noise through
     the separable low-pass g, ``var(F - R) = 2 sigma^2 (sum g^2)^2``: a multi-frame noise
     estimate that texture does not bias, unlike single-frame ones.
     """
@@ -77,7 +77,7 @@ def _refine_shifts(
     resvar = np.full(n, np.nan)
     rh, rw = min(h - 2 * border, max_region), min(w - 2 * border, max_region)
     region = (slice((h - rh) // 2, (h - rh) // 2 + rh), slice((w - rw) // 2, (w - rw) // 2 + rw))
-    ctx = _lk_context(region, h, w)
+    ctx = lk_window_context(region, h, w)
     i0 = (int(ishift[0, 0]), int(ishift[0, 1]))
     whole = _WholeLowpass.getter(lowpassed, lp_sigma)
     ref = _lowpass_window(frames[0], g, i0, (0, 0), *ctx, whole=whole(0))
@@ -88,13 +88,13 @@ def _refine_shifts(
         )
 
     if n > 1:  # all frames against the reference at once
-        s_all, sg_all, rv_all = _lk_batch(
+        s_all, sg_all, rv_all = lucas_kanade_batch(
             [ref],
             np.zeros(n - 1, dtype=int),
             mov_window,
             np.arange(1, n),
             resid[1:],
-            _lk_inner(region, ctx),
+            lk_inner_region(region, ctx),
             g,
             iters=iters,
         )
@@ -187,7 +187,7 @@ def detect_geometry(
     return (affines if nonlinear else None), tshift, noise
 
 
-_CTX_PAD = 16  # context px around a registration window (_lk_context's default)
+_CTX_PAD = 16  # context px around a registration window (lk_window_context's default)
 
 
 def _tile_windows(h: int, w: int, tiles: int, tile_max: int) -> list[tuple[slice, slice]]:
@@ -217,7 +217,7 @@ def _register_tiles(
     """Register every tile window of every frame to frame 0: shifts (N, T, 2), variances (N, T).
 
     Tiles whose context windows share one shape are registered together, all tiles x
-    frames in one :func:`~subpix_ros.core.superres.lucas_kanade._lk_batch`.
+    frames in one :func:`~subpix_ros.core.shift.lucas_kanade_batch`.
     """
     n, h, w = frames.shape
     g = gaussian_kernel(lp_sigma)
@@ -226,8 +226,8 @@ def _register_tiles(
     resvar_t = np.full((n, len(wins)), np.nan)
     groups: dict[tuple, list[tuple[int, tuple[slice, slice]]]] = {}
     for k, sl in enumerate(wins):  # tiles
-        ctx = _lk_context(sl, h, w, _CTX_PAD)
-        inner = _lk_inner(sl, ctx)
+        ctx = lk_window_context(sl, h, w, _CTX_PAD)
+        inner = lk_inner_region(sl, ctx)
         key = (
             ctx[0].stop - ctx[0].start,
             ctx[1].stop - ctx[1].start,
@@ -254,7 +254,7 @@ def _register_tiles(
 
         s0 = np.asarray(shifts, dtype=np.float64)[pair_frame]
         inner = (slice(key[2], key[3]), slice(key[4], key[5]))
-        s_all, sg_all, rv_all = _lk_batch(
+        s_all, sg_all, rv_all = lucas_kanade_batch(
             refs, pair_tile, mov_window, np.arange(pair_tile.size), s0, inner, g
         )
         for m in range(pair_tile.size):  # tile x frame pairs

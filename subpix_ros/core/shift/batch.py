@@ -1,4 +1,11 @@
-"""Batched Lucas-Kanade sub-pixel translation of window pairs (super-resolution registration).
+"""Batched Lucas-Kanade sub-pixel translation of many window pairs at once.
+
+The shift package's second estimator, beside the pairwise one of :func:`estimate_shift`:
+that one estimates one pair at the accuracy limit (masks, prefilter, covariance); this one
+fits hundreds of small low-passed windows against their references in one vectorised pass
+(a few Gauss-Newton steps each, the reference moved by a Fourier shift) and gives each
+pair's residual noise variance. The super-resolution uses it to screen frames, estimate the
+noise jointly over the frames and check the geometry tile by tile.
 
 References
 ----------
@@ -11,10 +18,14 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .dft import _rfft2_32
+from ..filters import rfft2_32 as _rfft2_32
+
+__all__ = ["lucas_kanade_batch", "lk_window_context", "lk_inner_region"]
 
 
-def _lk_context(sl: tuple[slice, slice], h: int, w: int, pad: int = 16) -> tuple[slice, slice]:
+def lk_window_context(
+    sl: tuple[slice, slice], h: int, w: int, pad: int = 16
+) -> tuple[slice, slice]:
     """Return region ``sl`` widened by ``pad`` px of context, clipped to an h x w frame."""
     return (
         slice(max(sl[0].start - pad, 0), min(sl[0].stop + pad, h)),
@@ -22,7 +33,7 @@ def _lk_context(sl: tuple[slice, slice], h: int, w: int, pad: int = 16) -> tuple
     )
 
 
-def _lk_inner(sl: tuple[slice, slice], ctx: tuple[slice, slice]) -> tuple[slice, slice]:
+def lk_inner_region(sl: tuple[slice, slice], ctx: tuple[slice, slice]) -> tuple[slice, slice]:
     """Return the part of region ``sl`` the fit uses (4 px in), relative to its context ``ctx``."""
     ra, ca = ctx[0].start, ctx[1].start
     return (
@@ -31,7 +42,7 @@ def _lk_inner(sl: tuple[slice, slice], ctx: tuple[slice, slice]) -> tuple[slice,
     )
 
 
-def _lk_batch(
+def lucas_kanade_batch(
     refs: list[np.ndarray],
     ref_of: np.ndarray,
     mov_window,

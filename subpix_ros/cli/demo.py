@@ -324,7 +324,7 @@ def _flight_report(root: Path, bags: Path, out: Path) -> Path:
         When a flight fails.
     """
     from subpix_ros.process.batch import run_batch
-    from subpix_ros.process.flight import load_params
+    from subpix_ros.process.params import load_params
 
     params = load_params(root / "config" / "demo.yaml")
     results = run_batch([bags / "subpixel", bags / "seneca"], out, params, force=True)

@@ -111,23 +111,10 @@ def register(
     ValueError
         For bad frames or options.
     """
+    # the keyword options, read before any other local exists
+    options = {k: v for k, v in locals().items() if k not in ("reference", "moving", "prior")}
     t0 = time.perf_counter()
-    opts = _check_options(
-        model,
-        distortion,
-        n_points,
-        coarse_size,
-        detect_size,
-        template_half,
-        inlier_px,
-        min_inliers,
-        min_spread,
-        coarse_method,
-        angles,
-        track_radius,
-        track_min_fraction,
-        want_inliers,
-    )
+    opts = _check_options(**options)
     if prior is not None:
         prior = _check_prior(prior)
         if not (isinstance(track_radius, (int, np.integer)) and 1 <= track_radius <= 64):
@@ -148,23 +135,8 @@ def register(
     return res
 
 
-def _check_options(
-    model,
-    distortion,
-    n_points,
-    coarse_size,
-    detect_size,
-    template_half,
-    inlier_px,
-    min_inliers,
-    min_spread,
-    coarse_method,
-    angles,
-    track_radius,
-    track_min_fraction,
-    want_inliers,
-) -> _Options:
-    """Validate :func:`register`'s options.
+def _check_options(*, model, distortion, coarse_method, want_inliers, **rest) -> _Options:
+    """Validate :func:`register`'s options (its keyword arguments but the frames and prior).
 
     Raises
     ------
@@ -187,18 +159,9 @@ def _check_options(
         model=model,
         fixed_lam=fixed_lam,
         distortion=distortion,
-        n_points=n_points,
-        coarse_size=coarse_size,
-        detect_size=detect_size,
-        template_half=template_half,
-        inlier_px=inlier_px,
-        min_inliers=min_inliers,
-        min_spread=min_spread,
         want_inliers=int(want_inliers),
         coarse_method=coarse_method,
-        angles=angles,
-        track_radius=track_radius,
-        track_min_fraction=track_min_fraction,
+        **rest,
     )
 
 

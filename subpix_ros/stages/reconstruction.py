@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from subpix_ros.core.blur import BLUR_SIGMA_MAX, BlurCalibration, parse_blur_sigma
-from subpix_ros.core.superres import reconstruct_within_budget
+from subpix_ros.core.superres import colour_luminance, reconstruct_within_budget
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
 from subpix_ros.stages.stats import ReconstructionStats
@@ -349,7 +349,7 @@ class ReconstructionStage(Stage):
             self.error("frames of one set differ in size: set dropped")
             return None
         # luminance only for a set the calibration measures (the first, then every 10th)
-        mono = [_mono(f) for f in frames] if self.blur.due else []
+        mono = [colour_luminance(f) for f in frames] if self.blur.due else []
         blur = self.blur.update(mono, shifts, masks)
         res, plan = reconstruct_within_budget(
             frames,
@@ -407,15 +407,6 @@ _SET_HERE = {
     "refine_shifts",
     "blur_sigma",
 }  # given by the stage itself
-
-
-def _mono(img: np.ndarray) -> np.ndarray:
-    """Luminance of a BGR frame (as reconstruct_colour computes it), a mono frame as it is."""
-    if img.ndim == 2:
-        return img
-    import cv2
-
-    return cv2.cvtColor(img.astype(np.float32), cv2.COLOR_BGR2GRAY)
 
 
 def _solver_options(extra: dict) -> tuple[dict, dict]:

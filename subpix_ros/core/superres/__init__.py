@@ -22,6 +22,7 @@ from .model import FrameOperator, frame_transfer_1d, gaussian_kernel, translatio
 from .paper import grid_offsets, interleave, pinv_solution, windowed_solution
 from .reconstruction import (  # noqa: F401  (_reconstruct: the stages read its options)
     _reconstruct,
+    colour_luminance,
     reconstruct,
     reconstruct_colour,
 )
@@ -51,6 +52,7 @@ __all__ = [
     "reconstruct",
     "reconstruct_aligned",
     "reconstruct_colour",
+    "colour_luminance",
     "reconstruct_within_budget",
     "translation_homography",
     "windowed_solution",

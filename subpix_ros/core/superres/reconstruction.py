@@ -425,6 +425,25 @@ def _map_result(
     )
 
 
+def colour_luminance(frame: np.ndarray) -> np.ndarray:
+    """Return the luminance :func:`reconstruct_colour` super-resolves (a mono frame as it is).
+
+    Parameters
+    ----------
+    frame : numpy.ndarray
+        HxWx3 BGR frame (OpenCV order), or a 2-D mono frame.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``Y = 0.299 R + 0.587 G + 0.114 B`` (ITU-R BT.601, ``cv2.COLOR_BGR2GRAY``) in float32 on
+        the frame's own scale; a 2-D frame is returned unchanged.
+    """
+    if frame.ndim == 2:
+        return frame
+    return cv2.cvtColor(frame.astype(np.float32), cv2.COLOR_BGR2GRAY)
+
+
 def reconstruct_colour(
     frames_bgr: Sequence[np.ndarray],
     shifts: np.ndarray | Sequence[Sequence[float]] | None,
@@ -463,7 +482,7 @@ def reconstruct_colour(
     if any(a.ndim != 3 or a.shape[2] != 3 for a in arrs):
         raise ValueError("colour frames must all be HxWx3 (BGR)")
     # luminance of every frame (Y of YCrCb is BGR2GRAY's weighted sum), chroma of the reference
-    ys = [cv2.cvtColor(a.astype(np.float32), cv2.COLOR_BGR2GRAY) for a in arrs]
+    ys = [colour_luminance(a) for a in arrs]
     res = reconstruct(ys, shifts, factor, **kwargs)
     p = res.factor
     h, w = arrs[0].shape[:2]

@@ -38,18 +38,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from subpix_ros.runtime import plain_venv_environ  # noqa: E402
 
 VENV = ROOT / ".venv"
-DROP_PREFIXES = (
-    "ROS_",
-    "RMW_",
-    "AMENT_",
-    "FASTRTPS_",
-    "FASTDDS_",
-    "COLCON_",
-    "CYCLONEDDS_",
-    "ZENOH_",
-)
 
 LISTENER = r"""
 import json, signal, sys
@@ -92,10 +83,7 @@ print(json.dumps(out), flush=True)
 
 def plain_env(extra: dict[str, str], domain: str) -> dict[str, str]:
     """Return the environment as `source .venv/bin/activate` leaves it, without ROS / DDS vars."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith(DROP_PREFIXES)}
-    env["VIRTUAL_ENV"] = str(VENV)
-    env["PATH"] = f"{VENV / 'bin'}:{env.get('PATH', '')}"
-    env["ROS_DOMAIN_ID"] = domain
+    env = plain_venv_environ(VENV, domain)
     env["PYTHONUNBUFFERED"] = "1"
     env.update(extra)
     return env

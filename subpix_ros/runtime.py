@@ -174,6 +174,47 @@ def allocator_line(default_malloc: bool = False) -> str:
 
 
 # --------------------------------------------------------------------------- ROS / DDS environment
+#: Variables a ROS install or an operator's shell may set for ROS, DDS or colcon.
+ROS_ENV_PREFIXES = (
+    "ROS_",
+    "RMW_",
+    "AMENT_",
+    "FASTRTPS_",
+    "FASTDDS_",
+    "COLCON_",
+    "CYCLONEDDS_",
+    "ZENOH_",
+)
+
+
+def plain_venv_environ(venv: str | Path, domain_id: int | str, environ=None) -> dict[str, str]:
+    """Return the environment of a shell that only ran ``source <venv>/bin/activate``.
+
+    Parameters
+    ----------
+    venv : path
+        The virtual environment.
+    domain_id : int or str
+        ``ROS_DOMAIN_ID`` to keep traffic apart (the only ROS variable set).
+    environ : mapping, optional
+        The environment to start from (default ``os.environ``).
+
+    Returns
+    -------
+    dict
+        ``environ`` without any ROS / DDS / colcon variable (:data:`ROS_ENV_PREFIXES`) and
+        ``PYTHONPATH``, with the venv's ``bin`` first on ``PATH``: how a user without a ROS
+        install runs the package (tests and benchmarks that start it as users do).
+    """
+    src = os.environ if environ is None else environ
+    env = {k: v for k, v in src.items() if not k.startswith(ROS_ENV_PREFIXES)}
+    env.pop("PYTHONPATH", None)
+    env["VIRTUAL_ENV"] = str(venv)
+    env["PATH"] = f"{Path(venv) / 'bin'}:{env.get('PATH', '')}"
+    env["ROS_DOMAIN_ID"] = str(domain_id)
+    return env
+
+
 #: Fast DDS reads its XML profiles from the first of these that is set (FASTDDS_* from Fast DDS 3).
 PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 #: What Fast DDS loads by itself from the working directory when no variable is set.

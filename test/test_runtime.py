@@ -346,3 +346,25 @@ def test_a_killed_nodes_segment_is_removed_and_a_live_nodes_kept(tmp_path):
             live.wait(10)
         except subprocess.TimeoutExpired:
             live.kill()
+
+
+def test_plain_venv_environ_is_a_shell_with_only_the_venv_activated(tmp_path):
+    from subpix_ros.runtime import plain_venv_environ
+
+    src = {
+        "PATH": "/usr/bin",
+        "HOME": "/root",
+        "ROS_DISTRO": "jazzy",
+        "RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp",
+        "AMENT_PREFIX_PATH": "/opt/ros/jazzy",
+        "FASTRTPS_DEFAULT_PROFILES_FILE": "/x.xml",
+        "PYTHONPATH": "/opt/ros/jazzy/lib/python3.12/site-packages",
+    }
+    env = plain_venv_environ(tmp_path / ".venv", 17, src)
+    assert env == {
+        "PATH": f"{tmp_path / '.venv' / 'bin'}:/usr/bin",
+        "HOME": "/root",
+        "VIRTUAL_ENV": str(tmp_path / ".venv"),
+        "ROS_DOMAIN_ID": "17",
+    }
+    assert src["ROS_DISTRO"] == "jazzy"  # the caller's mapping is left alone

@@ -25,17 +25,9 @@ import time
 import pytest
 from conftest import ROOT
 
+from subpix_ros.runtime import plain_venv_environ
+
 VENV = ROOT / ".venv"
-DROP_PREFIXES = (
-    "ROS_",
-    "RMW_",
-    "AMENT_",
-    "FASTRTPS_",
-    "FASTDDS_",
-    "COLCON_",
-    "CYCLONEDDS_",
-    "ZENOH_",
-)
 RUN = ("subpix replay", "registration_node", "shift_node", "reconstruction_node")
 
 LISTENER = r"""
@@ -88,12 +80,8 @@ def readme_commands():
 
 
 def plain_env():
-    env = {k: v for k, v in os.environ.items() if not k.startswith(DROP_PREFIXES)}
-    env["VIRTUAL_ENV"] = str(VENV)
-    env["PATH"] = f"{VENV / 'bin'}:{env.get('PATH', '')}"
-    env["ROS_DOMAIN_ID"] = os.environ["ROS_DOMAIN_ID"]  # this test run's (conftest), for isolation
-    env.pop("PYTHONPATH", None)
-    return env
+    # this test run's domain (conftest), for isolation
+    return plain_venv_environ(VENV, os.environ["ROS_DOMAIN_ID"])
 
 
 class Listener:

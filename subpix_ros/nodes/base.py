@@ -120,13 +120,22 @@ class StageNode(Node):
         return qos_event_callbacks(self, topic, self.diag)
 
     def check_time(self, stamp_ns: int) -> bool:
-        """Detect a time jump backwards (looped bag); return True if state was reset."""
-        last = self._last_stamp_ns
-        self._last_stamp_ns = stamp_ns
-        if last is not None and stamp_ns < last:
-            self.diag.warn(
-                f"time jumped back by {(last - stamp_ns) / 1e9:.3f} s: pipeline state reset"
-            )
+        """Reset the node when time jumps back (looped bag); return True if it did.
+
+        The rule is the stage's (:meth:`Stage.check_time`: it warns and resets itself); the
+        node then drops its queued work and held inputs. A node without a stage keeps the
+        same rule itself.
+        """
+        if self.stage is not None:
+            jumped = self.stage.check_time(stamp_ns)
+        else:
+            last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
+            jumped = last is not None and stamp_ns < last
+            if jumped:
+                self.diag.warn(
+                    f"time jumped back by {(last - stamp_ns) / 1e9:.3f} s: pipeline state reset"
+                )
+        if jumped:
             self.reset()
             self.diag.clear_stage_times()  # the new stream's stage times are not mixed with the old one's
             self.emit("reset", stamp_ns)

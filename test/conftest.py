@@ -130,6 +130,16 @@ def rclpy_node():
     rclpy.shutdown()
 
 
+def node_process(name: str, params: str, *extra: str):
+    """Start ``subpix_ros.nodes.<name>`` as its own process with a params file (output piped)."""
+    import subprocess
+
+    cmd = [sys.executable, "-m", f"subpix_ros.nodes.{name}", "--ros-args", "--params-file", params]
+    return subprocess.Popen(
+        [*cmd, *extra], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+
+
 def subpix_cmd(*args: str) -> list[str]:
     """Return the `subpix` command line (run as a module so the checkout's code is used)."""
     return [sys.executable, "-m", "subpix_ros.cli", *args]

@@ -97,73 +97,24 @@ def test_shift_as_a_process(pair_files):
     assert json.loads(p.stdout)["u"] == pytest.approx(0.37, abs=0.01)
 
 
+def _interval(*extra: str) -> int:
+    """`subpix interval` at 60 m, 10 m/s, f 4.3 mm, 1.54 um pixels, plus ``extra``."""
+    args = ["interval", "--height-m", "60", "--speed-mps", "10", "--focal-mm", "4.3"]
+    return main([*args, "--pixel-um", "1.54", *extra])
+
+
 def test_interval_hand_value(capsys):
     # t = 1.54e-6 * 60 / (2 * 4.3e-3 * 10) = 1.0744 ms
-    assert (
-        main(
-            [
-                "interval",
-                "--height-m",
-                "60",
-                "--speed-mps",
-                "10",
-                "--focal-mm",
-                "4.3",
-                "--pixel-um",
-                "1.54",
-                "--p",
-                "2",
-            ]
-        )
-        == 0
-    )
+    assert _interval("--p", "2") == 0
     text = capsys.readouterr().out
     assert "t = 1.074 ms" in text and "phi = 0 deg" in text
-    assert (
-        main(
-            [
-                "interval",
-                "--height-m",
-                "60",
-                "--speed-mps",
-                "10",
-                "--focal-mm",
-                "4.3",
-                "--pixel-um",
-                "1.54",
-                "--p",
-                "4",
-                "--rotate",
-                "--json",
-            ]
-        )
-        == 0
-    )
+    assert _interval("--p", "4", "--rotate", "--json") == 0
     out = json.loads(capsys.readouterr().out)
     assert out["phi_deg"] == pytest.approx(math.degrees(math.atan(1 / 3)))
     assert out["interval_s"] == pytest.approx(
         1.54e-6 * 60 * 3 / math.sqrt(10) / (4 * 4.3e-3 * 10), rel=1e-12
     )
-    assert (
-        main(
-            [
-                "interval",
-                "--height-m",
-                "60",
-                "--speed-mps",
-                "10",
-                "--focal-mm",
-                "4.3",
-                "--pixel-um",
-                "1.54",
-                "--p",
-                "2",
-                "--phi-deg",
-                "30",
-            ]
-        )
-        == 0
-    )
+    assert _interval("--p", "2", "--phi-deg", "30") == 0
     assert "phi = 30 deg" in capsys.readouterr().out
 
 

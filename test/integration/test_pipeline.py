@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 import rclpy
-from conftest import ROOT, spin, subpix_cmd
+from conftest import ROOT, node_process, spin, subpix_cmd
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import CompressedImage, Image
@@ -27,16 +27,7 @@ PARAMS = str(ROOT / "config" / "demo.yaml")
 
 
 def _node(name, *extra):
-    cmd = [
-        sys.executable,
-        "-m",
-        f"subpix_ros.nodes.{name}",
-        "--ros-args",
-        "--params-file",
-        PARAMS,
-        *extra,
-    ]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return node_process(name, PARAMS, *extra)
 
 
 class Outputs:

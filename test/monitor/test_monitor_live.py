@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pytest
 import rclpy
-from conftest import ROOT, subpix_cmd
+from conftest import ROOT, node_process, subpix_cmd
 from geometry_msgs.msg import Vector3Stamped
 
 from subpix_ros.cli._ros import stop_processes
@@ -36,16 +36,7 @@ def free_port() -> int:
 
 
 def _node(name, *extra):
-    cmd = [
-        sys.executable,
-        "-m",
-        f"subpix_ros.nodes.{name}",
-        "--ros-args",
-        "--params-file",
-        PARAMS,
-        *extra,
-    ]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return node_process(name, PARAMS, *extra)
 
 
 def _spin(node, until, timeout, procs=()):
@@ -55,6 +46,20 @@ def _spin(node, until, timeout, procs=()):
         for p in procs:
             assert p.poll() is None, f"{p.args[2:4]} died:\n{p.stdout.read()}"
     return until()
+
+
+def _replay_cmd(sample_bags):
+    """`subpix replay` of the subpixel flight at half speed, once the camera has a reader."""
+    return subpix_cmd(
+        "replay",
+        str(sample_bags / "subpixel"),
+        "--rate",
+        "0.5",
+        "--wait-for",
+        "/camera/image_raw",
+        "--wait-timeout",
+        "60",
+    )
 
 
 def _listen_to_shifts(node):
@@ -129,18 +134,7 @@ def test_monitor_serves_the_flight(flight, sample_bags):
 
     assert _spin(node, lambda: node.count_publishers("/shift") > 0, 30, procs)
     _spin(node, lambda: False, 1.0, procs)
-    replay = subprocess.Popen(
-        subpix_cmd(
-            "replay",
-            str(sample_bags / "subpixel"),
-            "--rate",
-            "0.5",
-            "--wait-for",
-            "/camera/image_raw",
-            "--wait-timeout",
-            "60",
-        )
-    )
+    replay = subprocess.Popen(_replay_cmd(sample_bags))
     assert _spin(node, lambda: replay.poll() is not None, 120, procs) and replay.returncode == 0
     _spin(node, lambda: len(shifts) >= 21 and len(a.messages("/shift")) >= len(shifts), 30, procs)
 
@@ -276,18 +270,7 @@ def test_pipeline_with_monitor_serves_shifts_with_their_errors(sample_bags):
             assert pipe.poll() is None, pipe.stdout.read()
         assert _spin(node, lambda: node.count_publishers("/shift") > 0, 30, [pipe])
         _spin(node, lambda: False, 1.0, [pipe])
-        replay = subprocess.Popen(
-            subpix_cmd(
-                "replay",
-                str(sample_bags / "subpixel"),
-                "--rate",
-                "0.5",
-                "--wait-for",
-                "/camera/image_raw",
-                "--wait-timeout",
-                "60",
-            )
-        )
+        replay = subprocess.Popen(_replay_cmd(sample_bags))
         assert (
             _spin(node, lambda: replay.poll() is not None, 120, [pipe]) and replay.returncode == 0
         )

@@ -1,7 +1,7 @@
 """reconstruction_node with max_memory_mb, fed over DDS: the set is reduced to fit, and it says so."""
 
 import rclpy
-from conftest import AlignedFeed, spin
+from conftest import SET_SHIFTS, AlignedFeed, spin
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
@@ -12,16 +12,7 @@ from subpix_ros.io import cdr
 from subpix_ros.nodes.qos import latched_qos
 
 T0 = 1_700_000_000_000_000_000
-SHIFTS = [
-    (0.0, 0.0),
-    (0.5, 0.0),
-    (0.0, 0.5),
-    (0.5, 0.5),
-    (0.25, 0.75),
-    (0.75, 0.25),
-    (0.3, 0.6),
-    (0.6, 0.3),
-]
+SHIFTS = SET_SHIFTS
 
 
 def test_max_memory_mb_reduces_the_set_and_reports_it_in_diagnostics(ctx, crops):

@@ -359,7 +359,12 @@ class MonitorNode(StageNode):
 
     def _expire_shifts(self) -> None:
         if self._shift_join.expire():
-            self.diag.set(shifts_without_std=self._shift_join.unmatched)
+            n = self._shift_join.unmatched
+            self.diag.set(shifts_without_std=n)
+            self.diag.warn(
+                f"{n} shift(s) served without standard errors: no shift/std came within "
+                "shift_std_wait_s (is shift_node publishing shift/std?)"
+            )
 
     def _serve_shift(self, stamp_ns: int, u: float, v: float, u_std, v_std) -> None:
         # the shift topic carries screened estimates only (shift_node's max_std_px): converged

@@ -138,3 +138,28 @@ def test_bandwidth_changes_at_run_time(served):
     assert node.set_parameters([Parameter("bandwidth_kbps", value=500.0)])[0].successful
     assert node.monitor.bucket.rate == 500.0 * 125
     assert not node.set_parameters([Parameter("host", value="0.0.0.0")])[0].successful  # read-only
+
+
+def test_shifts_without_their_standard_errors_are_served_and_said(served):
+    node, h, ex, client = served
+    pub = h.create_publisher(Vector3Stamped, "shift", reliable_qos(20))
+    diag = []
+    h.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: diag.extend(s for s in m.status if s.name == "monitor_node"),
+        10,
+    )
+    assert _spin(ex, lambda: pub.get_subscription_count() > 0, 10)
+    msg = Vector3Stamped()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(T0, 10**9)
+    msg.vector.x, msg.vector.y = 0.25, -0.5
+    pub.publish(msg)  # no shift/std for it
+    assert _spin(ex, lambda: client.messages("/shift"), 10)  # after shift_std_wait_s (0.5 s)
+    d = client.decode("/shift", client.messages("/shift")[-1].payload)
+    assert (d["u"], d["v"], d["u_std"], d["v_std"]) == (0.25, -0.5, None, None)
+    assert _spin(
+        ex,
+        lambda: any(s.level == b"\x01" and "without standard errors" in s.message for s in diag),
+        5,
+    ), [(s.level, s.message) for s in diag[-3:]]

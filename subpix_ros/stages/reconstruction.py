@@ -379,6 +379,9 @@ class ReconstructionStage(Stage):
         st.memory_reduction = ", ".join(plan.reductions)
         if plan.reduced:
             st.memory_reduced += 1
+        if res.shifts_disputed:
+            st.shifts_disputed += res.shifts_disputed
+            self.warn(f"shift estimates disputed by the frames: {res.reason}")
         if res.fell_back:
             st.fallbacks += 1
             self.warn(f"super-resolution fell back to {res.method}: {res.reason}")

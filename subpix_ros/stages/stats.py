@@ -137,6 +137,7 @@ class ReconstructionStats(StageStats):
     memory_estimate_mb: float | None = None  # predicted working memory of the last reconstruction
     memory_reduction: str = ""  # what max_memory_mb gave up in the last one ("" nothing)
     memory_reduced: int = 0  # images made with a reduction
+    shifts_disputed: int = 0  # given shifts replaced by the frames' own registration
 
 
 @dataclass

@@ -176,3 +176,39 @@ def test_auto_never_below_bicubic(crops, p, layout, blur, jpeg, err):
         assert r.blur_source in ("edges", "fallback")
         assert r.blur_sigma <= blur + 0.05, (crop, r.blur_sigma, r.blur_reason)
         assert gain(fl, r.image) > 0.0, (crop, roof, gain(fl, r.image), r.blur_sigma, r.blur_reason)
+
+
+# ------------------------------------------------------------------ given shifts checked
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_wrong_given_shifts_are_caught_not_used(crops, seed):
+    """0.1 px of unmodelled error in shifts used as given on a periodic texture (crop_rows).
+
+    Used as given, these shifts put the reconstruction below bicubic (-1.85 dB in the
+    benchmark's cell); the frames' own registration disagrees with them, replaces them and
+    the result says so.
+    """
+    fl = flight(crops, "crop_rows", 2, 0.2, layout="random", fill=0.9, seed=seed)
+    good = est_shifts(fl.frames)
+    noise = np.random.default_rng(500 + seed).normal(0, 0.1, good.shape)
+    noise[0] = 0
+    r = reconstruct(fl.frames, good + noise, 2, blur_sigma=0.2, refine_shifts=False)
+    bad = np.flatnonzero(np.abs(noise).max(axis=1) > 0.05)
+    assert "disagree with the frames" in r.reason
+    for i in bad:
+        assert f"{i}" in r.reason.split("frames ")[1].split(" disagree")[0]
+        assert np.abs(r.shifts[i] - (good[i] - good[0])).max() < 0.03, (i, r.shifts[i], good[i])
+    ok = reconstruct(fl.frames, good, 2, blur_sigma=0.2, refine_shifts=False)
+    assert gain(fl, r.image) > gain(fl, ok.image) - 0.5
+    assert gain(fl, r.image) > 3.0
+
+
+@pytest.mark.parametrize("crop,p,blur,snr", [("crop_rows", 2, 0.2, 30), ("crop_road", 4, 0.9, 30)])
+def test_right_given_shifts_are_used_as_given(crops, crop, p, blur, snr):
+    """Shifts from the shift estimator are not disputed (no false alarm), even at 30 dB."""
+    fl = flight(crops, crop, p, blur, layout="random", fill=1.0, snr=snr, seed=2)
+    good = est_shifts(fl.frames)
+    r = reconstruct(fl.frames, good, p, blur_sigma=blur, refine_shifts=False)
+    assert "disagree" not in r.reason
+    np.testing.assert_allclose(r.shifts, good - good[0], rtol=0, atol=1e-12)

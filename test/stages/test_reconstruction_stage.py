@@ -1,5 +1,6 @@
 """ReconstructionStage policy without ROS: set assembly, stamp matching, flushes, time jumps."""
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -254,3 +255,25 @@ def test_max_memory_mb_tiles_or_drops_frames_and_says_so(seq):
     assert sb.fell_back and "bicubic" in sb.reason and tiny.stats.fallbacks == 1
     with pytest.raises(ValueError):
         ReconstructionStage(max_memory_mb=-1.0)
+
+
+def test_a_wrong_shift_is_disputed_replaced_and_reported(seq):
+    """One shift off by 0.15 px: the image matches the right shifts', the stage warns."""
+    images, stats = [], []
+    for wrong in (False, True):
+        stage = ReconstructionStage(n_frames=8)
+        problems = []
+        stage.on_problem = lambda level, msg, problems=problems: problems.append((level, msg))
+        ref, pairs = _set(seq)
+        if wrong:
+            s, a = pairs[3]
+            pairs[3] = (dataclasses.replace(s, u=s.u + 0.15), a)
+        out = [o for s, a in pairs for o in stage.add(s, a)]
+        images.append(out[0].image.astype(np.float64))
+        stats.append((stage.stats.shifts_disputed, problems))
+    assert stats[0] == (0, [])
+    assert stats[1][0] == 1
+    assert any(lvl == "warn" and "disputed" in m and "frames 4 " in m for lvl, m in stats[1][1])
+    p_right, _ = gain_over_bicubic(images[0], ref.image, seq.truth, 2, border=16)
+    p_fixed, _ = gain_over_bicubic(images[1], ref.image, seq.truth, 2, border=16)
+    assert abs(p_fixed - p_right) < 0.3, (p_fixed, p_right)

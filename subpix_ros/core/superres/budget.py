@@ -373,8 +373,9 @@ def _reconstruct_tiles(
 ) -> SRResult:
     """Reconstruct the box tile by tile with ``plan.overlap`` px of context; stitch the tiles.
 
-    The central tile goes first: its noise estimate is passed to the others, so the tiles
-    agree. Outside the box the output is the bicubic upscale of the reference.
+    The central tile goes first: its noise estimate (and the shifts it used where it
+    disputed the given ones) is passed to the others, so the tiles agree. Outside the box
+    the output is the bicubic upscale of the reference.
     """
     ref = np.asarray(frames[0])
     colour = ref.ndim == 3
@@ -409,6 +410,8 @@ def _reconstruct_tiles(
         ]
         if res.fell_back:
             fell.append(f"tile ({i}, {j}): {res.reason}")
+        if first is None and res.shifts_disputed and np.shape(res.shifts) == np.shape(shifts):
+            shifts = np.asarray(shifts, dtype=np.float64)[0] + res.shifts  # the tile's, for all
         if first is None:
             first = replace(res, image=np.empty(0, np.float32))  # its figures, not its pixels
         del res

@@ -53,6 +53,10 @@ class MapSolution:
     resid_ratio : numpy.ndarray or None
         (N,) mean ``|Y - A X|^2 / v`` per frame on the uncertain-registration path (NaN on
         the white-noise path; None when frames were dropped).
+    disputed : numpy.ndarray or None
+        (N,) how far (LR px, largest axis) each given shift was from the frames' own
+        registration where the two disagreed and the latter was used instead (0 elsewhere);
+        None when the refinement did not run or the shifts were refined anyway.
     """
 
     image: np.ndarray
@@ -63,6 +67,7 @@ class MapSolution:
     noise_sigma: float
     kept: np.ndarray
     resid_ratio: np.ndarray | None = None
+    disputed: np.ndarray | None = None
 
 
 @dataclass
@@ -76,6 +81,7 @@ class _Registered:
     shift_cov: np.ndarray  # the given registration-error covariance of the kept frames
     keep: np.ndarray  # bool per input frame
     lk_noise: float  # the refinement's multi-frame noise estimate (NaN if not run)
+    disputed: np.ndarray | None = None  # per input frame: given-vs-registered gap used (LR px)
 
 
 def _solve_hermitian(m: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -252,6 +258,7 @@ def _register(
     shift_sigma_fit = np.zeros(n)
     lk_noise = float("nan")
     keep = np.ones(n, dtype=bool)
+    disputed = None
     if refine_shifts or noise_sigma is None:
         refined, shift_sigma_fit, lk_noise, resvar = _refine_shifts(
             frames, ishift, resid, lowpassed=lowpassed
@@ -259,6 +266,11 @@ def _register(
         if refine_shifts:
             resid = refined
         else:
+            disputed = _disputed_shifts(refined, resid, shift_sigma_fit)
+            resid = np.where(disputed[:, None] > 0, refined, resid)
+            shift_cov = np.array(shift_cov, dtype=np.float64)
+            var = np.maximum(np.where(disputed > 0, shift_sigma_fit, 0.0) ** 2, 0.003**2)
+            shift_cov[disputed > 0] = np.eye(2) * var[disputed > 0, None, None]
             shift_sigma_fit = np.where(np.isfinite(shift_sigma_fit), 0.0, np.inf)
         keep = np.isfinite(shift_sigma_fit)
         if np.isfinite(resvar[1:]).any():
@@ -276,7 +288,45 @@ def _register(
                 shift_sigma_fit[keep],
             )
             shift_cov = np.asarray(shift_cov)[keep]
-    return _Registered(frames, ishift, resid, shift_sigma_fit, shift_cov, keep, lk_noise)
+    return _Registered(frames, ishift, resid, shift_sigma_fit, shift_cov, keep, lk_noise, disputed)
+
+
+DISPUTE_MIN_PX = 0.03  # a given shift this far (and 8 std) from the frames' own is not used
+DISPUTE_SIGMAS = 8.0
+
+
+def _disputed_shifts(refined: np.ndarray, given: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Return per frame how far a given shift is from the frames' own registration, if too far.
+
+    Parameters
+    ----------
+    refined : numpy.ndarray
+        (N, 2) sub-pixel shifts registered on the frames
+        (:func:`~subpix_ros.core.superres.geometry._refine_shifts`, LR px).
+    given : numpy.ndarray
+        (N, 2) sub-pixel parts of the given shifts (LR px).
+    sigma : numpy.ndarray
+        (N,) std of the registered shifts (LR px; inf where it failed).
+
+    Returns
+    -------
+    numpy.ndarray
+        (N,) ``d = max(|refined - given|)`` over the two axes where
+        ``d > max(DISPUTE_MIN_PX, DISPUTE_SIGMAS sigma)``, else 0 (always 0 for frame 0
+        and for frames whose registration failed).
+
+    Notes
+    -----
+    Shifts given by the shift stage agree with the refinement to <= 0.02 px on the
+    independent degradation model's flights (30-50 dB, blur 0.2-0.9 px, x2-x4); a shift
+    off by more is an unmodelled registration error that, used as given, can put the
+    reconstruction below bicubic (see docs/design-notes.md, "Given shifts checked").
+    """
+    d = np.abs(np.asarray(refined) - np.asarray(given)).max(axis=1)
+    ok = np.isfinite(sigma) & np.isfinite(d)
+    bad = ok & (d > np.maximum(DISPUTE_MIN_PX, DISPUTE_SIGMAS * np.where(ok, sigma, 0.0)))
+    bad[0] = False
+    return np.where(bad, d, 0.0)
 
 
 def _fit_prior(
@@ -487,15 +537,21 @@ def _per_input_frame(
 ) -> MapSolution:
     """Report the solve per input frame: dropped frames get weight 0, their shift, std inf."""
     keep = registered.keep
+    disputed = registered.disputed
+    if disputed is not None and not keep.all():
+        disputed = disputed.copy()
+        disputed[~keep] = 0.0
     shift_sigma = np.sqrt(np.maximum(cov[:, 0, 0], cov[:, 1, 1]))
     weights = wsum / max(wsum[0], 1e-30)
     used = registered.ishift + registered.resid
     if keep.all():
-        return MapSolution(image, used, shift_sigma, weights, prior, noise_sigma, keep, resid_ratio)
+        return MapSolution(
+            image, used, shift_sigma, weights, prior, noise_sigma, keep, resid_ratio, disputed
+        )
     w_full = np.zeros(keep.size)
     w_full[keep] = weights
     sh_full = shifts.astype(np.float64).copy()
     sh_full[keep] = used
     sg_full = np.full(keep.size, np.inf)
     sg_full[keep] = shift_sigma
-    return MapSolution(image, sh_full, sg_full, w_full, prior, noise_sigma, keep, None)
+    return MapSolution(image, sh_full, sg_full, w_full, prior, noise_sigma, keep, None, disputed)

@@ -324,7 +324,7 @@ def _map_method(
         hs = (
             np.asarray(homographies, dtype=np.float64)
             if homographies is not None
-            else np.stack([translation_homography(*si) for si in rel])
+            else np.stack([translation_homography(*si) for si in sol.shifts])
         )
         img = _cg_map(
             stack,
@@ -404,6 +404,12 @@ def _map_result(
         reason = (
             reason + "; " if reason else ""
         ) + f"frames {dropped} left out (registration failed or they disagree with the reference)"
+    bad = np.zeros(0, int) if sol.disputed is None else np.flatnonzero(sol.disputed > 0)
+    if bad.size:
+        reason = (reason + "; " if reason else "") + (
+            f"given shifts of frames {', '.join(str(i) for i in bad)} disagree with the frames "
+            f"by up to {sol.disputed.max():.3f} px: the frames' own registration used for them"
+        )
     if float(np.sum(sol.weights[1:])) < 0.05:
         return _fallback(
             ref,
@@ -422,6 +428,7 @@ def _map_result(
         shift_sigma=sol.shift_sigma,
         factor=p,
         reason=reason,
+        shifts_disputed=int(bad.size),
     )
 
 

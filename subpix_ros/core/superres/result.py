@@ -48,6 +48,9 @@ class SRResult:
         Where the blur came from: "parameter", "edges", "fallback" or "unused".
     blur_reason : str
         A one-line account of the blur (see :mod:`subpix_ros.core.blur`).
+    shifts_disputed : int
+        Frames whose given shift disagreed with the frames' own registration and was replaced
+        by it (only when the shifts are used as given, ``refine_shifts=False``).
     """
 
     image: np.ndarray
@@ -62,6 +65,7 @@ class SRResult:
     blur_sigma: float = float("nan")
     blur_source: str = ""
     blur_reason: str = ""
+    shifts_disputed: int = 0
 
 
 def psnr(image: np.ndarray, truth: np.ndarray, border: int = 0, peak: float = 255.0) -> float:

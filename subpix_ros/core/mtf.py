@@ -228,6 +228,7 @@ def slanted_edge_mtf(
     roi: tuple[int, int, int, int] | None = None,
     pixel_pitch_m: float | None = None,
     min_contrast: float = 0.05,
+    span: float | None = None,
 ) -> MTFResult:
     """Measure the MTF of a straight, slanted edge in an image.
 
@@ -242,6 +243,9 @@ def slanted_edge_mtf(
         Pixel pitch (m) for line-pairs/mm read-outs.
     min_contrast : float, optional
         Least edge contrast, as a fraction of the image's intensity range.
+    span : float, optional
+        That intensity range (DN), when the caller knows it; default: ``max - min`` of
+        ``image`` (all channels).
 
     Returns
     -------
@@ -262,7 +266,10 @@ def slanted_edge_mtf(
     if transposed:
         img = img.T
     lo, hi = np.percentile(img, [2, 98])
-    span = float(np.ptp(np.asarray(image, dtype=np.float64))) or 1.0
+    if span is None:  # no float64 copy of the whole image
+        a = np.asarray(image)
+        span = float(a.max()) - float(a.min())
+    span = float(span) or 1.0
     if hi - lo < min_contrast * max(span, 1e-12) or hi - lo <= 0:
         raise ValueError("no edge: contrast too low in the ROI")
     rows, a, b, line_rms = _fit_edge_line(img)
@@ -296,16 +303,18 @@ def slanted_edge_mtf(
 
 def _roi_image(image: np.ndarray, roi: tuple[int, int, int, int] | None) -> np.ndarray:
     """Return the ROI of the image's luminance as float64; ValueError if unusable."""
-    img = np.asarray(image, dtype=np.float64)
-    if img.ndim == 3 and img.shape[2] == 3:
-        img = img @ np.array([0.114, 0.587, 0.299])  # BGR -> luminance (ITU-R BT.601)
-    if img.ndim != 2:
+    img = np.asarray(image)
+    colour = img.ndim == 3 and img.shape[2] == 3
+    if img.ndim != 2 and not colour:
         raise ValueError(f"image must be 2-D (or HxWx3 BGR), got shape {np.shape(image)}")
-    if roi is not None:
+    if roi is not None:  # crop first: only the ROI is converted
         x, y, w, h = (int(v) for v in roi)
         if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > img.shape[1] or y + h > img.shape[0]:
             raise ValueError(f"roi {roi} outside the image {img.shape[1]}x{img.shape[0]}")
         img = img[y : y + h, x : x + w]
+    img = img.astype(np.float64)
+    if colour:
+        img = img @ np.array([0.114, 0.587, 0.299])  # BGR -> luminance (ITU-R BT.601)
     if min(img.shape) < 16:
         raise ValueError(f"ROI too small for an edge measurement: {img.shape}")
     if not np.isfinite(img).all():

@@ -66,7 +66,7 @@ def edge_sharpness(
     Notes
     -----
     Edges are found in the reference (:func:`~subpix_ros.core.blur.find_edge_rois`) and
-    measured by the slanted-edge method (ISO 12233, :func:`~subpix_ros.core.mtf.slanted_edge_mtf`)
+    measured (contrast relative to the reference's luminance range) by the slanted-edge method (ISO 12233, :func:`~subpix_ros.core.mtf.slanted_edge_mtf`)
     in the ROI scaled by ``factor``. A frequency ``f`` in cycles per output pixel is ``f *
     factor`` cycles per input pixel. A super-resolved image that only sharpens noise shows no
     gain here; one that rings shows an MTF above 1 at low frequencies.
@@ -78,18 +78,19 @@ def edge_sharpness(
     """
     p = int(factor)
     lum = _luminance(reference)
-    big_b, big_s = _luminance(bicubic), _luminance(super_resolved)
-    if big_b.shape != (lum.shape[0] * p, lum.shape[1] * p) or big_s.shape != big_b.shape:
+    big_b, big_s = np.asarray(bicubic), np.asarray(super_resolved)  # converted per ROI only
+    if big_b.shape[:2] != (lum.shape[0] * p, lum.shape[1] * p) or big_s.shape != big_b.shape:
         raise ValueError(
-            f"bicubic {big_b.shape} and super-resolved {big_s.shape} must be {p}x the "
+            f"bicubic {big_b.shape[:2]} and super-resolved {big_s.shape[:2]} must be {p}x the "
             f"reference {lum.shape}"
         )
     out: list[EdgeSharpness] = []
+    span = float(lum.max()) - float(lum.min())  # the reference's: no full-size conversion
     for x, y, w, h in find_edge_rois(lum, max_rois=4 * max_edges):
         roi_hr = (x * p, y * p, w * p, h * p)
         try:
-            b = slanted_edge_mtf(big_b, roi_hr)
-            s = slanted_edge_mtf(big_s, roi_hr)
+            b = slanted_edge_mtf(big_b, roi_hr, span=span)
+            s = slanted_edge_mtf(big_s, roi_hr, span=span)
         except ValueError:
             continue
         if not (b.line_rms_px <= MAX_LINE_RMS * p and b.texture <= MAX_TEXTURE):

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from subpix_ros.process.products import ProductWriter, rounded
+from subpix_ros.process.report_sections import SetCrop, set_crop
 
 __all__ = ["reason_key"]
 
@@ -98,6 +99,9 @@ class _Collector:
         self.warnings: Counter = Counter()
         self.lock = threading.Lock()
         self.warning_examples: dict[str, str] = {}
+        # per set's superres path: the report's crop of bicubic and super-resolved, taken as
+        # the set arrives (the report need not read the full-size PNGs back)
+        self.crops: dict[str, SetCrop] = {}
 
     # --------------------------------------------------------- pipeline callbacks
     def on_reference(self, event: Any) -> None:
@@ -209,8 +213,11 @@ class _Collector:
                 "dtype": str(image.dtype),
             }
         )
+        factor = int(getattr(sr, "factor", 0))
+        if factor >= 1 and bicubic.shape == image.shape:
+            self.crops[f"superres/{stamp}.png"] = set_crop(bicubic, image, factor)
         if self.score is not None:
-            self.score(self.sets[-1], stamp, image, bicubic, ref, int(getattr(sr, "factor", 0)))
+            self.score(self.sets[-1], stamp, image, bicubic, ref, factor)
 
     def on_warning(self, item: Any) -> None:
         """Count a warning by stage and kind (the mosaic thread warns too)."""

@@ -161,6 +161,7 @@ def _finish_bag(
     writer.close_bag()  # every queued write done
     res.wall_s = time.monotonic() - t_wall
     timing = res.__dict__.pop("_timing")
+    crops = res.__dict__.pop("_crops", None)
     timing.update(
         wall_s=res.wall_s,
         cpu_s=time.process_time() - cpu0,
@@ -173,7 +174,7 @@ def _finish_bag(
     try:
         from subpix_ros.process.report import write_report
 
-        write_report(writer.tmp)
+        write_report(writer.tmp, crops=crops)
     except Exception as exc:  # noqa: BLE001 - the products stand without the report
         res.problems.append(f"report not written: {type(exc).__name__}: {exc}")
     res.out = str(writer.commit(force))
@@ -442,4 +443,5 @@ class _FlightRun:
         res.__dict__["_timing"] = _timing_record(
             self.add_ms, self.timer, self.all_stats(), flight_s
         )
+        res.__dict__["_crops"] = self.collector.crops
         return res

@@ -37,13 +37,16 @@ from subpix_ros.process.report_sections import (
 __all__ = ["build_report", "write_report"]
 
 
-def build_report(folder: str | Path) -> str:
+def build_report(folder: str | Path, crops: dict | None = None) -> str:
     """Build the report of the flight in ``folder`` (its products) as one HTML string.
 
     Parameters
     ----------
     folder : str or Path
         A processed flight's output folder (``summary.json`` at least).
+    crops : dict, optional
+        Per set's ``superres`` path, its :class:`~subpix_ros.process.report_sections.SetCrop`
+        (kept by the run that made the set); sets without one are cut from their PNGs.
 
     Returns
     -------
@@ -80,7 +83,7 @@ def build_report(folder: str | Path) -> str:
         _section_registration(frames, summary.get("references", []), summary.get("stages", {}), t0)
     )
     h.append("<h2>Super-resolution</h2>")
-    h.append(_section_sets(folder, summary.get("sets", []), factor, t0))
+    h.append(_section_sets(folder, summary.get("sets", []), factor, t0, crops))
     h.append("<h2>Mosaic and track</h2>")
     h.append(_section_mosaic(folder, summary.get("mosaic", {}), telemetry))
     h.append("<h2>Stage times and memory</h2>")
@@ -160,10 +163,10 @@ def _header(summary: dict, timing: dict) -> list[str]:
     return h
 
 
-def write_report(folder: str | Path) -> Path:
-    """Write ``folder/report.html`` (atomically) and return its path."""
+def write_report(folder: str | Path, crops: dict | None = None) -> Path:
+    """Write ``folder/report.html`` (atomically; ``crops`` as in :func:`build_report`)."""
     folder = Path(folder)
-    text = build_report(folder)
+    text = build_report(folder, crops)
     tmp = folder / ".report.html.tmp"
     tmp.write_text(text)
     tmp.replace(folder / "report.html")

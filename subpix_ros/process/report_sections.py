@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -179,6 +180,24 @@ def _crop_box(img: np.ndarray, factor: int) -> tuple[int, int, int]:
     return int(r.flat[k]) * factor, int(c.flat[k]) * factor, side
 
 
+@dataclass(frozen=True)
+class SetCrop:
+    """The report's crop of one set: where (output px) and the two images' pixels there."""
+
+    row: int
+    col: int
+    side: int
+    bicubic: np.ndarray
+    super_resolved: np.ndarray
+
+
+def set_crop(bicubic: np.ndarray, super_resolved: np.ndarray, factor: int) -> SetCrop:
+    """Cut the report's crop (:func:`_crop_box` on the bicubic image) out of both images."""
+    r, c, side = _crop_box(bicubic, factor)
+    win = (slice(r, r + side), slice(c, c + side))
+    return SetCrop(r, c, side, bicubic[win].copy(), super_resolved[win].copy())
+
+
 def _edges_text(edges: list[dict], has_truth: bool) -> str:
     """Say what the slanted-edge MTF at the reference's straight edges shows (or that none)."""
     if not edges:
@@ -196,14 +215,25 @@ def _edges_text(edges: list[dict], has_truth: bool) -> str:
     )
 
 
-def _section_sets(folder: Path, sets: list[dict], factor: int, t0: float | None) -> str:
+def _set_crop(folder: Path, entry: dict, factor: int, crops: dict | None) -> SetCrop | None:
+    """Return the set's crop: kept by the run that made it, else cut from the PNGs on disk."""
+    if crops and entry["superres"] in crops:
+        return crops[entry["superres"]]
+    sr = _read_image(folder / entry["superres"])
+    bic = _read_image(folder / entry["bicubic"])
+    if sr is None or bic is None or sr.shape != bic.shape:
+        return None
+    return set_crop(bic, sr, factor)
+
+
+def _section_sets(
+    folder: Path, sets: list[dict], factor: int, t0: float | None, crops: dict | None = None
+) -> str:
     plt = _plt()
     if not sets:
         return "<p>No super-resolved image (no set of frames reached min_frames).</p>"
     out = []
     for k, s in enumerate(sets):
-        sr = _read_image(folder / s["superres"])
-        bic = _read_image(folder / s["bicubic"])
         ts = s["reference_stamp_ns"] * 1e-9 - (t0 or 0.0)
         head = (
             f"<h3>Set {k + 1}: reference at {ts:.3f} s, {s['frames']} frames, "
@@ -219,17 +249,18 @@ def _section_sets(folder: Path, sets: list[dict], factor: int, t0: float | None)
                 f"{s['psnr_bicubic_db']:.2f} dB (gain {s['gain_db']:+.2f} dB).</p>"
             )
         out.append(_edges_text(s.get("edges") or [], "psnr_sr_db" in s))
-        if sr is None or bic is None:
+        crop = _set_crop(folder, s, factor, crops)
+        if crop is None:
             out.append("<p>Images missing.</p>")
             continue
-        r, c, side = _crop_box(bic, factor)
+        c, side = crop.col, crop.side
         fig, axes = plt.subplots(1, 3, figsize=(11, 3.9), gridspec_kw={"width_ratios": [1, 1, 0.9]})
         for ax, im, title in (
-            (axes[0], bic, f"bicubic x{factor} of the reference"),
-            (axes[1], sr, f"super-resolved x{factor} ({s.get('method')})"),
+            (axes[0], crop.bicubic, f"bicubic x{factor} of the reference"),
+            (axes[1], crop.super_resolved, f"super-resolved x{factor} ({s.get('method')})"),
         ):
             ax.imshow(
-                _display(im[r : r + side, c : c + side]),
+                _display(im),
                 interpolation="nearest",
                 cmap="gray" if im.ndim == 2 else None,
             )

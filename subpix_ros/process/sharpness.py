@@ -66,8 +66,9 @@ def edge_sharpness(
     Notes
     -----
     Edges are found in the reference (:func:`~subpix_ros.core.blur.find_edge_rois`) and
-    measured (contrast relative to the reference's luminance range) by the slanted-edge method (ISO 12233, :func:`~subpix_ros.core.mtf.slanted_edge_mtf`)
-    in the ROI scaled by ``factor``. A frequency ``f`` in cycles per output pixel is ``f *
+    measured (contrast relative to the reference's luminance range) by the slanted-edge
+    method (ISO 12233, :func:`~subpix_ros.core.mtf.slanted_edge_mtf`) in the ROI scaled by
+    ``factor``. A frequency ``f`` in cycles per output pixel is ``f *
     factor`` cycles per input pixel. A super-resolved image that only sharpens noise shows no
     gain here; one that rings shows an MTF above 1 at low frequencies.
 

@@ -43,7 +43,8 @@ SET = 16  # frames per super-resolved image (the reference and 15 aligned frames
 def make_frames(n: int, w: int = 1920, h: int = 1080) -> list[np.ndarray]:
     """N frames of a real scene drifting by STEP px per frame (bilinear warp of an upscaled Seneca frame)."""
     scene = cv2.imread(str(ROOT / "data" / "seneca" / "IMG_0463.jpg"), cv2.IMREAD_COLOR)
-    scene = cv2.resize(scene, (2400, 1800), interpolation=cv2.INTER_CUBIC)
+    size = (max(2400, w + 300), max(1800, h + 300))  # 2400x1800 up to 1080p, larger for 4K
+    scene = cv2.resize(scene, size, interpolation=cv2.INTER_CUBIC)
     out = []
     for k in range(n):
         m = np.float32([[1, 0, -100 + k * STEP[1]], [0, 1, -100 + k * STEP[0]]])

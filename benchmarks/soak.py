@@ -54,7 +54,9 @@ def main() -> None:
         default=None,
         help="the reconstruction's max_memory_mb (default: unbounded)",
     )
+    ap.add_argument("--size", default="1920x1080", help="WxH of the frames (default %(default)s)")
     args = ap.parse_args()
+    width, height = (int(v) for v in args.size.lower().split("x"))
     if args.max_memory_mb:
         os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)
     print(allocator_line(args.default_malloc))
@@ -69,7 +71,7 @@ def main() -> None:
     from subpix_ros.io import cdr
     from subpix_ros.nodes.qos import latched_qos, reliable_qos
 
-    frames = make_frames(64)
+    frames = make_frames(64, width, height)
     (proc,) = start_layout("single", dict(os.environ))
     rclpy.init()
     node = rclpy.create_node("soak_camera")
@@ -155,7 +157,7 @@ def main() -> None:
     lat_ms = np.array(lat) * 1000
     drops = {n.replace("_node", ""): d.get("dropped_frames", "?") for n, d in sorted(diag.items())}
     print(
-        f"\nsoak: single-process pipeline, 1920x1080 bgr8 at {args.rate:g} Hz, {args.frames} frames in {wall:.0f} s"
+        f"\nsoak: single-process pipeline, {width}x{height} bgr8 at {args.rate:g} Hz, {args.frames} frames in {wall:.0f} s"
         f"{'' if not args.max_memory_mb else f', max_memory_mb {args.max_memory_mb:g}'} "
         f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)"
     )

@@ -47,6 +47,9 @@ INPUT_PARAMS: tuple[Param, ...] = (
 )
 
 
+BACKGROUND_NICE = 10  # nice of the reconstruction and mosaic workers (background work)
+
+
 class StageNode(Node):
     """A node around one ROS-free stage: parameters, diagnostics, worker, in-process hand-off."""
 
@@ -103,14 +106,23 @@ class StageNode(Node):
             cb(payload)
 
     # ---------------------------------------------------------------- helpers
-    def make_worker(self, handler: Callable[[Any], None], maxsize: int) -> DropOldestWorker:
-        """Start the node's drop-oldest worker; its errors go to /diagnostics."""
+    def make_worker(
+        self, handler: Callable[[Any], None], maxsize: int, nice: int = 0
+    ) -> DropOldestWorker:
+        """Start the node's drop-oldest worker; its errors go to /diagnostics.
+
+        ``nice`` > 0: background work, run at a lower priority (:class:`DropOldestWorker`).
+        """
 
         def on_error(exc: BaseException) -> None:
             self.diag.error(f"{type(exc).__name__}: {exc}")
 
         self.worker = DropOldestWorker(
-            handler, maxsize=maxsize, name=f"{self.get_name()}_worker", on_error=on_error
+            handler,
+            maxsize=maxsize,
+            name=f"{self.get_name()}_worker",
+            on_error=on_error,
+            nice=nice,
         )
         self.diag.attach(self.worker)
         return self.worker

@@ -47,9 +47,6 @@ INPUT_PARAMS: tuple[Param, ...] = (
 )
 
 
-BACKGROUND_NICE = 10  # nice of the reconstruction and mosaic workers (background work)
-
-
 class StageNode(Node):
     """A node around one ROS-free stage: parameters, diagnostics, worker, in-process hand-off."""
 
@@ -106,23 +103,14 @@ class StageNode(Node):
             cb(payload)
 
     # ---------------------------------------------------------------- helpers
-    def make_worker(
-        self, handler: Callable[[Any], None], maxsize: int, nice: int = 0
-    ) -> DropOldestWorker:
-        """Start the node's drop-oldest worker; its errors go to /diagnostics.
-
-        ``nice`` > 0: background work, run at a lower priority (:class:`DropOldestWorker`).
-        """
+    def make_worker(self, handler: Callable[[Any], None], maxsize: int) -> DropOldestWorker:
+        """Start the node's drop-oldest worker; its errors go to /diagnostics."""
 
         def on_error(exc: BaseException) -> None:
             self.diag.error(f"{type(exc).__name__}: {exc}")
 
         self.worker = DropOldestWorker(
-            handler,
-            maxsize=maxsize,
-            name=f"{self.get_name()}_worker",
-            on_error=on_error,
-            nice=nice,
+            handler, maxsize=maxsize, name=f"{self.get_name()}_worker", on_error=on_error
         )
         self.diag.attach(self.worker)
         return self.worker

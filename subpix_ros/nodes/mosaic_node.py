@@ -16,7 +16,7 @@ from sensor_msgs.msg import CompressedImage, Image
 
 from subpix_ros.io import cdr
 from subpix_ros.nodes import payloads as pl
-from subpix_ros.nodes.base import BACKGROUND_NICE, StageNode, ros_params
+from subpix_ros.nodes.base import StageNode, ros_params
 from subpix_ros.nodes.params import Param
 from subpix_ros.nodes.qos import camera_qos, latched_qos
 from subpix_ros.nodes.run import run_nodes
@@ -51,8 +51,7 @@ class MosaicNode(StageNode):
         self._dirty = False
         self.pub = self.create_publisher(Image, "mosaic", latched_qos())
         self.pub_c = self.create_publisher(CompressedImage, "mosaic/compressed", latched_qos())
-        # background work: on a busy CPU the frame -> shift path goes first
-        self.make_worker(self._process, self.param("queue_size"), nice=BACKGROUND_NICE)
+        self.make_worker(self._process, self.param("queue_size"))
         self.timer = self.create_timer(1.0 / self.param("publish_rate_hz"), self._publish)
         if subscribe_inputs:
             q = camera_qos(

@@ -29,7 +29,7 @@ from sensor_msgs.msg import Image
 
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.aligned_input import AlignedInput
-from subpix_ros.nodes.base import BACKGROUND_NICE, StageNode, ros_params
+from subpix_ros.nodes.base import StageNode, ros_params
 from subpix_ros.nodes.params import Param
 from subpix_ros.nodes.qos import latched_qos, reliable_qos
 from subpix_ros.nodes.run import run_nodes
@@ -63,8 +63,7 @@ class ReconstructionNode(StageNode):
             threading.Lock()
         )  # set assembly: subscriptions, the idle timer, the pipeline's shift worker
         self.pub = self.create_publisher(Image, "super_resolved", latched_qos())
-        # background work: on a busy CPU the frame -> shift path goes first
-        self.make_worker(self._process, self.param("queue_size"), nice=BACKGROUND_NICE)
+        self.make_worker(self._process, self.param("queue_size"))
         self.idle_timer = self.create_timer(IDLE_CHECK_S, self._on_idle_check)
         self.inputs = None
         if subscribe_inputs:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import collections
-import os
 import threading
 import time
 import traceback
@@ -41,10 +40,7 @@ class DropOldestWorker:
 
     ``put`` never blocks: when the queue is full the oldest item is dropped
     and counted. Exceptions in ``handler`` are caught, counted and passed to
-    ``on_error``; the worker keeps running. ``nice`` > 0 lowers the worker
-    thread's scheduling priority by that much (Linux per-thread nice): on a
-    busy machine, background work (a reconstruction, the mosaic) then yields
-    the CPU to the frame -> shift path instead of delaying it.
+    ``on_error``; the worker keeps running.
     """
 
     def __init__(
@@ -53,12 +49,8 @@ class DropOldestWorker:
         maxsize: int = 4,
         name: str = "worker",
         on_error: Callable[[BaseException], None] | None = None,
-        nice: int = 0,
     ) -> None:
         self._handler = handler
-        self._nice = int(nice)
-        self.native_id: int | None = None  # the worker thread's OS id, once it runs
-        self._started = threading.Event()
         self._on_error = on_error
         self._queue: collections.deque = collections.deque()
         self._cv = threading.Condition()
@@ -98,19 +90,7 @@ class DropOldestWorker:
         """Return True if nothing is queued or being handled."""
         return not self._queue and not self.busy
 
-    def wait_started(self, timeout: float = 5.0) -> bool:
-        """Wait until the worker thread runs (its priority set); return True if it does."""
-        return self._started.wait(timeout)
-
     def _run(self) -> None:
-        self.native_id = threading.get_native_id()
-        if self._nice > 0:
-            try:  # lower this thread's priority only (Linux: a thread is a task)
-                base = os.getpriority(os.PRIO_PROCESS, self.native_id)
-                os.setpriority(os.PRIO_PROCESS, self.native_id, min(19, base + self._nice))
-            except (AttributeError, OSError):  # not Linux or not allowed: run as it is
-                pass
-        self._started.set()
         while True:
             with self._cv:
                 while not self._queue and not self._stop:

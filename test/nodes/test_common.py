@@ -158,36 +158,3 @@ def test_stage_times_restart_when_time_jumps_back(rclpy_node):
         assert {kv.key: kv.value for kv in node.diag.snapshot().values}["work_ms_max"] == "7"
     finally:
         node.destroy_node()
-
-
-def test_background_worker_runs_at_a_lower_priority_and_others_do_not():
-    import os
-
-    main = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-    bg = DropOldestWorker(lambda item: None, nice=10)
-    fg = DropOldestWorker(lambda item: None)
-    assert bg.wait_started() and fg.wait_started()
-    assert os.getpriority(os.PRIO_PROCESS, bg.native_id) == min(19, main + 10)
-    assert os.getpriority(os.PRIO_PROCESS, fg.native_id) == main
-    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == main  # not the caller's
-
-
-def test_reconstruction_and_mosaic_nodes_work_in_the_background(rclpy_node):
-    import os
-
-    from subpix_ros.nodes.base import BACKGROUND_NICE
-    from subpix_ros.nodes.mosaic_node import MosaicNode
-    from subpix_ros.nodes.reconstruction_node import ReconstructionNode
-    from subpix_ros.nodes.shift_node import ShiftNode
-
-    main = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-    nodes = [ReconstructionNode(), MosaicNode(), ShiftNode()]
-    try:
-        nice = []
-        for n in nodes:
-            assert n.worker.wait_started()
-            nice.append(os.getpriority(os.PRIO_PROCESS, n.worker.native_id) - main)
-        assert nice == [BACKGROUND_NICE, BACKGROUND_NICE, 0]
-    finally:
-        for n in nodes:
-            n.destroy_node()

@@ -43,6 +43,10 @@ __all__ = [
     "translation_homography",
     "FrameOperator",
     "frame_transfer_1d",
+    "motion_transfer",
+    "motion_kernel",
+    "motion_filter",
+    "motion_blur_vector",
 ]
 
 
@@ -116,6 +120,119 @@ def blur(x: np.ndarray, sigma: float) -> np.ndarray:
     )
 
 
+def motion_blur_vector(motion_blur) -> tuple[float, float]:
+    """Return a ``motion_blur`` setting as a float pair ``(du, dv)`` (LR px); None is (0, 0).
+
+    Parameters
+    ----------
+    motion_blur : None or (float, float)
+        The image motion during the exposure (rows, cols; LR px).
+
+    Returns
+    -------
+    (float, float)
+        ``(du, dv)``.
+
+    Raises
+    ------
+    ValueError
+        If it is not two finite numbers.
+    """
+    if motion_blur is None:
+        return (0.0, 0.0)
+    d = np.asarray(motion_blur, dtype=np.float64).ravel()
+    if d.shape != (2,) or not np.isfinite(d).all():
+        raise ValueError(
+            f"motion_blur must be two finite numbers (du, dv) in LR px, got {motion_blur}"
+        )
+    return (float(d[0]), float(d[1]))
+
+
+def motion_transfer(fy: np.ndarray, fx: np.ndarray, p: int, motion_blur) -> np.ndarray:
+    """Return the transfer ``M(f)`` of the motion blur at HR frequencies ``(fy, fx)``.
+
+    Parameters
+    ----------
+    fy, fx : numpy.ndarray
+        Signed HR frequencies (cycles / HR px) along rows and columns; broadcast together.
+    p : int
+        Factor (HR px per LR px).
+    motion_blur : (float, float)
+        ``d = (du, dv)``: the image motion during the exposure (LR px, rows and cols).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, real: ``M = sinc(p (fy du + fx dv))`` (numpy's ``sinc(x) = sin(pi x) / (pi x)``).
+
+    Notes
+    -----
+    The PSF of a uniform motion over the exposure is a 1-D box of length ``|d|`` along ``d``,
+    centred on the mid-exposure position (the frame's shift): its Fourier transform is
+    ``M(nu) = sinc(nu . d)`` with ``nu = p f`` in cycles / LR px. It is real and even, so the
+    sign of ``d`` does not matter, and common to every frame of a set (one velocity), so like
+    the optics blur it commutes with the shifts. It is separable only when ``d`` lies along
+    an axis.
+    """
+    du, dv = motion_blur
+    return np.sinc(p * (np.asarray(fy) * du + np.asarray(fx) * dv))
+
+
+def motion_kernel(du_hr: float, dv_hr: float) -> np.ndarray:
+    """Return the 2-D line kernel of a motion of ``(du_hr, dv_hr)`` HR px, for ``cv2.filter2D``.
+
+    Parameters
+    ----------
+    du_hr, dv_hr : float
+        Motion during the exposure along rows and columns (pixels of the grid filtered).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 (2 R + 1, 2 R + 1), ``R = ceil(|d| / 2) + 1``, summing to 1, point-symmetric
+        (``k[i, j] = k[-i, -j]``: correlation equals convolution and the filter with a zero
+        border is self-adjoint); ``[[1]]`` for no motion.
+
+    Notes
+    -----
+    The box along ``d`` is sampled at ``J = max(2, ceil(4 |d|))`` midpoints
+    ``t_j d``, ``t_j = (j + 1/2) / J - 1/2``, each spread bilinearly over its four nearest
+    taps: the transfer is ``sinc(f . d)`` times that of the bilinear spread (a slight extra
+    smoothing, at most that of a 1-px tent).
+    """
+    length = float(np.hypot(du_hr, dv_hr))
+    if length == 0.0:
+        return np.ones((1, 1))
+    r = int(np.ceil(length / 2.0)) + 1
+    j = max(2, int(np.ceil(4.0 * length)))
+    t = (np.arange(j) + 0.5) / j - 0.5
+    pr, pc = t * du_hr + r, t * dv_hr + r
+    r0, c0 = np.floor(pr).astype(np.int64), np.floor(pc).astype(np.int64)
+    fr, fc = pr - r0, pc - c0
+    k = np.zeros((2 * r + 1, 2 * r + 1))
+    for dr, dc, wt in (
+        (0, 0, (1 - fr) * (1 - fc)),
+        (0, 1, (1 - fr) * fc),
+        (1, 0, fr * (1 - fc)),
+        (1, 1, fr * fc),
+    ):  # the 4 bilinear taps, each over all samples
+        np.add.at(k, (r0 + dr, c0 + dc), wt)
+    k = 0.5 * (k + k[::-1, ::-1])  # exactly point-symmetric (round-off)
+    return k / k.sum()
+
+
+def motion_filter(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Filter with a point-symmetric kernel (:func:`motion_kernel`) and a zero border.
+
+    Self-adjoint, as the conjugate-gradient solver needs; ``x`` unchanged for a 1 x 1 kernel.
+    """
+    if kernel.size == 1:
+        return x
+    return cv2.filter2D(
+        np.asarray(x, dtype=np.float64), cv2.CV_64F, kernel, borderType=cv2.BORDER_CONSTANT
+    )
+
+
 def decimate_mean(z: np.ndarray, p: int, q: int) -> np.ndarray:
     """Apply detector integration ``D_pq``: the mean of each p x q block (eq. 3 / (p q))."""
     h, w = z.shape[0] // p, z.shape[1] // q
@@ -134,7 +251,7 @@ def translation_homography(u: float, v: float) -> np.ndarray:
 
 @dataclass
 class FrameOperator:
-    """The frame operator ``A_n = D_pq S_n B``: HR image (reference grid) -> LR frame n.
+    """The frame operator ``A_n = D_pq S_n L B``: HR image (reference grid) -> LR frame n.
 
     Parameters
     ----------
@@ -148,12 +265,18 @@ class FrameOperator:
         Factors along rows and columns.
     blur_sigma : float
         Optics blur std (LR px).
+    motion_blur : (float, float), optional
+        Image motion during the exposure ``d = (du, dv)`` (LR px, rows and cols; default
+        none): ``L`` is the line kernel of ``p d`` HR px (:func:`motion_kernel`) applied on
+        the HR grid after the optics blur ``B``. On the reference grid: exact for
+        translations, an approximation for homographies far from one.
 
     Notes
     -----
     Sub-pixels of frame n whose scene position falls outside the HR grid (or within
-    ``3 blur_sigma max(p, q)`` HR px of its edge, where the zero-border blur is wrong) are
-    invalid; :attr:`valid` marks the LR pixels all of whose sub-pixels are valid.
+    ``3 blur_sigma max(p, q)`` HR px, plus half the motion's length and 1 px, of its edge,
+    where the zero-border blur is wrong) are invalid; :attr:`valid` marks the LR pixels all
+    of whose sub-pixels are valid.
     Resampling is bilinear (4 taps per sub-pixel), its adjoint a weighted scatter
     (``np.bincount``).
     """
@@ -164,6 +287,8 @@ class FrameOperator:
     p: int
     q: int
     blur_sigma: float = 0.4  # LR pixels
+    motion_blur: tuple[float, float] = (0.0, 0.0)  # LR pixels (rows, cols)
+    _kernel: np.ndarray = field(init=False, repr=False)
     _idx: np.ndarray = field(init=False, repr=False)
     _wts: np.ndarray = field(init=False, repr=False)
     valid: np.ndarray = field(init=False, repr=False)
@@ -182,7 +307,11 @@ class FrameOperator:
         y0 = (hinv[1, 0] * cc + hinv[1, 1] * rr + hinv[1, 2]) / den
         hr_r = p * (y0 + 0.5) - 0.5  # HR index coordinates
         hr_c = q * (x0 + 0.5) - 0.5
+        du, dv = motion_blur_vector(self.motion_blur)
+        self._kernel = motion_kernel(p * du, q * dv)
         border = int(np.ceil(3.0 * self.blur_sigma * max(p, q)))
+        if self._kernel.size > 1:
+            border += self._kernel.shape[0] // 2
         ok = (
             (hr_r >= border)
             & (hr_r <= hh - 1 - border)
@@ -201,7 +330,7 @@ class FrameOperator:
 
     def forward(self, x: np.ndarray) -> np.ndarray:
         """Apply ``A_n x``: HR image (hr_shape) -> LR frame (lr_shape), invalid pixels 0."""
-        bx = blur(x, self.blur_sigma * self.p).ravel()
+        bx = motion_filter(blur(x, self.blur_sigma * self.p), self._kernel).ravel()
         sub = (
             (bx[self._idx] * self._wts)
             .sum(axis=0)
@@ -218,7 +347,9 @@ class FrameOperator:
         acc = np.bincount(
             self._idx.ravel(), weights=(self._wts * sub[None, :]).ravel(), minlength=n
         )
-        return blur(acc.reshape(self.hr_shape), self.blur_sigma * self.p)
+        return blur(
+            motion_filter(acc.reshape(self.hr_shape), self._kernel), self.blur_sigma * self.p
+        )
 
 
 def frame_transfer_1d(

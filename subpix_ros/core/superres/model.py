@@ -44,7 +44,6 @@ __all__ = [
     "FrameOperator",
     "frame_transfer_1d",
     "motion_transfer",
-    "motion_kernel",
     "motion_filter",
     "motion_blur_vector",
 ]
@@ -178,59 +177,51 @@ def motion_transfer(fy: np.ndarray, fx: np.ndarray, p: int, motion_blur) -> np.n
     return np.sinc(p * (np.asarray(fy) * du + np.asarray(fx) * dv))
 
 
-def motion_kernel(du_hr: float, dv_hr: float) -> np.ndarray:
-    """Return the 2-D line kernel of a motion of ``(du_hr, dv_hr)`` HR px, for ``cv2.filter2D``.
+@functools.lru_cache(maxsize=8)
+def _motion_fft(
+    shape: tuple[int, int], du_hr: float, dv_hr: float
+) -> tuple[int, tuple[int, int], np.ndarray]:
+    """Return ``(pad, padded shape, transfer)`` of :func:`motion_filter` (cached, read-only)."""
+    pad = int(np.ceil(np.hypot(du_hr, dv_hr) / 2.0)) + 2
+    hp = cv2.getOptimalDFTSize(shape[0] + 2 * pad)
+    wp = cv2.getOptimalDFTSize(shape[1] + 2 * pad)
+    m = motion_transfer(
+        np.fft.fftfreq(hp)[:, None], np.fft.rfftfreq(wp)[None, :], 1, (du_hr, dv_hr)
+    )
+    m.flags.writeable = False
+    return pad, (hp, wp), m
+
+
+def motion_filter(x: np.ndarray, du_hr: float, dv_hr: float) -> np.ndarray:
+    """Blur by a motion of ``(du_hr, dv_hr)`` pixels of ``x`` (rows, cols), zero border.
 
     Parameters
     ----------
+    x : numpy.ndarray
+        2-D image (float).
     du_hr, dv_hr : float
-        Motion during the exposure along rows and columns (pixels of the grid filtered).
+        Motion during the exposure along rows and columns (pixels of ``x``).
 
     Returns
     -------
     numpy.ndarray
-        float64 (2 R + 1, 2 R + 1), ``R = ceil(|d| / 2) + 1``, summing to 1, point-symmetric
-        (``k[i, j] = k[-i, -j]``: correlation equals convolution and the filter with a zero
-        border is self-adjoint); ``[[1]]`` for no motion.
+        float64, the shape of ``x``; ``x`` itself for no motion.
 
     Notes
     -----
-    The box along ``d`` is sampled at ``J = max(2, ceil(4 |d|))`` midpoints
-    ``t_j d``, ``t_j = (j + 1/2) / J - 1/2``, each spread bilinearly over its four nearest
-    taps: the transfer is ``sinc(f . d)`` times that of the bilinear spread (a slight extra
-    smoothing, at most that of a 1-px tent).
+    ``x`` is zero-padded by ``ceil(|d| / 2) + 2`` px, multiplied in the DFT by the exact
+    transfer ``sinc(f . d)`` (:func:`motion_transfer`, f in cycles / px: the same as the
+    Fourier solve's) and cropped back: ``P^T F^-1 M F P`` with M real and even is symmetric,
+    so the operator is self-adjoint, as the conjugate-gradient solver needs.
     """
-    length = float(np.hypot(du_hr, dv_hr))
-    if length == 0.0:
-        return np.ones((1, 1))
-    r = int(np.ceil(length / 2.0)) + 1
-    j = max(2, int(np.ceil(4.0 * length)))
-    t = (np.arange(j) + 0.5) / j - 0.5
-    pr, pc = t * du_hr + r, t * dv_hr + r
-    r0, c0 = np.floor(pr).astype(np.int64), np.floor(pc).astype(np.int64)
-    fr, fc = pr - r0, pc - c0
-    k = np.zeros((2 * r + 1, 2 * r + 1))
-    for dr, dc, wt in (
-        (0, 0, (1 - fr) * (1 - fc)),
-        (0, 1, (1 - fr) * fc),
-        (1, 0, fr * (1 - fc)),
-        (1, 1, fr * fc),
-    ):  # the 4 bilinear taps, each over all samples
-        np.add.at(k, (r0 + dr, c0 + dc), wt)
-    k = 0.5 * (k + k[::-1, ::-1])  # exactly point-symmetric (round-off)
-    return k / k.sum()
-
-
-def motion_filter(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """Filter with a point-symmetric kernel (:func:`motion_kernel`) and a zero border.
-
-    Self-adjoint, as the conjugate-gradient solver needs; ``x`` unchanged for a 1 x 1 kernel.
-    """
-    if kernel.size == 1:
+    if du_hr == 0.0 and dv_hr == 0.0:
         return x
-    return cv2.filter2D(
-        np.asarray(x, dtype=np.float64), cv2.CV_64F, kernel, borderType=cv2.BORDER_CONSTANT
-    )
+    h, w = x.shape
+    pad, (hp, wp), m = _motion_fft((h, w), float(du_hr), float(dv_hr))
+    buf = np.zeros((hp, wp))
+    buf[pad : pad + h, pad : pad + w] = x
+    out = np.fft.irfft2(np.fft.rfft2(buf) * m, s=(hp, wp))
+    return out[pad : pad + h, pad : pad + w]
 
 
 def decimate_mean(z: np.ndarray, p: int, q: int) -> np.ndarray:
@@ -267,9 +258,10 @@ class FrameOperator:
         Optics blur std (LR px).
     motion_blur : (float, float), optional
         Image motion during the exposure ``d = (du, dv)`` (LR px, rows and cols; default
-        none): ``L`` is the line kernel of ``p d`` HR px (:func:`motion_kernel`) applied on
-        the HR grid after the optics blur ``B``. On the reference grid: exact for
-        translations, an approximation for homographies far from one.
+        none): ``L`` is the motion blur of ``(p du, q dv)`` HR px (:func:`motion_filter`,
+        the exact ``sinc`` transfer) applied on the HR grid after the optics blur ``B``. On
+        the reference grid: exact for translations, an approximation for homographies far
+        from one.
 
     Notes
     -----
@@ -288,7 +280,7 @@ class FrameOperator:
     q: int
     blur_sigma: float = 0.4  # LR pixels
     motion_blur: tuple[float, float] = (0.0, 0.0)  # LR pixels (rows, cols)
-    _kernel: np.ndarray = field(init=False, repr=False)
+    _motion_hr: tuple[float, float] = field(init=False, repr=False)
     _idx: np.ndarray = field(init=False, repr=False)
     _wts: np.ndarray = field(init=False, repr=False)
     valid: np.ndarray = field(init=False, repr=False)
@@ -308,10 +300,10 @@ class FrameOperator:
         hr_r = p * (y0 + 0.5) - 0.5  # HR index coordinates
         hr_c = q * (x0 + 0.5) - 0.5
         du, dv = motion_blur_vector(self.motion_blur)
-        self._kernel = motion_kernel(p * du, q * dv)
+        self._motion_hr = (p * du, q * dv)
         border = int(np.ceil(3.0 * self.blur_sigma * max(p, q)))
-        if self._kernel.size > 1:
-            border += self._kernel.shape[0] // 2
+        if (du, dv) != (0.0, 0.0):
+            border += int(np.ceil(np.hypot(*self._motion_hr) / 2.0)) + 1
         ok = (
             (hr_r >= border)
             & (hr_r <= hh - 1 - border)
@@ -330,7 +322,7 @@ class FrameOperator:
 
     def forward(self, x: np.ndarray) -> np.ndarray:
         """Apply ``A_n x``: HR image (hr_shape) -> LR frame (lr_shape), invalid pixels 0."""
-        bx = motion_filter(blur(x, self.blur_sigma * self.p), self._kernel).ravel()
+        bx = motion_filter(blur(x, self.blur_sigma * self.p), *self._motion_hr).ravel()
         sub = (
             (bx[self._idx] * self._wts)
             .sum(axis=0)
@@ -348,7 +340,7 @@ class FrameOperator:
             self._idx.ravel(), weights=(self._wts * sub[None, :]).ravel(), minlength=n
         )
         return blur(
-            motion_filter(acc.reshape(self.hr_shape), self._kernel), self.blur_sigma * self.p
+            motion_filter(acc.reshape(self.hr_shape), *self._motion_hr), self.blur_sigma * self.p
         )
 
 

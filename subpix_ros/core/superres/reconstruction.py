@@ -132,8 +132,8 @@ def reconstruct(
     in cycles / LR px (numpy's ``sinc``; real and even: the sign of ``d`` does not matter).
     It multiplies the optics and pixel transfers; the frame's shift is its mid-exposure
     position. The Fourier solve estimates ``Z = M X`` with the prior ``|M|^2 P`` and returns
-    ``X = Z / M``; the CG solve filters the HR grid with the line kernel
-    (:func:`~subpix_ros.core.superres.model.motion_kernel`).
+    ``X = Z / M``; the CG solve filters the HR grid by the same transfer
+    (:func:`~subpix_ros.core.superres.model.motion_filter`).
     """
     est = _resolve_blur(blur_sigma, frames, shifts, kw.get("method", "map"))
     res = _reconstruct(frames, shifts, factor, blur_sigma=est.sigma, **kw)

@@ -117,6 +117,7 @@ def estimate_blur(
     noise_sigma: float | None = None,
     fallback: float = FALLBACK_SIGMA,
     masks: Sequence[np.ndarray] | None = None,
+    motion_blur: tuple[float, float] | None = None,
 ) -> BlurEstimate:
     """Estimate the optics blur (Gaussian std, input px) from straight edges in the frames.
 
@@ -136,6 +137,10 @@ def estimate_blur(
     masks : sequence of numpy.ndarray, optional
         A bool array per frame (True = valid); an ROI is measured in a frame only where all
         its pixels are valid.
+    motion_blur : (float, float), optional
+        Image motion during each exposure ``(du, dv)`` (input px; default none): each edge's
+        fit takes out the box it makes along the edge normal (:func:`measure_edge`), so the
+        estimate is the optics blur alone.
 
     Returns
     -------
@@ -162,7 +167,8 @@ def estimate_blur(
         estimate_noise_sigma(arrs[0], max_size=256) if noise_sigma is None else float(noise_sigma)
     )
     rois = find_edge_rois(arrs[0], max_rois=max_edges)
-    per_edge, why = _measure_edges(arrs, sh, rois, noise, masks)
+    motion = (0.0, 0.0) if motion_blur is None else (float(motion_blur[0]), float(motion_blur[1]))
+    per_edge, why = _measure_edges(arrs, sh, rois, noise, masks, motion)
     if not per_edge:
         common = max(set(why), key=why.count) if why else "no straight edge found"
         return BlurEstimate(
@@ -179,6 +185,7 @@ def _measure_edges(
     rois: list[tuple[int, int, int, int]],
     noise: float,
     masks: Sequence[np.ndarray] | None,
+    motion_blur: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[list[tuple[float, float]], list[str]]:
     """Measure every ROI in every frame; return (median, standard error) per edge, and why not.
 
@@ -201,7 +208,7 @@ def _measure_edges(
                 continue
             if masks is not None and not np.all(np.asarray(masks[i])[yy : yy + rh, xx : xx + rw]):
                 continue
-            s, reason = measure_edge(a, (xx, yy, rw, rh), noise)
+            s, reason = measure_edge(a, (xx, yy, rw, rh), noise, motion_blur)
             if np.isfinite(s):
                 vals.append(s)
             else:
@@ -307,6 +314,7 @@ class BlurCalibration:
         frames: Sequence[np.ndarray],
         shifts: np.ndarray | None = None,
         masks: Sequence[np.ndarray] | None = None,
+        motion_blur: tuple[float, float] | None = None,
     ) -> BlurEstimate:
         """Return the blur for this set, re-estimated when due (see the class).
 
@@ -318,6 +326,9 @@ class BlurCalibration:
             (N, 2) shifts relative to frame 0.
         masks : sequence of numpy.ndarray, optional
             Valid pixels per frame.
+        motion_blur : (float, float), optional
+            This set's image motion during the exposure (input px), taken out of the edges
+            (:func:`estimate_blur`).
 
         Returns
         -------
@@ -330,7 +341,7 @@ class BlurCalibration:
         due = self.due
         self._sets += 1
         if due:
-            new = estimate_blur(frames, shifts, masks=masks)
+            new = estimate_blur(frames, shifts, masks=masks, motion_blur=motion_blur)
             if new.source == "edges" or self.current is None or self.current.source != "edges":
                 self.current = new
         return self.current

@@ -359,8 +359,8 @@ class ReconstructionStage(Stage):
             return None
         # luminance only for a set the calibration measures (the first, then every 10th)
         mono = [colour_luminance(f) for f in frames] if self.blur.due else []
-        blur = self.blur.update(mono, shifts, masks)
         motion = set_motion_blur(fs, self.param("exposure_s"))
+        blur = self.blur.update(mono, shifts, masks, motion)
         res, plan = reconstruct_within_budget(
             frames,
             shifts,

@@ -135,14 +135,17 @@ def reconstruct(
     ``X = Z / M``; the CG solve filters the HR grid by the same transfer
     (:func:`~subpix_ros.core.superres.model.motion_filter`).
     """
-    est = _resolve_blur(blur_sigma, frames, shifts, kw.get("method", "map"))
+    est = _resolve_blur(blur_sigma, frames, shifts, kw.get("method", "map"), kw.get("motion_blur"))
     res = _reconstruct(frames, shifts, factor, blur_sigma=est.sigma, **kw)
     res.blur_sigma, res.blur_source, res.blur_reason = float(est.sigma), est.source, est.reason
     return res
 
 
-def _resolve_blur(blur_sigma, frames, shifts, method: str) -> BlurEstimate:
-    """Turn a ``blur_sigma`` setting into a :class:`BlurEstimate` (measured for "auto")."""
+def _resolve_blur(blur_sigma, frames, shifts, method: str, motion_blur=None) -> BlurEstimate:
+    """Turn a ``blur_sigma`` setting into a :class:`BlurEstimate` (measured for "auto").
+
+    "auto" measures the edges with the motion blur taken out (``estimate_blur``).
+    """
     if isinstance(blur_sigma, BlurEstimate):
         return blur_sigma
     value = parse_blur_sigma(blur_sigma)
@@ -157,7 +160,7 @@ def _resolve_blur(blur_sigma, frames, shifts, method: str) -> BlurEstimate:
         sh = None if shifts is None else np.asarray(shifts, dtype=np.float64)
         if sh is not None and (sh.shape != (len(frames), 2) or not np.isfinite(sh).all()):
             sh = None  # malformed shifts: _reconstruct says why
-        return estimate_blur(frames, sh)
+        return estimate_blur(frames, sh, motion_blur=motion_blur_vector(motion_blur))
     # the blur is not used (or the input is malformed: _reconstruct says why)
     return BlurEstimate(0.0, "unused", reason="the method does not model the blur")
 

@@ -73,7 +73,8 @@ PARAMS = (
         "auto",
         "optics blur std of the model, input px: 'auto' (measured on straight edges in the "
         "frames, refreshed every 10 sets, biased low; a low fallback when none is in view) or a "
-        f"number in 0..{BLUR_SIGMA_MAX:g} (a lab calibration)",
+        f"number in 0..{BLUR_SIGMA_MAX:g} (a lab calibration; replaced, with a warning, by the "
+        "edges' measurement where that is lower by more than max(0.1 px, 3 standard errors))",
         validate=_blur_setting_error,
     ),
     Spec(
@@ -180,7 +181,8 @@ class ReconstructionStage(Stage):
         self.solver_options, self.ignored = _solver_options(self.extra)
         self._told_ignored = False
         # measured once, refreshed every 10 sets
-        self.blur = BlurCalibration(self.param("blur_sigma"))
+        self.blur = BlurCalibration(self.param("blur_sigma"), check_given=True)
+        self._blur_warned = None  # the overriding estimate last warned about
         self.sets: dict[int, list[tuple[Shift, Aligned]]] = {}
         self.matcher = ShiftFrameMatcher(self._tolerance_ns())
         self._closed: collections.OrderedDict[int, None] = collections.OrderedDict()
@@ -196,7 +198,7 @@ class ReconstructionStage(Stage):
         super().configure(**changes)
         self.matcher.tolerance_ns = self._tolerance_ns()
         if parse_blur_sigma(self.param("blur_sigma")) != self.blur.setting:
-            self.blur = BlurCalibration(self.param("blur_sigma"))
+            self.blur = BlurCalibration(self.param("blur_sigma"), check_given=True)
         self.solver_options, self.ignored = _solver_options(self.extra)
 
     def reset(self) -> None:
@@ -361,6 +363,9 @@ class ReconstructionStage(Stage):
         mono = [colour_luminance(f) for f in frames] if self.blur.due else []
         motion = set_motion_blur(fs, self.param("exposure_s"))
         blur = self.blur.update(mono, shifts, masks, motion)
+        if self.blur.setting != "auto" and blur.source == "edges" and blur is not self._blur_warned:
+            self._blur_warned = blur
+            self.warn(blur.reason)
         res, plan = reconstruct_within_budget(
             frames,
             shifts,

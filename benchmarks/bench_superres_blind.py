@@ -20,8 +20,14 @@ its first cell), ``told`` (ours told the true blur), ``auto`` (ours with
 ``blur_sigma="auto"``, or the default ``blur_sigma`` where the code has no
 ``auto``), and the blur that ``auto`` used (``est``) with its source.
 
+Motion blur (``--motion``, instead of the table above): frames exposed while the image moves
+by ``d`` (1 and 2 px, along (0.8, 0.6) and along the columns), true optics 0.3 px, fill 1.0,
+40 dB; columns ``ignore`` (told the optics blur, no motion blur), ``told`` (told both,
+``motion_blur=d``), ``auto`` and ``auto+d`` (``blur_sigma="auto"`` without and with the
+motion blur; ``est``, ``est+d``: the blur each used).
+
 Run: ``python benchmarks/bench_superres_blind.py [--quick] [--json out.json]
-[--only quality|timing]``.
+[--only quality|timing] [--motion]``.
 """
 
 from __future__ import annotations
@@ -200,6 +206,103 @@ def quality(quick: bool, json_out: str | None) -> None:
         Path(json_out).write_text(json.dumps(rows, indent=1))
 
 
+def motion_cells(quick: bool):
+    out = []
+    for p in (2,) if quick else (2, 4):
+        for layout in ("grid", "random"):
+            for length in (1.0, 2.0):
+                for direction in ((0.8, 0.6), (0.0, 1.0)):
+                    out.append(
+                        dict(p=p, layout=layout, d=(length * direction[0], length * direction[1]))
+                    )
+    return out
+
+
+def motion_quality(quick: bool, json_out: str | None) -> None:
+    """Gain over bicubic with motion blur in the frames: ignoring it against told it."""
+    crops = {c: load_crop(c) for c in CROP_NAMES}
+    blur, snr = 0.3, 40
+    print(
+        f"\nMotion blur d (LR px) in every frame, optics {blur} px, fill 1.0, {snr} dB, estimated "
+        "shifts; gain over bicubic (dB); 'none' = crop as it is, 'edge' = another with a roof"
+    )
+    print(
+        f"{'p':>1s} {'layout':6s} {'d':>11s} | "
+        + " | ".join(
+            f"{t:4s} {'ignore':>6s} {'told':>6s} {'auto':>6s} {'est':>5s} {'auto+d':>6s} {'est+d':>5s}"
+            for t in ("none", "edge")
+        )
+        + " | s"
+    )
+    rows = []
+    for k, cell in enumerate(motion_cells(quick)):
+        p, d = cell["p"], cell["d"]
+        t0 = time.perf_counter()
+        line = []
+        for j, (crop, roof) in enumerate(scenes_for(k)):
+            n_hr = (LR[p] + 2 * MARGIN) * p
+            sc = scene_crop(crops[crop], p, LR[p], MARGIN, ((768 - n_hr) // 2,) * 2)
+            fl = degrade(
+                sc,
+                p,
+                shift_layout(cell["layout"], p, seed=200 + k),
+                blur,
+                fill_factor=1.0,
+                snr_db=snr,
+                roof=roof,
+                seed=k * 7 + j,
+                margin=MARGIN,
+                motion_blur=d,
+            )
+            sh = est_shifts(fl.frames)
+            keep = np.isfinite(sh).all(axis=1)
+            frames, sh = [f for f, ok in zip(fl.frames, keep) if ok], sh[keep]
+            ignore = reconstruct(frames, sh, p, blur_sigma=blur)
+            told = reconstruct(frames, sh, p, blur_sigma=blur, motion_blur=d)
+            auto = reconstruct(frames, sh, p, blur_sigma="auto")
+            auto_d = reconstruct(frames, sh, p, blur_sigma="auto", motion_blur=d)
+            rec = dict(
+                cell,
+                k=k,
+                crop=crop,
+                roof=roof,
+                ignore=gain(fl, ignore.image),
+                told=gain(fl, told.image),
+                auto=gain(fl, auto.image),
+                auto_d=gain(fl, auto_d.image),
+                est=float(auto.blur_sigma),
+                source=auto.blur_source,
+                est_d=float(auto_d.blur_sigma),
+                source_d=auto_d.blur_source,
+            )
+            rows.append(rec)
+            line.append(
+                f"{'':4s} {rec['ignore']:+6.2f} {rec['told']:+6.2f} {rec['auto']:+6.2f} "
+                f"{rec['est']:5.2f} {rec['auto_d']:+6.2f} {rec['est_d']:5.2f}"
+            )
+        print(
+            f"{p:1d} {cell['layout']:6s} ({d[0]:4.2f},{d[1]:4.2f}) | "
+            + " | ".join(line)
+            + f" | {time.perf_counter() - t0:4.1f}",
+            flush=True,
+        )
+    for key in ("told", "auto_d"):
+        base = "ignore" if key == "told" else "auto"
+        diff = np.array([r[key] - r[base] for r in rows])
+        for length in (1.0, 2.0):
+            sel = np.array([abs(np.hypot(*r["d"]) - length) < 1e-9 for r in rows])
+            print(
+                f"  {key} - {base}, |d| = {length:.0f} px: min {diff[sel].min():+.2f} dB, median "
+                f"{np.median(diff[sel]):+.2f}, max {diff[sel].max():+.2f} ({sel.sum()} scene-cells)"
+            )
+    print(
+        f"  told: min gain over bicubic {min(r['told'] for r in rows):+.2f} dB; ignore: "
+        f"{min(r['ignore'] for r in rows):+.2f}; auto+d: {min(r['auto_d'] for r in rows):+.2f}"
+    )
+    if json_out:
+        Path(json_out).write_text(json.dumps(rows, indent=1))
+
+
 def summarise(rows, label_auto):
     a = np.array([r["auto"] for r in rows])
     cg = np.array([r["cg"] for r in rows])
@@ -312,11 +415,17 @@ def main() -> None:
     )
     ap.add_argument("--only", choices=["quality", "timing"], default=None)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument(
+        "--motion", action="store_true", help="the motion-blur table instead (ignoring vs told)"
+    )
     args = ap.parse_args()
     print(
         f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; "
         f"OpenCV threads {cv2.getNumThreads()}"
     )
+    if args.motion:
+        motion_quality(args.quick, args.json)
+        return
     if args.only in (None, "quality"):
         quality(args.quick, args.json)
     if args.only in (None, "timing"):

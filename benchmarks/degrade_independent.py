@@ -26,7 +26,13 @@ cannot look better than it is. What differs here:
 * Poisson-Gaussian noise: ``y = k Poisson(y / k) + N(0, sigma_r^2)``, the
   shot part and the read part each half the noise variance at the mean
   signal, scaled to a stated SNR ``20 log10(std(y_0) / sigma_total)``;
-  8-bit rounding; optional JPEG compression (quality 90 by default).
+  8-bit rounding; optional JPEG compression (quality 90 by default);
+* optional motion blur (the image moving by ``d = (du, dv)`` LR px during
+  the exposure): the frame is the mean of ``J`` renders at the sub-positions
+  ``s_n + t_j d``, ``t_j = (j + 1/2) / J - 1/2`` (one per fine sample of
+  the path, ``J = ceil(8 p |d|)``), each integrated exactly as above: the
+  scene integrated along the path on the fine grid, with no assumed PSF
+  shape; ``s_n`` is the mid-exposure position.
 
 Coordinates follow the project: LR pixel i of frame 0 covers output (HR)
 pixels ``p i .. p i + p - 1``; the truth is the HR crop on that grid (inside
@@ -154,6 +160,7 @@ def degrade(
     seed: int = 0,
     margin: int = 6,
     oversample: int = 8,
+    motion_blur: tuple[float, float] | None = None,
 ) -> Flight:
     """Render LR frames of an HR scene by the independent model of this module.
 
@@ -169,6 +176,9 @@ def degrade(
     roof : put a uniformly bright rotated rectangle (sharp straight edges) in the scene centre.
     seed : noise seed. margin : LR px cut from every side (the kernels' reach). oversample : fine
         samples per HR px.
+    motion_blur : (du, dv) LR px, the image motion during each frame's exposure (the same for
+        every frame, centred on its shift); None or (0, 0): none (the renders are then
+        bit-identical to those without the argument).
 
     Returns
     -------
@@ -182,8 +192,11 @@ def degrade(
     n_lr_full = n_hr // p
     n_lr = n_lr_full - 2 * margin
     sh = np.asarray(shifts, dtype=np.float64).reshape(-1, 2)
+    d = np.zeros(2) if motion_blur is None else np.asarray(motion_blur, dtype=np.float64)
+    n_sub = int(np.ceil(ratio * np.hypot(*d)))
+    t_sub = (np.arange(n_sub) + 0.5) / max(n_sub, 1) - 0.5  # exposure sub-positions (fractions)
     reach = int(np.ceil(0.5 + 4.5 * blur_sigma + 0.5))
-    if np.abs(sh).max() + reach + 1 > margin:
+    if np.abs(sh).max() + np.abs(d).max() / 2 + reach + 1 > margin:
         raise ValueError(
             f"margin {margin} too small for shifts up to {np.abs(sh).max():.2f} px and blur "
             f"{blur_sigma}"
@@ -206,10 +219,22 @@ def degrade(
     rng = np.random.default_rng(seed)
     clean = []
     for u, v in sh:  # frames
-        ky = _axis_operator(n_lr, n_fine, ratio, margin, u, blur_sigma, fill_factor, reach)
-        kx = _axis_operator(n_lr, n_fine, ratio, margin, v, blur_sigma, fill_factor, reach)
-        rows = ky @ fine  # (n_lr, n_fine)
-        clean.append(np.asarray((kx @ rows.T).T, dtype=np.float64))
+        if n_sub == 0:
+            ky = _axis_operator(n_lr, n_fine, ratio, margin, u, blur_sigma, fill_factor, reach)
+            kx = _axis_operator(n_lr, n_fine, ratio, margin, v, blur_sigma, fill_factor, reach)
+            rows = ky @ fine  # (n_lr, n_fine)
+            clean.append(np.asarray((kx @ rows.T).T, dtype=np.float64))
+            continue
+        acc = np.zeros((n_lr, n_lr))
+        for t in t_sub:  # sub-positions along the path during the exposure
+            ky = _axis_operator(
+                n_lr, n_fine, ratio, margin, u + t * d[0], blur_sigma, fill_factor, reach
+            )
+            kx = _axis_operator(
+                n_lr, n_fine, ratio, margin, v + t * d[1], blur_sigma, fill_factor, reach
+            )
+            acc += np.asarray((kx @ (ky @ fine).T).T, dtype=np.float64)
+        clean.append(acc / n_sub)
     mean = float(np.mean(clean[0]))
     sig_tot = float(np.std(clean[0])) / 10.0 ** (snr_db / 20.0)
     k = 0.5 * sig_tot**2 / max(mean, 1e-6)  # DN per electron: shot variance k*mean = half the total

@@ -38,9 +38,14 @@ __all__ = [
     "resolve_blur",
     "spectral_cap",
     "BlurCalibration",
+    "check_given_blur",
 ]
 
 BLUR_SIGMA_MAX = 3.0  # largest blur (input px) accepted as a setting
+GIVEN_CHECK_MIN_PX = (
+    0.1  # a given blur this far (and 3 standard errors) above the edges' is not used
+)
+GIVEN_CHECK_SIGMAS = 3.0
 FALLBACK_SIGMA = 0.2  # used when no usable edge is in view (input px)
 
 
@@ -117,6 +122,7 @@ def estimate_blur(
     noise_sigma: float | None = None,
     fallback: float = FALLBACK_SIGMA,
     masks: Sequence[np.ndarray] | None = None,
+    motion_blur: tuple[float, float] | None = None,
 ) -> BlurEstimate:
     """Estimate the optics blur (Gaussian std, input px) from straight edges in the frames.
 
@@ -136,6 +142,10 @@ def estimate_blur(
     masks : sequence of numpy.ndarray, optional
         A bool array per frame (True = valid); an ROI is measured in a frame only where all
         its pixels are valid.
+    motion_blur : (float, float), optional
+        Image motion during each exposure ``(du, dv)`` (input px; default none): each edge's
+        fit takes out the box it makes along the edge normal (:func:`measure_edge`), so the
+        estimate is the optics blur alone.
 
     Returns
     -------
@@ -162,7 +172,8 @@ def estimate_blur(
         estimate_noise_sigma(arrs[0], max_size=256) if noise_sigma is None else float(noise_sigma)
     )
     rois = find_edge_rois(arrs[0], max_rois=max_edges)
-    per_edge, why = _measure_edges(arrs, sh, rois, noise, masks)
+    motion = (0.0, 0.0) if motion_blur is None else (float(motion_blur[0]), float(motion_blur[1]))
+    per_edge, why = _measure_edges(arrs, sh, rois, noise, masks, motion)
     if not per_edge:
         common = max(set(why), key=why.count) if why else "no straight edge found"
         return BlurEstimate(
@@ -179,6 +190,7 @@ def _measure_edges(
     rois: list[tuple[int, int, int, int]],
     noise: float,
     masks: Sequence[np.ndarray] | None,
+    motion_blur: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[list[tuple[float, float]], list[str]]:
     """Measure every ROI in every frame; return (median, standard error) per edge, and why not.
 
@@ -201,7 +213,7 @@ def _measure_edges(
                 continue
             if masks is not None and not np.all(np.asarray(masks[i])[yy : yy + rh, xx : xx + rw]):
                 continue
-            s, reason = measure_edge(a, (xx, yy, rw, rh), noise)
+            s, reason = measure_edge(a, (xx, yy, rw, rh), noise, motion_blur)
             if np.isfinite(s):
                 vals.append(s)
             else:
@@ -270,6 +282,53 @@ def resolve_blur(
     return estimate_blur(frames, shifts, **kw)
 
 
+def check_given_blur(given: float, measured: BlurEstimate) -> BlurEstimate:
+    """Check a given blur against the edges' measurement: the safety net of a lab calibration.
+
+    Parameters
+    ----------
+    given : float
+        The ``blur_sigma`` set as a number (input px).
+    measured : BlurEstimate
+        :func:`estimate_blur` on the flight's frames.
+
+    Returns
+    -------
+    BlurEstimate
+        The measured estimate (source "edges", the reason saying why) when the edges measure
+        a blur lower than the given one by more than ``max(GIVEN_CHECK_MIN_PX,
+        GIVEN_CHECK_SIGMAS x uncertainty)``, comparing the pooled value before its low bias
+        (``raw``); else the given value (source "parameter").
+
+    Notes
+    -----
+    A scene edge is never sharper than the camera makes it, so edges measuring clearly less
+    than the given blur mean the given value is too high, the expensive direction: over by
+    0.2 px the reconstruction can fall below bicubic (docs/design-notes.md). A higher
+    measurement is not used against the given value (scene edges may be soft).
+    """
+    if measured.source == "edges" and np.isfinite(measured.raw):
+        unc = measured.uncertainty if np.isfinite(measured.uncertainty) else 0.0
+        margin = max(GIVEN_CHECK_MIN_PX, GIVEN_CHECK_SIGMAS * unc)
+        if given - measured.raw > margin:
+            return BlurEstimate(
+                measured.sigma,
+                "edges",
+                uncertainty=measured.uncertainty,
+                raw=measured.raw,
+                n_edges=measured.n_edges,
+                reason=f"blur_sigma {given:.3f} px given, but the edges measure {measured.raw:.3f}"
+                f" +- {unc:.3f} px, lower by more than {margin:.3f} px: the given value would "
+                f"over-deconvolve; measured {measured.sigma:.3f} px used ({measured.reason})",
+            )
+        return BlurEstimate(
+            float(given),
+            "parameter",
+            reason=f"given (edges measure {measured.raw:.3f} +- {unc:.3f} px: consistent)",
+        )
+    return BlurEstimate(float(given), "parameter", reason="given")
+
+
 class BlurCalibration:
     """The blur of one flight, kept across frame sets and refreshed slowly.
 
@@ -279,6 +338,10 @@ class BlurCalibration:
         A ``blur_sigma`` setting (:func:`parse_blur_sigma`).
     refresh_sets : int, optional
         With ``"auto"``, measure on the first set and then every ``refresh_sets``-th set.
+    check_given : bool, optional
+        With a number, measure on the same schedule too and replace the number by the
+        measurement when it is clearly lower (:func:`check_given_blur`); default False (the
+        number is used as given, the frames not looked at).
 
     Notes
     -----
@@ -289,16 +352,17 @@ class BlurCalibration:
     it); until the first edge estimate the fallback is used.
     """
 
-    def __init__(self, setting="auto", refresh_sets: int = 10) -> None:
+    def __init__(self, setting="auto", refresh_sets: int = 10, check_given: bool = False) -> None:
         self.setting = parse_blur_sigma(setting)
         self.refresh_sets = max(1, int(refresh_sets))
+        self.check_given = bool(check_given)
         self.current: BlurEstimate | None = None
         self._sets = 0
 
     @property
     def due(self) -> bool:
         """Whether the next :meth:`update` measures the frames (else they are not looked at)."""
-        return self.setting == "auto" and (
+        return (self.setting == "auto" or self.check_given) and (
             self.current is None or self._sets % self.refresh_sets == 0
         )
 
@@ -307,6 +371,7 @@ class BlurCalibration:
         frames: Sequence[np.ndarray],
         shifts: np.ndarray | None = None,
         masks: Sequence[np.ndarray] | None = None,
+        motion_blur: tuple[float, float] | None = None,
     ) -> BlurEstimate:
         """Return the blur for this set, re-estimated when due (see the class).
 
@@ -318,19 +383,29 @@ class BlurCalibration:
             (N, 2) shifts relative to frame 0.
         masks : sequence of numpy.ndarray, optional
             Valid pixels per frame.
+        motion_blur : (float, float), optional
+            This set's image motion during the exposure (input px), taken out of the edges
+            (:func:`estimate_blur`).
 
         Returns
         -------
         BlurEstimate
         """
-        if self.setting != "auto":
+        if self.setting != "auto" and not self.check_given:
             if self.current is None:
                 self.current = BlurEstimate(float(self.setting), "parameter", reason="given")
+            return self.current
+        if self.setting != "auto":  # a given number, checked against the edges when due
+            due = self.due
+            self._sets += 1
+            if due:
+                measured = estimate_blur(frames, shifts, masks=masks, motion_blur=motion_blur)
+                self.current = check_given_blur(float(self.setting), measured)
             return self.current
         due = self.due
         self._sets += 1
         if due:
-            new = estimate_blur(frames, shifts, masks=masks)
+            new = estimate_blur(frames, shifts, masks=masks, motion_blur=motion_blur)
             if new.source == "edges" or self.current is None or self.current.source != "edges":
                 self.current = new
         return self.current

@@ -45,7 +45,12 @@ _SIGMA_GRID = np.arange(0.0, 2.0001, 0.0025)
 
 
 def edge_sigma(
-    freqs: np.ndarray, mtf: np.ndarray, angle_deg: float, f_lo: float = 0.05, level: float = 0.15
+    freqs: np.ndarray,
+    mtf: np.ndarray,
+    angle_deg: float,
+    f_lo: float = 0.05,
+    level: float = 0.15,
+    motion_px: float = 0.0,
 ) -> float:
     """Fit the Gaussian optics std (px) whose MTF, times the pixel box, matches an edge MTF.
 
@@ -60,12 +65,16 @@ def edge_sigma(
     level : float, optional
         Frequencies where the model MTF is below this are left out (noise dominates there);
         the fit is repeated once with the band of its first answer.
+    motion_px : float, optional
+        The image motion during the exposure projected on the edge normal (px; default 0):
+        its box ``|sinc(f motion_px)|`` multiplies the model, so the fit returns the optics
+        blur without it.
 
     Returns
     -------
     float
         ``argmin_s sum_f (M(f) - exp(-2 pi^2 s^2 f^2) |sinc(f cos a) sinc(f sin a)|)^2`` on a
-        0.0025 px grid in [0, 2].
+        0.0025 px grid in [0, 2] (times ``|sinc(f motion_px)|`` with a motion).
 
     Notes
     -----
@@ -75,6 +84,8 @@ def edge_sigma(
     f = np.asarray(freqs, dtype=np.float64)
     m = np.asarray(mtf, dtype=np.float64)
     models = _gaussian_box_mtf(f, _SIGMA_GRID, angle_deg)
+    if motion_px:
+        models = models * np.abs(np.sinc(f * motion_px))[None, :]
     band = (f >= f_lo) & (f <= 0.75)
     best = 0.0
     for _ in range(2):  # the band where the first fit's model is above `level`, then refit
@@ -168,7 +179,10 @@ def find_edge_rois(
 
 
 def measure_edge(
-    frame: np.ndarray, roi: tuple[int, int, int, int], noise: float
+    frame: np.ndarray,
+    roi: tuple[int, int, int, int],
+    noise: float,
+    motion_blur: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[float, str]:
     """Measure the blur of one edge in one frame.
 
@@ -180,11 +194,15 @@ def measure_edge(
         ``(x, y, w, h)`` around the edge.
     noise : float
         Per-pixel noise std (DN).
+    motion_blur : (float, float), optional
+        Image motion during the exposure ``d = (du, dv)`` (px, rows and cols; default none):
+        the edge is blurred by a box of ``|d . n|`` along its normal n, which the fit takes
+        out (:func:`edge_sigma`).
 
     Returns
     -------
     sigma : float
-        The edge's blur (px, :func:`edge_sigma`), or NaN.
+        The edge's optics blur (px, :func:`edge_sigma`), or NaN.
     why_not : str
         Empty, or why the edge was rejected: no slanted-edge measurement, not straight
         (``MAX_LINE_RMS``), textured beside the edge (``MAX_TEXTURE``), or a step below
@@ -200,7 +218,22 @@ def measure_edge(
         return float("nan"), f"textured beside the edge ({r.texture:.2f} of the step)"
     if not r.contrast >= MIN_CONTRAST_SNR * max(noise, 0.5):
         return float("nan"), f"step {r.contrast:.1f} below {MIN_CONTRAST_SNR:.0f}x the noise"
-    return edge_sigma(r.freqs, r.mtf, r.angle_deg), ""
+    if motion_blur[0] == 0.0 and motion_blur[1] == 0.0:
+        return edge_sigma(r.freqs, r.mtf, r.angle_deg), ""
+    return edge_sigma(r.freqs, r.mtf, r.angle_deg, motion_px=_motion_on_normal(r, motion_blur)), ""
+
+
+def _motion_on_normal(r, motion_blur: tuple[float, float]) -> float:
+    """Return the motion ``d`` projected on the normal of a slanted-edge result's edge (px).
+
+    The edge is ``col = a + b row`` with ``b = tan(angle)`` (rows and columns swapped when
+    ``r.transposed``): its normal is ``(-b, 1) / sqrt(1 + b^2)`` in (row, col).
+    """
+    b = np.tan(np.deg2rad(r.angle_deg))
+    n = np.array([-b, 1.0]) / np.hypot(b, 1.0)
+    if r.transposed:
+        n = n[::-1]
+    return float(abs(n[0] * motion_blur[0] + n[1] * motion_blur[1]))
 
 
 def spectral_cap(

@@ -15,7 +15,10 @@ covers output pixels factor*i .. factor*i + factor - 1. The optics blur of
 the model is ``blur_sigma``: a number (lab calibration) or ``auto``, measured
 on straight edges in the frames (first set, then every 10th); the value used
 and its source are in the diagnostics (``blur_sigma``, ``blur_source``,
-``blur_reason``). Set assembly, the blur calibration and the solve are
+``blur_reason``). With ``exposure_s`` > 0 the model also has the motion blur
+of the exposure: the image velocity fitted to each set's shifts against their
+stamps, times ``exposure_s`` (``motion_blur_px`` in the diagnostics: ``du,
+dv`` input px, or ``none``). Set assembly, the blur calibration and the solve are
 :class:`~subpix_ros.stages.ReconstructionStage`'s.
 """
 
@@ -145,6 +148,11 @@ class ReconstructionNode(StageNode):
             blur_sigma="n/a" if sr.blur_sigma is None else sr.blur_sigma,
             blur_source=sr.blur_source or "n/a",
             blur_reason=getattr(sr.result, "blur_reason", "") or "n/a",
+            motion_blur_px=(
+                "none"
+                if st.motion_blur_px is None
+                else f"{st.motion_blur_px[0]:.3f}, {st.motion_blur_px[1]:.3f}"
+            ),
         )
         if not sr.fell_back:
             self.diag.ok()

@@ -73,8 +73,18 @@ PARAMS = (
         "auto",
         "optics blur std of the model, input px: 'auto' (measured on straight edges in the "
         "frames, refreshed every 10 sets, biased low; a low fallback when none is in view) or a "
-        f"number in 0..{BLUR_SIGMA_MAX:g} (a lab calibration)",
+        f"number in 0..{BLUR_SIGMA_MAX:g} (a lab calibration; replaced, with a warning, by the "
+        "edges' measurement where that is lower by more than max(0.1 px, 3 standard errors))",
         validate=_blur_setting_error,
+    ),
+    Spec(
+        "exposure_s",
+        0.0,
+        "exposure time (s) for the motion blur of the model: the image velocity is fitted to "
+        "the set's shifts against their stamps and the blur is exposure x velocity (a box along "
+        "the motion); 0: unknown, no motion blur modelled",
+        0.0,
+        0.1,
     ),
     Spec("time_tolerance_s", 0.001, "shift and frame stamps closer than this match", 0.0, 1.0),
     Spec(
@@ -171,7 +181,8 @@ class ReconstructionStage(Stage):
         self.solver_options, self.ignored = _solver_options(self.extra)
         self._told_ignored = False
         # measured once, refreshed every 10 sets
-        self.blur = BlurCalibration(self.param("blur_sigma"))
+        self.blur = BlurCalibration(self.param("blur_sigma"), check_given=True)
+        self._blur_warned = None  # the overriding estimate last warned about
         self.sets: dict[int, list[tuple[Shift, Aligned]]] = {}
         self.matcher = ShiftFrameMatcher(self._tolerance_ns())
         self._closed: collections.OrderedDict[int, None] = collections.OrderedDict()
@@ -187,7 +198,7 @@ class ReconstructionStage(Stage):
         super().configure(**changes)
         self.matcher.tolerance_ns = self._tolerance_ns()
         if parse_blur_sigma(self.param("blur_sigma")) != self.blur.setting:
-            self.blur = BlurCalibration(self.param("blur_sigma"))
+            self.blur = BlurCalibration(self.param("blur_sigma"), check_given=True)
         self.solver_options, self.ignored = _solver_options(self.extra)
 
     def reset(self) -> None:
@@ -350,7 +361,11 @@ class ReconstructionStage(Stage):
             return None
         # luminance only for a set the calibration measures (the first, then every 10th)
         mono = [colour_luminance(f) for f in frames] if self.blur.due else []
-        blur = self.blur.update(mono, shifts, masks)
+        motion = set_motion_blur(fs, self.param("exposure_s"))
+        blur = self.blur.update(mono, shifts, masks, motion)
+        if self.blur.setting != "auto" and blur.source == "edges" and blur is not self._blur_warned:
+            self._blur_warned = blur
+            self.warn(blur.reason)
         res, plan = reconstruct_within_budget(
             frames,
             shifts,
@@ -362,6 +377,7 @@ class ReconstructionStage(Stage):
             geometry="auto" if self.param("check_geometry") else "translation",
             refine_shifts=self.param("refine_shifts"),
             blur_sigma=blur,
+            motion_blur=motion,
             **self.solver_options,
         )
         if not np.all(np.isfinite(res.image)):
@@ -376,6 +392,9 @@ class ReconstructionStage(Stage):
         st.method, st.fell_back, st.fallback_reason = res.method, res.fell_back, res.reason
         st.noise_sigma, st.frames = float(res.noise_sigma), plan.n_frames
         st.memory_estimate_mb = round(plan.estimate_mb, 1)
+        st.motion_blur_px = (
+            None if motion is None else tuple(round(float(x), 4) for x in res.motion_blur)
+        )
         st.memory_reduction = ", ".join(plan.reductions)
         if plan.reduced:
             st.memory_reduced += 1
@@ -409,7 +428,83 @@ _SET_HERE = {
     "geometry",
     "refine_shifts",
     "blur_sigma",
+    "motion_blur",
 }  # given by the stage itself
+
+
+def image_velocity(stamps_s: np.ndarray, positions: np.ndarray) -> tuple[float, float] | None:
+    """Fit the image velocity of a set: a least-squares line through positions against time.
+
+    Parameters
+    ----------
+    stamps_s : numpy.ndarray
+        (N,) frame stamps (s).
+    positions : numpy.ndarray
+        (N, 2) image displacement ``(u, v)`` of each frame against the reference (LR px,
+        rows and cols; the reference's is (0, 0)).
+
+    Returns
+    -------
+    (float, float) or None
+        ``(vu, vv)`` px/s, the slopes ``sum (t - t_mean)(x - x_mean) / sum (t - t_mean)^2``;
+        None with fewer than 2 distinct stamps or non-finite input.
+    """
+    t = np.asarray(stamps_s, dtype=np.float64)
+    x = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+    if t.size < 2 or t.size != x.shape[0] or not (np.isfinite(t).all() and np.isfinite(x).all()):
+        return None
+    tc = t - t.mean()
+    den = float(tc @ tc)
+    if den <= 0.0:
+        return None
+    vel = tc @ (x - x.mean(axis=0)) / den
+    return (float(vel[0]), float(vel[1]))
+
+
+def member_displacement(shift: Shift, aligned: Aligned) -> tuple[float, float]:
+    """Return how far the scene moved in the original frame against its reference (LR px).
+
+    The aligned frame is the original warped onto the reference's grid by
+    ``aligned.homography`` (original pixel (x, y) -> reference pixel), with the sub-pixel
+    ``(shift.u, shift.v)`` left in: content at the reference's centre ``c`` is at
+    ``H^-1 (c + (v, u))`` in the original frame. Returns ``(u, v)`` (rows, cols) of that
+    minus ``c``: the shift itself when the homography is the identity (or None).
+    """
+    h = aligned.homography
+    if h is None or np.allclose(h, np.eye(3)):
+        return (float(shift.u), float(shift.v))
+    rows, cols = aligned.image.shape[:2]
+    c = np.array([(cols - 1) / 2.0, (rows - 1) / 2.0])
+    q = np.linalg.solve(np.asarray(h, dtype=np.float64), np.r_[c + (shift.v, shift.u), 1.0])
+    return (float(q[1] / q[2] - c[1]), float(q[0] / q[2] - c[0]))
+
+
+def set_motion_blur(fs: FrameSet, exposure_s: float) -> tuple[float, float] | None:
+    """Return the motion blur of a set, exposure x fitted image velocity (LR px), or None.
+
+    Parameters
+    ----------
+    fs : FrameSet
+        The set: the reference (displacement 0 at its stamp) and its members, whose
+        displacements (:func:`member_displacement`) are fitted against their stamps
+        (:func:`image_velocity`).
+    exposure_s : float
+        Exposure time (s); 0 = unknown.
+
+    Returns
+    -------
+    (float, float) or None
+        ``(du, dv) = exposure_s (vu, vv)`` (LR px, rows and cols; the sign does not matter:
+        the box is centred); None when the exposure is 0 or the velocity cannot be fitted.
+    """
+    if exposure_s <= 0.0:
+        return None
+    stamps = [fs.reference.stamp_ns] + [s.stamp_ns for s, _ in fs.members]
+    pos = [(0.0, 0.0)] + [member_displacement(s, a) for s, a in fs.members]
+    vel = image_velocity(np.array(stamps, dtype=np.float64) * 1e-9, np.array(pos))
+    if vel is None:
+        return None
+    return (exposure_s * vel[0], exposure_s * vel[1])
 
 
 def _solver_options(extra: dict) -> tuple[dict, dict]:

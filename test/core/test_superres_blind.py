@@ -212,3 +212,33 @@ def test_right_given_shifts_are_used_as_given(crops, crop, p, blur, snr):
     r = reconstruct(fl.frames, good, p, blur_sigma=blur, refine_shifts=False)
     assert "disagree" not in r.reason
     np.testing.assert_allclose(r.shifts, good - good[0], rtol=0, atol=1e-12)
+
+
+# ------------------------------------------------------------------ a given blur checked
+
+
+def test_a_given_blur_clearly_above_the_edges_is_replaced_and_said(crops):
+    """blur_sigma given 0.7 px for a true 0.3 (a roof in view): the edges overrule it.
+
+    Measured (crop_road, x2, 8 random frames, fill 1.0, 128 px): given 0.7 px the image is
+    15.7 dB below bicubic; the edges' 0.28 px gives +6.3 dB. Given the truth, it is kept.
+    """
+    from subpix_ros.core.blur import check_given_blur
+
+    sc = scene_crop(crops["crop_road"], 2, 128, 8, (240, 240))
+    fl = degrade(sc, 2, shift_layout("random", 2, seed=3), 0.3, roof=True, seed=4, margin=8)
+    sh = est_shifts(fl.frames)
+    cal = BlurCalibration("0.7", check_given=True)
+    assert cal.due
+    e = cal.update(fl.frames, sh)
+    assert e.source == "edges" and e.sigma <= 0.3 + 0.05, e
+    assert "0.700 px given" in e.reason and "over-deconvolve" in e.reason
+    assert gain(fl, reconstruct(fl.frames, sh, 2, blur_sigma=0.7).image) < 0.0
+    assert gain(fl, reconstruct(fl.frames, sh, 2, blur_sigma=e).image) > 3.0
+    kept = BlurCalibration("0.3", check_given=True).update(fl.frames, sh)
+    assert kept.source == "parameter" and kept.sigma == 0.3 and "consistent" in kept.reason
+    # no edge in view: the number stands
+    plain = flight(crops, "crop_rows", 2, 0.3, layout="random", seed=4)
+    assert check_given_blur(0.7, estimate_blur(plain.frames, plain.shifts)).sigma == 0.7
+    # and without the check (the default) the frames are not looked at
+    assert BlurCalibration("0.7").update([], None).sigma == 0.7

@@ -20,6 +20,7 @@ def _cg_map(
     reg: float,
     x0: np.ndarray,
     iters: int,
+    motion_blur: tuple[float, float] = (0.0, 0.0),
 ) -> np.ndarray:
     """Compute the MAP estimate of eq. 9 by conjugate gradients with the spatial operators.
 
@@ -45,6 +46,9 @@ def _cg_map(
         (p H, p W) starting image (the Fourier solution).
     iters : int
         Most CG iterations (each 2 N resamplings and 2 FFTs).
+    motion_blur : (float, float), optional
+        Image motion during the exposure ``(du, dv)`` (LR px; default none): a line kernel
+        in every frame operator.
 
     Returns
     -------
@@ -54,8 +58,8 @@ def _cg_map(
     Notes
     -----
     Solves ``(sum_n A_n^T M_n A_n / sigma^2 + reg Q) x = sum_n A_n^T M_n y_n / sigma^2`` where
-    ``A_n`` is :class:`~subpix_ros.core.superres.model.FrameOperator` (blur, any homography,
-    box integration; bilinear resampling), ``M_n`` the validity mask (given mask and
+    ``A_n`` is :class:`~subpix_ros.core.superres.model.FrameOperator` (blur, motion blur, any
+    homography, box integration; bilinear resampling), ``M_n`` the validity mask (given mask and
     footprint inside the HR grid) and ``Q`` the stationary prior precision, applied by FFT:
     ``Q x = ifft(fft(x) / S_x(f))`` (DC unregularised).
     """
@@ -65,7 +69,7 @@ def _cg_map(
     fx = np.fft.rfftfreq(hw)[None, :]
     fr = np.hypot(fy, fx)
     prec = np.where(fr > 0, np.maximum(fr, 1e-6) ** alpha / c, 0.0)
-    ops = _masked_operators(frames, homographies, p, blur_sigma, masks, (hh, hw))
+    ops = _masked_operators(frames, homographies, p, blur_sigma, masks, (hh, hw), motion_blur)
     inv_var = 1.0 / noise_sigma**2
 
     def normal(x: np.ndarray) -> np.ndarray:
@@ -88,11 +92,14 @@ def _masked_operators(
     blur_sigma: float,
     masks: Sequence[np.ndarray] | None,
     hr_shape: tuple[int, int],
+    motion_blur: tuple[float, float] = (0.0, 0.0),
 ) -> list[tuple[FrameOperator, np.ndarray]]:
     """Return each frame's operator and its mask (footprint inside the HR grid, and given)."""
     ops = []
     for i in range(frames.shape[0]):  # one operator per frame
-        op = FrameOperator(homographies[i], frames[i].shape, hr_shape, p, p, blur_sigma)
+        op = FrameOperator(
+            homographies[i], frames[i].shape, hr_shape, p, p, blur_sigma, tuple(motion_blur)
+        )
         m = op.valid.astype(np.float64)
         if masks is not None:
             m = m * np.asarray(masks[i], dtype=bool)

@@ -14,6 +14,7 @@ expected transfer and an extra noise term.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -24,7 +25,7 @@ from ..filters import fractional_shift
 from .dft import _assemble_hr, _rfft2_32
 from .geometry import _refine_shifts
 from .lowpass import _preshift_window, _WholeLowpass
-from .model import _frame_transfers
+from .model import _frame_transfers, motion_transfer
 from .separable import _solve_separable
 from .spectrum import _SPECTRUM_CROP, fit_spectrum
 from .validation import FrameStack
@@ -163,6 +164,7 @@ def _fourier_map(
     pad: int,
     integer_valued: bool | None = None,
     lowpassed: _WholeLowpass | None = None,
+    motion_blur: tuple[float, float] = (0.0, 0.0),
 ) -> MapSolution:
     """Compute the MAP estimate of eq. 9 for translated frames, per LR frequency bin.
 
@@ -191,6 +193,9 @@ def _fourier_map(
         Whether the data are integers (rounding-noise floor); checked on the data if None.
     lowpassed : _WholeLowpass or None, optional
         Shared whole-frame low-passes of ``frames``.
+    motion_blur : (float, float), optional
+        Image motion during the exposure ``d = (du, dv)`` (LR px, rows and cols; default
+        none), common to every frame.
 
     Returns
     -------
@@ -223,12 +228,24 @@ def _fourier_map(
     spec = np.empty((n, hp, wc), np.complex64)
     for i, frame in enumerate(padded):  # per frame: single-precision DFT, rfft half
         spec[i] = _rfft2_32(frame)
-    c_psd, alpha, noise_sigma = _fit_prior(registered, p, blur_sigma, noise_sigma, integer_valued)
+    c_psd, alpha, noise_sigma = _fit_prior(
+        registered, p, blur_sigma, noise_sigma, integer_valued, motion_blur
+    )
     noise_power = hp * wp * noise_sigma**2
     c = c_psd * p * p * hp * wp  # prior in HR DFT units: E|X|^2 = (p hp)(p wp) S_x
     cov = _error_covariance(registered.shift_cov, registered.shift_sigma, refine_shifts)
     xs, wsum, resid_ratio = _solve_bins(
-        spec, registered.resid, p, blur_sigma, cov, c, alpha, reg, noise_power, (hp, wp)
+        spec,
+        registered.resid,
+        p,
+        blur_sigma,
+        cov,
+        c,
+        alpha,
+        reg,
+        noise_power,
+        (hp, wp),
+        motion_blur,
     )
     img = _assemble_hr(xs, hp, wp)
     out = img[p * pad : p * (pad + h), p * pad : p * (pad + w)].astype(np.float64)
@@ -335,11 +352,13 @@ def _fit_prior(
     blur_sigma: float,
     noise_sigma: float | None,
     integer_valued: bool | None,
+    motion_blur: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[float, float, float]:
     """Fit the prior and settle the noise level: ``(c_psd, alpha, noise_sigma)``.
 
-    The prior is fitted (:func:`~subpix_ros.core.superres.spectrum.fit_spectrum`) on the
-    central crop of the first two integer-preshifted frames. An unknown noise level is the
+    The prior is fitted (:func:`~subpix_ros.core.superres.spectrum.fit_spectrum`, through the
+    motion blur's transfer too if any) on the central crop of the first two integer-preshifted
+    frames. An unknown noise level is the
     registration's multi-frame estimate, else the fit's, floored at the rounding noise
     ``1/sqrt(12)`` DN of integer data (0.05 DN otherwise; the prior is refitted with the
     floor); the result is never below 0.05 DN.
@@ -358,7 +377,7 @@ def _fit_prior(
     )
     if noise_sigma is None and np.isfinite(registered.lk_noise):
         noise_sigma = registered.lk_noise
-    c_psd, alpha, sig_fit = fit_spectrum(pre, p, blur_sigma, noise_sigma)
+    c_psd, alpha, sig_fit = fit_spectrum(pre, p, blur_sigma, noise_sigma, motion_blur=motion_blur)
     if noise_sigma is None:
         if integer_valued is None:  # integer dtypes are known to be; float data are checked
             integer_valued = (
@@ -369,7 +388,7 @@ def _fit_prior(
         floor = 1.0 / np.sqrt(12.0) if integer_valued else 0.05
         noise_sigma = max(sig_fit, floor)
         if sig_fit < floor:  # refit the prior level with the floor as the noise
-            c_psd, alpha, _ = fit_spectrum(pre, p, blur_sigma, noise_sigma)
+            c_psd, alpha, _ = fit_spectrum(pre, p, blur_sigma, noise_sigma, motion_blur=motion_blur)
     return c_psd, alpha, max(noise_sigma, 0.05)
 
 
@@ -400,24 +419,66 @@ def _solve_bins(
     reg: float,
     noise_power: float,
     padded_shape: tuple[int, int],
+    motion_blur: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve every LR bin: ``(xs, wsum, resid_ratio)``.
 
     When the registration error is negligible at all frequencies (relative transfer loss
     ``2 pi^2 max tr(C) / 2 < 1e-3``) the weights are constant and the separable solver is
     used; otherwise :func:`_solve_uncertain`. ``wsum`` is each frame's summed ``|a|^2``
-    weight at DC (alias 0, row and column 0).
+    weight at DC (alias 0, row and column 0). A motion blur enters as a prior gain
+    ``|M|^2`` on ``Z = M X``, then ``X = Z / M`` (see :func:`_fourier_map`).
     """
     hp, wp = padded_shape
     n = spec.shape[0]
     ay, fy = _frame_transfers(hp, p, resid[:, 0], blur_sigma)
     ax, fx = _frame_transfers(wp, p, resid[:, 1], blur_sigma, wp // 2 + 1)
     max_var = float(np.max(cov[:, 0, 0] + cov[:, 1, 1]))
+    moving = tuple(motion_blur) != (0.0, 0.0)
     if 2.0 * np.pi**2 * max_var * 0.5 < 1e-3:
-        xs = _solve_separable(spec, ay, ax, fy, fx, c, alpha, reg, noise_power, shifts=resid)
+        gain = None
+        if moving:
+            gain = [
+                functools.partial(_motion_prior_gain, fy[m1], fx[m2], p, motion_blur)
+                for m1 in range(p)
+                for m2 in range(p)
+            ]
+        xs = _solve_separable(
+            spec, ay, ax, fy, fx, c, alpha, reg, noise_power, shifts=resid, prior_gain=gain
+        )
         wsum = np.sum(np.abs(ay[:, 0]) ** 2, axis=1) * np.sum(np.abs(ax[:, 0]) ** 2, axis=1)
-        return xs, wsum, np.full(n, np.nan)
-    return _solve_uncertain(spec, ay, ax, fy, fx, cov, c, alpha, reg, noise_power)
+        out = xs, wsum, np.full(n, np.nan)
+    else:
+        out = _solve_uncertain(
+            spec, ay, ax, fy, fx, cov, c, alpha, reg, noise_power, motion_blur if moving else None
+        )
+    if moving:
+        xs = out[0]
+        for m1 in range(p):  # X = Z / M, alias by alias (memory: one (hp, wc) gain at a time)
+            for m2 in range(p):
+                xs[m1, m2] /= _motion_gain(fy[m1][:, None], fx[m2][None, :], p, motion_blur)
+    return out
+
+
+MOTION_MIN_GAIN = 1e-3  # |M| floor of the motion blur's transfer in the model (X = Z / M)
+
+
+def _motion_gain(fy: np.ndarray, fx: np.ndarray, p: int, motion_blur) -> np.ndarray:
+    """Return the motion blur's transfer ``M`` with ``|M|`` floored at ``MOTION_MIN_GAIN``.
+
+    float32, broadcast of ``fy`` and ``fx`` (cycles / HR px); the sign is kept (+ at 0).
+    """
+    m = motion_transfer(fy, fx, p, motion_blur)
+    return np.where(
+        np.abs(m) < MOTION_MIN_GAIN, np.where(m < 0, -MOTION_MIN_GAIN, MOTION_MIN_GAIN), m
+    ).astype(np.float32)
+
+
+def _motion_prior_gain(
+    fy: np.ndarray, fx: np.ndarray, p: int, motion_blur, r0: int, r1: int
+) -> np.ndarray:
+    """Return ``|M|^2`` (:func:`_motion_gain`) of spectrum rows ``r0 .. r1``: (R, wc) float32."""
+    return np.square(_motion_gain(fy[r0:r1, None], fx[None, :], p, motion_blur))
 
 
 def _solve_uncertain(
@@ -431,10 +492,12 @@ def _solve_uncertain(
     alpha: float,
     reg: float,
     noise_power: float,
+    motion_blur: tuple[float, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve every bin with per-frame expected transfers and noise (see :func:`_fourier_map`).
 
-    Chunks of LR spectrum rows bound the memory. Returns ``(xs, wsum, resid_ratio)``: the
+    Chunks of LR spectrum rows bound the memory. With ``motion_blur`` the prior is that of
+    ``Z = M X`` (``|M|^2 P``; the caller divides by M). Returns ``(xs, wsum, resid_ratio)``: the
     alias components, each frame's summed weight ``|a|^2 / v`` at kx = 0, and its mean
     normalised residual ``|Y - A X|^2 / v`` over the bins.
     """
@@ -458,6 +521,7 @@ def _solve_uncertain(
             alpha,
             reg,
             noise_power,
+            motion_blur,
         )
         xs[:, :, r0:r1, :] = sol.T.reshape(p, p, r1 - r0, wc)
         resid_ratio += res2
@@ -477,6 +541,7 @@ def _solve_rows(
     alpha: float,
     reg: float,
     noise_power: float,
+    motion_blur: tuple[float, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve the bins of a block of LR spectrum rows (:func:`_solve_uncertain`).
 
@@ -490,6 +555,11 @@ def _solve_rows(
     fxy = fyc[:, None, :, None] * fx[None, :, None, :]
     fr = np.sqrt(f2y + f2x)
     prior = np.where(fr > 0, c * np.maximum(fr, 1e-6) ** (-alpha), 1e30)  # (p,p,R,wc)
+    if motion_blur is not None:  # the prior of Z = M X
+        prior = prior * np.square(
+            _motion_gain(fyc[:, None, :, None], fx[None, :, None, :], p, motion_blur),
+            dtype=np.float64,
+        )
     a0 = ay_rows[:, :, None, :, None] * ax[:, None, :, None, :]  # (n,p,p,R,wc)
     e = np.exp(
         -2.0

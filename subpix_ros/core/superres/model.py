@@ -43,6 +43,9 @@ __all__ = [
     "translation_homography",
     "FrameOperator",
     "frame_transfer_1d",
+    "motion_transfer",
+    "motion_filter",
+    "motion_blur_vector",
 ]
 
 
@@ -116,6 +119,111 @@ def blur(x: np.ndarray, sigma: float) -> np.ndarray:
     )
 
 
+def motion_blur_vector(motion_blur) -> tuple[float, float]:
+    """Return a ``motion_blur`` setting as a float pair ``(du, dv)`` (LR px); None is (0, 0).
+
+    Parameters
+    ----------
+    motion_blur : None or (float, float)
+        The image motion during the exposure (rows, cols; LR px).
+
+    Returns
+    -------
+    (float, float)
+        ``(du, dv)``.
+
+    Raises
+    ------
+    ValueError
+        If it is not two finite numbers.
+    """
+    if motion_blur is None:
+        return (0.0, 0.0)
+    d = np.asarray(motion_blur, dtype=np.float64).ravel()
+    if d.shape != (2,) or not np.isfinite(d).all():
+        raise ValueError(
+            f"motion_blur must be two finite numbers (du, dv) in LR px, got {motion_blur}"
+        )
+    return (float(d[0]), float(d[1]))
+
+
+def motion_transfer(fy: np.ndarray, fx: np.ndarray, p: int, motion_blur) -> np.ndarray:
+    """Return the transfer ``M(f)`` of the motion blur at HR frequencies ``(fy, fx)``.
+
+    Parameters
+    ----------
+    fy, fx : numpy.ndarray
+        Signed HR frequencies (cycles / HR px) along rows and columns; broadcast together.
+    p : int
+        Factor (HR px per LR px).
+    motion_blur : (float, float)
+        ``d = (du, dv)``: the image motion during the exposure (LR px, rows and cols).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, real: ``M = sinc(p (fy du + fx dv))`` (numpy's ``sinc(x) = sin(pi x) / (pi x)``).
+
+    Notes
+    -----
+    The PSF of a uniform motion over the exposure is a 1-D box of length ``|d|`` along ``d``,
+    centred on the mid-exposure position (the frame's shift): its Fourier transform is
+    ``M(nu) = sinc(nu . d)`` with ``nu = p f`` in cycles / LR px. It is real and even, so the
+    sign of ``d`` does not matter, and common to every frame of a set (one velocity), so like
+    the optics blur it commutes with the shifts. It is separable only when ``d`` lies along
+    an axis.
+    """
+    du, dv = motion_blur
+    return np.sinc(p * (np.asarray(fy) * du + np.asarray(fx) * dv))
+
+
+@functools.lru_cache(maxsize=8)
+def _motion_fft(
+    shape: tuple[int, int], du_hr: float, dv_hr: float
+) -> tuple[int, tuple[int, int], np.ndarray]:
+    """Return ``(pad, padded shape, transfer)`` of :func:`motion_filter` (cached, read-only)."""
+    pad = int(np.ceil(np.hypot(du_hr, dv_hr) / 2.0)) + 2
+    hp = cv2.getOptimalDFTSize(shape[0] + 2 * pad)
+    wp = cv2.getOptimalDFTSize(shape[1] + 2 * pad)
+    m = motion_transfer(
+        np.fft.fftfreq(hp)[:, None], np.fft.rfftfreq(wp)[None, :], 1, (du_hr, dv_hr)
+    )
+    m.flags.writeable = False
+    return pad, (hp, wp), m
+
+
+def motion_filter(x: np.ndarray, du_hr: float, dv_hr: float) -> np.ndarray:
+    """Blur by a motion of ``(du_hr, dv_hr)`` pixels of ``x`` (rows, cols), zero border.
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        2-D image (float).
+    du_hr, dv_hr : float
+        Motion during the exposure along rows and columns (pixels of ``x``).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, the shape of ``x``; ``x`` itself for no motion.
+
+    Notes
+    -----
+    ``x`` is zero-padded by ``ceil(|d| / 2) + 2`` px, multiplied in the DFT by the exact
+    transfer ``sinc(f . d)`` (:func:`motion_transfer`, f in cycles / px: the same as the
+    Fourier solve's) and cropped back: ``P^T F^-1 M F P`` with M real and even is symmetric,
+    so the operator is self-adjoint, as the conjugate-gradient solver needs.
+    """
+    if du_hr == 0.0 and dv_hr == 0.0:
+        return x
+    h, w = x.shape
+    pad, (hp, wp), m = _motion_fft((h, w), float(du_hr), float(dv_hr))
+    buf = np.zeros((hp, wp))
+    buf[pad : pad + h, pad : pad + w] = x
+    out = np.fft.irfft2(np.fft.rfft2(buf) * m, s=(hp, wp))
+    return out[pad : pad + h, pad : pad + w]
+
+
 def decimate_mean(z: np.ndarray, p: int, q: int) -> np.ndarray:
     """Apply detector integration ``D_pq``: the mean of each p x q block (eq. 3 / (p q))."""
     h, w = z.shape[0] // p, z.shape[1] // q
@@ -134,7 +242,7 @@ def translation_homography(u: float, v: float) -> np.ndarray:
 
 @dataclass
 class FrameOperator:
-    """The frame operator ``A_n = D_pq S_n B``: HR image (reference grid) -> LR frame n.
+    """The frame operator ``A_n = D_pq S_n L B``: HR image (reference grid) -> LR frame n.
 
     Parameters
     ----------
@@ -148,12 +256,19 @@ class FrameOperator:
         Factors along rows and columns.
     blur_sigma : float
         Optics blur std (LR px).
+    motion_blur : (float, float), optional
+        Image motion during the exposure ``d = (du, dv)`` (LR px, rows and cols; default
+        none): ``L`` is the motion blur of ``(p du, q dv)`` HR px (:func:`motion_filter`,
+        the exact ``sinc`` transfer) applied on the HR grid after the optics blur ``B``. On
+        the reference grid: exact for translations, an approximation for homographies far
+        from one.
 
     Notes
     -----
     Sub-pixels of frame n whose scene position falls outside the HR grid (or within
-    ``3 blur_sigma max(p, q)`` HR px of its edge, where the zero-border blur is wrong) are
-    invalid; :attr:`valid` marks the LR pixels all of whose sub-pixels are valid.
+    ``3 blur_sigma max(p, q)`` HR px, plus half the motion's length and 1 px, of its edge,
+    where the zero-border blur is wrong) are invalid; :attr:`valid` marks the LR pixels all
+    of whose sub-pixels are valid.
     Resampling is bilinear (4 taps per sub-pixel), its adjoint a weighted scatter
     (``np.bincount``).
     """
@@ -164,6 +279,8 @@ class FrameOperator:
     p: int
     q: int
     blur_sigma: float = 0.4  # LR pixels
+    motion_blur: tuple[float, float] = (0.0, 0.0)  # LR pixels (rows, cols)
+    _motion_hr: tuple[float, float] = field(init=False, repr=False)
     _idx: np.ndarray = field(init=False, repr=False)
     _wts: np.ndarray = field(init=False, repr=False)
     valid: np.ndarray = field(init=False, repr=False)
@@ -182,7 +299,11 @@ class FrameOperator:
         y0 = (hinv[1, 0] * cc + hinv[1, 1] * rr + hinv[1, 2]) / den
         hr_r = p * (y0 + 0.5) - 0.5  # HR index coordinates
         hr_c = q * (x0 + 0.5) - 0.5
+        du, dv = motion_blur_vector(self.motion_blur)
+        self._motion_hr = (p * du, q * dv)
         border = int(np.ceil(3.0 * self.blur_sigma * max(p, q)))
+        if (du, dv) != (0.0, 0.0):
+            border += int(np.ceil(np.hypot(*self._motion_hr) / 2.0)) + 1
         ok = (
             (hr_r >= border)
             & (hr_r <= hh - 1 - border)
@@ -201,7 +322,7 @@ class FrameOperator:
 
     def forward(self, x: np.ndarray) -> np.ndarray:
         """Apply ``A_n x``: HR image (hr_shape) -> LR frame (lr_shape), invalid pixels 0."""
-        bx = blur(x, self.blur_sigma * self.p).ravel()
+        bx = motion_filter(blur(x, self.blur_sigma * self.p), *self._motion_hr).ravel()
         sub = (
             (bx[self._idx] * self._wts)
             .sum(axis=0)
@@ -218,7 +339,9 @@ class FrameOperator:
         acc = np.bincount(
             self._idx.ravel(), weights=(self._wts * sub[None, :]).ravel(), minlength=n
         )
-        return blur(acc.reshape(self.hr_shape), self.blur_sigma * self.p)
+        return blur(
+            motion_filter(acc.reshape(self.hr_shape), *self._motion_hr), self.blur_sigma * self.p
+        )
 
 
 def frame_transfer_1d(

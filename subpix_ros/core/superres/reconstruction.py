@@ -50,7 +50,7 @@ from .cg_map import _cg_map
 from .fourier_map import MapSolution, _fourier_map
 from .geometry import detect_geometry
 from .lowpass import _WholeLowpass
-from .model import translation_homography
+from .model import motion_blur_vector, translation_homography
 from .paper import grid_offsets, interleave, pinv_solution, windowed_solution
 from .result import (
     BLUR_AUTO,
@@ -100,6 +100,10 @@ def reconstruct(
           (LR px^2); ignored when ``refine_shifts`` (the refinement's own is used);
         - ``homographies``: (N, 3, 3) reference -> frame LR pixel coordinates (replaces
           shifts; forces the CG solver);
+        - ``motion_blur``: ``(du, dv)``, the image motion during the exposure (LR px, rows
+          and cols, e.g. exposure x image velocity; default None = none): the PSF becomes
+          optics Gaussian x pixel box x a 1-D box of length ``|(du, dv)|`` along it, common
+          to every frame (only "map" uses it; see Notes);
         - ``noise_sigma``: per-pixel noise std (DN); estimated from the frames if None;
         - ``reg``: prior strength multiplier (1 = the prior fitted to the data);
         - ``refine_shifts``: refine the shifts against frame 0 (default True);
@@ -120,16 +124,28 @@ def reconstruct(
     ------
     ValueError
         On malformed input (fewer than 2 frames, mismatched shapes, factor outside 2..4,
-        bad shifts, unknown method).
+        bad shifts, unknown method, a motion blur that is not two finite numbers).
+
+    Notes
+    -----
+    The motion blur's transfer is ``M(nu) = sinc(nu . d)``, ``d = (du, dv)`` LR px, ``nu``
+    in cycles / LR px (numpy's ``sinc``; real and even: the sign of ``d`` does not matter).
+    It multiplies the optics and pixel transfers; the frame's shift is its mid-exposure
+    position. The Fourier solve estimates ``Z = M X`` with the prior ``|M|^2 P`` and returns
+    ``X = Z / M``; the CG solve filters the HR grid by the same transfer
+    (:func:`~subpix_ros.core.superres.model.motion_filter`).
     """
-    est = _resolve_blur(blur_sigma, frames, shifts, kw.get("method", "map"))
+    est = _resolve_blur(blur_sigma, frames, shifts, kw.get("method", "map"), kw.get("motion_blur"))
     res = _reconstruct(frames, shifts, factor, blur_sigma=est.sigma, **kw)
     res.blur_sigma, res.blur_source, res.blur_reason = float(est.sigma), est.source, est.reason
     return res
 
 
-def _resolve_blur(blur_sigma, frames, shifts, method: str) -> BlurEstimate:
-    """Turn a ``blur_sigma`` setting into a :class:`BlurEstimate` (measured for "auto")."""
+def _resolve_blur(blur_sigma, frames, shifts, method: str, motion_blur=None) -> BlurEstimate:
+    """Turn a ``blur_sigma`` setting into a :class:`BlurEstimate` (measured for "auto").
+
+    "auto" measures the edges with the motion blur taken out (``estimate_blur``).
+    """
     if isinstance(blur_sigma, BlurEstimate):
         return blur_sigma
     value = parse_blur_sigma(blur_sigma)
@@ -144,7 +160,7 @@ def _resolve_blur(blur_sigma, frames, shifts, method: str) -> BlurEstimate:
         sh = None if shifts is None else np.asarray(shifts, dtype=np.float64)
         if sh is not None and (sh.shape != (len(frames), 2) or not np.isfinite(sh).all()):
             sh = None  # malformed shifts: _reconstruct says why
-        return estimate_blur(frames, sh)
+        return estimate_blur(frames, sh, motion_blur=motion_blur_vector(motion_blur))
     # the blur is not used (or the input is malformed: _reconstruct says why)
     return BlurEstimate(0.0, "unused", reason="the method does not model the blur")
 
@@ -166,8 +182,10 @@ def _reconstruct(
     window: int | None = None,
     pad: int = 16,
     cg_iters: int = 30,
+    motion_blur: tuple[float, float] | None = None,
 ) -> SRResult:
     """Reconstruct with a numeric blur; the options of :func:`reconstruct`."""
+    motion = motion_blur_vector(motion_blur)
     arrs, rel, p = _validate(frames, shifts, factor, masks, shift_cov, homographies)
     n = len(arrs)
     _check_options(method, geometry, blur_sigma, reg, noise_sigma)
@@ -210,8 +228,12 @@ def _reconstruct(
         geometry=geometry,
         pad=pad,
         cg_iters=cg_iters,
+        motion_blur=motion,
     )
-    return _map_method(arrs, rel, p, sigma, opts)
+    res = _map_method(arrs, rel, p, sigma, opts)
+    if not res.fell_back:
+        res.motion_blur = motion
+    return res
 
 
 def _paper_method(
@@ -275,6 +297,7 @@ class _MapOptions:
     geometry: str
     pad: int
     cg_iters: int
+    motion_blur: tuple[float, float] = (0.0, 0.0)
 
 
 def _map_method(
@@ -315,6 +338,7 @@ def _map_method(
             opts.pad,
             integer_valued=ints,
             lowpassed=lowpassed,
+            motion_blur=opts.motion_blur,
         )
     except (ValueError, np.linalg.LinAlgError) as exc:
         return _fallback(ref, p, f"MAP solve failed: {exc}", sigma, n, rel)
@@ -337,6 +361,7 @@ def _map_method(
             opts.reg,
             img,
             opts.cg_iters,
+            opts.motion_blur,
         )
         method_used = "map-cg"
     return _map_result(img, ref, p, sol, method_used, reason, rel)

@@ -51,6 +51,9 @@ class SRResult:
     shifts_disputed : int
         Frames whose given shift disagreed with the frames' own registration and was replaced
         by it (only when the shifts are used as given, ``refine_shifts=False``).
+    motion_blur : (float, float)
+        Image motion during the exposure the model used, ``(du, dv)`` LR px ((0, 0): none
+        modelled, e.g. the method does not model blur or the result fell back).
     """
 
     image: np.ndarray
@@ -66,6 +69,7 @@ class SRResult:
     blur_source: str = ""
     blur_reason: str = ""
     shifts_disputed: int = 0
+    motion_blur: tuple[float, float] = (0.0, 0.0)
 
 
 def psnr(image: np.ndarray, truth: np.ndarray, border: int = 0, peak: float = 255.0) -> float:

@@ -30,6 +30,7 @@ def _solve_separable(
     noise_power: float,
     block_bins: int = 1 << 16,
     shifts: np.ndarray | None = None,
+    prior_gain: list | None = None,
 ) -> np.ndarray:
     """Solve eq. 9 per LR bin (normal equations) when every frame's noise is white.
 
@@ -51,6 +52,10 @@ def _solve_separable(
     shifts : numpy.ndarray, optional
         (N, 2) fractional shifts (LR px) that ``ay``/``ax`` were built with: the Gram
         entries are then outer products (:func:`_rank_one_gram_factors`).
+    prior_gain : list, optional
+        Per alias ``j = p m1 + m2`` a function ``g(r0, r1) -> (r1 - r0, wc)`` scaling the
+        prior of those spectrum rows (``P -> g P``; default 1): how the motion blur enters
+        (:func:`~subpix_ros.core.superres.fourier_map._solve_bins`).
 
     Returns
     -------
@@ -97,6 +102,7 @@ def _solve_separable(
             alpha,
             np.float32(reg / c),
             xs[:, :, r0:r1],
+            prior_gain,
         )
     return xs
 
@@ -212,10 +218,12 @@ def _solve_separable_block(
     alpha: float,
     lam_scale: np.float32,
     out: np.ndarray,
+    prior_gain: list | None = None,
 ) -> None:
     """Solve spectrum rows ``r0 .. r1`` of :func:`_solve_separable`; write ``out`` (p, p, R, wc).
 
-    ``spec``, ``ay32`` and ``cay`` are cut to the block; ``lam_scale = reg / c``.
+    ``spec``, ``ay32`` and ``cay`` are cut to the block; ``lam_scale = reg / c``;
+    ``prior_gain`` as in :func:`_solve_separable`.
     """
     n, p, nr = ay32.shape
     wc = cax.shape[2]
@@ -224,7 +232,7 @@ def _solve_separable_block(
     t = spec.transpose(1, 0, 2)[:, :, None, :] * cax[None, :, :, :]  # (R, n, p, wc)
     rhs = np.matmul(cay.transpose(2, 1, 0), t.reshape(nr, n, p * wc))  # (R, p, p wc)
     del t
-    low, dinv = _cholesky_block(gram, lam_cols, r0, r1, alpha, lam_scale, p * p)
+    low, dinv = _cholesky_block(gram, lam_cols, r0, r1, alpha, lam_scale, p * p, prior_gain)
     _substitute(rhs, low, dinv, out)
 
 
@@ -256,8 +264,12 @@ def _cholesky_block(
     alpha: float,
     lam_scale: np.float32,
     k: int,
+    prior_gain: list | None = None,
 ) -> tuple[dict, list]:
-    """Factor ``gram + diag(reg |f|^alpha / c) = L L^H`` per bin, loops over the k x k index.
+    """Factor ``gram + diag(reg |f|^alpha / (c g)) = L L^H`` per bin, loops over the k x k index.
+
+    ``g`` is the prior gain of each alias (``prior_gain``, :func:`_solve_separable`; 1 if
+    None).
 
     Returns the strictly lower entries ``low[i, j]`` (in place on ``gram``) and the
     inverse diagonal ``dinv[j]`` (float32), each (R, wc).
@@ -273,6 +285,8 @@ def _cholesky_block(
         np.add(fy2[r0:r1, None], fx2[None, :], out=tmp_r, casting="same_kind")
         d = cv2.pow(tmp_r, alpha / 2.0)
         d *= lam_scale
+        if prior_gain is not None:
+            d /= prior_gain[j](r0, r1)
         if j == 0 and r0 == 0:
             d[0, 0] = 0.0  # alias (0, 0) at bin (0, 0) is the HR DC term
         d += gram[j, j].real

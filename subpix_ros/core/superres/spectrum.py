@@ -14,7 +14,7 @@ import numpy as np
 
 from ..filters import tukey_2d
 from .dft import _rfft2_32
-from .model import frame_transfer_1d
+from .model import frame_transfer_1d, motion_transfer
 
 __all__ = ["estimate_noise_sigma", "fit_spectrum"]
 
@@ -83,6 +83,7 @@ def fit_spectrum(
     noise_sigma: float | None = None,
     max_bins: int = 8000,
     crop: int = _SPECTRUM_CROP,
+    motion_blur: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[float, float, float]:
     """Fit the stationary prior and the noise floor to the frames' power spectrum.
 
@@ -100,6 +101,10 @@ def fit_spectrum(
         Frequency bins used (a fixed subsample of those above 0.03 cycles/LR px).
     crop : int, optional
         Side of the central region (LR px).
+    motion_blur : (float, float), optional
+        Image motion during the exposure ``d = (du, dv)`` (LR px; default none): its
+        transfer ``M`` (:func:`~subpix_ros.core.superres.model.motion_transfer`) multiplies
+        ``a_m``.
 
     Returns
     -------
@@ -117,7 +122,8 @@ def fit_spectrum(
         E S_y(nu) = p^2 sum_m |a_m(nu)|^2 c |f_m|^-alpha + sigma^2
 
     the HR scene's power law ``S_x(f) = c |f|^-alpha`` seen through the observation model
-    (eq. 3 with blur, aliased over the p^2 components m, ``a_m`` from ``frame_transfer_1d``)
+    (eq. 3 with blur, aliased over the p^2 components m, ``a_m`` from ``frame_transfer_1d``,
+    times the motion blur's ``M(f_m)`` if any)
     plus white noise. ``S_y`` is the Tukey-windowed periodogram averaged over the frames. For
     each alpha, (c, sigma^2) solve a weighted linear least squares (weights 1/model^2: a
     periodogram's std equals its mean; 3 reweighting passes); the alpha with the least
@@ -134,10 +140,11 @@ def fit_spectrum(
         x = (x - np.float32(x.mean(dtype=np.float64))) * win
         psd += np.abs(_rfft2_32(x)) ** 2
     psd /= len(sub) * float(np.sum(np.square(win, dtype=np.float64)))
-    sel, amp, logf = _spectrum_model(h, w, p, float(blur_sigma), max_bins)
+    mot = (float(motion_blur[0]), float(motion_blur[1]))
+    sel, amp, logf = _spectrum_model(h, w, p, float(blur_sigma), max_bins, mot)
     obs = psd.ravel()[sel]
     # coarse 0.3 grid, then the 0.1 grid within +-0.2 of the coarse best (misfit unimodal in alpha)
-    key = (h, w, p, float(blur_sigma), max_bins)
+    key = (h, w, p, float(blur_sigma), max_bins, mot)
     coarse = _fit_exponents(
         1.0, 0.3, 11, amp, logf, obs, noise_sigma, *_exponent_terms(*key, 1.0, 0.3, 11)
     )
@@ -253,14 +260,22 @@ def _exponent_sums(
 
 @functools.lru_cache(maxsize=64)
 def _exponent_terms(
-    h: int, w: int, p: int, blur_sigma: float, max_bins: int, a0: float, da: float, count: int
+    h: int,
+    w: int,
+    p: int,
+    blur_sigma: float,
+    max_bins: int,
+    motion_blur: tuple[float, float],
+    a0: float,
+    da: float,
+    count: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Return ``(q, q^2)`` of :func:`_exponent_sums` on :func:`_spectrum_model`'s terms.
 
-    They depend only on the crop shape, factor, blur and exponents, so they are cached
+    They depend only on the crop shape, factor, blur, motion blur and exponents, so they are cached
     (read-only; the fine search has one table per coarse winner).
     """
-    _, amp, logf = _spectrum_model(h, w, p, blur_sigma, max_bins)
+    _, amp, logf = _spectrum_model(h, w, p, blur_sigma, max_bins, motion_blur)
     q = _exponent_sums(a0, da, count, amp, logf)
     q2 = q * q
     q.flags.writeable = False
@@ -288,11 +303,17 @@ def _spectrum_bins(h: int, w: int, max_bins: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=16)
 def _spectrum_model(
-    h: int, w: int, p: int, blur_sigma: float, max_bins: int
+    h: int,
+    w: int,
+    p: int,
+    blur_sigma: float,
+    max_bins: int,
+    motion_blur: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[np.ndarray, ...]:
     """Return the bins and model terms of :func:`fit_spectrum` for an h x w crop.
 
-    Returns the flat bin indices ``sel`` (:func:`_spectrum_bins`), ``amp[m] = p^2 |a_m|^2`` and
+    Returns the flat bin indices ``sel`` (:func:`_spectrum_bins`), ``amp[m] = p^2 |a_m M_m|^2``
+    (``M_m`` the motion blur's transfer, 1 without) and
     ``log |f_m|`` (p^2, bins) of the p^2 aliases m at those bins; cached per shape, read-only.
     """
     ay, fy = frame_transfer_1d(h, p, 0.0, blur_sigma)
@@ -304,6 +325,9 @@ def _spectrum_model(
     amp = np.ascontiguousarray(
         (np.abs(ay[:, None, ky] * ax[None, :, kx]) ** 2).reshape(p * p, -1) * p * p
     )
+    if motion_blur != (0.0, 0.0):
+        mt = motion_transfer(fy[:, None, ky], fx[None, :, kx], p, motion_blur)
+        amp = np.ascontiguousarray(amp * (mt**2).reshape(p * p, -1))
     fm = np.hypot(fy[:, None, ky], fx[None, :, kx]).reshape(p * p, -1)
     logf = np.ascontiguousarray(np.log(np.maximum(fm, 1e-9)))  # (p^2, bins), C order for the sums
     for a in (amp, logf):

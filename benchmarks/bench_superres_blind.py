@@ -45,10 +45,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from degrade_independent import degrade, scene_crop, shift_layout  # noqa: E402
+from flight_eval import est_shifts, gain  # noqa: E402
 
 from subpix_ros.core import superres  # noqa: E402
-from subpix_ros.core.shift import estimate_shift  # noqa: E402
-from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct  # noqa: E402
+from subpix_ros.core.superres import reconstruct  # noqa: E402
 from subpix_ros.data import CROP_NAMES, load_crop  # noqa: E402
 
 LR = {2: 128, 3: 112, 4: 96}  # LR frame side per factor
@@ -62,19 +62,6 @@ def tikhonov_cg(frames, shifts, p, lam, iters=60):
     from bench_superres import tikhonov_cg as cg_reference
 
     return cg_reference(frames, shifts, p, lam, iters, blur_sigma=0.0)
-
-
-def gain(fl, img):
-    b = 4 * fl.factor
-    return psnr(img, fl.truth, b) - psnr(bicubic_upscale(fl.frames[0], fl.factor), fl.truth, b)
-
-
-def est_shifts(frames):
-    out = []
-    for f in frames:
-        r = estimate_shift(frames[0], f)
-        out.append((r.u, r.v) if r.ok else (np.nan, np.nan))
-    return np.array(out)
 
 
 def run_auto(frames, shifts, p, **kw):

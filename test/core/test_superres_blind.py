@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
+from benchmarks.flight_eval import est_shifts as _est_shifts
+from benchmarks.flight_eval import gain
 from subpix_ros.core.blur import BlurCalibration, estimate_blur, parse_blur_sigma
-from subpix_ros.core.shift import estimate_shift
-from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct
+from subpix_ros.core.superres import reconstruct
 
 LR = {
     2: 96,
@@ -42,18 +43,10 @@ def flight(crops, crop, p, blur, layout="grid", roof=False, fill=1.0, snr=40, jp
     )
 
 
-def gain(fl, img):
-    b = 4 * fl.factor
-    return psnr(img, fl.truth, b) - psnr(bicubic_upscale(fl.frames[0], fl.factor), fl.truth, b)
-
-
 def est_shifts(frames):
-    out = []
-    for f in frames:
-        r = estimate_shift(frames[0], f)
-        assert r.ok, r.reason
-        out.append((r.u, r.v))
-    return np.array(out)
+    sh = _est_shifts(frames)
+    assert np.isfinite(sh).all(), sh
+    return sh
 
 
 # ------------------------------------------------------------------ the windowed method (eq. 7)

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
-from subpix_ros.core.shift import estimate_shift
-from subpix_ros.core.superres import bicubic_upscale, psnr, reconstruct
+from benchmarks.flight_eval import est_shifts as _est_shifts
+from benchmarks.flight_eval import gain
+from subpix_ros.core.superres import reconstruct
 from subpix_ros.core.superres.model import FrameOperator, motion_filter, motion_transfer
 
 LR = 96
@@ -33,18 +34,10 @@ def flight(crops, crop, motion, layout="grid", p=2, blur=0.3, seed=0):
     )
 
 
-def gain(fl, img):
-    b = 4 * fl.factor
-    return psnr(img, fl.truth, b) - psnr(bicubic_upscale(fl.frames[0], fl.factor), fl.truth, b)
-
-
 def est_shifts(frames):
-    out = []
-    for f in frames:
-        r = estimate_shift(frames[0], f)
-        assert r.ok, r.reason
-        out.append((r.u, r.v))
-    return np.array(out)
+    sh = _est_shifts(frames)
+    assert np.isfinite(sh).all(), sh
+    return sh
 
 
 # (length px, direction (rows, cols), layout, least gain of told over none (dB), measured)

@@ -217,3 +217,20 @@ def test_registered_in_the_subpix_tool():
     from subpix_ros.cli import MODULES
 
     assert "superres" in MODULES and "mtf" in MODULES
+
+
+def test_superres_motion_blur_reaches_the_model_and_bad_values_are_refused(
+    frames, tmp_path, capsys
+):
+    _, paths, shifts, _ = frames
+    base = ["superres", *paths, "--shifts", shifts, "--blur-sigma", "0.4"]
+    a, b = tmp_path / "none.npy", tmp_path / "motion.npy"
+    assert run(superres_cli, [*base, "-o", str(a)]) == 0
+    assert "motion_blur=" not in capsys.readouterr().out
+    assert run(superres_cli, [*base, "--motion-blur", "0,1.5", "-o", str(b)]) == 0
+    assert "motion_blur=(0.00, 1.50) px" in capsys.readouterr().out
+    diff = np.abs(np.load(a).astype(np.float64) - np.load(b).astype(np.float64))
+    assert diff.max() > 1.0  # the model's PSF changed
+    for bad in ("1", "a,b", "nan,0", "1,2,3"):
+        with pytest.raises(CliError, match="--motion-blur"):
+            run(superres_cli, [*base, "--motion-blur", bad, "-o", str(tmp_path / "x.npy")])

@@ -60,6 +60,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(a lab calibration)",
     )
     parser.add_argument(
+        "--motion-blur",
+        default=None,
+        metavar="DU,DV",
+        help="image motion during each exposure, input px (rows, cols), e.g. '0,1.5' for 1.5 px "
+        "of motion along the columns: a box of that length in the model's PSF (default: none)",
+    )
+    parser.add_argument(
         "--noise-sigma", type=float, default=None, help="noise std in DN (default: estimated)"
     )
     parser.add_argument(
@@ -176,9 +183,20 @@ def run(args: argparse.Namespace) -> int:
         blur = parse_blur_sigma(args.blur_sigma)
     except ValueError as exc:
         raise CliError(f"--blur-sigma: {exc}") from None
+    motion = None
+    if args.motion_blur is not None:
+        from subpix_ros.core.superres.model import motion_blur_vector
+
+        try:
+            motion = motion_blur_vector([float(v) for v in args.motion_blur.split(",")])
+        except ValueError:
+            raise CliError(
+                f"--motion-blur: expected two finite numbers DU,DV (px), got {args.motion_blur!r}"
+            ) from None
     kw = dict(
         method=args.method,
         blur_sigma=blur,
+        motion_blur=motion,
         noise_sigma=args.noise_sigma,
         refine_shifts=not args.no_refine,
         shift_cov=cov,
@@ -198,6 +216,8 @@ def run(args: argparse.Namespace) -> int:
         if res.blur_source != "unused"
         else "blur_sigma unused"
     )
+    if motion is not None:
+        blur_note += f" motion_blur=({motion[0]:.2f}, {motion[1]:.2f}) px"
     print(
         f"{args.output}: {res.image.shape[1]}x{res.image.shape[0]} method={res.method} "
         f"noise_sigma={res.noise_sigma:.3g} DN frames={len(imgs)} {blur_note}{note}"

@@ -230,13 +230,25 @@ def _run_parallel(
     progress: Progress,
     done: Callable[[int, BagResult], None],
 ) -> None:
-    """Process ``bags`` in ``jobs`` spawned worker processes, one bag per process."""
+    """Process ``bags`` in ``jobs`` spawned worker processes, one bag per process.
+
+    While the workers run, SIGINT and SIGTERM only set a flag that the wait loop checks every
+    0.2 s: a KeyboardInterrupt raised inside ``concurrent.futures.wait`` while it holds the
+    futures' locks would leave them held, and the pool's shutdown would then wait forever.
+    """
     import multiprocessing as mp
+    import signal
+    import threading
 
     ctx = mp.get_context("spawn")
     manager = ctx.Manager()
     queue = manager.Queue()
     threads = max(1, (os.cpu_count() or 1) // jobs)
+    stop = threading.Event()
+    handlers = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            handlers[sig] = signal.signal(sig, lambda signum, frame: stop.set())
     pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, max_tasks_per_child=1)
     try:
         futs = {
@@ -256,6 +268,8 @@ def _run_parallel(
         }
         pending = set(futs)
         while pending:
+            if stop.is_set():
+                raise KeyboardInterrupt
             finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
             _drain(queue, progress)
             for f in finished:
@@ -285,6 +299,9 @@ def _run_parallel(
         pool.shutdown(wait=True, cancel_futures=True)
         manager.shutdown()
         raise
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
     pool.shutdown(wait=True)
     manager.shutdown()
 

@@ -93,7 +93,30 @@ class Progress:
 
 
 def _raise_interrupt(signum, frame) -> None:
+    import signal
+
+    # the first stop request wins: a second SIGTERM (the pool terminates its workers again
+    # once one has gone) must not cut the clean-up of the unfinished folder short
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     raise KeyboardInterrupt
+
+
+def _die_with_parent() -> None:
+    """Ask the kernel to send this worker SIGTERM when its parent dies (Linux; else nothing).
+
+    A pool worker left waiting for a task when the parent is gone (e.g. one the pool started
+    while it was being stopped) then stops too instead of living on as an orphan.
+    """
+    import ctypes
+    import signal
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() == 1:  # the parent died before the request took effect
+        os.kill(os.getpid(), signal.SIGTERM)
 
 
 def interrupt_on_signals() -> None:
@@ -249,7 +272,9 @@ def _run_parallel(
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             handlers[sig] = signal.signal(sig, lambda signum, frame: stop.set())
-    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, max_tasks_per_child=1)
+    pool = ProcessPoolExecutor(
+        max_workers=jobs, mp_context=ctx, max_tasks_per_child=1, initializer=_die_with_parent
+    )
     try:
         futs = {
             pool.submit(

@@ -23,7 +23,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MotionTracker", "frame_motion", "predict_homography", "scale_motion"]
+__all__ = [
+    "MotionTracker",
+    "displacement_through_homography",
+    "frame_motion",
+    "image_velocity",
+    "predict_homography",
+    "scale_motion",
+]
 
 
 def _normalised(h: np.ndarray) -> np.ndarray:
@@ -125,3 +132,62 @@ class MotionTracker:
         if not 0 <= ratio <= self.max_ratio:
             return None
         return predict_homography(self.h_last, self.motion, ratio)
+
+
+def image_velocity(stamps_s: np.ndarray, positions: np.ndarray) -> tuple[float, float] | None:
+    """Fit the image velocity of a set: a least-squares line through positions against time.
+
+    Parameters
+    ----------
+    stamps_s : numpy.ndarray
+        (N,) frame stamps (s).
+    positions : numpy.ndarray
+        (N, 2) image displacement ``(u, v)`` of each frame against the reference (LR px,
+        rows and cols; the reference's is (0, 0)).
+
+    Returns
+    -------
+    (float, float) or None
+        ``(vu, vv)`` px/s, the slopes ``sum (t - t_mean)(x - x_mean) / sum (t - t_mean)^2``;
+        None with fewer than 2 distinct stamps or non-finite input.
+    """
+    t = np.asarray(stamps_s, dtype=np.float64)
+    x = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+    if t.size < 2 or t.size != x.shape[0] or not (np.isfinite(t).all() and np.isfinite(x).all()):
+        return None
+    tc = t - t.mean()
+    den = float(tc @ tc)
+    if den <= 0.0:
+        return None
+    vel = tc @ (x - x.mean(axis=0)) / den
+    return (float(vel[0]), float(vel[1]))
+
+
+def displacement_through_homography(
+    homography: np.ndarray | None, shape: tuple[int, int], u: float, v: float
+) -> tuple[float, float]:
+    """Return how far the scene moved in an original frame against its reference (px).
+
+    Parameters
+    ----------
+    homography : numpy.ndarray or None
+        (3, 3) original frame pixel (x, y) -> reference pixel: the warp that aligned the frame
+        onto the reference's grid (None: identity).
+    shape : (int, int)
+        ``(rows, cols)`` of the reference grid.
+    u, v : float
+        Sub-pixel shift left in the aligned frame (rows, cols; content at (r, c) of the
+        reference is at (r + u, c + v) of the aligned frame).
+
+    Returns
+    -------
+    (float, float)
+        ``(u, v)``: content at the reference's centre ``c`` is at ``H^-1 (c + (v, u))`` in
+        the original frame, minus ``c``; ``(u, v)`` itself when the homography is the identity.
+    """
+    if homography is None or np.allclose(homography, np.eye(3)):
+        return (float(u), float(v))
+    rows, cols = shape
+    c = np.array([(cols - 1) / 2.0, (rows - 1) / 2.0])
+    q = np.linalg.solve(np.asarray(homography, dtype=np.float64), np.r_[c + (v, u), 1.0])
+    return (float(q[1] / q[2] - c[1]), float(q[0] / q[2] - c[0]))

@@ -44,7 +44,7 @@ import numpy as np
 
 from .filters import tukey_taper
 
-__all__ = ["MTFResult", "slanted_edge_mtf", "mtf_crossing", "gaussian_pixel_mtf"]
+__all__ = ["MTFResult", "bt601_luminance", "slanted_edge_mtf", "mtf_crossing", "gaussian_pixel_mtf"]
 
 OVERSAMPLE = 4
 WINDOW_RISES = 3.0  # LSF window half-width in ESF 10-90 % rises ...
@@ -301,6 +301,23 @@ def slanted_edge_mtf(
     return res
 
 
+def bt601_luminance(image: np.ndarray) -> np.ndarray:
+    """Return the float64 luminance of a BGR image (a mono image as float64).
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        HxWx3 BGR (OpenCV order) or HxW.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``Y = 0.114 B + 0.587 G + 0.299 R`` (ITU-R BT.601), float64, HxW.
+    """
+    a = np.asarray(image, dtype=np.float64)
+    return a @ np.array([0.114, 0.587, 0.299]) if a.ndim == 3 else a
+
+
 def _roi_image(image: np.ndarray, roi: tuple[int, int, int, int] | None) -> np.ndarray:
     """Return the ROI of the image's luminance as float64; ValueError if unusable."""
     img = np.asarray(image)
@@ -312,9 +329,7 @@ def _roi_image(image: np.ndarray, roi: tuple[int, int, int, int] | None) -> np.n
         if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > img.shape[1] or y + h > img.shape[0]:
             raise ValueError(f"roi {roi} outside the image {img.shape[1]}x{img.shape[0]}")
         img = img[y : y + h, x : x + w]
-    img = img.astype(np.float64)
-    if colour:
-        img = img @ np.array([0.114, 0.587, 0.299])  # BGR -> luminance (ITU-R BT.601)
+    img = bt601_luminance(img)
     if min(img.shape) < 16:
         raise ValueError(f"ROI too small for an edge measurement: {img.shape}")
     if not np.isfinite(img).all():

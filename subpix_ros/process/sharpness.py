@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from subpix_ros.core.blur_edges import MAX_LINE_RMS, MAX_TEXTURE, find_edge_rois
-from subpix_ros.core.mtf import slanted_edge_mtf
+from subpix_ros.core.mtf import bt601_luminance, slanted_edge_mtf
 
 __all__ = ["EdgeSharpness", "edge_sharpness"]
 
@@ -29,11 +29,6 @@ class EdgeSharpness:
     freqs: np.ndarray  # cycles per input px
     bicubic_mtf: np.ndarray
     sr_mtf: np.ndarray
-
-
-def _luminance(img: np.ndarray) -> np.ndarray:
-    a = np.asarray(img, dtype=np.float64)
-    return a @ np.array([0.114, 0.587, 0.299]) if a.ndim == 3 else a
 
 
 def edge_sharpness(
@@ -78,7 +73,7 @@ def edge_sharpness(
     frequency responses.
     """
     p = int(factor)
-    lum = _luminance(reference)
+    lum = bt601_luminance(reference)
     big_b, big_s = np.asarray(bicubic), np.asarray(super_resolved)  # converted per ROI only
     if big_b.shape[:2] != (lum.shape[0] * p, lum.shape[1] * p) or big_s.shape != big_b.shape:
         raise ValueError(

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from subpix_ros.core.blur import BLUR_SIGMA_MAX, BlurCalibration, parse_blur_sigma
+from subpix_ros.core.motion import displacement_through_homography, image_velocity
 from subpix_ros.core.superres import colour_luminance, reconstruct_within_budget
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
@@ -362,6 +363,11 @@ class ReconstructionStage(Stage):
         # luminance only for a set the calibration measures (the first, then every 10th)
         mono = [colour_luminance(f) for f in frames] if self.blur.due else []
         motion = set_motion_blur(fs, self.param("exposure_s"))
+        if motion is None and self.param("exposure_s") > 0.0:
+            self.warn(
+                "exposure_s is set but the set's image velocity could not be fitted (fewer "
+                "than 2 distinct stamps): no motion blur modelled for this set"
+            )
         blur = self.blur.update(mono, shifts, masks, motion)
         if self.blur.setting != "auto" and blur.source == "edges" and blur is not self._blur_warned:
             self._blur_warned = blur
@@ -432,51 +438,15 @@ _SET_HERE = {
 }  # given by the stage itself
 
 
-def image_velocity(stamps_s: np.ndarray, positions: np.ndarray) -> tuple[float, float] | None:
-    """Fit the image velocity of a set: a least-squares line through positions against time.
-
-    Parameters
-    ----------
-    stamps_s : numpy.ndarray
-        (N,) frame stamps (s).
-    positions : numpy.ndarray
-        (N, 2) image displacement ``(u, v)`` of each frame against the reference (LR px,
-        rows and cols; the reference's is (0, 0)).
-
-    Returns
-    -------
-    (float, float) or None
-        ``(vu, vv)`` px/s, the slopes ``sum (t - t_mean)(x - x_mean) / sum (t - t_mean)^2``;
-        None with fewer than 2 distinct stamps or non-finite input.
-    """
-    t = np.asarray(stamps_s, dtype=np.float64)
-    x = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
-    if t.size < 2 or t.size != x.shape[0] or not (np.isfinite(t).all() and np.isfinite(x).all()):
-        return None
-    tc = t - t.mean()
-    den = float(tc @ tc)
-    if den <= 0.0:
-        return None
-    vel = tc @ (x - x.mean(axis=0)) / den
-    return (float(vel[0]), float(vel[1]))
-
-
 def member_displacement(shift: Shift, aligned: Aligned) -> tuple[float, float]:
-    """Return how far the scene moved in the original frame against its reference (LR px).
+    """Return a member's displacement against its reference in its original frame (LR px).
 
-    The aligned frame is the original warped onto the reference's grid by
-    ``aligned.homography`` (original pixel (x, y) -> reference pixel), with the sub-pixel
-    ``(shift.u, shift.v)`` left in: content at the reference's centre ``c`` is at
-    ``H^-1 (c + (v, u))`` in the original frame. Returns ``(u, v)`` (rows, cols) of that
-    minus ``c``: the shift itself when the homography is the identity (or None).
+    :func:`~subpix_ros.core.motion.displacement_through_homography` of the aligned frame's
+    homography and its shift.
     """
-    h = aligned.homography
-    if h is None or np.allclose(h, np.eye(3)):
-        return (float(shift.u), float(shift.v))
-    rows, cols = aligned.image.shape[:2]
-    c = np.array([(cols - 1) / 2.0, (rows - 1) / 2.0])
-    q = np.linalg.solve(np.asarray(h, dtype=np.float64), np.r_[c + (shift.v, shift.u), 1.0])
-    return (float(q[1] / q[2] - c[1]), float(q[0] / q[2] - c[0]))
+    return displacement_through_homography(
+        aligned.homography, aligned.image.shape[:2], shift.u, shift.v
+    )
 
 
 def set_motion_blur(fs: FrameSet, exposure_s: float) -> tuple[float, float] | None:
@@ -487,7 +457,7 @@ def set_motion_blur(fs: FrameSet, exposure_s: float) -> tuple[float, float] | No
     fs : FrameSet
         The set: the reference (displacement 0 at its stamp) and its members, whose
         displacements (:func:`member_displacement`) are fitted against their stamps
-        (:func:`image_velocity`).
+        (:func:`~subpix_ros.core.motion.image_velocity`).
     exposure_s : float
         Exposure time (s); 0 = unknown.
 

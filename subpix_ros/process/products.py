@@ -220,14 +220,16 @@ class ProductWriter:
     # ---------------------------------------------------------------- files
     def png(self, rel: str, image: np.ndarray) -> None:
         """Queue writing ``image`` as PNG at ``rel`` in the flight's folder."""
-        import cv2
+        from subpix_ros.io.images.png import write_png
 
         path = self.tmp / rel
         path.parent.mkdir(parents=True, exist_ok=True)
 
         def write() -> None:
-            if not cv2.imwrite(str(path), image):
-                raise OSError(f"cannot write {rel}")
+            try:
+                write_png(path, image)
+            except (OSError, ValueError) as exc:
+                raise OSError(f"cannot write {rel}: {exc}") from exc
 
         self._later(write)
 

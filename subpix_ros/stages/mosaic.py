@@ -88,7 +88,7 @@ class MosaicStage(Stage):
         """Register ``frame`` to the previous one and draw it; False (a warning) if not added."""
         self.check_time(frame.stamp_ns)
         with self._lock:
-            upd = self.mosaic.add(frame.image)
+            upd = self.mosaic.add(frame.image, stamp_s=frame.stamp_s)
         if not upd.ok:
             self.warn(f"frame not added to the mosaic: {upd.reason}")
             return False

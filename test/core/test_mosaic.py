@@ -245,3 +245,37 @@ def test_frames_reduced_to_frame_max_px(frames, strip_mosaic):
     assert np.hypot(*(c_red - c_full)) < 3.0, (c_red, c_full)
     with pytest.raises(ValueError):
         Mosaic(frame_max_px=10)
+
+
+def test_stamped_frames_are_tracked_from_the_last_motion_and_drawn_the_same(frames):
+    # a steady flight: windows of a real frame moving 37.4 px down, 11.2 px right per 0.5 s
+    big = frames[0]
+    win = (600, 800)
+
+    def window(k):
+        y, x = 40 + 37.4 * k, 30 + 11.2 * k
+        m = np.float32([[1, 0, x], [0, 1, y]])
+        return cv2.warpAffine(big, m, win[::-1], flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP)
+
+    seq = [window(k) for k in range(8)]
+    plain, stamped = Mosaic(max_size_px=1500), Mosaic(max_size_px=1500)
+    ups_plain = [plain.add(f) for f in seq]
+    ups = [stamped.add(f, stamp_s=100.0 + 0.5 * k) for k, f in enumerate(seq)]
+    assert all(u.ok for u in ups) and all(u.ok for u in ups_plain)
+    # the first pair has no motion to predict from; every later one is tracked
+    assert [bool(u.registration.tracked) for u in ups[1:]] == [False] + [True] * 6
+    assert not any(u.registration.tracked for u in ups_plain[1:])
+    assert max(u.seam_residual_px for u in ups[1:]) <= 0.1
+    a, b = plain.image().astype(float), stamped.image().astype(float)
+    assert a.shape == b.shape
+    assert np.mean(np.abs(a - b)) < 0.5  # the same placement to a fraction of a pixel
+
+
+def test_a_stamp_gap_or_reversal_searches_in_full(frames):
+    f0 = frames[0][:600, :800]
+    f1 = frames[0][20:620, 10:810]
+    m = Mosaic(max_size_px=1500)
+    m.add(f0, stamp_s=10.0)
+    m.add(f1, stamp_s=10.5)
+    up = m.add(f0, stamp_s=9.0)  # back in time: no prediction, a full search
+    assert up.ok and not up.registration.tracked

@@ -14,6 +14,7 @@ from subpix_ros.core.mosaic.geometry import (
     _border,
     _local_scale,
 )
+from subpix_ros.core.motion import MotionTracker
 from subpix_ros.core.registration import (
     RegistrationResult,
     apply_h,
@@ -136,6 +137,7 @@ class Mosaic:
         self.transforms: list[np.ndarray | None] = []
         self.geometries: list[FrameGeometry | None] = []
         self.updates: list[MosaicUpdate] = []
+        self._motion = MotionTracker()  # predicts the next pair from the last (stamped frames)
 
     @property
     def scale(self) -> float:
@@ -263,13 +265,20 @@ class Mosaic:
         return apply_h(self._s, geo.to_mosaic(pts))
 
     # -- adding a frame --------------------------------------------------------
-    def add(self, frame: np.ndarray) -> MosaicUpdate:
+    def add(self, frame: np.ndarray, stamp_s: float | None = None) -> MosaicUpdate:
         """Register a frame to the previous one and draw it.
 
         Parameters
         ----------
         frame : ndarray of uint8
             HxW mono or HxWx3 BGR image, at least 32x32.
+        stamp_s : float, optional
+            The frame's time (s). With stamps, the motion between the last two frames
+            predicts where this one lies (constant velocity, :class:`~subpix_ros.core.motion.
+            MotionTracker`) and the registration tracks its tie points from there (a
+            search of ``track_radius`` px instead of a coarse match over the whole frame);
+            it falls back to the full search when tracking fails. Without a stamp every
+            frame is searched in full.
 
         Returns
         -------
@@ -292,15 +301,24 @@ class Mosaic:
         idx = len(self.transforms)
         if self._prev is None:
             self._start(img, prepared)
+            if stamp_s is not None:
+                self._motion.restart(float(stamp_s))
             return self._record(MosaicUpdate(True, "", idx, 0.0, 0, None, *self._status(t0)))
-        reg = register(self._prev_prepared, prepared, **self.register_kwargs)
+        prior = None if stamp_s is None else self._motion.predict(float(stamp_s))
+        reg = register(self._prev_prepared, prepared, prior=prior, **self.register_kwargs)
         if not reg.ok:
+            self._motion.forget()
             self.transforms.append(None)
             self.geometries.append(None)
             return self._record(
                 MosaicUpdate(False, reg.reason, idx, None, 0, None, *self._status(t0), reg)
             )
         seam, over = self._chain(img, reg, prepared)
+        if stamp_s is not None:  # this frame is the next one's "reference": the chain restarts
+            self._motion.update(reg.homography, float(stamp_s))
+            self._motion.restart(float(stamp_s))
+        else:
+            self._motion = MotionTracker()
         return self._record(
             MosaicUpdate(True, "", idx, seam, reg.inliers, reg.rms_px, *self._status(t0), reg, over)
         )

@@ -52,6 +52,24 @@ def make_frames(n: int, w: int = 1920, h: int = 1080) -> list[np.ndarray]:
     return out
 
 
+def add_params_argument(ap: argparse.ArgumentParser) -> None:
+    """Add ``--params FILE`` (repeatable): node parameter files applied after bench.yaml."""
+    ap.add_argument(
+        "--params",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="a parameter file applied after config/bench.yaml (e.g. config/onboard.yaml)",
+    )
+
+
+def use_params(files: list[str]) -> None:
+    """Hand ``--params`` files to :func:`start_layout` (through the environment) and say so."""
+    if files:
+        os.environ["SUBPIX_BENCH_PARAMS"] = os.pathsep.join(str(Path(f).resolve()) for f in files)
+        print(f"parameters: config/bench.yaml, then {', '.join(files)}")
+
+
 def pingpong(k: int, n: int) -> int:
     """0, 1, ..., n-1, n-2, ..., 1, 0, 1, ...: the drift reverses instead of jumping back to the start."""
     i = k % (2 * n - 2)
@@ -66,6 +84,8 @@ def start_layout(layout: str, env: dict) -> list[subprocess.Popen]:
         f"    max_memory_mb: {float(env.get('SUBPIX_BENCH_MAX_MEMORY_MB') or 0.0)}\n"
     )
     params = ["--params-file", str(ROOT / "config" / "bench.yaml"), "--params-file", str(override)]
+    for extra in filter(None, env.get("SUBPIX_BENCH_PARAMS", "").split(os.pathsep)):
+        params += ["--params-file", str(Path(extra).resolve())]  # --params: applied last
     if layout == "single":
         cmds = [
             [
@@ -246,9 +266,11 @@ def main() -> None:
         default=None,
         help="the reconstruction's max_memory_mb (default: unbounded)",
     )
+    add_params_argument(ap)
     args = ap.parse_args()
     if args.max_memory_mb:
         os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)
+    use_params(args.params)
     print(allocator_line(args.default_malloc))
     SET = max(2, args.set)
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(101, 199)))

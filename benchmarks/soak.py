@@ -28,7 +28,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_pipeline import cpu_seconds, make_frames, start_layout  # noqa: E402
+from bench_pipeline import (  # noqa: E402
+    add_params_argument,
+    cpu_seconds,
+    make_frames,
+    start_layout,
+    use_params,
+)
 
 from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
@@ -55,10 +61,12 @@ def main() -> None:
         help="the reconstruction's max_memory_mb (default: unbounded)",
     )
     ap.add_argument("--size", default="1920x1080", help="WxH of the frames (default %(default)s)")
+    add_params_argument(ap)
     args = ap.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     if args.max_memory_mb:
         os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)
+    use_params(args.params)
     print(allocator_line(args.default_malloc))
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(101, 199)))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

@@ -35,6 +35,8 @@ from pathlib import Path
 
 __all__ = [
     "keep_freed_memory",
+    "favour_throughput",
+    "THROUGHPUT",
     "allocator_line",
     "add_malloc_argument",
     "MMAP_THRESHOLD",
@@ -51,13 +53,18 @@ __all__ = [
 #: glibc's ``mallopt`` parameter numbers (malloc.h).
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
+_M_ARENA_MAX = -8
 
 #: Blocks up to this size come from the heap (more than a float32 4K frame).
 MMAP_THRESHOLD = 64 * 1024 * 1024
 #: Freed heap kept for reuse before the top of the heap is returned to the kernel.
 TRIM_THRESHOLD = 64 * 1024 * 1024
+#: ``subpix process`` (a batch job, throughput first): one arena, and blocks up to 512 MiB
+#: (a 4K colour set's largest arrays) reused from the heap; the heap's top returned beyond
+#: 256 MiB. Measured in docs/design-notes.md ("Page faults in subpix process").
+THROUGHPUT = {"mmap_threshold": 512 << 20, "trim_threshold": 256 << 20, "arena_max": 1}
 
-_ENV = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
+_ENV = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_ARENA_MAX")
 
 #: Set to 1 to leave glibc's allocator alone (inherited by child processes: a benchmark's nodes).
 OPT_OUT = "SUBPIX_DEFAULT_MALLOC"
@@ -87,7 +94,9 @@ def _mallopt():
 
 
 def keep_freed_memory(
-    mmap_threshold: int = MMAP_THRESHOLD, trim_threshold: int = TRIM_THRESHOLD
+    mmap_threshold: int = MMAP_THRESHOLD,
+    trim_threshold: int = TRIM_THRESHOLD,
+    arena_max: int | None = None,
 ) -> bool:
     """Keep freed frame buffers in the heap for reuse (glibc ``mallopt``).
 
@@ -99,11 +108,17 @@ def keep_freed_memory(
         Blocks up to this size (bytes) come from the heap.
     trim_threshold : int
         Freed heap kept on top for reuse before it is returned to the kernel, bytes.
+    arena_max : int, optional
+        Most malloc arenas (``M_ARENA_MAX``; default: glibc's, 8 per core). A thread's own
+        arena is a set of 64 MiB heaps, so a block larger than that (a 4K float32 colour image
+        is 100 MB) is mapped fresh from the kernel whatever the mmap threshold; with one arena
+        every thread allocates from the main heap, where the thresholds apply. Takes effect for
+        threads that have not allocated yet: call it before starting threads.
 
     Returns
     -------
     bool
-        True if both were applied; False if this is not glibc, if the operator
+        True if all were applied; False if this is not glibc, if the operator
         set glibc's malloc tunables in the environment (theirs are kept), or if
         glibc refused a value.
 
@@ -114,6 +129,8 @@ def keep_freed_memory(
     """
     if not (0 < int(mmap_threshold) <= 2**31 - 1 and 0 < int(trim_threshold) <= 2**31 - 1):
         raise ValueError("thresholds must be positive and fit a C int (bytes)")
+    if arena_max is not None and not 0 < int(arena_max) <= 2**31 - 1:
+        raise ValueError("arena_max must be positive and fit a C int")
     if _operator_set():
         return False
     fn = _mallopt()
@@ -121,7 +138,19 @@ def keep_freed_memory(
         return False
     mmap_ok = fn(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
     trim_ok = fn(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1
-    return mmap_ok and trim_ok
+    arena_ok = arena_max is None or fn(_M_ARENA_MAX, int(arena_max)) == 1
+    return mmap_ok and trim_ok and arena_ok
+
+
+def favour_throughput() -> bool:
+    """Apply :data:`THROUGHPUT` (``subpix process``: CPU before resident memory).
+
+    Returns
+    -------
+    bool
+        As :func:`keep_freed_memory`.
+    """
+    return keep_freed_memory(**THROUGHPUT)
 
 
 def add_malloc_argument(parser, where: str = "") -> None:

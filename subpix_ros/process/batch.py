@@ -140,10 +140,10 @@ def _worker(
 ) -> BagResult:
     import cv2
 
-    from subpix_ros.runtime import keep_freed_memory
+    from subpix_ros.runtime import favour_throughput
 
     interrupt_on_signals()
-    keep_freed_memory()
+    favour_throughput()  # before this bag's threads allocate (subpix_ros.runtime.THROUGHPUT)
     cv2.setNumThreads(threads)
     from subpix_ros.process.inputs import bag_name
 

@@ -524,5 +524,5 @@ def reconstruct_colour(
     )
     # OpenCV's YCrCb offset depends on the data's scale: converting back with OpenCV keeps it
     merged = cv2.merge([res.image.astype(np.float32), chroma[..., 0], chroma[..., 1]])
-    res.image = cv2.cvtColor(merged, cv2.COLOR_YCrCb2BGR)
+    res.image = cv2.cvtColor(merged, cv2.COLOR_YCrCb2BGR, dst=merged)  # in place: 100 MB at 4K
     return res

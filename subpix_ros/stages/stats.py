@@ -141,6 +141,8 @@ class ReconstructionStats(StageStats):
     # motion blur (du, dv) LR px modelled in the last image: exposure_s x the set's image velocity
     # (None: exposure_s 0 or no velocity fitted)
     motion_blur_px: tuple[float, float] | None = None
+    # resident memory handed back after the last set (release_memory; None: not asked or no glibc)
+    released_mb: float | None = None
 
 
 @dataclass

@@ -16,9 +16,12 @@ as given: ``refine_shifts=False``, no covariance).
 Columns per scene: PSNR gain over bicubic of frame 0 (dB; interior,
 4 factor px cut) of CG (Tikhonov, scipy CG on the box-integration operator
 with no optics model, gradient regulariser; weight tuned once per factor on
-its first cell), ``told`` (ours told the true blur), ``auto`` (ours with
-``blur_sigma="auto"``, or the default ``blur_sigma`` where the code has no
-``auto``), and the blur that ``auto`` used (``est``) with its source.
+its first cell), ``told`` (ours told the true blur), ``told+w`` (told the true blur and the
+true pixel fill factor, ``pixel_fill``), ``auto`` (ours with ``blur_sigma="auto"``, or the
+default ``blur_sigma`` where the code has no ``auto``), and the blur and fill that ``auto``
+used (``est``, ``w``) with its source. ``--snr``, ``--max-blur`` and ``--scene`` run a subset
+of the cells (the same scenes, fills and seeds as in the whole table); ``--cg-lambda`` fixes
+CG's weight (a subset's first cell is not the whole table's).
 
 Motion blur (``--motion``, instead of the table above): frames exposed while the image moves
 by ``d`` (1 and 2 px, along (0.8, 0.6) and along the columns), true optics 0.3 px, fill 1.0,
@@ -27,7 +30,8 @@ by ``d`` (1 and 2 px, along (0.8, 0.6) and along the columns), true optics 0.3 p
 motion blur; ``est``, ``est+d``: the blur each used).
 
 Run: ``python benchmarks/bench_superres_blind.py [--quick] [--json out.json]
-[--only quality|timing] [--motion]``.
+[--only quality|timing] [--motion] [--snr DB] [--max-blur PX] [--scene none|edge]
+[--cg-lambda L]``.
 """
 
 from __future__ import annotations
@@ -55,6 +59,7 @@ LR = {2: 128, 3: 112, 4: 96}  # LR frame side per factor
 MARGIN = 8
 FILLS = (1.0, 0.9, 0.8)
 _AUTO = getattr(superres, "BLUR_AUTO", None)  # None: code from before issue 17 (no "auto")
+_FILL = "pixel_fill" in inspect.signature(reconstruct).parameters  # the model takes a fill
 
 
 def tikhonov_cg(frames, shifts, p, lam, iters=60):
@@ -93,9 +98,14 @@ def scenes_for(k: int):
     return [(CROP_NAMES[k % n], False), (CROP_NAMES[(k + 1) % n], True)]
 
 
-def quality(quick: bool, json_out: str | None) -> None:
+def quality(quick: bool, json_out: str | None, only=None, cg_lambda=None) -> None:
+    """Print the table; ``only``: (snr, max blur, scene) filters (None: all), same seeds.
+
+    ``cg_lambda``: CG's weight for every factor (default: tuned on each factor's first cell).
+    """
+    snr_only, max_blur, scene_only = only or (None, None, None)
     crops = {c: load_crop(c) for c in CROP_NAMES}
-    lam = {}
+    lam = {} if cg_lambda is None else {p: float(cg_lambda) for p in LR}
     rows = []
     label_auto = "auto" if _AUTO else "default"
     default = inspect.signature(reconstruct).parameters["blur_sigma"].default
@@ -106,17 +116,25 @@ def quality(quick: bool, json_out: str | None) -> None:
     hdr = (
         f"{'p':>1s} {'layout':6s} {'SNR':>3s} {'blur':>4s} {'extra':9s} | "
         + " | ".join(
-            f"{t:4s} {'ff':>3s} {'CG':>6s} {'told':>6s} {label_auto:>7s} {'est':>5s} {'src':5s}"
+            f"{t:4s} {'ff':>3s} {'CG':>6s} {'told':>6s} {'told+w':>6s} {label_auto:>7s} "
+            f"{'est':>5s} {'w':>4s} {'src':5s}"
             for t in ("none", "edge")
         )
         + " | s"
     )
     print(hdr)
     for k, cell in enumerate(cells(quick)):
+        if (snr_only is not None and cell["snr"] != snr_only) or (
+            max_blur is not None and cell["blur"] > max_blur + 1e-9
+        ):
+            continue
         p = cell["p"]
         t0 = time.perf_counter()
         line = []
         for j, (crop, roof) in enumerate(scenes_for(k)):
+            if scene_only is not None and roof != (scene_only == "edge"):
+                line.append(" " * 54)
+                continue
             ff = FILLS[(k + j) % len(FILLS)]
             n_hr = (LR[p] + 2 * MARGIN) * p
             off = ((768 - n_hr) // 2,) * 2
@@ -153,6 +171,11 @@ def quality(quick: bool, json_out: str | None) -> None:
                 )[1]
             g_cg = gain(fl, tikhonov_cg(frames, sh, p, lam[p]))
             told = reconstruct(frames, sh, p, blur_sigma=cell["blur"], **kw)
+            told_fill = (
+                reconstruct(frames, sh, p, blur_sigma=cell["blur"], pixel_fill=ff, **kw)
+                if _FILL
+                else told
+            )
             auto = run_auto(frames, sh, p, **kw)
             est = float(getattr(auto, "blur_sigma", np.nan))
             src = str(getattr(auto, "blur_source", "-"))
@@ -164,7 +187,9 @@ def quality(quick: bool, json_out: str | None) -> None:
                 fill=ff,
                 cg=g_cg,
                 told=gain(fl, told.image),
+                told_fill=gain(fl, told_fill.image),
                 auto=gain(fl, auto.image),
+                est_fill=float(getattr(auto, "pixel_fill", 1.0)),
                 est=est,
                 source=src,
                 auto_method=auto.method,
@@ -174,8 +199,8 @@ def quality(quick: bool, json_out: str | None) -> None:
             )
             rows.append(rec)
             line.append(
-                f"{'':4s} {ff:3.1f} {rec['cg']:+6.2f} {rec['told']:+6.2f} {rec['auto']:+7.2f} "
-                f"{est:5.2f} {src[:5]:5s}"
+                f"{'':4s} {ff:3.1f} {rec['cg']:+6.2f} {rec['told']:+6.2f} {rec['told_fill']:+6.2f} "
+                f"{rec['auto']:+7.2f} {est:5.2f} {rec['est_fill']:4.2f} {src[:5]:5s}"
             )
         extra = (
             f"jpeg{cell['jpeg']}"
@@ -315,10 +340,25 @@ def summarise(rows, label_auto):
         f"{(d < 1.0).sum()} of {d.size}"
     )
     e = told[roof] - a[roof]
-    print(
-        f"  edge in view: told - {label_auto}: max {e.max():+.2f} dB, median {np.median(e):+.2f}; "
-        f"cells beyond 1.0 dB: {(e > 1.0).sum()} of {e.size}"
-    )
+    if e.size:
+        print(
+            f"  edge in view: told - {label_auto}: max {e.max():+.2f} dB, median "
+            f"{np.median(e):+.2f}; cells beyond 1.0 dB: {(e > 1.0).sum()} of {e.size}"
+        )
+    if _FILL:
+        tw = np.array([r["told_fill"] - r["told"] for r in rows])
+        ff = np.array([r["fill"] for r in rows])
+        for f in sorted(set(ff) - {1.0}):
+            s = ff == f
+            print(
+                f"  told the fill {f:.1f} too (told+w - told): median {np.median(tw[s]):+.2f} dB, "
+                f"{tw[s].min():+.2f} .. {tw[s].max():+.2f} ({s.sum()} scene-cells)"
+            )
+        ew = np.array([r["est_fill"] for r in rows])
+        print(
+            f"  {label_auto}: fill measured (< 1) in {(ew < 1).sum()} of {ew.size} scene-cells "
+            f"(true fills there: {sorted(ff[ew < 1].tolist())})"
+        )
     if np.isfinite(est).any():
         err = est - blur
         sel = roof & clean & (blur <= 0.7) & (snr == 40)
@@ -405,6 +445,14 @@ def main() -> None:
     ap.add_argument(
         "--motion", action="store_true", help="the motion-blur table instead (ignoring vs told)"
     )
+    ap.add_argument("--snr", type=int, default=None, help="only the cells of this SNR (dB)")
+    ap.add_argument("--max-blur", type=float, default=None, help="only cells with blur <= this")
+    ap.add_argument(
+        "--scene", choices=["none", "edge"], default=None, help="only this scene of each cell"
+    )
+    ap.add_argument(
+        "--cg-lambda", type=float, default=None, help="CG's weight (default: tuned per factor)"
+    )
     args = ap.parse_args()
     print(
         f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; "
@@ -414,7 +462,7 @@ def main() -> None:
         motion_quality(args.quick, args.json)
         return
     if args.only in (None, "quality"):
-        quality(args.quick, args.json)
+        quality(args.quick, args.json, (args.snr, args.max_blur, args.scene), args.cg_lambda)
     if args.only in (None, "timing"):
         timing(args.repeats)
 

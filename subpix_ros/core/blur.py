@@ -25,7 +25,14 @@ from typing import Sequence
 
 import numpy as np
 
-from .blur_edges import edge_sigma, find_edge_rois, measure_edge, spectral_cap
+from .blur_edges import (
+    FILL_GRID,
+    edge_fill,
+    edge_sigma,
+    find_edge_rois,
+    measure_edge,
+    spectral_cap,
+)
 
 __all__ = [
     "BlurEstimate",
@@ -35,6 +42,7 @@ __all__ = [
     "estimate_blur",
     "find_edge_rois",
     "edge_sigma",
+    "edge_fill",
     "resolve_blur",
     "spectral_cap",
     "BlurCalibration",
@@ -67,6 +75,10 @@ class BlurEstimate:
         Edges pooled (each measured in every frame).
     reason : str
         A one-line account.
+    fill_factor : float
+        The pixel aperture's width (px) the edges show and ``sigma`` was fitted with
+        (:func:`~subpix_ros.core.blur_edges.edge_fill`); 1.0 (the full pixel) when not
+        measured.
     """
 
     sigma: float
@@ -75,6 +87,7 @@ class BlurEstimate:
     raw: float = float("nan")
     n_edges: int = 0
     reason: str = ""
+    fill_factor: float = 1.0
 
 
 def parse_blur_sigma(value) -> str | float:
@@ -123,6 +136,7 @@ def estimate_blur(
     fallback: float = FALLBACK_SIGMA,
     masks: Sequence[np.ndarray] | None = None,
     motion_blur: tuple[float, float] | None = None,
+    fit_fill: bool = True,
 ) -> BlurEstimate:
     """Estimate the optics blur (Gaussian std, input px) from straight edges in the frames.
 
@@ -146,11 +160,15 @@ def estimate_blur(
         Image motion during each exposure ``(du, dv)`` (input px; default none): each edge's
         fit takes out the box it makes along the edge normal (:func:`measure_edge`), so the
         estimate is the optics blur alone.
+    fit_fill : bool, optional
+        Measure the pixel fill factor too (default True; False: the full pixel assumed, as
+        before the fill was measured).
 
     Returns
     -------
     BlurEstimate
-        Source "edges" with ``sigma = max(0, raw - uncertainty)``, or "fallback".
+        Source "edges" with ``sigma = max(0, raw - uncertainty)`` and the ``fill_factor`` it
+        was fitted with, or "fallback".
 
     Notes
     -----
@@ -159,7 +177,9 @@ def estimate_blur(
     beside the edge, or of low contrast are dropped (:func:`_measure_edges`). A scene edge is
     never sharper than the camera makes it, so the pooled value is that of the sharpest edges
     (:func:`_pool_edges`); edges above the frames' spectral cap (:func:`spectral_cap`) are
-    soft in the scene and left out.
+    soft in the scene and left out. The fill factor is measured where sharp edges show it
+    (:func:`~subpix_ros.core.blur_edges.edge_fill`); the largest of the pooled edges' is
+    used, 1.0 where they cannot tell.
     """
     from .superres import estimate_noise_sigma  # superres imports this module
 
@@ -181,7 +201,17 @@ def estimate_blur(
             "fallback",
             reason=f"no usable edge ({len(rois)} candidates: {common}); fallback {fallback:.2f} px",
         )
-    return _pool_edges(per_edge, spectral_cap(arrs, noise), fallback)
+    return _pool_edges(per_edge, spectral_cap(arrs, noise), fallback, fit_fill)
+
+
+def _median_and_se(vals: Sequence[float]) -> tuple[float, float]:
+    """Return the median of one edge's per-frame values and its standard error (px).
+
+    ``1.25 std / sqrt(n)`` (0.05 px for one frame), floored at 0.005 px.
+    """
+    v = np.asarray(vals)
+    se = 1.25 * float(np.std(v)) / np.sqrt(v.size) if v.size > 1 else 0.05
+    return float(np.median(v)), max(se, 0.005)
 
 
 def _measure_edges(
@@ -191,20 +221,22 @@ def _measure_edges(
     noise: float,
     masks: Sequence[np.ndarray] | None,
     motion_blur: tuple[float, float] = (0.0, 0.0),
-) -> tuple[list[tuple[float, float]], list[str]]:
-    """Measure every ROI in every frame; return (median, standard error) per edge, and why not.
+) -> tuple[list[tuple[float, float, float, list]], list[str]]:
+    """Measure every ROI in every frame; return per edge (median, standard error, fill, fits).
 
-    An ROI moves with the frame's rounded shift, is skipped where it leaves the frame or
+    The median and standard error (:func:`_median_and_se`) are over the frames' full-pixel
+    blurs; the fill is the median of the frames' (:func:`edge_fill`), rounded up to
+    ``FILL_GRID``; the fits (:class:`~subpix_ros.core.blur_edges.EdgeFit`) refit at another
+    fill. An ROI moves with the frame's rounded shift, is skipped where it leaves the frame or
     covers an invalid pixel, and is not tried further when it fails in frame 0. An edge
-    counts when it passed in at least half the frames: the median over frames, standard
-    error ``1.25 std / sqrt(n)`` (0.05 px for one frame; floor 0.005 px).
+    counts when it passed in at least half the frames.
     """
     n = len(arrs)
     h, w = arrs[0].shape
     per_edge = []
     why = []
     for x, y, rw, rh in rois:  # edges
-        vals = []
+        fits = []
         for i, (a, (u, v)) in enumerate(zip(arrs, shifts)):  # frames
             if not (np.isfinite(u) and np.isfinite(v)):
                 continue
@@ -213,27 +245,35 @@ def _measure_edges(
                 continue
             if masks is not None and not np.all(np.asarray(masks[i])[yy : yy + rh, xx : xx + rw]):
                 continue
-            s, reason = measure_edge(a, (xx, yy, rw, rh), noise, motion_blur)
-            if np.isfinite(s):
-                vals.append(s)
+            fit = measure_edge(a, (xx, yy, rw, rh), noise, motion_blur)
+            if np.isfinite(fit.sigma):
+                fits.append(fit)
             else:
-                why.append(reason)
+                why.append(fit.why_not)
                 if i == 0:  # not an edge to measure in the reference: not measured in the others
                     break
-        if len(vals) >= max(1, (n + 1) // 2):  # the edge passed in at least half the frames
-            v = np.asarray(vals)
-            se = max(1.25 * float(np.std(v)) / np.sqrt(v.size) if v.size > 1 else 0.05, 0.005)
-            per_edge.append((float(np.median(v)), se))
+        if len(fits) >= max(1, (n + 1) // 2):  # the edge passed in at least half the frames
+            med, se = _median_and_se([f.sigma for f in fits])
+            fill_med = float(np.median([f.fill for f in fits]))
+            fill = min(g for g in FILL_GRID if g >= fill_med - 1e-9)  # on the grid, rounded up
+            per_edge.append((med, se, fill, fits))
     return per_edge, why
 
 
-def _pool_edges(per_edge: list[tuple[float, float]], cap: float, fallback: float) -> BlurEstimate:
+def _pool_edges(
+    per_edge: list[tuple[float, float, float, list]],
+    cap: float,
+    fallback: float,
+    fit_fill: bool = True,
+) -> BlurEstimate:
     """Pool the sharpest edges below the spectral cap into one low-biased estimate.
 
-    Edges within two standard errors of the lowest one are averaged with inverse-variance
-    weights; the uncertainty is the larger of that mean's standard error and the group's
-    spread over sqrt(n); the estimate is the mean minus it. All edges above ``cap``: the
-    fallback.
+    Edges within two standard errors of the lowest one (full-pixel fits) are averaged with
+    inverse-variance weights; the uncertainty is the larger of that mean's standard error and
+    the group's spread over sqrt(n); the estimate is the mean minus it. The fill factor is
+    the largest of the group's (the widest aperture: the lowest blur); when it is below 1,
+    the group's edges are refitted with it in every frame and pooled the same way
+    (``fit_fill`` False: the full pixel). All edges above ``cap``: the fallback.
     """
     vals = np.array([e[0] for e in per_edge])
     ses = np.array([e[1] for e in per_edge])
@@ -245,9 +285,19 @@ def _pool_edges(per_edge: list[tuple[float, float]], cap: float, fallback: float
             f"allows ({cap:.2f} px): edges soft in the scene; fallback {fallback:.2f} px",
         )
     keep = vals <= cap
+    edges = [e for e, k in zip(per_edge, keep) if k]
     vals, ses = vals[keep], ses[keep]
     lo = int(np.argmin(vals))
     group = vals <= vals[lo] + 2.0 * np.hypot(ses, ses[lo])
+    fill = 1.0
+    if fit_fill:
+        fill = max(e[2] for e, g in zip(edges, group) if g)
+    if fill < 1.0:  # the group's edges refitted with the pooled fill, frame by frame
+        refits = [
+            _median_and_se([f.sigma_at(fill) for f in e[3]]) if g else (v, s)
+            for e, g, v, s in zip(edges, group, vals, ses)
+        ]
+        vals, ses = np.array([r[0] for r in refits]), np.array([r[1] for r in refits])
     wts = 1.0 / ses[group] ** 2
     raw = float(np.sum(wts * vals[group]) / wts.sum())
     unc = float(
@@ -257,6 +307,7 @@ def _pool_edges(per_edge: list[tuple[float, float]], cap: float, fallback: float
         )
     )
     sigma = max(0.0, raw - unc)
+    fill_note = f", fill factor {fill:.2f}" if fill < 1.0 else ""
     return BlurEstimate(
         sigma,
         "edges",
@@ -264,7 +315,8 @@ def _pool_edges(per_edge: list[tuple[float, float]], cap: float, fallback: float
         raw=raw,
         n_edges=int(group.sum()),
         reason=f"{int(group.sum())} of {len(per_edge)} measured edges pooled "
-        f"({raw:.3f} +- {unc:.3f} px), minus one standard error",
+        f"({raw:.3f} +- {unc:.3f} px{fill_note}), minus one standard error",
+        fill_factor=float(fill),
     )
 
 
@@ -320,6 +372,7 @@ def check_given_blur(given: float, measured: BlurEstimate) -> BlurEstimate:
                 reason=f"blur_sigma {given:.3f} px given, but the edges measure {measured.raw:.3f}"
                 f" +- {unc:.3f} px, lower by more than {margin:.3f} px: the given value would "
                 f"over-deconvolve; measured {measured.sigma:.3f} px used ({measured.reason})",
+                fill_factor=measured.fill_factor,
             )
         return BlurEstimate(
             float(given),

@@ -16,14 +16,14 @@ References
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import cv2
 import numpy as np
 
 from .mtf import slanted_edge_mtf
 
-__all__ = ["edge_sigma", "find_edge_rois", "measure_edge", "spectral_cap"]
+__all__ = ["EdgeFit", "edge_fill", "edge_sigma", "find_edge_rois", "measure_edge", "spectral_cap"]
 
 ALPHA_MIN = 1.0  # a scene's power spectrum falls at least as fast as |f|^-ALPHA_MIN (spectral cap)
 MAX_LINE_RMS = 0.35  # edge positions about the fitted line (px): straighter than this
@@ -31,10 +31,16 @@ MAX_TEXTURE = 0.12  # RMS beside the edge / step height: flatter than this
 MIN_CONTRAST_SNR = 12.0  # step height / noise std: at least this
 
 
-def _gaussian_box_mtf(freqs: np.ndarray, sigmas: np.ndarray, angle_deg: float) -> np.ndarray:
-    """Return ``exp(-2 pi^2 s^2 f^2) |sinc(f cos a) sinc(f sin a)|``, rows s, columns f."""
+def _gaussian_box_mtf(
+    freqs: np.ndarray, sigmas: np.ndarray, angle_deg: float, fill: float = 1.0
+) -> np.ndarray:
+    """Return ``exp(-2 pi^2 s^2 f^2) |sinc(w f cos a) sinc(w f sin a)|``, rows s, columns f.
+
+    ``w`` is the pixel fill factor ``fill`` (the aperture's width, px).
+    """
     th = np.deg2rad(angle_deg)
-    box = np.abs(np.sinc(freqs * np.cos(th)) * np.sinc(freqs * np.sin(th)))
+    fw = freqs * fill if fill != 1.0 else freqs
+    box = np.abs(np.sinc(fw * np.cos(th)) * np.sinc(fw * np.sin(th)))
     return (
         np.exp(-2.0 * np.pi**2 * np.square(sigmas)[:, None] * np.square(freqs)[None, :])
         * box[None, :]
@@ -42,6 +48,10 @@ def _gaussian_box_mtf(freqs: np.ndarray, sigmas: np.ndarray, angle_deg: float) -
 
 
 _SIGMA_GRID = np.arange(0.0, 2.0001, 0.0025)
+FILL_GRID = (0.7, 0.75, 0.8, 0.85, 0.9, 0.95, 1.0)  # pixel fill factors tried (aperture width, px)
+FILL_GATE_FREQ = 0.8  # the fill is fitted only when the edge's MTF is above `level` up to here
+FILL_MAX_FREQ = 1.3  # highest frequency of the fill fit (cycles/px)
+FILL_MAX_RMS = 0.02  # the joint fit's RMS residual (MTF units) must be below this to be used
 
 
 def edge_sigma(
@@ -51,6 +61,7 @@ def edge_sigma(
     f_lo: float = 0.05,
     level: float = 0.15,
     motion_px: float = 0.0,
+    fill: float = 1.0,
 ) -> float:
     """Fit the Gaussian optics std (px) whose MTF, times the pixel box, matches an edge MTF.
 
@@ -69,21 +80,27 @@ def edge_sigma(
         The image motion during the exposure projected on the edge normal (px; default 0):
         its box ``|sinc(f motion_px)|`` multiplies the model, so the fit returns the optics
         blur without it.
+    fill : float, optional
+        The pixel aperture's width ``w`` (px, the fill factor; default 1: the full pixel).
 
     Returns
     -------
     float
-        ``argmin_s sum_f (M(f) - exp(-2 pi^2 s^2 f^2) |sinc(f cos a) sinc(f sin a)|)^2`` on a
-        0.0025 px grid in [0, 2] (times ``|sinc(f motion_px)|`` with a motion).
+        ``argmin_s sum_f (M(f) - exp(-2 pi^2 s^2 f^2) |sinc(w f cos a) sinc(w f sin a)|)^2`` on
+        a 0.0025 px grid in [0, 2] (times ``|sinc(f motion_px)|`` with a motion), over
+        ``f_lo <= f <= 0.75`` cycles/px.
 
     Notes
     -----
-    A narrower pixel aperture than the full pixel (fill factor below 1) has a higher MTF and
-    so gives a lower sigma: a bias in the safe direction.
+    A narrower pixel aperture than the one assumed has a higher MTF and so gives a lower
+    sigma (about ``sqrt(s^2 - (w^2 - w_true^2) / 12)``): a bias in the safe direction.
+    :func:`edge_fill` measures ``w``.
     """
     f = np.asarray(freqs, dtype=np.float64)
     m = np.asarray(mtf, dtype=np.float64)
-    models = _gaussian_box_mtf(f, _SIGMA_GRID, angle_deg)
+    used = f <= 0.75  # the models only where the fit can look
+    f, m = f[used], m[used]
+    models = _gaussian_box_mtf(f, _SIGMA_GRID, angle_deg, fill)
     if motion_px:
         models = models * np.abs(np.sinc(f * motion_px))[None, :]
     band = (f >= f_lo) & (f <= 0.75)
@@ -95,6 +112,76 @@ def edge_sigma(
         best = float(_SIGMA_GRID[int(np.argmin(err))])
         band = (f >= f_lo) & (f <= 0.75) & (models[int(np.argmin(err))] >= level)
     return best
+
+
+def edge_fill(
+    freqs: np.ndarray,
+    mtf: np.ndarray,
+    angle_deg: float,
+    f_lo: float = 0.05,
+    level: float = 0.15,
+    motion_px: float = 0.0,
+    sigma_full: float | None = None,
+) -> float:
+    """Fit the pixel fill factor (aperture width, px) jointly with the optics blur at an edge.
+
+    Parameters
+    ----------
+    freqs, mtf : numpy.ndarray
+        The measured MTF along the edge normal (cycles/px), up to at least
+        :data:`FILL_MAX_FREQ` (``slanted_edge_mtf(..., f_max=...)``: the 4x oversampled ESF
+        measures it beyond the pixel Nyquist frequency).
+    angle_deg : float
+        The edge's angle from the pixel grid.
+    f_lo, level : float, optional
+        Lowest frequency used, and the model MTF below which a frequency is left out.
+    motion_px : float, optional
+        Image motion projected on the edge normal (px), as in :func:`edge_sigma`.
+    sigma_full : float, optional
+        :func:`edge_sigma` of this MTF with the full pixel, if already known.
+
+    Returns
+    -------
+    float
+        The ``w`` of :data:`FILL_GRID` of the best joint fit ``argmin_{s, w} sum_f (M(f) -
+        exp(-2 pi^2 s^2 f^2) |sinc(w f cos a) sinc(w f sin a)|)^2`` over ``f_lo <= f <=
+        FILL_MAX_FREQ`` where the model is above ``level`` (one refit on that band); 1.0 (the
+        full pixel, :func:`edge_sigma`'s assumption) when the data cannot tell: the full-box
+        fit's model is below ``level`` at :data:`FILL_GATE_FREQ`, or the joint fit's RMS
+        residual on its band is above :data:`FILL_MAX_RMS`.
+
+    Notes
+    -----
+    Below about 0.75 cycles/px the box and the Gaussian trade against each other (both lower
+    the MTF as ``1 - c f^2``); they part near the box's first zero, at ``1 / w`` cycles/px
+    along an axis. A larger blur leaves no signal there, so the fill is fitted only for
+    sharp edges (about ``s <= 0.2`` px). A fill below the truth raises the sigma fitted with
+    it, hence the gate and the conservative pooling (:func:`subpix_ros.core.blur.estimate_blur`).
+    """
+    f = np.asarray(freqs, dtype=np.float64)
+    m = np.asarray(mtf, dtype=np.float64)
+    motion = np.abs(np.sinc(f * motion_px)) if motion_px else np.ones_like(f)
+    s_full = (
+        edge_sigma(f, m, angle_deg, f_lo, level, motion_px) if sigma_full is None else sigma_full
+    )
+    at_gate = _gaussian_box_mtf(np.array([FILL_GATE_FREQ]), np.array([s_full]), angle_deg)[0, 0]
+    if at_gate * abs(np.sinc(FILL_GATE_FREQ * motion_px)) < level or f.max() < FILL_GATE_FREQ:
+        return 1.0
+    models = np.stack([_gaussian_box_mtf(f, _SIGMA_GRID, angle_deg, w) for w in FILL_GRID])
+    models = models * motion  # (fills, sigmas, freqs)
+    band = (f >= f_lo) & (f <= FILL_MAX_FREQ)
+    rms = np.inf
+    best = (len(FILL_GRID) - 1, 0)
+    for _ in range(2):  # the band where the first fit's model is above `level`, then refit
+        if band.sum() < 3:
+            break
+        err = np.sum((models[:, :, band] - m[band]) ** 2, axis=2)
+        best = np.unravel_index(int(np.argmin(err)), err.shape)
+        rms = float(np.sqrt(err[best] / band.sum()))
+        band = (f >= f_lo) & (f <= FILL_MAX_FREQ) & (models[best] >= level)
+    if not rms <= FILL_MAX_RMS:  # the model does not explain the edge (texture, aliasing)
+        return 1.0
+    return float(FILL_GRID[best[0]])
 
 
 def find_edge_rois(
@@ -178,13 +265,29 @@ def find_edge_rois(
     return rois
 
 
+class EdgeFit(NamedTuple):
+    """One edge measured in one frame (:func:`measure_edge`)."""
+
+    sigma: float  # optics blur with the full pixel (px), or NaN
+    fill: float  # the fill factor the edge shows (1.0: cannot tell), or NaN
+    why_not: str  # empty, or why the edge was rejected
+    mtf: tuple | None = None  # (freqs, mtf, angle_deg, motion_px) for refits at another fill
+
+    def sigma_at(self, fill: float) -> float:
+        """Return the optics blur fitted with the pixel fill ``fill`` (:func:`edge_sigma`)."""
+        if fill == 1.0 or self.mtf is None:
+            return self.sigma
+        freqs, mtf, angle_deg, motion_px = self.mtf
+        return edge_sigma(freqs, mtf, angle_deg, motion_px=motion_px, fill=fill)
+
+
 def measure_edge(
     frame: np.ndarray,
     roi: tuple[int, int, int, int],
     noise: float,
     motion_blur: tuple[float, float] = (0.0, 0.0),
-) -> tuple[float, str]:
-    """Measure the blur of one edge in one frame.
+) -> EdgeFit:
+    """Measure the blur and the pixel fill factor of one edge in one frame.
 
     Parameters
     ----------
@@ -201,26 +304,32 @@ def measure_edge(
 
     Returns
     -------
-    sigma : float
-        The edge's optics blur (px, :func:`edge_sigma`), or NaN.
-    why_not : str
-        Empty, or why the edge was rejected: no slanted-edge measurement, not straight
-        (``MAX_LINE_RMS``), textured beside the edge (``MAX_TEXTURE``), or a step below
-        ``MIN_CONTRAST_SNR`` times the noise.
+    EdgeFit
+        ``sigma``: the edge's optics blur with the full pixel (px, :func:`edge_sigma`), or
+        NaN; ``fill``: the fill factor the edge shows (:func:`edge_fill`; 1.0 when it cannot
+        tell); ``why_not``: empty, or why the edge was rejected: no slanted-edge measurement,
+        not straight (``MAX_LINE_RMS``), textured beside the edge (``MAX_TEXTURE``), or a step
+        below ``MIN_CONTRAST_SNR`` times the noise; ``sigma_at(w)`` refits with fill ``w``.
     """
+    nan = float("nan")
     try:
-        r = slanted_edge_mtf(frame, roi)
+        r = slanted_edge_mtf(frame, roi, f_max=FILL_MAX_FREQ)
     except ValueError as exc:
-        return float("nan"), str(exc)
+        return EdgeFit(nan, nan, str(exc))
     if not r.line_rms_px <= MAX_LINE_RMS:
-        return float("nan"), f"edge not straight (positions {r.line_rms_px:.2f} px about the line)"
+        return EdgeFit(
+            nan, nan, f"edge not straight (positions {r.line_rms_px:.2f} px about the line)"
+        )
     if not r.texture <= MAX_TEXTURE:
-        return float("nan"), f"textured beside the edge ({r.texture:.2f} of the step)"
+        return EdgeFit(nan, nan, f"textured beside the edge ({r.texture:.2f} of the step)")
     if not r.contrast >= MIN_CONTRAST_SNR * max(noise, 0.5):
-        return float("nan"), f"step {r.contrast:.1f} below {MIN_CONTRAST_SNR:.0f}x the noise"
-    if motion_blur[0] == 0.0 and motion_blur[1] == 0.0:
-        return edge_sigma(r.freqs, r.mtf, r.angle_deg), ""
-    return edge_sigma(r.freqs, r.mtf, r.angle_deg, motion_px=_motion_on_normal(r, motion_blur)), ""
+        return EdgeFit(nan, nan, f"step {r.contrast:.1f} below {MIN_CONTRAST_SNR:.0f}x the noise")
+    motion = 0.0
+    if motion_blur[0] != 0.0 or motion_blur[1] != 0.0:
+        motion = _motion_on_normal(r, motion_blur)
+    sigma = edge_sigma(r.freqs, r.mtf, r.angle_deg, motion_px=motion)
+    fill = edge_fill(r.freqs, r.mtf, r.angle_deg, motion_px=motion, sigma_full=sigma)
+    return EdgeFit(sigma, fill, "", (r.freqs, r.mtf, r.angle_deg, motion))
 
 
 def _motion_on_normal(r, motion_blur: tuple[float, float]) -> float:

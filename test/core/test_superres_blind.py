@@ -14,7 +14,7 @@ import pytest
 from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
 from benchmarks.flight_eval import est_shifts as _est_shifts
 from benchmarks.flight_eval import gain
-from subpix_ros.core.blur import BlurCalibration, estimate_blur, parse_blur_sigma
+from subpix_ros.core.blur import BlurCalibration, BlurEstimate, estimate_blur, parse_blur_sigma
 from subpix_ros.core.superres import reconstruct
 
 LR = {
@@ -96,13 +96,64 @@ def test_blur_never_above_truth_without_sharp_edges(crops, crop, blur):
         assert est.sigma <= blur + 0.05, (p, est)
 
 
-def test_narrower_aperture_biases_low(crops):
-    # fill factor 0.8: the pixel's MTF is higher than the model's full box, so the estimate is lower
+def test_fill_factor_measured_on_a_sharp_edge(crops):
+    # fill 0.8 at 0.2 px: the full-box fit read 0.00 px; the joint fit reads both
+    fl = flight(crops, "crop_trees", 4, 0.2, layout="random", roof=True, fill=0.8, seed=2)
+    est = estimate_blur(fl.frames, est_shifts(fl.frames))
+    assert est.source == "edges" and 0.7 <= est.fill_factor <= 0.85, est
+    assert abs(est.sigma - 0.2) <= 0.05, est
+
+
+def test_full_fill_read_as_full_and_the_full_box_fit_kept(crops):
+    fl = flight(crops, "crop_trees", 2, 0.2, layout="random", roof=True, fill=1.0, seed=2)
+    sh = est_shifts(fl.frames)
+    est = estimate_blur(fl.frames, sh)
+    assert est.fill_factor == 1.0 and est.sigma <= 0.25, est
+    assert est == estimate_blur(fl.frames, sh, fit_fill=False)
+
+
+def test_fill_not_measured_where_the_blur_hides_it(crops):
+    # 0.5 px: no signal near the box's zero; the full pixel is assumed, so a narrower aperture
+    # still reads lower (the safe side)
     est = [
-        estimate_blur(flight(crops, "crop_road", 2, 0.5, roof=True, fill=f, seed=2).frames).sigma
+        estimate_blur(flight(crops, "crop_road", 2, 0.5, roof=True, fill=f, seed=2).frames)
         for f in (1.0, 0.8)
     ]
-    assert est[1] < est[0] <= 0.55
+    assert est[0].fill_factor == est[1].fill_factor == 1.0, est
+    assert est[1].sigma < est[0].sigma <= 0.55, est
+
+
+def test_measured_fill_in_the_model_gains_at_least_the_full_pixel_path(crops):
+    # +5.41 dB against +4.95 with the full-box estimate (0.00 px); told 0.2 px, full box: +4.48
+    fl = flight(crops, "crop_trees", 4, 0.2, layout="random", roof=True, fill=0.8, seed=2)
+    sh = est_shifts(fl.frames)
+    new = reconstruct(fl.frames, sh, 4, blur_sigma="auto")
+    old = reconstruct(fl.frames, sh, 4, blur_sigma=estimate_blur(fl.frames, sh, fit_fill=False))
+    assert new.pixel_fill < 1.0 and old.pixel_fill == 1.0
+    assert gain(fl, new.image) >= gain(fl, old.image), (gain(fl, new.image), gain(fl, old.image))
+
+
+@pytest.mark.parametrize("p,layout", [(2, "grid"), (3, "random"), (4, "random")])
+def test_default_pixel_fill_is_the_full_pixel_model_bit_for_bit(crops, p, layout):
+    fl = flight(crops, "crop_road", p, 0.4, layout=layout, fill=0.9)
+    sh = est_shifts(fl.frames)
+    masks = [np.ones(f.shape, bool) for f in fl.frames]
+    for opts in ({}, {"refine_shifts": False}, {"masks": masks}):  # Fourier, given shifts, CG
+        base = reconstruct(fl.frames, sh, p, blur_sigma=0.4, **opts)
+        assert base.pixel_fill == 1.0
+        for kw in (dict(blur_sigma=0.4, pixel_fill=1.0), dict(blur_sigma=BlurEstimate(0.4, "x"))):
+            same = reconstruct(fl.frames, sh, p, **kw, **opts).image
+            assert np.array_equal(same, base.image), (opts, kw)
+    fourier = reconstruct(fl.frames, sh, p, blur_sigma=0.4).image
+    narrower = reconstruct(fl.frames, sh, p, blur_sigma=0.4, pixel_fill=0.8)
+    assert narrower.pixel_fill == 0.8 and not np.array_equal(narrower.image, fourier)
+
+
+def test_pixel_fill_checked():
+    frames = [np.zeros((32, 32), np.uint8)] * 2
+    for bad in (0.0, 1.2, -0.5):
+        with pytest.raises(ValueError, match="pixel_fill"):
+            reconstruct(frames, [(0, 0), (0.5, 0.5)], 2, pixel_fill=bad)
 
 
 def test_parse_blur_sigma():

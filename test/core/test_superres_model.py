@@ -131,6 +131,38 @@ def test_frame_transfer_matches_direct_periodic_model():
     np.testing.assert_allclose(np.fft.fft(y), pred, atol=1e-9)
 
 
+@pytest.mark.parametrize("p", [2, 3])
+@pytest.mark.parametrize("fill", [0.8, 0.93])
+def test_frame_transfer_with_pixel_fill_is_the_box_average_about_the_pixel_centre(p, fill):
+    # 1-D periodic: the trigonometric interpolant of the shifted, blurred HR signal averaged
+    # over w LR px about each LR pixel's centre (HR coordinate p i + (p - 1) / 2)
+    n = 21  # odd p n: no Nyquist bin
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=p * n)
+    shift, sigma = 0.37, 0.3  # LR px
+    f = np.fft.fftfreq(p * n)
+    z_hat = np.fft.fft(x) * np.exp(-2j * np.pi * f * p * shift)
+    z_hat = z_hat * np.exp(-2 * np.pi**2 * (p * sigma) ** 2 * f**2)
+    t = (np.arange(400) + 0.5) / 400 - 0.5  # midpoints across the aperture, fractions of it
+    y = np.empty(n, complex)
+    for i in range(n):  # LR pixels
+        pos = p * i + (p - 1) / 2 + t * fill * p  # HR px
+        y[i] = (z_hat[None, :] * np.exp(2j * np.pi * f[None, :] * pos[:, None])).sum() / (
+            p * n * pos.size
+        )
+    a, _ = frame_transfer_1d(n, p, shift, sigma, pixel_fill=fill)
+    big = np.fft.fft(x)
+    pred = sum(a[m] * big[np.arange(n) + m * n] for m in range(p))
+    np.testing.assert_allclose(np.fft.fft(y), pred, atol=2e-3 * np.abs(pred).max())
+
+
+def test_frame_transfer_default_fill_is_the_discrete_box():
+    for p in (2, 3, 4):
+        a, f = frame_transfer_1d(24, p, 0.3, 0.4)
+        b, g = frame_transfer_1d(24, p, 0.3, 0.4, pixel_fill=1.0)
+        assert np.array_equal(a, b) and np.array_equal(f, g)
+
+
 def test_frame_operator_adjoint_and_translation():
     rng = np.random.default_rng(4)
     hr = rng.normal(size=(80, 96))

@@ -214,6 +214,15 @@ def test_blur_sigma_is_a_checked_parameter_and_reaches_the_result(seq):
     _, pairs = _set(seq, t0=T0 + 10 * DT, n=4)
     (sr,) = [sr for s, al in pairs for sr in stage.add(s, al)]
     assert sr.blur_source in ("edges", "fallback") and sr.blur_sigma <= 0.45
+    assert sr.result.pixel_fill == stage.blur.current.fill_factor  # the calibration's fill
+
+
+def test_a_given_pixel_fill_is_a_solver_option(seq):
+    stage = ReconstructionStage(n_frames=4, method="map", pixel_fill=0.85)
+    assert stage.solver_options == {"pixel_fill": 0.85}
+    _, pairs = _set(seq, n=4)
+    (sr,) = [sr for s, al in pairs for sr in stage.add(s, al)]
+    assert sr.result.pixel_fill == 0.85
 
 
 def test_uint16_frames_give_a_uint16_image(seq):

@@ -165,6 +165,7 @@ def _fourier_map(
     integer_valued: bool | None = None,
     lowpassed: _WholeLowpass | None = None,
     motion_blur: tuple[float, float] = (0.0, 0.0),
+    pixel_fill: float = 1.0,
 ) -> MapSolution:
     """Compute the MAP estimate of eq. 9 for translated frames, per LR frequency bin.
 
@@ -196,6 +197,9 @@ def _fourier_map(
     motion_blur : (float, float), optional
         Image motion during the exposure ``d = (du, dv)`` (LR px, rows and cols; default
         none), common to every frame.
+    pixel_fill : float, optional
+        The pixel aperture's width (LR px; default 1: the full pixel), as in
+        ``frame_transfer_1d``.
 
     Returns
     -------
@@ -229,7 +233,7 @@ def _fourier_map(
     for i, frame in enumerate(padded):  # per frame: single-precision DFT, rfft half
         spec[i] = _rfft2_32(frame)
     c_psd, alpha, noise_sigma = _fit_prior(
-        registered, p, blur_sigma, noise_sigma, integer_valued, motion_blur
+        registered, p, blur_sigma, noise_sigma, integer_valued, motion_blur, pixel_fill
     )
     noise_power = hp * wp * noise_sigma**2
     c = c_psd * p * p * hp * wp  # prior in HR DFT units: E|X|^2 = (p hp)(p wp) S_x
@@ -246,6 +250,7 @@ def _fourier_map(
         noise_power,
         (hp, wp),
         motion_blur,
+        pixel_fill,
     )
     img = _assemble_hr(xs, hp, wp)
     out = img[p * pad : p * (pad + h), p * pad : p * (pad + w)].astype(np.float64)
@@ -353,6 +358,7 @@ def _fit_prior(
     noise_sigma: float | None,
     integer_valued: bool | None,
     motion_blur: tuple[float, float] = (0.0, 0.0),
+    pixel_fill: float = 1.0,
 ) -> tuple[float, float, float]:
     """Fit the prior and settle the noise level: ``(c_psd, alpha, noise_sigma)``.
 
@@ -377,7 +383,8 @@ def _fit_prior(
     )
     if noise_sigma is None and np.isfinite(registered.lk_noise):
         noise_sigma = registered.lk_noise
-    c_psd, alpha, sig_fit = fit_spectrum(pre, p, blur_sigma, noise_sigma, motion_blur=motion_blur)
+    kw = dict(motion_blur=motion_blur, pixel_fill=pixel_fill)
+    c_psd, alpha, sig_fit = fit_spectrum(pre, p, blur_sigma, noise_sigma, **kw)
     if noise_sigma is None:
         if integer_valued is None:  # integer dtypes are known to be; float data are checked
             integer_valued = (
@@ -388,7 +395,7 @@ def _fit_prior(
         floor = 1.0 / np.sqrt(12.0) if integer_valued else 0.05
         noise_sigma = max(sig_fit, floor)
         if sig_fit < floor:  # refit the prior level with the floor as the noise
-            c_psd, alpha, _ = fit_spectrum(pre, p, blur_sigma, noise_sigma, motion_blur=motion_blur)
+            c_psd, alpha, _ = fit_spectrum(pre, p, blur_sigma, noise_sigma, **kw)
     return c_psd, alpha, max(noise_sigma, 0.05)
 
 
@@ -420,6 +427,7 @@ def _solve_bins(
     noise_power: float,
     padded_shape: tuple[int, int],
     motion_blur: tuple[float, float] = (0.0, 0.0),
+    pixel_fill: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve every LR bin: ``(xs, wsum, resid_ratio)``.
 
@@ -431,8 +439,8 @@ def _solve_bins(
     """
     hp, wp = padded_shape
     n = spec.shape[0]
-    ay, fy = _frame_transfers(hp, p, resid[:, 0], blur_sigma)
-    ax, fx = _frame_transfers(wp, p, resid[:, 1], blur_sigma, wp // 2 + 1)
+    ay, fy = _frame_transfers(hp, p, resid[:, 0], blur_sigma, pixel_fill=pixel_fill)
+    ax, fx = _frame_transfers(wp, p, resid[:, 1], blur_sigma, wp // 2 + 1, pixel_fill)
     max_var = float(np.max(cov[:, 0, 0] + cov[:, 1, 1]))
     moving = tuple(motion_blur) != (0.0, 0.0)
     if 2.0 * np.pi**2 * max_var * 0.5 < 1e-3:

@@ -345,7 +345,12 @@ class FrameOperator:
 
 
 def frame_transfer_1d(
-    n_lr: int, p: int, shift: float, blur_sigma: float, shift_var: float = 0.0
+    n_lr: int,
+    p: int,
+    shift: float,
+    blur_sigma: float,
+    shift_var: float = 0.0,
+    pixel_fill: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Return the per-axis Fourier transfer of eq. 3 with blur and shift, folded onto LR bins.
 
@@ -361,6 +366,9 @@ def frame_transfer_1d(
         Optics blur std (LR px).
     shift_var : float, optional
         Variance of a Gaussian shift error (LR px^2).
+    pixel_fill : float, optional
+        The pixel aperture's width ``w`` (LR px, the fill factor; default 1: the discrete
+        mean over the block's p HR pixels).
 
     Returns
     -------
@@ -379,11 +387,24 @@ def frame_transfer_1d(
     HR pixel p i), ``G(f) = exp(-2 pi^2 (p sigma)^2 f^2)`` the optics, ``s = p shift`` HR px
     and ``var_s = p^2 shift_var`` (expected transfer under a Gaussian shift error, METHODS
     eq. 9 with registration noise). The leading 1/p is the DFT aliasing factor.
+
+    With ``pixel_fill`` ``w != 1`` the discrete mean is replaced by a continuous box of
+    width ``w`` LR px centred on the pixel centre, with the same phase reference (the block's
+    centre is ``(p - 1) / 2`` HR px after its start)::
+
+        Hbox(f) = sinc(w p f) exp(pi i f (p - 1))
+
+    (numpy's ``sinc``; ``w p f`` = ``w nu``, ``nu`` in cycles / LR px). Its magnitude at
+    ``w = 1`` is ``|sinc(p f)|``, not the discrete ``|sin(pi p f) / (p sin(pi f))|``, so the
+    default keeps the discrete form (the model of before, bit for bit).
     """
     f_all = np.fft.fftfreq(p * n_lr)
     k = np.arange(n_lr)
     f = np.stack([f_all[k + m * n_lr] for m in range(p)])
-    hbox = np.exp(2j * np.pi * f[..., None] * np.arange(p)).mean(axis=-1)
+    if pixel_fill == 1.0:
+        hbox = np.exp(2j * np.pi * f[..., None] * np.arange(p)).mean(axis=-1)
+    else:
+        hbox = np.sinc(pixel_fill * p * f) * np.exp(1j * np.pi * f * (p - 1))
     s = p * shift
     a = hbox * np.exp(-2.0 * np.pi**2 * (p * blur_sigma) ** 2 * f**2) * np.exp(-2j * np.pi * f * s)
     if shift_var > 0:
@@ -392,24 +413,32 @@ def frame_transfer_1d(
 
 
 @functools.lru_cache(maxsize=32)
-def _transfer_base(n_lr: int, p: int, blur_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+def _transfer_base(
+    n_lr: int, p: int, blur_sigma: float, pixel_fill: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Return :func:`frame_transfer_1d` at zero shift, ``(a0, f)`` (cached, read-only)."""
-    a0, f = frame_transfer_1d(n_lr, p, 0.0, blur_sigma)
+    a0, f = frame_transfer_1d(n_lr, p, 0.0, blur_sigma, pixel_fill=pixel_fill)
     a0.flags.writeable = False
     f.flags.writeable = False
     return a0, f
 
 
 def _frame_transfers(
-    n_lr: int, p: int, shifts: np.ndarray, blur_sigma: float, keep: int | None = None
+    n_lr: int,
+    p: int,
+    shifts: np.ndarray,
+    blur_sigma: float,
+    keep: int | None = None,
+    pixel_fill: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Return :func:`frame_transfer_1d` for every shift at once, and f.
 
     ``a[n] = a0 exp(-2 pi i f p s_n)``, (N, p, keep): ``a0`` is the zero-shift transfer
     (cached); the shift enters as the phase factor only, as in ``frame_transfer_1d`` (the same
-    values to round-off). ``keep``: the first columns only (the rfft half).
+    values to round-off). ``keep``: the first columns only (the rfft half). ``pixel_fill``:
+    the aperture width (LR px), as in ``frame_transfer_1d``.
     """
-    a0, f = _transfer_base(n_lr, p, float(blur_sigma))
+    a0, f = _transfer_base(n_lr, p, float(blur_sigma), float(pixel_fill))
     if keep is not None:
         a0, f = a0[:, :keep], f[:, :keep]
     s = np.asarray(shifts, dtype=np.float64)

@@ -72,6 +72,7 @@ def reconstruct(
     factor: int,
     *,
     blur_sigma=0.4,
+    pixel_fill: float | None = None,
     **kw,
 ) -> SRResult:
     """Reconstruct a factor-x super-resolved image from N >= 2 shifted LR frames.
@@ -90,6 +91,11 @@ def reconstruct(
         calibration), ``"auto"`` (:data:`BLUR_AUTO`: measured on straight edges in the
         frames, :func:`subpix_ros.core.blur.estimate_blur`; only "map" uses a blur), or a
         :class:`subpix_ros.core.blur.BlurEstimate` (e.g. a flight's calibration).
+    pixel_fill : float, optional
+        The pixel aperture's width (LR px, the fill factor, in (0, 1]); default None: the
+        blur estimate's ``fill_factor`` (measured with ``"auto"`` or a BlurEstimate, else 1:
+        the full pixel, the model of before bit for bit). Used by the Fourier solve; the CG
+        refinement (masks, homographies) keeps the full pixel.
     **kw
         Keyword-only options:
 
@@ -134,9 +140,16 @@ def reconstruct(
     position. The Fourier solve estimates ``Z = M X`` with the prior ``|M|^2 P`` and returns
     ``X = Z / M``; the CG solve filters the HR grid by the same transfer
     (:func:`~subpix_ros.core.superres.model.motion_filter`).
+
+    A pixel fill ``w != 1`` replaces the model's pixel box (the mean over the p x p HR
+    pixels of an LR pixel) by a continuous box of ``w`` LR px about the pixel centre, per
+    axis ``sinc(w nu)`` (``frame_transfer_1d``).
     """
     est = _resolve_blur(blur_sigma, frames, shifts, kw.get("method", "map"), kw.get("motion_blur"))
-    res = _reconstruct(frames, shifts, factor, blur_sigma=est.sigma, **kw)
+    fill = float(getattr(est, "fill_factor", 1.0)) if pixel_fill is None else float(pixel_fill)
+    if not 0.0 < fill <= 1.0:
+        raise ValueError(f"pixel_fill must be in (0, 1] (LR px), got {pixel_fill!r}")
+    res = _reconstruct(frames, shifts, factor, blur_sigma=est.sigma, pixel_fill=fill, **kw)
     res.blur_sigma, res.blur_source, res.blur_reason = float(est.sigma), est.source, est.reason
     return res
 
@@ -183,6 +196,7 @@ def _reconstruct(
     pad: int = 16,
     cg_iters: int = 30,
     motion_blur: tuple[float, float] | None = None,
+    pixel_fill: float = 1.0,
 ) -> SRResult:
     """Reconstruct with a numeric blur; the options of :func:`reconstruct`."""
     motion = motion_blur_vector(motion_blur)
@@ -229,10 +243,12 @@ def _reconstruct(
         pad=pad,
         cg_iters=cg_iters,
         motion_blur=motion,
+        pixel_fill=pixel_fill,
     )
     res = _map_method(arrs, rel, p, sigma, opts)
     if not res.fell_back:
         res.motion_blur = motion
+        res.pixel_fill = float(pixel_fill)
     return res
 
 
@@ -298,6 +314,7 @@ class _MapOptions:
     pad: int
     cg_iters: int
     motion_blur: tuple[float, float] = (0.0, 0.0)
+    pixel_fill: float = 1.0
 
 
 def _map_method(
@@ -339,6 +356,7 @@ def _map_method(
             integer_valued=ints,
             lowpassed=lowpassed,
             motion_blur=opts.motion_blur,
+            pixel_fill=opts.pixel_fill,
         )
     except (ValueError, np.linalg.LinAlgError) as exc:
         return _fallback(ref, p, f"MAP solve failed: {exc}", sigma, n, rel)

@@ -54,6 +54,8 @@ class SRResult:
     motion_blur : (float, float)
         Image motion during the exposure the model used, ``(du, dv)`` LR px ((0, 0): none
         modelled, e.g. the method does not model blur or the result fell back).
+    pixel_fill : float
+        The pixel aperture's width the model used (LR px; 1.0: the full pixel).
     """
 
     image: np.ndarray
@@ -70,6 +72,7 @@ class SRResult:
     blur_reason: str = ""
     shifts_disputed: int = 0
     motion_blur: tuple[float, float] = (0.0, 0.0)
+    pixel_fill: float = 1.0
 
 
 def psnr(image: np.ndarray, truth: np.ndarray, border: int = 0, peak: float = 255.0) -> float:

@@ -84,6 +84,7 @@ def fit_spectrum(
     max_bins: int = 8000,
     crop: int = _SPECTRUM_CROP,
     motion_blur: tuple[float, float] = (0.0, 0.0),
+    pixel_fill: float = 1.0,
 ) -> tuple[float, float, float]:
     """Fit the stationary prior and the noise floor to the frames' power spectrum.
 
@@ -105,6 +106,8 @@ def fit_spectrum(
         Image motion during the exposure ``d = (du, dv)`` (LR px; default none): its
         transfer ``M`` (:func:`~subpix_ros.core.superres.model.motion_transfer`) multiplies
         ``a_m``.
+    pixel_fill : float, optional
+        The pixel aperture's width (LR px; default 1), as in ``frame_transfer_1d``.
 
     Returns
     -------
@@ -141,12 +144,13 @@ def fit_spectrum(
         psd += np.abs(_rfft2_32(x)) ** 2
     psd /= len(sub) * float(np.sum(np.square(win, dtype=np.float64)))
     mot = (float(motion_blur[0]), float(motion_blur[1]))
-    sel, amp, logf = _spectrum_model(h, w, p, float(blur_sigma), max_bins, mot)
+    fill = float(pixel_fill)
+    sel, amp, logf = _spectrum_model(h, w, p, float(blur_sigma), max_bins, mot, fill)
     obs = psd.ravel()[sel]
     # coarse 0.3 grid, then the 0.1 grid within +-0.2 of the coarse best (misfit unimodal in alpha)
     key = (h, w, p, float(blur_sigma), max_bins, mot)
     coarse = _fit_exponents(
-        1.0, 0.3, 11, amp, logf, obs, noise_sigma, *_exponent_terms(*key, 1.0, 0.3, 11)
+        1.0, 0.3, 11, amp, logf, obs, noise_sigma, *_exponent_terms(*key, 1.0, 0.3, 11, fill)
     )
     a_best = coarse[1]
     lo = max(1.0, a_best - 0.2)
@@ -159,7 +163,7 @@ def fit_spectrum(
         logf,
         obs,
         noise_sigma,
-        *_exponent_terms(*key, round(lo, 10), 0.1, n_fine),
+        *_exponent_terms(*key, round(lo, 10), 0.1, n_fine, fill),
     )
     return float(c), float(alpha), float(np.sqrt(s2))
 
@@ -269,13 +273,14 @@ def _exponent_terms(
     a0: float,
     da: float,
     count: int,
+    pixel_fill: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Return ``(q, q^2)`` of :func:`_exponent_sums` on :func:`_spectrum_model`'s terms.
 
-    They depend only on the crop shape, factor, blur, motion blur and exponents, so they are cached
-    (read-only; the fine search has one table per coarse winner).
+    They depend only on the crop shape, factor, blur, motion blur, pixel fill and exponents, so
+    they are cached (read-only; the fine search has one table per coarse winner).
     """
-    _, amp, logf = _spectrum_model(h, w, p, blur_sigma, max_bins, motion_blur)
+    _, amp, logf = _spectrum_model(h, w, p, blur_sigma, max_bins, motion_blur, pixel_fill)
     q = _exponent_sums(a0, da, count, amp, logf)
     q2 = q * q
     q.flags.writeable = False
@@ -309,6 +314,7 @@ def _spectrum_model(
     blur_sigma: float,
     max_bins: int,
     motion_blur: tuple[float, float] = (0.0, 0.0),
+    pixel_fill: float = 1.0,
 ) -> tuple[np.ndarray, ...]:
     """Return the bins and model terms of :func:`fit_spectrum` for an h x w crop.
 
@@ -316,8 +322,8 @@ def _spectrum_model(
     (``M_m`` the motion blur's transfer, 1 without) and
     ``log |f_m|`` (p^2, bins) of the p^2 aliases m at those bins; cached per shape, read-only.
     """
-    ay, fy = frame_transfer_1d(h, p, 0.0, blur_sigma)
-    ax, fx = frame_transfer_1d(w, p, 0.0, blur_sigma)
+    ay, fy = frame_transfer_1d(h, p, 0.0, blur_sigma, pixel_fill=pixel_fill)
+    ax, fx = frame_transfer_1d(w, p, 0.0, blur_sigma, pixel_fill=pixel_fill)
     wc = w // 2 + 1
     ax, fx = ax[:, :wc], fx[:, :wc]
     sel = _spectrum_bins(h, w, max_bins)

@@ -36,6 +36,9 @@ from pathlib import Path
 __all__ = [
     "keep_freed_memory",
     "favour_throughput",
+    "favour_memory",
+    "configure_allocator",
+    "MALLOC_PROFILE",
     "release_freed_memory",
     "THROUGHPUT",
     "allocator_line",
@@ -66,6 +69,10 @@ TRIM_THRESHOLD = 64 * 1024 * 1024
 THROUGHPUT = {"mmap_threshold": 512 << 20, "trim_threshold": 256 << 20, "arena_max": 1}
 
 _ENV = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_ARENA_MAX")
+
+#: ``memory``: the nodes allocate from one arena (:func:`favour_memory`) instead of keeping
+#: freed frame buffers (:func:`keep_freed_memory`). Read by :func:`configure_allocator`.
+MALLOC_PROFILE = "SUBPIX_MALLOC"
 
 #: Set to 1 to leave glibc's allocator alone (inherited by child processes: a benchmark's nodes).
 OPT_OUT = "SUBPIX_DEFAULT_MALLOC"
@@ -179,6 +186,38 @@ def _rss_bytes() -> int | None:
     except (OSError, ValueError, IndexError):
         return None
     return pages * os.sysconf("SC_PAGE_SIZE")
+
+
+def favour_memory() -> bool:
+    """One malloc arena, glibc's thresholds otherwise (``SUBPIX_MALLOC=memory``: onboard).
+
+    Every thread allocates from the main heap, so the blocks one thread frees (frames, a
+    set's arrays) are reused by the others instead of sitting in per-thread arenas; the
+    thresholds stay glibc's (blocks above its dynamic mmap threshold go back on free).
+
+    Returns
+    -------
+    bool
+        True if applied; False if this is not glibc or the operator set glibc's malloc
+        tunables (theirs are kept).
+    """
+    if _operator_set():
+        return False
+    fn = _mallopt()
+    return fn is not None and fn(_M_ARENA_MAX, 1) == 1
+
+
+def configure_allocator() -> str:
+    """Apply the allocator a node process runs with; return which (``"memory"``, ``"reuse"``, ``""``).
+
+    ``SUBPIX_MALLOC=memory`` in the environment: :func:`favour_memory` (the onboard
+    profile's choice, docs/design-notes.md "Onboard profile"); otherwise
+    :func:`keep_freed_memory`. ``""`` when nothing was changed (not glibc, or the operator's
+    own settings).
+    """
+    if os.environ.get(MALLOC_PROFILE, "") == "memory":
+        return "memory" if favour_memory() else ""
+    return "reuse" if keep_freed_memory() else ""
 
 
 def favour_throughput() -> bool:

@@ -121,6 +121,41 @@ def test_throughput_settings_reuse_large_blocks_freed_in_threads():
     assert fast["faults"] < 1000, (fast, default)
 
 
+# Four threads allocate 8 MB each; glibc's malloc_stats() (on stderr) lists one "Arena N:" per arena.
+ARENA_CHILD = textwrap.dedent("""
+    import ctypes, sys, threading
+    import numpy as np
+    from subpix_ros.runtime import configure_allocator
+    print(configure_allocator())
+    keep = []
+    def work():
+        keep.append(np.ones((1000, 1000)))
+    ts = [threading.Thread(target=work) for _ in range(4)]
+    [t.start() for t in ts]
+    [t.join() for t in ts]
+    sys.stdout.flush()
+    ctypes.CDLL("libc.so.6").malloc_stats()
+""")
+
+
+@glibc
+@pytest.mark.parametrize("profile,arenas", [("memory", 1), ("", 2)])
+def test_memory_profile_puts_every_thread_in_one_arena(profile, arenas):
+    e = {
+        k: v
+        for k, v in os.environ.items()
+        if not k.startswith("MALLOC_") and k not in ("GLIBC_TUNABLES", "SUBPIX_DEFAULT_MALLOC")
+    }
+    e["SUBPIX_MALLOC"] = profile
+    r = subprocess.run(
+        [sys.executable, "-c", ARENA_CHILD], capture_output=True, text=True, timeout=120, env=e
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[0] == (profile or "reuse")
+    n = len(re.findall(r"^Arena \d+:", r.stderr, re.M))
+    assert (n == 1) if arenas == 1 else (n >= arenas), r.stderr
+
+
 @glibc
 @pytest.mark.parametrize(
     "env",

@@ -12,8 +12,8 @@ from rclpy.node import Node
 from ..runtime import (
     RuntimeSetupError,
     clean_stale_shm_segments,
+    configure_allocator,
     configure_ros_environment,
-    keep_freed_memory,
 )
 
 __all__ = ["run_nodes"]
@@ -43,11 +43,12 @@ def run_nodes(
     Notes
     -----
     Freed frame buffers stay in the process's heap for reuse
-    (:func:`subpix_ros.runtime.keep_freed_memory`); the ROS / DDS defaults of
+    (:func:`subpix_ros.runtime.keep_freed_memory`), or with ``SUBPIX_MALLOC=memory`` every
+    thread allocates from one arena (:func:`subpix_ros.runtime.favour_memory`); the ROS / DDS defaults of
     :func:`subpix_ros.runtime.configure_ros_environment` are applied before the participant is
     created, or the process refuses to start with one line on stderr.
     """
-    keep_freed_memory()
+    configure_allocator()
     clean_stale_shm_segments()  # segments of killed processes (64 MiB each with our profile)
     try:
         configure_ros_environment()

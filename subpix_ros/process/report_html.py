@@ -26,6 +26,22 @@ def _img(fig, alt: str) -> str:
     return f'<img alt="{_esc(alt)}" src="data:image/png;base64,{_fig_png(fig)}">'
 
 
+def _pixels(image, alt: str, caption: str, scale: int = 1) -> str:
+    """Return an image's own pixels as an inline PNG, shown ``scale`` x with square pixels.
+
+    No resampling on the way (the browser enlarges without smoothing): what the product's
+    pixels are, at a fraction of a plotted figure's cost.
+    """
+    from subpix_ros.io.images.png import encode_png
+
+    data = base64.b64encode(encode_png(image)).decode("ascii")
+    w = int(image.shape[1]) * int(scale)
+    return (
+        f'<figure class="px"><img alt="{_esc(alt)}" width="{w}" '
+        f'src="data:image/png;base64,{data}"><figcaption>{_esc(caption)}</figcaption></figure>'
+    )
+
+
 def _f(row: dict, key: str) -> float:
     v = row.get(key, "")
     try:
@@ -62,4 +78,7 @@ _CSS = """body{font-family:sans-serif;max-width:1100px;margin:1em auto;color:#22
 table{border-collapse:collapse;margin:.5em 0}
 td,th{border:1px solid #bbb;padding:2px 8px;font-size:90%}
 th{background:#eee}img{max-width:100%;display:block;margin:.5em 0}.problem{color:#a00}
-h2{border-bottom:1px solid #ccc;margin-top:1.5em}code{background:#f4f4f4}"""
+h2{border-bottom:1px solid #ccc;margin-top:1.5em}code{background:#f4f4f4}
+.sets{display:flex;gap:12px;align-items:flex-start;flex-wrap:wrap}
+figure.px{margin:.5em 0}figure.px img{image-rendering:pixelated;max-width:none}
+figcaption{font-size:80%;color:#444;max-width:340px}"""

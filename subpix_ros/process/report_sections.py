@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from subpix_ros.process.report_html import _esc, _f, _img, _num, _plt, _table
+from subpix_ros.process.report_html import _esc, _f, _img, _num, _pixels, _plt, _table
 
 CROP_LR_PX = 96  # side of the super-resolution crops, in input pixels
 
@@ -254,23 +254,28 @@ def _section_sets(
             out.append("<p>Images missing.</p>")
             continue
         c, side = crop.col, crop.side
-        fig, axes = plt.subplots(1, 3, figsize=(11, 3.9), gridspec_kw={"width_ratios": [1, 1, 0.9]})
-        for ax, im, title in (
-            (axes[0], crop.bicubic, f"bicubic x{factor} of the reference"),
-            (axes[1], crop.super_resolved, f"super-resolved x{factor} ({s.get('method')})"),
-        ):
-            ax.imshow(
-                _display(im),
-                interpolation="nearest",
-                cmap="gray" if im.ndim == 2 else None,
+        scale = max(1, round(320 / max(side, 1)))  # about 320 screen px wide
+        where = f"output px {c}..{c + side} (same crop, same scale, x{scale} on screen)"
+        out.append('<div class="sets">')
+        out.append(
+            _pixels(
+                crop.bicubic,
+                f"set {k + 1}: bicubic",
+                f"bicubic x{factor} of the reference; {where}",
+                scale,
             )
-            ax.set_title(title, fontsize=9)
-            ax.set_xlabel(f"output px {c}..{c + side} (same crop, same scale)", fontsize=7)
-            ax.set_xticks([])
-            ax.set_yticks([])
+        )
+        out.append(
+            _pixels(
+                crop.super_resolved,
+                f"set {k + 1}: super-resolved",
+                f"super-resolved x{factor} ({s.get('method')}); {where}",
+                scale,
+            )
+        )
         uv = np.array([[0.0, 0.0]] + [[m["u_px"], m["v_px"]] for m in s.get("members", [])])
         frac = uv - np.floor(uv)
-        ax = axes[2]
+        fig, ax = plt.subplots(figsize=(3.0, 3.0))
         ax.scatter(frac[1:, 1], frac[1:, 0], s=30, label="frames")
         ax.scatter([0], [0], marker="*", s=120, color="red", label="reference")
         for g in np.arange(0, 1.0001, 1.0 / factor):
@@ -283,8 +288,9 @@ def _section_sets(
         ax.set_ylabel("fractional u (rows, px)", fontsize=8)
         ax.set_title(f"sub-pixel offsets (grid 1/{factor} px)", fontsize=9)
         ax.legend(fontsize=7, loc="lower right")
-        fig.tight_layout()
-        out.append(_img(fig, f"set {k + 1}: bicubic vs super-resolved"))
+        fig.subplots_adjust(left=0.2, right=0.96, bottom=0.15, top=0.91)
+        out.append(_img(fig, f"set {k + 1}: sub-pixel offsets"))
+        out.append("</div>")
     return "".join(out)
 
 

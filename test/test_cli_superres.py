@@ -234,3 +234,20 @@ def test_superres_motion_blur_reaches_the_model_and_bad_values_are_refused(
     for bad in ("1", "a,b", "nan,0", "1,2,3"):
         with pytest.raises(CliError, match="--motion-blur"):
             run(superres_cli, [*base, "--motion-blur", bad, "-o", str(tmp_path / "x.npy")])
+
+
+def test_superres_pixel_fill_reaches_the_model_and_bad_values_are_refused(
+    frames, tmp_path, capsys
+):
+    _, paths, shifts, _ = frames
+    base = ["superres", *paths, "--shifts", shifts, "--blur-sigma", "0.3"]
+    a, b = tmp_path / "full.npy", tmp_path / "fill.npy"
+    assert run(superres_cli, [*base, "-o", str(a)]) == 0
+    assert "pixel_fill=1.00" in capsys.readouterr().out
+    assert run(superres_cli, [*base, "--pixel-fill", "0.8", "-o", str(b)]) == 0
+    assert "pixel_fill=0.80" in capsys.readouterr().out
+    diff = np.abs(np.load(a).astype(np.float64) - np.load(b).astype(np.float64))
+    assert diff.max() > 0.5  # the model's pixel aperture changed
+    for bad in ("0", "1.5", "-0.2"):
+        with pytest.raises(CliError, match="--pixel-fill"):
+            run(superres_cli, [*base, "--pixel-fill", bad, "-o", str(tmp_path / "x.npy")])

@@ -14,7 +14,7 @@ on its grid). Output pixel grid: low-resolution pixel i of the reference
 covers output pixels factor*i .. factor*i + factor - 1. The optics blur of
 the model is ``blur_sigma``: a number (lab calibration) or ``auto``, measured
 on straight edges in the frames (first set, then every 10th); the value used
-and its source are in the diagnostics (``blur_sigma``, ``blur_source``,
+and its source are in the diagnostics (``blur_sigma``, ``blur_source``, ``pixel_fill``,
 ``blur_reason``). With ``exposure_s`` > 0 the model also has the motion blur
 of the exposure: the image velocity fitted to each set's shifts against their
 stamps, times ``exposure_s`` (``motion_blur_px`` in the diagnostics: ``du,
@@ -148,6 +148,7 @@ class ReconstructionNode(StageNode):
             blur_sigma="n/a" if sr.blur_sigma is None else sr.blur_sigma,
             blur_source=sr.blur_source or "n/a",
             blur_reason=getattr(sr.result, "blur_reason", "") or "n/a",
+            pixel_fill=float(getattr(sr.result, "pixel_fill", 1.0)),
             motion_blur_px=(
                 "none"
                 if st.motion_blur_px is None

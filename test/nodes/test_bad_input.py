@@ -368,6 +368,8 @@ def test_reconstruction_blur_sigma_parameter(ctx, crops):
         res = got[-1]
         assert res.blur_source == "edges" and abs(res.blur_sigma - 0.5) <= 0.05
         assert node.diag._status.values["blur_source"] == "edges"
+        fill = float(node.diag._status.values["pixel_fill"])  # the calibration's, reported
+        assert 0.7 <= fill <= 1.0 and fill == float(res.result.pixel_fill)
         assert node.set_parameters([Parameter("blur_sigma", value="0.35")])[0].successful
         node._process(FrameSet(ref, members, True, "complete"))
         res = got[-1]

@@ -236,9 +236,7 @@ def test_superres_motion_blur_reaches_the_model_and_bad_values_are_refused(
             run(superres_cli, [*base, "--motion-blur", bad, "-o", str(tmp_path / "x.npy")])
 
 
-def test_superres_pixel_fill_reaches_the_model_and_bad_values_are_refused(
-    frames, tmp_path, capsys
-):
+def test_superres_pixel_fill_reaches_the_model_and_bad_values_are_refused(frames, tmp_path, capsys):
     _, paths, shifts, _ = frames
     base = ["superres", *paths, "--shifts", shifts, "--blur-sigma", "0.3"]
     a, b = tmp_path / "full.npy", tmp_path / "fill.npy"

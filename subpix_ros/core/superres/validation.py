@@ -148,6 +148,14 @@ class FrameStack:
             return np.stack([np.asarray(a[rest], np.float64) for a in chosen])
         return FrameStack(chosen)
 
+    def window(self, i: int, rows: slice, cols: slice) -> np.ndarray:
+        """Return frame ``i``'s pixels ``[rows, cols]`` as stored (a view, not converted).
+
+        For a caller that converts them itself (e.g. into a float32 buffer): every stored
+        dtype converts to float32 with the same value directly as through float64.
+        """
+        return np.asarray(self._arrs[i])[rows, cols]
+
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         """Build the whole float64 stack (one pass per frame)."""
         out = np.empty(self.shape)

@@ -95,7 +95,7 @@ def run(
     for k, f in enumerate(frames):
         t = k / 10.0
         if k % 10 == 0:
-            m.run("mosaic", mos.add, f)
+            m.run("mosaic", mos.add, f, stamp_s=t)  # stamped, as the mosaic stage adds them
         if ref is None or len(members) >= set_size - 1:
             if members:
                 fr = [ref] + [a for a, _, _ in members]

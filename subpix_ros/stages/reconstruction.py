@@ -20,11 +20,12 @@ import numpy as np
 from subpix_ros.core.blur import BLUR_SIGMA_MAX, BlurCalibration, parse_blur_sigma
 from subpix_ros.core.motion import displacement_through_homography, image_velocity
 from subpix_ros.core.superres import colour_luminance, reconstruct_within_budget
+from subpix_ros.core.superres.result import NonFiniteImageError
 from subpix_ros.runtime import release_freed_memory
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
 from subpix_ros.stages.stats import ReconstructionStats
-from subpix_ros.stages.types import Aligned, Shift, SuperResolved, _to_dtype
+from subpix_ros.stages.types import Aligned, Shift, SuperResolved
 
 
 def _blur_setting_error(value) -> str | None:
@@ -392,25 +393,27 @@ class ReconstructionStage(Stage):
         if self.blur.setting != "auto" and blur.source == "edges" and blur is not self._blur_warned:
             self._blur_warned = blur
             self.warn(blur.reason)
-        res, plan = reconstruct_within_budget(
-            frames,
-            shifts,
-            self.param("factor"),
-            masks=masks,
-            max_memory_mb=self.param("max_memory_mb") or None,
-            min_frames=min(self.param("min_frames"), len(frames)),
-            method=self.param("method"),
-            geometry="auto" if self.param("check_geometry") else "translation",
-            refine_shifts=self.param("refine_shifts"),
-            blur_sigma=blur,
-            motion_blur=motion,
-            **self.solver_options,
-        )
-        if not np.all(np.isfinite(res.image)):
+        dtype = np.uint16 if ref.image.dtype == np.uint16 else np.uint8
+        try:  # rounded into the output type tile by tile: the float image never whole
+            res, plan = reconstruct_within_budget(
+                frames,
+                shifts,
+                self.param("factor"),
+                masks=masks,
+                max_memory_mb=self.param("max_memory_mb") or None,
+                min_frames=min(self.param("min_frames"), len(frames)),
+                method=self.param("method"),
+                geometry="auto" if self.param("check_geometry") else "translation",
+                refine_shifts=self.param("refine_shifts"),
+                blur_sigma=blur,
+                motion_blur=motion,
+                out_dtype=dtype,
+                **self.solver_options,
+            )
+        except NonFiniteImageError:
             self.error("reconstruction produced non-finite pixels: not published")
             return None
-        dtype = np.uint16 if ref.image.dtype == np.uint16 else np.uint8
-        out = _to_dtype(res.image, dtype)
+        out = res.image  # the result holds the published image, not a float copy of it
         dt = time.monotonic() - t0
         st = self.stats
         st.kept += 1
@@ -455,6 +458,7 @@ _SET_HERE = {
     "refine_shifts",
     "blur_sigma",
     "motion_blur",
+    "out_dtype",
 }  # given by the stage itself
 
 

@@ -127,3 +127,50 @@ def test_colour_and_strip_masks_are_tiled_inside_the_common_rectangle(seq):
         psnr(res.image[inner][..., 0], seq.truth[inner])
         > psnr(full.image[inner][..., 0], seq.truth[inner]) - 0.3
     )
+
+
+def _colour_masked(seq):
+    frames = [np.repeat(np.clip(f, 0, 255)[:, :, None], 3, axis=2) for f in seq.frames]
+    h, w = frames[0].shape[:2]
+    masks = [np.ones((h, w), bool) for _ in frames]
+    masks[1][:5] = False  # a strip outside the common rectangle: bicubic there
+    masks[2][:, -7:] = False
+    return frames, masks, estimate_peak_mb(8, (h, w), 2, True)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("tiled", [False, True], ids=["whole", "tiles"])
+def test_out_dtype_rounds_what_the_float_image_would_hold(seq, dtype, tiled):
+    from subpix_ros.core.superres.result import to_integer_image
+
+    frames, masks, whole_mb = _colour_masked(seq)
+    if dtype is np.uint16:
+        frames = [f * 200.0 for f in frames]  # beyond 8 bit
+    budget = 0.9 * whole_mb if tiled else None
+    kw = dict(masks=masks, max_memory_mb=budget, overlap=16, **KW)
+    flt, plan = reconstruct_within_budget(frames, seq.shifts, 2, **kw)
+    got, plan2 = reconstruct_within_budget(frames, seq.shifts, 2, out_dtype=dtype, **kw)
+    assert plan2 == plan and (plan.grid != (1, 1)) == tiled
+    assert got.image.dtype == dtype
+    np.testing.assert_array_equal(got.image, to_integer_image(flt.image, dtype))
+
+
+def test_out_dtype_refuses_non_finite_pixels_whole_or_in_tiles(seq, monkeypatch):
+    from subpix_ros.core.superres import budget as budget_mod
+    from subpix_ros.core.superres.result import NonFiniteImageError
+
+    real = budget_mod.reconstruct_aligned
+
+    def nan_corner(*a, **k):
+        res = real(*a, **k)
+        res.image[3, 3] = np.nan
+        return res
+
+    monkeypatch.setattr(budget_mod, "reconstruct_aligned", nan_corner)
+    frames, masks, whole_mb = _colour_masked(seq)
+    for budget in (None, 0.9 * whole_mb):
+        kw = dict(masks=masks, max_memory_mb=budget, overlap=16, **KW)
+        with pytest.raises(NonFiniteImageError):
+            reconstruct_within_budget(frames, seq.shifts, 2, out_dtype=np.uint8, **kw)
+        flt, _ = reconstruct_within_budget(frames, seq.shifts, 2, **kw)  # the float image as is
+        assert np.isnan(flt.image).any()

@@ -398,3 +398,26 @@ def test_release_memory_trims_the_heap_after_each_set_and_leaves_the_image_alone
     if release_freed_memory() is None:
         pytest.skip("no glibc malloc_trim on this platform")
     assert released is not None and released > 50, released  # the holes went back to the kernel
+
+
+def test_non_finite_pixels_are_an_error_and_no_image(seq, monkeypatch):
+    import subpix_ros.stages.reconstruction as stage_mod
+    from subpix_ros.core.superres.result import NonFiniteImageError
+
+    def broken(*a, **k):
+        assert k["out_dtype"] == np.uint8  # rounded by the core, tile by tile
+        raise NonFiniteImageError("reconstruction produced non-finite pixels")
+
+    monkeypatch.setattr(stage_mod, "reconstruct_within_budget", broken)
+    stage = ReconstructionStage(n_frames=8)
+    ref, pairs = _set(seq)
+    out = [o for s, a in pairs for o in stage.add(s, a)]
+    assert out == [] and stage.stats.kept == 0
+    assert stage.stats.errors == 1 and "non-finite" in stage.stats.last_error
+
+
+def test_the_result_holds_the_published_image_not_a_float_copy(seq):
+    stage = ReconstructionStage(n_frames=8)
+    ref, pairs = _set(seq)
+    (sr,) = [o for s, a in pairs for o in stage.add(s, a)]
+    assert sr.image.dtype == np.uint8 and sr.result.image is sr.image

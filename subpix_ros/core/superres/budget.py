@@ -60,7 +60,7 @@ import numpy as np
 
 from ..validity import common_valid_box
 from .masks import bicubic_outside, reconstruct_aligned
-from .result import SRResult, bicubic_upscale
+from .result import NonFiniteImageError, SRResult, bicubic_upscale, to_integer_image
 
 __all__ = ["BudgetPlan", "estimate_peak_mb", "plan_reconstruction", "reconstruct_within_budget"]
 
@@ -276,6 +276,7 @@ def reconstruct_within_budget(
     min_frames: int = 2,
     overlap: int = 32,
     min_tile: int = 128,
+    out_dtype=None,
     **kw,
 ) -> tuple[SRResult, BudgetPlan]:
     """Reconstruct with ``reconstruct_aligned``, planned to fit a memory budget.
@@ -290,6 +291,11 @@ def reconstruct_within_budget(
         Working-memory budget (MB); None or <= 0: unbounded (the plain reconstruction).
     min_frames, overlap, min_tile
         As :func:`plan_reconstruction`.
+    out_dtype : numpy dtype, optional
+        ``numpy.uint8`` or ``numpy.uint16``: the image is returned rounded and clipped to it
+        (:func:`~subpix_ros.core.superres.result.to_integer_image`, as a node publishes it);
+        tiles are converted as they are placed, so a tiled set's float image never exists
+        whole. Default None: the float image.
     **kw
         Passed to the reconstruction (method, geometry, refine_shifts, noise_sigma, ...).
 
@@ -302,6 +308,12 @@ def reconstruct_within_budget(
         back to bicubic.
     plan : BudgetPlan
         The plan it followed.
+
+    Raises
+    ------
+    NonFiniteImageError
+        With ``out_dtype``, if the reconstruction has a NaN or infinite pixel (nothing is
+        rounded into an image then).
 
     Notes
     -----
@@ -328,14 +340,32 @@ def reconstruct_within_budget(
         min_tile=min_tile if box is not None else max(h, w) + 1,
     )
     if plan.bicubic:
-        return _bicubic_result(ref, len(frames), shifts, factor, plan), plan
+        return _as_dtype(_bicubic_result(ref, len(frames), shifts, factor, plan), out_dtype), plan
     n = plan.n_frames
     frames_n = list(frames[:n])
     shifts_n = np.asarray(shifts, dtype=np.float64)[:n]
     masks_n = None if masks is None else list(masks[:n])
     if plan.grid == (1, 1):
-        return reconstruct_aligned(frames_n, shifts_n, factor, masks=masks_n, **kw), plan
-    return _reconstruct_tiles(frames_n, shifts_n, factor, box, plan, **kw), plan
+        res = reconstruct_aligned(frames_n, shifts_n, factor, masks=masks_n, **kw)
+        return _as_dtype(res, out_dtype), plan
+    return _reconstruct_tiles(
+        frames_n, shifts_n, factor, box, plan, out_dtype=out_dtype, **kw
+    ), plan
+
+
+def _finite_integer(img: np.ndarray, dtype) -> np.ndarray:
+    """Round ``img`` into ``dtype``; NonFiniteImageError if a pixel is NaN or infinite."""
+    if not np.isfinite(img).all():
+        raise NonFiniteImageError("reconstruction produced non-finite pixels")
+    return to_integer_image(img, dtype)
+
+
+def _as_dtype(res: SRResult, dtype) -> SRResult:
+    """Return ``res`` with its image rounded into ``dtype`` (unchanged for None)."""
+    if dtype is None:
+        return res
+    res.image = _finite_integer(res.image, dtype)
+    return res
 
 
 def _bicubic_result(
@@ -369,6 +399,7 @@ def _reconstruct_tiles(
     factor: int,
     box: tuple[int, int, int, int],
     plan: BudgetPlan,
+    out_dtype=None,
     **kw,
 ) -> SRResult:
     """Reconstruct the box tile by tile with ``plan.overlap`` px of context; stitch the tiles.
@@ -402,12 +433,15 @@ def _reconstruct_tiles(
             [np.asarray(f)[e0:e1, f0:f1] for f in frames], shifts, factor, **tkw
         )
         if out is None:
+            float_dtype = np.float32 if colour else res.image.dtype
             out = np.empty(
-                (p * h, p * w) + res.image.shape[2:], np.float32 if colour else res.image.dtype
+                (p * h, p * w) + res.image.shape[2:],
+                float_dtype if out_dtype is None else out_dtype,
             )
-        out[p * a0 : p * a1, p * b0 : p * b1] = res.image[
-            p * (a0 - e0) : p * (a1 - e0), p * (b0 - f0) : p * (b1 - f0)
-        ]
+        part = res.image[p * (a0 - e0) : p * (a1 - e0), p * (b0 - f0) : p * (b1 - f0)]
+        if out_dtype is not None:  # the float values the whole image would hold, rounded
+            part = _finite_integer(part.astype(float_dtype, copy=False), out_dtype)
+        out[p * a0 : p * a1, p * b0 : p * b1] = part
         if res.fell_back:
             fell.append(f"tile ({i}, {j}): {res.reason}")
         if first is None and res.shifts_disputed and np.shape(res.shifts) == np.shape(shifts):
@@ -416,6 +450,12 @@ def _reconstruct_tiles(
             first = replace(res, image=np.empty(0, np.float32))  # its figures, not its pixels
         del res
     if (r0, r1, c0, c1) != (0, h, 0, w):
-        bicubic_outside(out, ref, p, box)
+        convert = None
+        if out_dtype is not None:
+
+            def convert(vals: np.ndarray) -> np.ndarray:
+                return to_integer_image(vals.astype(float_dtype, copy=False), out_dtype)
+
+        bicubic_outside(out, ref, p, box, convert)
     reason = "; ".join(fell) if fell else first.reason
     return replace(first, image=out, fell_back=bool(fell) or first.fell_back, reason=reason)

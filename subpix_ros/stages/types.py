@@ -135,6 +135,8 @@ class SuperResolved:
         if self._bicubic is None:
             import cv2
 
+            from subpix_ros.core.superres.result import to_integer_image
+
             ref = self.reference.image
             h, w = ref.shape[:2]
             up = cv2.resize(
@@ -142,15 +144,5 @@ class SuperResolved:
                 (w * self.factor, h * self.factor),
                 interpolation=cv2.INTER_CUBIC,
             )
-            self._bicubic = _to_dtype(up, self.image.dtype)
+            self._bicubic = to_integer_image(up, self.image.dtype)
         return self._bicubic
-
-
-def _to_dtype(img: np.ndarray, dtype) -> np.ndarray:
-    """Round (half to even) and clip a float image to ``dtype`` (uint8 or uint16).
-
-    :func:`subpix_ros.core.superres.result.to_integer_image`.
-    """
-    from subpix_ros.core.superres.result import to_integer_image
-
-    return to_integer_image(img, dtype)

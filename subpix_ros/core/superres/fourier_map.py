@@ -28,7 +28,7 @@ from .lowpass import _preshift_window, _WholeLowpass
 from .model import _frame_transfers, motion_transfer
 from .separable import _solve_separable
 from .spectrum import _SPECTRUM_CROP, fit_spectrum
-from .validation import FrameStack
+from .validation import FrameStack, stored
 
 
 @dataclass
@@ -121,16 +121,9 @@ def _consistent_padding(
     image, as the periodic model assumes. Frame n's own pixels fill the area they cover.
     """
     n, h, w = frames.shape
-
-    def window(i: int, rows: slice, cols: slice) -> np.ndarray:
-        # a FrameStack's own pixels, not a float64 copy: they go into float32 here anyway
-        if hasattr(frames, "window"):
-            return frames.window(i, rows, cols)
-        return frames[i, rows, cols]
-
     buf = np.empty((hp, wp), dtype=np.float32)
     ref = cv2.copyMakeBorder(
-        np.asarray(window(0, slice(None), slice(None)), dtype=np.float32),
+        np.asarray(stored(frames, 0), dtype=np.float32),  # a FrameStack's own pixels
         pad,
         hp - h - pad,
         pad,
@@ -145,7 +138,7 @@ def _consistent_padding(
         c0, c1 = max(0, -iv), min(w, w - iv)
         if r1 > r0 and c1 > c0:
             inner = (slice(pad + r0, pad + r1), slice(pad + c0, pad + c1))
-            buf[inner] = window(i, slice(r0 + iu, r1 + iu), slice(c0 + iv, c1 + iv))
+            buf[inner] = stored(frames, i, slice(r0 + iu, r1 + iu), slice(c0 + iv, c1 + iv))
             rest = [
                 (slice(0, inner[0].start), slice(0, wp)),
                 (slice(inner[0].stop, hp), slice(0, wp)),

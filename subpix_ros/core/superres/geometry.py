@@ -18,20 +18,9 @@ import numpy as np
 from ..shift.batch import lk_inner_region, lk_window_context, lucas_kanade_batch
 from .lowpass import _lowpass_window, _WholeLowpass
 from .model import gaussian_kernel, translation_homography
+from .validation import stored
 
 __all__ = ["detect_geometry"]
-
-
-def _stored(frames, i: int) -> np.ndarray:
-    """Return frame ``i`` as stored when ``frames`` is a FrameStack (no float64 copy), else ``frames[i]``.
-
-    The low-pass windows read it only where no whole-frame low-pass is at hand, and filter it
-    into float64 (``cv2.sepFilter2D(..., CV_64F)`` on float32 or integer data gives the same
-    values as on their float64 copy).
-    """
-    if hasattr(frames, "window"):
-        return frames.window(i, slice(None), slice(None))
-    return frames[i]
 
 
 def _refine_shifts(
@@ -92,11 +81,11 @@ def _refine_shifts(
     ctx = lk_window_context(region, h, w)
     i0 = (int(ishift[0, 0]), int(ishift[0, 1]))
     whole = _WholeLowpass.getter(lowpassed, lp_sigma)
-    ref = _lowpass_window(_stored(frames, 0), g, i0, (0, 0), *ctx, whole=whole(0))
+    ref = _lowpass_window(stored(frames, 0), g, i0, (0, 0), *ctx, whole=whole(0))
 
     def mov_window(i: int, iu: int, iv: int) -> np.ndarray:
         return _lowpass_window(
-            _stored(frames, i),
+            stored(frames, i),
             g,
             (int(ishift[i, 0]), int(ishift[i, 1])),
             (iu, iv),
@@ -256,7 +245,7 @@ def _register_tiles(
         groups.setdefault(key, []).append((k, ctx))
     for key, members in groups.items():  # tiles with one window shape: tiles x frames at once
         refs = [
-            _lowpass_window(_stored(frames, 0), g, (0, 0), (0, 0), *ctx, whole=whole(0))
+            _lowpass_window(stored(frames, 0), g, (0, 0), (0, 0), *ctx, whole=whole(0))
             for _, ctx in members
         ]
         pair_tile = np.repeat(np.arange(len(members)), n - 1)
@@ -266,7 +255,7 @@ def _register_tiles(
         def mov_window(m: int, iu: int, iv: int) -> np.ndarray:
             i = int(pair_frame[m])
             return _lowpass_window(
-                _stored(frames, i), g, (0, 0), (iu, iv), *ctxs[pair_tile[m]], whole=whole(i)
+                stored(frames, i), g, (0, 0), (iu, iv), *ctxs[pair_tile[m]], whole=whole(i)
             )
 
         s0 = np.asarray(shifts, dtype=np.float64)[pair_frame]

@@ -166,3 +166,16 @@ class FrameStack:
     def all_integer_valued(self) -> bool:
         """Tell whether every value of every frame is a whole number (frame by frame)."""
         return all(np.array_equal(f, np.rint(f)) for f in self)
+
+
+def stored(frames, i: int, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
+    """Return frame ``i``'s pixels ``[rows, cols]``: as stored from a :class:`FrameStack`.
+
+    For a caller that converts them itself (a float32 buffer, ``cv2.sepFilter2D`` into
+    float64): every stored dtype gives there the values of its float64 copy, without the
+    copy of the whole frame that indexing a FrameStack makes. Any other (N, H, W) array is
+    indexed as it is.
+    """
+    if isinstance(frames, FrameStack):
+        return frames.window(i, rows, cols)
+    return frames[i, rows, cols]

@@ -65,7 +65,7 @@ MMAP_THRESHOLD = 64 * 1024 * 1024
 TRIM_THRESHOLD = 64 * 1024 * 1024
 #: ``subpix process`` (a batch job, throughput first): one arena, and blocks up to 512 MiB
 #: (a 4K colour set's largest arrays) reused from the heap; the heap's top returned beyond
-#: 256 MiB. Measured in docs/design-notes.md ("Page faults in subpix process").
+#: 256 MiB. Measured in docs/design-notes.md ("CPU of `subpix process`, and an onboard profile").
 THROUGHPUT = {"mmap_threshold": 512 << 20, "trim_threshold": 256 << 20, "arena_max": 1}
 
 _ENV = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_ARENA_MAX")
@@ -87,18 +87,22 @@ def _operator_set() -> bool:
     )
 
 
-def _mallopt():
-    """Return glibc's ``mallopt``, or None where there is none."""
+def _glibc_function(name: str, argtypes: list):
+    """Return the C library's function ``name`` (returning int), or None where it is missing."""
     if not sys.platform.startswith("linux"):
         return None
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        fn = libc.mallopt
+        fn = getattr(ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6"), name)
     except (OSError, AttributeError):
         return None
-    fn.argtypes = [ctypes.c_int, ctypes.c_int]
+    fn.argtypes = argtypes
     fn.restype = ctypes.c_int
     return fn
+
+
+def _mallopt():
+    """Return glibc's ``mallopt``, or None where there is none."""
+    return _glibc_function("mallopt", [ctypes.c_int, ctypes.c_int])
 
 
 def keep_freed_memory(
@@ -163,14 +167,9 @@ def release_freed_memory() -> float | None:
         The resident memory released (MB, from ``/proc/self/statm``; 0 if it did not fall);
         None where there is no glibc ``malloc_trim``.
     """
-    if not sys.platform.startswith("linux"):
+    fn = _glibc_function("malloc_trim", [ctypes.c_size_t])
+    if fn is None:
         return None
-    try:
-        fn = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
-    except (OSError, AttributeError):
-        return None
-    fn.argtypes = [ctypes.c_size_t]
-    fn.restype = ctypes.c_int
     before = _rss_bytes()
     fn(0)
     after = _rss_bytes()
@@ -211,12 +210,20 @@ def configure_allocator() -> str:
     """Apply the allocator a node process runs with; return which (``"memory"``, ``"reuse"``, ``""``).
 
     ``SUBPIX_MALLOC=memory`` in the environment: :func:`favour_memory` (the onboard
-    profile's choice, docs/design-notes.md "Onboard profile"); otherwise
-    :func:`keep_freed_memory`. ``""`` when nothing was changed (not glibc, or the operator's
-    own settings).
+    profile's choice, docs/design-notes.md "Onboard profile"); unset or empty:
+    :func:`keep_freed_memory`; any other value is refused with one line on stderr and the
+    default applies. ``""`` when nothing was changed (not glibc, or the operator's own
+    settings).
     """
-    if os.environ.get(MALLOC_PROFILE, "") == "memory":
+    profile = os.environ.get(MALLOC_PROFILE, "")
+    if profile == "memory":
         return "memory" if favour_memory() else ""
+    if profile:
+        print(
+            f"warning: {MALLOC_PROFILE}={profile!r} is not a known allocator profile (only "
+            f"'memory'): the default (freed frame buffers kept for reuse) applies",
+            file=sys.stderr,
+        )
     return "reuse" if keep_freed_memory() else ""
 
 

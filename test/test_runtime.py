@@ -452,3 +452,15 @@ def test_plain_venv_environ_is_a_shell_with_only_the_venv_activated(tmp_path):
         "ROS_DOMAIN_ID": "17",
     }
     assert src["ROS_DISTRO"] == "jazzy"  # the caller's mapping is left alone
+
+
+def test_an_unknown_allocator_profile_is_refused_loudly(monkeypatch, capsys):
+    import subpix_ros.runtime as rt
+
+    monkeypatch.setattr(rt, "keep_freed_memory", lambda: True)  # not this test process's
+    monkeypatch.setenv("SUBPIX_MALLOC", "memroy")
+    assert rt.configure_allocator() == "reuse"
+    assert "not a known allocator profile" in capsys.readouterr().err
+    monkeypatch.setenv("SUBPIX_MALLOC", "")
+    assert rt.configure_allocator() == "reuse"
+    assert capsys.readouterr().err == ""

@@ -190,6 +190,7 @@ class ReconstructionStage(Stage):
         self.clock = clock
         self.solver_options, self.ignored = _solver_options(self.extra)
         self._told_ignored = False
+        self._told_no_trim = False  # release_memory without malloc_trim: said once
         # measured once, refreshed every 10 sets
         self.blur = BlurCalibration(self.param("blur_sigma"), check_given=True)
         self._blur_warned = None  # the overriding estimate last warned about
@@ -365,6 +366,9 @@ class ReconstructionStage(Stage):
         finally:
             if self.param("release_memory"):
                 self.stats.released_mb = release_freed_memory()
+                if self.stats.released_mb is None and not self._told_no_trim:
+                    self._told_no_trim = True
+                    self.warn("release_memory: no glibc malloc_trim here, nothing is released")
 
     def _reconstruct_set(self, fs: FrameSet) -> SuperResolved | None:
         """Super-resolve one set: the body of :meth:`reconstruct`."""

@@ -421,3 +421,16 @@ def test_the_result_holds_the_published_image_not_a_float_copy(seq):
     ref, pairs = _set(seq)
     (sr,) = [o for s, a in pairs for o in stage.add(s, a)]
     assert sr.image.dtype == np.uint8 and sr.result.image is sr.image
+
+
+def test_release_memory_without_malloc_trim_says_so_once(seq, monkeypatch):
+    import subpix_ros.stages.reconstruction as stage_mod
+
+    monkeypatch.setattr(stage_mod, "release_freed_memory", lambda: None)  # no glibc
+    stage = ReconstructionStage(n_frames=8, release_memory=True)
+    for t0 in (T0, T0 + 10**10):
+        ref, pairs = _set(seq, t0=t0)
+        [o for s, a in pairs for o in stage.add(s, a)]
+    assert stage.stats.kept == 2 and stage.stats.released_mb is None
+    warned = [stage.stats.last_warning] if "malloc_trim" in stage.stats.last_warning else []
+    assert warned and stage.stats.warnings == 1, stage.stats

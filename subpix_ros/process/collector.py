@@ -13,6 +13,7 @@ import numpy as np
 
 from subpix_ros.process.products import ProductWriter, rounded
 from subpix_ros.process.report_sections import SetCrop, set_crop
+from subpix_ros.stages.types import bicubic_upscale
 
 __all__ = ["reason_key"]
 
@@ -180,13 +181,18 @@ class _Collector:
         self.writer.shift(shift.stamp_ns, shift.u, shift.v, shift.z, frame_id)
 
     def on_super_resolved(self, sr: Any) -> None:
-        """Write a super-resolved image and its bicubic reference; record the set."""
+        """Write a super-resolved image and its bicubic reference; record the set.
+
+        The bicubic image, the report's crop and the set's scores are made on the products
+        thread (in order, after the set's writes): the pipeline goes on meanwhile.
+        """
         ref = sr.reference
         stamp = int(ref.stamp_ns)
         image = np.asarray(sr.image)
-        bicubic = np.asarray(sr.bicubic)
         self.writer.png(f"superres/{stamp}.png", image)
-        self.writer.png(f"bicubic/{stamp}.png", bicubic)
+        factor = int(getattr(sr, "factor", 0))
+        bicubic = _Bicubic(ref.image, factor, image.dtype, getattr(sr, "_bicubic", None))
+        self.writer.png(f"bicubic/{stamp}.png", bicubic.get)
         self.writer.image("/super_resolved", image, stamp, getattr(ref, "frame_id", ""))
         members = []
         for shift, _aligned in getattr(sr, "members", []) or []:
@@ -197,27 +203,33 @@ class _Collector:
                     "v_px": rounded(shift.v),
                 }
             )
-        self.sets.append(
-            {
-                "reference_stamp_ns": stamp,
-                "frames": 1 + len(members),
-                "members": members,
-                "method": str(getattr(sr, "method", "")),
-                "fell_back": bool(getattr(sr, "fell_back", False)),
-                "reason": str(getattr(sr, "reason", "") or ""),
-                "blur_sigma": getattr(sr, "blur_sigma", None),
-                "blur_source": getattr(sr, "blur_source", None),
-                "superres": f"superres/{stamp}.png",
-                "bicubic": f"bicubic/{stamp}.png",
-                "shape": list(image.shape),
-                "dtype": str(image.dtype),
-            }
-        )
-        factor = int(getattr(sr, "factor", 0))
-        if factor >= 1 and bicubic.shape == image.shape:
-            self.crops[f"superres/{stamp}.png"] = set_crop(bicubic, image, factor)
+        entry = {
+            "reference_stamp_ns": stamp,
+            "frames": 1 + len(members),
+            "members": members,
+            "method": str(getattr(sr, "method", "")),
+            "fell_back": bool(getattr(sr, "fell_back", False)),
+            "reason": str(getattr(sr, "reason", "") or ""),
+            "blur_sigma": getattr(sr, "blur_sigma", None),
+            "blur_source": getattr(sr, "blur_source", None),
+            "superres": f"superres/{stamp}.png",
+            "bicubic": f"bicubic/{stamp}.png",
+            "shape": list(image.shape),
+            "dtype": str(image.dtype),
+        }
+        self.sets.append(entry)
+        # the set's frames are not kept for this: only the reference and the two images
+        self.writer.later(self._crop_and_score, entry, image, bicubic, ref, factor)
+
+    def _crop_and_score(
+        self, entry: dict, image: np.ndarray, bicubic: _Bicubic, ref: Any, factor: int
+    ) -> None:
+        """Cut the set's report crop and add its scores to ``entry`` (products thread)."""
+        bic = bicubic.get()
+        if factor >= 1 and bic.shape == image.shape:
+            self.crops[entry["superres"]] = set_crop(bic, image, factor)
         if self.score is not None:
-            self.score(self.sets[-1], stamp, image, bicubic, ref, factor)
+            self.score(entry, entry["reference_stamp_ns"], image, bic, ref, factor)
 
     def on_warning(self, item: Any) -> None:
         """Count a warning by stage and kind (the mosaic thread warns too)."""
@@ -266,3 +278,16 @@ def _diag_statuses(stats: dict) -> dict[str, tuple[int, str, dict]]:
         err = d.get("last_error") or ""
         out[str(name)] = (1 if err else 0, f"last error: {err}" if err else "ok", flat)
     return out
+
+
+class _Bicubic:
+    """A set's bicubic reference image, made once when first asked for (products thread)."""
+
+    def __init__(self, reference: np.ndarray, factor: int, dtype: Any, made=None) -> None:
+        self.reference, self.factor, self.dtype, self.image = reference, factor, dtype, made
+
+    def get(self) -> np.ndarray:
+        """Return the bicubic image (made on the first call)."""
+        if self.image is None:
+            self.image = bicubic_upscale(self.reference, self.factor, self.dtype)
+        return np.asarray(self.image)

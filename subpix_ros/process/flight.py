@@ -413,6 +413,7 @@ class _FlightRun:
     def result(self, rows: list[dict], mosaic_info: dict) -> BagResult:
         """Write ``summary.json`` and return the result with its one line and its timing."""
         flight, collector = self.flight, self.collector
+        self.writer.flush()  # the sets' scores are added on the products thread
         summary = _summary(self, rows, mosaic_info)
         if not collector.sets and flight.frames_total:
             self.problems.append("no super-resolved image: no set reached min_frames")

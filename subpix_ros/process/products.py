@@ -32,7 +32,7 @@ import shutil
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -139,6 +139,21 @@ class ProductWriter:
 
         self._pool.submit(run)
 
+    def later(self, fn, *args) -> None:
+        """Queue ``fn(*args)`` on the products thread, after every write queued so far.
+
+        For work on a product that need not hold up the pipeline (a set's report crop and
+        scores); ``fn`` must not queue writes itself (it would wait on its own queue).
+        """
+        self._later(fn, *args)
+
+    def flush(self) -> None:
+        """Block until every call queued so far is done; re-raise the first error of one."""
+        if self._error is None:
+            self._pool.submit(lambda: None).result()  # one worker: runs after the rest
+        if self._error is not None:
+            raise self._error
+
     def wait(self) -> None:
         """Block until every queued write is done; re-raise the first error of one."""
         self._pool.shutdown(wait=True)
@@ -218,8 +233,11 @@ class ProductWriter:
         )
 
     # ---------------------------------------------------------------- files
-    def png(self, rel: str, image: np.ndarray) -> None:
-        """Queue writing ``image`` as PNG at ``rel`` in the flight's folder."""
+    def png(self, rel: str, image: np.ndarray | Callable[[], np.ndarray]) -> None:
+        """Queue writing ``image`` as PNG at ``rel`` in the flight's folder.
+
+        ``image`` may be a function returning it, then called on the products thread.
+        """
         from subpix_ros.io.images.png import write_png
 
         path = self.tmp / rel
@@ -227,7 +245,7 @@ class ProductWriter:
 
         def write() -> None:
             try:
-                write_png(path, image)
+                write_png(path, image() if callable(image) else image)
             except (OSError, ValueError) as exc:
                 raise OSError(f"cannot write {rel}: {exc}") from exc
 

@@ -160,16 +160,17 @@ def _display(img: np.ndarray) -> np.ndarray:
 def _crop_box(img: np.ndarray, factor: int) -> tuple[int, int, int]:
     """Find the crop (row, col, side; output px) with the most detail (gradient energy).
 
-    The search runs on the image reduced by ``factor`` (the input's scale, where the crop's
-    detail is already visible): cheap on 4K images.
+    The search runs on the luminance of the image reduced by ``factor`` (the input's scale,
+    where the crop's detail is already visible): cheap on 4K images.
     """
     side = min(CROP_LR_PX * factor, img.shape[0], img.shape[1])
     h, w = img.shape[0] // factor, img.shape[1] // factor
-    small = cv2.resize(img, (max(w, 1), max(h, 1)), interpolation=cv2.INTER_AREA).astype(np.float32)
+    small = cv2.resize(img, (max(w, 1), max(h, 1)), interpolation=cv2.INTER_AREA)
     if small.ndim == 3:
-        small = small.mean(axis=2)
-    gy, gx = np.gradient(small)
-    ii = np.pad((gx * gx + gy * gy).astype(np.float64), ((1, 0), (1, 0))).cumsum(0).cumsum(1)
+        small = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
+    gy, gx = np.gradient(small.astype(np.float32))
+    energy = cv2.magnitude(gx, gy)
+    ii = cv2.integral(cv2.multiply(energy, energy), sdepth=cv2.CV_64F)
     side_s, step_s = side // factor, max(1, max(factor, side // 2) // factor)
     rows = np.arange(0, max(h - side_s, 0) + 1, step_s)
     cols = np.arange(0, max(w - side_s, 0) + 1, step_s)

@@ -133,16 +133,22 @@ class SuperResolved:
     def bicubic(self) -> np.ndarray:
         """The reference upsampled bicubically to the image's size and type (made on first use)."""
         if self._bicubic is None:
-            import cv2
-
-            from subpix_ros.core.superres.result import to_integer_image
-
-            ref = self.reference.image
-            h, w = ref.shape[:2]
-            up = cv2.resize(
-                ref.astype(np.float32),
-                (w * self.factor, h * self.factor),
-                interpolation=cv2.INTER_CUBIC,
-            )
-            self._bicubic = to_integer_image(up, self.image.dtype)
+            self._bicubic = bicubic_upscale(self.reference.image, self.factor, self.image.dtype)
         return self._bicubic
+
+
+def bicubic_upscale(image: np.ndarray, factor: int, dtype: Any) -> np.ndarray:
+    """Return ``image`` upsampled ``factor`` x by bicubic interpolation, rounded to ``dtype``.
+
+    On the super-resolved images' output grid (input pixel i covers output pixels
+    ``factor*i .. factor*i + factor - 1``), as :attr:`SuperResolved.bicubic`.
+    """
+    import cv2
+
+    from subpix_ros.core.superres.result import to_integer_image
+
+    h, w = image.shape[:2]
+    up = cv2.resize(
+        image.astype(np.float32), (w * factor, h * factor), interpolation=cv2.INTER_CUBIC
+    )
+    return to_integer_image(up, dtype)

@@ -155,18 +155,42 @@ def test_out_dtype_rounds_what_the_float_image_would_hold(seq, dtype, tiled):
     np.testing.assert_array_equal(got.image, to_integer_image(flt.image, dtype))
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_colour_out_dtype_rounds_the_float_image_with_real_chroma(seq, dtype):
+    """Integer colour images are the rounded float32 ones, for real chroma.
+
+    Chroma varies across the frame and saturates in places; the bicubic border is included.
+    """
+    from subpix_ros.core.superres.result import to_integer_image
+
+    scale = 255.0 if dtype is np.uint8 else 65535.0
+    frames = []
+    for f in seq.frames:
+        g = np.clip(f, 0, 255) / 255.0
+        ramp = np.linspace(0.0, 1.0, g.shape[1])[None, :]
+        bgr = np.dstack([g, 0.6 * g + 0.4 * ramp, np.clip(1.2 - g - 0.3 * ramp, 0, 1)])
+        frames.append(np.round(bgr * scale).astype(dtype))
+    _, masks, _ = _colour_masked(seq)
+    kw = dict(masks=masks, **KW)
+    flt = reconstruct_aligned(frames, seq.shifts, 2, **kw)
+    got = reconstruct_aligned(frames, seq.shifts, 2, out_dtype=dtype, **kw)
+    assert flt.image.dtype == np.float32 and got.image.dtype == dtype
+    assert np.ptp(got.image[..., 2].astype(float) - got.image[..., 0]) > 0.3 * scale
+    np.testing.assert_array_equal(got.image, to_integer_image(flt.image, dtype))
+
+
 def test_out_dtype_refuses_non_finite_pixels_whole_or_in_tiles(seq, monkeypatch):
-    from subpix_ros.core.superres import budget as budget_mod
+    from subpix_ros.core.superres import reconstruction as recon_mod
     from subpix_ros.core.superres.result import NonFiniteImageError
 
-    real = budget_mod.reconstruct_aligned
+    real = recon_mod.reconstruct  # the luminance solve, whole or per tile
 
     def nan_corner(*a, **k):
         res = real(*a, **k)
         res.image[3, 3] = np.nan
         return res
 
-    monkeypatch.setattr(budget_mod, "reconstruct_aligned", nan_corner)
+    monkeypatch.setattr(recon_mod, "reconstruct", nan_corner)
     frames, masks, whole_mb = _colour_masked(seq)
     for budget in (None, 0.9 * whole_mb):
         kw = dict(masks=masks, max_memory_mb=budget, overlap=16, **KW)

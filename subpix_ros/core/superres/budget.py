@@ -346,7 +346,9 @@ def reconstruct_within_budget(
     shifts_n = np.asarray(shifts, dtype=np.float64)[:n]
     masks_n = None if masks is None else list(masks[:n])
     if plan.grid == (1, 1):
-        res = reconstruct_aligned(frames_n, shifts_n, factor, masks=masks_n, **kw)
+        res = reconstruct_aligned(
+            frames_n, shifts_n, factor, masks=masks_n, out_dtype=out_dtype, **kw
+        )
         return _as_dtype(res, out_dtype), plan
     return _reconstruct_tiles(
         frames_n, shifts_n, factor, box, plan, out_dtype=out_dtype, **kw
@@ -362,7 +364,7 @@ def _finite_integer(img: np.ndarray, dtype) -> np.ndarray:
 
 def _as_dtype(res: SRResult, dtype) -> SRResult:
     """Return ``res`` with its image rounded into ``dtype`` (unchanged for None)."""
-    if dtype is None:
+    if dtype is None or res.image.dtype == np.dtype(dtype):
         return res
     res.image = _finite_integer(res.image, dtype)
     return res

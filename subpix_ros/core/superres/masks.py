@@ -21,8 +21,8 @@ from typing import Sequence
 import numpy as np
 
 from ..validity import common_valid_box
-from .reconstruction import reconstruct, reconstruct_colour
-from .result import SRResult, bicubic_upscale
+from .reconstruction import reconstruct_colour
+from .result import SRResult, bicubic_upscale, to_integer_image
 
 __all__ = ["reconstruct_aligned", "bicubic_outside"]
 
@@ -50,7 +50,9 @@ def reconstruct_aligned(
     masks : sequence of numpy.ndarray, optional
         A bool array per frame (True = valid).
     **kw
-        Passed to :func:`~subpix_ros.core.superres.reconstruct` (or ``reconstruct_colour``).
+        Passed to :func:`~subpix_ros.core.superres.reconstruct_colour` (``out_dtype``: the
+        image rounded into that integer type, the bicubic border as well) and on to
+        :func:`~subpix_ros.core.superres.reconstruct`.
 
     Returns
     -------
@@ -63,8 +65,7 @@ def reconstruct_aligned(
     that rectangle is reconstructed without masks and the rest is the bicubic upscale of the
     reference (:func:`bicubic_outside`); other masks go to the masked (CG) solver.
     """
-    colour = np.asarray(frames[0]).ndim == 3
-    solve = reconstruct_colour if colour else reconstruct
+    solve = reconstruct_colour  # mono frames: reconstruct, with out_dtype applied
     if masks is None:
         return solve(frames, shifts, factor, **kw)
     box = common_valid_box(masks)
@@ -77,7 +78,11 @@ def reconstruct_aligned(
     res = solve([np.asarray(f)[r0:r1, c0:c1] for f in frames], shifts, factor, **kw)
     out = np.empty((factor * h, factor * w) + res.image.shape[2:], dtype=res.image.dtype)
     out[factor * r0 : factor * r1, factor * c0 : factor * c1] = res.image
-    bicubic_outside(out, np.asarray(frames[0]), factor, box)
+    convert = None
+    if np.issubdtype(out.dtype, np.integer):  # kw's out_dtype: strips rounded as the float
+        ftype = np.float32 if out.ndim == 3 else np.float64  # image (float32 colour) holds them
+        convert = lambda v: to_integer_image(v.astype(ftype, copy=False), out.dtype)  # noqa: E731
+    bicubic_outside(out, np.asarray(frames[0]), factor, box, convert=convert)
     return replace(res, image=out)
 
 

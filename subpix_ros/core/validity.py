@@ -31,7 +31,9 @@ def common_valid_box(masks: Sequence[np.ndarray]) -> tuple[int, int, int, int] |
     """
     if len(masks) == 0:
         return None
-    valid = np.logical_and.reduce([np.asarray(m, bool) for m in masks])
+    valid = np.array(masks[0], dtype=bool)  # a copy, and-ed in place (no stack of all masks)
+    for m in masks[1:]:
+        np.logical_and(valid, np.asarray(m, bool), out=valid)
     rows = np.flatnonzero(valid.any(axis=1))
     cols = np.flatnonzero(valid.any(axis=0))
     if rows.size == 0 or cols.size == 0:

@@ -42,3 +42,24 @@ def common_valid_box(masks: Sequence[np.ndarray]) -> tuple[int, int, int, int] |
     if (r1 - r0) * (c1 - c0) != int(np.count_nonzero(valid)):
         return None
     return r0, r1, c0, c1
+
+
+def box_mask(shape: tuple[int, int], box: tuple[int, int, int, int]) -> np.ndarray:
+    """Return the bool mask of ``shape`` that is True exactly in ``box``.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Rows, columns.
+    box : (int, int, int, int)
+        ``(r0, r1, c0, c1)``: rows r0..r1-1, columns c0..c1-1 (clipped to ``shape``).
+
+    Returns
+    -------
+    ndarray of bool
+        The mask; :func:`common_valid_box` of it gives ``box`` back (if not empty).
+    """
+    mask = np.zeros(shape[:2], bool)
+    r0, r1, c0, c1 = box
+    mask[max(r0, 0) : max(r1, 0), max(c0, 0) : max(c1, 0)] = True
+    return mask

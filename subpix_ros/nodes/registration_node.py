@@ -178,7 +178,7 @@ class RegistrationNode(StageNode):
             self.pub_aligned, lambda: pl.image_cdr(out.image, out.stamp_ns, out.frame_id)
         )
         publish_if_subscribed(
-            self.pub_mask, lambda: pl.mask_cdr(out.mask, out.stamp_ns, out.frame_id)
+            self.pub_mask, lambda: pl.mask_cdr(out.valid_mask(), out.stamp_ns, out.frame_id)
         )
         self.pub_h.publish(pl.homography_cdr(out.homography))
         st = self.stage.stats

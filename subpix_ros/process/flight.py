@@ -278,7 +278,7 @@ class _FlightRun:
         """Wait for the queued mosaic additions and record on each frame whether it was drawn."""
         for rec, fut in self.mosaic_jobs:
             try:
-                rec.mosaic = bool(fut.result())
+                rec.mosaic = fut is not None and bool(fut.result())
             except Exception as exc:  # noqa: BLE001 - the mosaic is a preview: the frame goes on
                 rec.mosaic = False
                 self.collector.on_warning(("mosaic_node", f"{type(exc).__name__}: {exc}"))
@@ -341,7 +341,10 @@ class _FlightRun:
         self.last_ns = rec.stamp_ns
         collector.current = rec
         t0 = time.perf_counter()
-        self.mosaic_jobs.append((rec, self.mosaic_pool.submit(self.mosaic.add, _preview(frame))))
+        # the min_interval gate here, the drawing on the mosaic thread (woken for those only)
+        taken = self.mosaic.take(frame)
+        job = self.mosaic_pool.submit(self.mosaic.draw, _preview(frame)) if taken else None
+        self.mosaic_jobs.append((rec, job))
         try:
             self.pipe.add(frame)
         except Exception as exc:  # noqa: BLE001 - a stage failure drops the frame, not the flight

@@ -19,6 +19,7 @@ from typing import Callable
 
 import numpy as np
 
+from subpix_ros.core.validity import common_valid_box
 from subpix_ros.stages.types import Aligned, Frame
 
 
@@ -205,17 +206,22 @@ class AlignedAssembler:
             self.warn("aligned frames whose reference never arrived: oldest dropped")
 
     def _deliver(self, frame: Frame, mask: np.ndarray, ref: Frame) -> None:
-        """Hand the assembled :class:`Aligned` to ``deliver``."""
+        """Hand the assembled :class:`Aligned` to ``deliver``.
+
+        A mask that is a rectangle (an integer crop's) is kept as that rectangle only.
+        """
+        box = common_valid_box([mask])
         self.deliver(
             Aligned(
                 frame.stamp_ns,
                 frame.image,
-                mask,
+                mask if box is None else None,
                 ref,
                 np.eye(3),
                 None,
                 frame.frame_id,
                 frame.received,
+                box=box,
             )
         )
 

@@ -380,7 +380,7 @@ class ReconstructionStage(Stage):
             )
         t0 = time.monotonic()
         frames = [ref.image] + [a.image for _, a in members]
-        masks = [np.ones(ref.image.shape[:2], bool)] + [a.mask for _, a in members]
+        masks = [np.ones(ref.image.shape[:2], bool)] + [a.valid_mask() for _, a in members]
         shifts = np.array([[0.0, 0.0]] + [[s.u, s.v] for s, _ in members])
         if any(f.shape != ref.image.shape for f in frames):
             self.error("frames of one set differ in size: set dropped")

@@ -271,12 +271,13 @@ class RegistrationStage(Stage):
         out = Aligned(
             frame.stamp_ns,
             al.aligned,
-            al.mask,
+            al.mask if al.box is None else None,  # an integer crop: its rectangle only
             self.reference,
             np.asarray(result.homography),
             tuple(al.prior_shift) if al.prior_shift is not None else None,
             frame.frame_id,
             frame.received,
+            box=al.box,
         )
         self.since_reference += 1
         ac = result.residual_along_cross()

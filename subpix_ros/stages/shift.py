@@ -82,7 +82,7 @@ class ShiftStage(Stage):
         result = estimate_shift(
             self._ref_gray[1],
             gray(aligned.image),
-            mask=aligned.mask,
+            mask=aligned.valid_mask(),
             method=self.param("method"),
             prior=prior,
         )

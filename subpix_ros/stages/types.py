@@ -34,20 +34,36 @@ class Frame:
 class Aligned:
     """A frame brought onto its reference frame's grid to pixel accuracy.
 
-    ``mask`` is True where the pixel came from the moving frame; ``reference``
-    the frame it is aligned to; ``homography`` maps the original moving
-    frame's pixel coordinates (x = column, y = row) to the reference's;
-    ``prior`` the sub-pixel (u, v) the homography predicts is left in.
+    ``mask`` is True where the pixel came from the moving frame, or None when
+    those pixels are the rectangle ``box`` ``(r0, r1, c0, c1)`` (an integer
+    crop: 2 MB less per 1080p frame held; :meth:`valid_mask` makes the mask
+    when asked); ``reference`` the frame it is aligned to; ``homography`` maps
+    the original moving frame's pixel coordinates (x = column, y = row) to the
+    reference's; ``prior`` the sub-pixel (u, v) the homography predicts is
+    left in.
     """
 
     stamp_ns: int
     image: np.ndarray
-    mask: np.ndarray
+    mask: np.ndarray | None
     reference: Frame
     homography: np.ndarray
     prior: tuple[float, float] | None = None
     frame_id: str = ""
     received: float = field(default_factory=time.monotonic)
+    box: tuple[int, int, int, int] | None = None
+
+    def __post_init__(self) -> None:
+        if self.mask is None and self.box is None:
+            raise ValueError("an aligned frame needs a mask or a box")
+
+    def valid_mask(self) -> np.ndarray:
+        """Return the validity mask (made from ``box`` when no mask is held)."""
+        if self.mask is not None:
+            return self.mask
+        from subpix_ros.core.validity import box_mask
+
+        return box_mask(self.image.shape[:2], self.box)
 
 
 @dataclass

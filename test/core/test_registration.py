@@ -315,6 +315,11 @@ def test_align_translation_prior_matches_known_subpixel_shift(crops, shift):
     assert not al.aligned[~al.mask].any()
     h, w = ref.shape
     assert al.mask.sum() == (h - abs(n[0])) * (w - abs(n[1]))
+    # the mask is a rectangle, and the result says which
+    from subpix_ros.core.validity import box_mask, common_valid_box
+
+    assert al.box is not None and al.box == common_valid_box([al.mask])
+    np.testing.assert_array_equal(box_mask(ref.shape, al.box), al.mask)
 
 
 def test_align_warps_rotation_but_keeps_subpixel_translation(crops):
@@ -323,7 +328,7 @@ def test_align_warps_rotation_but_keeps_subpixel_translation(crops):
     res = register(ref, mov)
     assert res.ok, res.reason
     al = align(ref, mov, res)
-    assert al.warped and al.aligned.shape == ref.shape
+    assert al.warped and al.aligned.shape == ref.shape and al.box is None  # not a rectangle
     # Where the moving frame covers the reference, aligned is the reference displaced by the prior:
     # measure that displacement by a global NCC-free check: shift the reference by the prior (Fourier)
     # and compare on the valid mask.

@@ -32,7 +32,9 @@ def test_a_frame_goes_with_the_reference_its_link_names_in_every_arrival_order()
         for name in order:
             events[name](asm)
         assert [(a.stamp_ns, a.reference.stamp_ns) for a in got] == [(T0 + 9, T0 + 8)], order
-        assert got[0].mask.dtype == bool and got[0].mask.all() and not problems
+        valid = got[0].valid_mask()
+        assert valid.dtype == bool and valid.shape == img.shape[:2] and valid.all()
+        assert got[0].box == (0, img.shape[0], 0, img.shape[1]) and not problems
 
 
 def test_without_link_publisher_the_latest_reference_not_later_than_the_frame():

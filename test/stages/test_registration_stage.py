@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 from conftest import scene_frames
 
 from subpix_ros.core.telemetry import sample_from_enu
@@ -38,6 +39,23 @@ def test_reference_switches_when_the_set_is_complete(flight):
         and stage.stats.registration_failures == 0
     )
     assert stage.stats.reference_stamp_ns == frames[8].stamp_ns
+
+
+def test_an_integer_crop_is_held_as_its_rectangle_not_a_mask(flight):
+    """Translation-only frames are aligned by integer crops: no 2 MB mask per 1080p frame held."""
+    from subpix_ros.core.validity import common_valid_box
+
+    frames, _ = flight
+    stage = RegistrationStage(max_frames_per_reference=3, **FAST)
+    out = [r for r in _run(stage, frames[:4]) if isinstance(r, Aligned)]
+    assert len(out) == 3
+    for a in out:
+        assert a.mask is None and a.box is not None
+        valid = a.valid_mask()
+        assert valid.shape == a.image.shape[:2] and common_valid_box([valid]) == a.box
+        assert not a.image[~valid].any()  # outside the rectangle: nothing from the frame
+    with pytest.raises(ValueError, match="mask or a box"):
+        Aligned(0, frames[0].image, None, frames[0], np.eye(3))
 
 
 def test_a_failed_registration_starts_a_new_reference_with_its_reason(flight):

@@ -30,6 +30,9 @@ class AlignResult:
         True if rotation/perspective exceeded the threshold and the frame was resampled.
     deviation_px : float
         Largest deviation of the model from a pure translation over the overlap (px).
+    box : tuple of int or None
+        ``(r0, r1, c0, c1)`` when ``mask`` is exactly that rectangle (an integer crop: rows
+        r0..r1-1, columns c0..c1-1), else None.
     """
 
     aligned: np.ndarray
@@ -38,6 +41,7 @@ class AlignResult:
     integer_offset: tuple[int, int]
     warped: bool
     deviation_px: float
+    box: tuple[int, int, int, int] | None = None
 
 
 def _warp_maps(
@@ -169,10 +173,12 @@ def align(
         r0, r1 = max(0, -ny), min(hr, hm - ny)
         c0, c1 = max(0, -nx), min(wr, wm - nx)
         mask = np.zeros((hr, wr), bool)
+        box = None
         if r1 > r0 and c1 > c0:
             out[r0:r1, c0:c1] = mov[r0 + ny : r1 + ny, c0 + nx : c1 + nx]
             mask[r0:r1, c0:c1] = True
-        return AlignResult(out, mask, (float(fr[1]), float(fr[0])), (ny, nx), False, dev)
+            box = (int(r0), int(r1), int(c0), int(c1))
+        return AlignResult(out, mask, (float(fr[1]), float(fr[0])), (ny, nx), False, dev, box)
     mx, my = _warp_maps(registration, fr, hr, wr)
     finite = np.isfinite(mx) & np.isfinite(my)
     mx = np.where(finite, mx, -10).astype(np.float32)

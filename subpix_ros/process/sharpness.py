@@ -84,12 +84,12 @@ def edge_sharpness(
     span = float(lum.max()) - float(lum.min())  # the reference's: no full-size conversion
     for x, y, w, h in find_edge_rois(lum, max_rois=4 * max_edges):
         roi_hr = (x * p, y * p, w * p, h * p)
-        try:
+        try:  # the bicubic edge is screened before the super-resolved one is measured
             b = slanted_edge_mtf(big_b, roi_hr, span=span)
+            if not (b.line_rms_px <= MAX_LINE_RMS * p and b.texture <= MAX_TEXTURE):
+                continue
             s = slanted_edge_mtf(big_s, roi_hr, span=span)
         except ValueError:
-            continue
-        if not (b.line_rms_px <= MAX_LINE_RMS * p and b.texture <= MAX_TEXTURE):
             continue
         n = min(len(b.freqs), len(s.freqs))
         out.append(

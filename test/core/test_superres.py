@@ -6,12 +6,14 @@ blur 0.4 LR px, pixel integration, SNR 40 dB, 8 bit. Targets are on the mean
 gain over the four crops; no crop may fall below bicubic.
 """
 
+import cv2
 import numpy as np
 import pytest
 
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres import (
     bicubic_upscale,
+    colour_luminance,
     estimate_noise_sigma,
     psnr,
     reconstruct,
@@ -232,6 +234,21 @@ def test_colour_luminance_superresolved(crops):
     bic = np.dstack([bicubic_upscale(frames[0][..., k], 2) for k in range(3)])
     assert psnr(r.image, truth, 8) - psnr(bic, truth, 8) > 3.0
     del rng
+
+
+@pytest.mark.parametrize(
+    "shape, dtype",
+    [((200, 70, 3), np.uint8), ((129, 65, 3), np.uint16), ((64, 33, 3), np.float64)],
+)
+def test_colour_luminance_is_bt601_of_the_whole_frame(shape, dtype):
+    """Made in blocks of rows, the luminance is BGR2GRAY of the frame in float32, bit for bit."""
+    rng = np.random.default_rng(3)
+    frame = (rng.random(shape) * (250 if dtype == np.uint8 else 60000)).astype(dtype)
+    y = colour_luminance(frame)
+    assert y.dtype == np.float32 and y.shape == shape[:2] and y.flags.c_contiguous
+    np.testing.assert_array_equal(y, cv2.cvtColor(frame.astype(np.float32), cv2.COLOR_BGR2GRAY))
+    b, g, r = (frame[..., k].astype(np.float64) for k in range(3))
+    np.testing.assert_allclose(y, 0.114 * b + 0.587 * g + 0.299 * r, rtol=1e-5, atol=1e-3)
 
 
 def test_frame_that_disagrees_is_left_out(crops):

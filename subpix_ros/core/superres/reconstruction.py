@@ -493,7 +493,18 @@ def colour_luminance(frame: np.ndarray) -> np.ndarray:
     """
     if frame.ndim == 2:
         return frame
-    return cv2.cvtColor(frame.astype(np.float32), cv2.COLOR_BGR2GRAY)
+    if frame.dtype == np.float32:
+        return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    # in blocks of rows: each block's float32 copy stays in cache (same values as converting
+    # the whole frame first: the conversion and the weighted sum are per pixel)
+    out = np.empty(frame.shape[:2], np.float32)
+    for r0 in range(0, frame.shape[0], _LUMA_ROWS):
+        blk = frame[r0 : r0 + _LUMA_ROWS].astype(np.float32)
+        cv2.cvtColor(blk, cv2.COLOR_BGR2GRAY, dst=out[r0 : r0 + _LUMA_ROWS])
+    return out
+
+
+_LUMA_ROWS = 64  # rows per block of colour_luminance
 
 
 def reconstruct_colour(

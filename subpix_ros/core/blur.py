@@ -176,7 +176,8 @@ def estimate_blur(
     :func:`slanted_edge_mtf` and :func:`edge_sigma`; edges that are not straight, textured
     beside the edge, or of low contrast are dropped (:func:`_measure_edges`). A scene edge is
     never sharper than the camera makes it, so the pooled value is that of the sharpest edges
-    (:func:`_pool_edges`); edges above the frames' spectral cap (:func:`spectral_cap`) are
+    (:func:`_pool_edges`), each weighed by its uncertainty including its misfit to the edge
+    model (texture beside the edge reads sharper); edges above the frames' spectral cap (:func:`spectral_cap`) are
     soft in the scene and left out. The fill factor is measured where sharp edges show it
     (:func:`~subpix_ros.core.blur_edges.edge_fill`); the largest of the pooled edges' is
     used, 1.0 where they cannot tell.

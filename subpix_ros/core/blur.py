@@ -176,7 +176,8 @@ def estimate_blur(
     :func:`slanted_edge_mtf` and :func:`edge_sigma`; edges that are not straight, textured
     beside the edge, or of low contrast are dropped (:func:`_measure_edges`). A scene edge is
     never sharper than the camera makes it, so the pooled value is that of the sharpest edges
-    (:func:`_pool_edges`); edges above the frames' spectral cap (:func:`spectral_cap`) are
+    (:func:`_pool_edges`), each weighed by its uncertainty including its misfit to the edge
+    model (texture beside the edge reads sharper); edges above the frames' spectral cap (:func:`spectral_cap`) are
     soft in the scene and left out. The fill factor is measured where sharp edges show it
     (:func:`~subpix_ros.core.blur_edges.edge_fill`); the largest of the pooled edges' is
     used, 1.0 where they cannot tell.
@@ -221,15 +222,17 @@ def _measure_edges(
     noise: float,
     masks: Sequence[np.ndarray] | None,
     motion_blur: tuple[float, float] = (0.0, 0.0),
-) -> tuple[list[tuple[float, float, float, list]], list[str]]:
-    """Measure every ROI in every frame; return per edge (median, standard error, fill, fits).
+) -> tuple[list[tuple[float, float, float, list, float]], list[str]]:
+    """Measure every ROI in every frame; per edge (median, standard error, fill, fits, misfit).
 
     The median and standard error (:func:`_median_and_se`) are over the frames' full-pixel
     blurs; the fill is the median of the frames' (:func:`edge_fill`), rounded up to
     ``FILL_GRID``; the fits (:class:`~subpix_ros.core.blur_edges.EdgeFit`) refit at another
-    fill. An ROI moves with the frame's rounded shift, is skipped where it leaves the frame or
-    covers an invalid pixel, and is not tried further when it fails in frame 0. An edge
-    counts when it passed in at least half the frames.
+    fill; the misfit is the median of the frames'
+    (:func:`~subpix_ros.core.blur_edges.edge_misfit`, px). An ROI moves with the frame's
+    rounded shift, is skipped where it leaves the frame or covers an invalid pixel, and is
+    not tried further when it fails in frame 0. An edge counts when it passed in at least
+    half the frames.
     """
     n = len(arrs)
     h, w = arrs[0].shape
@@ -256,21 +259,28 @@ def _measure_edges(
             med, se = _median_and_se([f.sigma for f in fits])
             fill_med = float(np.median([f.fill for f in fits]))
             fill = min(g for g in FILL_GRID if g >= fill_med - 1e-9)  # on the grid, rounded up
-            per_edge.append((med, se, fill, fits))
+            misfit = float(np.median([f.misfit for f in fits]))
+            per_edge.append((med, se, fill, fits, misfit))
     return per_edge, why
 
 
 def _pool_edges(
-    per_edge: list[tuple[float, float, float, list]],
+    per_edge: list[tuple[float, float, float, list, float]],
     cap: float,
     fallback: float,
     fit_fill: bool = True,
 ) -> BlurEstimate:
     """Pool the sharpest edges below the spectral cap into one low-biased estimate.
 
-    Edges within two standard errors of the lowest one (full-pixel fits) are averaged with
-    inverse-variance weights; the uncertainty is the larger of that mean's standard error and
-    the group's spread over sqrt(n); the estimate is the mean minus it. The fill factor is
+    Each edge's uncertainty is ``u = hypot(se, misfit)``: the frames' scatter (noise) and the
+    model misfit (texture beside the edge, the same in every frame, which the scatter does
+    not show; :func:`~subpix_ros.core.blur_edges.edge_misfit`). Edges within
+    ``2 hypot(u, u_lo)`` of the lowest one (full-pixel fits) are averaged with weights
+    ``1 / u^2``, the mean capped at the lowest edge plus ``2 u_lo`` (a scene edge is never
+    sharper than the camera makes it: the sharpest edge bounds the blur within its own
+    uncertainty). The low bias is the larger of the mean's standard error from the frames'
+    scatter, ``sqrt(sum w^2 se^2) / sum w``, and the weighted spread of the group over
+    sqrt(n); the estimate is the mean minus it. The fill factor is
     the largest of the group's (the widest aperture: the lowest blur); when it is below 1,
     the group's edges are refitted with it in every frame and pooled the same way
     (``fit_fill`` False: the full pixel). All edges above ``cap``: the fallback.
@@ -287,8 +297,9 @@ def _pool_edges(
     keep = vals <= cap
     edges = [e for e, k in zip(per_edge, keep) if k]
     vals, ses = vals[keep], ses[keep]
+    unc_edge = np.hypot(ses, [e[4] for e in edges])  # frames' scatter and the model misfit
     lo = int(np.argmin(vals))
-    group = vals <= vals[lo] + 2.0 * np.hypot(ses, ses[lo])
+    group = vals <= vals[lo] + 2.0 * np.hypot(unc_edge, unc_edge[lo])
     fill = 1.0
     if fit_fill:
         fill = max(e[2] for e, g in zip(edges, group) if g)
@@ -298,14 +309,19 @@ def _pool_edges(
             for e, g, v, s in zip(edges, group, vals, ses)
         ]
         vals, ses = np.array([r[0] for r in refits]), np.array([r[1] for r in refits])
-    wts = 1.0 / ses[group] ** 2
-    raw = float(np.sum(wts * vals[group]) / wts.sum())
+        unc_edge = np.hypot(ses, [e[4] for e in edges])
+    v, s, u = vals[group], ses[group], unc_edge[group]
+    wts = 1.0 / u**2
+    raw = float(np.sum(wts * v) / wts.sum())
+    spread = float(np.sqrt(np.sum(wts * (v - raw) ** 2) / wts.sum()))
     unc = float(
         max(
-            1.0 / np.sqrt(wts.sum()),
-            np.std(vals[group]) / np.sqrt(group.sum()) if group.sum() > 1 else 0.0,
+            np.sqrt(np.sum(wts**2 * s**2)) / wts.sum(),
+            spread / np.sqrt(v.size) if v.size > 1 else 0.0,
         )
     )
+    lo_g = int(np.argmin(v))
+    raw = min(raw, float(v[lo_g] + 1e9))  # at most two uncertainties above the lowest
     sigma = max(0.0, raw - unc)
     fill_note = f", fill factor {fill:.2f}" if fill < 1.0 else ""
     return BlurEstimate(

@@ -23,7 +23,15 @@ import numpy as np
 
 from .mtf import slanted_edge_mtf
 
-__all__ = ["EdgeFit", "edge_fill", "edge_sigma", "find_edge_rois", "measure_edge", "spectral_cap"]
+__all__ = [
+    "EdgeFit",
+    "edge_fill",
+    "edge_misfit",
+    "edge_sigma",
+    "find_edge_rois",
+    "measure_edge",
+    "spectral_cap",
+]
 
 ALPHA_MIN = 1.0  # a scene's power spectrum falls at least as fast as |f|^-ALPHA_MIN (spectral cap)
 MAX_LINE_RMS = 0.35  # edge positions about the fitted line (px): straighter than this
@@ -105,6 +113,60 @@ def edge_sigma(
         models = models * np.abs(np.sinc(f * motion_px))[None, :]
     best, _ = _band_fit(models, f, m, f_lo, 0.75, level)
     return 0.0 if best < 0 else float(_SIGMA_GRID[best])
+
+
+def edge_misfit(
+    freqs: np.ndarray,
+    mtf: np.ndarray,
+    angle_deg: float,
+    sigma: float,
+    f_lo: float = 0.05,
+    level: float = 0.15,
+    motion_px: float = 0.0,
+) -> float:
+    """Bound the blur error (px) that an edge MTF's misfit to the fitted model could cause.
+
+    Parameters
+    ----------
+    freqs, mtf : numpy.ndarray
+        The measured MTF along the edge normal (cycles/px).
+    angle_deg : float
+        The edge's angle from the pixel grid.
+    sigma : float
+        The blur fitted to it with the full pixel (:func:`edge_sigma`, px).
+    f_lo, level, motion_px : float, optional
+        As in :func:`edge_sigma` (the same band: ``f_lo <= f <= 0.75`` where the model is
+        at least ``level``).
+
+    Returns
+    -------
+    float
+        ``sqrt(sigma^2 + d) - sigma`` (px) with ``d = r / rms_f(2 pi^2 f^2 M_sigma(f))``: ``r``
+        the RMS residual ``M(f) - M_sigma(f)`` on the band (MTF units), ``M_sigma`` the model
+        ``exp(-2 pi^2 sigma^2 f^2) |sinc(f cos a) sinc(f sin a)|`` and ``2 pi^2 f^2 M_sigma``
+        its sensitivity to ``sigma^2`` (px^2); ``inf`` when fewer than 3 frequencies are in
+        the band.
+
+    Notes
+    -----
+    A least-squares fit moves by ``<r, J> / <J, J>`` for a perturbation ``r`` of the data,
+    at most ``rms(r) / rms(J)`` (Cauchy-Schwarz): a residual that large could have moved the
+    fitted ``sigma^2`` by ``d``. Noise averages out over the frames; texture beside the edge
+    does not (it is in the scene, the same in every frame) and raises the measured MTF
+    (a lower blur) while bending it away from the model: the misfit is the per-edge
+    uncertainty the frames' scatter does not show (:func:`subpix_ros.core.blur.estimate_blur`).
+    """
+    f = np.asarray(freqs, dtype=np.float64)
+    m = np.asarray(mtf, dtype=np.float64)
+    model = _gaussian_box_mtf(f, np.array([sigma]), angle_deg)[0]
+    if motion_px:
+        model = model * np.abs(np.sinc(f * motion_px))
+    band = (f >= f_lo) & (f <= 0.75) & (model >= level)
+    if band.sum() < 3:
+        return float("inf")
+    r = float(np.sqrt(np.mean((m[band] - model[band]) ** 2)))
+    sens = float(np.sqrt(np.mean((2.0 * np.pi**2 * f[band] ** 2 * model[band]) ** 2)))
+    return float(np.sqrt(sigma**2 + r / sens) - sigma)
 
 
 def _band_fit(
@@ -278,6 +340,7 @@ class EdgeFit(NamedTuple):
     fill: float  # the fill factor the edge shows (1.0: cannot tell), or NaN
     why_not: str  # empty, or why the edge was rejected
     mtf: tuple | None = None  # (freqs, mtf, angle_deg, motion_px) for refits at another fill
+    misfit: float = 0.0  # the blur error the MTF's misfit to the model could cause (px)
 
     def sigma_at(self, fill: float) -> float:
         """Return the optics blur fitted with the pixel fill ``fill`` (:func:`edge_sigma`)."""
@@ -315,7 +378,9 @@ def measure_edge(
         NaN; ``fill``: the fill factor the edge shows (:func:`edge_fill`; 1.0 when it cannot
         tell); ``why_not``: empty, or why the edge was rejected: no slanted-edge measurement,
         not straight (``MAX_LINE_RMS``), textured beside the edge (``MAX_TEXTURE``), or a step
-        below ``MIN_CONTRAST_SNR`` times the noise; ``sigma_at(w)`` refits with fill ``w``.
+        below ``MIN_CONTRAST_SNR`` times the noise; ``misfit``: the blur error the MTF's
+        misfit to the model could cause (px, :func:`edge_misfit`); ``sigma_at(w)`` refits
+        with fill ``w``.
     """
     nan = float("nan")
     try:
@@ -335,7 +400,8 @@ def measure_edge(
         motion = _motion_on_normal(r, motion_blur)
     sigma = edge_sigma(r.freqs, r.mtf, r.angle_deg, motion_px=motion)
     fill = edge_fill(r.freqs, r.mtf, r.angle_deg, motion_px=motion, sigma_full=sigma)
-    return EdgeFit(sigma, fill, "", (r.freqs, r.mtf, r.angle_deg, motion))
+    misfit = edge_misfit(r.freqs, r.mtf, r.angle_deg, sigma, motion_px=motion)
+    return EdgeFit(sigma, fill, "", (r.freqs, r.mtf, r.angle_deg, motion), misfit)
 
 
 def _motion_on_normal(r, motion_blur: tuple[float, float]) -> float:

@@ -15,6 +15,8 @@ from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
 from benchmarks.flight_eval import est_shifts as _est_shifts
 from benchmarks.flight_eval import gain
 from subpix_ros.core.blur import BlurCalibration, BlurEstimate, estimate_blur, parse_blur_sigma
+from subpix_ros.core.blur_edges import edge_misfit, edge_sigma
+from subpix_ros.core.mtf import gaussian_pixel_mtf
 from subpix_ros.core.superres import reconstruct
 
 LR = {
@@ -84,6 +86,35 @@ def test_blur_from_edges_within_tolerance_and_never_above(crops, p, blur):
     assert est.source == "edges", est.reason
     assert abs(est.sigma - blur) <= 0.05, est
     assert est.sigma <= blur + 0.05
+
+
+@pytest.mark.parametrize("blur, fill", [(0.2, 1.0), (0.3, 0.9), (0.5, 0.8), (0.7, 1.0)])
+def test_blur_from_edges_not_pulled_low_by_a_textured_edge(crops, blur, fill):
+    # x4 crop_road: the roof's top edge has the road's texture beside it and reads 0.06-0.12 px
+    # low; pooling the lowest edge by the frames' scatter alone took it (0.096 / 0.185 / 0.412 /
+    # 0.637 px). Its misfit to the edge model is its uncertainty: the clean edge weighs in.
+    fl = flight(crops, "crop_road", 4, blur, layout="grid", roof=True, fill=fill, snr=40, seed=3)
+    est = estimate_blur(fl.frames, est_shifts(fl.frames))
+    assert est.source == "edges", est.reason
+    assert abs(est.sigma - blur) <= 0.05, est
+    assert est.sigma <= blur + 0.05
+
+
+def test_edge_misfit_is_small_on_a_clean_edge_and_bounds_a_perturbed_one():
+    # the model MTF itself: no misfit; a perturbation moves the fitted sigma^2 by at most the
+    # d of edge_misfit = sqrt(fit^2 + d) - fit (first order, the grid's step aside)
+    f = np.arange(0.0, 1.3, 0.02)
+    for s in (0.0, 0.3, 0.6):
+        m = gaussian_pixel_mtf(f, s, 10.0)
+        fit = edge_sigma(f, m, 10.0)
+        assert abs(fit - s) <= 0.0025 and edge_misfit(f, m, 10.0, fit) <= 0.01
+        rng = np.random.default_rng(1)
+        for _ in range(5):
+            mp = m + rng.normal(0.0, 0.04, f.size) + 0.03 * np.sin(9.0 * f)  # texture-like
+            fit = edge_sigma(f, mp, 10.0)
+            mis = edge_misfit(f, mp, 10.0, fit)
+            d = (fit + mis) ** 2 - fit**2
+            assert mis > 0.01 and abs(fit**2 - s**2) <= 1.1 * d + 0.002, (s, fit, mis)
 
 
 @pytest.mark.parametrize("crop", ["crop_field_edge", "crop_rows", "crop_trees", "crop_road"])

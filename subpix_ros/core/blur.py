@@ -177,8 +177,8 @@ def estimate_blur(
     beside the edge, or of low contrast are dropped (:func:`_measure_edges`). A scene edge is
     never sharper than the camera makes it, so the pooled value is that of the sharpest edges
     (:func:`_pool_edges`), each weighed by its uncertainty including its misfit to the edge
-    model (texture beside the edge reads sharper); edges above the frames' spectral cap (:func:`spectral_cap`) are
-    soft in the scene and left out. The fill factor is measured where sharp edges show it
+    model (texture beside the edge reads sharper); edges above the frames' spectral cap
+    (:func:`spectral_cap`) are soft in the scene and left out. The fill factor is measured where sharp edges show it
     (:func:`~subpix_ros.core.blur_edges.edge_fill`); the largest of the pooled edges' is
     used, 1.0 where they cannot tell.
     """
@@ -321,7 +321,7 @@ def _pool_edges(
         )
     )
     lo_g = int(np.argmin(v))
-    raw = min(raw, float(v[lo_g] + 1e9))  # at most two uncertainties above the lowest
+    raw = min(raw, float(v[lo_g] + 2.0 * u[lo_g]))  # at most two uncertainties above the lowest
     sigma = max(0.0, raw - unc)
     fill_note = f", fill factor {fill:.2f}" if fill < 1.0 else ""
     return BlurEstimate(

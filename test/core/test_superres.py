@@ -251,6 +251,17 @@ def test_colour_luminance_is_bt601_of_the_whole_frame(shape, dtype):
     np.testing.assert_allclose(y, 0.114 * b + 0.587 * g + 0.299 * r, rtol=1e-5, atol=1e-3)
 
 
+def test_hr_dtype_float32_is_the_solve_in_single_precision(crops):
+    """hr_dtype=float32: the same values as the default image, in float32 (no float64 copy)."""
+    seq = render(crops["crop_road"], 2, grid(2))
+    r64 = reconstruct(seq.frames, seq.shifts, 2, blur_sigma=0.3)
+    r32 = reconstruct(seq.frames, seq.shifts, 2, blur_sigma=0.3, hr_dtype=np.float32)
+    assert r64.image.dtype == np.float64 and r32.image.dtype == np.float32
+    np.testing.assert_array_equal(r32.image, r64.image.astype(np.float32))
+    with pytest.raises(ValueError, match="hr_dtype"):
+        reconstruct(seq.frames, seq.shifts, 2, hr_dtype=np.int16)
+
+
 def test_frame_that_disagrees_is_left_out(crops):
     seq = render(crops["crop_road"], 2, grid(2))
     other = render(crops["crop_rows"], 2, [(0, 0)]).frames[0]

@@ -171,6 +171,7 @@ def _fourier_map(
     lowpassed: _WholeLowpass | None = None,
     motion_blur: tuple[float, float] = (0.0, 0.0),
     pixel_fill: float = 1.0,
+    hr_dtype=np.float64,
 ) -> MapSolution:
     """Compute the MAP estimate of eq. 9 for translated frames, per LR frequency bin.
 
@@ -205,6 +206,9 @@ def _fourier_map(
     pixel_fill : float, optional
         The pixel aperture's width (LR px; default 1: the full pixel), as in
         ``frame_transfer_1d``.
+    hr_dtype : numpy dtype, optional
+        The image's type: float64 (default) or float32 (the single-precision solve's own
+        values, a view of its padded output: no double-precision copy of the HR image).
 
     Returns
     -------
@@ -258,7 +262,9 @@ def _fourier_map(
         pixel_fill,
     )
     img = _assemble_hr(xs, hp, wp)
-    out = img[p * pad : p * (pad + h), p * pad : p * (pad + w)].astype(np.float64)
+    out = img[p * pad : p * (pad + h), p * pad : p * (pad + w)]
+    if out.dtype != hr_dtype:
+        out = out.astype(hr_dtype)
     return _per_input_frame(
         out, shifts, registered, cov, wsum, resid_ratio, (c_psd, alpha), noise_sigma
     )

@@ -121,7 +121,10 @@ def reconstruct(
           "translation" skips the check;
         - ``window``: eq. 7 window w (default factor + 2);
         - ``pad``: reflected padding of the Fourier solve (LR px, default 16);
-        - ``cg_iters``: conjugate-gradient iterations (default 30).
+        - ``cg_iters``: conjugate-gradient iterations (default 30);
+        - ``hr_dtype``: ``numpy.float64`` (default) or ``numpy.float32``, the image's type
+          from the Fourier solve (float32: its single-precision values without a
+          double-precision copy; the CG refinement returns float64 either way).
 
     Returns
     -------
@@ -199,8 +202,11 @@ def _reconstruct(
     cg_iters: int = 30,
     motion_blur: tuple[float, float] | None = None,
     pixel_fill: float = 1.0,
+    hr_dtype=np.float64,
 ) -> SRResult:
     """Reconstruct with a numeric blur; the options of :func:`reconstruct`."""
+    if np.dtype(hr_dtype) not in (np.float32, np.float64):
+        raise ValueError(f"hr_dtype must be float32 or float64, got {hr_dtype!r}")
     motion = motion_blur_vector(motion_blur)
     arrs, rel, p = _validate(frames, shifts, factor, masks, shift_cov, homographies)
     n = len(arrs)
@@ -246,6 +252,7 @@ def _reconstruct(
         cg_iters=cg_iters,
         motion_blur=motion,
         pixel_fill=pixel_fill,
+        hr_dtype=np.dtype(hr_dtype),
     )
     res = _map_method(arrs, rel, p, sigma, opts)
     if not res.fell_back:
@@ -317,6 +324,7 @@ class _MapOptions:
     cg_iters: int
     motion_blur: tuple[float, float] = (0.0, 0.0)
     pixel_fill: float = 1.0
+    hr_dtype: np.dtype = np.dtype(np.float64)
 
 
 def _map_method(
@@ -359,6 +367,7 @@ def _map_method(
             lowpassed=lowpassed,
             motion_blur=opts.motion_blur,
             pixel_fill=opts.pixel_fill,
+            hr_dtype=np.float64 if use_cg else opts.hr_dtype,
         )
     except (ValueError, np.linalg.LinAlgError) as exc:
         return _fallback(ref, p, f"MAP solve failed: {exc}", sigma, n, rel)
@@ -564,7 +573,8 @@ def reconstruct_colour(
         raise ValueError("colour frames must all be HxWx3 (BGR)")
     # luminance of every frame (Y of YCrCb is BGR2GRAY's weighted sum), chroma of the reference
     ys = [colour_luminance(a) for a in arrs]
-    res = reconstruct(ys, shifts, factor, **kwargs)
+    # float32 luminance: the colour image is assembled in float32 (no float64 copy of it)
+    res = reconstruct(ys, shifts, factor, **{"hr_dtype": np.float32, **kwargs})
     p = res.factor
     h, w = arrs[0].shape[:2]
     if out_dtype is not None:

@@ -227,6 +227,44 @@ def configure_allocator() -> str:
     return "reuse" if keep_freed_memory() else ""
 
 
+#: OpenCV's own variable for its worker threads (read when cv2 is imported); an operator's
+#: value is left alone.
+CV_THREADS_VAR = "OPENCV_FOR_THREADS_NUM"
+
+#: OpenCV worker threads of a node process when the operator did not choose
+#: (docs/design-notes.md, "OpenCV threads in the node processes").
+NODE_CV_THREADS = 1
+
+
+def configure_opencv_threads(default: int = NODE_CV_THREADS) -> int:
+    """Give OpenCV ``default`` worker threads unless ``OPENCV_FOR_THREADS_NUM`` is set.
+
+    Parameters
+    ----------
+    default : int, optional
+        Threads for OpenCV's parallel loops (1: each call runs in its calling thread).
+
+    Returns
+    -------
+    int
+        ``cv2.getNumThreads()`` afterwards.
+
+    Notes
+    -----
+    A node process already runs its stages in threads of its own (executor, workers, the
+    reconstruction); OpenCV's pool on top of them oversubscribes a small computer's cores and
+    spins while it waits. Measured on a 2-core machine at 1080p 10 Hz: the single-process
+    pipeline 0.074-0.075 s of CPU per frame with one OpenCV thread against 0.084-0.090 with
+    two, frame -> shift p99 108-121 ms against 282-626 ms. ``subpix process`` (a batch job
+    that wants the wall time down) sets its own count.
+    """
+    import cv2
+
+    if os.environ.get(CV_THREADS_VAR, "").strip() == "":
+        cv2.setNumThreads(int(default))
+    return int(cv2.getNumThreads())
+
+
 def favour_throughput() -> bool:
     """Apply :data:`THROUGHPUT` (``subpix process``: CPU before resident memory).
 

@@ -464,3 +464,21 @@ def test_an_unknown_allocator_profile_is_refused_loudly(monkeypatch, capsys):
     monkeypatch.setenv("SUBPIX_MALLOC", "")
     assert rt.configure_allocator() == "reuse"
     assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("env, want", [({}, 1), ({"OPENCV_FOR_THREADS_NUM": "2"}, 2)])
+def test_node_processes_give_opencv_one_thread_unless_the_operator_chose(env, want):
+    """configure_opencv_threads: 1 by default (as run_nodes applies it), the operator's value kept."""
+    code = (
+        "from subpix_ros.runtime import configure_opencv_threads; import cv2; "
+        "n = configure_opencv_threads(); print(n, cv2.getNumThreads())"
+    )
+    base = {k: v for k, v in os.environ.items() if k != "OPENCV_FOR_THREADS_NUM"}
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        env={**base, **env},
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
+    assert out == [str(want), str(want)]

@@ -16,6 +16,7 @@ import time
 from collections import defaultdict
 from typing import Any, Callable, Sequence
 
+import cv2
 from rclpy.node import Node
 
 from subpix_ros.nodes.diagnostics import Diagnostics
@@ -65,6 +66,8 @@ class StageNode(Node):
         super().__init__(name, **kwargs)
         self.subscribe_inputs = subscribe_inputs
         self.diag = Diagnostics(self)
+        # a process setting (runtime.configure_opencv_threads), shown so an operator sees it
+        self.diag.set(opencv_threads=cv2.getNumThreads())
         self.params = declare_params(self, self.PARAMS, self._on_param_change)
         if subscribe_inputs and self.MAIN_INPUTS:
             self.diag.watch_inputs(self.MAIN_INPUTS, lambda: self.param("input_timeout_s"))

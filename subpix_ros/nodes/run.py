@@ -13,6 +13,7 @@ from ..runtime import (
     RuntimeSetupError,
     clean_stale_shm_segments,
     configure_allocator,
+    configure_opencv_threads,
     configure_ros_environment,
 )
 
@@ -46,9 +47,12 @@ def run_nodes(
     (:func:`subpix_ros.runtime.keep_freed_memory`), or with ``SUBPIX_MALLOC=memory`` every
     thread allocates from one arena (:func:`subpix_ros.runtime.favour_memory`); the ROS / DDS defaults of
     :func:`subpix_ros.runtime.configure_ros_environment` are applied before the participant is
-    created, or the process refuses to start with one line on stderr.
+    created, or the process refuses to start with one line on stderr. OpenCV runs its loops
+    in the calling thread unless ``OPENCV_FOR_THREADS_NUM`` says otherwise
+    (:func:`subpix_ros.runtime.configure_opencv_threads`).
     """
     configure_allocator()
+    configure_opencv_threads()
     clean_stale_shm_segments()  # segments of killed processes (64 MiB each with our profile)
     try:
         configure_ros_environment()

@@ -221,6 +221,9 @@ def separate(ros, sample_bags):
 
 def test_separate_processes_shift_and_superres(separate, sample_bags):
     _check_subpixel(separate, sample_bags)
+    # each node process runs OpenCV's loops in the calling thread (runtime.configure_opencv_threads)
+    threads = {name: v.get("opencv_threads") for name, v in separate.diag.items()}
+    assert len(threads) >= 3 and set(threads.values()) == {"1"}, threads
 
 
 def _set_members(est, refs, ref):

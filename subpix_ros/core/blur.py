@@ -178,9 +178,9 @@ def estimate_blur(
     never sharper than the camera makes it, so the pooled value is that of the sharpest edges
     (:func:`_pool_edges`), each weighed by its uncertainty including its misfit to the edge
     model (texture beside the edge reads sharper); edges above the frames' spectral cap
-    (:func:`spectral_cap`) are soft in the scene and left out. The fill factor is measured where sharp edges show it
-    (:func:`~subpix_ros.core.blur_edges.edge_fill`); the largest of the pooled edges' is
-    used, 1.0 where they cannot tell.
+    (:func:`spectral_cap`) are soft in the scene and left out. The fill factor is measured
+    where sharp edges show it (:func:`~subpix_ros.core.blur_edges.edge_fill`); the largest
+    of the pooled edges' is used, 1.0 where they cannot tell.
     """
     from .superres import estimate_noise_sigma  # superres imports this module
 
@@ -283,7 +283,8 @@ def _pool_edges(
     sqrt(n); the estimate is the mean minus it. The fill factor is
     the largest of the group's (the widest aperture: the lowest blur); when it is below 1,
     the group's edges are refitted with it in every frame and pooled the same way
-    (``fit_fill`` False: the full pixel). All edges above ``cap``: the fallback.
+    (``fit_fill`` False: the full pixel). All edges above ``cap``: the fallback; an edge
+    without a finite misfit (too short a band for the model) is not pooled.
     """
     vals = np.array([e[0] for e in per_edge])
     ses = np.array([e[1] for e in per_edge])
@@ -294,10 +295,18 @@ def _pool_edges(
             reason=f"edges measured {vals.min():.2f} px or more, above what the frames' spectrum "
             f"allows ({cap:.2f} px): edges soft in the scene; fallback {fallback:.2f} px",
         )
-    keep = vals <= cap
+    misfits = np.array([e[4] for e in per_edge])
+    keep = (vals <= cap) & np.isfinite(misfits)  # no misfit: the model's band was too short
+    if not keep.any():
+        return BlurEstimate(
+            fallback,
+            "fallback",
+            reason=f"{len(per_edge)} measured edges, none with a usable fit to the edge model "
+            f"below the frames' spectral cap ({cap:.2f} px); fallback {fallback:.2f} px",
+        )
     edges = [e for e, k in zip(per_edge, keep) if k]
-    vals, ses = vals[keep], ses[keep]
-    unc_edge = np.hypot(ses, [e[4] for e in edges])  # frames' scatter and the model misfit
+    vals, ses, misfits = vals[keep], ses[keep], misfits[keep]
+    unc_edge = np.hypot(ses, misfits)  # frames' scatter and the model misfit
     lo = int(np.argmin(vals))
     group = vals <= vals[lo] + 2.0 * np.hypot(unc_edge, unc_edge[lo])
     fill = 1.0
@@ -309,7 +318,7 @@ def _pool_edges(
             for e, g, v, s in zip(edges, group, vals, ses)
         ]
         vals, ses = np.array([r[0] for r in refits]), np.array([r[1] for r in refits])
-        unc_edge = np.hypot(ses, [e[4] for e in edges])
+        unc_edge = np.hypot(ses, misfits)
     v, s, u = vals[group], ses[group], unc_edge[group]
     wts = 1.0 / u**2
     raw = float(np.sum(wts * v) / wts.sum())

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from subpix_ros.core.validity import box_mask
+
 
 @dataclass
 class Frame:
@@ -61,8 +63,6 @@ class Aligned:
         """Return the validity mask (made from ``box`` when no mask is held)."""
         if self.mask is not None:
             return self.mask
-        from subpix_ros.core.validity import box_mask
-
         return box_mask(self.image.shape[:2], self.box)
 
 

@@ -117,6 +117,21 @@ def test_edge_misfit_is_small_on_a_clean_edge_and_bounds_a_perturbed_one():
             assert mis > 0.01 and abs(fit**2 - s**2) <= 1.1 * d + 0.002, (s, fit, mis)
 
 
+def test_edges_without_a_finite_misfit_are_not_pooled_into_a_silent_zero():
+    """An edge whose model band was too short (misfit inf) is not pooled.
+
+    Pooled alone it gave 0/0 and a made-up 0.0 px from "edges"; now the other edges are
+    pooled, or the fallback is used and says why.
+    """
+    from subpix_ros.core.blur import _pool_edges
+
+    inf = float("inf")
+    alone = _pool_edges([(0.3, 0.01, 1.0, [], inf)], cap=2.0, fallback=0.2)
+    assert alone.source == "fallback" and alone.sigma == 0.2 and "model" in alone.reason
+    both = _pool_edges([(0.2, 0.01, 1.0, [], inf), (0.4, 0.01, 1.0, [], 0.01)], 2.0, 0.2)
+    assert both.source == "edges" and np.isfinite(both.sigma) and 0.3 < both.sigma <= 0.4
+
+
 @pytest.mark.parametrize("crop", ["crop_field_edge", "crop_rows", "crop_trees", "crop_road"])
 @pytest.mark.parametrize("blur", [0.2, 0.9])
 def test_blur_never_above_truth_without_sharp_edges(crops, crop, blur):

@@ -175,13 +175,16 @@ def fractional_shift(
     )
 
 
-def rfft2_32(img: np.ndarray) -> np.ndarray:
+def rfft2_32(img: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """Return the half-plane 2-D DFT of an image in single precision.
 
     Parameters
     ----------
     img : numpy.ndarray
         2-D real image.
+    out : numpy.ndarray, optional
+        complex64 array of shape ``(h, w // 2 + 1)`` to write the DFT into (e.g. one slot of
+        a stack of spectra); default: a new array.
 
     Returns
     -------
@@ -201,7 +204,10 @@ def rfft2_32(img: np.ndarray) -> np.ndarray:
     x = np.ascontiguousarray(img, dtype=np.float32)
     h, w = x.shape
     ccs = cv2.dft(x)
-    out = np.empty((h, w // 2 + 1), np.complex64)
+    if out is None:
+        out = np.empty((h, w // 2 + 1), np.complex64)
+    elif out.shape != (h, w // 2 + 1) or out.dtype != np.complex64:
+        raise ValueError(f"out must be complex64 {(h, w // 2 + 1)}, got {out.dtype} {out.shape}")
     kmax = (w - 1) // 2  # columns 1..kmax: complex, Re and Im side by side
     out[:, 1 : kmax + 1] = np.ascontiguousarray(ccs[:, 1 : 2 * kmax + 1]).view(np.complex64)
     out[:, 0] = _unpack_real_column(ccs[:, 0])

@@ -144,6 +144,7 @@ class ReconstructionNode(StageNode):
             memory_estimate_mb=st.memory_estimate_mb,
             memory_reduction=st.memory_reduction,
             memory_reduced=st.memory_reduced,
+            workspace_mb=st.workspace_mb,
             shifts_disputed=st.shifts_disputed,
             blur_sigma="n/a" if sr.blur_sigma is None else sr.blur_sigma,
             blur_source=sr.blur_source or "n/a",

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import collections
 import inspect
+import threading
 import time
 from dataclasses import dataclass
 
@@ -21,6 +22,7 @@ from subpix_ros.core.blur import BLUR_SIGMA_MAX, BlurCalibration, parse_blur_sig
 from subpix_ros.core.motion import displacement_through_homography, image_velocity
 from subpix_ros.core.superres import colour_luminance, reconstruct_within_budget
 from subpix_ros.core.superres.result import NonFiniteImageError
+from subpix_ros.core.superres.workspace import Workspace, work_array
 from subpix_ros.runtime import release_freed_memory
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
@@ -74,9 +76,9 @@ PARAMS = (
     Spec(
         "release_memory",
         False,
-        "after each set, hand the heap's free pages back to the kernel (glibc malloc_trim): "
-        "lower resident memory between sets for an onboard computer, at the cost of page "
-        "faults in the next set",
+        "after each set, drop the solve's reused buffers and hand the heap's free pages back "
+        "to the kernel (glibc malloc_trim): lower resident memory between sets for an onboard "
+        "computer, at the cost of page faults in the next set",
     ),
     Spec(
         "blur_sigma",
@@ -198,6 +200,9 @@ class ReconstructionStage(Stage):
         self.matcher = ShiftFrameMatcher(self._tolerance_ns())
         self._closed: collections.OrderedDict[int, None] = collections.OrderedDict()
         self._last_input_wall: float | None = None
+        # the solve's large arrays, reused from set to set (none with release_memory)
+        self.workspace = Workspace()
+        self._workspace_lock = threading.Lock()
         self._last_stamp_in: dict[int, int] = {}  # reference -> its newest member's stamp
 
     def _tolerance_ns(self) -> int:
@@ -358,20 +363,30 @@ class ReconstructionStage(Stage):
     def reconstruct(self, fs: FrameSet) -> SuperResolved | None:
         """Super-resolve one set (None, with an error, when it cannot be).
 
-        With ``release_memory`` the heap's free pages go back to the kernel afterwards
+        The solve's largest arrays (frame spectra, luminance, HR spectrum) stay in
+        ``self.workspace`` for the next set: no fresh pages to map in and zero each time
+        (``stats.workspace_mb`` says how much is held). With ``release_memory`` nothing is
+        kept and the heap's free pages go back to the kernel afterwards
         (:func:`subpix_ros.runtime.release_freed_memory`; ``stats.released_mb``).
         """
+        release = bool(self.param("release_memory"))
+        # one set at a time uses the workspace (a concurrent call, if any, allocates its own)
+        owned = not release and self._workspace_lock.acquire(blocking=False)
         try:
-            return self._reconstruct_set(fs)
+            return self._reconstruct_set(fs, self.workspace if owned else None)
         finally:
-            if self.param("release_memory"):
+            if owned:
+                self._workspace_lock.release()
+            self.stats.workspace_mb = round(self.workspace.nbytes / 2**20, 1)
+            if release:
+                self.workspace.clear()
                 self.stats.released_mb = release_freed_memory()
                 if self.stats.released_mb is None and not self._told_no_trim:
                     self._told_no_trim = True
                     self.warn("release_memory: no glibc malloc_trim here, nothing is released")
 
-    def _reconstruct_set(self, fs: FrameSet) -> SuperResolved | None:
-        """Super-resolve one set: the body of :meth:`reconstruct`."""
+    def _reconstruct_set(self, fs: FrameSet, ws: Workspace | None) -> SuperResolved | None:
+        """Super-resolve one set: the body of :meth:`reconstruct` (``ws``: buffers to reuse)."""
         ref, members = fs.reference, fs.members
         if self.ignored and not self._told_ignored:
             self._told_ignored = True
@@ -386,7 +401,10 @@ class ReconstructionStage(Stage):
             self.error("frames of one set differ in size: set dropped")
             return None
         # luminance only for a set the calibration measures (the first, then every 10th)
-        mono = [colour_luminance(f) for f in frames] if self.blur.due else []
+        mono = []
+        if self.blur.due:
+            lum = work_array(ws, "blur_luminance", (len(frames),) + frames[0].shape[:2], np.float32)
+            mono = [colour_luminance(f, out=lum[i]) for i, f in enumerate(frames)]
         motion = set_motion_blur(fs, self.param("exposure_s"))
         if motion is None and self.param("exposure_s") > 0.0:
             self.warn(
@@ -412,6 +430,7 @@ class ReconstructionStage(Stage):
                 blur_sigma=blur,
                 motion_blur=motion,
                 out_dtype=dtype,
+                workspace=ws,
                 **self.solver_options,
             )
         except NonFiniteImageError:
@@ -463,6 +482,7 @@ _SET_HERE = {
     "blur_sigma",
     "motion_blur",
     "out_dtype",
+    "workspace",
 }  # given by the stage itself
 
 

@@ -143,6 +143,8 @@ class ReconstructionStats(StageStats):
     motion_blur_px: tuple[float, float] | None = None
     # resident memory handed back after the last set (release_memory; None: not asked or no glibc)
     released_mb: float | None = None
+    # buffers the solve keeps for the next set (frame spectra, luminance, HR spectrum), MB
+    workspace_mb: float = 0.0
 
 
 @dataclass

@@ -69,3 +69,4 @@ def test_max_memory_mb_reduces_the_set_and_reports_it_in_diagnostics(ctx, crops)
     )
     assert value("memory_reduction") == "5 of 8 frames" and value("frames_used") == "5"
     assert value("memory_reduced") == "1" and float(value("memory_estimate_mb")) <= budget + 0.05
+    assert float(value("workspace_mb")) > 0  # buffers kept for the next set, said

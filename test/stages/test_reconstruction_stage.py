@@ -387,6 +387,7 @@ def test_release_memory_trims_the_heap_after_each_set_and_leaves_the_image_alone
     plain = ReconstructionStage(n_frames=8)
     (a,) = [o for s, al in pairs for o in plain.add(s, al)]
     assert plain.stats.released_mb is None  # not asked
+    assert plain.stats.workspace_mb > 0  # the solve's buffers kept for the next set
     stage = ReconstructionStage(n_frames=8, release_memory=True)
     # 64 KiB blocks (below glibc's mmap threshold: from the heap), every other one freed:
     # 160 MB of holes the heap keeps resident
@@ -394,6 +395,7 @@ def test_release_memory_trims_the_heap_after_each_set_and_leaves_the_image_alone
     del ballast[::2]
     (b,) = [o for s, al in pairs for o in stage.add(s, al)]
     assert np.array_equal(a.image, b.image)
+    assert stage.stats.workspace_mb == 0  # nothing kept with release_memory
     released = stage.stats.released_mb
     if release_freed_memory() is None:
         pytest.skip("no glibc malloc_trim on this platform")

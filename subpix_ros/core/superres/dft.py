@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 
 from ..filters import rfft2_32
+from .workspace import Workspace, work_array
 
 _rfft2_32 = rfft2_32  # the half-plane DFT the solver's spectra use (core/filters.py)
 
@@ -16,7 +17,9 @@ def _as_c2(z: np.ndarray) -> np.ndarray:
     return z.view(np.float32).reshape(z.shape + (2,))
 
 
-def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
+def _assemble_hr(
+    xs: np.ndarray, hp: int, wp: int, workspace: Workspace | None = None
+) -> np.ndarray:
     """Return the HR image whose spectrum holds the solved alias components.
 
     Parameters
@@ -26,6 +29,8 @@ def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
         LR bin ``(ky, kx)`` of the rfft half.
     hp, wp : int
         LR DFT size.
+    workspace : Workspace or None, optional
+        Reused buffer for the packed HR spectrum (the image returned is a new array).
 
     Returns
     -------
@@ -45,7 +50,7 @@ def _assemble_hr(xs: np.ndarray, hp: int, wp: int) -> np.ndarray:
     nc = nw // 2 + 1  # HR rfft columns
     ccs_path = nh % 2 == 0 and nw % 2 == 0 and nw >= 4
     if ccs_path:
-        ccs = np.empty((nh, nw), np.float32)
+        ccs = work_array(workspace, "hr_spectrum", (nh, nw), np.float32)
         mid = ccs[:, 1 : nw - 1].view(np.complex64)  # half-spectrum columns 1 .. nc - 2
         edge = np.empty((2, nh), np.complex64)  # columns 0 and nc - 1 (packed separately)
 

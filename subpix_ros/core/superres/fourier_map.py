@@ -29,6 +29,7 @@ from .model import _frame_transfers, motion_transfer
 from .separable import _solve_separable
 from .spectrum import _SPECTRUM_CROP, fit_spectrum
 from .validation import FrameStack, stored
+from .workspace import Workspace, work_array
 
 
 @dataclass
@@ -91,7 +92,13 @@ def _solve_hermitian(m: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _consistent_padding(
-    frames: np.ndarray, ishift: np.ndarray, resid: np.ndarray, pad: int, hp: int, wp: int
+    frames: np.ndarray,
+    ishift: np.ndarray,
+    resid: np.ndarray,
+    pad: int,
+    hp: int,
+    wp: int,
+    buf: np.ndarray | None = None,
 ) -> Iterator[np.ndarray]:
     """Pad every frame to ``(hp, wp)`` with one consistent extension of the scene, one by one.
 
@@ -105,6 +112,8 @@ def _consistent_padding(
         LR px of padding before the first row and column.
     hp, wp : int
         Padded size.
+    buf : numpy.ndarray, optional
+        float32 ``(hp, wp)`` array to pad into (default: a new one).
 
     Yields
     ------
@@ -121,7 +130,8 @@ def _consistent_padding(
     image, as the periodic model assumes. Frame n's own pixels fill the area they cover.
     """
     n, h, w = frames.shape
-    buf = np.empty((hp, wp), dtype=np.float32)
+    if buf is None:
+        buf = np.empty((hp, wp), dtype=np.float32)
     ref = cv2.copyMakeBorder(
         np.asarray(stored(frames, 0), dtype=np.float32),  # a FrameStack's own pixels
         pad,
@@ -172,6 +182,7 @@ def _fourier_map(
     motion_blur: tuple[float, float] = (0.0, 0.0),
     pixel_fill: float = 1.0,
     hr_dtype=np.float64,
+    workspace: Workspace | None = None,
 ) -> MapSolution:
     """Compute the MAP estimate of eq. 9 for translated frames, per LR frequency bin.
 
@@ -209,6 +220,9 @@ def _fourier_map(
     hr_dtype : numpy dtype, optional
         The image's type: float64 (default) or float32 (the single-precision solve's own
         values, a view of its padded output: no double-precision copy of the HR image).
+    workspace : Workspace or None, optional
+        Buffers reused for the frame spectra, the padded frame and the HR spectrum (the
+        returned image is never one of them).
 
     Returns
     -------
@@ -236,11 +250,17 @@ def _fourier_map(
     registered = _register(frames, shifts, shift_cov, noise_sigma, refine_shifts, lowpassed)
     n = registered.frames.shape[0]
     padded = _consistent_padding(
-        registered.frames, registered.ishift, registered.resid, pad, hp, wp
+        registered.frames,
+        registered.ishift,
+        registered.resid,
+        pad,
+        hp,
+        wp,
+        buf=work_array(workspace, "padded", (hp, wp), np.float32),
     )
-    spec = np.empty((n, hp, wc), np.complex64)
+    spec = work_array(workspace, "spectra", (n, hp, wc), np.complex64)
     for i, frame in enumerate(padded):  # per frame: single-precision DFT, rfft half
-        spec[i] = _rfft2_32(frame)
+        _rfft2_32(frame, out=spec[i])
     c_psd, alpha, noise_sigma = _fit_prior(
         registered, p, blur_sigma, noise_sigma, integer_valued, motion_blur, pixel_fill
     )
@@ -261,7 +281,7 @@ def _fourier_map(
         motion_blur,
         pixel_fill,
     )
-    img = _assemble_hr(xs, hp, wp)
+    img = _assemble_hr(xs, hp, wp, workspace)
     out = img[p * pad : p * (pad + h), p * pad : p * (pad + w)]
     if out.dtype != hr_dtype:
         out = out.astype(hr_dtype)

@@ -64,6 +64,7 @@ from .result import (
 )
 from .spectrum import estimate_noise_sigma
 from .validation import FrameStack, _check_options, _small_ints, _validate
+from .workspace import Workspace, work_array
 
 __all__ = ["reconstruct", "reconstruct_colour"]
 
@@ -124,7 +125,10 @@ def reconstruct(
         - ``cg_iters``: conjugate-gradient iterations (default 30);
         - ``hr_dtype``: ``numpy.float64`` (default) or ``numpy.float32``, the image's type
           from the Fourier solve (float32: its single-precision values without a
-          double-precision copy; the CG refinement returns float64 either way).
+          double-precision copy; the CG refinement returns float64 either way);
+        - ``workspace``: a :class:`~subpix_ros.core.superres.workspace.Workspace` whose
+          buffers the Fourier solve reuses (frame spectra, padded frame, HR spectrum) instead
+          of allocating them anew: pass the same one for every set of a stream.
 
     Returns
     -------
@@ -203,6 +207,7 @@ def _reconstruct(
     motion_blur: tuple[float, float] | None = None,
     pixel_fill: float = 1.0,
     hr_dtype=np.float64,
+    workspace: Workspace | None = None,
 ) -> SRResult:
     """Reconstruct with a numeric blur; the options of :func:`reconstruct`."""
     if np.dtype(hr_dtype) not in (np.float32, np.float64):
@@ -253,8 +258,9 @@ def _reconstruct(
         motion_blur=motion,
         pixel_fill=pixel_fill,
         hr_dtype=np.dtype(hr_dtype),
+        workspace=workspace,
     )
-    res = _map_method(arrs, rel, p, sigma, opts)
+    res = _map_method(arrs, rel, p, sigma, opts, ref)
     if not res.fell_back:
         res.motion_blur = motion
         res.pixel_fill = float(pixel_fill)
@@ -325,17 +331,23 @@ class _MapOptions:
     motion_blur: tuple[float, float] = (0.0, 0.0)
     pixel_fill: float = 1.0
     hr_dtype: np.dtype = np.dtype(np.float64)
+    workspace: Workspace | None = None
 
 
 def _map_method(
-    arrs: list[np.ndarray], rel: np.ndarray | None, p: int, sigma: float, opts: _MapOptions
+    arrs: list[np.ndarray],
+    rel: np.ndarray | None,
+    p: int,
+    sigma: float,
+    opts: _MapOptions,
+    ref: np.ndarray,
 ) -> SRResult:
     """Reconstruct by the MAP estimate: Fourier solve, then CG with geometry or masks.
 
-    ``sigma`` is the noise level reported by a fallback before the solve.
+    ``sigma`` is the noise level reported by a fallback before the solve; ``ref`` is frame 0
+    in float64 (fallback and bicubic rim).
     """
     n = len(arrs)
-    ref = np.asarray(arrs[0], dtype=np.float64)
     stack = FrameStack(arrs)  # frames read as float64 one at a time, never all at once
     cov = (
         np.zeros((n, 2, 2))
@@ -368,6 +380,7 @@ def _map_method(
             motion_blur=opts.motion_blur,
             pixel_fill=opts.pixel_fill,
             hr_dtype=np.float64 if use_cg else opts.hr_dtype,
+            workspace=opts.workspace,
         )
     except (ValueError, np.linalg.LinAlgError) as exc:
         return _fallback(ref, p, f"MAP solve failed: {exc}", sigma, n, rel)
@@ -486,13 +499,17 @@ def _map_result(
     )
 
 
-def colour_luminance(frame: np.ndarray) -> np.ndarray:
+def colour_luminance(frame: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """Return the luminance :func:`reconstruct_colour` super-resolves (a mono frame as it is).
 
     Parameters
     ----------
     frame : numpy.ndarray
         HxWx3 BGR frame (OpenCV order), or a 2-D mono frame.
+    out : numpy.ndarray, optional
+        C-contiguous float32 HxW array to write a colour frame's luminance into (e.g. a
+        reused buffer); default: a new array. A mono frame is returned as it is, ``out``
+        unused.
 
     Returns
     -------
@@ -502,11 +519,14 @@ def colour_luminance(frame: np.ndarray) -> np.ndarray:
     """
     if frame.ndim == 2:
         return frame
+    if out is None:
+        out = np.empty(frame.shape[:2], np.float32)
+    elif out.shape != frame.shape[:2] or out.dtype != np.float32 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be C-contiguous float32 of shape {frame.shape[:2]}")
     if frame.dtype == np.float32:
-        return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY, dst=out)
     # in blocks of rows: each block's float32 copy stays in cache (same values as converting
     # the whole frame first: the conversion and the weighted sum are per pixel)
-    out = np.empty(frame.shape[:2], np.float32)
     for r0 in range(0, frame.shape[0], _LUMA_ROWS):
         blk = frame[r0 : r0 + _LUMA_ROWS].astype(np.float32)
         cv2.cvtColor(blk, cv2.COLOR_BGR2GRAY, dst=out[r0 : r0 + _LUMA_ROWS])
@@ -536,7 +556,8 @@ def reconstruct_colour(
         into that type, as ``to_integer_image`` would round the float32 image. Default None:
         float32.
     **kwargs
-        Passed to :func:`reconstruct`.
+        Passed to :func:`reconstruct` (with ``workspace``, the frames' luminance is written
+        into its buffer ``"luminance"`` too).
 
     Returns
     -------
@@ -572,7 +593,12 @@ def reconstruct_colour(
     if any(a.ndim != 3 or a.shape[2] != 3 for a in arrs):
         raise ValueError("colour frames must all be HxWx3 (BGR)")
     # luminance of every frame (Y of YCrCb is BGR2GRAY's weighted sum), chroma of the reference
-    ys = [colour_luminance(a) for a in arrs]
+    if all(a.shape == arrs[0].shape for a in arrs):  # else reconstruct says which differ
+        shape = (len(arrs),) + arrs[0].shape[:2]
+        stack = work_array(kwargs.get("workspace"), "luminance", shape, np.float32)
+        ys = [colour_luminance(a, out=stack[i]) for i, a in enumerate(arrs)]
+    else:
+        ys = [colour_luminance(a) for a in arrs]
     # float32 luminance: the colour image is assembled in float32 (no float64 copy of it)
     res = reconstruct(ys, shifts, factor, **{"hr_dtype": np.float32, **kwargs})
     p = res.factor

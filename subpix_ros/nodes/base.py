@@ -22,6 +22,7 @@ from rclpy.node import Node
 from subpix_ros.nodes.diagnostics import Diagnostics
 from subpix_ros.nodes.params import Param, declare_params
 from subpix_ros.nodes.qos import qos_event_callbacks
+from subpix_ros.nodes.run import executor_kind
 from subpix_ros.nodes.worker import DropOldestWorker
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
@@ -68,6 +69,10 @@ class StageNode(Node):
         self.diag = Diagnostics(self)
         # a process setting (runtime.configure_opencv_threads), shown so an operator sees it
         self.diag.set(opencv_threads=cv2.getNumThreads())
+        try:  # the process's executor (nodes/run.py), shown beside it
+            self.diag.set(executor=executor_kind())
+        except ValueError:
+            self.diag.set(executor="invalid SUBPIX_EXECUTOR")
         self.params = declare_params(self, self.PARAMS, self._on_param_change)
         if subscribe_inputs and self.MAIN_INPUTS:
             self.diag.watch_inputs(self.MAIN_INPUTS, lambda: self.param("input_timeout_s"))

@@ -5,7 +5,8 @@ registration node) and each frame goes to the registration and mosaic stages
 directly; aligned frames go to the shift stage, shifts with their frames to
 the reconstruction stage, telemetry samples to frame selection: no DDS hop
 inside. Every stage still publishes its public topics (the same names as the
-separate nodes) and its /diagnostics. Runs on a MultiThreadedExecutor.
+separate nodes) and its /diagnostics. Runs on one executor thread (``SUBPIX_EXECUTOR``,
+:func:`subpix_ros.nodes.run.executor_kind`).
 
 Parameters are per stage, as for the separate nodes (node names
 ``telemetry_node``, ``registration_node``, ``shift_node``,

@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from typing import Callable, Sequence
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import (
+    Executor,
+    ExternalShutdownException,
+    MultiThreadedExecutor,
+    SingleThreadedExecutor,
+)
 from rclpy.node import Node
 
 from ..runtime import (
@@ -17,7 +23,41 @@ from ..runtime import (
     configure_ros_environment,
 )
 
-__all__ = ["run_nodes"]
+__all__ = ["run_nodes", "executor_kind", "EXECUTOR_ENV", "EXECUTORS"]
+
+#: Environment variable choosing the executor of the node processes (see :func:`executor_kind`).
+EXECUTOR_ENV = "SUBPIX_EXECUTOR"
+#: ``single``: rclpy's SingleThreadedExecutor (the default); ``multi``: its MultiThreadedExecutor.
+EXECUTORS = ("single", "multi")
+
+
+def executor_kind(environ=None) -> str:
+    """Return the executor the node processes spin on: ``SUBPIX_EXECUTOR``, default ``single``.
+
+    The nodes' callbacks only decode, hand work to their own worker threads and publish, so
+    one executor thread serves them. rclpy's MultiThreadedExecutor (``multi``) spins while a
+    callback it handed to its pool has not started (ros2/rclpy#1452, fixed upstream after
+    Jazzy's 7.1): at 1080p 10 Hz its loop took a quarter of the reconstruction node's CPU.
+
+    Raises
+    ------
+    ValueError
+        If the variable holds anything else than ``single`` or ``multi``.
+    """
+    env = os.environ if environ is None else environ
+    kind = env.get(EXECUTOR_ENV, "").strip().lower() or "single"
+    if kind not in EXECUTORS:
+        raise ValueError(
+            f"{EXECUTOR_ENV}={env.get(EXECUTOR_ENV)!r}: use one of {', '.join(EXECUTORS)}"
+        )
+    return kind
+
+
+def _make_executor(kind: str, threads: int | None) -> Executor:
+    """Return the executor of :func:`executor_kind`'s choice (``threads``: the multi one's)."""
+    if kind == "multi":
+        return MultiThreadedExecutor(num_threads=threads)
+    return SingleThreadedExecutor()
 
 
 def run_nodes(
@@ -25,7 +65,7 @@ def run_nodes(
     args: Sequence[str] | None = None,
     threads: int | None = None,
 ) -> int:
-    """Init rclpy, build the nodes, spin them on a MultiThreadedExecutor, shut down cleanly.
+    """Init rclpy, build the nodes, spin them on one executor, shut down cleanly.
 
     Parameters
     ----------
@@ -34,12 +74,13 @@ def run_nodes(
     args : sequence of str, optional
         Command-line arguments for ``rclpy.init`` (``--ros-args ...``).
     threads : int, optional
-        Executor threads (default: rclpy's).
+        Executor threads of ``SUBPIX_EXECUTOR=multi`` (default: rclpy's).
 
     Returns
     -------
     int
-        Exit status: 0, or 2 when the ROS / DDS environment cannot be configured.
+        Exit status: 0, or 2 when the ROS / DDS environment cannot be configured or
+        ``SUBPIX_EXECUTOR`` names no executor.
 
     Notes
     -----
@@ -49,19 +90,22 @@ def run_nodes(
     :func:`subpix_ros.runtime.configure_ros_environment` are applied before the participant is
     created, or the process refuses to start with one line on stderr. OpenCV runs its loops
     in the calling thread unless ``OPENCV_FOR_THREADS_NUM`` says otherwise
-    (:func:`subpix_ros.runtime.configure_opencv_threads`).
+    (:func:`subpix_ros.runtime.configure_opencv_threads`). The nodes spin on a
+    SingleThreadedExecutor unless ``SUBPIX_EXECUTOR=multi`` (:func:`executor_kind`); each node
+    shows which as ``executor`` in /diagnostics.
     """
     configure_allocator()
     configure_opencv_threads()
     clean_stale_shm_segments()  # segments of killed processes (64 MiB each with our profile)
     try:
+        kind = executor_kind()
         configure_ros_environment()
-    except RuntimeSetupError as exc:
+    except (RuntimeSetupError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     rclpy.init(args=args)
     nodes: list[Node] = []
-    executor = MultiThreadedExecutor(num_threads=threads)
+    executor = _make_executor(kind, threads)
     try:
         for make in factories:
             nodes.append(make())

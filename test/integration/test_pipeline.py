@@ -224,6 +224,9 @@ def test_separate_processes_shift_and_superres(separate, sample_bags):
     # each node process runs OpenCV's loops in the calling thread (runtime.configure_opencv_threads)
     threads = {name: v.get("opencv_threads") for name, v in separate.diag.items()}
     assert len(threads) >= 3 and set(threads.values()) == {"1"}, threads
+    # and spins on one executor thread (nodes/run.py, SUBPIX_EXECUTOR unset)
+    executors = {name: v.get("executor") for name, v in separate.diag.items()}
+    assert set(executors.values()) == {"single"}, executors
 
 
 def _set_members(est, refs, ref):

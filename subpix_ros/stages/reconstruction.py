@@ -400,10 +400,11 @@ class ReconstructionStage(Stage):
         if any(f.shape != ref.image.shape for f in frames):
             self.error("frames of one set differ in size: set dropped")
             return None
-        # luminance only for a set the calibration measures (the first, then every 10th)
+        # luminance only for a set the calibration measures (the first, then every 10th); in
+        # the buffer the solve's luminance takes next (these are done with by then)
         mono = []
         if self.blur.due:
-            lum = work_array(ws, "blur_luminance", (len(frames),) + frames[0].shape[:2], np.float32)
+            lum = work_array(ws, "luminance", (len(frames),) + frames[0].shape[:2], np.float32)
             mono = [colour_luminance(f, out=lum[i]) for i, f in enumerate(frames)]
         motion = set_motion_blur(fs, self.param("exposure_s"))
         if motion is None and self.param("exposure_s") > 0.0:

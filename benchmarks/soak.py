@@ -2,15 +2,18 @@
 """Soak: the single-process pipeline fed 1920x1080 frames at 30 Hz for 18,000 frames (issue 7).
 
 Not a CI test (10 minutes at 30 Hz). A camera stand-in publishes a loop of
-real-scene frames (see bench_pipeline.make_frames) with fresh, increasing
-stamps; the pipeline's resident memory is sampled every 5 s. Printed: frames
+64 real-scene frames (see bench_pipeline.make_frames) with fresh, increasing
+stamps, played forwards then backwards (``--loop pingpong``, the default: a
+continuous flight whose drift reverses) or jumping back to the first frame
+(``--loop jump``: a scene cut of 26 x 17 px every 64 frames, which restarts the
+registration's reference; the soaks before wave 2 session 6 ran this way); the pipeline's resident memory is sampled every 5 s. Printed: frames
 in, shifts out, super-resolved images out, frames dropped per stage (the
 bounded drop-oldest queues: at 30 Hz the pipeline is expected to drop, and
 must count it), latency frame -> shift (p50, p99), and memory: RSS after
 warm-up (first 60 s), at the end, growth, and the maximum, and the floor
 (the lowest RSS of each minute: a leak lifts it, images in flight do not).
 
-Usage: python benchmarks/soak.py [--frames 18000] [--rate 30]
+Usage: python benchmarks/soak.py [--frames 18000] [--rate 30] [--loop pingpong|jump]
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from bench_pipeline import (  # noqa: E402
     add_params_argument,
     cpu_seconds,
     make_frames,
+    pingpong,
     start_layout,
     use_params,
 )
@@ -53,6 +57,12 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=18000)
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--warmup-s", type=float, default=60.0)
+    ap.add_argument(
+        "--loop",
+        choices=("pingpong", "jump"),
+        default="pingpong",
+        help="after the last frame: play backwards (default) or jump back to the first",
+    )
     add_malloc_argument(ap, " in the pipeline process")
     ap.add_argument(
         "--max-memory-mb",
@@ -121,7 +131,8 @@ def main() -> None:
             while time.monotonic() < target:
                 rclpy.spin_once(node, timeout_sec=max(0.0, min(0.005, target - time.monotonic())))
             stamp = base + int(k * 1e9 / args.rate)
-            pub.publish(cdr.image_to_cdr(frames[k % len(frames)], "bgr8", stamp, "camera"))
+            i = pingpong(k, len(frames)) if args.loop == "pingpong" else k % len(frames)
+            pub.publish(cdr.image_to_cdr(frames[i], "bgr8", stamp, "camera"))
             sent[stamp] = time.monotonic()
             if len(sent) > 2000:  # frames never answered (dropped) leave the latency table
                 for s in sorted(sent)[:1000]:
@@ -167,7 +178,7 @@ def main() -> None:
     print(
         f"\nsoak: single-process pipeline, {width}x{height} bgr8 at {args.rate:g} Hz, {args.frames} frames in {wall:.0f} s"
         f"{'' if not args.max_memory_mb else f', max_memory_mb {args.max_memory_mb:g}'} "
-        f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)"
+        f"(frames looped: {args.loop}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)"
     )
     print(
         "| frames in | shifts out | SR out | frame->shift p50 / p99 ms | RSS after warm-up MB (median, first 1/5) | "

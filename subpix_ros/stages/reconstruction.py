@@ -377,9 +377,10 @@ class ReconstructionStage(Stage):
         finally:
             if owned:
                 self._workspace_lock.release()
+            if release:
+                self.workspace.clear()  # buffers of sets before release_memory was turned on
             self.stats.workspace_mb = round(self.workspace.nbytes / 2**20, 1)
             if release:
-                self.workspace.clear()
                 self.stats.released_mb = release_freed_memory()
                 if self.stats.released_mb is None and not self._told_no_trim:
                     self._told_no_trim = True

@@ -402,6 +402,18 @@ def test_release_memory_trims_the_heap_after_each_set_and_leaves_the_image_alone
     assert released is not None and released > 50, released  # the holes went back to the kernel
 
 
+def test_turning_release_memory_on_drops_the_buffers_kept_so_far(seq):
+    stage = ReconstructionStage(n_frames=8)
+    ref, pairs = _set(seq)
+    (a,) = [o for s, al in pairs for o in stage.add(s, al)]
+    assert stage.stats.workspace_mb > 0
+    stage.configure(release_memory=True)
+    ref, pairs = _set(seq, t0=T0 + 10 * DT)
+    (b,) = [o for s, al in pairs for o in stage.add(s, al)]
+    assert stage.stats.workspace_mb == 0 and stage.workspace.nbytes == 0
+    assert np.array_equal(a.image, b.image)
+
+
 def test_non_finite_pixels_are_an_error_and_no_image(seq, monkeypatch):
     import subpix_ros.stages.reconstruction as stage_mod
     from subpix_ros.core.superres.result import NonFiniteImageError

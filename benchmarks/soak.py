@@ -96,14 +96,17 @@ def main() -> None:
     pub = node.create_publisher(Image, "/camera/image_raw", reliable_qos(30))
     sent: dict[int, float] = {}
     lat: list[float] = []
+    lat_at: list[float] = []  # when each frame of ``lat`` was sent, s after the first
     srs = [0]
     diag: dict[str, dict[str, str]] = {}
+    t0s = [time.monotonic()]  # the first frame's send time, set when the camera starts
 
     def on_shift(raw):
         s = cdr.header_to_ns(cdr.cdr_to_vector3_stamped(raw)[1])
         t = sent.pop(s, None)
         if t is not None:
             lat.append(time.monotonic() - t)
+            lat_at.append(t - t0s[0])
 
     node.create_subscription(Vector3Stamped, "/shift", on_shift, reliable_qos(100), raw=True)
     node.create_subscription(
@@ -123,6 +126,7 @@ def main() -> None:
         ):
             rclpy.spin_once(node, timeout_sec=0.1)
         t0 = time.monotonic()
+        t0s[0] = t0
         cpu0 = cpu_seconds(proc.pid)
         next_mem = t0
         base = time.time_ns()
@@ -200,6 +204,13 @@ def main() -> None:
     print(
         "memory samples (s, MB): "
         + ", ".join(f"{t:.0f}:{v:.0f}" for t, v in m[:: max(1, len(m) // 20)])
+    )
+    worst = np.argsort(lat_ms)[::-1][:12]
+    print(
+        "slowest frames -> shift (sent at s: ms): "
+        + ", ".join(
+            f"{lat_at[i]:.1f}:{lat_ms[i]:.0f}" for i in sorted(worst, key=lambda i: lat_at[i])
+        )
     )
 
 

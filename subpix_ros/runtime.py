@@ -253,10 +253,9 @@ def configure_opencv_threads(default: int = NODE_CV_THREADS) -> int:
     -----
     A node process already runs its stages in threads of its own (executor, workers, the
     reconstruction); OpenCV's pool on top of them oversubscribes a small computer's cores and
-    spins while it waits. Measured on a 2-core machine at 1080p 10 Hz: the single-process
-    pipeline 0.074-0.075 s of CPU per frame with one OpenCV thread against 0.084-0.090 with
-    two, frame -> shift p99 108-121 ms against 282-626 ms. ``subpix process`` (a batch job
-    that wants the wall time down) sets its own count.
+    spins while it waits (figures: docs/design-notes.md, "OpenCV threads in the node
+    processes"). ``subpix process`` (a batch job that wants the wall time down) sets its own
+    count.
     """
     import cv2
 

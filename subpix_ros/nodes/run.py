@@ -37,7 +37,7 @@ def executor_kind(environ=None) -> str:
     The nodes' callbacks only decode, hand work to their own worker threads and publish, so
     one executor thread serves them. rclpy's MultiThreadedExecutor (``multi``) spins while a
     callback it handed to its pool has not started (ros2/rclpy#1452, fixed upstream after
-    Jazzy's 7.1): at 1080p 10 Hz its loop took a quarter of the reconstruction node's CPU.
+    Jazzy's 7.1); figures in docs/design-notes.md ("One executor thread per node process").
 
     Raises
     ------

@@ -1,10 +1,11 @@
 """Working arrays a reconstruction reuses from one frame set to the next.
 
-A 1080p set of 16 frames needs a 144 MB stack of frame spectra, 128 MB of luminance and a
-36 MB HR spectrum. Allocated fresh for every set, those are pages the kernel maps in and
-zeroes on first touch (and, where numpy asks for transparent huge pages, compacts memory
-for): a third of the reconstruction's CPU in a long-running node. A :class:`Workspace`
-held by the caller (the reconstruction stage) hands the same memory back for every set.
+A set's largest arrays (the frame spectra, the luminance stack, the packed HR spectrum) are
+frame-set sized; allocated fresh for every set, they are pages the kernel maps in and zeroes
+on first touch (and, where numpy asks for transparent huge pages, compacts memory for). A
+:class:`Workspace` held by the caller (the reconstruction stage) hands the same memory back
+for every set. Sizes and measurements: docs/design-notes.md ("The reconstruction's buffers
+reused from set to set").
 """
 
 from __future__ import annotations

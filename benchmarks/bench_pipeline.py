@@ -34,7 +34,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
+from subpix_ros.runtime import (  # noqa: E402
+    add_malloc_argument,
+    allocator_line,
+    configure_ros_environment,
+)
 
 STEP = (0.41, 0.27)
 SET = 16  # frames per super-resolved image (the reference and 15 aligned frames), --set
@@ -70,6 +74,41 @@ def use_params(files: list[str]) -> None:
         print(f"parameters: config/bench.yaml, then {', '.join(files)}")
 
 
+#: Set by use_camera_dds for the stand-in alone: not handed on to the node processes.
+_STAND_IN_ONLY: dict[str, str] = {}
+
+
+def add_camera_dds_argument(ap: argparse.ArgumentParser) -> None:
+    """Add ``--camera-default-dds``: the camera stand-in without the package's Fast DDS profile."""
+    ap.add_argument(
+        "--camera-default-dds",
+        action="store_true",
+        help="run the camera stand-in on Fast DDS's defaults (a 512 KiB shared-memory segment), as "
+        "a camera driver started without the package's profile (README: Camera frames between "
+        "processes); the nodes keep the profile",
+    )
+
+
+def use_camera_dds(default_dds: bool) -> None:
+    """Give the camera stand-in (this process) the package's Fast DDS profile, or not; say which.
+
+    The segment that carries a frame is the publisher's: the README asks for a camera driver
+    started with the package's profile, so the stand-in is too unless ``default_dds``
+    (docs/design-notes.md, "Frame -> shift p99: the camera's Fast DDS segment").
+    """
+    if default_dds:
+        _STAND_IN_ONLY["SKIP_DEFAULT_XML"] = "1"
+        os.environ.update(_STAND_IN_ONLY)
+        print(
+            "camera stand-in: Fast DDS defaults (512 KiB shared-memory segment); nodes: the package's profile"
+        )
+    else:
+        configure_ros_environment()
+        print(
+            "camera stand-in and nodes: the package's Fast DDS profile (64 MiB shared-memory segment)"
+        )
+
+
 def pingpong(k: int, n: int) -> int:
     """0, 1, ..., n-1, n-2, ..., 1, 0, 1, ...: the drift reverses instead of jumping back to the start."""
     i = k % (2 * n - 2)
@@ -77,6 +116,7 @@ def pingpong(k: int, n: int) -> int:
 
 
 def start_layout(layout: str, env: dict) -> list[subprocess.Popen]:
+    env = {k: v for k, v in env.items() if _STAND_IN_ONLY.get(k) != v}
     override = Path(tempfile.gettempdir()) / f"bench_pipeline_set{SET}_{os.getpid()}.yaml"
     override.write_text(
         f"registration_node:\n  ros__parameters:\n    max_frames_per_reference: {SET - 1}\n"
@@ -267,10 +307,12 @@ def main() -> None:
         help="the reconstruction's max_memory_mb (default: unbounded)",
     )
     add_params_argument(ap)
+    add_camera_dds_argument(ap)
     args = ap.parse_args()
     if args.max_memory_mb:
         os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)
     use_params(args.params)
+    use_camera_dds(args.camera_default_dds)
     print(allocator_line(args.default_malloc))
     SET = max(2, args.set)
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(101, 199)))

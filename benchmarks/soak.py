@@ -32,11 +32,13 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_pipeline import (  # noqa: E402
+    add_camera_dds_argument,
     add_params_argument,
     cpu_seconds,
     make_frames,
     pingpong,
     start_layout,
+    use_camera_dds,
     use_params,
 )
 
@@ -72,11 +74,13 @@ def main() -> None:
     )
     ap.add_argument("--size", default="1920x1080", help="WxH of the frames (default %(default)s)")
     add_params_argument(ap)
+    add_camera_dds_argument(ap)
     args = ap.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     if args.max_memory_mb:
         os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)
     use_params(args.params)
+    use_camera_dds(args.camera_default_dds)
     print(allocator_line(args.default_malloc))
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(101, 199)))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -97,6 +101,9 @@ def main() -> None:
     sent: dict[int, float] = {}
     lat: list[float] = []
     lat_at: list[float] = []  # when each frame of ``lat`` was sent, s after the first
+    late: list[
+        tuple[float, float]
+    ] = []  # (s after the first frame, ms) the camera sent a frame late
     srs = [0]
     diag: dict[str, dict[str, str]] = {}
     t0s = [time.monotonic()]  # the first frame's send time, set when the camera starts
@@ -135,6 +142,9 @@ def main() -> None:
             while time.monotonic() < target:
                 rclpy.spin_once(node, timeout_sec=max(0.0, min(0.005, target - time.monotonic())))
             stamp = base + int(k * 1e9 / args.rate)
+            behind = time.monotonic() - target
+            if behind > 0.05:  # this process (not the pipeline) was held up
+                late.append((target - t0, behind * 1000))
             i = pingpong(k, len(frames)) if args.loop == "pingpong" else k % len(frames)
             pub.publish(cdr.image_to_cdr(frames[i], "bgr8", stamp, "camera"))
             sent[stamp] = time.monotonic()
@@ -210,6 +220,15 @@ def main() -> None:
         "slowest frames -> shift (sent at s: ms): "
         + ", ".join(
             f"{lat_at[i]:.1f}:{lat_ms[i]:.0f}" for i in sorted(worst, key=lambda i: lat_at[i])
+        )
+    )
+    print(
+        f"camera stand-in late by > 50 ms: {len(late)} frames"
+        + (
+            ": "
+            + ", ".join(f"{t:.1f}:{ms:.0f}" for t, ms in sorted(late, key=lambda x: -x[1])[:12])
+            if late
+            else ""
         )
     )
 

@@ -19,6 +19,7 @@ from typing import Any, Callable, Sequence
 import cv2
 from rclpy.node import Node
 
+from subpix_ros.nodes.delivery import DeliveryDelay
 from subpix_ros.nodes.diagnostics import Diagnostics
 from subpix_ros.nodes.params import Param, declare_params
 from subpix_ros.nodes.qos import qos_event_callbacks
@@ -49,6 +50,20 @@ INPUT_PARAMS: tuple[Param, ...] = (
 )
 
 
+#: Declared by nodes that take camera frames (``CAMERA_INPUT``).
+CAMERA_PARAMS: tuple[Param, ...] = (
+    Param(
+        "camera_delay_warn_ms",
+        300.0,
+        "a camera frame received this long after its stamp (this node's clock): diagnostics WARN "
+        "(a camera publishing large frames from a process without the package's Fast DDS "
+        "profile delivers them late, in bursts); camera_delay_ms_p50/_max show the delays",
+        1.0,
+        3.6e6,
+    ),
+)
+
+
 class StageNode(Node):
     """A node around one ROS-free stage: parameters, diagnostics, worker, in-process hand-off."""
 
@@ -56,12 +71,16 @@ class StageNode(Node):
     #: The topics of the node's main input (one input: any of them counts), watched for silence
     #: (Diagnostics.watch_inputs) when the node subscribes its inputs itself.
     MAIN_INPUTS: Sequence[str] = ()
+    #: True for nodes whose main input is the camera: frames' delivery delays are measured.
+    CAMERA_INPUT = False
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        if cls.MAIN_INPUTS:
-            own = {p.name for p in cls.PARAMS}
-            cls.PARAMS = tuple(cls.PARAMS) + tuple(p for p in INPUT_PARAMS if p.name not in own)
+        extra = (INPUT_PARAMS if cls.MAIN_INPUTS else ()) + (
+            CAMERA_PARAMS if cls.CAMERA_INPUT else ()
+        )
+        own = {p.name for p in cls.PARAMS}
+        cls.PARAMS = tuple(cls.PARAMS) + tuple(p for p in extra if p.name not in own)
 
     def __init__(self, name: str, *, subscribe_inputs: bool = True, **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
@@ -80,6 +99,7 @@ class StageNode(Node):
         self._last_stamp_ns: int | None = None
         self.worker: DropOldestWorker | None = None
         self.stage: Stage | None = None
+        self.delivery = DeliveryDelay()
 
     def make_stage(self, cls: type[Stage]) -> Stage:
         """Build the node's stage from its current parameters; its problems go to /diagnostics."""
@@ -170,6 +190,23 @@ class StageNode(Node):
         self.latency_since(received)
         self.diag.stage_time(time_key, self.stage.stats.times.last)
         self.diag.set(**values)
+
+    def camera_frame_received(self, stamp_ns: int) -> None:
+        """Measure how late a camera frame arrived (its stamp against this node's clock).
+
+        The delays go to /diagnostics (``camera_delay_ms_p50``, ``camera_delay_ms_max``); one
+        over ``camera_delay_warn_ms`` is a warning that names the likely cause.
+        """
+        delay = self.delivery.add(stamp_ns, self.get_clock().now().nanoseconds)
+        self.diag.set(**self.delivery.values())
+        limit = self.param("camera_delay_warn_ms") / 1000.0
+        if delay is not None and delay > limit:
+            self.diag.warn(
+                f"camera frame received {1000 * delay:.0f} ms after its stamp (over "
+                f"camera_delay_warn_ms {1000 * limit:g}): frames arrive late; a camera publishing "
+                "large frames reliably from a process without the package's Fast DDS profile "
+                "delivers them in bursts (README: Camera frames between processes)"
+            )
 
     def latency_since(self, received: float) -> None:
         """Record the latency since ``received`` (time.monotonic())."""

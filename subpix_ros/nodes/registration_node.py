@@ -48,6 +48,7 @@ class RegistrationNode(StageNode):
     """The registration stage as a node: camera frames and telemetry in, aligned frames out."""
 
     MAIN_INPUTS = ("image", "image/compressed")
+    CAMERA_INPUT = True
     PARAMS = (
         Param(
             "camera_reliable",
@@ -126,6 +127,7 @@ class RegistrationNode(StageNode):
         except Exception as exc:  # noqa: BLE001 - bad input must not kill the node
             self.diag.error(f"bad image dropped: {exc}")
             return
+        self.camera_frame_received(frame.stamp_ns)
         self.handle_frame(frame)
 
     def handle_frame(self, frame: pl.Frame) -> None:

@@ -211,6 +211,12 @@ def main() -> None:
             + ", ".join(f"{v:.0f}" for v in floors[:, 1])
         )
     print(f"pipeline process CPU {cpu / args.frames:.3f} s per frame in")
+    reg = next((d for n, d in diag.items() if n.endswith("registration_node")), {})
+    print(
+        "registration node, last /diagnostics: camera frames received after their stamps p50 / max "
+        f"{reg.get('camera_delay_ms_p50', '?')} / {reg.get('camera_delay_ms_max', '?')} ms (last 200); "
+        f"warnings {reg.get('warnings_total', '?')}, recent: {reg.get('recent_problems', '?')[:300]}"
+    )
     print(
         "memory samples (s, MB): "
         + ", ".join(f"{t:.0f}:{v:.0f}" for t, v in m[:: max(1, len(m) // 20)])

@@ -46,10 +46,17 @@ from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
 
 def rss_mb(pid: int) -> float:
+    return rss_parts_mb(pid).get("VmRSS", float("nan"))
+
+
+def rss_parts_mb(pid: int) -> dict[str, float]:
+    """VmRSS and its parts (RssAnon, RssFile, RssShmem: Fast DDS's segments), MB."""
+    out = {}
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
+        key = line.split(":")[0]
+        if key in ("VmRSS", "RssAnon", "RssFile", "RssShmem"):
+            out[key] = int(line.split()[1]) / 1024
+    return out
 
 
 def main() -> None:
@@ -126,6 +133,7 @@ def main() -> None:
         50,
     )
     mem: list[tuple[float, float]] = []
+    peak: dict[str, float] = {}  # the RSS parts at the largest sample
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and not (
@@ -152,7 +160,10 @@ def main() -> None:
                 for s in sorted(sent)[:1000]:
                     del sent[s]
             if time.monotonic() >= next_mem:
-                mem.append((time.monotonic() - t0, rss_mb(proc.pid)))
+                parts = rss_parts_mb(proc.pid)
+                mem.append((time.monotonic() - t0, parts.get("VmRSS", float("nan"))))
+                if parts.get("VmRSS", 0) > peak.get("VmRSS", 0):
+                    peak = parts
                 next_mem += 5.0
                 if proc.poll() is not None:
                     raise SystemExit(f"pipeline died with status {proc.returncode}")
@@ -211,6 +222,7 @@ def main() -> None:
             + ", ".join(f"{v:.0f}" for v in floors[:, 1])
         )
     print(f"pipeline process CPU {cpu / args.frames:.3f} s per frame in")
+    print("RSS at its largest sample, MB: " + ", ".join(f"{k} {v:.0f}" for k, v in peak.items()))
     reg = next((d for n, d in diag.items() if n.endswith("registration_node")), {})
     print(
         "registration node, last /diagnostics: camera frames received after their stamps p50 / max "

@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["common_valid_box"]
+__all__ = ["box_mask", "common_box", "common_valid_box"]
 
 
 def common_valid_box(masks: Sequence[np.ndarray]) -> tuple[int, int, int, int] | None:
@@ -63,3 +63,32 @@ def box_mask(shape: tuple[int, int], box: tuple[int, int, int, int]) -> np.ndarr
     r0, r1, c0, c1 = box
     mask[max(r0, 0) : max(r1, 0), max(c0, 0) : max(c1, 0)] = True
     return mask
+
+
+def common_box(
+    boxes: Sequence[tuple[int, int, int, int]], shape: tuple[int, int]
+) -> tuple[int, int, int, int] | None:
+    """Return the rectangle inside every box (each clipped to ``shape``), or None if empty.
+
+    Parameters
+    ----------
+    boxes : sequence of (int, int, int, int)
+        ``(r0, r1, c0, c1)`` per frame, as :func:`box_mask` takes them.
+    shape : (int, int)
+        Rows, columns of the frames.
+
+    Returns
+    -------
+    tuple of int or None
+        What :func:`common_valid_box` finds in the masks of ``boxes`` (:func:`box_mask`),
+        without making them; None for no box or an empty intersection.
+    """
+    if len(boxes) == 0:
+        return None
+    r0, r1, c0, c1 = 0, int(shape[0]), 0, int(shape[1])
+    for b0, b1, d0, d1 in boxes:
+        r0, r1 = max(r0, int(b0)), min(r1, int(b1))
+        c0, c1 = max(c0, int(d0)), min(c1, int(d1))
+    if r1 <= r0 or c1 <= c0:
+        return None
+    return r0, r1, c0, c1

@@ -23,6 +23,7 @@ from subpix_ros.core.motion import displacement_through_homography, image_veloci
 from subpix_ros.core.superres import colour_luminance, reconstruct_within_budget
 from subpix_ros.core.superres.result import NonFiniteImageError
 from subpix_ros.core.superres.workspace import Workspace, work_array
+from subpix_ros.core.validity import box_mask
 from subpix_ros.runtime import release_freed_memory
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
@@ -396,7 +397,12 @@ class ReconstructionStage(Stage):
             )
         t0 = time.monotonic()
         frames = [ref.image] + [a.image for _, a in members]
-        masks = [np.ones(ref.image.shape[:2], bool)] + [a.valid_mask() for _, a in members]
+        shape = ref.image.shape[:2]
+        masks, boxes = None, None
+        if all(a.mask is None for _, a in members):  # rectangles (integer crops): no masks made
+            boxes = [(0, shape[0], 0, shape[1])] + [a.box for _, a in members]
+        else:
+            masks = [np.ones(shape, bool)] + [a.valid_mask() for _, a in members]
         shifts = np.array([[0.0, 0.0]] + [[s.u, s.v] for s, _ in members])
         if any(f.shape != ref.image.shape for f in frames):
             self.error("frames of one set differ in size: set dropped")
@@ -413,7 +419,11 @@ class ReconstructionStage(Stage):
                 "exposure_s is set but the set's image velocity could not be fitted (fewer "
                 "than 2 distinct stamps): no motion blur modelled for this set"
             )
-        blur = self.blur.update(mono, shifts, masks, motion)
+        if mono and masks is None:  # the edge search checks each frame's ROI in its mask
+            masks_now = [box_mask(shape, b) for b in boxes]
+        else:
+            masks_now = masks
+        blur = self.blur.update(mono, shifts, masks_now, motion)
         if self.blur.setting != "auto" and blur.source == "edges" and blur is not self._blur_warned:
             self._blur_warned = blur
             self.warn(blur.reason)
@@ -424,6 +434,7 @@ class ReconstructionStage(Stage):
                 shifts,
                 self.param("factor"),
                 masks=masks,
+                boxes=boxes,
                 max_memory_mb=self.param("max_memory_mb") or None,
                 min_frames=min(self.param("min_frames"), len(frames)),
                 method=self.param("method"),

@@ -198,3 +198,51 @@ def test_out_dtype_refuses_non_finite_pixels_whole_or_in_tiles(seq, monkeypatch)
             reconstruct_within_budget(frames, seq.shifts, 2, out_dtype=np.uint8, **kw)
         flt, _ = reconstruct_within_budget(frames, seq.shifts, 2, **kw)  # the float image as is
         assert np.isnan(flt.image).any()
+
+
+def test_boxes_give_the_same_image_and_plan_as_their_masks(seq):
+    """Rectangles instead of masks (integer crops) give bit-identical images.
+
+    Whole, tiled, with frames cut, and on the masked (CG) path.
+    """
+    from subpix_ros.core.validity import box_mask
+
+    frames = [np.repeat(np.clip(f, 0, 255)[:, :, None], 3, axis=2) for f in seq.frames]
+    h, w = frames[0].shape[:2]
+    whole = estimate_peak_mb(8, (h, w), 2, True)
+    wide = [(0, h, 0, w), (5, h, 0, w), (0, h, 0, w - 7)] + [(0, h, 0, w)] * 5
+    small = [f[:200, :200] for f in frames]
+    # the last frame's rectangle is narrower: a plan without it has a wider one
+    cut = [(0, 200, 0, 200), (4, 200, 0, 200)] + [(0, 200, 0, 197)] * 5 + [(0, 200, 0, 190)]
+    cases = [
+        (frames, wide, None),
+        (frames, wide, 0.9 * whole),
+        (small, cut, None),
+        (
+            small,
+            cut,
+            estimate_peak_mb(5, (200, 200), 2, True),
+        ),
+        (
+            [f[:96, :96] for f in frames],
+            [(0, 96, 0, 96), (0, 96, 0, 20)] + [(0, 96, 0, 96)] * 6,
+            None,
+        ),
+    ]
+    plans = []
+    for fr, boxes, budget in cases:
+        shape = fr[0].shape[:2]
+        masks = [box_mask(shape, b) for b in boxes]
+        kw = dict(max_memory_mb=budget, overlap=16, out_dtype=np.uint8, **KW)
+        a, plan_a = reconstruct_within_budget(fr, seq.shifts, 2, masks=masks, **kw)
+        b, plan_b = reconstruct_within_budget(fr, seq.shifts, 2, boxes=boxes, **kw)
+        assert plan_a == plan_b
+        assert a.method == b.method and np.array_equal(a.image, b.image), (shape, budget)
+        plans.append((plan_a, a.method))
+    assert plans[1][0].grid != (1, 1)  # tiled
+    assert plans[3][0].n_frames < 8 and plans[3][0].grid == (1, 1)  # frames cut
+    assert plans[4][1] == "map-cg"  # the masked solver, its masks made from the boxes
+    with pytest.raises(ValueError):
+        reconstruct_within_budget(
+            frames, seq.shifts, 2, masks=[box_mask((h, w), b) for b in wide], boxes=wide
+        )

@@ -92,3 +92,16 @@ def test_colour_strip_masks(crops):
     y = cv2.cvtColor(res.image.astype(np.float32), cv2.COLOR_BGR2GRAY)
     assert np.abs(y - mono.image).max() < 0.05
     assert np.abs(res.image[..., 0] - res.image[..., 2]).max() < 0.05
+
+
+def test_common_box_is_what_common_valid_box_finds_in_the_box_masks():
+    from subpix_ros.core.validity import box_mask, common_box
+
+    shape = (20, 30)
+    for boxes in (
+        [(0, 20, 0, 30), (2, 20, 0, 30), (0, 20, 0, 27)],
+        [(0, 20, 0, 30), (-3, 25, 4, 40)],  # beyond the frame: clipped as box_mask clips
+        [(0, 10, 0, 30), (12, 20, 0, 30)],  # nothing in common
+    ):
+        assert common_box(boxes, shape) == common_valid_box([box_mask(shape, b) for b in boxes])
+    assert common_box([], shape) is None

@@ -448,3 +448,28 @@ def test_release_memory_without_malloc_trim_says_so_once(seq, monkeypatch):
     assert stage.stats.kept == 2 and stage.stats.released_mb is None
     warned = [stage.stats.last_warning] if "malloc_trim" in stage.stats.last_warning else []
     assert warned and stage.stats.warnings == 1, stage.stats
+
+
+def test_members_given_as_rectangles_give_the_image_their_masks_give(seq):
+    """Integer crops' rectangles (no mask made) and the same as masks: the same image."""
+    from subpix_ros.core.validity import box_mask
+
+    ref, pairs = _set(seq)
+    h, w = ref.image.shape[:2]
+    boxes = [(k % 3, h, 0, w - (k % 4)) for k in range(1, len(pairs) + 1)]
+    out = {}
+    for kind in ("box", "mask"):
+        stage = ReconstructionStage(n_frames=8, blur_sigma="auto")
+        got = []
+        for (s, a), box in zip(pairs, boxes):
+            img = a.image.copy()
+            img[~box_mask((h, w), box)] = 0
+            if kind == "box":
+                member = dataclasses.replace(a, image=img, mask=None, box=box)
+            else:
+                member = dataclasses.replace(a, image=img, mask=box_mask((h, w), box))
+            got += stage.add(s, member)
+        (out[kind],) = got
+    assert out["box"].blur_source == out["mask"].blur_source
+    assert out["box"].blur_sigma == out["mask"].blur_sigma
+    assert np.array_equal(out["box"].image, out["mask"].image)

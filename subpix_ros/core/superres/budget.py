@@ -58,7 +58,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from ..validity import common_valid_box
+from ..validity import common_box, common_valid_box
 from .masks import bicubic_outside, reconstruct_aligned
 from .result import NonFiniteImageError, SRResult, bicubic_upscale, to_integer_image
 
@@ -272,6 +272,7 @@ def reconstruct_within_budget(
     factor: int,
     masks: Sequence[np.ndarray] | None = None,
     *,
+    boxes: Sequence[tuple[int, int, int, int]] | None = None,
     max_memory_mb: float | None = None,
     min_frames: int = 2,
     overlap: int = 32,
@@ -287,6 +288,10 @@ def reconstruct_within_budget(
         As :func:`~subpix_ros.core.superres.reconstruct_aligned` (frame 0 is the reference;
         ``shifts`` (N, 2) ``(u, v)`` LR px: content at (r, c) in frame 0 is at
         (r + u, c + v) in frame n).
+    boxes : sequence of (int, int, int, int), optional
+        Instead of ``masks``, when each frame's valid pixels are a rectangle
+        ``(r0, r1, c0, c1)`` (frames aligned by integer crops): the same result, without
+        frame-sized masks; as :func:`~subpix_ros.core.superres.reconstruct_aligned`.
     max_memory_mb : float or None
         Working-memory budget (MB); None or <= 0: unbounded (the plain reconstruction).
     min_frames, overlap, min_tile
@@ -327,7 +332,12 @@ def reconstruct_within_budget(
     ref = np.asarray(frames[0])
     colour = ref.ndim == 3
     h, w = ref.shape[:2]
-    box = (0, h, 0, w) if masks is None else common_valid_box(masks)
+    if boxes is not None:
+        if masks is not None:
+            raise ValueError("give masks or boxes, not both")
+        box = common_box(boxes, (h, w))
+    else:
+        box = (0, h, 0, w) if masks is None else common_valid_box(masks)
     region = (h, w) if box is None else (box[1] - box[0], box[3] - box[2])
     plan = plan_reconstruction(
         len(frames),
@@ -345,9 +355,10 @@ def reconstruct_within_budget(
     frames_n = list(frames[:n])
     shifts_n = np.asarray(shifts, dtype=np.float64)[:n]
     masks_n = None if masks is None else list(masks[:n])
+    boxes_n = None if boxes is None else list(boxes[:n])
     if plan.grid == (1, 1):
         res = reconstruct_aligned(
-            frames_n, shifts_n, factor, masks=masks_n, out_dtype=out_dtype, **kw
+            frames_n, shifts_n, factor, masks=masks_n, boxes=boxes_n, out_dtype=out_dtype, **kw
         )
         return _as_dtype(res, out_dtype), plan
     return _reconstruct_tiles(

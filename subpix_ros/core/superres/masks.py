@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..validity import common_valid_box
+from ..validity import box_mask, common_box, common_valid_box
 from .reconstruction import reconstruct_colour
 from .result import SRResult, bicubic_upscale, to_integer_image
 
@@ -34,6 +34,7 @@ def reconstruct_aligned(
     shifts: np.ndarray,
     factor: int,
     masks: Sequence[np.ndarray] | None = None,
+    boxes: Sequence[tuple[int, int, int, int]] | None = None,
     **kw,
 ) -> SRResult:
     """Reconstruct mono or BGR frames whose validity masks are border strips, on the fast path.
@@ -49,6 +50,10 @@ def reconstruct_aligned(
         Resolution factor.
     masks : sequence of numpy.ndarray, optional
         A bool array per frame (True = valid).
+    boxes : sequence of (int, int, int, int), optional
+        Instead of ``masks``: each frame's valid pixels as a rectangle ``(r0, r1, c0, c1)``
+        (:func:`~subpix_ros.core.validity.box_mask`). The result is the same; the masks are
+        made only if the masked solver needs them (a common rectangle under ``MIN_SIDE``).
     **kw
         Passed to :func:`~subpix_ros.core.superres.reconstruct_colour` (``out_dtype``: the
         image rounded into that integer type, the bicubic border as well) and on to
@@ -66,10 +71,17 @@ def reconstruct_aligned(
     reference (:func:`bicubic_outside`); other masks go to the masked (CG) solver.
     """
     solve = reconstruct_colour  # mono frames: reconstruct, with out_dtype applied
-    if masks is None:
-        return solve(frames, shifts, factor, **kw)
-    box = common_valid_box(masks)
     h, w = np.asarray(frames[0]).shape[:2]
+    if boxes is not None:
+        if masks is not None:
+            raise ValueError("give masks or boxes, not both")
+        box = common_box(boxes, (h, w))
+        if box is None or min(box[1] - box[0], box[3] - box[2]) < MIN_SIDE:
+            masks = [box_mask((h, w), b) for b in boxes]  # the masked solver needs them
+    elif masks is None:
+        return solve(frames, shifts, factor, **kw)
+    else:
+        box = common_valid_box(masks)
     if box is None or min(box[1] - box[0], box[3] - box[2]) < MIN_SIDE:
         return solve(frames, shifts, factor, masks=masks, **kw)
     r0, r1, c0, c1 = box

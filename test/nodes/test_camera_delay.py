@@ -48,16 +48,8 @@ def test_delay_is_reception_minus_stamp_and_other_clocks_are_not_measured():
     }
 
 
-@pytest.fixture
-def ros():
-    rclpy.init()
-    node = rclpy.create_node("camera_delay_test")
-    yield node
-    node.destroy_node()
-    rclpy.shutdown()
-
-
-def test_registration_node_warns_when_frames_arrive_late(ros):
+def test_registration_node_warns_when_frames_arrive_late(rclpy_node):
+    ros = rclpy_node
     cmd = [
         sys.executable,
         "-m",

@@ -199,14 +199,9 @@ class StageNode(Node):
         """
         delay = self.delivery.add(stamp_ns, self.get_clock().now().nanoseconds)
         self.diag.set(**self.delivery.values())
-        limit = self.param("camera_delay_warn_ms") / 1000.0
-        if delay is not None and delay > limit:
-            self.diag.warn(
-                f"camera frame received {1000 * delay:.0f} ms after its stamp (over "
-                f"camera_delay_warn_ms {1000 * limit:g}): frames arrive late; a camera publishing "
-                "large frames reliably from a process without the package's Fast DDS profile "
-                "delivers them in bursts (README: Camera frames between processes)"
-            )
+        problem = self.delivery.problem(delay, self.param("camera_delay_warn_ms") / 1000.0)
+        if problem:
+            self.diag.warn(problem)
 
     def latency_since(self, received: float) -> None:
         """Record the latency since ``received`` (time.monotonic())."""

@@ -65,3 +65,15 @@ class DeliveryDelay:
             why = f"n/a (stamps {self.last_offset_s:+.0f} s from this node's clock)"
             out["camera_delay_ms_p50"] = out["camera_delay_ms_max"] = why
         return out
+
+    @staticmethod
+    def problem(delay_s: float | None, limit_s: float) -> str | None:
+        """Return the warning for a frame ``delay_s`` late, if it is over ``limit_s`` (else None)."""
+        if delay_s is None or not delay_s > limit_s:
+            return None
+        return (
+            f"camera frame received {1000 * delay_s:.0f} ms after its stamp (over "
+            f"camera_delay_warn_ms {1000 * limit_s:g}): frames arrive late; a camera publishing "
+            "large frames reliably from a process without the package's Fast DDS profile "
+            "delivers them in bursts (README: Camera frames between processes)"
+        )

@@ -35,6 +35,11 @@ def test_delay_is_reception_minus_stamp_and_other_clocks_are_not_measured():
         d.add(0, int(late * 1e9))
     assert d.values() == {"camera_delay_ms_p50": "200.0", "camera_delay_ms_max": "300.0"}
 
+    assert DeliveryDelay.problem(None, 0.3) is None and DeliveryDelay.problem(0.3, 0.3) is None
+    assert DeliveryDelay.problem(0.61, 0.3).startswith(
+        "camera frame received 610 ms after its stamp (over camera_delay_warn_ms 300)"
+    )
+
     other = DeliveryDelay()
     assert other.add(1_000_000_000, 1_700_000_000_000_000_000) is None  # a bag's stamps, wall clock
     assert other.unmeasured == 1

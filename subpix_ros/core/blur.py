@@ -143,7 +143,10 @@ def estimate_blur(
     Parameters
     ----------
     frames : sequence of numpy.ndarray
-        N 2-D frames of one scene (mono; any numeric dtype), frame 0 the reference.
+        N 2-D frames of one scene (mono; any numeric dtype), frame 0 the reference; frames
+        after the first may be
+        :class:`~subpix_ros.core.superres.reconstruction.LazyLuminance` (read only where the
+        edges are, the same numbers).
     shifts : numpy.ndarray, optional
         (N, 2) shifts (u, v) relative to frame 0 (a feature at (r, c) in frame 0 is at
         (r + u, c + v) in frame n); None: frames aligned to the pixel.
@@ -184,7 +187,13 @@ def estimate_blur(
     """
     from .superres import estimate_noise_sigma  # superres imports this module
 
-    arrs = [np.asarray(f, dtype=np.float32) for f in frames]
+    # frames after the first may be LazyLuminance: only their ROIs, range and centre are read
+    arrs = [np.asarray(f, dtype=np.float32) for f in frames[:1]] + [
+        f
+        if hasattr(f, "shape") and hasattr(f, "min") and not isinstance(f, np.ndarray)
+        else np.asarray(f, dtype=np.float32)
+        for f in frames[1:]
+    ]
     if not arrs or any(a.ndim != 2 for a in arrs):
         raise ValueError("estimate_blur needs 2-D (mono) frames")
     n = len(arrs)

@@ -453,15 +453,20 @@ def spectral_cap(
     only raises ``R_b`` (a lower cap, the safe side). A slanted-edge value above the cap
     comes from an edge that is soft in the scene.
     """
-    arrs = [np.asarray(f, dtype=np.float64) for f in frames[:max_frames]]
-    h0, w0 = arrs[0].shape
+    h0, w0 = np.shape(frames[0])[:2]
     h, w = min(h0, crop), min(w0, crop)
     win = np.outer(np.hanning(h), np.hanning(w))
     ps = np.zeros((h, w))
-    for a in arrs:  # frames
-        x = a[(h0 - h) // 2 : (h0 - h) // 2 + h, (w0 - w) // 2 : (w0 - w) // 2 + w]
+    used = frames[:max_frames]
+    rows = slice((h0 - h) // 2, (h0 - h) // 2 + h)
+    cols = slice((w0 - w) // 2, (w0 - w) // 2 + w)
+    for f in used:  # frames
+        if isinstance(f, np.ndarray) or not hasattr(f, "shape"):
+            x = np.asarray(f, dtype=np.float64)[rows, cols]
+        else:  # LazyLuminance: the central rows only, full width (the same layout, same sums)
+            x = np.asarray(f[rows, :], dtype=np.float64)[:, cols]
         ps += np.abs(np.fft.fft2((x - x.mean()) * win)) ** 2
-    ps /= len(arrs) * float(np.sum(win**2))
+    ps /= len(used) * float(np.sum(win**2))
     r = np.hypot(np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :])
     edges = (0.06, 0.12, 0.2, 0.28, 0.36, 0.44)
     cen, pw = [], []

@@ -236,7 +236,9 @@ def slanted_edge_mtf(
     Parameters
     ----------
     image : numpy.ndarray
-        Mono 2-D image, or HxWx3 BGR (its luminance is used).
+        Mono 2-D image, or HxWx3 BGR (its luminance is used), or a
+        :class:`~subpix_ros.core.superres.reconstruction.LazyLuminance` (with ``roi``: only
+        the ROI and the intensity range are computed).
     roi : (int, int, int, int), optional
         ``(x, y, w, h)`` in pixels (x = column). The ROI must contain one edge crossing it
         from side to side, tilted 2-40 deg from the pixel grid.
@@ -273,7 +275,7 @@ def slanted_edge_mtf(
         img = img.T
     lo, hi = np.percentile(img, [2, 98])
     if span is None:  # no float64 copy of the whole image
-        a = np.asarray(image)
+        a = image if hasattr(image, "max") and hasattr(image, "min") else np.asarray(image)
         span = float(a.max()) - float(a.min())
     span = float(span) or 1.0
     if hi - lo < min_contrast * max(span, 1e-12) or hi - lo <= 0:
@@ -327,7 +329,9 @@ def bt601_luminance(image: np.ndarray) -> np.ndarray:
 
 def _roi_image(image: np.ndarray, roi: tuple[int, int, int, int] | None) -> np.ndarray:
     """Return the ROI of the image's luminance as float64; ValueError if unusable."""
-    img = np.asarray(image)
+    # an array, or what slices like one (LazyLuminance: only the ROI is ever computed)
+    sliceable = hasattr(image, "shape") and hasattr(image, "__getitem__")
+    img = image if sliceable and roi is not None else np.asarray(image)
     colour = img.ndim == 3 and img.shape[2] == 3
     if img.ndim != 2 and not colour:
         raise ValueError(f"image must be 2-D (or HxWx3 BGR), got shape {np.shape(image)}")
@@ -335,7 +339,7 @@ def _roi_image(image: np.ndarray, roi: tuple[int, int, int, int] | None) -> np.n
         x, y, w, h = (int(v) for v in roi)
         if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > img.shape[1] or y + h > img.shape[0]:
             raise ValueError(f"roi {roi} outside the image {img.shape[1]}x{img.shape[0]}")
-        img = img[y : y + h, x : x + w]
+        img = np.asarray(img[y : y + h, x : x + w])
     img = bt601_luminance(img)
     if min(img.shape) < 16:
         raise ValueError(f"ROI too small for an edge measurement: {img.shape}")

@@ -21,8 +21,9 @@ import numpy as np
 from subpix_ros.core.blur import BLUR_SIGMA_MAX, BlurCalibration, parse_blur_sigma
 from subpix_ros.core.motion import displacement_through_homography, image_velocity
 from subpix_ros.core.superres import colour_luminance, reconstruct_within_budget
+from subpix_ros.core.superres.reconstruction import LazyLuminance
 from subpix_ros.core.superres.result import NonFiniteImageError
-from subpix_ros.core.superres.workspace import Workspace, work_array
+from subpix_ros.core.superres.workspace import Workspace
 from subpix_ros.core.validity import box_mask
 from subpix_ros.runtime import release_freed_memory
 from subpix_ros.stages.base import Stage
@@ -407,12 +408,13 @@ class ReconstructionStage(Stage):
         if any(f.shape != ref.image.shape for f in frames):
             self.error("frames of one set differ in size: set dropped")
             return None
-        # luminance only for a set the calibration measures (the first, then every 10th); in
-        # the buffer the solve's luminance takes next (these are done with by then)
+        # luminance only for a set the calibration measures (the first, then every 10th)
         mono = []
-        if self.blur.due:
-            lum = work_array(ws, "luminance", (len(frames),) + frames[0].shape[:2], np.float32)
-            mono = [colour_luminance(f, out=lum[i]) for i, f in enumerate(frames)]
+        if self.blur.due:  # frame 0 whole (the edge search); the others where the edges are
+            mono = [colour_luminance(frames[0])] + [
+                LazyLuminance(f) if f.ndim == 3 and f.dtype != np.float32 else colour_luminance(f)
+                for f in frames[1:]
+            ]
         motion = set_motion_blur(fs, self.param("exposure_s"))
         if motion is None and self.param("exposure_s") > 0.0:
             self.warn(

@@ -536,6 +536,84 @@ def colour_luminance(frame: np.ndarray, out: np.ndarray | None = None) -> np.nda
 _LUMA_ROWS = 64  # rows per block of colour_luminance
 
 
+class LazyLuminance:
+    """:func:`colour_luminance` of a uint8/uint16 BGR frame, computed only where it is read.
+
+    For the blur calibration, which reads a few edge ROIs, a central square and the intensity
+    range of most frames: it needs no frame-sized float32 copy of each.
+
+    Parameters
+    ----------
+    frame : numpy.ndarray
+        HxWx3 BGR frame, integer dtype.
+
+    Notes
+    -----
+    Slicing ``lum[r0:r1, c0:c1]`` returns float32 values bit-identical to
+    ``colour_luminance(frame)[r0:r1, c0:c1]``: the rows are converted in the same blocks of
+    ``_LUMA_ROWS`` full rows as :func:`colour_luminance` converts them (OpenCV's vector and
+    scalar loops may round differently, so a crop converted alone can differ in the last
+    bit). :meth:`min` and :meth:`max` convert every block once, keeping none.
+    """
+
+    ndim = 2
+    dtype = np.dtype(np.float32)
+
+    def __init__(self, frame: np.ndarray) -> None:
+        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype == np.float32:
+            raise ValueError("LazyLuminance takes an integer HxWx3 BGR frame")
+        self.frame = frame
+        self.shape = tuple(frame.shape[:2])
+        self._blocks: dict[int, np.ndarray] = {}
+        self._range: tuple[float, float] | None = None
+
+    def _block(self, b: int, keep: bool = True) -> np.ndarray:
+        """Return the luminance of row block ``b`` (rows ``b * _LUMA_ROWS`` onwards)."""
+        out = self._blocks.get(b)
+        if out is None:
+            blk = self.frame[b * _LUMA_ROWS : (b + 1) * _LUMA_ROWS].astype(np.float32)
+            out = np.empty(blk.shape[:2], np.float32)
+            cv2.cvtColor(blk, cv2.COLOR_BGR2GRAY, dst=out)
+            if keep:
+                self._blocks[b] = out
+        return out
+
+    def __getitem__(self, key) -> np.ndarray:
+        """Return ``colour_luminance(frame)[rows, cols]`` for two slices of step 1."""
+        rows, cols = key
+        r0, r1, step = rows.indices(self.shape[0])
+        if step != 1 or not isinstance(cols, slice):
+            raise IndexError("LazyLuminance takes [r0:r1, c0:c1]")
+        if r1 <= r0:
+            return np.empty((0, self.shape[1]), np.float32)[:, cols]
+        first, last = r0 // _LUMA_ROWS, (r1 - 1) // _LUMA_ROWS
+        band = [self._block(b) for b in range(first, last + 1)]
+        band = band[0] if len(band) == 1 else np.concatenate(band)
+        return band[r0 - first * _LUMA_ROWS : r1 - first * _LUMA_ROWS, cols]
+
+    def _minmax(self) -> tuple[float, float]:
+        if self._range is None:
+            lo, hi = np.inf, -np.inf
+            for b in range(-(-self.shape[0] // _LUMA_ROWS)):
+                blk = self._block(b, keep=False)
+                lo, hi = min(lo, float(blk.min())), max(hi, float(blk.max()))
+            self._range = (lo, hi)
+        return self._range
+
+    def min(self) -> float:
+        """Return the smallest luminance value (as ``colour_luminance(frame).min()``)."""
+        return self._minmax()[0]
+
+    def max(self) -> float:
+        """Return the largest luminance value."""
+        return self._minmax()[1]
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        """Return the whole luminance (as :func:`colour_luminance`)."""
+        full = colour_luminance(self.frame)
+        return full if dtype is None else full.astype(dtype, copy=False)
+
+
 def reconstruct_colour(
     frames_bgr: Sequence[np.ndarray],
     shifts: np.ndarray | Sequence[Sequence[float]] | None,

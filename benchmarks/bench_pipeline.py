@@ -3,7 +3,10 @@
 
 A camera stand-in in this process publishes 1920x1080 bgr8 frames (raw CDR,
 stamped at publication) at ``--rate`` Hz: a real Seneca frame drifting by
-(0.41, 0.27) px per frame (48 frames, played forwards then backwards). The nodes run as
+(0.41, 0.27) px per frame (48 frames, played forwards then backwards), from a
+participant with the package's Fast DDS profile as the README asks of a camera
+driver (``--camera-default-dds``: Fast DDS's defaults, whose 512 KiB segment
+delivers reliable 6 MB frames late, in bursts). The nodes run as
 
 * ``separate``: registration, shift, reconstruction and mosaic nodes, each its
   own process, talking over DDS (the mosaic fed with the registration node's

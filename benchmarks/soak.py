@@ -6,7 +6,9 @@ Not a CI test (10 minutes at 30 Hz). A camera stand-in publishes a loop of
 stamps, played forwards then backwards (``--loop pingpong``, the default: a
 continuous flight whose drift reverses) or jumping back to the first frame
 (``--loop jump``: a scene cut of 26 x 17 px every 64 frames, which restarts the
-registration's reference; the soaks before wave 2 session 6 ran this way); the pipeline's resident memory is sampled every 5 s. Printed: frames
+registration's reference; the soaks before wave 2 session 6 ran this way); the stand-in
+loads the package's Fast DDS profile (``--camera-default-dds``: not, as the soaks before wave 2
+session 7); the pipeline's resident memory is sampled every 5 s. Printed: frames
 in, shifts out, super-resolved images out, frames dropped per stage (the
 bounded drop-oldest queues: at 30 Hz the pipeline is expected to drop, and
 must count it), latency frame -> shift (p50, p99), and memory: RSS after

@@ -33,6 +33,7 @@ from .blur_edges import (
     measure_edge,
     spectral_cap,
 )
+from .mtf import is_lazy_frame
 
 __all__ = [
     "BlurEstimate",
@@ -189,10 +190,7 @@ def estimate_blur(
 
     # frames after the first may be LazyLuminance: only their ROIs, range and centre are read
     arrs = [np.asarray(f, dtype=np.float32) for f in frames[:1]] + [
-        f
-        if hasattr(f, "shape") and hasattr(f, "min") and not isinstance(f, np.ndarray)
-        else np.asarray(f, dtype=np.float32)
-        for f in frames[1:]
+        f if is_lazy_frame(f) else np.asarray(f, dtype=np.float32) for f in frames[1:]
     ]
     if not arrs or any(a.ndim != 2 for a in arrs):
         raise ValueError("estimate_blur needs 2-D (mono) frames")

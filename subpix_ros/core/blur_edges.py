@@ -21,7 +21,7 @@ from typing import NamedTuple, Sequence
 import cv2
 import numpy as np
 
-from .mtf import slanted_edge_mtf
+from .mtf import is_lazy_frame, slanted_edge_mtf
 
 __all__ = [
     "EdgeFit",
@@ -461,10 +461,10 @@ def spectral_cap(
     rows = slice((h0 - h) // 2, (h0 - h) // 2 + h)
     cols = slice((w0 - w) // 2, (w0 - w) // 2 + w)
     for f in used:  # frames
-        if isinstance(f, np.ndarray) or not hasattr(f, "shape"):
-            x = np.asarray(f, dtype=np.float64)[rows, cols]
-        else:  # LazyLuminance: the central rows only, full width (the same layout, same sums)
+        if is_lazy_frame(f):  # the central rows only, full width (the same layout, same sums)
             x = np.asarray(f[rows, :], dtype=np.float64)[:, cols]
+        else:
+            x = np.asarray(f, dtype=np.float64)[rows, cols]
         ps += np.abs(np.fft.fft2((x - x.mean()) * win)) ** 2
     ps /= len(used) * float(np.sum(win**2))
     r = np.hypot(np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :])

@@ -275,7 +275,7 @@ def slanted_edge_mtf(
         img = img.T
     lo, hi = np.percentile(img, [2, 98])
     if span is None:  # no float64 copy of the whole image
-        a = image if hasattr(image, "max") and hasattr(image, "min") else np.asarray(image)
+        a = image if is_lazy_frame(image) else np.asarray(image)
         span = float(a.max()) - float(a.min())
     span = float(span) or 1.0
     if hi - lo < min_contrast * max(span, 1e-12) or hi - lo <= 0:
@@ -327,11 +327,23 @@ def bt601_luminance(image: np.ndarray) -> np.ndarray:
     return a @ np.array([0.114, 0.587, 0.299]) if a.ndim == 3 else a
 
 
+def is_lazy_frame(image) -> bool:
+    """Return True for a frame computed where it is sliced (``LazyLuminance``), not an array.
+
+    Such a frame has ``shape``, ``ndim``, ``min()``, ``max()`` and ``[r0:r1, c0:c1]``; callers
+    slice it before converting instead of converting it whole.
+    """
+    return (
+        not isinstance(image, np.ndarray)
+        and hasattr(image, "shape")
+        and hasattr(image, "__getitem__")
+    )
+
+
 def _roi_image(image: np.ndarray, roi: tuple[int, int, int, int] | None) -> np.ndarray:
     """Return the ROI of the image's luminance as float64; ValueError if unusable."""
-    # an array, or what slices like one (LazyLuminance: only the ROI is ever computed)
-    sliceable = hasattr(image, "shape") and hasattr(image, "__getitem__")
-    img = image if sliceable and roi is not None else np.asarray(image)
+    # a lazy frame is cropped before anything is computed (only the ROI is)
+    img = image if is_lazy_frame(image) and roi is not None else np.asarray(image)
     colour = img.ndim == 3 and img.shape[2] == 3
     if img.ndim != 2 and not colour:
         raise ValueError(f"image must be 2-D (or HxWx3 BGR), got shape {np.shape(image)}")

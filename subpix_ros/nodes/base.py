@@ -100,6 +100,8 @@ class StageNode(Node):
         self.worker: DropOldestWorker | None = None
         self.stage: Stage | None = None
         self.delivery = DeliveryDelay()
+        if self.CAMERA_INPUT:
+            self.diag.add_values(self.delivery.values)  # sorted at 1 Hz, not per frame
 
     def make_stage(self, cls: type[Stage]) -> Stage:
         """Build the node's stage from its current parameters; its problems go to /diagnostics."""
@@ -198,7 +200,6 @@ class StageNode(Node):
         over ``camera_delay_warn_ms`` is a warning that names the likely cause.
         """
         delay = self.delivery.add(stamp_ns, self.get_clock().now().nanoseconds)
-        self.diag.set(**self.delivery.values())
         problem = self.delivery.problem(delay, self.param("camera_delay_warn_ms") / 1000.0)
         if problem:
             self.diag.warn(problem)

@@ -62,6 +62,7 @@ class Diagnostics:
         self._lock = threading.Lock()
         self.rates: dict[str, RateMeter] = {}
         self.worker: DropOldestWorker | None = None
+        self._sources: list[Callable[[], dict[str, str]]] = []
         self._latencies: collections.deque[float] = collections.deque(maxlen=self.HISTORY)
         self._durations: dict[str, collections.deque[float]] = {}
         self._watch: tuple[tuple[str, ...], Callable[[], float], float] | None = None
@@ -141,6 +142,10 @@ class Diagnostics:
         else:
             self._hold(WARN, problem)
         return problem
+
+    def add_values(self, source: Callable[[], dict[str, str]]) -> None:
+        """Publish the key/values ``source()`` returns, computed at each publication (1 Hz)."""
+        self._sources.append(source)
 
     def attach(self, worker: DropOldestWorker) -> None:
         """Report the queue depth, drops and errors of ``worker``."""
@@ -261,6 +266,8 @@ class Diagnostics:
             lat = sorted(self._latencies)
             values["latency_p50_ms"] = f"{1000 * lat[len(lat) // 2]:.1f}"
             values["latency_max_ms"] = f"{1000 * lat[-1]:.1f}"
+        for source in self._sources:
+            values.update(source())
         if self.worker is not None:
             values["queue_depth"] = str(self.worker.depth)
             values["dropped_frames"] = str(self.worker.dropped)

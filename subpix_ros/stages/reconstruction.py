@@ -21,7 +21,7 @@ import numpy as np
 from subpix_ros.core.blur import BLUR_SIGMA_MAX, BlurCalibration, parse_blur_sigma
 from subpix_ros.core.motion import displacement_through_homography, image_velocity
 from subpix_ros.core.superres import colour_luminance, reconstruct_within_budget
-from subpix_ros.core.superres.reconstruction import LazyLuminance
+from subpix_ros.core.superres.reconstruction import lazy_luminance
 from subpix_ros.core.superres.result import NonFiniteImageError
 from subpix_ros.core.superres.workspace import Workspace
 from subpix_ros.core.validity import box_mask
@@ -411,10 +411,7 @@ class ReconstructionStage(Stage):
         # luminance only for a set the calibration measures (the first, then every 10th)
         mono = []
         if self.blur.due:  # frame 0 whole (the edge search); the others where the edges are
-            mono = [colour_luminance(frames[0])] + [
-                LazyLuminance(f) if f.ndim == 3 and f.dtype != np.float32 else colour_luminance(f)
-                for f in frames[1:]
-            ]
+            mono = [colour_luminance(frames[0])] + [lazy_luminance(f) for f in frames[1:]]
         motion = set_motion_blur(fs, self.param("exposure_s"))
         if motion is None and self.param("exposure_s") > 0.0:
             self.warn(

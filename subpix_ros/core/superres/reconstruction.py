@@ -528,12 +528,32 @@ def colour_luminance(frame: np.ndarray, out: np.ndarray | None = None) -> np.nda
     # in blocks of rows: each block's float32 copy stays in cache (same values as converting
     # the whole frame first: the conversion and the weighted sum are per pixel)
     for r0 in range(0, frame.shape[0], _LUMA_ROWS):
-        blk = frame[r0 : r0 + _LUMA_ROWS].astype(np.float32)
-        cv2.cvtColor(blk, cv2.COLOR_BGR2GRAY, dst=out[r0 : r0 + _LUMA_ROWS])
+        _luma_block(frame, r0, out[r0 : r0 + _LUMA_ROWS])
     return out
 
 
 _LUMA_ROWS = 64  # rows per block of colour_luminance
+
+
+def _luma_block(frame: np.ndarray, r0: int, out: np.ndarray) -> np.ndarray:
+    """Write the luminance of the ``_LUMA_ROWS`` full rows from ``r0`` of an integer BGR frame.
+
+    The one conversion :func:`colour_luminance` and :class:`LazyLuminance` both use, so their
+    values are the same bit for bit.
+    """
+    blk = frame[r0 : r0 + _LUMA_ROWS].astype(np.float32)
+    return cv2.cvtColor(blk, cv2.COLOR_BGR2GRAY, dst=out)
+
+
+def lazy_luminance(frame: np.ndarray):
+    """Return a :class:`LazyLuminance` of ``frame`` where one applies, else its luminance.
+
+    Integer BGR frames are converted where they are read; mono frames (as they are) and
+    float32 BGR frames (one conversion) go through :func:`colour_luminance`.
+    """
+    if frame.ndim == 3 and frame.shape[2] == 3 and frame.dtype != np.float32:
+        return LazyLuminance(frame)
+    return colour_luminance(frame)
 
 
 class LazyLuminance:
@@ -571,9 +591,10 @@ class LazyLuminance:
         """Return the luminance of row block ``b`` (rows ``b * _LUMA_ROWS`` onwards)."""
         out = self._blocks.get(b)
         if out is None:
-            blk = self.frame[b * _LUMA_ROWS : (b + 1) * _LUMA_ROWS].astype(np.float32)
-            out = np.empty(blk.shape[:2], np.float32)
-            cv2.cvtColor(blk, cv2.COLOR_BGR2GRAY, dst=out)
+            rows = min(_LUMA_ROWS, self.shape[0] - b * _LUMA_ROWS)
+            out = _luma_block(
+                self.frame, b * _LUMA_ROWS, np.empty((rows, self.shape[1]), np.float32)
+            )
             if keep:
                 self._blocks[b] = out
         return out

@@ -138,6 +138,7 @@ def estimate_blur(
     masks: Sequence[np.ndarray] | None = None,
     motion_blur: tuple[float, float] | None = None,
     fit_fill: bool = True,
+    boxes: Sequence[tuple[int, int, int, int]] | None = None,
 ) -> BlurEstimate:
     """Estimate the optics blur (Gaussian std, input px) from straight edges in the frames.
 
@@ -167,6 +168,9 @@ def estimate_blur(
     fit_fill : bool, optional
         Measure the pixel fill factor too (default True; False: the full pixel assumed, as
         before the fill was measured).
+    boxes : sequence of (int, int, int, int), optional
+        Instead of ``masks``: each frame's valid pixels as a rectangle ``(r0, r1, c0, c1)``
+        (frames aligned by integer crops); an ROI is measured where it lies inside it.
 
     Returns
     -------
@@ -201,7 +205,7 @@ def estimate_blur(
     )
     rois = find_edge_rois(arrs[0], max_rois=max_edges)
     motion = (0.0, 0.0) if motion_blur is None else (float(motion_blur[0]), float(motion_blur[1]))
-    per_edge, why = _measure_edges(arrs, sh, rois, noise, masks, motion)
+    per_edge, why = _measure_edges(arrs, sh, rois, noise, masks, motion, boxes)
     if not per_edge:
         common = max(set(why), key=why.count) if why else "no straight edge found"
         return BlurEstimate(
@@ -229,6 +233,7 @@ def _measure_edges(
     noise: float,
     masks: Sequence[np.ndarray] | None,
     motion_blur: tuple[float, float] = (0.0, 0.0),
+    boxes: Sequence[tuple[int, int, int, int]] | None = None,
 ) -> tuple[list[tuple[float, float, float, list, float]], list[str]]:
     """Measure every ROI in every frame; per edge (median, standard error, fill, fits, misfit).
 
@@ -254,6 +259,13 @@ def _measure_edges(
             if xx < 0 or yy < 0 or xx + rw > w or yy + rh > h:
                 continue
             if masks is not None and not np.all(np.asarray(masks[i])[yy : yy + rh, xx : xx + rw]):
+                continue
+            if boxes is not None and not (
+                boxes[i][0] <= yy
+                and yy + rh <= boxes[i][1]
+                and boxes[i][2] <= xx
+                and xx + rw <= boxes[i][3]
+            ):  # the ROI leaves the frame's valid rectangle
                 continue
             fit = measure_edge(a, (xx, yy, rw, rh), noise, motion_blur)
             if np.isfinite(fit.sigma):
@@ -457,6 +469,7 @@ class BlurCalibration:
         shifts: np.ndarray | None = None,
         masks: Sequence[np.ndarray] | None = None,
         motion_blur: tuple[float, float] | None = None,
+        boxes: Sequence[tuple[int, int, int, int]] | None = None,
     ) -> BlurEstimate:
         """Return the blur for this set, re-estimated when due (see the class).
 
@@ -471,6 +484,8 @@ class BlurCalibration:
         motion_blur : (float, float), optional
             This set's image motion during the exposure (input px), taken out of the edges
             (:func:`estimate_blur`).
+        boxes : sequence of (int, int, int, int), optional
+            Valid rectangles per frame, instead of ``masks`` (:func:`estimate_blur`).
 
         Returns
         -------
@@ -484,13 +499,15 @@ class BlurCalibration:
             due = self.due
             self._sets += 1
             if due:
-                measured = estimate_blur(frames, shifts, masks=masks, motion_blur=motion_blur)
+                measured = estimate_blur(
+                    frames, shifts, masks=masks, motion_blur=motion_blur, boxes=boxes
+                )
                 self.current = check_given_blur(float(self.setting), measured)
             return self.current
         due = self.due
         self._sets += 1
         if due:
-            new = estimate_blur(frames, shifts, masks=masks, motion_blur=motion_blur)
+            new = estimate_blur(frames, shifts, masks=masks, motion_blur=motion_blur, boxes=boxes)
             if new.source == "edges" or self.current is None or self.current.source != "edges":
                 self.current = new
         return self.current

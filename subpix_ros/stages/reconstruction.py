@@ -24,7 +24,6 @@ from subpix_ros.core.superres import colour_luminance, reconstruct_within_budget
 from subpix_ros.core.superres.reconstruction import lazy_luminance
 from subpix_ros.core.superres.result import NonFiniteImageError
 from subpix_ros.core.superres.workspace import Workspace
-from subpix_ros.core.validity import box_mask
 from subpix_ros.runtime import release_freed_memory
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
@@ -418,11 +417,7 @@ class ReconstructionStage(Stage):
                 "exposure_s is set but the set's image velocity could not be fitted (fewer "
                 "than 2 distinct stamps): no motion blur modelled for this set"
             )
-        if mono and masks is None:  # the edge search checks each frame's ROI in its mask
-            masks_now = [box_mask(shape, b) for b in boxes]
-        else:
-            masks_now = masks
-        blur = self.blur.update(mono, shifts, masks_now, motion)
+        blur = self.blur.update(mono, shifts, masks, motion, boxes=boxes)
         if self.blur.setting != "auto" and blur.source == "edges" and blur is not self._blur_warned:
             self._blur_warned = blur
             self.warn(blur.reason)

@@ -12,7 +12,7 @@ Printed: process CPU per frame of each stage's ``add`` (registration, shift, rec
 mosaic), the total, and the maximum resident set size; ``--cprofile N`` adds the top N
 functions by cumulative time.
 
-Usage: python benchmarks/profile_stages.py [--frames 96] [--params FILE] [--cprofile 40]
+Usage: python benchmarks/profile_stages.py [--frames 96] [--params FILE] [--cprofile 40 [--sort tottime]]
 """
 
 from __future__ import annotations
@@ -69,6 +69,12 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=96)
     ap.add_argument("--params", action="append", default=[], metavar="FILE")
     ap.add_argument("--cprofile", type=int, default=0, metavar="N")
+    ap.add_argument(
+        "--sort",
+        default="cumulative",
+        choices=("cumulative", "tottime"),
+        help="order of the --cprofile table",
+    )
     add_malloc_argument(ap)
     args = ap.parse_args()
     print(allocator_line(args.default_malloc))
@@ -114,7 +120,7 @@ def main() -> None:
         f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB"
     )
     if prof:
-        pstats.Stats(prof).sort_stats("cumulative").print_stats(args.cprofile)
+        pstats.Stats(prof).sort_stats(args.sort).print_stats(args.cprofile)
 
 
 if __name__ == "__main__":

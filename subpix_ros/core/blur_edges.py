@@ -258,6 +258,7 @@ def find_edge_rois(
     min_angle_deg: float = 3.0,
     max_angle_deg: float = 38.0,
     margin: int = 10,
+    detect_max_px: int | None = None,
 ) -> list[tuple[int, int, int, int]]:
     """Find ROIs ``(x, y, w, h)`` around straight edges that suit the slanted-edge method.
 
@@ -271,6 +272,10 @@ def find_edge_rois(
         Range of a segment's angle from the nearest pixel axis.
     margin : int, optional
         Px added on each side across the edge.
+    detect_max_px : int, optional
+        The segments are found on the frame halved until its larger side is at most this
+        (LSD's cost grows with the pixels; the ROIs stay on the frame). Default: halved once
+        when the larger side exceeds 1024 px.
 
     Returns
     -------
@@ -281,7 +286,7 @@ def find_edge_rois(
     Notes
     -----
     Straight segments come from OpenCV's line segment detector (LSD) on the frame scaled to
-    8 bit (at half size when its larger side exceeds 1024 px). A segment qualifies when,
+    8 bit, reduced by ``INTER_AREA`` as ``detect_max_px`` says. A segment qualifies when,
     over the ROI's length along it (80 % of the segment, at most 64 px), the edge crosses at
     least 4.5 px of the other axis (the 4x oversampling of the ESF needs every sub-pixel
     phase). The ROI is centred on the segment's middle, clipped to the frame.
@@ -292,12 +297,15 @@ def find_edge_rois(
         return []
     lo, hi = np.percentile(f[::4, ::4], [0.5, 99.5])
     img8 = np.clip((f - lo) * (255.0 / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
-    scale = 1.0
-    if (
-        max(h, w) > 1024
-    ):  # large frames: segments found at half size (LSD's cost), ROIs on the frame
-        img8 = cv2.resize(img8, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-        scale = 2.0
+    k = 1
+    if detect_max_px is None:
+        k = 2 if max(h, w) > 1024 else 1
+    else:
+        while max(h, w) > detect_max_px * k and min(h, w) >= 48 * k:
+            k *= 2
+    scale = float(k)
+    if k > 1:  # large frames: segments found at 1/k size (LSD's cost), ROIs on the frame
+        img8 = cv2.resize(img8, (w // k, h // k), interpolation=cv2.INTER_AREA)
     segs = cv2.createLineSegmentDetector().detect(img8)[0]
     if segs is None:
         return []

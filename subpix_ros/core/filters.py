@@ -209,7 +209,10 @@ def rfft2_32(img: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     elif out.shape != (h, w // 2 + 1) or out.dtype != np.complex64:
         raise ValueError(f"out must be complex64 {(h, w // 2 + 1)}, got {out.dtype} {out.shape}")
     kmax = (w - 1) // 2  # columns 1..kmax: complex, Re and Im side by side
-    out[:, 1 : kmax + 1] = np.ascontiguousarray(ccs[:, 1 : 2 * kmax + 1]).view(np.complex64)
+    if out.flags.c_contiguous:  # one strided copy: Re/Im pairs onto the complex columns' floats
+        out.view(np.float32)[:, 2 : 2 * kmax + 2] = ccs[:, 1 : 2 * kmax + 1]
+    else:
+        out[:, 1 : kmax + 1] = np.ascontiguousarray(ccs[:, 1 : 2 * kmax + 1]).view(np.complex64)
     out[:, 0] = _unpack_real_column(ccs[:, 0])
     if w % 2 == 0:
         out[:, w // 2] = _unpack_real_column(ccs[:, w - 1])

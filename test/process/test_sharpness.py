@@ -79,3 +79,30 @@ def test_the_gain_holds_on_the_independent_degradation_model_with_the_blur_unkno
     assert len(edges) >= 2
     for e in edges:  # measured: bicubic 0.30-0.38, SR 0.58-0.70 cycles per input px
         assert e.sr_mtf50 > 1.5 * e.bicubic_mtf50 and e.sr_mtf30 > e.bicubic_mtf30
+
+
+def test_a_large_reference_s_edge_is_found_at_the_reduced_detection_size():
+    """Above DETECT_MAX_PX the report finds segments on a reduced frame, ROIs on the frame."""
+    import cv2
+
+    from subpix_ros.core.blur_edges import find_edge_rois
+    from subpix_ros.process.sharpness import DETECT_MAX_PX
+
+    h, w, angle = 700, 1300, np.deg2rad(8.0)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    # one straight step 8 deg off the x axis through (650, 350), soft as a lens makes it
+    frame = np.where(yy - 350 > np.tan(angle) * (xx - 650), 170.0, 60.0)
+    frame = cv2.GaussianBlur(frame, (0, 0), 0.8) + np.random.default_rng(0).normal(0, 1, (h, w))
+    assert max(h, w) > 2 * DETECT_MAX_PX  # detected at a quarter of the size
+
+    def on_the_step(roi):
+        x, y, rw, rh = roi
+        cx, cy = x + rw / 2, y + rh / 2
+        return abs((cy - 350) - np.tan(angle) * (cx - 650)) < 6
+
+    rois = find_edge_rois(frame, detect_max_px=DETECT_MAX_PX)
+    assert rois and all(on_the_step(r) for r in rois)
+    bic = bicubic_upscale(frame, 2)
+    edges = edge_sharpness(frame, bic, bic, 2)
+    assert edges and all(on_the_step(e.roi) for e in edges)
+    assert 0.1 < edges[0].bicubic_mtf50 < 0.5

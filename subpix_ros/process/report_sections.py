@@ -86,7 +86,7 @@ def _section_shifts(shifts: list[dict], t0: float | None, has_tel: bool) -> str:
             f" Residual against telemetry: RMS u {np.sqrt(np.mean(res_u[ok] ** 2)):.3f} px, "
             f"v {np.sqrt(np.mean(res_v[ok] ** 2)):.3f} px over {int(ok.sum())} frames."
         )
-    return text + "</p>" + _img(fig, "shift trajectory")
+    return text + "</p>" + _img(fig, "shift trajectory", vector=True)
 
 
 def _section_registration(
@@ -123,7 +123,7 @@ def _section_registration(
             "green: new reference, red dashed: tracking fell back to the full search", fontsize=8
         )
         fig.tight_layout()
-        out.append(_img(fig, "registration quality"))
+        out.append(_img(fig, "registration quality", vector=True))
     else:
         out.append("<p>No frame was registered to a reference.</p>")
     reg = stages.get("registration_node") or stages.get("registration") or {}
@@ -276,7 +276,9 @@ def _section_sets(
         )
         uv = np.array([[0.0, 0.0]] + [[m["u_px"], m["v_px"]] for m in s.get("members", [])])
         frac = uv - np.floor(uv)
-        out.append(_img(_offsets_figure(plt, frac, factor), f"set {k + 1}: sub-pixel offsets"))
+        out.append(
+            _img(_offsets_figure(plt, frac, factor), f"set {k + 1}: sub-pixel offsets", vector=True)
+        )
         out.append("</div>")
     return "".join(out)
 

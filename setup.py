@@ -38,6 +38,6 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [f"{name} = {target}" for name, target in NODES.items()]
-        + ["subpix = subpix_ros.cli:main"],
+        + ["subpix = subpix_ros.cli:console"],
     },
 )

@@ -96,5 +96,36 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
+#: Subcommands that end with their products written and closed: the ``subpix`` command leaves
+#: them without the interpreter's teardown (see :func:`console`).
+_QUICK_EXIT = ("process", "report")
+
+
+def console() -> None:
+    """Run the ``subpix`` command (the console script) and exit with its status.
+
+    After ``subpix process`` or ``subpix report`` has returned, every product is written,
+    closed and moved into place: the exit handlers run (``atexit``: logging, multiprocessing),
+    stdout and stderr are flushed, and the process ends with ``os._exit``, skipping the
+    interpreter's teardown of its modules and objects (0.1-0.15 s after a 1080p flight; it
+    frees nothing the kernel does not free at exit). Other subcommands (ROS participants,
+    sockets) exit normally.
+    """
+    import atexit
+    import os
+
+    argv = sys.argv[1:]
+    status = main(argv)
+    if argv and argv[0] in _QUICK_EXIT:
+        atexit._run_exitfuncs()
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # a closed pipe: nothing more can be said
+                pass
+        os._exit(status)
+    sys.exit(status)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    console()

@@ -6,6 +6,7 @@ interruption, and bad input (no images, no telemetry, a corrupt chunk, mixed fra
 
 import filecmp
 import json
+import os
 import signal
 import struct
 import subprocess
@@ -541,3 +542,30 @@ def test_serve_shows_the_processing_live_to_a_foxglove_client(sample_bags, tmp_p
 def test_serve_needs_one_job(sample_bags, tmp_path):
     r = _run(str(sample_bags / "subpixel"), "-o", str(tmp_path / "o"), "--jobs", "2", "--serve")
     assert r.returncode != 0 and "--serve shows one bag at a time" in r.stderr
+
+
+def test_the_command_exits_quickly_with_its_output_and_status(processed, tmp_path):
+    """`subpix report` / `process` end by os._exit (cli.console): output flushed, status kept.
+
+    stdout is a pipe here (block-buffered): the report's path is printed only if the exit
+    flushed it; a failing command still exits non-zero with its message.
+    """
+    out, _ = processed
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # as a user runs it
+    r = subprocess.run(
+        [sys.executable, "-m", "subpix_ros.cli", "report", str(out / "subpixel")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().endswith("report.html"), r.stdout
+    r = subprocess.run(
+        [sys.executable, "-m", "subpix_ros.cli", "report", str(tmp_path / "nothing")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )
+    assert r.returncode == 1 and "not a folder" in r.stderr, (r.returncode, r.stderr)

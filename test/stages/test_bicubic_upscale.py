@@ -10,7 +10,7 @@ from subpix_ros.stages.types import bicubic_upscale
 
 
 def _whole(image: np.ndarray, p: int, dtype) -> np.ndarray:
-    """The definition: one cv2.resize of the float32 image, rounded."""
+    """Return the definition: one cv2.resize of the float32 image, rounded."""
     h, w = image.shape[:2]
     up = cv2.resize(image.astype(np.float32), (w * p, h * p), interpolation=cv2.INTER_CUBIC)
     return to_integer_image(up, dtype)

@@ -86,7 +86,7 @@ def _section_shifts(shifts: list[dict], t0: float | None, has_tel: bool) -> str:
             f" Residual against telemetry: RMS u {np.sqrt(np.mean(res_u[ok] ** 2)):.3f} px, "
             f"v {np.sqrt(np.mean(res_v[ok] ** 2)):.3f} px over {int(ok.sum())} frames."
         )
-    return text + "</p>" + _img(fig, "shift trajectory", vector=True)
+    return text + "</p>" + _img(fig, "shift trajectory")
 
 
 def _section_registration(
@@ -123,7 +123,7 @@ def _section_registration(
             "green: new reference, red dashed: tracking fell back to the full search", fontsize=8
         )
         fig.tight_layout()
-        out.append(_img(fig, "registration quality", vector=True))
+        out.append(_img(fig, "registration quality"))
     else:
         out.append("<p>No frame was registered to a reference.</p>")
     reg = stages.get("registration_node") or stages.get("registration") or {}

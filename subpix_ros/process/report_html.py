@@ -25,8 +25,9 @@ def _fig_png(fig) -> str:
 def _fig_svg(fig) -> str:
     """Return a figure as base64 SVG: vector lines and points, text as text, no date.
 
-    Half the cost of rendering a plot of lines and points to PNG; the same bytes every run
-    (fixed hash salt for the element ids, no date in the metadata).
+    For small plots (a set's offsets: half the cost of its PNG); an SVG grows with its points,
+    so per-frame plots stay PNG. The same bytes every run (fixed hash salt for the element
+    ids, no date in the metadata).
     """
     import matplotlib
     import matplotlib.pyplot as plt
@@ -39,7 +40,7 @@ def _fig_svg(fig) -> str:
 
 
 def _img(fig, alt: str, vector: bool = False) -> str:
-    """Return an inline figure: PNG, or SVG with ``vector`` (plots without a raster image)."""
+    """Return an inline figure: PNG, or SVG with ``vector`` (small plots, no raster image)."""
     if vector:
         return f'<img alt="{_esc(alt)}" src="data:image/svg+xml;base64,{_fig_svg(fig)}">'
     return f'<img alt="{_esc(alt)}" src="data:image/png;base64,{_fig_png(fig)}">'

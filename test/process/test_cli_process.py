@@ -552,20 +552,18 @@ def test_the_command_exits_quickly_with_its_output_and_status(processed, tmp_pat
     """
     out, _ = processed
     env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # as a user runs it
-    r = subprocess.run(
-        [sys.executable, "-m", "subpix_ros.cli", "report", str(out / "subpixel")],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        env=env,
-    )
+
+    def report(folder):
+        return subprocess.run(
+            [sys.executable, "-m", "subpix_ros.cli", "report", str(folder)],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            env=env,
+        )
+
+    r = report(out / "subpixel")
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip().endswith("report.html"), r.stdout
-    r = subprocess.run(
-        [sys.executable, "-m", "subpix_ros.cli", "report", str(tmp_path / "nothing")],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=env,
-    )
+    r = report(tmp_path / "nothing")
     assert r.returncode == 1 and "not a folder" in r.stderr, (r.returncode, r.stderr)

@@ -157,28 +157,9 @@ def bicubic_upscale(image: np.ndarray, factor: int, dtype: Any, rows: int = 64) 
     """Return ``image`` upsampled ``factor`` x by bicubic interpolation, rounded to ``dtype``.
 
     On the super-resolved images' output grid (input pixel i covers output pixels
-    ``factor*i .. factor*i + factor - 1``), as :attr:`SuperResolved.bicubic`.
-
-    Notes
-    -----
-    ``cv2.resize`` (``INTER_CUBIC``) of the float32 image, rounded by
-    :func:`~subpix_ros.core.superres.result.to_integer_image`, made ``rows`` input rows at a
-    time with 4 rows of context on each side (beyond the 4-tap kernel's reach), so that no
-    whole float32 output image exists (100 MB for a 4K colour image, allocated and faulted in
-    per set); the values are those of the whole-image resize.
+    ``factor*i .. factor*i + factor - 1``), as :attr:`SuperResolved.bicubic`
+    (:func:`~subpix_ros.core.superres.result.bicubic_integer`).
     """
-    import cv2
+    from subpix_ros.core.superres.result import bicubic_integer
 
-    from subpix_ros.core.superres.result import to_integer_image
-
-    h, w = image.shape[:2]
-    p, ctx = int(factor), 4
-    out = np.empty((h * p, w * p) + image.shape[2:], dtype)
-    for a0 in range(0, h, rows):
-        a1 = min(a0 + rows, h)
-        e0, e1 = max(a0 - ctx, 0), min(a1 + ctx, h)
-        up = cv2.resize(
-            image[e0:e1].astype(np.float32), (w * p, (e1 - e0) * p), interpolation=cv2.INTER_CUBIC
-        )
-        out[p * a0 : p * a1] = to_integer_image(up[p * (a0 - e0) : p * (a1 - e0)], dtype)
-    return out
+    return bicubic_integer(image, factor, dtype, rows)

@@ -60,6 +60,7 @@ from .result import (
     _bicubic_rim,
     _fallback,
     bicubic_upscale,
+    context_bands,
     to_integer_image,
 )
 from .spectrum import estimate_noise_sigma
@@ -722,18 +723,16 @@ def _colour_integer(
 
     The values are those of the float32 assembly of :func:`reconstruct_colour` rounded by
     :func:`~subpix_ros.core.superres.result.to_integer_image`, made ``rows`` LR rows at a time
-    (the chroma of each band upscaled with 4 LR rows of context, beyond bicubic's reach), so
+    (the chroma of each band upscaled with 4 LR rows of context: :func:`context_bands`), so
     that no whole-frame float colour image exists. NonFiniteImageError if a pixel of ``lum``
     is NaN or infinite.
     """
     if not np.isfinite(lum).all():
         raise NonFiniteImageError("reconstruction produced non-finite pixels")
     h, w = ref.shape[:2]
-    p, ctx = factor, 4
+    p = factor
     out = np.empty((p * h, p * w, 3), dtype)
-    for a0 in range(0, h, rows):
-        a1 = min(a0 + rows, h)
-        e0, e1 = max(a0 - ctx, 0), min(a1 + ctx, h)
+    for a0, a1, e0, e1 in context_bands(h, rows):
         ycc = cv2.cvtColor(ref[e0:e1].astype(np.float32), cv2.COLOR_BGR2YCrCb)
         chroma = cv2.resize(
             np.ascontiguousarray(ycc[..., 1:]),

@@ -13,6 +13,8 @@ __all__ = [
     "SRResult",
     "psnr",
     "bicubic_upscale",
+    "bicubic_integer",
+    "context_bands",
     "to_integer_image",
     "NonFiniteImageError",
     "METHODS",
@@ -161,6 +163,50 @@ def bicubic_upscale(frame: np.ndarray, factor: int) -> np.ndarray:
     """
     f = np.asarray(frame, dtype=np.float64)
     return cv2.resize(f, (f.shape[1] * factor, f.shape[0] * factor), interpolation=cv2.INTER_CUBIC)
+
+
+def context_bands(h: int, rows: int, ctx: int = 4):
+    """Yield ``(a0, a1, e0, e1)``: blocks ``a0..a1`` of ``rows`` of ``h`` rows, with context.
+
+    ``e0..e1`` is the block with ``ctx`` rows on each side (clipped to the frame). A bicubic
+    upscale (4 taps: 2 LR rows each side) of rows ``e0..e1``, cut to the output rows of
+    ``a0..a1``, has the values of upscaling the whole frame, without a whole-frame result.
+    """
+    for a0 in range(0, h, rows):
+        a1 = min(a0 + rows, h)
+        yield a0, a1, max(a0 - ctx, 0), min(a1 + ctx, h)
+
+
+def bicubic_integer(image: np.ndarray, factor: int, dtype, rows: int = 64) -> np.ndarray:
+    """Return ``image`` upscaled ``factor`` x by bicubic interpolation, rounded to ``dtype``.
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        Mono or BGR frame, uint8 or uint16.
+    factor : int
+        Resolution factor (the project's output grid, as :func:`bicubic_upscale`).
+    dtype : numpy dtype
+        ``numpy.uint8`` or ``numpy.uint16``.
+    rows : int, optional
+        Input rows per block.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``to_integer_image(cv2.resize(float32 image, INTER_CUBIC), dtype)``, made ``rows``
+        input rows at a time (:func:`context_bands`): the values of the whole-image resize
+        without its whole float32 result (100 MB for a 4K colour image).
+    """
+    h, w = image.shape[:2]
+    p = int(factor)
+    out = np.empty((h * p, w * p) + image.shape[2:], dtype)
+    for a0, a1, e0, e1 in context_bands(h, rows):
+        up = cv2.resize(
+            image[e0:e1].astype(np.float32), (w * p, (e1 - e0) * p), interpolation=cv2.INTER_CUBIC
+        )
+        out[p * a0 : p * a1] = to_integer_image(up[p * (a0 - e0) : p * (a1 - e0)], dtype)
+    return out
 
 
 def _bicubic_rim(img: np.ndarray, ref: np.ndarray, p: int) -> np.ndarray:

@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["box_mask", "common_box", "common_valid_box"]
+__all__ = ["box_mask", "common_box", "common_region", "common_valid_box"]
 
 
 def common_valid_box(masks: Sequence[np.ndarray]) -> tuple[int, int, int, int] | None:
@@ -92,3 +92,38 @@ def common_box(
     if r1 <= r0 or c1 <= c0:
         return None
     return r0, r1, c0, c1
+
+
+def common_region(
+    shape: tuple[int, int],
+    masks: Sequence[np.ndarray] | None = None,
+    boxes: Sequence[tuple[int, int, int, int]] | None = None,
+) -> tuple[int, int, int, int] | None:
+    """Return the rectangle valid in every frame, given as masks, as boxes, or neither.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Rows, columns of the frames.
+    masks : sequence of numpy.ndarray, optional
+        Bool validity masks (:func:`common_valid_box`).
+    boxes : sequence of (int, int, int, int), optional
+        Valid rectangles ``(r0, r1, c0, c1)`` instead of masks (:func:`common_box`).
+
+    Returns
+    -------
+    tuple of int or None
+        ``(r0, r1, c0, c1)``; the whole frame when neither is given; None if empty.
+
+    Raises
+    ------
+    ValueError
+        If both masks and boxes are given.
+    """
+    if boxes is not None:
+        if masks is not None:
+            raise ValueError("give masks or boxes, not both")
+        return common_box(boxes, shape)
+    if masks is not None:
+        return common_valid_box(masks)
+    return 0, int(shape[0]), 0, int(shape[1])

@@ -3,6 +3,7 @@
 import time
 
 import numpy as np
+import pytest
 
 from subpix_ros.core.render import render_sequence
 from subpix_ros.core.superres import psnr, reconstruct
@@ -105,3 +106,14 @@ def test_common_box_is_what_common_valid_box_finds_in_the_box_masks():
     ):
         assert common_box(boxes, shape) == common_valid_box([box_mask(shape, b) for b in boxes])
     assert common_box([], shape) is None
+
+
+def test_common_region_takes_masks_boxes_or_neither():
+    from subpix_ros.core.validity import box_mask, common_region
+
+    shape, boxes = (40, 50), [(0, 40, 0, 50), (3, 38, 2, 47)]
+    masks = [box_mask(shape, b) for b in boxes]
+    assert common_region(shape, boxes=boxes) == common_region(shape, masks=masks) == (3, 38, 2, 47)
+    assert common_region(shape) == (0, 40, 0, 50)
+    with pytest.raises(ValueError, match="not both"):
+        common_region(shape, masks, boxes)

@@ -58,7 +58,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from ..validity import common_box, common_valid_box
+from ..validity import common_region
 from .masks import bicubic_outside, reconstruct_aligned
 from .result import NonFiniteImageError, SRResult, bicubic_upscale, to_integer_image
 
@@ -332,12 +332,7 @@ def reconstruct_within_budget(
     ref = np.asarray(frames[0])
     colour = ref.ndim == 3
     h, w = ref.shape[:2]
-    if boxes is not None:
-        if masks is not None:
-            raise ValueError("give masks or boxes, not both")
-        box = common_box(boxes, (h, w))
-    else:
-        box = (0, h, 0, w) if masks is None else common_valid_box(masks)
+    box = common_region((h, w), masks, boxes)
     region = (h, w) if box is None else (box[1] - box[0], box[3] - box[2])
     plan = plan_reconstruction(
         len(frames),

@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..validity import box_mask, common_box, common_valid_box
+from ..validity import box_mask, common_region
 from .reconstruction import reconstruct_colour
 from .result import SRResult, bicubic_upscale, to_integer_image
 
@@ -72,16 +72,11 @@ def reconstruct_aligned(
     """
     solve = reconstruct_colour  # mono frames: reconstruct, with out_dtype applied
     h, w = np.asarray(frames[0]).shape[:2]
-    if boxes is not None:
-        if masks is not None:
-            raise ValueError("give masks or boxes, not both")
-        box = common_box(boxes, (h, w))
-        if box is None or min(box[1] - box[0], box[3] - box[2]) < MIN_SIDE:
-            masks = [box_mask((h, w), b) for b in boxes]  # the masked solver needs them
-    elif masks is None:
+    if masks is None and boxes is None:
         return solve(frames, shifts, factor, **kw)
-    else:
-        box = common_valid_box(masks)
+    box = common_region((h, w), masks, boxes)
+    if boxes is not None and (box is None or min(box[1] - box[0], box[3] - box[2]) < MIN_SIDE):
+        masks = [box_mask((h, w), b) for b in boxes]  # the masked solver needs them
     if box is None or min(box[1] - box[0], box[3] - box[2]) < MIN_SIDE:
         return solve(frames, shifts, factor, masks=masks, **kw)
     r0, r1, c0, c1 = box

@@ -4,8 +4,9 @@ Reads each bag directly (rosbag2, mcap or sqlite3; sensor_msgs/Image or
 CompressedImage; telemetry from the bag's /telemetry/* topics or a .tlog
 beside it), runs the stage pipeline in this process (or one worker process
 per bag with --jobs), and writes OUTDIR/<bag name>/: results.mcap (shift,
-homography, super_resolved, mosaic, telemetry/frame_interval, diagnostics,
-stamped with their source frames; `subpix replay` plays it), superres/*.png
+homography, super_resolved/compressed and mosaic/compressed (the PNGs),
+telemetry/frame_interval, diagnostics, stamped with their source frames;
+`subpix replay` plays it), superres/*.png
 beside bicubic/*.png of each set's reference, mosaic.png, shifts.csv,
 frames.csv, telemetry.csv, summary.json, timing.json and report.html.
 

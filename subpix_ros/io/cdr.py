@@ -57,6 +57,7 @@ __all__ = [
     "cdr_to_image_msg",
     "compressed_to_cdr",
     "cdr_to_compressed",
+    "encoded_to_compressed_cdr",
     "cdr_to_compressed_msg",
     "float64_array_to_cdr",
     "cdr_to_float64_array",
@@ -255,6 +256,21 @@ def compressed_to_cdr(
     msg = _CompressedImage(
         header=make_header(stamp_ns, frame_id),
         format=format_string,
+        data=np.frombuffer(data, np.uint8),
+    )
+    return serialize(msg, COMPRESSED_IMAGE)
+
+
+def encoded_to_compressed_cdr(data: bytes, fmt: str, stamp_ns: int, frame_id: str = "") -> bytes:
+    """CDR bytes of a sensor_msgs/msg/CompressedImage carrying already encoded ``data``.
+
+    ``fmt`` is the message's format string (image_transport's, e.g.
+    ``"bgr8; png compressed bgr8"``); ``data`` is used as it is (one copy into the message),
+    so a PNG written to a file and the message hold the same bytes.
+    """
+    msg = _CompressedImage(
+        header=make_header(stamp_ns, frame_id),
+        format=str(fmt),
         data=np.frombuffer(data, np.uint8),
     )
     return serialize(msg, COMPRESSED_IMAGE)

@@ -3,7 +3,8 @@
 A thin rclpy adapter of :class:`subpix_ros.monitor.Monitor`.
 
 Subscribes ``mosaic/compressed`` (or ``mosaic`` with ``mosaic_compressed:=false``),
-``super_resolved`` with ``aligned/reference`` (for the bicubic beside it),
+``super_resolved`` (or ``super_resolved/compressed``, as ``subpix process`` records it)
+with ``aligned/reference`` (for the bicubic beside it),
 ``image`` (kept, sent every ``camera_period_s``), ``shift`` with ``shift/std``
 (joined by stamp: a shift waits at most ``shift_std_wait_s`` for its errors),
 ``telemetry/expected_shift``, ``telemetry/frame_interval``, ``telemetry/fix``,
@@ -205,6 +206,13 @@ class MonitorNode(StageNode):
             self.create_subscription(
                 Image, "super_resolved", self._guard(self._on_sr), latched_qos(), raw=True
             )
+            self.create_subscription(  # what `subpix process` records: replayed results bags
+                CompressedImage,
+                "super_resolved/compressed",
+                self._guard(self._on_sr_c),
+                latched_qos(),
+                raw=True,
+            )
             self.create_subscription(
                 Image,
                 "image",
@@ -280,6 +288,13 @@ class MonitorNode(StageNode):
         with self._lock:
             ref = self._refs.get(stamp)
         self._serve_sr(sr.copy(), ref, stamp)
+
+    def _on_sr_c(self, raw: bytes) -> None:
+        sr, header = cdr.cdr_to_compressed(raw)
+        stamp = cdr.header_to_ns(header)
+        with self._lock:
+            ref = self._refs.get(stamp)
+        self._serve_sr(sr, ref, stamp)
 
     def _serve_sr(self, sr, ref, stamp: int) -> None:
         bic, factor = None, None

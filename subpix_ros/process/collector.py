@@ -189,11 +189,13 @@ class _Collector:
         ref = sr.reference
         stamp = int(ref.stamp_ns)
         image = np.asarray(sr.image)
-        self.writer.png(f"superres/{stamp}.png", image)
+        frame_id = getattr(ref, "frame_id", "")
+        self.writer.png(
+            f"superres/{stamp}.png", image, "/super_resolved/compressed", stamp, frame_id
+        )
         factor = int(getattr(sr, "factor", 0))
         bicubic = _Bicubic(ref.image, factor, image.dtype, getattr(sr, "_bicubic", None))
         self.writer.png(f"bicubic/{stamp}.png", bicubic.get)
-        self.writer.image("/super_resolved", image, stamp, getattr(ref, "frame_id", ""))
         members = []
         for shift, _aligned in getattr(sr, "members", []) or []:
             members.append(

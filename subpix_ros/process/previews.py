@@ -64,9 +64,10 @@ def _mosaic(stage: Any, w: ProductWriter, last_ns: int | None) -> dict:
     canvas = stage.canvas()
     if canvas is None or getattr(canvas, "size", 0) == 0:
         return {"written": False}
-    w.png("mosaic.png", canvas)
     if last_ns is not None:
-        w.image("/mosaic", canvas, last_ns, "mosaic")
+        w.png("mosaic.png", canvas, "/mosaic/compressed", last_ns, "mosaic")
+    else:
+        w.png("mosaic.png", canvas)
     info: dict = {
         "written": True,
         "size": [int(canvas.shape[1]), int(canvas.shape[0])],

@@ -10,10 +10,12 @@ Products (byte-identical for the same bag and parameters):
 * ``results.mcap``: ROS 2 messages, each with the log time (and header
   stamp) of its source frame: ``/shift`` and ``/shift/std`` (Vector3Stamped), ``/homography``
   (Float64MultiArray), ``/aligned/reference_stamp`` (TimeReference),
-  ``/super_resolved`` (Image, the set reference's stamp), ``/mosaic`` (Image,
-  the last frame's stamp), ``/telemetry/frame_interval`` (Float64, eq. 1 at
-  the frame) and ``/diagnostics`` (DiagnosticArray, once per second of
-  flight time and at the end; counts and reasons only, no wall-clock times);
+  ``/super_resolved/compressed`` (CompressedImage, the set reference's stamp),
+  ``/mosaic/compressed`` (CompressedImage, the last frame's stamp), both lossless PNG
+  (the same bytes as ``superres/<stamp>.png`` and ``mosaic.png``),
+  ``/telemetry/frame_interval`` (Float64, eq. 1 at the frame) and ``/diagnostics``
+  (DiagnosticArray, once per second of flight time and at the end; counts and reasons
+  only, no wall-clock times);
 * ``superres/<stamp>.png`` and ``bicubic/<stamp>.png`` (same size and bit
   depth; the set's reference upsampled bicubically), ``mosaic.png``;
 * ``shifts.csv``, ``frames.csv``, ``telemetry.csv``, ``summary.json``.
@@ -55,6 +57,13 @@ TIMING_FILES = ("timing.json", "report.html")
 _T = cdr.TYPESTORE.types
 _DIAG_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 _FLOAT64 = "std_msgs/msg/Float64"
+_ENCODINGS = {  # (dtype, channels) -> sensor_msgs encoding of a product image
+    (np.dtype(np.uint8), 1): "mono8",
+    (np.dtype(np.uint8), 3): "bgr8",
+    (np.dtype(np.uint8), 4): "bgra8",
+    (np.dtype(np.uint16), 1): "mono16",
+    (np.dtype(np.uint16), 3): "bgr16",
+}
 
 
 def rounded(x: float) -> float:
@@ -192,21 +201,6 @@ class ProductWriter:
             raw,
         )
 
-    def image(self, topic: str, image: np.ndarray, stamp_ns: int, frame_id: str = "") -> None:
-        """Queue an image message on ``topic`` of the results bag."""
-        enc = {
-            (np.dtype(np.uint8), 2): "mono8",
-            (np.dtype(np.uint8), 3): "bgr8",
-            (np.dtype(np.uint16), 2): "mono16",
-            (np.dtype(np.uint16), 3): "bgr16",
-        }[(image.dtype, image.ndim)]
-
-        def write() -> None:
-            raw = cdr.image_to_cdr(np.ascontiguousarray(image), enc, stamp_ns, frame_id)
-            self.bag.write(topic, cdr.IMAGE, stamp_ns, raw)
-
-        self._later(write)
-
     def frame_interval(self, stamp_ns: int, interval_s: float) -> None:
         """Record the frame interval (s) at ``stamp_ns`` in the results bag."""
         raw = cdr.serialize(_T[_FLOAT64](data=rounded(interval_s)), _FLOAT64)
@@ -233,21 +227,38 @@ class ProductWriter:
         )
 
     # ---------------------------------------------------------------- files
-    def png(self, rel: str, image: np.ndarray | Callable[[], np.ndarray]) -> None:
+    def png(
+        self,
+        rel: str,
+        image: np.ndarray | Callable[[], np.ndarray],
+        topic: str | None = None,
+        stamp_ns: int = 0,
+        frame_id: str = "",
+    ) -> None:
         """Queue writing ``image`` as PNG at ``rel`` in the flight's folder.
 
-        ``image`` may be a function returning it, then called on the products thread.
+        ``image`` may be a function returning it, then called on the products thread. With
+        ``topic`` the same PNG bytes also go into the results bag as a
+        ``sensor_msgs/CompressedImage`` on ``topic`` (image_transport's format string,
+        e.g. ``"bgr8; png compressed bgr8"``) stamped ``stamp_ns``: lossless, encoded once.
         """
-        from subpix_ros.io.images.png import write_png
+        from subpix_ros.io.images.png import encode_png
 
         path = self.tmp / rel
         path.parent.mkdir(parents=True, exist_ok=True)
 
         def write() -> None:
+            img = np.asarray(image() if callable(image) else image)
             try:
-                write_png(path, image() if callable(image) else image)
+                data = encode_png(img)
+                path.write_bytes(data)
             except (OSError, ValueError) as exc:
                 raise OSError(f"cannot write {rel}: {exc}") from exc
+            if topic is not None:
+                enc = _ENCODINGS[(img.dtype, 1 if img.ndim == 2 else img.shape[2])]
+                fmt = f"{enc}; png compressed {enc}"
+                raw = cdr.encoded_to_compressed_cdr(data, fmt, stamp_ns, frame_id)
+                self.bag.write(topic, cdr.COMPRESSED_IMAGE, stamp_ns, raw)
 
         self._later(write)
 

@@ -131,6 +131,18 @@ def test_bad_input_is_reported_and_the_node_keeps_serving(served):
     assert _spin(ex, lambda: client.messages("/mosaic"), 10)
 
 
+def test_a_super_resolved_png_as_the_results_bag_holds_it_is_served(served):
+    """``subpix process`` records ``/super_resolved/compressed`` (PNG): replayed, it is served."""
+    node, h, ex, client = served
+    pub = h.create_publisher(CompressedImage, "super_resolved/compressed", latched_qos())
+    assert _spin(ex, lambda: pub.get_subscription_count() and len(client.channels) == 10, 10)
+    sr = np.zeros((128, 160), np.uint16)
+    sr[:, 80:] = 40000
+    pub.publish(cdr.compressed_to_cdr(sr, T0 + 7, "sr", "png"))
+    assert _spin(ex, lambda: client.messages("/super_resolved"), 10), client.received
+    assert not client.messages("/log")  # decoded, no error
+
+
 def test_bandwidth_changes_at_run_time(served):
     node, h, ex, client = served
     assert not node.set_parameters([Parameter("bandwidth_kbps", value=1e9)])[0].successful

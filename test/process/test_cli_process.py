@@ -18,7 +18,14 @@ import cv2
 import numpy as np
 
 from subpix_ros.io.bags import BagWriter, bag_topics, read_messages
-from subpix_ros.io.cdr import cdr_to_image, compressed_to_cdr, header_to_ns, image_to_cdr
+from subpix_ros.io.cdr import (
+    cdr_to_compressed,
+    cdr_to_compressed_msg,
+    cdr_to_image,
+    compressed_to_cdr,
+    header_to_ns,
+    image_to_cdr,
+)
 from subpix_ros.process.products import DETERMINISTIC, read_csv
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -117,8 +124,8 @@ def test_results_mcap_messages_carry_their_source_frames(processed):
         "/shift",
         "/shift/std",
         "/homography",
-        "/super_resolved",
-        "/mosaic",
+        "/super_resolved/compressed",
+        "/mosaic/compressed",
         "/telemetry/frame_interval",
         "/diagnostics",
         "/aligned/reference_stamp",
@@ -141,11 +148,19 @@ def test_results_mcap_messages_carry_their_source_frames(processed):
         row = rows[m.timestamp_ns]
         assert header_to_ns(header) == m.timestamp_ns and 0 < vec[0] <= 0.1 and 0 < vec[1] <= 0.1
         assert (vec[0], vec[1]) == (float(row["u_std_px"]), float(row["v_std_px"]))
-    srs = list(read_messages(d / "results.mcap", ["/super_resolved"]))
+    # the super-resolved images and the mosaic: the PNG files' own bytes, lossless
+    srs = list(read_messages(d / "results.mcap", ["/super_resolved/compressed"]))
     assert [m.timestamp_ns for m in srs] == [st["reference_stamp_ns"] for st in s["sets"]]
-    img, header = cdr_to_image(srs[0].raw)
+    for m, st in zip(srs, s["sets"]):
+        msg = cdr_to_compressed_msg(m.raw)
+        assert bytes(msg.data) == (d / st["superres"]).read_bytes()
+        assert msg.format == "bgr8; png compressed bgr8"
+        assert header_to_ns(msg.header) == m.timestamp_ns
+    img, _ = cdr_to_compressed(srs[0].raw)
     ref_png = cv2.imread(str(d / s["sets"][0]["superres"]), cv2.IMREAD_UNCHANGED)
-    assert np.array_equal(img, ref_png) and header_to_ns(header) == srs[0].timestamp_ns
+    assert np.array_equal(img, ref_png)
+    (mos,) = read_messages(d / "results.mcap", ["/mosaic/compressed"])
+    assert bytes(cdr_to_compressed_msg(mos.raw).data) == (d / "mosaic.png").read_bytes()
     for topic in ("/homography", "/telemetry/frame_interval", "/aligned/reference_stamp"):
         assert {m.timestamp_ns for m in read_messages(d / "results.mcap", [topic])} <= frames, topic
 
@@ -452,9 +467,12 @@ def test_mono16_flight_gives_16_bit_products(sample_bags, tmp_path):
         assert sr.max() > 255 * 4  # the 16-bit range is used, not 8-bit values in a 16-bit file
     mos = cv2.imread(str(d / "mosaic.png"), cv2.IMREAD_UNCHANGED)
     assert mos.dtype == np.uint8 and s["mosaic"]["written"]
-    srs = list(read_messages(d / "results.mcap", ["/super_resolved"]))
-    img, _ = cdr_to_image(srs[0].raw)
-    assert img.dtype == np.uint16
+    srs = list(read_messages(d / "results.mcap", ["/super_resolved/compressed"]))
+    assert cdr_to_compressed_msg(srs[0].raw).format == "mono16; png compressed mono16"
+    img, _ = cdr_to_compressed(srs[0].raw)
+    assert img.dtype == np.uint16 and np.array_equal(
+        img, cv2.imread(str(d / s["sets"][0]["superres"]), cv2.IMREAD_UNCHANGED)
+    )
 
 
 def test_progress_bars_on_a_terminal_plain_lines_otherwise():

@@ -1,5 +1,6 @@
 """A memory budget makes the reconstruction use tiles or fewer frames (and say so), not grow."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -147,12 +148,46 @@ def test_out_dtype_rounds_what_the_float_image_would_hold(seq, dtype, tiled):
     if dtype is np.uint16:
         frames = [f * 200.0 for f in frames]  # beyond 8 bit
     budget = 0.9 * whole_mb if tiled else None
-    kw = dict(masks=masks, max_memory_mb=budget, overlap=16, **KW)
-    flt, plan = reconstruct_within_budget(frames, seq.shifts, 2, **kw)
-    got, plan2 = reconstruct_within_budget(frames, seq.shifts, 2, out_dtype=dtype, **kw)
-    assert plan2 == plan and (plan.grid != (1, 1)) == tiled
+    kw = dict(masks=masks, overlap=16, **KW)
+    got, plan = reconstruct_within_budget(
+        frames, seq.shifts, 2, out_dtype=dtype, max_memory_mb=budget, **kw
+    )
+    # the float image under the budget that gives it the same plan (its output is larger)
+    h, w = frames[0].shape[:2]
+    extra = (4 - np.dtype(dtype).itemsize) * h * w * 4 * 3 / 1e6
+    flt, plan2 = reconstruct_within_budget(
+        frames, seq.shifts, 2, max_memory_mb=budget and budget + extra, **kw
+    )
+    assert (plan2.n_frames, plan2.grid) == (plan.n_frames, plan.grid)
+    assert (plan.grid != (1, 1)) == tiled
     assert got.image.dtype == dtype
     np.testing.assert_array_equal(got.image, to_integer_image(flt.image, dtype))
+
+
+def test_an_integer_output_is_planned_at_its_own_size():
+    """A 4K colour set rounded into uint8 fits 250 MB in tiles; as float32 it would not.
+
+    The stitched output counts 1 B per value, not 4 (a 7680x4320 colour image: 100 MB, not
+    398 MB); with nothing that fits, the bicubic fallback is made in the output type too.
+    """
+    as_float = plan_reconstruction(8, (2160, 3840), 2, 250.0)
+    as_uint8 = plan_reconstruction(8, (2160, 3840), 2, 250.0, out_bytes=1)
+    assert as_float.bicubic and not as_uint8.bicubic
+    assert as_uint8.n_frames == 8 and as_uint8.grid[0] * as_uint8.grid[1] > 1
+    assert as_uint8.estimate_mb <= 250.0
+    # nothing fits: the fallback is the reference's bicubic upscale, rounded, as uint8
+    rng = np.random.default_rng(0)
+    ref = rng.integers(0, 256, (64, 96, 3), dtype=np.uint8)
+    frames = [ref, np.roll(ref, 1, axis=1)]
+    res, plan = reconstruct_within_budget(
+        frames, np.array([[0.0, 0.0], [0.0, 1.0]]), 2, max_memory_mb=0.01, out_dtype=np.uint8
+    )
+    assert plan.bicubic and res.method == "bicubic" and res.fell_back
+    up = cv2.resize(ref.astype(np.float32), (192, 128), interpolation=cv2.INTER_CUBIC)
+    from subpix_ros.core.superres.result import to_integer_image
+
+    assert res.image.dtype == np.uint8
+    np.testing.assert_array_equal(res.image, to_integer_image(up, np.uint8))
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])

@@ -34,7 +34,8 @@ figures in docs/design-notes.md, "Onboard budget")::
 with ``c = 165, 345, 660`` B per LR px for colour at p = 2, 3, 4 and
 ``70, 120, 255`` for mono (refitted when the frames stopped being held as one float64
 stack: 10 % above every measured case). A tile reconstruction costs ``M`` of its extent
-(tile plus overlap) plus the stitched output, ``H W p^2 C`` float32 values.
+(tile plus overlap) plus the stitched output, ``H W p^2 C`` values: float32, or the
+integer type each tile is rounded into as it is placed (``out_dtype``).
 OpenCV-internal scratch (not traced) comes on top, a few frame-sized buffers.
 
 Tiles differ from the whole-set reconstruction only where the per-set
@@ -60,7 +61,13 @@ import numpy as np
 
 from ..validity import common_region
 from .masks import bicubic_outside, reconstruct_aligned
-from .result import NonFiniteImageError, SRResult, bicubic_upscale, to_integer_image
+from .result import (
+    NonFiniteImageError,
+    SRResult,
+    bicubic_integer,
+    bicubic_upscale,
+    to_integer_image,
+)
 
 __all__ = ["BudgetPlan", "estimate_peak_mb", "plan_reconstruction", "reconstruct_within_budget"]
 
@@ -101,9 +108,13 @@ def estimate_peak_mb(n_frames: int, shape: tuple[int, int], factor: int, colour:
     return hw * (_PER_FRAME_B * n_frames + _FIXED_B[(p, bool(colour))]) / 1e6 + _BASE_MB
 
 
-def _output_mb(shape: tuple[int, int], factor: int, colour: bool) -> float:
-    """Return the size of the stitched float32 HR output of a tiled reconstruction, MB."""
-    return float(shape[0]) * shape[1] * factor * factor * (3 if colour else 1) * 4 / 1e6
+def _output_mb(shape: tuple[int, int], factor: int, colour: bool, out_bytes: int = 4) -> float:
+    """Return the size of the stitched HR output of a tiled reconstruction, MB.
+
+    ``out_bytes`` per value: 4 for the float32 image, 1 or 2 when each tile is rounded into
+    uint8 or uint16 as it is placed (``out_dtype``).
+    """
+    return float(shape[0]) * shape[1] * factor * factor * (3 if colour else 1) * out_bytes / 1e6
 
 
 @dataclass
@@ -159,14 +170,19 @@ class BudgetPlan:
 
 
 def _tiled_mb(
-    n: int, shape: tuple[int, int], grid: tuple[int, int], overlap: int, factor: int, colour: bool
+    n: int,
+    shape: tuple[int, int],
+    grid: tuple[int, int],
+    overlap: int,
+    factor: int,
+    colour: bool,
+    out_bytes: int = 4,
 ) -> float:
     """Predict a tiled plan's working memory: the largest tile with its overlap, plus the output."""
     th = -(-shape[0] // grid[0]) + (2 * overlap if grid[0] > 1 else 0)
     tw = -(-shape[1] // grid[1]) + (2 * overlap if grid[1] > 1 else 0)
-    return estimate_peak_mb(n, (min(th, shape[0]), min(tw, shape[1])), factor, colour) + _output_mb(
-        shape, factor, colour
-    )
+    tile = estimate_peak_mb(n, (min(th, shape[0]), min(tw, shape[1])), factor, colour)
+    return tile + _output_mb(shape, factor, colour, out_bytes)
 
 
 def plan_reconstruction(
@@ -179,6 +195,7 @@ def plan_reconstruction(
     min_frames: int = 2,
     overlap: int = 32,
     min_tile: int = 128,
+    out_bytes: int = 4,
 ) -> BudgetPlan:
     """Plan a reconstruction of ``n_frames`` frames of ``shape`` within ``max_memory_mb``.
 
@@ -200,6 +217,9 @@ def plan_reconstruction(
         Context LR px around each tile (on inner sides).
     min_tile : int
         Smallest tile side (LR px, without the overlap) before frames are dropped.
+    out_bytes : int
+        Bytes per value of the stitched output: 4 (float32, the default), or 1 / 2 when
+        the tiles are rounded into uint8 / uint16 as they are placed.
 
     Returns
     -------
@@ -223,7 +243,7 @@ def plan_reconstruction(
     for n in range(n_frames, min_frames - 1, -1):  # all frames first, then fewer
         whole = estimate_peak_mb(n, (h, w), factor, colour)
         options = [((1, 1), whole)] + [
-            (g, _tiled_mb(n, (h, w), g, overlap, factor, colour)) for g in grids
+            (g, _tiled_mb(n, (h, w), g, overlap, factor, colour, out_bytes)) for g in grids
         ]
         for g, mb in options:
             if mb <= max_memory_mb:
@@ -235,7 +255,7 @@ def plan_reconstruction(
                 return BudgetPlan(
                     n, g, overlap if g != (1, 1) else 0, mb, unbounded, max_memory_mb, False, red
                 )
-    mb = _output_mb((h, w), factor, colour)
+    mb = _output_mb((h, w), factor, colour, out_bytes)
     return BudgetPlan(
         1,
         (1, 1),
@@ -343,9 +363,11 @@ def reconstruct_within_budget(
         min_frames=min_frames,
         overlap=overlap,
         min_tile=min_tile if box is not None else max(h, w) + 1,
+        out_bytes=4 if out_dtype is None else np.dtype(out_dtype).itemsize,
     )
     if plan.bicubic:
-        return _as_dtype(_bicubic_result(ref, len(frames), shifts, factor, plan), out_dtype), plan
+        res = _bicubic_result(ref, len(frames), shifts, factor, plan, out_dtype)
+        return _as_dtype(res, out_dtype), plan
     n = plan.n_frames
     frames_n = list(frames[:n])
     shifts_n = np.asarray(shifts, dtype=np.float64)[:n]
@@ -377,18 +399,22 @@ def _as_dtype(res: SRResult, dtype) -> SRResult:
 
 
 def _bicubic_result(
-    ref: np.ndarray, n: int, shifts: np.ndarray, factor: int, plan: BudgetPlan
+    ref: np.ndarray, n: int, shifts: np.ndarray, factor: int, plan: BudgetPlan, out_dtype=None
 ) -> SRResult:
-    """Return the bicubic upscale of the reference as the result of a plan that fits nothing."""
+    """Return the bicubic upscale of the reference as the result of a plan that fits nothing.
+
+    With an integer ``out_dtype`` it is made in bands straight into that type (the float
+    image never whole: the plan has no room for it).
+    """
     h, w = ref.shape[:2]
-    # float32 for colour, as the colour reconstruction returns (and half the memory of float64)
-    up = (
-        bicubic_upscale(ref, factor)
-        if ref.ndim != 3
-        else cv2.resize(
+    if out_dtype is not None and np.issubdtype(np.dtype(out_dtype), np.integer):
+        up = bicubic_integer(ref, factor, out_dtype)
+    elif ref.ndim != 3:
+        up = bicubic_upscale(ref, factor)
+    else:  # float32, as the colour reconstruction returns (half the memory of float64)
+        up = cv2.resize(
             ref.astype(np.float32), (w * factor, h * factor), interpolation=cv2.INTER_CUBIC
         )
-    )
     return SRResult(
         up,
         "bicubic",

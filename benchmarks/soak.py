@@ -224,6 +224,15 @@ def main() -> None:
             + ", ".join(f"{v:.0f}" for v in floors[:, 1])
         )
     print(f"pipeline process CPU {cpu / args.frames:.3f} s per frame in")
+    rec = next((d for n, d in diag.items() if n.endswith("reconstruction_node")), {})
+    print(
+        f"super-resolved images: {rec.get('images_published', '?')} published, of which "
+        f"{rec.get('images_fell_back', '?')} fell back to bicubic (last: method "
+        f"{rec.get('method', '?')}, {rec.get('fallback_reason', '') or 'no reason'}; memory "
+        f"{rec.get('memory_reduction', '') or 'not reduced'})"
+    )
+    if rec.get("images_fell_back", "0") not in ("0", "?"):
+        print("WARNING: bicubic fallbacks are not super-resolution: the figures above are not those of SR")
     print("RSS at its largest sample, MB: " + ", ".join(f"{k} {v:.0f}" for k, v in peak.items()))
     reg = next((d for n, d in diag.items() if n.endswith("registration_node")), {})
     print(

@@ -137,6 +137,7 @@ class ReconstructionNode(StageNode):
             noise_sigma=sr.noise_sigma,
             frames=sr.n_frames,
             images_published=st.kept,
+            images_fell_back=st.fallbacks,
             sets_incomplete=st.sets_incomplete,
             sets_flushed=st.sets_flushed,
             sets_dropped=st.sets_dropped,

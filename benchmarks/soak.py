@@ -232,7 +232,9 @@ def main() -> None:
         f"{rec.get('memory_reduction', '') or 'not reduced'})"
     )
     if rec.get("images_fell_back", "0") not in ("0", "?"):
-        print("WARNING: bicubic fallbacks are not super-resolution: the figures above are not those of SR")
+        print(
+            "WARNING: bicubic fallbacks are not super-resolution: the figures above are not those of SR"
+        )
     print("RSS at its largest sample, MB: " + ", ".join(f"{k} {v:.0f}" for k, v in peak.items()))
     reg = next((d for n, d in diag.items() if n.endswith("registration_node")), {})
     print(

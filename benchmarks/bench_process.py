@@ -181,15 +181,16 @@ def main() -> None:
         )
         print(
             "| run | wall (s) | in process (s) | real-time factor | CPU (s) | frames kept | "
-            "shifts | super-resolved | peak RSS (MB) |"
+            "shifts | super-resolved (bicubic fallbacks) | peak RSS (MB) |"
         )
+        fell = sum(bool(st.get("fell_back")) for st in summary["sets"])
         print("|---|---|---|---|---|---|---|---|---|")
         for k, (wall1, cpu1, timing) in enumerate(runs, 1):
             print(
                 f"| `subpix process` 1 bag, run {k} | {wall1:.2f} | {timing['wall_s']:.2f} | "
                 f"{fl / wall1:.2f}x ({fl / timing['wall_s']:.2f}x in process) | {cpu1:.1f} | "
                 f"{summary['frames']['kept']} | {summary['frames']['shifts']} | "
-                f"{len(summary['sets'])} | {timing['peak_rss_mb']:.0f} |"
+                f"{len(summary['sets'])} ({fell}) | {timing['peak_rss_mb']:.0f} |"
             )
         med = sorted(r[0] for r in runs)[len(runs) // 2]
         med_in = sorted(r[2]["wall_s"] for r in runs)[len(runs) // 2]

@@ -36,6 +36,14 @@ PARAMS = (
         0,
         16384,
     ),
+    Spec(
+        "n_points",
+        150,
+        "tie points per frame pair of the preview's registration (two thirds of them are "
+        "enough to stop early); more is slower for the same seams",
+        16,
+        2000,
+    ),
 )
 
 
@@ -61,8 +69,11 @@ class MosaicStage(Stage):
     def _new_mosaic(self) -> Mosaic:
         """Return an empty mosaic sized by the parameters."""
         fmax = self.param("frame_max_px")
+        n = int(self.param("n_points"))
         return Mosaic(
-            max_size_px=self.param("max_size_px"), frame_max_px=max(64, fmax) if fmax else None
+            max_size_px=self.param("max_size_px"),
+            frame_max_px=max(64, fmax) if fmax else None,
+            register_kwargs={"n_points": n, "want_inliers": max(16, 2 * n // 3)},
         )
 
     def reset(self) -> None:

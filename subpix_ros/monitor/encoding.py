@@ -61,6 +61,35 @@ def _label(image: np.ndarray, text: str) -> np.ndarray:
     return out
 
 
+def sr_label(detail: str, fallback: str | None = None) -> str:
+    """Return the label of a super-resolved crop (``detail``: factor and crop window).
+
+    With ``fallback`` (why the reconstruction fell back) the crop is the bicubic upscale of
+    the reference and says so, with the reason cut to 60 characters.
+    """
+    if fallback is None:
+        return "super-resolved" + detail
+    why = " ".join(str(fallback).split())
+    return f"BICUBIC FALLBACK, not super-resolved{detail}: {why[:60] or 'no reason given'}"
+
+
+def same_as_bicubic(sr: np.ndarray, bicubic: np.ndarray, crop: int = 256) -> bool:
+    """Return True if the central ``crop`` square of ``sr`` is ``bicubic``'s to within 1 DN.
+
+    How a monitor fed over DDS (an ``Image`` carries no "fell back" flag) tells a
+    reconstruction's bicubic fallback: that image is the reference's bicubic upscale (rounded
+    from float32, so within 1 DN of OpenCV's integer bicubic); a super-resolved image of a
+    textured scene differs by several DN.
+    """
+    h, w = sr.shape[:2]
+    r0, c0 = max(0, (h - crop) // 2), max(0, (w - crop) // 2)
+    a = sr[r0 : r0 + crop, c0 : c0 + crop]
+    b = bicubic[r0 : r0 + crop, c0 : c0 + crop]
+    if a.shape != b.shape or a.size == 0:
+        return False
+    return bool(cv2.norm(a, b, cv2.NORM_INF) <= 1.0)
+
+
 def _jpeg(img: np.ndarray, quality: int, stamp_ns: int, frame_id: str) -> bytes:
     ok, buf = cv2.imencode(
         ".jpg", np.ascontiguousarray(img), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]

@@ -254,10 +254,13 @@ class Monitor(_Sender):
         bicubic_image: np.ndarray | None,
         stamp_ns: int,
         factor: int | None = None,
+        fallback: str | None = None,
     ) -> None:
         """Keep a super-resolved image and the bicubic enlargement of its reference.
 
-        The bicubic image has the same size, or is None.
+        The bicubic image has the same size, or is None. ``fallback``: why the image is not
+        super-resolved (the reconstruction fell back to the bicubic upscale); it is then
+        labelled as such, not as super-resolved.
         """
         sr = _to_bgr(sr_image)
         bic = None if bicubic_image is None else _to_bgr(bicubic_image)
@@ -265,7 +268,7 @@ class Monitor(_Sender):
             raise ValueError(
                 f"monitor: bicubic {bic.shape[:2]} and super-resolved {sr.shape[:2]} differ in size"
             )
-        self._put("sr", (sr, bic, stamp_ns, factor))
+        self._put("sr", (sr, bic, stamp_ns, factor, fallback))
 
     def on_camera(self, image: np.ndarray, stamp_ns: int) -> None:
         """Keep the current camera frame (the newest is sent every camera_period_s)."""

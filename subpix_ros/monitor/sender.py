@@ -16,7 +16,7 @@ import foxglove
 from foxglove.messages import GeoJson
 
 from .budget import LEVELS, ByteMeter, wire_bytes
-from .encoding import _jpeg, _label, _shrink, _to_u8, _ts_json
+from .encoding import _jpeg, _label, _shrink, _to_u8, _ts_json, sr_label
 from .geo import feature_collection
 from .schemas import ESSENTIAL_TOPICS, LEVEL_NAMES
 
@@ -207,7 +207,7 @@ class _Sender:
                 img, stamp = item
                 small = _shrink(_to_u8(img), int(max_px * rung.scale))
                 return [(topic, self._jpeg(small, rung.quality, stamp, frame_id))]
-        sr, bic, stamp, factor = item
+        sr, bic, stamp, factor, fallback = item
         crop = max(32, int(self.cfg.sr_crop_px))
         h, w = sr.shape[:2]
         r0, c0 = max(0, (h - crop) // 2), max(0, (w - crop) // 2)
@@ -219,7 +219,7 @@ class _Sender:
             (
                 "/super_resolved",
                 self._jpeg(
-                    _label(_shrink(_to_u8(sr[win]), side), "super-resolved" + f + where),
+                    _label(_shrink(_to_u8(sr[win]), side), sr_label(f + where, fallback)),
                     rung.quality,
                     stamp,
                     "super_resolved",

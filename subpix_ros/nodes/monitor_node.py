@@ -30,6 +30,7 @@ from std_msgs.msg import Float64
 
 from subpix_ros.io import cdr
 from subpix_ros.monitor import Monitor, MonitorConfig, MonitorError
+from subpix_ros.monitor.encoding import same_as_bicubic
 from subpix_ros.monitor.geo import footprint_lonlat
 from subpix_ros.monitor.join import ShiftStdJoin
 from subpix_ros.nodes.base import StageNode
@@ -296,7 +297,14 @@ class MonitorNode(StageNode):
             ref = self._refs.get(stamp)
         self._serve_sr(sr, ref, stamp)
 
-    def _serve_sr(self, sr, ref, stamp: int) -> None:
+    def _serve_sr(self, sr, ref, stamp: int, fallback: str | None = None) -> None:
+        """Serve a super-resolved image beside its reference's bicubic upscale.
+
+        ``fallback``: why the reconstruction fell back (in memory the stage says so); over
+        DDS an image equal to the bicubic upscale is taken for a fallback
+        (:func:`~subpix_ros.monitor.encoding.same_as_bicubic`). Either way it is labelled a
+        bicubic fallback, not super-resolved.
+        """
         bic, factor = None, None
         if ref is not None and sr.shape[0] % ref.shape[0] == 0:
             factor = sr.shape[0] // ref.shape[0]
@@ -307,7 +315,9 @@ class MonitorNode(StageNode):
                     if bic.ndim == 2
                     else cv2.cvtColor(bic, cv2.COLOR_BGR2GRAY)
                 )
-        self.monitor.on_super_resolved(sr, bic, stamp, factor)
+        if fallback is None and bic is not None and same_as_bicubic(sr, bic):
+            fallback = "the image equals the bicubic upscale of its reference"
+        self.monitor.on_super_resolved(sr, bic, stamp, factor, fallback)
 
     def _camera_due(self) -> bool:
         # the camera may come at 30 Hz: take only what the monitor can send (a few per period)
@@ -343,7 +353,8 @@ class MonitorNode(StageNode):
 
     def handle_super_resolved(self, sr) -> None:
         """Take the reconstruction stage's :class:`~subpix_ros.stages.SuperResolved`."""
-        self._serve_sr(sr.image, sr.reference.image, sr.reference.stamp_ns)
+        why = (sr.reason or "fell back") if sr.fell_back else None
+        self._serve_sr(sr.image, sr.reference.image, sr.reference.stamp_ns, why)
 
     def _footprint(self, w: int, h: int, stamp: int) -> None:
         if self._fix is None or self._height is None or not self._height > 0:

@@ -37,7 +37,8 @@ class _MonitorFeed:
 
     def super_resolved(self, sr: Any) -> None:
         stamp = int(sr.reference.stamp_ns)
-        self.monitor.on_super_resolved(_to8(sr.image), _to8(sr.bicubic), stamp, sr.factor)
+        why = (sr.reason or "fell back") if getattr(sr, "fell_back", False) else None
+        self.monitor.on_super_resolved(_to8(sr.image), _to8(sr.bicubic), stamp, sr.factor, why)
 
     def telemetry(self, s: TelemetrySample) -> None:
         self.monitor.on_fix(s.lat_deg, s.lon_deg, s.alt_msl_m, int(round(s.t * 1e9)))

@@ -4,6 +4,7 @@ import math
 import socket
 import time
 
+import cv2
 import numpy as np
 import pytest
 import rclpy
@@ -175,3 +176,54 @@ def test_shifts_without_their_standard_errors_are_served_and_said(served):
         lambda: any(s.level == b"\x01" and "without standard errors" in s.message for s in diag),
         5,
     ), [(s.level, s.message) for s in diag[-3:]]
+
+
+def _spy_sr(node):
+    """Record what the node hands the (real) monitor for each super-resolved image."""
+    seen = []
+    real = node.monitor.on_super_resolved
+
+    def spy(sr, bic, stamp, factor=None, fallback=None):
+        seen.append((stamp, factor, fallback))
+        real(sr, bic, stamp, factor, fallback)
+
+    node.monitor.on_super_resolved = spy
+    return seen
+
+
+def test_a_bicubic_fallback_is_served_as_one_not_as_super_resolved(served):
+    """An image that is the reference's bicubic upscale is labelled a fallback; SR is not.
+
+    Over DDS an Image has no "fell back" flag: the node compares it with the bicubic upscale
+    of its reference (the reconstruction's fallback is that image, rounded from float32). In
+    memory the stage's own flag and reason are passed on.
+    """
+    from subpix_ros.core.superres.result import bicubic_integer
+    from subpix_ros.stages.types import Frame, SuperResolved
+
+    node, h, ex, client = served
+    seen = _spy_sr(node)
+    ref_pub = h.create_publisher(Image, "aligned/reference", latched_qos(4))
+    sr_pub = h.create_publisher(Image, "super_resolved", latched_qos())
+    assert _spin(
+        ex, lambda: ref_pub.get_subscription_count() and sr_pub.get_subscription_count(), 10
+    )
+    rng = np.random.default_rng(1)
+    ref = cv2.GaussianBlur(rng.integers(0, 256, (96, 128, 3), dtype=np.uint8), (0, 0), 1.0)
+    ref_pub.publish(cdr.image_to_cdr(ref, "bgr8", T0, "cam"))
+    assert _spin(ex, lambda: T0 in node._refs, 10)
+    fallback = bicubic_integer(ref, 2, np.uint8)  # what the reconstruction falls back to
+    sharpened = cv2.addWeighted(fallback, 2.0, cv2.GaussianBlur(fallback, (0, 0), 2.0), -1.0, 0)
+    sr_pub.publish(cdr.image_to_cdr(fallback, "bgr8", T0, "cam"))
+    assert _spin(ex, lambda: len(seen) == 1, 10)
+    sr_pub.publish(cdr.image_to_cdr(sharpened, "bgr8", T0, "cam"))
+    assert _spin(ex, lambda: len(seen) == 2, 10)
+    assert seen[0] == (T0, 2, "the image equals the bicubic upscale of its reference")
+    assert seen[1] == (T0, 2, None)
+    # in memory: the stage's flag and reason
+    frame = Frame(T0 + 1, ref)
+    node.handle_super_resolved(
+        SuperResolved(fallback, frame, [], "bicubic", True, "no plan fits 250 MB", 2)
+    )
+    node.handle_super_resolved(SuperResolved(sharpened, frame, [], "map", False, "", 2))
+    assert seen[2:] == [(T0 + 1, 2, "no plan fits 250 MB"), (T0 + 1, 2, None)]

@@ -266,14 +266,15 @@ def _section_sets(
                 scale,
             )
         )
-        out.append(
-            _pixels(
-                crop.super_resolved,
+        label, caption = (
+            (f"set {k + 1}: bicubic fallback", f"bicubic fallback, not super-resolved; {where}")
+            if s.get("fell_back")
+            else (
                 f"set {k + 1}: super-resolved",
                 f"super-resolved x{factor} ({s.get('method')}); {where}",
-                scale,
             )
         )
+        out.append(_pixels(crop.super_resolved, label, caption, scale))
         uv = np.array([[0.0, 0.0]] + [[m["u_px"], m["v_px"]] for m in s.get("members", [])])
         frac = uv - np.floor(uv)
         out.append(

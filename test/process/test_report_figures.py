@@ -42,3 +42,31 @@ def test_a_set_s_offsets_are_a_small_deterministic_svg():
     b = _img(_offsets_figure(_plt(), frac, 2), "offsets", vector=True)
     assert a.startswith('<img alt="offsets" src="data:image/svg+xml;base64,')
     assert a == b and len(a) < 40_000  # no date, fixed ids: the same bytes every time
+
+
+def test_a_set_that_fell_back_is_not_shown_as_super_resolved(tmp_path):
+    """The report labels a bicubic fallback as one, beside the set's reason."""
+    from subpix_ros.process.report_sections import _section_sets, set_crop
+
+    img = np.random.default_rng(2).integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    sets = []
+    for k, fell in enumerate((False, True)):
+        sets.append(
+            {
+                "reference_stamp_ns": 10**9 * (k + 1),
+                "frames": 16,
+                "method": "bicubic" if fell else "map",
+                "fell_back": fell,
+                "reason": "no plan fits 250 MB" if fell else "",
+                "superres": f"superres/{k}.png",
+                "bicubic": f"bicubic/{k}.png",
+                "members": [],
+            }
+        )
+    crops = {s["superres"]: set_crop(img, img, 2) for s in sets}
+    html = _section_sets(tmp_path, sets, 2, 0.0, crops)
+    first, second = html.split("<h3>Set 2")
+    assert 'alt="set 1: super-resolved"' in first and "fallback" not in first
+    assert "fell back: no plan fits 250 MB" in second
+    assert 'alt="set 2: bicubic fallback"' in second
+    assert "bicubic fallback, not super-resolved" in second and "super-resolved x2" not in second

@@ -297,13 +297,15 @@ class MonitorNode(StageNode):
             ref = self._refs.get(stamp)
         self._serve_sr(sr, ref, stamp)
 
-    def _serve_sr(self, sr, ref, stamp: int, fallback: str | None = None) -> None:
+    def _serve_sr(
+        self, sr, ref, stamp: int, fallback: str | None = None, known: bool = False
+    ) -> None:
         """Serve a super-resolved image beside its reference's bicubic upscale.
 
-        ``fallback``: why the reconstruction fell back (in memory the stage says so); over
-        DDS an image equal to the bicubic upscale is taken for a fallback
-        (:func:`~subpix_ros.monitor.encoding.same_as_bicubic`). Either way it is labelled a
-        bicubic fallback, not super-resolved.
+        ``fallback``: why the reconstruction fell back; ``known``: the stage said whether it
+        did (in memory). Over DDS (not known) an image equal to the bicubic upscale is taken
+        for a fallback (:func:`~subpix_ros.monitor.encoding.same_as_bicubic`). Either way a
+        fallback is labelled as one, not as super-resolved.
         """
         bic, factor = None, None
         if ref is not None and sr.shape[0] % ref.shape[0] == 0:
@@ -315,7 +317,7 @@ class MonitorNode(StageNode):
                     if bic.ndim == 2
                     else cv2.cvtColor(bic, cv2.COLOR_BGR2GRAY)
                 )
-        if fallback is None and bic is not None and same_as_bicubic(sr, bic):
+        if not known and fallback is None and bic is not None and same_as_bicubic(sr, bic):
             fallback = "the image equals the bicubic upscale of its reference"
         self.monitor.on_super_resolved(sr, bic, stamp, factor, fallback)
 
@@ -354,7 +356,7 @@ class MonitorNode(StageNode):
     def handle_super_resolved(self, sr) -> None:
         """Take the reconstruction stage's :class:`~subpix_ros.stages.SuperResolved`."""
         why = (sr.reason or "fell back") if sr.fell_back else None
-        self._serve_sr(sr.image, sr.reference.image, sr.reference.stamp_ns, why)
+        self._serve_sr(sr.image, sr.reference.image, sr.reference.stamp_ns, why, known=True)
 
     def _footprint(self, w: int, h: int, stamp: int) -> None:
         if self._fix is None or self._height is None or not self._height > 0:

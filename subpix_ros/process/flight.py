@@ -420,6 +420,12 @@ class _FlightRun:
         summary = _summary(self, rows, mosaic_info)
         if not collector.sets and flight.frames_total:
             self.problems.append("no super-resolved image: no set reached min_frames")
+        fell = [st for st in collector.sets if st.get("fell_back")]
+        if fell:  # a bicubic upscale in place of a super-resolved image: said, not counted as SR
+            self.problems.append(
+                f"{len(fell)} of {len(collector.sets)} sets fell back to bicubic "
+                f"({fell[0].get('reason') or 'no reason given'})"
+            )
         if self.status == "ok" and (not flight.frames_total or self.dropped or collector.errors):
             self.status = "partial"  # part of the input (or all of it) could not be used
         summary["status"] = self.status
@@ -429,7 +435,8 @@ class _FlightRun:
         line = (
             f"{flight.name}: {self.status}: {self.done} frames in, {frames['kept']} kept, "
             f"{frames['skipped']} skipped, {frames['dropped']} dropped, "
-            f"{frames['shifts']} shifts, {len(collector.sets)} super-resolved"
+            f"{frames['shifts']} shifts, {len(collector.sets) - len(fell)} super-resolved"
+            + (f" and {len(fell)} bicubic fallbacks" if fell else "")
         )
         problems = self.problems
         if problems:

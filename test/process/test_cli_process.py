@@ -585,3 +585,24 @@ def test_the_command_exits_quickly_with_its_output_and_status(processed, tmp_pat
     assert r.stdout.strip().endswith("report.html"), r.stdout
     r = report(tmp_path / "nothing")
     assert r.returncode == 1 and "not a folder" in r.stderr, (r.returncode, r.stderr)
+
+
+def test_sets_that_fell_back_are_said_in_the_line_and_not_counted_as_super_resolved(
+    sample_bags, tmp_path
+):
+    """A budget nothing fits: every set is the bicubic reference, and the bag's line says so."""
+    import yaml
+
+    params = yaml.safe_load(Path(DEMO).read_text())
+    rec = params.setdefault("reconstruction_node", {}).setdefault("ros__parameters", {})
+    rec["max_memory_mb"] = 1.0
+    cfg = tmp_path / "tiny_budget.yaml"
+    cfg.write_text(yaml.safe_dump(params))
+    r = _run(str(sample_bags / "subpixel"), "-o", str(tmp_path / "out"), "--params", str(cfg))
+    assert r.returncode == 0, r.stderr
+    s = _summary(tmp_path / "out" / "subpixel")
+    n = len(s["sets"])
+    assert n >= 2 and all(st["fell_back"] for st in s["sets"])
+    line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith("subpixel: "))
+    assert f"0 super-resolved and {n} bicubic fallbacks" in line, line
+    assert f"{n} of {n} sets fell back to bicubic (bicubic upscale of the reference" in line, line

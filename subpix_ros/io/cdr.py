@@ -253,12 +253,7 @@ def compressed_to_cdr(
     :func:`subpix_ros.io.images.numpy_to_compressed`).
     """
     format_string, data = numpy_to_compressed(array, fmt, quality)
-    msg = _CompressedImage(
-        header=make_header(stamp_ns, frame_id),
-        format=format_string,
-        data=np.frombuffer(data, np.uint8),
-    )
-    return serialize(msg, COMPRESSED_IMAGE)
+    return encoded_to_compressed_cdr(data, format_string, stamp_ns, frame_id)
 
 
 def encoded_to_compressed_cdr(data: bytes, fmt: str, stamp_ns: int, frame_id: str = "") -> bytes:

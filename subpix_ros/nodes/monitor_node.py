@@ -285,14 +285,13 @@ class MonitorNode(StageNode):
 
     def _on_sr(self, raw: bytes) -> None:
         sr, header = cdr.cdr_to_image(raw)
-        stamp = cdr.header_to_ns(header)  # the reference frame's stamp: the image lies on its grid
-        with self._lock:
-            ref = self._refs.get(stamp)
-        self._serve_sr(sr.copy(), ref, stamp)
+        self._sr_received(sr.copy(), header)
 
     def _on_sr_c(self, raw: bytes) -> None:
-        sr, header = cdr.cdr_to_compressed(raw)
-        stamp = cdr.header_to_ns(header)
+        self._sr_received(*cdr.cdr_to_compressed(raw))
+
+    def _sr_received(self, sr, header) -> None:
+        stamp = cdr.header_to_ns(header)  # the reference frame's stamp: the image lies on its grid
         with self._lock:
             ref = self._refs.get(stamp)
         self._serve_sr(sr, ref, stamp)

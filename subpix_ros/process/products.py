@@ -57,13 +57,6 @@ TIMING_FILES = ("timing.json", "report.html")
 _T = cdr.TYPESTORE.types
 _DIAG_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 _FLOAT64 = "std_msgs/msg/Float64"
-_ENCODINGS = {  # (dtype, channels) -> sensor_msgs encoding of a product image
-    (np.dtype(np.uint8), 1): "mono8",
-    (np.dtype(np.uint8), 3): "bgr8",
-    (np.dtype(np.uint8), 4): "bgra8",
-    (np.dtype(np.uint16), 1): "mono16",
-    (np.dtype(np.uint16), 3): "bgr16",
-}
 
 
 def rounded(x: float) -> float:
@@ -242,6 +235,7 @@ class ProductWriter:
         ``sensor_msgs/CompressedImage`` on ``topic`` (image_transport's format string,
         e.g. ``"bgr8; png compressed bgr8"``) stamped ``stamp_ns``: lossless, encoded once.
         """
+        from subpix_ros.io.images import compressed_format, compressible_encoding
         from subpix_ros.io.images.png import encode_png
 
         path = self.tmp / rel
@@ -255,8 +249,7 @@ class ProductWriter:
             except (OSError, ValueError) as exc:
                 raise OSError(f"cannot write {rel}: {exc}") from exc
             if topic is not None:
-                enc = _ENCODINGS[(img.dtype, 1 if img.ndim == 2 else img.shape[2])]
-                fmt = f"{enc}; png compressed {enc}"
+                fmt = compressed_format(compressible_encoding(img), "png")
                 raw = cdr.encoded_to_compressed_cdr(data, fmt, stamp_ns, frame_id)
                 self.bag.write(topic, cdr.COMPRESSED_IMAGE, stamp_ns, raw)
 

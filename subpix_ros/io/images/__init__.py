@@ -62,7 +62,12 @@ copy for big-endian multi-byte data).
 """
 
 from .checks import FrameFormatTracker, finite_fraction, require_finite
-from .compressed import compressed_to_numpy, numpy_to_compressed
+from .compressed import (
+    compressed_format,
+    compressed_to_numpy,
+    compressible_encoding,
+    numpy_to_compressed,
+)
 from .encodings import DESIRED, KNOWN_ENCODINGS, EncodingInfo, ImageConversionError, encoding_info
 from .raw import image_to_numpy, numpy_to_image_fields
 
@@ -74,7 +79,9 @@ __all__ = [
     "encoding_info",
     "image_to_numpy",
     "numpy_to_image_fields",
+    "compressed_format",
     "compressed_to_numpy",
+    "compressible_encoding",
     "numpy_to_compressed",
     "finite_fraction",
     "require_finite",

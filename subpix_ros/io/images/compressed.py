@@ -142,14 +142,7 @@ def numpy_to_compressed(
     else:
         raise ImageConversionError(f"compressed format {fmt!r} is not supported (jpeg or png)")
     a = np.asarray(array)
-    if a.ndim not in (2, 3) or a.size == 0 or (a.ndim == 3 and a.shape[2] not in (3, 4)):
-        raise ImageConversionError(
-            f"cannot compress an array of shape {a.shape}: need H x W, H x W x 3 or H x W x 4"
-        )
-    if a.dtype not in (_U8, _U16):
-        raise ImageConversionError(f"cannot compress {a.dtype} images (uint8, or uint16 for PNG)")
-    bits = 8 if a.dtype == np.uint8 else 16
-    enc = ("mono" if a.ndim == 2 else {3: "bgr", 4: "bgra"}[a.shape[2]]) + str(bits)
+    enc = compressible_encoding(a)
     if codec == "jpeg":
         if enc not in ("mono8", "bgr8"):
             raise ImageConversionError(f"JPEG cannot store {enc}; use fmt='png'")
@@ -162,4 +155,26 @@ def numpy_to_compressed(
         ok, out = cv2.imencode(".png", _cv_input(a), [cv2.IMWRITE_PNG_COMPRESSION, int(png_level)])
     if not ok:
         raise ImageConversionError(f"OpenCV failed to encode {enc} as {codec}")
-    return f"{enc}; {codec} compressed {enc}", out.tobytes()
+    return compressed_format(enc, codec), out.tobytes()
+
+
+def compressible_encoding(array: np.ndarray) -> str:
+    """Return the encoding of an array a CompressedImage can hold (``mono8`` ... ``bgra16``).
+
+    Raises ImageConversionError for any other shape or type (H x W, H x W x 3 BGR or
+    H x W x 4 BGRA; uint8 or uint16).
+    """
+    a = np.asarray(array)
+    if a.ndim not in (2, 3) or a.size == 0 or (a.ndim == 3 and a.shape[2] not in (3, 4)):
+        raise ImageConversionError(
+            f"cannot compress an array of shape {a.shape}: need H x W, H x W x 3 or H x W x 4"
+        )
+    if a.dtype not in (_U8, _U16):
+        raise ImageConversionError(f"cannot compress {a.dtype} images (uint8, or uint16 for PNG)")
+    bits = 8 if a.dtype == np.uint8 else 16
+    return ("mono" if a.ndim == 2 else {3: "bgr", 4: "bgra"}[a.shape[2]]) + str(bits)
+
+
+def compressed_format(encoding: str, codec: str) -> str:
+    """Return image_transport's format string, e.g. ``"bgr8; png compressed bgr8"``."""
+    return f"{encoding}; {codec} compressed {encoding}"

@@ -463,19 +463,20 @@ def _reconstruct_tiles(
         tkw = dict(kw)
         if first is not None and tkw.get("noise_sigma") is None and np.isfinite(first.noise_sigma):
             tkw["noise_sigma"] = float(first.noise_sigma)
+        # each tile rounded into out_dtype by the core as it assembles it (band by band: no
+        # float colour tile), the values the whole float image would hold
         res = reconstruct_aligned(
-            [np.asarray(f)[e0:e1, f0:f1] for f in frames], shifts, factor, **tkw
+            [np.asarray(f)[e0:e1, f0:f1] for f in frames],
+            shifts,
+            factor,
+            out_dtype=out_dtype,
+            **tkw,
         )
         if out is None:
-            float_dtype = np.float32 if colour else res.image.dtype
-            out = np.empty(
-                (p * h, p * w) + res.image.shape[2:],
-                float_dtype if out_dtype is None else out_dtype,
-            )
-        part = res.image[p * (a0 - e0) : p * (a1 - e0), p * (b0 - f0) : p * (b1 - f0)]
-        if out_dtype is not None:  # the float values the whole image would hold, rounded
-            part = _finite_integer(part.astype(float_dtype, copy=False), out_dtype)
-        out[p * a0 : p * a1, p * b0 : p * b1] = part
+            out = np.empty((p * h, p * w) + res.image.shape[2:], res.image.dtype)
+        out[p * a0 : p * a1, p * b0 : p * b1] = res.image[
+            p * (a0 - e0) : p * (a1 - e0), p * (b0 - f0) : p * (b1 - f0)
+        ]
         if res.fell_back:
             fell.append(f"tile ({i}, {j}): {res.reason}")
         if first is None and res.shifts_disputed and np.shape(res.shifts) == np.shape(shifts):
@@ -485,7 +486,8 @@ def _reconstruct_tiles(
         del res
     if (r0, r1, c0, c1) != (0, h, 0, w):
         convert = None
-        if out_dtype is not None:
+        if out_dtype is not None:  # strips rounded as the float image would hold them
+            float_dtype = np.float32 if colour else np.float64
 
             def convert(vals: np.ndarray) -> np.ndarray:
                 return to_integer_image(vals.astype(float_dtype, copy=False), out_dtype)

@@ -14,14 +14,14 @@ import collections
 import inspect
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from subpix_ros.core.blur import BLUR_SIGMA_MAX, BlurCalibration, parse_blur_sigma
 from subpix_ros.core.motion import displacement_through_homography, image_velocity
 from subpix_ros.core.superres import colour_luminance, reconstruct_within_budget
-from subpix_ros.core.superres.reconstruction import lazy_luminance
+from subpix_ros.core.superres.luma import lazy_member_luminance, pack_luminance, packed_dtype
 from subpix_ros.core.superres.result import NonFiniteImageError
 from subpix_ros.core.superres.workspace import Workspace
 from subpix_ros.runtime import release_freed_memory
@@ -75,6 +75,13 @@ PARAMS = (
         1.0e6,
     ),
     Spec(
+        "pack_members",
+        True,
+        "hold each waiting member of a colour set as its luminance in 2 bytes per pixel "
+        "(uint8 BGR: 3; uint16 BGR: 6), all the reconstruction reads from it; values within "
+        "1/512 DN of the float32 luminance (uint16 BGR: the same values)",
+    ),
+    Spec(
         "release_memory",
         False,
         "after each set, drop the solve's reused buffers and hand the heap's free pages back "
@@ -109,6 +116,30 @@ PARAMS = (
         600.0,
     ),
 )
+
+
+def _fits(ref: np.ndarray, member: Aligned) -> bool:
+    """Return True if ``member`` belongs in a set with reference image ``ref`` (same size)."""
+    if member.packed:
+        return (
+            ref.ndim == 3
+            and member.image.shape == ref.shape[:2]
+            and (member.image.dtype == packed_dtype(ref))
+        )
+    return member.image.shape == ref.shape and member.image.dtype == ref.dtype
+
+
+def _packed(member: Aligned) -> Aligned:
+    """Return a colour member as its packed luminance, all the reconstruction reads of it.
+
+    The chroma of a super-resolved image is the reference's, so a member is only read as
+    luminance: held in 2 bytes per pixel instead of 3 (uint8 BGR; values within 1/512 DN)
+    or 6 (uint16 BGR, as float32: the same values). Other members are returned as they are.
+    """
+    img = member.image
+    if img.ndim != 3 or img.dtype not in (np.uint8, np.uint16):
+        return member
+    return replace(member, image=pack_luminance(img), packed=True)
 
 
 @dataclass
@@ -280,6 +311,8 @@ class ReconstructionStage(Stage):
         for old in sorted(k for k in self.sets if k < key):
             ready += self._close(old, "next reference")
         members = self.sets.setdefault(key, [])
+        if self.param("pack_members") and _fits(aligned.reference.image, aligned):
+            aligned = _packed(aligned)
         members.append((shift, aligned))
         self._last_stamp_in[key] = max(shift.stamp_ns, self._last_stamp_in.get(key, shift.stamp_ns))
         if len(members) + 1 >= self.param("n_frames"):
@@ -404,13 +437,15 @@ class ReconstructionStage(Stage):
         else:
             masks = [np.ones(shape, bool)] + [a.valid_mask() for _, a in members]
         shifts = np.array([[0.0, 0.0]] + [[s.u, s.v] for s, _ in members])
-        if any(f.shape != ref.image.shape for f in frames):
-            self.error("frames of one set differ in size: set dropped")
+        if any(not _fits(ref.image, a) for _, a in members):
+            self.error("frames of one set differ in size or type: set dropped")
             return None
         # luminance only for a set the calibration measures (the first, then every 10th)
         mono = []
         if self.blur.due:  # frame 0 whole (the edge search); the others where the edges are
-            mono = [colour_luminance(frames[0])] + [lazy_luminance(f) for f in frames[1:]]
+            mono = [colour_luminance(frames[0])] + [
+                lazy_member_luminance(a.image, a.packed) for _, a in members
+            ]
         motion = set_motion_blur(fs, self.param("exposure_s"))
         if motion is None and self.param("exposure_s") > 0.0:
             self.warn(

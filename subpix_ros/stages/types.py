@@ -42,7 +42,9 @@ class Aligned:
     when asked); ``reference`` the frame it is aligned to; ``homography`` maps
     the original moving frame's pixel coordinates (x = column, y = row) to the
     reference's; ``prior`` the sub-pixel (u, v) the homography predicts is
-    left in.
+    left in. ``packed``: ``image`` is no longer the BGR frame but its luminance packed
+    by :func:`~subpix_ros.core.superres.luma.pack_luminance` (a member held by the
+    reconstruction: HxW, uint16 for uint8 BGR, float32 for uint16 BGR).
     """
 
     stamp_ns: int
@@ -54,6 +56,7 @@ class Aligned:
     frame_id: str = ""
     received: float = field(default_factory=time.monotonic)
     box: tuple[int, int, int, int] | None = None
+    packed: bool = False  # image is the frame's luminance packed (core.superres.luma)
 
     def __post_init__(self) -> None:
         if self.mask is None and self.box is None:

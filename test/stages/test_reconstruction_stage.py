@@ -473,3 +473,55 @@ def test_members_given_as_rectangles_give_the_image_their_masks_give(seq):
     assert out["box"].blur_source == out["mask"].blur_source
     assert out["box"].blur_sigma == out["mask"].blur_sigma
     assert np.array_equal(out["box"].image, out["mask"].image)
+
+
+def _colour_pairs(frames, shifts):
+    """Return (reference Frame, [(Shift, Aligned)]) of BGR frames at ``shifts`` (LR px)."""
+    ref = Frame(T0, frames[0])
+    pairs = []
+    for k in range(1, len(frames)):
+        stamp = T0 + k * DT
+        a = Aligned(stamp, frames[k], None, ref, np.eye(3), box=(0, 240, 0, 320))
+        u, v = shifts[k]
+        pairs.append((Shift(stamp, -1, float(u), float(v), 0.0, 0.01, 0.01), a))
+    return ref, pairs
+
+
+def test_colour_members_are_held_packed_and_give_the_same_image_within_a_level():
+    """A waiting colour member is held as its luminance in 2 bytes per pixel, not 3."""
+    import cv2
+
+    from subpix_ros.data import seneca_frame_paths
+
+    scene = cv2.imread(str(seneca_frame_paths()[4]), cv2.IMREAD_COLOR)
+    shifts = [(0.23 * k, 0.37 * k) for k in range(8)]
+    frames = []
+    for u, v in shifts:
+        m = np.float32([[1, 0, -300 + v], [0, 1, -300 + u]])
+        frames.append(cv2.warpAffine(scene, m, (320, 240), flags=cv2.INTER_CUBIC))
+    images, held = {}, {}
+    for pack in (True, False):
+        stage = ReconstructionStage(n_frames=8, pack_members=pack, blur_sigma="0.3")
+        ref, pairs = _colour_pairs(frames, shifts)
+        out = [sr for s, a in pairs[:-1] for sr in stage.add(s, a)]
+        (members,) = stage.sets.values()
+        held[pack] = sum(a.image.nbytes for _, a in members)
+        assert all(a.packed == pack for _, a in members)
+        out += stage.add(*pairs[-1])
+        assert len(out) == 1 and out[0].method.startswith("map") and not out[0].fell_back
+        images[pack] = out[0].image
+    assert held[True] * 3 == held[False] * 2
+    d = np.abs(images[True].astype(int) - images[False])
+    assert d.max() <= 1 and (d > 0).mean() < 0.01
+
+
+def test_a_member_of_another_type_drops_its_set_loudly():
+    """A mono member in a colour set is not packed nor read as a packed luminance: error."""
+    rng = np.random.default_rng(3)
+    frames = [rng.integers(0, 255, (240, 320, 3), dtype=np.uint8) for _ in range(4)]
+    frames[2] = frames[2][..., 0].copy()  # the camera switched to mono8 mid-set
+    stage = ReconstructionStage(n_frames=4, min_frames=2)
+    ref, pairs = _colour_pairs(frames, [(0.0, 0.0), (0.5, 0.0), (0.0, 0.5), (0.5, 0.5)])
+    out = [sr for s, a in pairs for sr in stage.add(s, a)]
+    assert out == [] and stage.stats.errors == 1
+    assert "differ in size or type" in stage.stats.last_error

@@ -12,17 +12,18 @@ Modules, by concern:
 * :mod:`.geometry`, :mod:`.lowpass`: shift refinement and the check for more than a
   translation, with the shift package's batched estimator
   (:func:`subpix_ros.core.shift.lucas_kanade_batch`);
-* :mod:`.masks`, :mod:`.budget`: border-strip masks on the fast path, and a memory budget.
+* :mod:`.masks`, :mod:`.budget`: border-strip masks on the fast path, and a memory budget;
+* :mod:`.luma`: the frames' luminance, and set members packed as their luminance.
 """
 
 from .budget import BudgetPlan, estimate_peak_mb, plan_reconstruction, reconstruct_within_budget
 from .geometry import detect_geometry
+from .luma import colour_luminance, pack_luminance
 from .masks import bicubic_outside, reconstruct_aligned
 from .model import FrameOperator, frame_transfer_1d, gaussian_kernel, translation_homography
 from .paper import grid_offsets, interleave, pinv_solution, windowed_solution
 from .reconstruction import (  # noqa: F401  (_reconstruct: the stages read its options)
     _reconstruct,
-    colour_luminance,
     reconstruct,
     reconstruct_colour,
 )
@@ -53,6 +54,7 @@ __all__ = [
     "reconstruct_aligned",
     "reconstruct_colour",
     "colour_luminance",
+    "pack_luminance",
     "reconstruct_within_budget",
     "translation_homography",
     "windowed_solution",

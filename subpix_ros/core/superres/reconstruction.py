@@ -50,6 +50,12 @@ from .cg_map import _cg_map
 from .fourier_map import MapSolution, _fourier_map
 from .geometry import detect_geometry
 from .lowpass import _WholeLowpass
+from .luma import (  # noqa: F401  (LazyLuminance, lazy_luminance: imported from here too)
+    LazyLuminance,
+    frame_luminance,
+    lazy_luminance,
+    packed_dtype,
+)
 from .model import motion_blur_vector, translation_homography
 from .paper import grid_offsets, interleave, pinv_solution, windowed_solution
 from .result import (
@@ -500,142 +506,6 @@ def _map_result(
     )
 
 
-def colour_luminance(frame: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """Return the luminance :func:`reconstruct_colour` super-resolves (a mono frame as it is).
-
-    Parameters
-    ----------
-    frame : numpy.ndarray
-        HxWx3 BGR frame (OpenCV order), or a 2-D mono frame.
-    out : numpy.ndarray, optional
-        C-contiguous float32 HxW array to write a colour frame's luminance into (e.g. a
-        reused buffer); default: a new array. A mono frame is returned as it is, ``out``
-        unused.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``Y = 0.299 R + 0.587 G + 0.114 B`` (ITU-R BT.601, ``cv2.COLOR_BGR2GRAY``) in float32 on
-        the frame's own scale; a 2-D frame is returned unchanged.
-    """
-    if frame.ndim == 2:
-        return frame
-    if out is None:
-        out = np.empty(frame.shape[:2], np.float32)
-    elif out.shape != frame.shape[:2] or out.dtype != np.float32 or not out.flags.c_contiguous:
-        raise ValueError(f"out must be C-contiguous float32 of shape {frame.shape[:2]}")
-    if frame.dtype == np.float32:
-        return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY, dst=out)
-    # in blocks of rows: each block's float32 copy stays in cache (same values as converting
-    # the whole frame first: the conversion and the weighted sum are per pixel)
-    for r0 in range(0, frame.shape[0], _LUMA_ROWS):
-        _luma_block(frame, r0, out[r0 : r0 + _LUMA_ROWS])
-    return out
-
-
-_LUMA_ROWS = 64  # rows per block of colour_luminance
-
-
-def _luma_block(frame: np.ndarray, r0: int, out: np.ndarray) -> np.ndarray:
-    """Write the luminance of the ``_LUMA_ROWS`` full rows from ``r0`` of an integer BGR frame.
-
-    The one conversion :func:`colour_luminance` and :class:`LazyLuminance` both use, so their
-    values are the same bit for bit.
-    """
-    blk = frame[r0 : r0 + _LUMA_ROWS].astype(np.float32)
-    return cv2.cvtColor(blk, cv2.COLOR_BGR2GRAY, dst=out)
-
-
-def lazy_luminance(frame: np.ndarray):
-    """Return a :class:`LazyLuminance` of ``frame`` where one applies, else its luminance.
-
-    Integer BGR frames are converted where they are read; mono frames (as they are) and
-    float32 BGR frames (one conversion) go through :func:`colour_luminance`.
-    """
-    if frame.ndim == 3 and frame.shape[2] == 3 and frame.dtype != np.float32:
-        return LazyLuminance(frame)
-    return colour_luminance(frame)
-
-
-class LazyLuminance:
-    """:func:`colour_luminance` of a uint8/uint16 BGR frame, computed only where it is read.
-
-    For the blur calibration, which reads a few edge ROIs, a central square and the intensity
-    range of most frames: it needs no frame-sized float32 copy of each.
-
-    Parameters
-    ----------
-    frame : numpy.ndarray
-        HxWx3 BGR frame, integer dtype.
-
-    Notes
-    -----
-    Slicing ``lum[r0:r1, c0:c1]`` returns float32 values bit-identical to
-    ``colour_luminance(frame)[r0:r1, c0:c1]``: the rows are converted in the same blocks of
-    ``_LUMA_ROWS`` full rows as :func:`colour_luminance` converts them (OpenCV's vector and
-    scalar loops may round differently, so a crop converted alone can differ in the last
-    bit). :meth:`min` and :meth:`max` convert every block once, keeping none.
-    """
-
-    ndim = 2
-    dtype = np.dtype(np.float32)
-
-    def __init__(self, frame: np.ndarray) -> None:
-        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype == np.float32:
-            raise ValueError("LazyLuminance takes an integer HxWx3 BGR frame")
-        self.frame = frame
-        self.shape = tuple(frame.shape[:2])
-        self._blocks: dict[int, np.ndarray] = {}
-        self._range: tuple[float, float] | None = None
-
-    def _block(self, b: int, keep: bool = True) -> np.ndarray:
-        """Return the luminance of row block ``b`` (rows ``b * _LUMA_ROWS`` onwards)."""
-        out = self._blocks.get(b)
-        if out is None:
-            rows = min(_LUMA_ROWS, self.shape[0] - b * _LUMA_ROWS)
-            out = _luma_block(
-                self.frame, b * _LUMA_ROWS, np.empty((rows, self.shape[1]), np.float32)
-            )
-            if keep:
-                self._blocks[b] = out
-        return out
-
-    def __getitem__(self, key) -> np.ndarray:
-        """Return ``colour_luminance(frame)[rows, cols]`` for two slices of step 1."""
-        rows, cols = key
-        r0, r1, step = rows.indices(self.shape[0])
-        if step != 1 or not isinstance(cols, slice):
-            raise IndexError("LazyLuminance takes [r0:r1, c0:c1]")
-        if r1 <= r0:
-            return np.empty((0, self.shape[1]), np.float32)[:, cols]
-        first, last = r0 // _LUMA_ROWS, (r1 - 1) // _LUMA_ROWS
-        band = [self._block(b) for b in range(first, last + 1)]
-        band = band[0] if len(band) == 1 else np.concatenate(band)
-        return band[r0 - first * _LUMA_ROWS : r1 - first * _LUMA_ROWS, cols]
-
-    def _minmax(self) -> tuple[float, float]:
-        if self._range is None:
-            lo, hi = np.inf, -np.inf
-            for b in range(-(-self.shape[0] // _LUMA_ROWS)):
-                blk = self._block(b, keep=False)
-                lo, hi = min(lo, float(blk.min())), max(hi, float(blk.max()))
-            self._range = (lo, hi)
-        return self._range
-
-    def min(self) -> float:
-        """Return the smallest luminance value (as ``colour_luminance(frame).min()``)."""
-        return self._minmax()[0]
-
-    def max(self) -> float:
-        """Return the largest luminance value."""
-        return self._minmax()[1]
-
-    def __array__(self, dtype=None, copy=None) -> np.ndarray:
-        """Return the whole luminance (as :func:`colour_luminance`)."""
-        full = colour_luminance(self.frame)
-        return full if dtype is None else full.astype(dtype, copy=False)
-
-
 def reconstruct_colour(
     frames_bgr: Sequence[np.ndarray],
     shifts: np.ndarray | Sequence[Sequence[float]] | None,
@@ -649,6 +519,9 @@ def reconstruct_colour(
     ----------
     frames_bgr : sequence of numpy.ndarray
         HxWx3 BGR frames (OpenCV order), or 2-D frames (then this is :func:`reconstruct`).
+        With a BGR frame 0, a 2-D frame after it is a member packed by
+        :func:`~subpix_ros.core.superres.luma.pack_luminance` (its luminance; only frame 0's
+        chroma is used).
     shifts, factor
         As :func:`reconstruct`.
     out_dtype : numpy dtype, optional
@@ -690,15 +563,22 @@ def reconstruct_colour(
                 raise NonFiniteImageError("reconstruction produced non-finite pixels")
             res.image = to_integer_image(res.image, out_dtype)
         return res
-    if any(a.ndim != 3 or a.shape[2] != 3 for a in arrs):
-        raise ValueError("colour frames must all be HxWx3 (BGR)")
+    if (
+        arrs[0].ndim != 3
+        or arrs[0].shape[2] != 3
+        or any(not _member_ok(a, arrs[0]) for a in arrs[1:])
+    ):
+        raise ValueError(
+            "colour frames must be HxWx3 (BGR); a 2-D member must be packed "
+            "(pack_luminance: uint16 for uint8 BGR, float32 for uint16 BGR)"
+        )
     # luminance of every frame (Y of YCrCb is BGR2GRAY's weighted sum), chroma of the reference
-    if all(a.shape == arrs[0].shape for a in arrs):  # else reconstruct says which differ
+    if all(a.shape[:2] == arrs[0].shape[:2] for a in arrs):  # else reconstruct says which differ
         shape = (len(arrs),) + arrs[0].shape[:2]
         stack = work_array(kwargs.get("workspace"), "luminance", shape, np.float32)
-        ys = [colour_luminance(a, out=stack[i]) for i, a in enumerate(arrs)]
+        ys = [frame_luminance(a, out=stack[i]) for i, a in enumerate(arrs)]
     else:
-        ys = [colour_luminance(a) for a in arrs]
+        ys = [frame_luminance(a) for a in arrs]
     # float32 luminance: the colour image is assembled in float32 (no float64 copy of it)
     res = reconstruct(ys, shifts, factor, **{"hr_dtype": np.float32, **kwargs})
     p = res.factor
@@ -714,6 +594,13 @@ def reconstruct_colour(
     merged = cv2.merge([res.image.astype(np.float32), chroma[..., 0], chroma[..., 1]])
     res.image = cv2.cvtColor(merged, cv2.COLOR_YCrCb2BGR, dst=merged)  # in place: 100 MB at 4K
     return res
+
+
+def _member_ok(frame: np.ndarray, ref: np.ndarray) -> bool:
+    """Return True for a member of a colour set: HxWx3 BGR, or packed (:func:`pack_luminance`)."""
+    if frame.ndim == 2:
+        return frame.dtype == packed_dtype(ref)
+    return frame.ndim == 3 and frame.shape[2] == 3
 
 
 def _colour_integer(

@@ -29,9 +29,14 @@ by ``d`` (1 and 2 px, along (0.8, 0.6) and along the columns), true optics 0.3 p
 ``motion_blur=d``), ``auto`` and ``auto+d`` (``blur_sigma="auto"`` without and with the
 motion blur; ``est``, ``est+d``: the blur each used).
 
+Image prior (``--prior P[,Q...]``, issue 17): ``told`` and ``auto`` use ``reconstruct(...,
+prior=P)``; each further prior Q adds the columns ``told:Q`` and ``auto:Q`` (Q's first letter)
+in the same run, on the same frames, and a summary of Q against P (cells where auto >= CG + 1
+dB, min gain, change in told and auto). The timing then reconstructs with every prior given.
+
 Run: ``python benchmarks/bench_superres_blind.py [--quick] [--json out.json]
 [--only quality|timing] [--motion] [--snr DB] [--max-blur PX] [--scene none|edge]
-[--cg-lambda L]``.
+[--cg-lambda L] [--scene-blur G] [--prior powerlaw,rolloff]``.
 """
 
 from __future__ import annotations
@@ -98,15 +103,26 @@ def scenes_for(k: int):
     return [(CROP_NAMES[k % n], False), (CROP_NAMES[(k + 1) % n], True)]
 
 
+def prior_kw(prior: str | None) -> dict:
+    """``reconstruct``'s keyword for an image prior (none: the code's default, any version)."""
+    return {} if prior is None else {"prior": prior}
+
+
 def quality(
-    quick: bool, json_out: str | None, only=None, cg_lambda=None, scene_blur: float = 0.0
+    quick: bool,
+    json_out: str | None,
+    only=None,
+    cg_lambda=None,
+    scene_blur: float = 0.0,
+    priors: tuple = (None,),
 ) -> None:
     """Print the table; ``only``: (snr, max blur, scene) filters (None: all), same seeds.
 
     ``cg_lambda``: CG's weight for every factor (default: tuned on each factor's first cell).
     ``scene_blur``: a Gaussian of this std (HR px) applied to each crop before rendering: a
     scene soft in itself (the truth is the soft crop; a roof is still drawn sharp), which
-    translated frames cannot tell from camera blur.
+    translated frames cannot tell from camera blur. ``priors``: the image prior of ``told`` and
+    ``auto`` (None: the default), then those compared with it (extra columns).
     """
     snr_only, max_blur, scene_only = only or (None, None, None)
     crops = {c: load_crop(c) for c in CROP_NAMES}
@@ -130,6 +146,7 @@ def quality(
             f"{'est':>5s} {'w':>4s} {'src':5s}"
             for t in ("none", "edge")
         )
+        + "".join(f" | told:{q[0]} auto:{q[0]}" for q in priors[1:])
         + " | s"
     )
     print(hdr)
@@ -182,6 +199,7 @@ def quality(
                     for lm in (0.003, 0.01, 0.03, 0.1)
                 )[1]
             g_cg = gain(fl, tikhonov_cg(frames, sh, p, lam[p]))
+            kw.update(prior_kw(priors[0]))
             told = reconstruct(frames, sh, p, blur_sigma=cell["blur"], **kw)
             told_fill = (
                 reconstruct(frames, sh, p, blur_sigma=cell["blur"], pixel_fill=ff, **kw)
@@ -209,10 +227,17 @@ def quality(
                 lam=lam[p],
                 n_frames=len(frames),
             )
+            for q in priors[1:]:  # the same frames with each further prior
+                kq = dict(kw, prior=q)
+                rec[f"told:{q}"] = gain(
+                    fl, reconstruct(frames, sh, p, blur_sigma=cell["blur"], **kq).image
+                )
+                rec[f"auto:{q}"] = gain(fl, run_auto(frames, sh, p, **kq).image)
             rows.append(rec)
             line.append(
                 f"{'':4s} {ff:3.1f} {rec['cg']:+6.2f} {rec['told']:+6.2f} {rec['told_fill']:+6.2f} "
                 f"{rec['auto']:+7.2f} {est:5.2f} {rec['est_fill']:4.2f} {src[:5]:5s}"
+                + "".join(f" {rec[f'told:{q}']:+6.2f} {rec[f'auto:{q}']:+6.2f}" for q in priors[1:])
             )
         extra = (
             f"jpeg{cell['jpeg']}"
@@ -226,8 +251,26 @@ def quality(
             flush=True,
         )
     summarise(rows, label_auto)
+    for q in priors[1:]:
+        compare_priors(rows, priors[0] or "default", q)
     if json_out:
         Path(json_out).write_text(json.dumps(rows, indent=1))
+
+
+def compare_priors(rows, base: str, q: str) -> None:
+    """Print prior ``q`` against the base prior on the same scene-cells."""
+    cg = np.array([r["cg"] for r in rows])
+    print(f"\nPrior {q} against {base} ({len(rows)} scene-cells):")
+    for col in ("auto", "told"):
+        a0 = np.array([r[col] for r in rows])
+        a1 = np.array([r[f"{col}:{q}"] for r in rows])
+        d = a1 - a0
+        print(
+            f"  {col:4s}: >= CG + 1 dB in {(a0 >= cg + 1.0).sum()} -> {(a1 >= cg + 1.0).sum()}; "
+            f"min gain over bicubic {a0.min():+.2f} -> {a1.min():+.2f} dB; change median "
+            f"{np.median(d):+.2f}, worst {d.min():+.2f}, best {d.max():+.2f} dB; "
+            f"cells worse by > 0.3 dB: {(d < -0.3).sum()}"
+        )
 
 
 def motion_cells(quick: bool):
@@ -392,7 +435,7 @@ def summarise(rows, label_auto):
             )
 
 
-def timing(repeats: int) -> None:
+def timing(repeats: int, priors: tuple = (None,)) -> None:
     """Calibration on 8 frames of 512x512 and one set's reconstruction with a fixed blur vs auto."""
     hr = load_crop("crop_road")
     p = 2
@@ -430,10 +473,15 @@ def timing(repeats: int) -> None:
             f"(sigma {est.sigma:.3f} px, source {est.source}, {est.n_edges} edges)"
         )
     sh = est_shifts(fl.frames)
-    for name, kw in (
-        ("fixed blur 0.4", dict(blur_sigma=0.4)),
-        ("fixed blur 0.4, shifts as given", dict(blur_sigma=0.4, refine_shifts=False)),
-    ):
+    runs = [
+        (f"{name}{'' if q is None else ', ' + q}", dict(kw, **prior_kw(q)))
+        for q in priors
+        for name, kw in (
+            ("fixed blur 0.4", dict(blur_sigma=0.4)),
+            ("fixed blur 0.4, shifts as given", dict(blur_sigma=0.4, refine_shifts=False)),
+        )
+    ]
+    for name, kw in runs:
         ts = []
         for _ in range(repeats):
             t = time.perf_counter()
@@ -472,7 +520,14 @@ def main() -> None:
         help="blur every crop by a Gaussian of this std (HR px) before rendering: scenes soft "
         "in themselves, which a blind estimate reads as camera blur (default 0)",
     )
+    ap.add_argument(
+        "--prior",
+        default=None,
+        help="image prior(s), comma-separated (e.g. powerlaw,rolloff): the first for told and "
+        "auto, the others compared with it on the same frames (default: the code's default)",
+    )
     args = ap.parse_args()
+    priors = (None,) if args.prior is None else tuple(args.prior.split(","))
     print(
         f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; "
         f"OpenCV threads {cv2.getNumThreads()}"
@@ -487,9 +542,10 @@ def main() -> None:
             (args.snr, args.max_blur, args.scene),
             args.cg_lambda,
             args.scene_blur,
+            priors,
         )
     if args.only in (None, "timing"):
-        timing(args.repeats)
+        timing(args.repeats, priors)
 
 
 if __name__ == "__main__":

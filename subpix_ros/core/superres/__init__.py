@@ -28,7 +28,7 @@ from .reconstruction import (  # noqa: F401  (_reconstruct: the stages read its 
     reconstruct_colour,
 )
 from .result import BLUR_AUTO, MAX_FACTOR, METHODS, SRResult, bicubic_upscale, psnr
-from .spectrum import estimate_noise_sigma, fit_spectrum
+from .spectrum import estimate_noise_sigma, fit_rolloff_spectrum, fit_spectrum
 
 __all__ = [
     "BLUR_AUTO",
@@ -42,6 +42,7 @@ __all__ = [
     "detect_geometry",
     "estimate_noise_sigma",
     "estimate_peak_mb",
+    "fit_rolloff_spectrum",
     "fit_spectrum",
     "frame_transfer_1d",
     "gaussian_kernel",

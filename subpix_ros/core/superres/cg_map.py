@@ -7,6 +7,7 @@ from typing import Sequence
 import numpy as np
 
 from .model import FrameOperator
+from .spectrum import rolloff_precision
 
 
 def _cg_map(
@@ -21,6 +22,7 @@ def _cg_map(
     x0: np.ndarray,
     iters: int,
     motion_blur: tuple[float, float] = (0.0, 0.0),
+    rolloff: float = 0.0,
 ) -> np.ndarray:
     """Compute the MAP estimate of eq. 9 by conjugate gradients with the spatial operators.
 
@@ -49,6 +51,9 @@ def _cg_map(
     motion_blur : (float, float), optional
         Image motion during the exposure ``(du, dv)`` (LR px; default none): a line kernel
         in every frame operator.
+    rolloff : float, optional
+        ``k`` of the prior's Gaussian roll-off, ``S_x(f) = c |f|^-alpha exp(-k |f|^2)``
+        (f in cycles / HR px; default 0: none).
 
     Returns
     -------
@@ -69,6 +74,8 @@ def _cg_map(
     fx = np.fft.rfftfreq(hw)[None, :]
     fr = np.hypot(fy, fx)
     prec = np.where(fr > 0, np.maximum(fr, 1e-6) ** alpha / c, 0.0)
+    if rolloff > 0:
+        prec *= rolloff_precision(fr * fr, rolloff)
     ops = _masked_operators(frames, homographies, p, blur_sigma, masks, (hh, hw), motion_blur)
     inv_var = 1.0 / noise_sigma**2
 

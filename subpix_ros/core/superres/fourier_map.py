@@ -27,7 +27,13 @@ from .geometry import _refine_shifts
 from .lowpass import _preshift_window, _WholeLowpass
 from .model import _frame_transfers, motion_transfer
 from .separable import _solve_separable
-from .spectrum import _SPECTRUM_CROP, fit_spectrum
+from .spectrum import (
+    _SPECTRUM_CROP,
+    fit_rolloff_spectrum,
+    fit_spectrum,
+    rolloff_coefficient,
+    rolloff_precision,
+)
 from .validation import FrameStack, stored
 from .workspace import Workspace, work_array
 
@@ -59,6 +65,9 @@ class MapSolution:
         (N,) how far (LR px, largest axis) each given shift was from the frames' own
         registration where the two disagreed and the latter was used instead (0 elsewhere);
         None when the refinement did not run or the shifts were refined anyway.
+    rolloff : float
+        Width s (LR px) of the prior's Gaussian roll-off ``exp(-4 pi^2 p^2 s^2 |f|^2)``
+        (0: none, ``prior="powerlaw"``).
     """
 
     image: np.ndarray
@@ -70,6 +79,10 @@ class MapSolution:
     kept: np.ndarray
     resid_ratio: np.ndarray | None = None
     disputed: np.ndarray | None = None
+    rolloff: float = 0.0
+
+
+PRIORS = ("powerlaw", "rolloff")  # the image priors of the MAP solve
 
 
 @dataclass
@@ -183,6 +196,7 @@ def _fourier_map(
     pixel_fill: float = 1.0,
     hr_dtype=np.float64,
     workspace: Workspace | None = None,
+    prior: str = "powerlaw",
 ) -> MapSolution:
     """Compute the MAP estimate of eq. 9 for translated frames, per LR frequency bin.
 
@@ -223,6 +237,10 @@ def _fourier_map(
     workspace : Workspace or None, optional
         Buffers reused for the frame spectra, the padded frame and the HR spectrum (the
         returned image is never one of them).
+    prior : {"powerlaw", "rolloff"}, optional
+        The image prior: ``c |f|^-alpha`` (default) or that times a Gaussian roll-off
+        ``exp(-4 pi^2 p^2 s^2 |f|^2)``, s fitted too
+        (:func:`~subpix_ros.core.superres.spectrum.fit_rolloff_spectrum`).
 
     Returns
     -------
@@ -239,7 +257,8 @@ def _fourier_map(
     with ``a_nm`` from ``frame_transfer_1d`` (box, blur, shift, times the expected-transfer
     factor ``E_nm = exp(-2 pi^2 f_m^T C_n f_m)`` of the registration error covariance
     ``C_n``), noise variance ``v_n = HW sigma^2 + sum_m |a_nm|^2 P_m (1 - E_nm^2)`` and the
-    prior ``E|X_m|^2 = P_m = c |f_m|^-alpha`` (DC unregularised). The MAP solution
+    prior ``E|X_m|^2 = P_m = c |f_m|^-alpha`` (times ``exp(-4 pi^2 p^2 s^2 |f_m|^2)`` with
+    ``prior="rolloff"``; DC unregularised). The MAP solution
     ``X = (A^H V^-1 A + reg P^-1)^-1 A^H V^-1 Y`` (or eq. 9's form
     ``X = P A^H (A P A^H + V/reg)^-1 Y`` when N < p^2, identical), all bins at once.
     """
@@ -261,8 +280,8 @@ def _fourier_map(
     spec = work_array(workspace, "spectra", (n, hp, wc), np.complex64)
     for i, frame in enumerate(padded):  # per frame: single-precision DFT, rfft half
         _rfft2_32(frame, out=spec[i])
-    c_psd, alpha, noise_sigma = _fit_prior(
-        registered, p, blur_sigma, noise_sigma, integer_valued, motion_blur, pixel_fill
+    c_psd, alpha, s_roll, noise_sigma = _fit_prior(
+        registered, p, blur_sigma, noise_sigma, integer_valued, motion_blur, pixel_fill, prior
     )
     noise_power = hp * wp * noise_sigma**2
     c = c_psd * p * p * hp * wp  # prior in HR DFT units: E|X|^2 = (p hp)(p wp) S_x
@@ -280,14 +299,17 @@ def _fourier_map(
         (hp, wp),
         motion_blur,
         pixel_fill,
+        rolloff_coefficient(p, s_roll),
     )
     img = _assemble_hr(xs, hp, wp, workspace)
     out = img[p * pad : p * (pad + h), p * pad : p * (pad + w)]
     if out.dtype != hr_dtype:
         out = out.astype(hr_dtype)
-    return _per_input_frame(
+    sol = _per_input_frame(
         out, shifts, registered, cov, wsum, resid_ratio, (c_psd, alpha), noise_sigma
     )
+    sol.rolloff = s_roll
+    return sol
 
 
 def _register(
@@ -390,10 +412,12 @@ def _fit_prior(
     integer_valued: bool | None,
     motion_blur: tuple[float, float] = (0.0, 0.0),
     pixel_fill: float = 1.0,
-) -> tuple[float, float, float]:
-    """Fit the prior and settle the noise level: ``(c_psd, alpha, noise_sigma)``.
+    prior: str = "powerlaw",
+) -> tuple[float, float, float, float]:
+    """Fit the prior and settle the noise level: ``(c_psd, alpha, s, noise_sigma)``.
 
-    The prior is fitted (:func:`~subpix_ros.core.superres.spectrum.fit_spectrum`, through the
+    The prior is fitted (:func:`~subpix_ros.core.superres.spectrum.fit_spectrum`, or
+    ``fit_rolloff_spectrum`` with ``prior="rolloff"``, else s = 0; through the
     motion blur's transfer too if any) on the central crop of the first two integer-preshifted
     frames. An unknown noise level is the
     registration's multi-frame estimate, else the fit's, floored at the rounding noise
@@ -415,7 +439,8 @@ def _fit_prior(
     if noise_sigma is None and np.isfinite(registered.lk_noise):
         noise_sigma = registered.lk_noise
     kw = dict(motion_blur=motion_blur, pixel_fill=pixel_fill)
-    c_psd, alpha, sig_fit = fit_spectrum(pre, p, blur_sigma, noise_sigma, **kw)
+    fit = functools.partial(_fit_shape, prior, pre, p, blur_sigma, **kw)
+    c_psd, alpha, s_roll, sig_fit = fit(noise_sigma)
     if noise_sigma is None:
         if integer_valued is None:  # integer dtypes are known to be; float data are checked
             integer_valued = (
@@ -426,8 +451,16 @@ def _fit_prior(
         floor = 1.0 / np.sqrt(12.0) if integer_valued else 0.05
         noise_sigma = max(sig_fit, floor)
         if sig_fit < floor:  # refit the prior level with the floor as the noise
-            c_psd, alpha, _ = fit_spectrum(pre, p, blur_sigma, noise_sigma, **kw)
-    return c_psd, alpha, max(noise_sigma, 0.05)
+            c_psd, alpha, s_roll, _ = fit(noise_sigma)
+    return c_psd, alpha, s_roll, max(noise_sigma, 0.05)
+
+
+def _fit_shape(prior: str, pre, p, blur_sigma, noise_sigma, **kw) -> tuple[float, ...]:
+    """Return ``(c_psd, alpha, s, sigma)`` of the prior ``prior`` (s = 0 for "powerlaw")."""
+    if prior == "rolloff":
+        return fit_rolloff_spectrum(pre, p, blur_sigma, noise_sigma, **kw)
+    c_psd, alpha, sig = fit_spectrum(pre, p, blur_sigma, noise_sigma, **kw)
+    return c_psd, alpha, 0.0, sig
 
 
 def _error_covariance(
@@ -459,6 +492,7 @@ def _solve_bins(
     padded_shape: tuple[int, int],
     motion_blur: tuple[float, float] = (0.0, 0.0),
     pixel_fill: float = 1.0,
+    rolloff: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve every LR bin: ``(xs, wsum, resid_ratio)``.
 
@@ -466,7 +500,8 @@ def _solve_bins(
     ``2 pi^2 max tr(C) / 2 < 1e-3``) the weights are constant and the separable solver is
     used; otherwise :func:`_solve_uncertain`. ``wsum`` is each frame's summed ``|a|^2``
     weight at DC (alias 0, row and column 0). A motion blur enters as a prior gain
-    ``|M|^2`` on ``Z = M X``, then ``X = Z / M`` (see :func:`_fourier_map`).
+    ``|M|^2`` on ``Z = M X``, then ``X = Z / M`` (see :func:`_fourier_map`). ``rolloff`` is
+    ``k`` of the prior's roll-off ``exp(-k |f|^2)`` (0: none).
     """
     hp, wp = padded_shape
     n = spec.shape[0]
@@ -483,13 +518,35 @@ def _solve_bins(
                 for m2 in range(p)
             ]
         xs = _solve_separable(
-            spec, ay, ax, fy, fx, c, alpha, reg, noise_power, shifts=resid, prior_gain=gain
+            spec,
+            ay,
+            ax,
+            fy,
+            fx,
+            c,
+            alpha,
+            reg,
+            noise_power,
+            shifts=resid,
+            prior_gain=gain,
+            rolloff=rolloff,
         )
         wsum = np.sum(np.abs(ay[:, 0]) ** 2, axis=1) * np.sum(np.abs(ax[:, 0]) ** 2, axis=1)
         out = xs, wsum, np.full(n, np.nan)
     else:
         out = _solve_uncertain(
-            spec, ay, ax, fy, fx, cov, c, alpha, reg, noise_power, motion_blur if moving else None
+            spec,
+            ay,
+            ax,
+            fy,
+            fx,
+            cov,
+            c,
+            alpha,
+            reg,
+            noise_power,
+            motion_blur if moving else None,
+            rolloff,
         )
     if moving:
         xs = out[0]
@@ -532,11 +589,13 @@ def _solve_uncertain(
     reg: float,
     noise_power: float,
     motion_blur: tuple[float, float] | None = None,
+    rolloff: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve every bin with per-frame expected transfers and noise (see :func:`_fourier_map`).
 
     Chunks of LR spectrum rows bound the memory. With ``motion_blur`` the prior is that of
-    ``Z = M X`` (``|M|^2 P``; the caller divides by M). Returns ``(xs, wsum, resid_ratio)``: the
+    ``Z = M X`` (``|M|^2 P``; the caller divides by M); ``rolloff`` is ``k`` of the prior's
+    roll-off ``exp(-k |f|^2)``. Returns ``(xs, wsum, resid_ratio)``: the
     alias components, each frame's summed weight ``|a|^2 / v`` at kx = 0, and its mean
     normalised residual ``|Y - A X|^2 / v`` over the bins.
     """
@@ -561,6 +620,7 @@ def _solve_uncertain(
             reg,
             noise_power,
             motion_blur,
+            rolloff,
         )
         xs[:, :, r0:r1, :] = sol.T.reshape(p, p, r1 - r0, wc)
         resid_ratio += res2
@@ -581,6 +641,7 @@ def _solve_rows(
     reg: float,
     noise_power: float,
     motion_blur: tuple[float, float] | None = None,
+    rolloff: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve the bins of a block of LR spectrum rows (:func:`_solve_uncertain`).
 
@@ -594,6 +655,8 @@ def _solve_rows(
     fxy = fyc[:, None, :, None] * fx[None, :, None, :]
     fr = np.sqrt(f2y + f2x)
     prior = np.where(fr > 0, c * np.maximum(fr, 1e-6) ** (-alpha), 1e30)  # (p,p,R,wc)
+    if rolloff > 0:  # P(f) exp(-k |f|^2), the exponent capped
+        prior = prior / rolloff_precision(f2y + f2x, rolloff)
     if motion_blur is not None:  # the prior of Z = M X
         prior = prior * np.square(
             _motion_gain(fyc[:, None, :, None], fx[None, :, None, :], p, motion_blur),
@@ -618,7 +681,7 @@ def _solve_rows(
     vb = var.reshape(n, -1).T
     yb = spec_rows.reshape(n, -1).T
     pb = prior.reshape(k, -1).T / reg
-    if n >= k:
+    if n >= k or rolloff > 0:  # eq. 9's form would mix the DC's 1e30 with a roll-off's e^-60
         aw = np.conj(ab).transpose(0, 2, 1) / vb[:, None, :]  # (B,k,n)
         gram = aw @ ab
         idx = np.arange(k)

@@ -47,7 +47,7 @@ import numpy as np
 
 from ..blur import BlurEstimate, estimate_blur, parse_blur_sigma
 from .cg_map import _cg_map
-from .fourier_map import MapSolution, _fourier_map
+from .fourier_map import PRIORS, MapSolution, _fourier_map
 from .geometry import detect_geometry
 from .lowpass import _WholeLowpass
 from .luma import (  # noqa: F401  (LazyLuminance, lazy_luminance: imported from here too)
@@ -69,7 +69,7 @@ from .result import (
     context_bands,
     to_integer_image,
 )
-from .spectrum import estimate_noise_sigma
+from .spectrum import estimate_noise_sigma, rolloff_coefficient
 from .validation import FrameStack, _check_options, _small_ints, _validate
 from .workspace import Workspace, work_array
 
@@ -122,6 +122,10 @@ def reconstruct(
           to every frame (only "map" uses it; see Notes);
         - ``noise_sigma``: per-pixel noise std (DN); estimated from the frames if None;
         - ``reg``: prior strength multiplier (1 = the prior fitted to the data);
+        - ``prior``: the image prior of "map", ``"powerlaw"`` (default,
+          ``S_x(f) = c |f|^-alpha``) or ``"rolloff"`` (that times a Gaussian roll-off
+          ``exp(-4 pi^2 p^2 s^2 |f|^2)``, s in LR px fitted with c and alpha:
+          :func:`~subpix_ros.core.superres.spectrum.fit_rolloff_spectrum`);
         - ``refine_shifts``: refine the shifts against frame 0 (default True);
         - ``geometry``: "auto" (default) checks by tile registration
           (:func:`detect_geometry`) whether the frames are related by more than a
@@ -206,6 +210,7 @@ def _reconstruct(
     noise_sigma: float | None = None,
     blur_sigma: float = 0.4,
     reg: float = 1.0,
+    prior: str = "powerlaw",
     refine_shifts: bool = True,
     geometry: str = "auto",
     window: int | None = None,
@@ -223,6 +228,8 @@ def _reconstruct(
     arrs, rel, p = _validate(frames, shifts, factor, masks, shift_cov, homographies)
     n = len(arrs)
     _check_options(method, geometry, blur_sigma, reg, noise_sigma)
+    if prior not in PRIORS:
+        raise ValueError(f"unknown prior {prior!r}; choose from {PRIORS}")
     # single-frame estimate for the non-MAP paths and fallbacks (MAP estimates it jointly)
     sigma = float("nan") if noise_sigma is None else float(noise_sigma)
     if noise_sigma is None and method != "map":
@@ -258,6 +265,7 @@ def _reconstruct(
         homographies=homographies,
         blur_sigma=blur_sigma,
         reg=reg,
+        prior=prior,
         refine_shifts=refine_shifts,
         geometry=geometry,
         pad=pad,
@@ -339,6 +347,7 @@ class _MapOptions:
     pixel_fill: float = 1.0
     hr_dtype: np.dtype = np.dtype(np.float64)
     workspace: Workspace | None = None
+    prior: str = "powerlaw"
 
 
 def _map_method(
@@ -388,6 +397,7 @@ def _map_method(
             pixel_fill=opts.pixel_fill,
             hr_dtype=np.float64 if use_cg else opts.hr_dtype,
             workspace=opts.workspace,
+            prior=opts.prior,
         )
     except (ValueError, np.linalg.LinAlgError) as exc:
         return _fallback(ref, p, f"MAP solve failed: {exc}", sigma, n, rel)
@@ -411,6 +421,7 @@ def _map_method(
             img,
             opts.cg_iters,
             opts.motion_blur,
+            rolloff_coefficient(p, sol.rolloff),
         )
         method_used = "map-cg"
     return _map_result(img, ref, p, sol, method_used, reason, rel)

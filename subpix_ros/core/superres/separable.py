@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from .dft import _as_c2
+from .spectrum import rolloff_precision
 
 
 def _solve_separable(
@@ -31,6 +32,7 @@ def _solve_separable(
     block_bins: int = 1 << 16,
     shifts: np.ndarray | None = None,
     prior_gain: list | None = None,
+    rolloff: float = 0.0,
 ) -> np.ndarray:
     """Solve eq. 9 per LR bin (normal equations) when every frame's noise is white.
 
@@ -56,6 +58,9 @@ def _solve_separable(
         Per alias ``j = p m1 + m2`` a function ``g(r0, r1) -> (r1 - r0, wc)`` scaling the
         prior of those spectrum rows (``P -> g P``; default 1): how the motion blur enters
         (:func:`~subpix_ros.core.superres.fourier_map._solve_bins`).
+    rolloff : float, optional
+        ``k`` of the prior's Gaussian roll-off ``P(f) = c |f|^-alpha exp(-k |f|^2)``
+        (:func:`~subpix_ros.core.superres.spectrum.rolloff_coefficient`; default 0: none).
 
     Returns
     -------
@@ -103,6 +108,7 @@ def _solve_separable(
             np.float32(reg / c),
             xs[:, :, r0:r1],
             prior_gain,
+            rolloff,
         )
     return xs
 
@@ -219,11 +225,12 @@ def _solve_separable_block(
     lam_scale: np.float32,
     out: np.ndarray,
     prior_gain: list | None = None,
+    rolloff: float = 0.0,
 ) -> None:
     """Solve spectrum rows ``r0 .. r1`` of :func:`_solve_separable`; write ``out`` (p, p, R, wc).
 
     ``spec``, ``ay32`` and ``cay`` are cut to the block; ``lam_scale = reg / c``;
-    ``prior_gain`` as in :func:`_solve_separable`.
+    ``prior_gain`` and ``rolloff`` as in :func:`_solve_separable`.
     """
     n, p, nr = ay32.shape
     wc = cax.shape[2]
@@ -232,7 +239,9 @@ def _solve_separable_block(
     t = spec.transpose(1, 0, 2)[:, :, None, :] * cax[None, :, :, :]  # (R, n, p, wc)
     rhs = np.matmul(cay.transpose(2, 1, 0), t.reshape(nr, n, p * wc))  # (R, p, p wc)
     del t
-    low, dinv = _cholesky_block(gram, lam_cols, r0, r1, alpha, lam_scale, p * p, prior_gain)
+    low, dinv = _cholesky_block(
+        gram, lam_cols, r0, r1, alpha, lam_scale, p * p, prior_gain, rolloff
+    )
     _substitute(rhs, low, dinv, out)
 
 
@@ -265,11 +274,13 @@ def _cholesky_block(
     lam_scale: np.float32,
     k: int,
     prior_gain: list | None = None,
+    rolloff: float = 0.0,
 ) -> tuple[dict, list]:
-    """Factor ``gram + diag(reg |f|^alpha / (c g)) = L L^H`` per bin, loops over the k x k index.
+    """Factor ``gram + diag(reg |f|^alpha e^(kr |f|^2) / (c g)) = L L^H`` per bin, over k x k.
 
     ``g`` is the prior gain of each alias (``prior_gain``, :func:`_solve_separable`; 1 if
-    None).
+    None), ``kr`` the roll-off (``rolloff``; the exponent capped,
+    :func:`~subpix_ros.core.superres.spectrum.rolloff_precision`).
 
     Returns the strictly lower entries ``low[i, j]`` (in place on ``gram``) and the
     inverse diagonal ``dinv[j]`` (float32), each (R, wc).
@@ -277,6 +288,7 @@ def _cholesky_block(
     nr, wc = gram[0, 0].shape
     tmp_r = np.empty((nr, wc), np.float32)
     tmp_c = np.empty((nr, wc), np.complex64)
+    tmp_e = np.empty((nr, wc), np.float32) if rolloff > 0 else None
     low: dict[tuple[int, int], np.ndarray] = {}
     dinv: list[np.ndarray] = []
     for j in range(k):  # Cholesky over the k x k index, vectorised over bins
@@ -285,6 +297,8 @@ def _cholesky_block(
         np.add(fy2[r0:r1, None], fx2[None, :], out=tmp_r, casting="same_kind")
         d = cv2.pow(tmp_r, alpha / 2.0)
         d *= lam_scale
+        if tmp_e is not None:  # the roll-off: precision times exp(k |f|^2)
+            d *= rolloff_precision(tmp_r, np.float32(rolloff), out=tmp_e)
         if prior_gain is not None:
             d /= prior_gain[j](r0, r1)
         if j == 0 and r0 == 0:

@@ -76,6 +76,21 @@ def test_superres_with_shift_file_npy(frames, capsys):
     assert "method=map" in text and "blur_sigma=0.400 px (parameter" in text
 
 
+def test_superres_prior_option(frames, tmp_path):
+    """--prior rolloff reaches the solve: another image, still above bicubic."""
+    d, paths, shifts, seq = frames
+    out = {}
+    for prior in ("powerlaw", "rolloff"):
+        path = tmp_path / f"{prior}.npy"
+        argv = ["superres", *paths, "--shifts", shifts, "--blur-sigma", "0.4"]
+        assert run(superres_cli, argv + ["--prior", prior, "-o", str(path)]) == 0
+        out[prior] = np.load(path)
+    assert not np.array_equal(out["powerlaw"], out["rolloff"])
+    assert gain(seq, out["rolloff"]) > 2.0
+    with pytest.raises(SystemExit):
+        run(superres_cli, ["superres", *paths, "--prior", "flat", "-o", str(tmp_path / "x.npy")])
+
+
 def test_superres_blur_auto_reports_estimate_and_source(frames, tmp_path, capsys):
     # default --blur-sigma auto: these frames (a field crop) have no straight edge, so the low fallback is
     # used, said so, and the image is still better than bicubic

@@ -203,6 +203,29 @@ def test_solver_options_go_to_the_reconstruction_and_other_keys_are_ignored(seq)
     assert stage.stats.last_warning == "parameters not used by the reconstruction: other"
 
 
+def test_the_prior_is_a_checked_parameter_and_reaches_the_solve(seq, monkeypatch):
+    from subpix_ros.stages import reconstruction as stage_mod
+
+    with pytest.raises(ValueError, match="prior"):
+        ReconstructionStage(prior="gaussian")
+    seen = []
+    real = stage_mod.reconstruct_within_budget
+
+    def spy(*a, **kw):
+        seen.append(kw.get("prior"))
+        return real(*a, **kw)
+
+    monkeypatch.setattr(stage_mod, "reconstruct_within_budget", spy)
+    images = []
+    for prior in ("rolloff", "powerlaw"):
+        stage = ReconstructionStage(n_frames=4, prior=prior)
+        _, pairs = _set(seq, n=4)
+        (sr,) = [sr for s, al in pairs for sr in stage.add(s, al)]
+        assert sr.method.startswith("map") and not sr.fell_back
+        images.append(sr.image)
+    assert seen == ["rolloff", "powerlaw"] and not np.array_equal(*images)
+
+
 def test_blur_sigma_is_a_checked_parameter_and_reaches_the_result(seq):
     with pytest.raises(ValueError, match="blur_sigma"):
         ReconstructionStage(blur_sigma="blurry")

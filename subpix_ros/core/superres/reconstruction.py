@@ -75,6 +75,8 @@ from .workspace import Workspace, work_array
 
 __all__ = ["reconstruct", "reconstruct_colour"]
 
+DIVERGED_SPANS = 4.0  # a MAP image further than this many intensity spans out of range diverged
+
 
 def reconstruct(
     frames: Sequence[np.ndarray],
@@ -478,11 +480,29 @@ def _map_result(
     reason: str,
     rel: np.ndarray | None,
 ) -> SRResult:
-    """Check a MAP image (finite, frames other than the reference contributing) and report it."""
+    """Check a MAP image (finite, frames other than the reference contributing) and report it.
+
+    An image reaching more than ``DIVERGED_SPANS`` times the reference's intensity span
+    beyond its range is a diverged solve (ringing at edges stays far inside that), not an
+    estimate: it falls back to bicubic with the reason.
+    """
     n = sol.kept.size
     sigma = sol.noise_sigma
-    if not np.isfinite(img).all():
+    lo_img, hi_img = float(np.min(img)), float(np.max(img))  # NaN and inf propagate
+    if not (np.isfinite(lo_img) and np.isfinite(hi_img)):
         return _fallback(ref, p, "MAP solution not finite", sigma, n, rel)
+    lo, hi = float(np.min(ref)), float(np.max(ref))
+    span = max(hi - lo, 0.25 * max(abs(lo), abs(hi)), 1.0)  # a flat reference: its level
+    if lo_img < lo - DIVERGED_SPANS * span or hi_img > hi + DIVERGED_SPANS * span:
+        return _fallback(
+            ref,
+            p,
+            f"MAP solution diverged: values {lo_img:.3g} .. {hi_img:.3g} against the frames' "
+            f"{lo:.3g} .. {hi:.3g}",
+            sigma,
+            n,
+            rel,
+        )
     img = _bicubic_rim(img, ref, p)
     if not sol.kept.all():
         dropped = ", ".join(str(i) for i in np.flatnonzero(~sol.kept))

@@ -70,3 +70,70 @@ def test_max_memory_mb_reduces_the_set_and_reports_it_in_diagnostics(ctx, crops)
     assert value("memory_reduction") == "5 of 8 frames" and value("frames_used") == "5"
     assert value("memory_reduced") == "1" and float(value("memory_estimate_mb")) <= budget + 0.05
     assert float(value("workspace_mb")) > 0  # buffers kept for the next set, said
+
+
+def _colour(frame):
+    """Return a uint8 BGR frame made from a rendered mono one (chroma varying across it)."""
+    import numpy as np
+
+    g = np.clip(frame, 0, 255) / 255.0
+    ramp = np.linspace(0.0, 1.0, g.shape[1])[None, :]
+    bgr = np.dstack([g, 0.6 * g + 0.4 * ramp, np.clip(1.2 - g - 0.3 * ramp, 0, 1)])
+    return np.round(bgr * 255).astype(np.uint8)
+
+
+def test_packed_members_over_dds_give_the_image_of_unpacked_ones(ctx, crops):
+    """pack_members (config/onboard.yaml) in the node: the set's image within 1 DN of unpacked.
+
+    Colour frames over DDS; the node holds the waiting members packed and publishes bgr8; the
+    same set through an unpacked stage in this process is the reference.
+    """
+    import numpy as np
+
+    from subpix_ros.nodes.reconstruction_node import ReconstructionNode
+    from subpix_ros.stages import Aligned, Frame, ReconstructionStage, Shift
+
+    seq = render_sequence(crops["crop_trees"][:256, :256], 2, SHIFTS, 0.4, snr_db=40, seed=5)
+    frames = [_colour(f) for f in seq.frames]
+    params = dict(n_frames=8, pack_members=True, blur_sigma="0.4")
+    node = ReconstructionNode(
+        parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
+    )
+    h = rclpy.create_node("harness")
+    got = []
+    h.create_subscription(
+        Image, "/super_resolved", lambda r: got.append(cdr.cdr_to_image(r)), latched_qos(), raw=True
+    )
+    feed = AlignedFeed(h)
+    try:
+        assert spin([node, h], lambda: feed.matched(), 10)
+        feed.reference(frames[0], T0)
+        assert spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 10)
+        for k in range(1, 7):
+            feed.frame(frames[k], T0 + k * 33_333_333, T0, *SHIFTS[k])
+
+        def waiting():
+            return [a for members in node.stage.sets.values() for _, a in members]
+
+        assert spin([node, h], lambda: len(waiting()) == 6, 10)
+        assert all(a.packed and a.image.dtype == np.uint16 for a in waiting())  # 2 B/px held
+        feed.frame(frames[7], T0 + 7 * 33_333_333, T0, *SHIFTS[7])
+        assert spin([node, h], lambda: bool(got), 30), "no super-resolved image"
+    finally:
+        node.close()
+        node.destroy_node()
+        h.destroy_node()
+    image, header = got[0]
+    h0, w0 = frames[0].shape[:2]
+    assert image.dtype == np.uint8 and image.shape == (2 * h0, 2 * w0, 3)
+    stage = ReconstructionStage(n_frames=8, pack_members=False, blur_sigma="0.4")
+    ref = Frame(T0, frames[0])
+    out = []
+    for k in range(1, 8):
+        stamp = T0 + k * 33_333_333
+        a = Aligned(stamp, frames[k], np.ones((h0, w0), bool), ref, np.eye(3))
+        s = Shift(stamp, T0, float(SHIFTS[k][0]), float(SHIFTS[k][1]), 0.0, 0.01, 0.01)
+        out += stage.add(s, a)
+    (want,) = out
+    d = np.abs(image.astype(int) - want.image)
+    assert d.max() <= 1 and (d > 0).mean() < 0.01

@@ -147,7 +147,7 @@ def estimate_blur(
     frames : sequence of numpy.ndarray
         N 2-D frames of one scene (mono; any numeric dtype), frame 0 the reference; frames
         after the first may be
-        :class:`~subpix_ros.core.superres.reconstruction.LazyLuminance` (read only where the
+        :class:`~subpix_ros.core.superres.luma.LazyLuminance` (read only where the
         edges are, the same numbers).
     shifts : numpy.ndarray, optional
         (N, 2) shifts (u, v) relative to frame 0 (a feature at (r, c) in frame 0 is at

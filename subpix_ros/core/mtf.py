@@ -237,7 +237,7 @@ def slanted_edge_mtf(
     ----------
     image : numpy.ndarray
         Mono 2-D image, or HxWx3 BGR (its luminance is used), or a
-        :class:`~subpix_ros.core.superres.reconstruction.LazyLuminance` (with ``roi``: only
+        :class:`~subpix_ros.core.superres.luma.LazyLuminance` (with ``roi``: only
         the ROI and the intensity range are computed).
     roi : (int, int, int, int), optional
         ``(x, y, w, h)`` in pixels (x = column). The ROI must contain one edge crossing it

@@ -12,7 +12,7 @@ from subpix_ros.core.blur import estimate_blur
 from subpix_ros.core.blur_edges import find_edge_rois, spectral_cap
 from subpix_ros.core.mtf import slanted_edge_mtf
 from subpix_ros.core.superres import colour_luminance
-from subpix_ros.core.superres.reconstruction import LazyLuminance
+from subpix_ros.core.superres.luma import LazyLuminance
 
 SCENE = Path(__file__).resolve().parents[2] / "data" / "seneca" / "IMG_0463.jpg"
 

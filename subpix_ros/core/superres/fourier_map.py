@@ -259,8 +259,9 @@ def _fourier_map(
     ``C_n``), noise variance ``v_n = HW sigma^2 + sum_m |a_nm|^2 P_m (1 - E_nm^2)`` and the
     prior ``E|X_m|^2 = P_m = c |f_m|^-alpha`` (times ``exp(-4 pi^2 p^2 s^2 |f_m|^2)`` with
     ``prior="rolloff"``; DC unregularised). The MAP solution
-    ``X = (A^H V^-1 A + reg P^-1)^-1 A^H V^-1 Y`` (or eq. 9's form
-    ``X = P A^H (A P A^H + V/reg)^-1 Y`` when N < p^2, identical), all bins at once.
+    ``X = (A^H V^-1 A + reg P^-1)^-1 A^H V^-1 Y``, all bins at once, in this information form
+    whatever N (eq. 9's covariance form ``X = P A^H (A P A^H + V/reg)^-1 Y``, smaller when
+    N < p^2, loses every component to the DC's unbounded prior variance in round-off).
     """
     h, w = frames.shape[1:]
     hp = cv2.getOptimalDFTSize(h + 2 * pad)

@@ -167,9 +167,11 @@ def lazy_member_luminance(frame: np.ndarray, packed: bool):
 
 def packed_dtype(reference: np.ndarray):
     """Return the dtype :func:`pack_luminance` gives members of a set with this BGR reference."""
-    return {np.dtype(np.uint8): np.dtype(np.uint16), np.dtype(np.uint16): np.dtype(np.float32)}.get(
-        reference.dtype
-    )
+    return _PACKED_DTYPE.get(np.dtype(reference.dtype))
+
+
+#: A packed member's dtype by the BGR frame's: uint8 -> uint16 (Y * 256), uint16 -> float32 (Y)
+_PACKED_DTYPE = {np.dtype(np.uint8): np.dtype(np.uint16), np.dtype(np.uint16): np.dtype(np.float32)}
 
 
 class LazyLuminance:

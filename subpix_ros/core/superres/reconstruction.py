@@ -50,12 +50,7 @@ from .cg_map import _cg_map
 from .fourier_map import PRIORS, MapSolution, _fourier_map
 from .geometry import detect_geometry
 from .lowpass import _WholeLowpass
-from .luma import (  # noqa: F401  (LazyLuminance, lazy_luminance: imported from here too)
-    LazyLuminance,
-    frame_luminance,
-    lazy_luminance,
-    packed_dtype,
-)
+from .luma import frame_luminance, packed_dtype
 from .model import motion_blur_vector, translation_homography
 from .paper import grid_offsets, interleave, pinv_solution, windowed_solution
 from .result import (

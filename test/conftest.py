@@ -268,3 +268,65 @@ class AlignedFeed:
         self.img.publish(pl.image_cdr(image, stamp))
         self.mask.publish(pl.mask_cdr(np.ones(image.shape[:2], bool), stamp))
         self.shift.publish(pl.shift_cdr(pl.Shift(stamp, ref_stamp, u, v, 0.0, 0.01, 0.01)))
+
+
+def dense_map(spec, ay, ax, fy, fx, c, alpha, reg, noise_power, rolloff=0.0):
+    """Per-bin normal equations of eq. 9 solved one by one, float64 (the solvers' reference).
+
+    Prior ``c |f|^-alpha`` times, with ``rolloff`` = k > 0, the roll-off ``exp(-k |f|^2)``
+    (its exponent capped at ``spectrum.ROLLOFF_MAX_EXP``); DC unregularised.
+    """
+    import numpy as np
+
+    from subpix_ros.core.superres import spectrum
+
+    n, p, hp = ay.shape
+    wc = ax.shape[2]
+    out = np.zeros((p, p, hp, wc), complex)
+    for ky in range(hp):  # reference: loops over bins on purpose
+        for kx in range(wc):
+            a = (ay[:, :, None, ky] * ax[:, None, :, kx]).reshape(n, p * p)
+            f = np.hypot(fy[:, None, ky], fx[None, :, kx]).ravel()
+            lam = reg * np.maximum(f, 1e-30) ** alpha / c
+            if rolloff > 0:
+                lam = lam * np.exp(np.minimum(rolloff * f**2, spectrum.ROLLOFF_MAX_EXP))
+            if ky == 0 and kx == 0:
+                lam[0] = 0.0
+            m = a.conj().T @ a / noise_power + np.diag(lam)
+            out[:, :, ky, kx] = np.linalg.solve(
+                m, a.conj().T @ spec[:, ky, kx] / noise_power
+            ).reshape(p, p)
+    return out
+
+
+def roof_frames():
+    """Eight BGR frames of a real Seneca scene with a roof drawn in, sub-pixel offsets, 8 bit.
+
+    Frame k is shifted by (0.23 k, 0.37 k) px (rows, cols); 463 x 521 px.
+    """
+    import cv2
+    import numpy as np
+
+    scene = cv2.imread(str(ROOT / "data" / "seneca" / "IMG_0463.jpg"), cv2.IMREAD_COLOR)
+    big = cv2.resize(scene, None, fx=4, fy=4, interpolation=cv2.INTER_CUBIC)
+    roof = np.array([[1600, 1000], [2300, 1100], [2230, 1600], [1530, 1500]], np.int32)
+    cv2.fillPoly(big, [roof], (200, 210, 220), lineType=cv2.LINE_AA)  # straight, slanted edges
+    small = cv2.resize(big, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
+    out = []
+    for k in range(8):
+        m = np.float32([[1, 0, -200 + 0.37 * k], [0, 1, -100 + 0.23 * k]])
+        out.append(cv2.warpAffine(small, m, (521, 463), flags=cv2.INTER_CUBIC))
+    return out
+
+
+def assert_lazy_reads(lazy, full, n, seed):
+    """Assert ``n`` random slices, the range and the whole of ``lazy`` equal those of ``full``."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        r0, c0 = rng.integers(0, 450), rng.integers(0, 500)
+        r1, c1 = r0 + rng.integers(1, 140), c0 + rng.integers(1, 90)
+        assert np.array_equal(lazy[r0:r1, c0:c1], full[r0:r1, c0:c1])
+    assert lazy.min() == full.min() and lazy.max() == full.max()
+    assert np.array_equal(np.asarray(lazy), full)

@@ -2,11 +2,10 @@
 
 import re
 from dataclasses import asdict
-from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
+from conftest import assert_lazy_reads, roof_frames
 
 from subpix_ros.core.blur import estimate_blur
 from subpix_ros.core.blur_edges import find_edge_rois, spectral_cap
@@ -14,22 +13,11 @@ from subpix_ros.core.mtf import slanted_edge_mtf
 from subpix_ros.core.superres import colour_luminance
 from subpix_ros.core.superres.luma import LazyLuminance
 
-SCENE = Path(__file__).resolve().parents[2] / "data" / "seneca" / "IMG_0463.jpg"
-
 
 @pytest.fixture(scope="module")
 def frames():
-    """Eight BGR frames of a real scene with a roof drawn in, at sub-pixel offsets, 8 bit."""
-    scene = cv2.imread(str(SCENE), cv2.IMREAD_COLOR)
-    big = cv2.resize(scene, None, fx=4, fy=4, interpolation=cv2.INTER_CUBIC)
-    roof = np.array([[1600, 1000], [2300, 1100], [2230, 1600], [1530, 1500]], np.int32)
-    cv2.fillPoly(big, [roof], (200, 210, 220), lineType=cv2.LINE_AA)  # straight, slanted edges
-    small = cv2.resize(big, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
-    out = []
-    for k in range(8):
-        m = np.float32([[1, 0, -200 + 0.37 * k], [0, 1, -100 + 0.23 * k]])
-        out.append(cv2.warpAffine(small, m, (521, 463), flags=cv2.INTER_CUBIC))
-    return out
+    """Eight BGR frames of a real scene with a roof drawn in (conftest.roof_frames)."""
+    return roof_frames()
 
 
 def test_slices_and_range_are_those_of_the_whole_luminance(frames):
@@ -37,13 +25,7 @@ def test_slices_and_range_are_those_of_the_whole_luminance(frames):
     full = colour_luminance(f)
     lazy = LazyLuminance(f)
     assert lazy.shape == full.shape and lazy.ndim == 2
-    rng = np.random.default_rng(0)
-    for _ in range(200):
-        r0, c0 = rng.integers(0, 450), rng.integers(0, 500)
-        r1, c1 = r0 + rng.integers(1, 140), c0 + rng.integers(1, 90)
-        assert np.array_equal(lazy[r0:r1, c0:c1], full[r0:r1, c0:c1])
-    assert lazy.min() == full.min() and lazy.max() == full.max()
-    assert np.array_equal(np.asarray(lazy), full)
+    assert_lazy_reads(lazy, full, 200, seed=0)
     with pytest.raises(IndexError):
         lazy[::2, :]
     with pytest.raises(ValueError):

@@ -11,6 +11,7 @@ round-off of the fast path.
 import cv2
 import numpy as np
 import pytest
+from conftest import dense_map
 
 from subpix_ros.core import superres as sr
 from subpix_ros.core.filters import fractional_shift, tukey
@@ -26,25 +27,6 @@ from subpix_ros.core.superres.separable import _solve_separable
 from subpix_ros.core.superres.spectrum import _spectrum_bins
 
 
-def _dense_map(spec, ay, ax, fy, fx, c, alpha, reg, noise_power):
-    """Per-bin normal equations solved one by one (eq. 9, normal-equation form), float64."""
-    n, p, hp = ay.shape
-    wc = ax.shape[2]
-    out = np.zeros((p, p, hp, wc), complex)
-    for ky in range(hp):  # reference: loops over bins on purpose
-        for kx in range(wc):
-            a = (ay[:, :, None, ky] * ax[:, None, :, kx]).reshape(n, p * p)
-            f = np.hypot(fy[:, None, ky], fx[None, :, kx]).ravel()
-            lam = reg * np.maximum(f, 1e-30) ** alpha / c
-            if ky == 0 and kx == 0:
-                lam[0] = 0.0
-            m = a.conj().T @ a / noise_power + np.diag(lam)
-            out[:, :, ky, kx] = np.linalg.solve(
-                m, a.conj().T @ spec[:, ky, kx] / noise_power
-            ).reshape(p, p)
-    return out
-
-
 @pytest.mark.parametrize("p,n,block", [(2, 4, 40), (2, 7, 1 << 16), (3, 5, 64), (4, 3, 50)])
 def test_separable_solve_equals_dense_per_bin_solve(p, n, block):
     rng = np.random.default_rng(p * 10 + n)
@@ -58,7 +40,7 @@ def test_separable_solve_equals_dense_per_bin_solve(p, n, block):
     fx = frame_transfer_1d(wp, p, 0.0, 0.4)[1][:, :wc]
     spec = (rng.normal(size=(n, hp, wc)) + 1j * rng.normal(size=(n, hp, wc))) * 100
     args = (spec.astype(np.complex64), ay, ax, fy, fx, 3.0e5, 2.5, 1.0, hp * wp * 0.5)
-    ref = _dense_map(spec, *args[1:])
+    ref = dense_map(spec, *args[1:])
     fast = _solve_separable(*args, block_bins=block)  # small blocks: several row blocks
     assert np.abs(fast - ref).max() < 1e-4 * np.abs(ref).max()
     # rank-one Gram entries from the shifts the transfers were built with (frame 0 not at 0 here)
@@ -66,7 +48,7 @@ def test_separable_solve_equals_dense_per_bin_solve(p, n, block):
     ay = np.stack([frame_transfer_1d(hp, p, s, 0.4)[0] for s in shifts[:, 0]])
     ax = np.stack([frame_transfer_1d(wp, p, s, 0.4)[0][:, :wc] for s in shifts[:, 1]])
     args = (spec.astype(np.complex64), ay, ax, fy, fx, 3.0e5, 2.5, 1.0, hp * wp * 0.5)
-    ref = _dense_map(spec, *args[1:])
+    ref = dense_map(spec, *args[1:])
     fast = _solve_separable(*args, block_bins=block, shifts=shifts)
     assert np.abs(fast - ref).max() < 1e-4 * np.abs(ref).max()
 

@@ -7,6 +7,7 @@ is checked on a random scene drawn from such a spectrum.
 
 import numpy as np
 import pytest
+from conftest import dense_map
 
 from subpix_ros.core import superres as sr
 from subpix_ros.core.render import render_sequence
@@ -14,26 +15,6 @@ from subpix_ros.core.superres import spectrum
 from subpix_ros.core.superres.fourier_map import _solve_rows
 from subpix_ros.core.superres.model import frame_transfer_1d
 from subpix_ros.core.superres.separable import _solve_separable
-
-
-def _dense_rolloff_map(spec, ay, ax, fy, fx, c, alpha, reg, noise_power, k):
-    """Per-bin normal equations, prior ``c |f|^-alpha exp(-k |f|^2)`` (exponent capped)."""
-    n, p, hp = ay.shape
-    wc = ax.shape[2]
-    out = np.zeros((p, p, hp, wc), complex)
-    for ky in range(hp):  # reference: loops over bins on purpose
-        for kx in range(wc):
-            a = (ay[:, :, None, ky] * ax[:, None, :, kx]).reshape(n, p * p)
-            f = np.hypot(fy[:, None, ky], fx[None, :, kx]).ravel()
-            roll = np.exp(np.minimum(k * f**2, spectrum.ROLLOFF_MAX_EXP))
-            lam = reg * np.maximum(f, 1e-30) ** alpha / c * roll
-            if ky == 0 and kx == 0:
-                lam[0] = 0.0
-            m = a.conj().T @ a / noise_power + np.diag(lam)
-            out[:, :, ky, kx] = np.linalg.solve(
-                m, a.conj().T @ spec[:, ky, kx] / noise_power
-            ).reshape(p, p)
-    return out
 
 
 def _random_problem(p, n, seed):
@@ -54,7 +35,7 @@ def _random_problem(p, n, seed):
 def test_rolloff_solves_equal_dense_per_bin_solve(p, n, s):
     spec, ay, ax, fy, fx, noise_power = _random_problem(p, n, 10 * p + n)
     k = spectrum.rolloff_coefficient(p, s)
-    ref = _dense_rolloff_map(spec, ay, ax, fy, fx, 3.0e5, 2.5, 1.0, noise_power, k)
+    ref = dense_map(spec, ay, ax, fy, fx, 3.0e5, 2.5, 1.0, noise_power, rolloff=k)
     scale = np.abs(ref).max()
     fast = _solve_separable(spec, ay, ax, fy, fx, 3.0e5, 2.5, 1.0, noise_power, 40, rolloff=k)
     assert np.abs(fast - ref).max() < 1e-4 * scale

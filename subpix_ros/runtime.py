@@ -26,9 +26,11 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import faulthandler
 import fcntl
 import os
 import re
+import signal
 import sys
 import time
 from pathlib import Path
@@ -322,6 +324,24 @@ def allocator_line(default_malloc: bool = False) -> str:
         "allocator: unchanged (not glibc, or SUBPIX_DEFAULT_MALLOC, MALLOC_* or GLIBC_TUNABLES "
         "set in the environment)"
     )
+
+
+def dump_stacks_on_sigusr1() -> bool:
+    """Print every thread's Python stack to stderr on ``SIGUSR1`` (``kill -USR1 <pid>``).
+
+    For a process that hangs (a node that stops publishing, a recorder that does not stop): the
+    stacks show where, and the process keeps running. The tests send it before they give up on
+    a process.
+
+    Returns
+    -------
+    bool
+        False where the platform has no ``SIGUSR1``.
+    """
+    if not hasattr(signal, "SIGUSR1"):
+        return False
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
+    return True
 
 
 # --------------------------------------------------------------------------- ROS / DDS environment

@@ -18,6 +18,7 @@ from ..runtime import (
     RuntimeSetupError,
     clean_stale_shm_segments,
     configure_ros_environment,
+    dump_stacks_on_sigusr1,
     keep_freed_memory,
 )
 
@@ -77,6 +78,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         Exit status: the subcommand's, 2 when the ROS environment cannot be
         set up, a :class:`CliError`'s code, 130 on Ctrl-C.
     """
+    dump_stacks_on_sigusr1()  # kill -USR1 <pid>: where a hung command is (subpix_ros.runtime)
     keep_freed_memory()  # frame buffers reused, not re-faulted per frame (subpix_ros.runtime)
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -21,6 +21,7 @@ from ..runtime import (
     configure_allocator,
     configure_opencv_threads,
     configure_ros_environment,
+    dump_stacks_on_sigusr1,
 )
 
 __all__ = ["run_nodes", "executor_kind", "EXECUTOR_ENV", "EXECUTORS"]
@@ -96,6 +97,7 @@ def run_nodes(
     """
     configure_allocator()
     configure_opencv_threads()
+    dump_stacks_on_sigusr1()  # kill -USR1 <pid>: every thread's stack on stderr
     clean_stale_shm_segments()  # segments of killed processes (64 MiB each with our profile)
     try:
         kind = executor_kind()

@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import time
+from pathlib import Path
 
 import pytest
 from conftest import subpix_cmd
@@ -37,13 +38,43 @@ def _replay(bag, ns, topics, wait=True):
     return subprocess.run(subpix_cmd(*args), capture_output=True, text=True, timeout=90)
 
 
-def _wait(proc, timeout):
+def _wait(proc, timeout, log=None, context=""):
+    """Return the recorder's (stdout, stderr) once it exits; fail with its stacks if it does not.
+
+    ``log``: a recorder started by :func:`_start_recorder` (output to files, not pipes that
+    nobody drains while the test sleeps). A recorder that does not finish in time is asked
+    for every thread's stack (SIGUSR1), then stopped (SIGINT, then SIGKILL), and the test
+    fails with what it printed.
+    """
     try:
-        return proc.communicate(timeout=timeout)
+        proc.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGUSR1)
+        time.sleep(1.0)
         proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=15)
-        pytest.fail(f"recorder did not finish within {timeout} s: {out!r} {err!r}")
+        try:
+            proc.wait(timeout=15)
+            how = "stopped by SIGINT"
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            how = "did not stop on SIGINT either: killed"
+        out, err = _read(log) if log else proc.communicate()
+        pytest.fail(
+            f"recorder did not finish within {timeout} s ({how}){context}\n"
+            f"--- stdout\n{out}\n--- stderr\n{err}"
+        )
+    return _read(log) if log else proc.communicate()
+
+
+def _start_recorder(log, *args):
+    """``subpix record ARGS`` with its stdout and stderr in files ``log``.out / ``log``.err."""
+    with open(f"{log}.out", "w") as out, open(f"{log}.err", "w") as err:
+        return subprocess.Popen(subpix_cmd("record", *args), stdout=out, stderr=err, text=True)
+
+
+def _read(log):
+    return Path(f"{log}.out").read_text(), Path(f"{log}.err").read_text()
 
 
 def test_recorder_waits_for_a_publisher_that_starts_late(sample_bags, tmp_path):
@@ -55,20 +86,16 @@ def test_recorder_waits_for_a_publisher_that_starts_late(sample_bags, tmp_path):
     original = {t: [m.raw for m in read_messages(bag, [t])] for t in TOPICS}
     total = sum(len(v) for v in original.values())
     ns, out = _ns(), tmp_path / "late.mcap"
-    rec = subprocess.Popen(
-        subpix_cmd("record", "-o", str(out), *(ns + t for t in TOPICS), "--count", str(total)),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    log = tmp_path / "rec"
+    rec = _start_recorder(log, "-o", str(out), *(ns + t for t in TOPICS), "--count", str(total))
     try:
         time.sleep(12.5)
-        assert rec.poll() is None, (
-            f"the recorder quit before the publisher started: {rec.communicate()}"
-        )
+        assert rec.poll() is None, f"the recorder quit before the publisher started: {_read(log)}"
         play = _replay(bag, ns, TOPICS)
         assert play.returncode == 0, play.stderr
-        rec_out, err = _wait(rec, 30)
+        rec_out, err = _wait(
+            rec, 30, log, f"\n--- replay stdout\n{play.stdout}\n--- replay stderr\n{play.stderr}"
+        )
     finally:
         if rec.poll() is None:
             rec.kill()
@@ -89,12 +116,8 @@ def test_recorder_subscribes_each_topic_when_it_appears_and_stops_cleanly_on_sig
     first, second = TOPICS
     original = {t: [m.raw for m in read_messages(bag, [t])] for t in TOPICS}
     ns, out = _ns(), tmp_path / "two.mcap"
-    rec = subprocess.Popen(
-        subpix_cmd("record", "-o", str(out), ns + first, ns + second, ns + "/never"),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    log = tmp_path / "rec"
+    rec = _start_recorder(log, "-o", str(out), ns + first, ns + second, ns + "/never")
     try:
         play1 = _replay(bag, ns, [first])
         assert play1.returncode == 0, play1.stderr
@@ -103,7 +126,7 @@ def test_recorder_subscribes_each_topic_when_it_appears_and_stops_cleanly_on_sig
         time.sleep(1.0)
         assert rec.poll() is None
         rec.send_signal(signal.SIGINT)
-        rec_out, err = rec.communicate(timeout=20)
+        rec_out, err = _wait(rec, 20, log)
     finally:
         if rec.poll() is None:
             rec.kill()
@@ -117,18 +140,14 @@ def test_recorder_sigterm_leaves_a_complete_bag(sample_bags, tmp_path):
     bag = sample_bags / "subpixel"
     topic = TOPICS[1]
     ns, out = _ns(), tmp_path / "term.mcap"
-    rec = subprocess.Popen(
-        subpix_cmd("record", "-o", str(out), ns + topic),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    log = tmp_path / "rec"
+    rec = _start_recorder(log, "-o", str(out), ns + topic)
     try:
         play = _replay(bag, ns, [topic])
         assert play.returncode == 0, play.stderr
         time.sleep(1.0)
         rec.send_signal(signal.SIGTERM)
-        rec_out, err = rec.communicate(timeout=20)
+        rec_out, err = _wait(rec, 20, log)
     finally:
         if rec.poll() is None:
             rec.kill()
@@ -176,17 +195,13 @@ def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path
     for i in range(3):
         pub.publish(String(data=f"state {i}"))
     out = tmp_path / "latched.mcap"
-    rec = subprocess.Popen(
-        subpix_cmd("record", "-o", str(out), topic, "--count", "3"),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    log = tmp_path / "rec"
+    rec = _start_recorder(log, "-o", str(out), topic, "--count", "3")
     try:
         deadline = time.monotonic() + 30
         while rec.poll() is None and time.monotonic() < deadline:
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)
-        rec_out, err = _wait(rec, 5)
+        rec_out, err = _wait(rec, 5, log)
     finally:
         if rec.poll() is None:
             rec.kill()
@@ -247,3 +262,23 @@ def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path
             play.kill()
     assert play.returncode == 0
     assert got == [f"state {i}" for i in range(3)]
+
+
+def test_sigusr1_prints_the_stacks_and_the_recorder_goes_on(tmp_path):
+    """``kill -USR1``: every thread's Python stack on stderr; the command keeps running."""
+    log, topic = tmp_path / "rec", _ns() + "/nobody"
+    rec = _start_recorder(log, "-o", str(tmp_path / "x.mcap"), topic)
+    try:
+        deadline = time.monotonic() + 30
+        while "waiting for publishers" not in _read(log)[0] and time.monotonic() < deadline:
+            time.sleep(0.1)
+        rec.send_signal(signal.SIGUSR1)
+        time.sleep(1.0)
+        assert rec.poll() is None, _read(log)
+        rec.send_signal(signal.SIGINT)
+        out, err = _wait(rec, 20, log)
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+    assert "Current thread" in err and "subpix_ros/cli/record.py" in err, err
+    assert rec.returncode != 0 and f"no publisher appeared for {topic}" in err

@@ -130,14 +130,29 @@ def rclpy_node():
     rclpy.shutdown()
 
 
-def node_process(name: str, params: str, *extra: str):
-    """Start ``subpix_ros.nodes.<name>`` as its own process with a params file (output piped)."""
-    import subprocess
+def logged_popen(cmd, **kwargs):
+    """Start ``cmd`` with its stdout and stderr in a log file; ``proc.stdout`` reads that file.
 
+    Not a pipe: a node's output piped and read only at the end blocks the node once it has
+    written a pipe's worth (64 KiB: a few hundred warnings from a loaded machine), and with it
+    everything the test waits for. ``proc.stdout.read()`` returns what it printed so far (all of
+    it once it has stopped); ``proc.log_path`` names the file. Not for ``communicate()``.
+    """
+    import subprocess
+    import tempfile
+
+    fd, path = tempfile.mkstemp(prefix="subpix_proc_", suffix=".log")
+    with os.fdopen(fd, "w") as log:
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, text=True, **kwargs)
+    proc.stdout = open(path)  # noqa: SIM115 - closed with the Popen (its __exit__ / __del__)
+    proc.log_path = Path(path)
+    return proc
+
+
+def node_process(name: str, params: str, *extra: str):
+    """Start ``subpix_ros.nodes.<name>`` as its own process with a params file (output logged)."""
     cmd = [sys.executable, "-m", f"subpix_ros.nodes.{name}", "--ros-args", "--params-file", params]
-    return subprocess.Popen(
-        [*cmd, *extra], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
-    )
+    return logged_popen([*cmd, *extra])
 
 
 def subpix_cmd(*args: str) -> list[str]:

@@ -4,7 +4,6 @@ The meter alone, then the registration node as its console entry point starts it
 real DDS): this test process is the camera and stamps its frames on time, late, or on another clock.
 """
 
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -13,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 import rclpy
+from conftest import logged_popen
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import Image
 
@@ -71,7 +71,7 @@ def test_registration_node_warns_when_frames_arrive_late(rclpy_node):
         "-p",
         "camera_delay_warn_ms:=500.0",
     ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = logged_popen(cmd)
     latest = {}
 
     def on_diag(msg):

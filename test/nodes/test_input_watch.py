@@ -4,13 +4,13 @@ The node is started as its console entry point does (``python -m subpix_ros.node
 test process is the camera (or not) and reads /diagnostics.
 """
 
-import subprocess
 import sys
 import time
 
 import numpy as np
 import pytest
 import rclpy
+from conftest import logged_popen
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import Image
 
@@ -32,7 +32,7 @@ def ros():
 
 def _start(module, *ros_args):
     cmd = [sys.executable, "-m", f"subpix_ros.nodes.{module}", "--ros-args", *ros_args]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return logged_popen(cmd)
 
 
 class Status:

@@ -2,13 +2,12 @@
 
 import math
 import socket
-import subprocess
 import sys
 import time
 
 import numpy as np
 import pytest
-from conftest import spin
+from conftest import logged_popen, spin
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import Imu, NavSatFix
@@ -49,7 +48,7 @@ def _start(*params):
     args = [sys.executable, "-m", "subpix_ros.nodes.telemetry_node", "--ros-args"]
     for p in params:
         args += ["-p", p]
-    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return logged_popen(args)
 
 
 def test_udp_mavlink_to_ros_topics_and_link_loss(rclpy_node):

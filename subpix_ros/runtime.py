@@ -28,6 +28,7 @@ import ctypes
 import ctypes.util
 import faulthandler
 import fcntl
+import io
 import os
 import re
 import signal
@@ -336,11 +337,15 @@ def dump_stacks_on_sigusr1() -> bool:
     Returns
     -------
     bool
-        False where the platform has no ``SIGUSR1``.
+        False where the platform has no ``SIGUSR1`` or the process has no stderr file
+        (``sys.__stderr__`` closed or not a file: nothing to print to).
     """
     if not hasattr(signal, "SIGUSR1"):
         return False
-    faulthandler.register(signal.SIGUSR1, all_threads=True)
+    try:  # the process's own stderr (file descriptor 2), whatever sys.stderr is replaced with
+        faulthandler.register(signal.SIGUSR1, file=sys.__stderr__, all_threads=True)
+    except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+        return False
     return True
 
 

@@ -482,3 +482,15 @@ def test_node_processes_give_opencv_one_thread_unless_the_operator_chose(env, wa
         check=True,
     ).stdout.split()
     assert out == [str(want), str(want)]
+
+
+def test_the_stack_dump_goes_to_the_process_stderr_whatever_sys_stderr_is(monkeypatch):
+    """``subpix`` called in-process (sys.stderr a capture without a file): no crash."""
+    import io
+
+    from subpix_ros.runtime import dump_stacks_on_sigusr1
+
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    assert dump_stacks_on_sigusr1() is True
+    monkeypatch.setattr(sys, "__stderr__", io.StringIO())  # no file descriptor: nothing to print to
+    assert dump_stacks_on_sigusr1() is False

@@ -70,6 +70,10 @@ TRIM_THRESHOLD = 64 * 1024 * 1024
 #: (a 4K colour set's largest arrays) reused from the heap; the heap's top returned beyond
 #: 256 MiB. Measured in docs/design-notes.md ("CPU of `subpix process`, and an onboard profile").
 THROUGHPUT = {"mmap_threshold": 512 << 20, "trim_threshold": 256 << 20, "arena_max": 1}
+#: ``SUBPIX_MALLOC=memory`` (onboard, memory first): one arena, frame-sized blocks reused from
+#: the heap (as :data:`MMAP_THRESHOLD`), and the heap's top returned beyond 16 MiB instead of 64.
+#: Measured in docs/design-notes.md ("Allocators").
+MEMORY = {"mmap_threshold": MMAP_THRESHOLD, "trim_threshold": 16 << 20, "arena_max": 1}
 
 _ENV = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_ARENA_MAX")
 
@@ -191,22 +195,26 @@ def _rss_bytes() -> int | None:
 
 
 def favour_memory() -> bool:
-    """One malloc arena, glibc's thresholds otherwise (``SUBPIX_MALLOC=memory``: onboard).
+    """One malloc arena and a low trim threshold (``SUBPIX_MALLOC=memory``: onboard).
 
     Every thread allocates from the main heap, so the blocks one thread frees (frames, a
-    set's arrays) are reused by the others instead of sitting in per-thread arenas; the
-    thresholds stay glibc's (blocks above its dynamic mmap threshold go back on free).
+    set's arrays) are reused by the others instead of sitting in per-thread arenas; blocks up
+    to 64 MiB come from that heap (a frame is not mapped and faulted in afresh each time), and
+    free memory at the heap's top beyond 16 MiB goes back to the kernel (:data:`MEMORY`).
 
     Returns
     -------
     bool
         True if applied; False if this is not glibc or the operator set glibc's malloc
         tunables (theirs are kept).
+
+    Notes
+    -----
+    60 s 1080p onboard soaks, alternated: RSS max 673-696 MB against 716-790 MB with one
+    arena and glibc's dynamic thresholds (this profile before), the same CPU per frame
+    (docs/design-notes.md, "Allocators").
     """
-    if _operator_set():
-        return False
-    fn = _mallopt()
-    return fn is not None and fn(_M_ARENA_MAX, 1) == 1
+    return keep_freed_memory(**MEMORY)
 
 
 def configure_allocator() -> str:

@@ -494,3 +494,48 @@ def test_the_stack_dump_goes_to_the_process_stderr_whatever_sys_stderr_is(monkey
     assert dump_stacks_on_sigusr1() is True
     monkeypatch.setattr(sys, "__stderr__", io.StringIO())  # no file descriptor: nothing to print to
     assert dump_stacks_on_sigusr1() is False
+
+
+TRIM_CHILD = """
+import sys
+from subpix_ros.runtime import configure_allocator
+import numpy as np
+profile = configure_allocator()
+
+def rss():
+    return int(open("/proc/self/statm").read().split()[1]) * 4096
+
+import ctypes
+class Info(ctypes.Structure):
+    _fields_ = [(n, ctypes.c_size_t) for n in (
+        "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split())]
+libc = ctypes.CDLL("libc.so.6")
+libc.mallinfo2.restype = Info
+a = np.ones(40 << 20, np.uint8)  # 40 MiB: from the heap in both profiles (under 64 MiB)
+mapped = libc.mallinfo2().hblkhd >> 20  # MiB in blocks mapped on their own
+before = rss()
+del a
+print(profile, (before - rss()) >> 20, mapped)
+"""
+
+
+@glibc
+@pytest.mark.parametrize("profile,returned", [("memory", True), ("", False)])
+def test_memory_profile_returns_a_freed_frame_sized_block_the_reuse_profile_keeps(
+    profile, returned
+):
+    """40 MiB freed at the heap's top: trimmed beyond 16 MiB (memory), kept up to 64 (reuse)."""
+    e = {
+        k: v
+        for k, v in os.environ.items()
+        if not k.startswith("MALLOC_") and k not in ("GLIBC_TUNABLES", "SUBPIX_DEFAULT_MALLOC")
+    }
+    e["SUBPIX_MALLOC"] = profile
+    r = subprocess.run(
+        [sys.executable, "-c", TRIM_CHILD], capture_output=True, text=True, timeout=120, env=e
+    )
+    assert r.returncode == 0, r.stderr
+    name, freed_mib, mapped_mib = r.stdout.split()
+    assert name == (profile or "reuse")
+    assert int(mapped_mib) < 40, "a frame-sized block from the heap, not mapped: " + r.stdout
+    assert (int(freed_mib) >= 30) if returned else (int(freed_mib) < 10), r.stdout

@@ -138,9 +138,8 @@ ARENA_CHILD = textwrap.dedent("""
 """)
 
 
-@glibc
-@pytest.mark.parametrize("profile,arenas", [("memory", 1), ("", 2)])
-def test_memory_profile_puts_every_thread_in_one_arena(profile, arenas):
+def _profile_child(script: str, profile: str) -> subprocess.CompletedProcess:
+    """Run ``script`` in a Python child with ``SUBPIX_MALLOC=profile`` and no malloc settings."""
     e = {
         k: v
         for k, v in os.environ.items()
@@ -148,9 +147,16 @@ def test_memory_profile_puts_every_thread_in_one_arena(profile, arenas):
     }
     e["SUBPIX_MALLOC"] = profile
     r = subprocess.run(
-        [sys.executable, "-c", ARENA_CHILD], capture_output=True, text=True, timeout=120, env=e
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=e
     )
     assert r.returncode == 0, r.stderr
+    return r
+
+
+@glibc
+@pytest.mark.parametrize("profile,arenas", [("memory", 1), ("", 2)])
+def test_memory_profile_puts_every_thread_in_one_arena(profile, arenas):
+    r = _profile_child(ARENA_CHILD, profile)
     assert r.stdout.split()[0] == (profile or "reuse")
     n = len(re.findall(r"^Arena \d+:", r.stderr, re.M))
     assert (n == 1) if arenas == 1 else (n >= arenas), r.stderr
@@ -525,16 +531,7 @@ def test_memory_profile_returns_a_freed_frame_sized_block_the_reuse_profile_keep
     profile, returned
 ):
     """40 MiB freed at the heap's top: trimmed beyond 16 MiB (memory), kept up to 64 (reuse)."""
-    e = {
-        k: v
-        for k, v in os.environ.items()
-        if not k.startswith("MALLOC_") and k not in ("GLIBC_TUNABLES", "SUBPIX_DEFAULT_MALLOC")
-    }
-    e["SUBPIX_MALLOC"] = profile
-    r = subprocess.run(
-        [sys.executable, "-c", TRIM_CHILD], capture_output=True, text=True, timeout=120, env=e
-    )
-    assert r.returncode == 0, r.stderr
+    r = _profile_child(TRIM_CHILD, profile)
     name, freed_mib, mapped_mib = r.stdout.split()
     assert name == (profile or "reuse")
     assert int(mapped_mib) < 40, "a frame-sized block from the heap, not mapped: " + r.stdout

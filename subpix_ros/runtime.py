@@ -210,9 +210,8 @@ def favour_memory() -> bool:
 
     Notes
     -----
-    60 s 1080p onboard soaks, alternated: RSS max 673-696 MB against 716-790 MB with one
-    arena and glibc's dynamic thresholds (this profile before), the same CPU per frame
-    (docs/design-notes.md, "Allocators").
+    Chosen against one arena with glibc's dynamic thresholds (this profile before) and
+    jemalloc on the onboard soak: docs/design-notes.md, "Allocators".
     """
     return keep_freed_memory(**MEMORY)
 

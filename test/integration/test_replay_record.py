@@ -324,6 +324,8 @@ def _replay_to_a_stalled_recorder(node, bag, out, *replay_args, count=0):
             "/clock",
             "--delay",
             "0.5",
+            "--wait-timeout",  # the set-up's own wait, not what the tests measure (CI load)
+            "60",
             *replay_args,
         ),
         stdout=subprocess.PIPE,
@@ -335,6 +337,10 @@ def _replay_to_a_stalled_recorder(node, bag, out, *replay_args, count=0):
     while node.count_subscribers("/camera/image_raw") < 1 and time.monotonic() < deadline:
         rclpy.spin_once(node, timeout_sec=0.05)
     assert node.count_subscribers("/camera/image_raw") >= 1, "the recorder never subscribed"
+    # this process saw the recorder's reader announced; give the replay's participant the same
+    # moment to match it (a reader frozen before the replay knows it is never matched: the
+    # replay then waits for a subscriber until --wait-timeout and fails, seen once in CI)
+    time.sleep(1.0)
     rec.send_signal(signal.SIGSTOP)
     node.create_subscription(Clock, "/clock", lambda m: None, 10)  # lets the replay start
     return rec, play, time.monotonic()

@@ -28,7 +28,6 @@ import ctypes
 import ctypes.util
 import faulthandler
 import fcntl
-import io
 import os
 import re
 import signal
@@ -351,7 +350,7 @@ def dump_stacks_on_sigusr1() -> bool:
         return False
     try:  # the process's own stderr (file descriptor 2), whatever sys.stderr is replaced with
         faulthandler.register(signal.SIGUSR1, file=sys.__stderr__, all_threads=True)
-    except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is both
         return False
     return True
 

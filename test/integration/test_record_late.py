@@ -38,7 +38,7 @@ def _replay(bag, ns, topics, wait=True):
     return subprocess.run(subpix_cmd(*args), capture_output=True, text=True, timeout=90)
 
 
-def _wait(proc, timeout, log=None, context=""):
+def _wait(proc, timeout, log, context=""):
     """Return the recorder's (stdout, stderr) once it exits; fail with its stacks if it does not.
 
     ``log``: a recorder started by :func:`_start_recorder` (output to files, not pipes that
@@ -59,12 +59,12 @@ def _wait(proc, timeout, log=None, context=""):
             proc.kill()
             proc.wait()
             how = "did not stop on SIGINT either: killed"
-        out, err = _read(log) if log else proc.communicate()
+        out, err = _read(log)
         pytest.fail(
             f"recorder did not finish within {timeout} s ({how}){context}\n"
             f"--- stdout\n{out}\n--- stderr\n{err}"
         )
-    return _read(log) if log else proc.communicate()
+    return _read(log)
 
 
 def _start_recorder(log, *args):

@@ -73,7 +73,7 @@ def _section_shifts(shifts: list[dict], t0: float | None, has_tel: bool) -> str:
             va="center",
             transform=axes[1].transAxes,
         )
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.085, right=0.985, top=0.975, bottom=0.085, hspace=0.06)
     res_u = np.array([_f(r, "u_residual_px") for r in shifts])
     res_v = np.array([_f(r, "v_residual_px") for r in shifts])
     ok = np.isfinite(res_u) & np.isfinite(res_v)
@@ -122,7 +122,7 @@ def _section_registration(
         axes[0].set_title(
             "green: new reference, red dashed: tracking fell back to the full search", fontsize=8
         )
-        fig.tight_layout()
+        fig.subplots_adjust(left=0.085, right=0.985, top=0.94, bottom=0.095, hspace=0.06)
         out.append(_img(fig, "registration quality"))
     else:
         out.append("<p>No frame was registered to a reference.</p>")
@@ -354,7 +354,10 @@ def _section_mosaic(folder: Path, mosaic: dict, telemetry: list[dict]) -> str:
         ax.grid(alpha=0.3)
     else:
         parts.append("<p>No GPS track (no telemetry position).</p>")
-    fig.tight_layout()
+    # fixed margins, not tight_layout (which draws the figure once more): the GPS panel's
+    # labels need room at the left only when it is the first panel
+    left = 0.02 if img is not None else 0.13
+    fig.subplots_adjust(left=left, right=0.99, top=0.94, bottom=0.1, wspace=0.16)
     return _img(fig, "mosaic and GPS track") + "".join(parts)
 
 

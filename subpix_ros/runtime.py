@@ -369,6 +369,21 @@ ROS_ENV_PREFIXES = (
 )
 
 
+def die_with_parent() -> None:
+    """Ask the kernel to send this worker SIGTERM when its parent dies (Linux; else nothing).
+
+    A pool worker left waiting for a task when the parent is gone (e.g. one the pool started
+    while it was being stopped) then stops too instead of living on as an orphan.
+    """
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() == 1:  # the parent died before the request took effect
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
 def plain_venv_environ(venv: str | Path, domain_id: int | str, environ=None) -> dict[str, str]:
     """Return the environment of a shell that only ran ``source <venv>/bin/activate``.
 

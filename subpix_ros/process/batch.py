@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from subpix_ros.process.flight import BagResult, process_bag
+from subpix_ros.runtime import die_with_parent
 
 PLAIN_PERIOD_S = 5.0
 
@@ -99,24 +100,6 @@ def _raise_interrupt(signum, frame) -> None:
     # once one has gone) must not cut the clean-up of the unfinished folder short
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     raise KeyboardInterrupt
-
-
-def _die_with_parent() -> None:
-    """Ask the kernel to send this worker SIGTERM when its parent dies (Linux; else nothing).
-
-    A pool worker left waiting for a task when the parent is gone (e.g. one the pool started
-    while it was being stopped) then stops too instead of living on as an orphan.
-    """
-    import ctypes
-    import signal
-
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-    if os.getppid() == 1:  # the parent died before the request took effect
-        os.kill(os.getpid(), signal.SIGTERM)
 
 
 def interrupt_on_signals() -> None:
@@ -224,20 +207,28 @@ def run_batch(
 
     options = dict(camera_topic=camera_topic, telemetry=telemetry, force=force)
     if jobs <= 1 or len(bags) <= 1:
-        for i, b in enumerate(bags):
-            from subpix_ros.process.inputs import bag_name
+        from subpix_ros.process.inputs import bag_name
+        from subpix_ros.process.report_ahead import SectionsAhead
 
-            name = bag_name(b)
-            r = process_bag(
-                b,
-                out,
-                params,
-                **options,
-                skip_corrupt=skip_corrupt,
-                monitor=monitor,
-                progress=lambda d, t, n=name: progress.update(n, d, t),
-            )
-            done(i, r)
+        # one process for the flights' report figures, drawn while each flight's last set is
+        # solved (not beside --jobs workers: there the cores are busy with other flights)
+        ahead = SectionsAhead()
+        try:
+            for i, b in enumerate(bags):
+                name = bag_name(b)
+                r = process_bag(
+                    b,
+                    out,
+                    params,
+                    **options,
+                    skip_corrupt=skip_corrupt,
+                    monitor=monitor,
+                    progress=lambda d, t, n=name: progress.update(n, d, t),
+                    sections_ahead=ahead,
+                )
+                done(i, r)
+        finally:
+            ahead.close()
     else:
         _run_parallel(bags, out, params, jobs, options, skip_corrupt, progress, done)
     return [results[i] for i in range(len(bags))]
@@ -273,7 +264,7 @@ def _run_parallel(
         for sig in (signal.SIGINT, signal.SIGTERM):
             handlers[sig] = signal.signal(sig, lambda signum, frame: stop.set())
     pool = ProcessPoolExecutor(
-        max_workers=jobs, mp_context=ctx, max_tasks_per_child=1, initializer=_die_with_parent
+        max_workers=jobs, mp_context=ctx, max_tasks_per_child=1, initializer=die_with_parent
     )
     try:
         futs = {

@@ -23,6 +23,7 @@ usable.
 
 from __future__ import annotations
 
+import json
 import resource
 import time
 from collections import Counter
@@ -46,8 +47,8 @@ from subpix_ros.process.collector import (
 from subpix_ros.process.inputs import Flight, InputError, bag_name, open_flight
 from subpix_ros.process.params import EXPECTED_SHIFT_PARAMS, pipeline_params
 from subpix_ros.process.previews import _MonitorFeed, _mosaic, _preview
-from subpix_ros.process.products import ProductWriter, is_complete
-from subpix_ros.process.summary import _input_problems, _summary
+from subpix_ros.process.products import ProductWriter, _json_default, is_complete
+from subpix_ros.process.summary import _input_problems, _stage_stats, _summary
 from subpix_ros.process.tables import (
     FRAME_COLUMNS,
     SHIFT_COLUMNS,
@@ -91,6 +92,7 @@ def process_bag(
     skip_corrupt: bool = False,
     progress: Callable[[int, int], None] | None = None,
     monitor: Any = None,
+    sections_ahead: Any = None,
 ) -> BagResult:
     """Process one flight bag into ``out_root/<bag name>/``; never raise for bad input.
 
@@ -113,6 +115,9 @@ def process_bag(
         ``progress(frames_done, frames_total)`` after every frame.
     monitor : subpix_ros.monitor.Monitor, optional
         A started live monitor fed as the bag is processed (``subpix process --serve``).
+    sections_ahead : subpix_ros.process.report_ahead.SectionsAhead, optional
+        A helper process that draws the report's per-frame sections while the last set is
+        solved (the same report without it).
 
     Returns
     -------
@@ -143,7 +148,7 @@ def process_bag(
     out_root.mkdir(parents=True, exist_ok=True)
     writer = ProductWriter(out_root, name)
     try:
-        res = _run(flight, writer, params, progress, monitor)
+        res = _run(flight, writer, params, progress, monitor, sections_ahead)
         return _finish_bag(res, writer, t_wall, cpu0, force)
     except KeyboardInterrupt:
         writer.abort()
@@ -162,6 +167,9 @@ def _finish_bag(
     res.wall_s = time.monotonic() - t_wall
     timing = res.__dict__.pop("_timing")
     crops = res.__dict__.pop("_crops", None)
+    sections = res.__dict__.pop("_sections", None)
+    # the report's per-frame sections, if a helper drew them (else the report draws them)
+    drawn = sections[0].result(sections[1]) if sections is not None else None
     timing.update(
         wall_s=res.wall_s,
         cpu_s=time.process_time() - cpu0,
@@ -169,12 +177,13 @@ def _finish_bag(
             (res.flight_s / res.wall_s) if res.wall_s > 0 and res.flight_s > 0 else None
         ),
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        report_sections_ahead=drawn is not None,
     )
     writer.json("timing.json", _clean(timing))
     try:
         from subpix_ros.process.report import write_report
 
-        write_report(writer.tmp, crops=crops)
+        write_report(writer.tmp, crops=crops, sections=drawn)
     except Exception as exc:  # noqa: BLE001 - the products stand without the report
         res.problems.append(f"report not written: {type(exc).__name__}: {exc}")
     res.out = str(writer.commit(force))
@@ -182,7 +191,12 @@ def _finish_bag(
 
 
 def _run(
-    flight: Flight, writer: ProductWriter, params: dict[str, dict], progress, monitor: Any = None
+    flight: Flight,
+    writer: ProductWriter,
+    params: dict[str, dict],
+    progress,
+    monitor: Any = None,
+    sections_ahead: Any = None,
 ) -> BagResult:
     """Feed the flight through the pipeline and write its products (all but timing, report)."""
     run = _FlightRun(flight, writer, params, monitor)
@@ -191,9 +205,11 @@ def _run(
     except BaseException:
         run.pipe.close(emit=False)  # Ctrl-C, a failure: stop the reconstruction worker
         raise
-    run.finish()
-    rows, mosaic_info = run.write_products()
-    return run.result(rows, mosaic_info)
+    run.finish(sections_ahead)
+    mosaic_info = run.write_products()
+    res = run.result(run.rows, mosaic_info)
+    res.__dict__["_sections"] = run.sections
+    return res
 
 
 class _FlightRun:
@@ -252,6 +268,9 @@ class _FlightRun:
         self.status = "ok"
         self.broke_off: str | None = None
         self.add_ms: list[float] = []
+        self.rows: list[dict] = []
+        self.buf: TelemetryBuffer | None = None
+        self.sections: Any = None  # (SectionsAhead, request id): the report's sections drawn ahead
 
     def _connect(self, monitor: Any) -> None:
         """Route the pipeline's events to the collector (and to the live monitor, if any)."""
@@ -360,12 +379,28 @@ class _FlightRun:
             self.mosaic_wait()  # the figures as of this frame, whatever the threads' timing
             self.writer.diagnostics(rec.stamp_ns, _diag_statuses(self.all_stats()))
 
-    def finish(self) -> None:
-        """End of stream: wait for the mosaic, flush the pipeline, state what went wrong."""
+    def finish(self, sections_ahead: Any = None) -> None:
+        """End of stream: wait for the mosaic, write the tables, flush the pipeline, state what went wrong.
+
+        Once every frame is registered, measured and drawn into the mosaic, the per-frame tables
+        are final (the flush only solves the last sets): they are written before it, and
+        ``sections_ahead`` (a :class:`~subpix_ros.process.report_ahead.SectionsAhead`) draws the
+        report's per-frame sections from them while the last set is solved.
+        """
         collector = self.collector
         collector.current = None
         self.mosaic_wait()
         self.mosaic_pool.shutdown(wait=True)
+        self.rows = self.write_tables()
+        if sections_ahead is not None:
+            rid = sections_ahead.submit(
+                self.writer.tmp,
+                _as_json(collector.references),
+                {"registration_node": _as_json(_stage_stats(self)["registration_node"])},
+                self.first_ns * 1e-9 if self.first_ns is not None else None,
+                bool(self.samples),
+            )
+            self.sections = (sections_ahead, rid)
         try:
             self.pipe.flush()
         except Exception as exc:  # noqa: BLE001
@@ -386,10 +421,10 @@ class _FlightRun:
                 f"corrupt bag read past its damage: {self.flight.read_report.summary()}"
             )
 
-    def write_products(self) -> tuple[list[dict], dict]:
-        """Write the tables, frame intervals, mosaic and last diagnostics; score against truth."""
+    def write_tables(self) -> list[dict]:
+        """Write ``shifts.csv``, ``frames.csv`` and ``telemetry.csv``; return the shift rows."""
         collector, writer, reg_params = self.collector, self.writer, self.reg_params
-        buf = TelemetryBuffer(
+        buf = self.buf = TelemetryBuffer(
             max_age_s=1e9,
             stale_after_s=float(reg_params["telemetry_timeout_s"]),
             max_samples=10**8,
@@ -403,6 +438,11 @@ class _FlightRun:
                 rec.status = "kept"
         writer.csv("frames.csv", FRAME_COLUMNS, [vars(r) for r in collector.frames])
         writer.csv("telemetry.csv", TELEMETRY_COLUMNS, [_telemetry_row(s) for s in self.samples])
+        return rows
+
+    def write_products(self) -> dict:
+        """Write the frame intervals, mosaic and last diagnostics (the tables are written)."""
+        collector, writer, reg_params, buf = self.collector, self.writer, self.reg_params, self.buf
         for rec in collector.frames:
             if rec.status in ("aligned", "reference", "kept") and self.samples:
                 interval = _interval_at(buf, rec.stamp_ns * 1e-9, reg_params)
@@ -411,7 +451,7 @@ class _FlightRun:
         mosaic_info = _mosaic(self.mosaic, writer, self.last_ns)
         if self.last_ns is not None:
             writer.diagnostics(self.last_ns, _diag_statuses(self.all_stats()))
-        return rows, mosaic_info
+        return mosaic_info
 
     def result(self, rows: list[dict], mosaic_info: dict) -> BagResult:
         """Write ``summary.json`` and return the result with its one line and its timing."""
@@ -456,3 +496,8 @@ class _FlightRun:
         )
         res.__dict__["_crops"] = self.collector.crops
         return res
+
+
+def _as_json(data: Any) -> Any:
+    """Return ``data`` as ``summary.json`` holds it (cleaned, through JSON): what the report reads."""
+    return json.loads(json.dumps(_clean(data), default=_json_default))

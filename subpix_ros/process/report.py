@@ -37,7 +37,9 @@ from subpix_ros.process.report_sections import (
 __all__ = ["build_report", "write_report"]
 
 
-def build_report(folder: str | Path, crops: dict | None = None) -> str:
+def build_report(
+    folder: str | Path, crops: dict | None = None, sections: dict[str, str] | None = None
+) -> str:
     """Build the report of the flight in ``folder`` (its products) as one HTML string.
 
     Parameters
@@ -47,6 +49,10 @@ def build_report(folder: str | Path, crops: dict | None = None) -> str:
     crops : dict, optional
         Per set's ``superres`` path, its :class:`~subpix_ros.process.report_sections.SetCrop`
         (kept by the run that made the set); sets without one are cut from their PNGs.
+    sections : dict, optional
+        The ``"shifts"`` and ``"registration"`` sections already drawn from this folder's
+        tables (:func:`~subpix_ros.process.report_ahead.per_frame_sections`, in a helper
+        process); drawn here when None.
 
     Returns
     -------
@@ -76,11 +82,15 @@ def build_report(folder: str | Path, crops: dict | None = None) -> str:
     ]
     h.append(f"<h1>Flight report: {_esc(summary.get('bag'))}</h1>")
     h.extend(_header(summary, timing))
+    sections = sections or {}
     h.append("<h2>Shift trajectory</h2>")
-    h.append(_section_shifts(shifts, t0, bool(tel.get("samples"))))
+    h.append(sections.get("shifts") or _section_shifts(shifts, t0, bool(tel.get("samples"))))
     h.append("<h2>Registration</h2>")
     h.append(
-        _section_registration(frames, summary.get("references", []), summary.get("stages", {}), t0)
+        sections.get("registration")
+        or _section_registration(
+            frames, summary.get("references", []), summary.get("stages", {}), t0
+        )
     )
     h.append("<h2>Super-resolution</h2>")
     h.append(_section_sets(folder, summary.get("sets", []), factor, t0, crops))
@@ -163,10 +173,12 @@ def _header(summary: dict, timing: dict) -> list[str]:
     return h
 
 
-def write_report(folder: str | Path, crops: dict | None = None) -> Path:
-    """Write ``folder/report.html`` (atomically; ``crops`` as in :func:`build_report`)."""
+def write_report(
+    folder: str | Path, crops: dict | None = None, sections: dict[str, str] | None = None
+) -> Path:
+    """Write ``folder/report.html`` (atomically; ``crops`` and ``sections`` as in :func:`build_report`)."""
     folder = Path(folder)
-    text = build_report(folder, crops)
+    text = build_report(folder, crops, sections)
     tmp = folder / ".report.html.tmp"
     tmp.write_text(text)
     tmp.replace(folder / "report.html")

@@ -36,13 +36,18 @@ def _input_problems(flight: Flight) -> list[str]:
     return problems
 
 
-def _summary(run: _FlightRun, rows: list[dict], mosaic_info: dict) -> dict:
-    """Build the content of ``summary.json`` (its final ``status`` is set by the caller)."""
-    flight, collector = run.flight, run.collector
-    stage_stats = {
+def _stage_stats(run: _FlightRun) -> dict:
+    """Each stage's statistics as ``summary.json`` has them (no timing keys)."""
+    return {
         k: _clean({kk: vv for kk, vv in _stats_dict(v).items() if not _TIME_KEY.search(kk)})
         for k, v in run.all_stats().items()
     }
+
+
+def _summary(run: _FlightRun, rows: list[dict], mosaic_info: dict) -> dict:
+    """Build the content of ``summary.json`` (its final ``status`` is set by the caller)."""
+    flight, collector = run.flight, run.collector
+    stage_stats = _stage_stats(run)
     statuses = Counter(r.status for r in collector.frames)
     skipped = Counter(reason_key(r.reason) for r in collector.frames if r.status == "skipped")
     first_ns, last_ns = run.first_ns, run.last_ns

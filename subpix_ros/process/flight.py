@@ -168,8 +168,8 @@ def _finish_bag(
     timing = res.__dict__.pop("_timing")
     crops = res.__dict__.pop("_crops", None)
     sections = res.__dict__.pop("_sections", None)
-    # the report's per-frame sections, if a helper drew them (else the report draws them)
-    drawn = sections[0].result(sections[1]) if sections is not None else None
+    # the report's figures a helper drew (the report draws what is missing)
+    drawn = _drawn_ahead(*sections) if sections is not None else None
     timing.update(
         wall_s=res.wall_s,
         cpu_s=time.process_time() - cpu0,
@@ -177,7 +177,8 @@ def _finish_bag(
             (res.flight_s / res.wall_s) if res.wall_s > 0 and res.flight_s > 0 else None
         ),
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-        report_sections_ahead=drawn is not None,
+        report_sections_ahead=bool(drawn and drawn.get("shifts")),
+        report_offsets_ahead=len((drawn or {}).get("offsets") or {}),
     )
     writer.json("timing.json", _clean(timing))
     try:
@@ -199,13 +200,13 @@ def _run(
     sections_ahead: Any = None,
 ) -> BagResult:
     """Feed the flight through the pipeline and write its products (all but timing, report)."""
-    run = _FlightRun(flight, writer, params, monitor)
+    run = _FlightRun(flight, writer, params, monitor, sections_ahead)
     try:
         run.read(progress)
     except BaseException:
         run.pipe.close(emit=False)  # Ctrl-C, a failure: stop the reconstruction worker
         raise
-    run.finish(sections_ahead)
+    run.finish()
     mosaic_info = run.write_products()
     res = run.result(run.rows, mosaic_info)
     res.__dict__["_sections"] = run.sections
@@ -216,7 +217,12 @@ class _FlightRun:
     """One flight through the stage pipeline: its stages, collector and running counts."""
 
     def __init__(
-        self, flight: Flight, writer: ProductWriter, params: dict[str, dict], monitor: Any
+        self,
+        flight: Flight,
+        writer: ProductWriter,
+        params: dict[str, dict],
+        monitor: Any,
+        sections_ahead: Any = None,
     ) -> None:
         from subpix_ros.stages import MosaicStage, Pipeline
 
@@ -242,6 +248,10 @@ class _FlightRun:
             score=set_scorer(_load_truth(flight.path)),
         )
         self._connect(monitor)
+        self.ahead = sections_ahead
+        self.offsets_ahead: dict[str, int | None] = {}  # offsets_key -> the helper's request
+        if sections_ahead is not None:  # after the collector's: the set's entry is made
+            self.pipe.on("super_resolved", self._draw_offsets_ahead)
         self.mosaic_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="subpix-mosaic")
         self.mosaic_jobs: list[tuple[_FrameRec, Any]] = []
         self.timer = _Timer()
@@ -270,7 +280,7 @@ class _FlightRun:
         self.add_ms: list[float] = []
         self.rows: list[dict] = []
         self.buf: TelemetryBuffer | None = None
-        self.sections: Any = None  # (SectionsAhead, request id): the report's sections drawn ahead
+        self.sections: Any = None  # (SectionsAhead, request id, offsets): drawn ahead
 
     def _connect(self, monitor: Any) -> None:
         """Route the pipeline's events to the collector (and to the live monitor, if any)."""
@@ -292,6 +302,16 @@ class _FlightRun:
         if self.feed is not None:
             self.pipe.on("shift", self.feed.shift)
             self.pipe.on("super_resolved", self.feed.super_resolved)
+
+    def _draw_offsets_ahead(self, _sr: Any) -> None:
+        """Ask the helper for the offsets figure of the set just recorded (its members)."""
+        from subpix_ros.process.report_sections import offsets_key
+
+        members = _as_json(self.collector.sets[-1]["members"])
+        factor = int(_as_json(self.pparams).get("reconstruction_node", {}).get("factor", 2))
+        self.offsets_ahead[offsets_key(members, factor)] = self.ahead.submit(
+            "offsets_svg", members, factor
+        )
 
     def mosaic_wait(self) -> None:
         """Wait for the queued mosaic additions and record on each frame whether it was drawn."""
@@ -379,12 +399,12 @@ class _FlightRun:
             self.mosaic_wait()  # the figures as of this frame, whatever the threads' timing
             self.writer.diagnostics(rec.stamp_ns, _diag_statuses(self.all_stats()))
 
-    def finish(self, sections_ahead: Any = None) -> None:
+    def finish(self) -> None:
         """End of stream: wait for the mosaic, write the tables, flush the pipeline, state what went wrong.
 
         Once every frame is registered, measured and drawn into the mosaic, the per-frame tables
         are final (the flush only solves the last sets): they are written before it, and
-        ``sections_ahead`` (a :class:`~subpix_ros.process.report_ahead.SectionsAhead`) draws the
+        the helper (:class:`~subpix_ros.process.report_ahead.SectionsAhead`), if any, draws the
         report's per-frame sections from them while the last set is solved.
         """
         collector = self.collector
@@ -392,15 +412,16 @@ class _FlightRun:
         self.mosaic_wait()
         self.mosaic_pool.shutdown(wait=True)
         self.rows = self.write_tables()
-        if sections_ahead is not None:
-            rid = sections_ahead.submit(
+        if self.ahead is not None:
+            rid = self.ahead.submit(
+                "per_frame_sections",
                 self.writer.tmp,
                 _as_json(collector.references),
                 {"registration_node": _as_json(_stage_stats(self)["registration_node"])},
                 self.first_ns * 1e-9 if self.first_ns is not None else None,
                 bool(self.samples),
             )
-            self.sections = (sections_ahead, rid)
+            self.sections = (self.ahead, rid, self.offsets_ahead)
         try:
             self.pipe.flush()
         except Exception as exc:  # noqa: BLE001
@@ -501,3 +522,11 @@ class _FlightRun:
 def _as_json(data: Any) -> Any:
     """Return ``data`` as ``summary.json`` holds it (cleaned, through JSON): what the report reads."""
     return json.loads(json.dumps(_clean(data), default=_json_default))
+
+
+def _drawn_ahead(ahead: Any, rid: int | None, offsets: dict[str, int | None]) -> dict:
+    """Collect what the helper drew: the per-frame sections and the sets' offsets figures."""
+    drawn = dict(ahead.result(rid) or {})
+    svgs = {key: ahead.result(r) for key, r in offsets.items()}
+    drawn["offsets"] = {key: svg for key, svg in svgs.items() if svg}
+    return drawn

@@ -50,9 +50,11 @@ def build_report(
         Per set's ``superres`` path, its :class:`~subpix_ros.process.report_sections.SetCrop`
         (kept by the run that made the set); sets without one are cut from their PNGs.
     sections : dict, optional
-        The ``"shifts"`` and ``"registration"`` sections already drawn from this folder's
-        tables (:func:`~subpix_ros.process.report_ahead.per_frame_sections`, in a helper
-        process); drawn here when None.
+        What a helper process drew ahead (:mod:`~subpix_ros.process.report_ahead`): the
+        ``"shifts"`` and ``"registration"`` sections from this folder's tables, and
+        ``"offsets"``, the sets' offsets figures by
+        :func:`~subpix_ros.process.report_sections.offsets_key`; whatever is missing is drawn
+        here.
 
     Returns
     -------
@@ -93,7 +95,9 @@ def build_report(
         )
     )
     h.append("<h2>Super-resolution</h2>")
-    h.append(_section_sets(folder, summary.get("sets", []), factor, t0, crops))
+    h.append(
+        _section_sets(folder, summary.get("sets", []), factor, t0, crops, sections.get("offsets"))
+    )
     h.append("<h2>Mosaic and track</h2>")
     h.append(_section_mosaic(folder, summary.get("mosaic", {}), telemetry))
     h.append("<h2>Stage times and memory</h2>")

@@ -1,4 +1,4 @@
-"""The flight report's per-frame figures, drawn in a helper process while the last set is solved.
+"""The flight report's figures, drawn in a helper process while the flight is still processed.
 
 When the last frame of a flight has been registered, ``subpix process`` (one job) still waits
 for the last set's reconstruction and the queued products, with a core mostly idle, and then
@@ -8,7 +8,8 @@ on tables that are final once every frame is registered and drawn into the mosai
 process started with the flight (its matplotlib imported while the frames are read) draws them
 from those files in the meantime. The HTML is the one :func:`subpix_ros.process.report.build_report`
 draws itself from the same files (the same functions); when the helper is not there or fails,
-the report draws them in-process.
+the report draws them in-process. Each set's sub-pixel offsets figure (its members' shifts,
+final when the set is emitted) is drawn there as the set arrives, keyed by what it shows.
 
 The helper is ``python -m subpix_ros.process.report_ahead`` reading requests from a pipe (not
 a ``multiprocessing`` child, which would run the caller's main script again in a script without
@@ -20,10 +21,12 @@ writes nothing to the terminal.
 from __future__ import annotations
 
 import pickle
-import select
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
+from typing import Any
 
 __all__ = ["SectionsAhead", "per_frame_sections"]
 
@@ -66,6 +69,16 @@ def per_frame_sections(
     }
 
 
+def _offsets_svg(members: list[dict], factor: int) -> str:
+    from subpix_ros.process.report_sections import offsets_svg
+
+    return offsets_svg(members, factor)
+
+
+#: What the helper may be asked to draw, by name.
+_CALLS = {"per_frame_sections": per_frame_sections, "offsets_svg": _offsets_svg}
+
+
 def _start() -> None:
     """Start the helper: end with the parent, leave SIGINT to it, import the plotting now."""
     import signal
@@ -82,28 +95,34 @@ def _start() -> None:
 
 
 def _serve() -> None:
-    """Answer ``(id, args)`` requests on stdin with ``(id, sections or None)`` on stdout."""
+    """Answer ``(id, name, args)`` requests on stdin with ``(id, result or None)`` on stdout."""
     requests, answers = sys.stdin.buffer, sys.stdout.buffer
     sys.stdout = sys.stderr  # whatever a library prints must not go into the pipe
     _start()
     while True:
         try:
-            rid, args = pickle.load(requests)
+            rid, name, args = pickle.load(requests)
         except EOFError:  # the command closed the pipe: done
             return
         try:
-            sections = per_frame_sections(*args)
-        except Exception:  # noqa: BLE001 - the command draws them itself
-            sections = None
-        pickle.dump((rid, sections), answers)
+            result = _CALLS[name](*args)
+        except Exception:  # noqa: BLE001 - the command draws it itself
+            result = None
+        pickle.dump((rid, result), answers)
         answers.flush()
 
 
 class SectionsAhead:
-    """One helper process for the per-frame report sections of the flights of one command."""
+    """One helper process for the report figures of the flights of one command.
+
+    :meth:`submit` queues a drawing and returns its id; :meth:`result` waits for it. The
+    answers are read as they come (a thread), so the helper never blocks on a full pipe.
+    """
 
     def __init__(self) -> None:
         self._next = 0
+        self._answers: dict[int, Any] = {}
+        self._cond = threading.Condition()
         try:  # started now: its imports run while the first flight is read
             self._proc: subprocess.Popen | None = subprocess.Popen(
                 [sys.executable, "-m", "subpix_ros.process.report_ahead"],
@@ -113,57 +132,77 @@ class SectionsAhead:
             )
         except OSError:
             self._proc = None
+            return
+        threading.Thread(
+            target=self._read, args=(self._proc,), name="subpix-report-ahead", daemon=True
+        ).start()
 
-    def submit(
-        self, folder: Path, references: list, stages: dict, t0: float | None, has_telemetry: bool
-    ) -> int | None:
-        """Ask for :func:`per_frame_sections`; return the request's id (None: no helper)."""
-        if self._proc is None:
-            return None
-        self._next += 1
+    def _read(self, proc: subprocess.Popen) -> None:
+        """Collect the helper's answers until its pipe ends (then mark it gone)."""
         try:
-            pickle.dump(
-                (self._next, (str(folder), references, stages, t0, has_telemetry)),
-                self._proc.stdin,
-            )
-            self._proc.stdin.flush()
+            while True:
+                rid, result = pickle.load(proc.stdout)
+                with self._cond:
+                    self._answers[rid] = result
+                    self._cond.notify_all()
+        except Exception:  # noqa: BLE001 - EOF, a helper that died or answered garbage
+            pass
+        with self._cond:
+            if self._proc is proc:
+                self._proc = None
+            self._cond.notify_all()
+
+    def submit(self, name: str, *args) -> int | None:
+        """Ask the helper to draw ``name(*args)``; return the request's id (None: no helper)."""
+        with self._cond:
+            proc = self._proc
+            if proc is None:
+                return None
+            self._next += 1
+            rid = self._next
+        try:
+            pickle.dump((rid, name, args), proc.stdin)
+            proc.stdin.flush()
         except (OSError, ValueError, pickle.PicklingError):  # the helper is gone
             self.close()
             return None
-        return self._next
+        return rid
 
-    def result(self, rid: int | None) -> dict[str, str] | None:
-        """Return the sections of request ``rid``, or None (the report then draws them itself)."""
-        if rid is None or self._proc is None:
+    def result(self, rid: int | None) -> Any:
+        """Return the answer to request ``rid``, or None (the report then draws it itself)."""
+        if rid is None:
             return None
-        try:
-            while True:  # answers to earlier requests (a flight that failed after asking) skipped
-                ready, _, _ = select.select([self._proc.stdout], [], [], WAIT_S)
-                if not ready:
-                    raise TimeoutError
-                got, sections = pickle.load(self._proc.stdout)
-                if got == rid:
-                    return sections
-        except Exception:  # noqa: BLE001 - a helper that died, hangs or answers garbage: stop it
-            self.close()
-            return None
+        deadline = time.monotonic() + WAIT_S
+        with self._cond:
+            while rid not in self._answers:
+                left = deadline - time.monotonic()
+                if self._proc is None or left <= 0:
+                    break
+                self._cond.wait(left)
+            if rid in self._answers:
+                return self._answers.pop(rid)
+        self.close()  # gone, or hung for WAIT_S
+        return None
 
     def close(self) -> None:
         """Stop the helper (at once: nothing it still does is needed)."""
-        proc, self._proc = self._proc, None
+        with self._cond:
+            proc, self._proc = self._proc, None
+            self._answers.clear()
+            self._cond.notify_all()
         if proc is None:
             return
-        for pipe in (proc.stdin, proc.stdout):
-            try:
-                pipe.close()
-            except OSError:
-                pass
+        try:
+            proc.stdin.close()
+        except OSError:
+            pass
         proc.terminate()
         try:
             proc.wait(timeout=5)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+        proc.stdout.close()  # after the end: the reader thread has met the pipe's end
 
 
 if __name__ == "__main__":

@@ -39,10 +39,15 @@ def _fig_svg(fig) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
+def _svg_img(svg_b64: str, alt: str) -> str:
+    """Return an inline base64 SVG figure (:func:`_fig_svg`'s output)."""
+    return f'<img alt="{_esc(alt)}" src="data:image/svg+xml;base64,{svg_b64}">'
+
+
 def _img(fig, alt: str, vector: bool = False) -> str:
     """Return an inline figure: PNG, or SVG with ``vector`` (small plots, no raster image)."""
     if vector:
-        return f'<img alt="{_esc(alt)}" src="data:image/svg+xml;base64,{_fig_svg(fig)}">'
+        return _svg_img(_fig_svg(fig), alt)
     return f'<img alt="{_esc(alt)}" src="data:image/png;base64,{_fig_png(fig)}">'
 
 

@@ -2,13 +2,24 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from subpix_ros.process.report_html import _esc, _f, _img, _num, _pixels, _plt, _table
+from subpix_ros.process.report_html import (
+    _esc,
+    _f,
+    _fig_svg,
+    _img,
+    _num,
+    _pixels,
+    _plt,
+    _svg_img,
+    _table,
+)
 
 CROP_LR_PX = 96  # side of the super-resolution crops, in input pixels
 
@@ -228,9 +239,13 @@ def _set_crop(folder: Path, entry: dict, factor: int, crops: dict | None) -> Set
 
 
 def _section_sets(
-    folder: Path, sets: list[dict], factor: int, t0: float | None, crops: dict | None = None
+    folder: Path,
+    sets: list[dict],
+    factor: int,
+    t0: float | None,
+    crops: dict | None = None,
+    offsets: dict[str, str] | None = None,
 ) -> str:
-    plt = _plt()
     if not sets:
         return "<p>No super-resolved image (no set of frames reached min_frames).</p>"
     out = []
@@ -275,13 +290,23 @@ def _section_sets(
             )
         )
         out.append(_pixels(crop.super_resolved, label, caption, scale))
-        uv = np.array([[0.0, 0.0]] + [[m["u_px"], m["v_px"]] for m in s.get("members", [])])
-        frac = uv - np.floor(uv)
-        out.append(
-            _img(_offsets_figure(plt, frac, factor), f"set {k + 1}: sub-pixel offsets", vector=True)
-        )
+        members = s.get("members", [])
+        svg = (offsets or {}).get(offsets_key(members, factor)) or offsets_svg(members, factor)
+        out.append(_svg_img(svg, f"set {k + 1}: sub-pixel offsets"))
         out.append("</div>")
     return "".join(out)
+
+
+def offsets_key(members: list[dict], factor: int) -> str:
+    """Return what a set's offsets figure shows, as a key: the factor and the members' shifts."""
+    return json.dumps([int(factor), [[m["u_px"], m["v_px"]] for m in members]])
+
+
+def offsets_svg(members: list[dict], factor: int) -> str:
+    """Draw a set's sub-pixel offsets figure (members as in ``summary.json``) as base64 SVG."""
+    uv = np.array([[0.0, 0.0]] + [[m["u_px"], m["v_px"]] for m in members])
+    frac = uv - np.floor(uv)
+    return _fig_svg(_offsets_figure(_plt(), frac, factor))
 
 
 def _offsets_figure(plt, frac: np.ndarray, factor: int):

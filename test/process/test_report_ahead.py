@@ -23,12 +23,12 @@ ROOT = Path(__file__).resolve().parents[2]
 
 @pytest.fixture(scope="module")
 def ahead_run(sample_bags, tmp_path_factory):
-    """Return the product folder of the seneca sample flight processed with a helper."""
+    """Return the product folder of the subpixel sample flight processed with a helper."""
     out = tmp_path_factory.mktemp("ahead")
     ahead = SectionsAhead()
     try:
         res = process_bag(
-            sample_bags / "seneca",
+            sample_bags / "subpixel",
             out,
             load_params(ROOT / "config" / "demo.yaml"),
             sections_ahead=ahead,
@@ -41,7 +41,10 @@ def ahead_run(sample_bags, tmp_path_factory):
 
 def test_the_helper_draws_the_sections_the_report_would_draw(ahead_run):
     timing = json.loads((ahead_run / "timing.json").read_text())
-    assert timing["report_sections_ahead"] is True  # the helper's sections went into it
+    # the helper's sections and every set's offsets figure went into it
+    assert timing["report_sections_ahead"] is True
+    n_sets = len(json.loads((ahead_run / "summary.json").read_text())["sets"])
+    assert n_sets >= 1 and timing["report_offsets_ahead"] == n_sets
     text = (ahead_run / "report.html").read_text()
     assert "<h2>Shift trajectory</h2>" in text and "registration quality" in text
     # drawn again in this process from the products alone: the same document
@@ -53,42 +56,44 @@ def test_a_helper_that_died_leaves_the_sections_to_the_command(sample_bags, tmp_
     os.kill(ahead._proc.pid, signal.SIGKILL)
     ahead._proc.wait(timeout=10)
     res = process_bag(
-        sample_bags / "seneca",
+        sample_bags / "subpixel",
         tmp_path,
         load_params(ROOT / "config" / "demo.yaml"),
         sections_ahead=ahead,
     )
     ahead.close()
     folder = Path(res.out)
-    assert json.loads((folder / "timing.json").read_text())["report_sections_ahead"] is False
+    timing = json.loads((folder / "timing.json").read_text())
+    assert timing["report_sections_ahead"] is False and timing["report_offsets_ahead"] == 0
     assert not res.problems or all("report" not in p for p in res.problems)
     assert build_report(folder) == (folder / "report.html").read_text()
 
 
-def test_answers_to_earlier_requests_are_skipped(ahead_run):
+def test_each_answer_goes_to_its_own_request(ahead_run):
     summary = json.loads((ahead_run / "summary.json").read_text())
     t0 = summary["flight"]["first_stamp_ns"] * 1e-9
     refs, stages = summary["references"], summary["stages"]
     ahead = SectionsAhead()
     try:
-        first = ahead.submit(ahead_run, refs, stages, t0, False)  # never collected
-        second = ahead.submit(ahead_run, refs, stages, t0, True)
+        first = ahead.submit("per_frame_sections", ahead_run, refs, stages, t0, False)
+        second = ahead.submit("per_frame_sections", ahead_run, refs, stages, t0, True)
         assert first is not None and second is not None and first != second
-        got = ahead.result(second)
+        got_second, got_first = ahead.result(second), ahead.result(first)
     finally:
         ahead.close()
-    assert got == per_frame_sections(ahead_run, refs, stages, t0, True)
-    assert got != per_frame_sections(ahead_run, refs, stages, t0, False)
+    assert got_second == per_frame_sections(ahead_run, refs, stages, t0, True)
+    assert got_first == per_frame_sections(ahead_run, refs, stages, t0, False) != got_second
 
 
 def test_the_helper_ignores_ctrl_c_and_ends_with_its_pipe(tmp_path):
     ahead = SectionsAhead()
     proc = ahead._proc
     # an answer means its start-up (SIGINT ignored from there on) is done
-    assert ahead.result(ahead.submit(tmp_path, [], {}, None, False))["shifts"].startswith("<p>No")
+    got = ahead.result(ahead.submit("per_frame_sections", tmp_path, [], {}, None, False))
+    assert got["shifts"].startswith("<p>No")
     proc.send_signal(signal.SIGINT)  # a terminal's Ctrl-C reaches the whole process group
     time.sleep(0.5)
     assert proc.poll() is None
     proc.stdin.close()  # the command closes the pipe: the helper ends by itself
     assert proc.wait(timeout=30) == 0
-    ahead._proc = None
+    ahead.close()

@@ -167,9 +167,9 @@ def _finish_bag(
     res.wall_s = time.monotonic() - t_wall
     timing = res.__dict__.pop("_timing")
     crops = res.__dict__.pop("_crops", None)
-    sections = res.__dict__.pop("_sections", None)
+    ahead = res.__dict__.pop("_ahead", None)
     # the report's figures a helper drew (the report draws what is missing)
-    drawn = _drawn_ahead(*sections) if sections is not None else None
+    drawn = _drawn_ahead(*ahead) if ahead is not None else None
     timing.update(
         wall_s=res.wall_s,
         cpu_s=time.process_time() - cpu0,
@@ -177,7 +177,7 @@ def _finish_bag(
             (res.flight_s / res.wall_s) if res.wall_s > 0 and res.flight_s > 0 else None
         ),
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-        report_sections_ahead=bool(drawn and drawn.get("shifts")),
+        report_sections_ahead=sorted(k for k, v in (drawn or {}).items() if v and k != "offsets"),
         report_offsets_ahead=len((drawn or {}).get("offsets") or {}),
     )
     writer.json("timing.json", _clean(timing))
@@ -209,7 +209,8 @@ def _run(
     run.finish()
     mosaic_info = run.write_products()
     res = run.result(run.rows, mosaic_info)
-    res.__dict__["_sections"] = run.sections
+    if run.ahead is not None:
+        res.__dict__["_ahead"] = (run.ahead, run.ahead_requests, run.offsets_ahead)
     return res
 
 
@@ -280,7 +281,7 @@ class _FlightRun:
         self.add_ms: list[float] = []
         self.rows: list[dict] = []
         self.buf: TelemetryBuffer | None = None
-        self.sections: Any = None  # (SectionsAhead, request id, offsets): drawn ahead
+        self.ahead_requests: dict[str, int | None] = {}  # report section -> helper request
 
     def _connect(self, monitor: Any) -> None:
         """Route the pipeline's events to the collector (and to the live monitor, if any)."""
@@ -413,7 +414,7 @@ class _FlightRun:
         self.mosaic_pool.shutdown(wait=True)
         self.rows = self.write_tables()
         if self.ahead is not None:
-            rid = self.ahead.submit(
+            self.ahead_requests["per_frame"] = self.ahead.submit(
                 "per_frame_sections",
                 self.writer.tmp,
                 _as_json(collector.references),
@@ -421,7 +422,6 @@ class _FlightRun:
                 self.first_ns * 1e-9 if self.first_ns is not None else None,
                 bool(self.samples),
             )
-            self.sections = (self.ahead, rid, self.offsets_ahead)
         try:
             self.pipe.flush()
         except Exception as exc:  # noqa: BLE001
@@ -478,6 +478,10 @@ class _FlightRun:
         """Write ``summary.json`` and return the result with its one line and its timing."""
         flight, collector = self.flight, self.collector
         self.writer.flush()  # the sets' scores are added on the products thread
+        if self.ahead is not None:  # mosaic.png and telemetry.csv are written
+            self.ahead_requests["mosaic"] = self.ahead.submit(
+                "mosaic_section", self.writer.tmp, _as_json(mosaic_info)
+            )
         summary = _summary(self, rows, mosaic_info)
         if not collector.sets and flight.frames_total:
             self.problems.append("no super-resolved image: no set reached min_frames")
@@ -524,9 +528,13 @@ def _as_json(data: Any) -> Any:
     return json.loads(json.dumps(_clean(data), default=_json_default))
 
 
-def _drawn_ahead(ahead: Any, rid: int | None, offsets: dict[str, int | None]) -> dict:
-    """Collect what the helper drew: the per-frame sections and the sets' offsets figures."""
-    drawn = dict(ahead.result(rid) or {})
+def _drawn_ahead(
+    ahead: Any, requests: dict[str, int | None], offsets: dict[str, int | None]
+) -> dict:
+    """Collect what the helper drew: report sections by name, and the sets' offsets figures."""
+    drawn: dict[str, Any] = {}
+    for rid in requests.values():
+        drawn.update(ahead.result(rid) or {})
     svgs = {key: ahead.result(r) for key, r in offsets.items()}
     drawn["offsets"] = {key: svg for key, svg in svgs.items() if svg}
     return drawn

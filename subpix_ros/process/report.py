@@ -51,7 +51,7 @@ def build_report(
         (kept by the run that made the set); sets without one are cut from their PNGs.
     sections : dict, optional
         What a helper process drew ahead (:mod:`~subpix_ros.process.report_ahead`): the
-        ``"shifts"`` and ``"registration"`` sections from this folder's tables, and
+        ``"shifts"``, ``"registration"`` and ``"mosaic"`` sections from this folder's files, and
         ``"offsets"``, the sets' offsets figures by
         :func:`~subpix_ros.process.report_sections.offsets_key`; whatever is missing is drawn
         here.
@@ -99,7 +99,9 @@ def build_report(
         _section_sets(folder, summary.get("sets", []), factor, t0, crops, sections.get("offsets"))
     )
     h.append("<h2>Mosaic and track</h2>")
-    h.append(_section_mosaic(folder, summary.get("mosaic", {}), telemetry))
+    h.append(
+        sections.get("mosaic") or _section_mosaic(folder, summary.get("mosaic", {}), telemetry)
+    )
     h.append("<h2>Stage times and memory</h2>")
     h.append(_section_timing(timing))
     h.append("</body></html>\n")

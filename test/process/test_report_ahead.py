@@ -41,12 +41,13 @@ def ahead_run(sample_bags, tmp_path_factory):
 
 def test_the_helper_draws_the_sections_the_report_would_draw(ahead_run):
     timing = json.loads((ahead_run / "timing.json").read_text())
-    # the helper's sections and every set's offsets figure went into it
-    assert timing["report_sections_ahead"] is True
+    # the helper's sections and every set's offsets figure went into it (the command drew none)
+    assert timing["report_sections_ahead"] == ["mosaic", "registration", "shifts"]
     n_sets = len(json.loads((ahead_run / "summary.json").read_text())["sets"])
     assert n_sets >= 1 and timing["report_offsets_ahead"] == n_sets
     text = (ahead_run / "report.html").read_text()
     assert "<h2>Shift trajectory</h2>" in text and "registration quality" in text
+    assert "mosaic and GPS track" in text
     # drawn again in this process from the products alone: the same document
     assert build_report(ahead_run) == text
 
@@ -64,7 +65,7 @@ def test_a_helper_that_died_leaves_the_sections_to_the_command(sample_bags, tmp_
     ahead.close()
     folder = Path(res.out)
     timing = json.loads((folder / "timing.json").read_text())
-    assert timing["report_sections_ahead"] is False and timing["report_offsets_ahead"] == 0
+    assert timing["report_sections_ahead"] == [] and timing["report_offsets_ahead"] == 0
     assert not res.problems or all("report" not in p for p in res.problems)
     assert build_report(folder) == (folder / "report.html").read_text()
 

@@ -10,6 +10,7 @@ processes they travel as the documented ROS messages, and the ``*_from_cdr``
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
@@ -71,6 +72,22 @@ def image_cdr(image: np.ndarray, stamp_ns: int, frame_id: str = "") -> bytes:
     else:
         raise ValueError(f"no image encoding for {image.dtype} with shape {image.shape}")
     return cdr.image_to_cdr(image, encoding, stamp_ns, frame_id)
+
+
+def adopt_pixels(sr: Any, raw: bytes) -> None:
+    """Point a super-resolved image (and its result) at the pixels inside its message ``raw``.
+
+    The message holds a copy of the pixels (:func:`image_cdr`); viewing them there (read-only,
+    no copy) frees the array itself while the message is published and whatever receives the
+    image in this process uses it: at 4K, 100 MB less at the node's peak.
+    """
+    old = sr.image
+    view = cdr.cdr_to_image(raw)[0]
+    if view.shape != old.shape or view.dtype != old.dtype:
+        raise ValueError(f"message pixels {view.shape} {view.dtype} are not the image's")
+    sr.image = view
+    if getattr(sr.result, "image", None) is old:
+        sr.result.image = view
 
 
 def mask_cdr(mask: np.ndarray, stamp_ns: int, frame_id: str = "") -> bytes:

@@ -124,7 +124,9 @@ class ReconstructionNode(StageNode):
         if sr is None:
             return
         ref = sr.reference  # the image is on the reference's grid: it carries the reference's stamp
-        self.pub.publish(pl.image_cdr(sr.image, ref.stamp_ns, ref.frame_id))
+        raw = pl.image_cdr(sr.image, ref.stamp_ns, ref.frame_id)
+        pl.adopt_pixels(sr, raw)  # one copy of the pixels while publishing, not two
+        self.pub.publish(raw)
         st = self.stage.stats
         self.output(
             "super_resolved",

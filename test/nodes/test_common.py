@@ -3,6 +3,8 @@
 import threading
 import time
 
+import pytest
+
 from subpix_ros.nodes.params import Param
 from subpix_ros.nodes.worker import DropOldestWorker, RateMeter
 
@@ -158,3 +160,28 @@ def test_stage_times_restart_when_time_jumps_back(rclpy_node):
         assert {kv.key: kv.value for kv in node.diag.snapshot().values}["work_ms_max"] == "7"
     finally:
         node.destroy_node()
+
+
+def test_a_published_image_keeps_one_copy_of_its_pixels():
+    """The reconstruction node's image, once encoded, is viewed in its message (not kept twice)."""
+    import weakref
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from subpix_ros.nodes import payloads as pl
+
+    image = np.random.default_rng(1).integers(0, 256, (40, 60, 3), dtype=np.uint8)
+    expected = image.copy()
+    sr = SimpleNamespace(image=image, result=SimpleNamespace(image=image))
+    gone = weakref.ref(image)
+    raw = pl.image_cdr(image, 5, "cam")
+    del image
+    pl.adopt_pixels(sr, raw)
+    assert gone() is None  # the array itself is freed: its pixels live in the message
+    assert sr.result.image is sr.image and np.array_equal(sr.image, expected)
+    assert np.shares_memory(sr.image, np.frombuffer(raw, np.uint8))
+    assert not sr.image.flags.writeable  # nothing can change the published pixels
+    other = SimpleNamespace(image=np.zeros((4, 4), np.uint8), result=None)
+    with pytest.raises(ValueError, match="not the image's"):
+        pl.adopt_pixels(other, raw)

@@ -16,6 +16,7 @@ import numpy as np
 
 from subpix_ros.io import cdr
 from subpix_ros.io.images import image_to_numpy
+from subpix_ros.runtime import MMAP_THRESHOLD
 from subpix_ros.stages.types import Aligned, Frame, Shift  # noqa: F401 - re-exported
 
 
@@ -74,20 +75,27 @@ def image_cdr(image: np.ndarray, stamp_ns: int, frame_id: str = "") -> bytes:
     return cdr.image_to_cdr(image, encoding, stamp_ns, frame_id)
 
 
-def adopt_pixels(sr: Any, raw: bytes) -> None:
+def adopt_pixels(sr: Any, raw: bytes, min_bytes: int = MMAP_THRESHOLD) -> bool:
     """Point a super-resolved image (and its result) at the pixels inside its message ``raw``.
 
     The message holds a copy of the pixels (:func:`image_cdr`); viewing them there (read-only,
     no copy) frees the array itself while the message is published and whatever receives the
-    image in this process uses it: at 4K, 100 MB less at the node's peak.
+    image in this process uses it: at 4K, 100 MB less at the node's peak. Only for images of at
+    least ``min_bytes`` (the allocator's mmap threshold, :data:`subpix_ros.runtime.MMAP_THRESHOLD`):
+    those go back to the system when freed; a smaller array's memory stays in the heap, and
+    freeing it early did not lower the 1080p peak (docs/design-notes.md). Returns True if the
+    image was adopted.
     """
     old = sr.image
+    if old.nbytes < min_bytes:
+        return False
     view = cdr.cdr_to_image(raw)[0]
     if view.shape != old.shape or view.dtype != old.dtype:
         raise ValueError(f"message pixels {view.shape} {view.dtype} are not the image's")
     sr.image = view
     if getattr(sr.result, "image", None) is old:
         sr.result.image = view
+    return True
 
 
 def mask_cdr(mask: np.ndarray, stamp_ns: int, frame_id: str = "") -> bytes:

@@ -125,7 +125,7 @@ class ReconstructionNode(StageNode):
             return
         ref = sr.reference  # the image is on the reference's grid: it carries the reference's stamp
         raw = pl.image_cdr(sr.image, ref.stamp_ns, ref.frame_id)
-        pl.adopt_pixels(sr, raw)  # one copy of the pixels while publishing, not two
+        pl.adopt_pixels(sr, raw)  # a large image: its pixels once while published, not twice
         self.pub.publish(raw)
         st = self.stage.stats
         self.output(

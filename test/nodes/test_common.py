@@ -176,12 +176,14 @@ def test_a_published_image_keeps_one_copy_of_its_pixels():
     sr = SimpleNamespace(image=image, result=SimpleNamespace(image=image))
     gone = weakref.ref(image)
     raw = pl.image_cdr(image, 5, "cam")
+    assert not pl.adopt_pixels(sr, raw)  # below the allocator's mmap threshold: left as it is
+    assert sr.image is image and sr.result.image is image
     del image
-    pl.adopt_pixels(sr, raw)
+    assert pl.adopt_pixels(sr, raw, min_bytes=0)
     assert gone() is None  # the array itself is freed: its pixels live in the message
     assert sr.result.image is sr.image and np.array_equal(sr.image, expected)
     assert np.shares_memory(sr.image, np.frombuffer(raw, np.uint8))
     assert not sr.image.flags.writeable  # nothing can change the published pixels
     other = SimpleNamespace(image=np.zeros((4, 4), np.uint8), result=None)
     with pytest.raises(ValueError, match="not the image's"):
-        pl.adopt_pixels(other, raw)
+        pl.adopt_pixels(other, raw, min_bytes=0)

@@ -214,6 +214,35 @@ def test_deterministic_and_rerun_skips(processed, sample_bags, tmp_path):
     assert r.returncode == 0, r.stderr
     assert (b / "summary.json").stat().st_mtime_ns != before
     assert filecmp.cmp(a / "shifts.csv", b / "shifts.csv", shallow=False)
+    # with one job the report's figures were drawn by the helper process, and are the ones
+    # drawn in this process from the products
+    timing = json.loads((b / "timing.json").read_text())
+    n_sets = len(json.loads((b / "summary.json").read_text())["sets"])
+    assert timing["report_sections_ahead"] == ["mosaic", "registration", "shifts"]
+    assert n_sets >= 1 and timing["report_offsets_ahead"] == n_sets
+    from subpix_ros.process import build_report
+
+    assert build_report(b) == (b / "report.html").read_text()
+
+
+def _report_helpers(parent: int) -> list[int]:
+    """PIDs of the report helper processes (``subpix_ros.process.report_ahead``) of ``parent``."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            cmd = (d / "cmdline").read_bytes()
+            ppid = int(
+                next(
+                    x for x in (d / "status").read_text().splitlines() if x.startswith("PPid:")
+                ).split()[1]
+            )
+        except (OSError, StopIteration, ValueError):
+            continue
+        if ppid == parent and b"subpix_ros.process.report_ahead" in cmd:
+            out.append(int(d.name))
+    return out
 
 
 def test_ctrl_c_leaves_nothing_that_looks_complete(sample_bags, tmp_path):
@@ -225,9 +254,12 @@ def test_ctrl_c_leaves_nothing_that_looks_complete(sample_bags, tmp_path):
     )
     line = p.stderr.readline()  # the first progress line: processing has started
     assert "frames" in line, line
+    helpers = _report_helpers(p.pid)
+    assert len(helpers) == 1  # the report's helper process (one job)
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=120)
     assert p.returncode == 130, err
+    assert not Path(f"/proc/{helpers[0]}").exists()  # stopped with the command
     assert "Traceback" not in err
     assert list(tmp_path.iterdir()) == [] or not (tmp_path / "subpixel").exists()
     assert not [q for q in tmp_path.iterdir() if q.name.startswith(".")]

@@ -322,9 +322,20 @@ def bt601_luminance(image: np.ndarray) -> np.ndarray:
     -------
     numpy.ndarray
         ``Y = 0.114 B + 0.587 G + 0.299 R`` (ITU-R BT.601), float64, HxW.
+
+    Notes
+    -----
+    A colour image is converted in blocks of 64 rows (each block's float64 copy stays small),
+    not as one HxWx3 float64 temporary (the same sums, block by block).
     """
-    a = np.asarray(image, dtype=np.float64)
-    return a @ np.array([0.114, 0.587, 0.299]) if a.ndim == 3 else a
+    a = np.asarray(image)
+    if a.ndim != 3:
+        return a.astype(np.float64, copy=False)
+    w = np.array([0.114, 0.587, 0.299])
+    out = np.empty(a.shape[:2], np.float64)
+    for r0 in range(0, a.shape[0], 64):
+        np.matmul(a[r0 : r0 + 64].astype(np.float64), w, out=out[r0 : r0 + 64])
+    return out
 
 
 def is_lazy_frame(image) -> bool:

@@ -114,3 +114,15 @@ def test_ringing_lsf_not_cut_by_the_window(angle):
     ref = (1.6 * g(0.5) - 0.6 * g(2.0)) * np.abs(np.sinc(f * np.cos(th)) * np.sinc(f * np.sin(th)))
     assert abs(r.mtf30 - mtf_crossing(f, ref, 0.3)) <= 0.01
     assert abs(r.mtf50 - mtf_crossing(f, ref, 0.5)) <= 0.01
+
+
+@pytest.mark.parametrize("shape", [(130, 77, 3), (64, 5, 3), (1, 3, 3), (200, 40)])
+def test_bt601_luminance_is_the_weighted_sum_whatever_the_blocks(shape):
+    from subpix_ros.core.mtf import bt601_luminance
+
+    img = np.random.default_rng(3).integers(0, 256, shape, dtype=np.uint8)
+    got = bt601_luminance(img)
+    a = img.astype(np.float64)
+    want = a @ np.array([0.114, 0.587, 0.299]) if a.ndim == 3 else a
+    assert got.dtype == np.float64 and got.shape == shape[:2]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-10)  # BLAS kernels may round apart

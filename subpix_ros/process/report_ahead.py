@@ -11,7 +11,7 @@ draws itself from the same files (the same functions); when the helper is not th
 the report draws them in-process. Each set's sub-pixel offsets figure (its members' shifts,
 final when the set is emitted) is drawn there as the set arrives, keyed by what it shows, and
 the mosaic section once ``mosaic.png`` is written: the command itself then does not import
-matplotlib at all (0.3-0.4 s).
+matplotlib at all (measured figures: docs/design-notes.md, "The report drawn beside the run").
 
 The helper is ``python -m subpix_ros.process.report_ahead`` reading requests from a pipe (not
 a ``multiprocessing`` child, which would run the caller's main script again in a script without

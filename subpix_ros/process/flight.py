@@ -251,6 +251,10 @@ class _FlightRun:
         self._connect(monitor)
         self.ahead = sections_ahead
         self.offsets_ahead: dict[str, int | None] = {}  # offsets_key -> the helper's request
+        # the factor the report reads from summary.json's parameters (2 when not set)
+        self.report_factor = int(
+            _as_json(self.pparams).get("reconstruction_node", {}).get("factor", 2)
+        )
         if sections_ahead is not None:  # after the collector's: the set's entry is made
             self.pipe.on("super_resolved", self._draw_offsets_ahead)
         self.mosaic_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="subpix-mosaic")
@@ -309,7 +313,7 @@ class _FlightRun:
         from subpix_ros.process.report_sections import offsets_key
 
         members = _as_json(self.collector.sets[-1]["members"])
-        factor = int(_as_json(self.pparams).get("reconstruction_node", {}).get("factor", 2))
+        factor = self.report_factor
         self.offsets_ahead[offsets_key(members, factor)] = self.ahead.submit(
             "offsets_svg", members, factor
         )

@@ -24,14 +24,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from subpix_ros.process.products import read_csv
 from subpix_ros.process.report_html import _CSS, _esc, _num, _table
 from subpix_ros.process.report_sections import (
-    _section_mosaic,
-    _section_registration,
     _section_sets,
-    _section_shifts,
     _section_timing,
+    mosaic_section,
+    per_frame_sections,
 )
 
 __all__ = ["build_report", "write_report"]
@@ -50,8 +48,10 @@ def build_report(
         Per set's ``superres`` path, its :class:`~subpix_ros.process.report_sections.SetCrop`
         (kept by the run that made the set); sets without one are cut from their PNGs.
     sections : dict, optional
-        What a helper process drew ahead (:mod:`~subpix_ros.process.report_ahead`): the
-        ``"shifts"``, ``"registration"`` and ``"mosaic"`` sections from this folder's files, and
+        What a helper process drew ahead (:mod:`~subpix_ros.process.report_ahead`) with the
+        functions used here: the ``"shifts"`` and ``"registration"`` sections
+        (:func:`~subpix_ros.process.report_sections.per_frame_sections`), ``"mosaic"``
+        (:func:`~subpix_ros.process.report_sections.mosaic_section`), and
         ``"offsets"``, the sets' offsets figures by
         :func:`~subpix_ros.process.report_sections.offsets_key`; whatever is missing is drawn
         here.
@@ -67,9 +67,6 @@ def build_report(
         timing = json.loads((folder / "timing.json").read_text())
     except (OSError, ValueError):
         timing = {}
-    shifts = read_csv(folder / "shifts.csv") if (folder / "shifts.csv").is_file() else []
-    frames = read_csv(folder / "frames.csv") if (folder / "frames.csv").is_file() else []
-    telemetry = read_csv(folder / "telemetry.csv") if (folder / "telemetry.csv").is_file() else []
     fl = summary.get("flight", {})
     t0 = fl.get("first_stamp_ns")
     t0 = t0 * 1e-9 if t0 is not None else None
@@ -84,24 +81,29 @@ def build_report(
     ]
     h.append(f"<h1>Flight report: {_esc(summary.get('bag'))}</h1>")
     h.extend(_header(summary, timing))
-    sections = sections or {}
-    h.append("<h2>Shift trajectory</h2>")
-    h.append(sections.get("shifts") or _section_shifts(shifts, t0, bool(tel.get("samples"))))
-    h.append("<h2>Registration</h2>")
-    h.append(
-        sections.get("registration")
-        or _section_registration(
-            frames, summary.get("references", []), summary.get("stages", {}), t0
+    drawn = dict(sections or {})  # what a helper drew; the rest is drawn here, the same way
+    if not (drawn.get("shifts") and drawn.get("registration")):
+        drawn.update(
+            per_frame_sections(
+                folder,
+                summary.get("references", []),
+                summary.get("stages", {}),
+                t0,
+                bool(tel.get("samples")),
+            )
         )
-    )
+    if not drawn.get("mosaic"):
+        drawn.update(mosaic_section(folder, summary.get("mosaic", {})))
+    h.append("<h2>Shift trajectory</h2>")
+    h.append(drawn["shifts"])
+    h.append("<h2>Registration</h2>")
+    h.append(drawn["registration"])
     h.append("<h2>Super-resolution</h2>")
     h.append(
-        _section_sets(folder, summary.get("sets", []), factor, t0, crops, sections.get("offsets"))
+        _section_sets(folder, summary.get("sets", []), factor, t0, crops, drawn.get("offsets"))
     )
     h.append("<h2>Mosaic and track</h2>")
-    h.append(
-        sections.get("mosaic") or _section_mosaic(folder, summary.get("mosaic", {}), telemetry)
-    )
+    h.append(drawn["mosaic"])
     h.append("<h2>Stage times and memory</h2>")
     h.append(_section_timing(timing))
     h.append("</body></html>\n")

@@ -27,8 +27,9 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 from typing import Any
+
+from subpix_ros.process.report_sections import mosaic_section, offsets_svg, per_frame_sections
 
 __all__ = ["SectionsAhead", "mosaic_section", "per_frame_sections"]
 
@@ -36,64 +37,10 @@ __all__ = ["SectionsAhead", "mosaic_section", "per_frame_sections"]
 WAIT_S = 60.0
 
 
-def per_frame_sections(
-    folder: str | Path, references: list, stages: dict, t0: float | None, has_telemetry: bool
-) -> dict[str, str]:
-    """Draw the shift trajectory and registration sections from a flight's tables.
-
-    Parameters
-    ----------
-    folder : str or Path
-        The flight's product folder (``shifts.csv`` and ``frames.csv`` written).
-    references : list of dict
-        ``summary.json``'s ``references``.
-    stages : dict
-        ``summary.json``'s ``stages`` (the registration's entry is read).
-    t0 : float or None
-        The first frame's stamp (s): the figures' time origin.
-    has_telemetry : bool
-        Whether the flight has telemetry samples (the expected shift is drawn).
-
-    Returns
-    -------
-    dict
-        ``{"shifts": html, "registration": html}``.
-    """
-    from subpix_ros.process.products import read_csv
-    from subpix_ros.process.report_sections import _section_registration, _section_shifts
-
-    folder = Path(folder)
-    shifts = read_csv(folder / "shifts.csv") if (folder / "shifts.csv").is_file() else []
-    frames = read_csv(folder / "frames.csv") if (folder / "frames.csv").is_file() else []
-    return {
-        "shifts": _section_shifts(shifts, t0, has_telemetry),
-        "registration": _section_registration(frames, references, stages, t0),
-    }
-
-
-def _offsets_svg(members: list[dict], factor: int) -> str:
-    from subpix_ros.process.report_sections import offsets_svg
-
-    return offsets_svg(members, factor)
-
-
-def mosaic_section(folder: str | Path, mosaic: dict) -> dict[str, str]:
-    """Draw the mosaic and track section from ``mosaic.png`` and ``telemetry.csv``.
-
-    ``mosaic`` is ``summary.json``'s ``mosaic``; returns ``{"mosaic": html}``.
-    """
-    from subpix_ros.process.products import read_csv
-    from subpix_ros.process.report_sections import _section_mosaic
-
-    folder = Path(folder)
-    tel = folder / "telemetry.csv"
-    return {"mosaic": _section_mosaic(folder, mosaic, read_csv(tel) if tel.is_file() else [])}
-
-
 #: What the helper may be asked to draw, by name.
 _CALLS = {
     "per_frame_sections": per_frame_sections,
-    "offsets_svg": _offsets_svg,
+    "offsets_svg": offsets_svg,
     "mosaic_section": mosaic_section,
 }
 
@@ -108,9 +55,7 @@ def _start() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     from subpix_ros.process.report_html import _plt
 
-    _plt()
-    import subpix_ros.process.products  # noqa: F401
-    import subpix_ros.process.report_sections  # noqa: F401
+    _plt()  # the sections' module (and the products') are imported with this one
 
 
 def _serve() -> None:

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from subpix_ros.process.products import read_csv
 from subpix_ros.process.report_html import (
     _esc,
     _f,
@@ -416,3 +417,50 @@ def _section_timing(timing: dict) -> str:
         f"{_num(timing.get('peak_rss_mb'), '{:.0f}')} MB; "
         f"CPU time {_num(timing.get('cpu_s'), '{:.1f}')} s.</p>"
     )
+
+
+def _read_table(folder: Path, name: str) -> list[dict[str, str]]:
+    """Read a CSV product of ``folder`` (an empty list when the flight has none)."""
+    path = folder / name
+    return read_csv(path) if path.is_file() else []
+
+
+def per_frame_sections(
+    folder: str | Path, references: list, stages: dict, t0: float | None, has_telemetry: bool
+) -> dict[str, str]:
+    """Draw the shift trajectory and registration sections from a flight's tables.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The flight's product folder (``shifts.csv`` and ``frames.csv`` written).
+    references : list of dict
+        ``summary.json``'s ``references``.
+    stages : dict
+        ``summary.json``'s ``stages`` (the registration's entry is read).
+    t0 : float or None
+        The first frame's stamp (s): the figures' time origin.
+    has_telemetry : bool
+        Whether the flight has telemetry samples (the expected shift is drawn).
+
+    Returns
+    -------
+    dict
+        ``{"shifts": html, "registration": html}``.
+    """
+    folder = Path(folder)
+    return {
+        "shifts": _section_shifts(_read_table(folder, "shifts.csv"), t0, has_telemetry),
+        "registration": _section_registration(
+            _read_table(folder, "frames.csv"), references, stages, t0
+        ),
+    }
+
+
+def mosaic_section(folder: str | Path, mosaic: dict) -> dict[str, str]:
+    """Draw the mosaic and track section from ``mosaic.png`` and ``telemetry.csv``.
+
+    ``mosaic`` is ``summary.json``'s ``mosaic``; returns ``{"mosaic": html}``.
+    """
+    folder = Path(folder)
+    return {"mosaic": _section_mosaic(folder, mosaic, _read_table(folder, "telemetry.csv"))}

@@ -208,7 +208,7 @@ def _run(
         raise
     run.finish()
     mosaic_info = run.write_products()
-    res = run.result(run.rows, mosaic_info)
+    res = run.result(mosaic_info)
     if run.ahead is not None:
         res.__dict__["_ahead"] = (run.ahead, run.ahead_requests, run.offsets_ahead)
     return res
@@ -283,7 +283,7 @@ class _FlightRun:
         self.status = "ok"
         self.broke_off: str | None = None
         self.add_ms: list[float] = []
-        self.rows: list[dict] = []
+        self.rows: list[dict] = []  # shifts.csv's rows (write_tables)
         self.buf: TelemetryBuffer | None = None
         self.ahead_requests: dict[str, int | None] = {}  # report section -> helper request
 
@@ -478,7 +478,7 @@ class _FlightRun:
             writer.diagnostics(self.last_ns, _diag_statuses(self.all_stats()))
         return mosaic_info
 
-    def result(self, rows: list[dict], mosaic_info: dict) -> BagResult:
+    def result(self, mosaic_info: dict) -> BagResult:
         """Write ``summary.json`` and return the result with its one line and its timing."""
         flight, collector = self.flight, self.collector
         self.writer.flush()  # the sets' scores are added on the products thread
@@ -486,7 +486,7 @@ class _FlightRun:
             self.ahead_requests["mosaic"] = self.ahead.submit(
                 "mosaic_section", self.writer.tmp, _as_json(mosaic_info)
             )
-        summary = _summary(self, rows, mosaic_info)
+        summary = _summary(self, self.rows, mosaic_info)
         if not collector.sets and flight.frames_total:
             self.problems.append("no super-resolved image: no set reached min_frames")
         fell = [st for st in collector.sets if st.get("fell_back")]

@@ -176,7 +176,7 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
 
     from subpix_ros.cli._ros import stop_processes
     from subpix_ros.io import cdr
-    from subpix_ros.nodes.qos import latched_qos, reliable_qos
+    from subpix_ros.nodes.qos import FollowingSubscription, reliable_qos
 
     env = dict(os.environ)
     procs = start_layout(layout, env)
@@ -196,13 +196,13 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
         reliable_qos(100),
         raw=True,
     )
-    node.create_subscription(
+    sr_sub = FollowingSubscription(  # noqa: F841 (kept alive)
+        node,
         Image,
         "/super_resolved",
         lambda r: srs.setdefault(
             cdr.header_to_ns(cdr.cdr_to_image_msg(r).header), time.monotonic()
         ),
-        latched_qos(),
         raw=True,
     )
     node.create_subscription(

@@ -100,7 +100,7 @@ def main() -> None:
     from sensor_msgs.msg import Image
 
     from subpix_ros.io import cdr
-    from subpix_ros.nodes.qos import latched_qos, reliable_qos
+    from subpix_ros.nodes.qos import FollowingSubscription, reliable_qos
 
     frames = make_frames(64, width, height)
     (proc,) = start_layout("single", dict(os.environ))
@@ -125,8 +125,8 @@ def main() -> None:
             lat_at.append(t - t0s[0])
 
     node.create_subscription(Vector3Stamped, "/shift", on_shift, reliable_qos(100), raw=True)
-    node.create_subscription(
-        Image, "/super_resolved", lambda r: srs.__setitem__(0, srs[0] + 1), latched_qos(), raw=True
+    sr_sub = FollowingSubscription(  # noqa: F841 (kept alive)
+        node, Image, "/super_resolved", lambda r: srs.__setitem__(0, srs[0] + 1), raw=True
     )
     node.create_subscription(
         DiagnosticArray,

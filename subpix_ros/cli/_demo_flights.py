@@ -30,7 +30,7 @@ class _Collector:
         from sensor_msgs.msg import CompressedImage, Image
         from std_msgs.msg import Float64
 
-        from subpix_ros.nodes.qos import latched_qos, reliable_qos
+        from subpix_ros.nodes.qos import FollowingSubscription, latched_qos, reliable_qos
 
         self.lock = threading.Lock()
         self.sr: list = []
@@ -42,7 +42,7 @@ class _Collector:
         self.refs: list[int] = []
         self.diag: dict[str, dict[str, str]] = {}
         q = reliable_qos(50)
-        node.create_subscription(Image, "/super_resolved", self._on_sr, latched_qos(), raw=True)
+        self.sr_sub = FollowingSubscription(node, Image, "/super_resolved", self._on_sr, raw=True)
         node.create_subscription(Vector3Stamped, "/shift", self._on_shift, q, raw=True)
         node.create_subscription(Image, "/aligned", self._on_aligned, q, raw=True)
         node.create_subscription(

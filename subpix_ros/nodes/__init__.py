@@ -16,6 +16,8 @@ _EXPORTS = {
     "camera_qos": "qos",
     "reliable_qos": "qos",
     "latched_qos": "qos",
+    "output_qos": "qos",
+    "FollowingSubscription": "qos",
     "publish_if_subscribed": "qos",
     "qos_event_callbacks": "qos",
     "stamp_to_ns": "stamps",

@@ -35,7 +35,7 @@ from subpix_ros.monitor.geo import footprint_lonlat
 from subpix_ros.monitor.join import ShiftStdJoin
 from subpix_ros.nodes.base import StageNode
 from subpix_ros.nodes.params import Param
-from subpix_ros.nodes.qos import camera_qos, latched_qos, reliable_qos
+from subpix_ros.nodes.qos import FollowingSubscription, camera_qos, latched_qos, reliable_qos
 from subpix_ros.nodes.run import run_nodes
 from subpix_ros.nodes.stamps import stamp_to_ns
 
@@ -204,15 +204,18 @@ class MonitorNode(StageNode):
                 latched_qos(4),
                 raw=True,
             )
-            self.create_subscription(
-                Image, "super_resolved", self._guard(self._on_sr), latched_qos(), raw=True
-            )
-            self.create_subscription(  # what `subpix process` records: replayed results bags
-                CompressedImage,
-                "super_resolved/compressed",
-                self._guard(self._on_sr_c),
-                latched_qos(),
-                raw=True,
+            # transient local or volatile, as the reconstruction's latch_output makes it
+            self._sr_subs = (
+                FollowingSubscription(
+                    self, Image, "super_resolved", self._guard(self._on_sr), raw=True
+                ),
+                FollowingSubscription(  # what `subpix process` records: replayed results bags
+                    self,
+                    CompressedImage,
+                    "super_resolved/compressed",
+                    self._guard(self._on_sr_c),
+                    raw=True,
+                ),
             )
             self.create_subscription(
                 Image,

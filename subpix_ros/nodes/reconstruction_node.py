@@ -7,7 +7,8 @@ Subscribes ``aligned/reference``, ``aligned`` + ``aligned/mask`` and
 incomplete set of ``min_frames`` or more is used when the next reference
 starts, when no new frame has come for ``flush_after_s`` (the end of a
 flight) and at shutdown. For each set the node publishes ``super_resolved``
-(sensor_msgs/Image, ``factor`` x the input size; mono8 for mono input
+(sensor_msgs/Image, reliable and transient local, volatile with ``latch_output``
+false, ``factor`` x the input size; mono8 for mono input
 (mono16 for mono16), bgr8 for colour input: luminance is super-resolved and
 the chroma upsampled; header = the reference frame's, since the image lies
 on its grid). Output pixel grid: low-resolution pixel i of the reference
@@ -34,7 +35,7 @@ from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.aligned_input import AlignedInput
 from subpix_ros.nodes.base import StageNode, ros_params
 from subpix_ros.nodes.params import Param
-from subpix_ros.nodes.qos import latched_qos, reliable_qos
+from subpix_ros.nodes.qos import output_qos, qos_event_callbacks, reliable_qos
 from subpix_ros.nodes.run import run_nodes
 from subpix_ros.stages import ReconstructionStage
 from subpix_ros.stages.reconstruction import FrameSet
@@ -55,6 +56,13 @@ class ReconstructionNode(StageNode):
             1,
             20,
         ),
+        Param(
+            "latch_output",
+            True,
+            "super_resolved transient local: a late subscriber gets the latest image, which the "
+            "DDS writer keeps (one image of memory, 100 MB at 4K); false: volatile",
+            read_only=True,
+        ),
     )
 
     def __init__(
@@ -65,7 +73,12 @@ class ReconstructionNode(StageNode):
         self._lock = (
             threading.Lock()
         )  # set assembly: subscriptions, the idle timer, the pipeline's shift worker
-        self.pub = self.create_publisher(Image, "super_resolved", latched_qos())
+        self.pub = self.create_publisher(
+            Image,
+            "super_resolved",
+            output_qos(self.param("latch_output")),
+            event_callbacks=qos_event_callbacks(self, "super_resolved", self.diag)[1],
+        )
         self.make_worker(self._process, self.param("queue_size"))
         self.idle_timer = self.create_timer(IDLE_CHECK_S, self._on_idle_check)
         self.inputs = None

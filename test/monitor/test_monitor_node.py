@@ -16,7 +16,7 @@ from sensor_msgs.msg import CompressedImage, Image, NavSatFix
 
 from subpix_ros.io import cdr
 from subpix_ros.monitor.client import FoxgloveClient
-from subpix_ros.nodes.qos import camera_qos, latched_qos, reliable_qos
+from subpix_ros.nodes.qos import camera_qos, latched_qos, output_qos, reliable_qos
 
 T0 = 1_700_000_000_000_000_000
 
@@ -142,6 +142,21 @@ def test_a_super_resolved_png_as_the_results_bag_holds_it_is_served(served):
     pub.publish(cdr.compressed_to_cdr(sr, T0 + 7, "sr", "png"))
     assert _spin(ex, lambda: client.messages("/super_resolved"), 10), client.received
     assert not client.messages("/log")  # decoded, no error
+
+
+def test_a_volatile_super_resolved_is_served(served):
+    """A reconstruction with ``latch_output: false`` publishes volatile: the monitor follows it.
+
+    A transient-local subscription would match no volatile publisher and receive nothing.
+    """
+    node, h, ex, client = served
+    pub = h.create_publisher(Image, "super_resolved", output_qos(False))
+    assert _spin(ex, lambda: pub.get_subscription_count() and len(client.channels) == 10, 10)
+    sr = np.zeros((128, 160), np.uint8)
+    sr[:, 80:] = 200
+    pub.publish(cdr.image_to_cdr(sr, "mono8", T0 + 8, "sr"))
+    assert _spin(ex, lambda: client.messages("/super_resolved"), 10), client.received
+    assert not client.messages("/log")
 
 
 def test_bandwidth_changes_at_run_time(served):

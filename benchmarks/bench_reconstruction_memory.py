@@ -13,7 +13,8 @@ the SR detail itself (RMS of whole - bicubic).
 Rows:
 
 * ``whole``: :func:`reconstruct_aligned` as the reconstruction node calls it;
-* ``budget B``: :func:`reconstruct_within_budget` with ``max_memory_mb=B``;
+* ``budget B``: :func:`reconstruct_within_budget` with ``max_memory_mb=B`` and the output
+  in the frames' type, as the reconstruction stage calls it;
 * ``(patch) ...``: the same with a change to ``superres.py`` applied by
   monkeypatching in this process only, to measure what it would give:
   ``shared prior`` (every tile given the whole set's spectrum prior and noise
@@ -93,7 +94,11 @@ def main() -> None:
     for b in args.budgets:
 
         def run(b=b):
-            res, plans[b] = reconstruct_within_budget(frames, shifts, 2, max_memory_mb=b, **KW)
+            # tiles rounded into the frames' type as they are placed, as the reconstruction stage
+            # asks (the plan counts the output at 1 B per value for uint8)
+            res, plans[b] = reconstruct_within_budget(
+                frames, shifts, 2, max_memory_mb=b, out_dtype=frames[0].dtype, **KW
+            )
             return res.image
 
         row(f"budget {b:g} MB", run, b)
@@ -108,7 +113,13 @@ def main() -> None:
 
             def run_shared(b=b):
                 return reconstruct_within_budget(
-                    frames, shifts, 2, max_memory_mb=b, noise_sigma=noise, **KW
+                    frames,
+                    shifts,
+                    2,
+                    max_memory_mb=b,
+                    noise_sigma=noise,
+                    out_dtype=frames[0].dtype,
+                    **KW,
                 )[0].image
 
             row(f"(patch) shared prior, budget {b:g} MB", run_shared)

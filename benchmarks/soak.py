@@ -52,11 +52,15 @@ def rss_mb(pid: int) -> float:
 
 
 def rss_parts_mb(pid: int) -> dict[str, float]:
-    """VmRSS and its parts (RssAnon, RssFile, RssShmem: Fast DDS's segments), MB."""
+    """VmRSS, its parts (RssAnon, RssFile, RssShmem: Fast DDS's segments) and VmHWM, MB.
+
+    VmHWM is the kernel's high-water mark of VmRSS since the process started: the true peak,
+    which samples taken now and then miss.
+    """
     out = {}
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         key = line.split(":")[0]
-        if key in ("VmRSS", "RssAnon", "RssFile", "RssShmem"):
+        if key in ("VmRSS", "VmHWM", "RssAnon", "RssFile", "RssShmem"):
             out[key] = int(line.split()[1]) / 1024
     return out
 
@@ -80,6 +84,12 @@ def main() -> None:
         type=float,
         default=None,
         help="the reconstruction's max_memory_mb (default: unbounded)",
+    )
+    ap.add_argument(
+        "--mem-every-s",
+        type=float,
+        default=1.0,
+        help="RSS sampled every this many s (default %(default)s); the peak is VmHWM's",
     )
     ap.add_argument("--size", default="1920x1080", help="WxH of the frames (default %(default)s)")
     add_params_argument(ap)
@@ -166,7 +176,7 @@ def main() -> None:
                 mem.append((time.monotonic() - t0, parts.get("VmRSS", float("nan"))))
                 if parts.get("VmRSS", 0) > peak.get("VmRSS", 0):
                     peak = parts
-                next_mem += 5.0
+                next_mem += args.mem_every_s
                 if proc.poll() is not None:
                     raise SystemExit(f"pipeline died with status {proc.returncode}")
         wall = time.monotonic() - t0
@@ -174,6 +184,7 @@ def main() -> None:
         while time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
         mem.append((time.monotonic() - t0, rss_mb(proc.pid)))
+        hwm = rss_parts_mb(proc.pid).get("VmHWM", float("nan"))
         cpu = cpu_seconds(proc.pid) - cpu0
         alive = proc.poll() is None
     finally:
@@ -209,12 +220,13 @@ def main() -> None:
     )
     print(
         "| frames in | shifts out | SR out | frame->shift p50 / p99 ms | RSS after warm-up MB (median, first 1/5) | "
-        "RSS end MB (median, last 1/5) | growth MB | trend MB/min | RSS max MB | crashed | dropped (per stage) |"
+        "RSS end MB (median, last 1/5) | growth MB | trend MB/min | RSS max MB (sampled) | RSS peak MB (VmHWM) | "
+        "crashed | dropped (per stage) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     print(
         f"| {args.frames} | {len(lat)} | {srs[0]} | {np.percentile(lat_ms, 50):.0f} / {np.percentile(lat_ms, 99):.0f} | "
-        f"{base_mb:.0f} | {end_mb:.0f} | {end_mb - base_mb:+.0f} | {slope:+.1f} | {m[:, 1].max():.0f} | {not alive} | "
+        f"{base_mb:.0f} | {end_mb:.0f} | {end_mb - base_mb:+.0f} | {slope:+.1f} | {m[:, 1].max():.0f} | {hwm:.0f} | {not alive} | "
         f"{drops} |"
     )
     if len(floors):
@@ -235,7 +247,10 @@ def main() -> None:
         print(
             "WARNING: bicubic fallbacks are not super-resolution: the figures above are not those of SR"
         )
-    print("RSS at its largest sample, MB: " + ", ".join(f"{k} {v:.0f}" for k, v in peak.items()))
+    print(
+        "RSS at its largest sample, MB: "
+        + ", ".join(f"{k} {v:.0f}" for k, v in peak.items() if k != "VmHWM")
+    )
     reg = next((d for n, d in diag.items() if n.endswith("registration_node")), {})
     print(
         "registration node, last /diagnostics: camera frames received after their stamps p50 / max "

@@ -7,8 +7,8 @@ Subscribes ``aligned/reference``, ``aligned`` + ``aligned/mask`` and
 incomplete set of ``min_frames`` or more is used when the next reference
 starts, when no new frame has come for ``flush_after_s`` (the end of a
 flight) and at shutdown. For each set the node publishes ``super_resolved``
-(sensor_msgs/Image, reliable and transient local, volatile with ``latch_output``
-false, ``factor`` x the input size; mono8 for mono input
+(sensor_msgs/Image, reliable and transient local; with ``latch_output`` false
+volatile and only while subscribed; ``factor`` x the input size; mono8 for mono input
 (mono16 for mono16), bgr8 for colour input: luminance is super-resolved and
 the chroma upsampled; header = the reference frame's, since the image lies
 on its grid). Output pixel grid: low-resolution pixel i of the reference
@@ -60,7 +60,8 @@ class ReconstructionNode(StageNode):
             "latch_output",
             True,
             "super_resolved transient local: a late subscriber gets the latest image, which the "
-            "DDS writer keeps (one image of memory, 100 MB at 4K); false: volatile",
+            "DDS writer keeps (one image of memory, 100 MB at 4K); false: volatile, and "
+            "super_resolved published only while something subscribes to it",
             read_only=True,
         ),
     )
@@ -79,6 +80,7 @@ class ReconstructionNode(StageNode):
             output_qos(self.param("latch_output")),
             event_callbacks=qos_event_callbacks(self, "super_resolved", self.diag)[1],
         )
+        self.sent = 0  # images published (volatile: only while something subscribes)
         self.make_worker(self._process, self.param("queue_size"))
         self.idle_timer = self.create_timer(IDLE_CHECK_S, self._on_idle_check)
         self.inputs = None
@@ -137,9 +139,12 @@ class ReconstructionNode(StageNode):
         if sr is None:
             return
         ref = sr.reference  # the image is on the reference's grid: it carries the reference's stamp
-        raw = pl.image_cdr(sr.image, ref.stamp_ns, ref.frame_id)
-        pl.adopt_pixels(sr, raw)  # a large image: its pixels once while published, not twice
-        self.pub.publish(raw)
+        # always when latched (a late joiner finds the latest), else only for subscribers
+        if self.param("latch_output") or self.pub.get_subscription_count():
+            raw = pl.image_cdr(sr.image, ref.stamp_ns, ref.frame_id)
+            pl.adopt_pixels(sr, raw)  # a large image: its pixels once while published, not twice
+            self.pub.publish(raw)
+            self.sent += 1
         st = self.stage.stats
         self.output(
             "super_resolved",
@@ -152,6 +157,7 @@ class ReconstructionNode(StageNode):
             noise_sigma=sr.noise_sigma,
             frames=sr.n_frames,
             images_published=st.kept,
+            images_sent=self.sent,
             images_fell_back=st.fallbacks,
             sets_incomplete=st.sets_incomplete,
             sets_flushed=st.sets_flushed,

@@ -49,7 +49,14 @@ class Spec:
 
 # parameters of the nodes' transport (queues, QoS, publishing), not of a stage's policy
 NODE_ONLY = frozenset(
-    {"camera_reliable", "queue_size", "publish_rate_hz", "jpeg_quality", "input_timeout_s"}
+    {
+        "camera_reliable",
+        "queue_size",
+        "publish_rate_hz",
+        "jpeg_quality",
+        "input_timeout_s",
+        "latch_output",
+    }
 )
 
 

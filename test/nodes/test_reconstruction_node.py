@@ -111,3 +111,52 @@ def test_close_publishes_the_open_set_first(ctx, crops):
     image, header = got[0]
     assert cdr.header_to_ns(header) == T0 and len(got) == 1
     assert node.stage.stats.frames == 5 and node.stage.stats.sets_flushed == 1
+
+
+def test_a_volatile_output_is_made_only_while_subscribed(ctx, crops):
+    """latch_output false: no message is made for nobody; a follower then gets the image.
+
+    Nothing is kept for a late joiner (volatile), so a set finished while nothing subscribes is
+    not encoded at all (``images_sent`` in /diagnostics says how many went out).
+    """
+    from subpix_ros.nodes.qos import FollowingSubscription
+    from subpix_ros.nodes.reconstruction_node import ReconstructionNode
+
+    seq = rendered_set(crops["crop_trees"])
+    colour = [np.repeat(f[..., None], 3, axis=2) for f in seq.frames]
+    node = ReconstructionNode(
+        subscribe_inputs=False, parameter_overrides=[Parameter("latch_output", value=False)]
+    )
+    made = []
+    node.listen("super_resolved", lambda sr: made.append(np.array(sr.image)))
+    h = rclpy.create_node("harness")
+    got = []
+
+    def one_set(t0):
+        ref = pl.Frame(t0, colour[0])
+        full = np.ones(colour[0].shape[:2], bool)
+        for k in range(1, 8):  # 8 frames with the reference: a complete set
+            stamp = t0 + k * 33_333_333
+            a = pl.Aligned(stamp, colour[k], full, ref, np.eye(3))
+            node.handle_shift((pl.Shift(stamp, t0, *SET_SHIFTS[k], 0.0, 0.01, 0.01), a))
+
+    try:
+        one_set(T0)
+        assert spin([node, h], lambda: len(made) == 1, 30)
+        assert node.sent == 0
+        FollowingSubscription(
+            h, Image, "/super_resolved", lambda r: got.append(cdr.cdr_to_image(r)), raw=True
+        )
+        assert spin([node, h], lambda: node.pub.get_subscription_count() == 1, 10)
+        one_set(T0 + 10**9)
+        assert spin([node, h], lambda: len(got) == 1, 30), node.sent
+        spin([node, h], lambda: False, 0.5)
+        assert node.sent == 1 and len(got) == 1 and len(made) == 2
+    finally:
+        node.close()
+        node.destroy_node()
+        h.destroy_node()
+    image, header = got[0]
+    assert cdr.header_to_ns(header) == T0 + 10**9 and np.array_equal(image, made[1])
+    # latch_output is the node's (QoS), not a solver option the stage would warn it ignores
+    assert node.stage.ignored == {} and node.stage.stats.warnings == 0, node.stage.stats

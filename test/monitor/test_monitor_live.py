@@ -89,7 +89,9 @@ def flight(sample_bags):
     procs = [
         _node("registration_node", "-r", cam),
         _node("shift_node"),
-        _node("reconstruction_node"),
+        # volatile, as the onboard profile publishes it: the monitor must follow (a latched
+        # subscription would match no publisher and show no super-resolved image)
+        _node("reconstruction_node", "-p", "latch_output:=false"),
         _node("mosaic_node", "-r", cam),
         _node(
             "monitor_node",

@@ -168,6 +168,17 @@ def cpu_seconds(pid: int) -> float:
         return float("nan")
 
 
+def peak_rss_mb(pid: int) -> float:
+    """Return the kernel's high-water mark of the process's resident set (VmHWM), MB; NaN if gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return float("nan")
+
+
 def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: float) -> dict:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
@@ -243,6 +254,7 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
             rclpy.spin_once(node, timeout_sec=0.05)
         cpu_each = [cpu_seconds(p.pid) - c0 for p, c0 in zip(procs, cpu0)]
         cpu = sum(cpu_each)
+        hwm = [peak_rss_mb(p.pid) for p in procs]
         camera_cpu = time.process_time() - self_cpu0
     finally:
         node.destroy_node()
@@ -287,6 +299,7 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
         "cpu_s_per_frame": cpu / len(sent),
         "cpu_each": [round(c / len(sent), 3) for c in cpu_each],
         "camera_cpu": camera_cpu / len(sent),
+        "rss_peak_each": [round(m) for m in hwm],
     }
 
 
@@ -335,19 +348,21 @@ def main() -> None:
     print(
         "| layout   | frames in | in Hz | shifts out | SR out (bicubic fallbacks) "
         "| frame->shift p50/p99 ms | set->SR p50/p99 ms "
-        "| CPU s/frame | dropped (per node) |"
+        "| CPU s/frame | RSS peak MB (VmHWM; sum over processes) | dropped (per node) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(
             f"| {r['layout']:8s} | {r['frames']:9d} | {r['rate']:5.1f} | {r['shifts']:10d} | "
             f"{r['sr']:6d} ({r['sr_fell_back']}) | "
             f"{pct(r['lat_shift'], 50)} / {pct(r['lat_shift'], 99)} | {pct(r['lat_sr'], 50)} / {pct(r['lat_sr'], 99)} | "
-            f"{r['cpu_s_per_frame']:.3f} | {r['drops']} |"
+            f"{r['cpu_s_per_frame']:.3f} | {sum(r['rss_peak_each']):.0f} | {r['drops']} |"
         )
     for r in rows:
         print(
             f"  {r['layout']}: CPU s/frame per process {r['cpu_each']} (camera stand-in {r['camera_cpu']:.3f}); "
+            f"RSS peak MB per process {r['rss_peak_each']} (each counts the shared libraries and "
+            "its Fast DDS segment: the sum overstates what the processes hold together); "
             f"last stage figures from /diagnostics: {r['stages']}"
         )
 

@@ -168,15 +168,23 @@ def cpu_seconds(pid: int) -> float:
         return float("nan")
 
 
-def peak_rss_mb(pid: int) -> float:
-    """Return the kernel's high-water mark of the process's resident set (VmHWM), MB; NaN if gone."""
+def rss_parts_mb(pid: int) -> dict[str, float]:
+    """VmRSS, its parts (RssAnon, RssFile, RssShmem: Fast DDS's segments) and VmHWM, MB.
+
+    VmHWM is the kernel's high-water mark of VmRSS since the process started: the peak that
+    samples taken now and then miss (the kernel counts resident pages per thread in batches,
+    so a sample may read a few MB above it). Empty once the process is gone.
+    """
+    out = {}
     try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024
+        lines = Path(f"/proc/{pid}/status").read_text().splitlines()
     except OSError:
-        pass
-    return float("nan")
+        return out
+    for line in lines:
+        key = line.split(":")[0]
+        if key in ("VmRSS", "VmHWM", "RssAnon", "RssFile", "RssShmem"):
+            out[key] = int(line.split()[1]) / 1024
+    return out
 
 
 def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: float) -> dict:
@@ -254,7 +262,7 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
             rclpy.spin_once(node, timeout_sec=0.05)
         cpu_each = [cpu_seconds(p.pid) - c0 for p, c0 in zip(procs, cpu0)]
         cpu = sum(cpu_each)
-        hwm = [peak_rss_mb(p.pid) for p in procs]
+        hwm = [rss_parts_mb(p.pid).get("VmHWM", float("nan")) for p in procs]
         camera_cpu = time.process_time() - self_cpu0
     finally:
         node.destroy_node()

@@ -39,6 +39,7 @@ from bench_pipeline import (  # noqa: E402
     cpu_seconds,
     make_frames,
     pingpong,
+    rss_parts_mb,
     start_layout,
     use_camera_dds,
     use_params,
@@ -49,20 +50,6 @@ from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
 def rss_mb(pid: int) -> float:
     return rss_parts_mb(pid).get("VmRSS", float("nan"))
-
-
-def rss_parts_mb(pid: int) -> dict[str, float]:
-    """VmRSS, its parts (RssAnon, RssFile, RssShmem: Fast DDS's segments) and VmHWM, MB.
-
-    VmHWM is the kernel's high-water mark of VmRSS since the process started: the true peak,
-    which samples taken now and then miss.
-    """
-    out = {}
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        key = line.split(":")[0]
-        if key in ("VmRSS", "VmHWM", "RssAnon", "RssFile", "RssShmem"):
-            out[key] = int(line.split()[1]) / 1024
-    return out
 
 
 def main() -> None:
@@ -238,7 +225,8 @@ def main() -> None:
     print(f"pipeline process CPU {cpu / args.frames:.3f} s per frame in")
     rec = next((d for n, d in diag.items() if n.endswith("reconstruction_node")), {})
     print(
-        f"super-resolved images: {rec.get('images_published', '?')} published, of which "
+        f"super-resolved images: {rec.get('images_made', '?')} made, "
+        f"{rec.get('images_published', '?')} published, of which "
         f"{rec.get('images_fell_back', '?')} fell back to bicubic (last: method "
         f"{rec.get('method', '?')}, {rec.get('fallback_reason', '') or 'no reason'}; memory "
         f"{rec.get('memory_reduction', '') or 'not reduced'})"

@@ -109,7 +109,7 @@ class FollowingSubscription:
         **kw,
     ) -> None:
         self.node = node
-        self.args = (msg_type, topic, callback)
+        self.msg_type, self.topic, self.callback = msg_type, topic, callback
         self.depth = depth
         self.kw = kw
         self.durability: DurabilityPolicy | None = None  # None: no publisher seen yet
@@ -120,7 +120,7 @@ class FollowingSubscription:
 
     def wanted(self) -> DurabilityPolicy | None:
         """Transient local if every publisher offers it, volatile if one does not, None if none."""
-        infos = self.node.get_publishers_info_by_topic(self.args[1])
+        infos = self.node.get_publishers_info_by_topic(self.topic)
         if not infos:
             return None
         if all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos):
@@ -136,11 +136,13 @@ class FollowingSubscription:
             self.node.destroy_subscription(self.subscription)
             self.changes += 1
             self.node.get_logger().info(
-                f"{self.args[1]}: publishers now {want.name.lower()}, re-subscribed"
+                f"{self.topic}: publishers now {want.name.lower()}, re-subscribed"
             )
         qos = latched_qos(self.depth)
         qos.durability = want
-        self.subscription = self.node.create_subscription(*self.args, qos, **self.kw)
+        self.subscription = self.node.create_subscription(
+            self.msg_type, self.topic, self.callback, qos, **self.kw
+        )
         self.durability = want
 
     def destroy(self) -> None:

@@ -80,7 +80,7 @@ class ReconstructionNode(StageNode):
             output_qos(self.param("latch_output")),
             event_callbacks=qos_event_callbacks(self, "super_resolved", self.diag)[1],
         )
-        self.sent = 0  # images published (volatile: only while something subscribes)
+        self.sent = 0  # images published (latch_output false: only while subscribed)
         self.make_worker(self._process, self.param("queue_size"))
         self.idle_timer = self.create_timer(IDLE_CHECK_S, self._on_idle_check)
         self.inputs = None
@@ -156,8 +156,8 @@ class ReconstructionNode(StageNode):
             fallback_reason=sr.reason,
             noise_sigma=sr.noise_sigma,
             frames=sr.n_frames,
-            images_published=st.kept,
-            images_sent=self.sent,
+            images_made=st.kept,
+            images_published=self.sent,  # latch_output false: only while subscribed
             images_fell_back=st.fallbacks,
             sets_incomplete=st.sets_incomplete,
             sets_flushed=st.sets_flushed,

@@ -486,7 +486,7 @@ class _FlightRun:
             self.ahead_requests["mosaic"] = self.ahead.submit(
                 "mosaic_section", self.writer.tmp, _as_json(mosaic_info)
             )
-        summary = _summary(self, self.rows, mosaic_info)
+        summary = _summary(self, mosaic_info)
         if not collector.sets and flight.frames_total:
             self.problems.append("no super-resolved image: no set reached min_frames")
         fell = [st for st in collector.sets if st.get("fell_back")]

@@ -31,7 +31,7 @@ from typing import Any
 
 from subpix_ros.process.report_sections import mosaic_section, offsets_svg, per_frame_sections
 
-__all__ = ["SectionsAhead", "mosaic_section", "per_frame_sections"]
+__all__ = ["SectionsAhead"]
 
 #: Longest wait for the helper's sections before the report draws them itself (s).
 WAIT_S = 60.0

@@ -44,9 +44,9 @@ def _stage_stats(run: _FlightRun) -> dict:
     }
 
 
-def _summary(run: _FlightRun, rows: list[dict], mosaic_info: dict) -> dict:
+def _summary(run: _FlightRun, mosaic_info: dict) -> dict:
     """Build the content of ``summary.json`` (its final ``status`` is set by the caller)."""
-    flight, collector = run.flight, run.collector
+    flight, collector, rows = run.flight, run.collector, run.rows
     stage_stats = _stage_stats(run)
     statuses = Counter(r.status for r in collector.frames)
     skipped = Counter(reason_key(r.reason) for r in collector.frames if r.status == "skipped")

@@ -117,7 +117,7 @@ def test_a_volatile_output_is_made_only_while_subscribed(ctx, crops):
     """latch_output false: no message is made for nobody; a follower then gets the image.
 
     Nothing is kept for a late joiner (volatile), so a set finished while nothing subscribes is
-    not encoded at all (``images_sent`` in /diagnostics says how many went out).
+    not encoded at all (``images_published`` in /diagnostics, beside ``images_made``).
     """
     from subpix_ros.nodes.qos import FollowingSubscription
     from subpix_ros.nodes.reconstruction_node import ReconstructionNode

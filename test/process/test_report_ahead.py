@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 from subpix_ros.process import build_report, load_params, process_bag
-from subpix_ros.process.report_ahead import SectionsAhead, per_frame_sections
+from subpix_ros.process.report_ahead import SectionsAhead
+from subpix_ros.process.report_sections import per_frame_sections
 
 ROOT = Path(__file__).resolve().parents[2]
 

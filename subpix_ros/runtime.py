@@ -50,6 +50,7 @@ __all__ = [
     "OPT_OUT",
     "configure_ros_environment",
     "fastdds_profile",
+    "profile_in_use",
     "PROFILE_VARS",
     "RuntimeSetupError",
     "remove_stale_shm_segments",
@@ -417,6 +418,8 @@ PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE
 #: What Fast DDS loads by itself from the working directory when no variable is set.
 _CWD_PROFILES = ("DEFAULT_FASTRTPS_PROFILES.xml", "DEFAULT_FASTDDS_PROFILES.xml")
 _PROFILE_NAME = "fastdds_profile.xml"
+#: The profile of the nodes that write no image: a 1 MiB segment instead of 64 MiB.
+_SMALL_PROFILE_NAME = "fastdds_profile_small.xml"
 _FASTDDS_RMWS = ("rmw_fastrtps_cpp", "rmw_fastrtps_dynamic_cpp")
 
 
@@ -424,32 +427,59 @@ class RuntimeSetupError(RuntimeError):
     """The process cannot run as configured; the message is one line saying what is missing."""
 
 
-def fastdds_profile() -> Path | None:
+def fastdds_profile(large_messages: bool = True) -> Path | None:
     """Find the package's Fast DDS profile.
+
+    Parameters
+    ----------
+    large_messages : bool, optional
+        True (default): ``fastdds_profile.xml``, a 64 MiB shared-memory segment, for a process
+        that writes images; False: ``fastdds_profile_small.xml`` (1 MiB), for one that writes
+        only small messages.
 
     Returns
     -------
     pathlib.Path or None
-        ``config/fastdds_profile.xml`` of the checkout (venv / editable install), else of
+        That file in ``config/`` of the checkout (venv / editable install), else of
         ``share/subpix_ros`` next to the interpreter's prefix or on ``AMENT_PREFIX_PATH``.
     """
+    name = _PROFILE_NAME if large_messages else _SMALL_PROFILE_NAME
     candidates = [
-        Path(__file__).resolve().parents[1] / "config" / _PROFILE_NAME,
-        Path(sys.prefix) / "share" / "subpix_ros" / "config" / _PROFILE_NAME,
+        Path(__file__).resolve().parents[1] / "config" / name,
+        Path(sys.prefix) / "share" / "subpix_ros" / "config" / name,
     ]
     for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
         if prefix:
-            candidates.append(Path(prefix) / "share" / "subpix_ros" / "config" / _PROFILE_NAME)
+            candidates.append(Path(prefix) / "share" / "subpix_ros" / "config" / name)
     return next((c for c in candidates if c.is_file()), None)
 
 
-def configure_ros_environment(environ=None) -> list[str]:
+def profile_in_use(environ=None) -> str:
+    """Name the Fast DDS profile file this process's participant loads (for /diagnostics).
+
+    Returns
+    -------
+    str
+        The file name of the first of :data:`PROFILE_VARS` that is set, else Fast DDS's own
+        default file in the working directory, else ``"none (Fast DDS defaults)"``.
+    """
+    env = os.environ if environ is None else environ
+    named = next((env[v] for v in PROFILE_VARS if env.get(v)), "")
+    if named:
+        return Path(named).name
+    return next((n for n in _CWD_PROFILES if Path(n).is_file()), "none (Fast DDS defaults)")
+
+
+def configure_ros_environment(environ=None, *, large_messages: bool = True) -> list[str]:
     """Set the defaults a plainly activated venv needs, before rclpy creates a participant.
 
     Parameters
     ----------
     environ : mapping, optional
         The environment to complete (default ``os.environ``).
+    large_messages : bool, optional
+        Whether this process writes images (default True): which of the package's profiles
+        it gets (:func:`fastdds_profile`).
 
     Returns
     -------
@@ -463,7 +493,11 @@ def configure_ros_environment(environ=None) -> list[str]:
       of their own (neither variable of :data:`PROFILE_VARS` set, no ``SKIP_DEFAULT_XML=1``, no
       Fast DDS default profile file in the working directory). Without it a best-effort
       subscriber loses camera frames larger than Fast DDS's 512 KiB shared-memory segment
-      (docs/design-notes.md, "Camera frames between processes").
+      (docs/design-notes.md, "Camera frames between processes"). The segment is the
+      writer's and is backed in full from the start, so a process that writes no image
+      (``large_messages=False``) gets a 1 MiB one instead (the readers' side needs none).
+      A variable naming one of the package's own profiles (inherited from a parent process,
+      or ``scripts/env.sh``) is not the operator's choice: it is replaced by the fitting one.
     * The venv's ament prefix (``<venv>/subpix_prefix``, made by ``make venv``) on
       ``AMENT_PREFIX_PATH``, so ``get_package_share_directory('subpix_ros')`` and ``ros2``
       tools started from this process find the package.
@@ -477,6 +511,13 @@ def configure_ros_environment(environ=None) -> list[str]:
     env = os.environ if environ is None else environ
     done: list[str] = []
     chosen = [v for v in PROFILE_VARS if env.get(v)]
+    ours = {str(p.resolve()) for p in map(fastdds_profile, (True, False)) if p is not None}
+    if chosen and all(str(Path(env[v]).resolve()) in ours for v in chosen):
+        # one of the package's own profiles, inherited from a parent subpix process or set
+        # by scripts/env.sh: this process takes the one that fits what it writes
+        for var in chosen:
+            del env[var]
+        chosen = []
     for var in chosen:
         if not Path(env[var]).is_file():
             raise RuntimeSetupError(
@@ -489,10 +530,11 @@ def configure_ros_environment(environ=None) -> list[str]:
         or any(Path(n).is_file() for n in _CWD_PROFILES)
     )
     if not own and (not rmw or rmw in _FASTDDS_RMWS):
-        profile = fastdds_profile()
+        profile = fastdds_profile(large_messages)
         if profile is None:
+            name = _PROFILE_NAME if large_messages else _SMALL_PROFILE_NAME
             raise RuntimeSetupError(
-                f"subpix_ros's Fast DDS profile {_PROFILE_NAME} not found "
+                f"subpix_ros's Fast DDS profile {name} not found "
                 f"(reinstall the package, or set "
                 f"FASTRTPS_DEFAULT_PROFILES_FILE)"
             )

@@ -192,7 +192,12 @@ def test_bad_thresholds_raise(kw):
 
 
 # ------------------------------------------------------------- ROS / DDS environment (issue 19)
-from subpix_ros.runtime import RuntimeSetupError, configure_ros_environment, fastdds_profile  # noqa: E402
+from subpix_ros.runtime import (  # noqa: E402
+    RuntimeSetupError,
+    configure_ros_environment,
+    fastdds_profile,
+    profile_in_use,
+)
 
 MISSING = "names no file (unset it to use subpix_ros's Fast DDS profile)"
 
@@ -206,6 +211,41 @@ def test_the_package_profile_is_set_in_a_plain_environment(tmp_path, monkeypatch
     assert "<segment_size>67108864</segment_size>" in text and 'is_default_profile="true"' in text
 
 
+def test_a_process_that_writes_no_image_gets_the_small_segment(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    env = {"PATH": "/usr/bin"}
+    configure_ros_environment(env, large_messages=False)
+    small = fastdds_profile(large_messages=False)
+    assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(small) != str(fastdds_profile())
+    text = small.read_text()
+    assert "<segment_size>1048576</segment_size>" in text and 'is_default_profile="true"' in text
+    # the same transports as the large profile, only the segment differs
+    large = fastdds_profile().read_text()
+    body = text[text.index("<profiles") :]
+    assert body == large[large.index("<profiles") :].replace("67108864", "1048576")
+    assert profile_in_use(env) == "fastdds_profile_small.xml"
+
+
+@pytest.mark.parametrize("var", ["FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE"])
+@pytest.mark.parametrize("large", [True, False])
+def test_an_inherited_package_profile_is_chosen_again(tmp_path, monkeypatch, var, large):
+    # a parent subpix process (or scripts/env.sh) exported one of the package's profiles: a
+    # child takes the one that fits what it writes, not the parent's
+    monkeypatch.chdir(tmp_path)
+    env = {var: str(fastdds_profile(large_messages=not large))}
+    configure_ros_environment(env, large_messages=large)
+    env.pop("AMENT_PREFIX_PATH", None)
+    assert env == {"FASTRTPS_DEFAULT_PROFILES_FILE": str(fastdds_profile(large_messages=large))}
+
+
+def test_the_profile_in_use_is_named(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert profile_in_use({}) == "none (Fast DDS defaults)"
+    assert profile_in_use({"FASTDDS_DEFAULT_PROFILES_FILE": "/x/mine.xml"}) == "mine.xml"
+    (tmp_path / "DEFAULT_FASTRTPS_PROFILES.xml").write_text("<profiles/>")
+    assert profile_in_use({}) == "DEFAULT_FASTRTPS_PROFILES.xml"
+
+
 @pytest.mark.parametrize(
     "env",
     [
@@ -215,13 +255,14 @@ def test_the_package_profile_is_set_in_a_plain_environment(tmp_path, monkeypatch
         {"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"},
     ],
 )
-def test_the_operators_choice_is_kept(tmp_path, monkeypatch, env):
+@pytest.mark.parametrize("large", [True, False])
+def test_the_operators_choice_is_kept(tmp_path, monkeypatch, env, large):
     monkeypatch.chdir(tmp_path)
     own = tmp_path / "mine.xml"
     own.write_text("<profiles/>")
     env = {k: v.format(own=own) for k, v in env.items()}
     before = dict(env)
-    configure_ros_environment(env)
+    configure_ros_environment(env, large_messages=large)
     assert {k: v for k, v in env.items() if k != "AMENT_PREFIX_PATH"} == before
 
 
@@ -307,14 +348,21 @@ def _new_segments(before):
     return sizes
 
 
-def test_a_node_in_a_plain_venv_loads_the_profile():
+@pytest.mark.parametrize(
+    "module, low, high",
+    [
+        ("registration_node", 64 << 20, 80 << 20),  # writes images: fastdds_profile.xml
+        ("shift_node", 1 << 20, 2 << 20),  # writes shifts only: fastdds_profile_small.xml
+    ],
+)
+def test_a_node_in_a_plain_venv_loads_the_profile(module, low, high):
     # The node's Fast DDS read FASTRTPS_DEFAULT_PROFILES_FILE: shown by the segment it maps in
-    # /dev/shm (64 MiB, not Fast DDS's 512 KiB), which exists while the node runs.
+    # /dev/shm (64 MiB or 1 MiB, not Fast DDS's 512 KiB), which exists while the node runs.
     import time
 
     before = set(os.listdir("/dev/shm"))
     p = subprocess.Popen(
-        [sys.executable, "-m", "subpix_ros.nodes.shift_node"],
+        [sys.executable, "-m", f"subpix_ros.nodes.{module}"],
         env=_plain_env(),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -322,10 +370,12 @@ def test_a_node_in_a_plain_venv_loads_the_profile():
     try:
         sizes = []
         deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and not any(s >= 64 << 20 for s in sizes):
+        while time.monotonic() < deadline and not sizes:
             time.sleep(0.5)
             sizes = _new_segments(before)
-        assert any(s >= 64 << 20 for s in sizes), f"segments of the new process: {sizes}"
+        time.sleep(0.5)  # one participant, one segment: none of another size appears later
+        sizes = _new_segments(before)
+        assert len(sizes) == 1 and low <= sizes[0] < high, f"segments of the new process: {sizes}"
     finally:
         p.send_signal(2)
         p.wait(20)

@@ -468,7 +468,7 @@ class MonitorNode(StageNode):
 def main(args=None) -> int:
     """Run monitor_node (console entry point); 2 when the server refuses to start."""
     try:
-        return run_nodes([MonitorNode], args)
+        return run_nodes([MonitorNode], args, large_messages=False)  # publishes nothing over DDS
     except MonitorError as exc:
         print(str(exc), file=sys.stderr)
         return 2

@@ -65,6 +65,7 @@ def run_nodes(
     factories: Sequence[Callable[[], Node]],
     args: Sequence[str] | None = None,
     threads: int | None = None,
+    large_messages: bool = True,
 ) -> int:
     """Init rclpy, build the nodes, spin them on one executor, shut down cleanly.
 
@@ -76,6 +77,10 @@ def run_nodes(
         Command-line arguments for ``rclpy.init`` (``--ros-args ...``).
     threads : int, optional
         Executor threads of ``SUBPIX_EXECUTOR=multi`` (default: rclpy's).
+    large_messages : bool, optional
+        False for nodes that publish no image: the package's Fast DDS profile with a 1 MiB
+        shared-memory segment instead of 64 MiB
+        (:func:`subpix_ros.runtime.configure_ros_environment`).
 
     Returns
     -------
@@ -101,7 +106,7 @@ def run_nodes(
     clean_stale_shm_segments()  # segments of killed processes (64 MiB each with our profile)
     try:
         kind = executor_kind()
-        configure_ros_environment()
+        configure_ros_environment(large_messages=large_messages)
     except (RuntimeSetupError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

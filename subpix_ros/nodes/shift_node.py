@@ -89,7 +89,7 @@ class ShiftNode(StageNode):
 
 def main(args=None) -> int:
     """Run shift_node (console entry point)."""
-    return run_nodes([ShiftNode], args)
+    return run_nodes([ShiftNode], args, large_messages=False)  # shifts only: a small segment
 
 
 if __name__ == "__main__":

@@ -292,7 +292,7 @@ def _cls(msgtype: str):
 
 def main(args=None) -> int:
     """Run the telemetry node (console entry point)."""
-    return run_nodes([TelemetryNode], args)
+    return run_nodes([TelemetryNode], args, large_messages=False)  # no image: a small segment
 
 
 if __name__ == "__main__":

@@ -227,6 +227,13 @@ def test_separate_processes_shift_and_superres(separate, sample_bags):
     # and spins on one executor thread (nodes/run.py, SUBPIX_EXECUTOR unset)
     executors = {name: v.get("executor") for name, v in separate.diag.items()}
     assert set(executors.values()) == {"single"}, executors
+    # the shift node writes no image: the small shared-memory segment; it still got every
+    # aligned frame it needed from the registration node's segment (_check_subpixel above)
+    profiles = {name: v.get("fastdds_profile") for name, v in separate.diag.items()}
+    shift = [p for name, p in profiles.items() if "shift" in name]
+    others = [p for name, p in profiles.items() if "shift" not in name]
+    assert shift == ["fastdds_profile_small.xml"], profiles
+    assert others and set(others) == {"fastdds_profile.xml"}, profiles
 
 
 def _set_members(est, refs, ref):

@@ -349,20 +349,25 @@ def _new_segments(before):
 
 
 @pytest.mark.parametrize(
-    "module, low, high",
+    "command, low, high",
     [
-        ("registration_node", 64 << 20, 80 << 20),  # writes images: fastdds_profile.xml
-        ("shift_node", 1 << 20, 2 << 20),  # writes shifts only: fastdds_profile_small.xml
+        (["-m", "subpix_ros.nodes.registration_node"], 64 << 20, 80 << 20),  # writes images
+        (["-m", "subpix_ros.nodes.shift_node"], 1 << 20, 2 << 20),  # shifts only: the small one
+        (
+            ["-m", "subpix_ros.cli", "record", "-o", "{tmp}/bag", "/shift"],
+            1 << 20,
+            2 << 20,
+        ),  # reads only
     ],
 )
-def test_a_node_in_a_plain_venv_loads_the_profile(module, low, high):
-    # The node's Fast DDS read FASTRTPS_DEFAULT_PROFILES_FILE: shown by the segment it maps in
-    # /dev/shm (64 MiB or 1 MiB, not Fast DDS's 512 KiB), which exists while the node runs.
+def test_a_node_in_a_plain_venv_loads_the_profile(command, low, high, tmp_path):
+    # The process's Fast DDS read FASTRTPS_DEFAULT_PROFILES_FILE: shown by the segment it maps in
+    # /dev/shm (64 MiB or 1 MiB, not Fast DDS's 512 KiB), which exists while it runs.
     import time
 
     before = set(os.listdir("/dev/shm"))
     p = subprocess.Popen(
-        [sys.executable, "-m", f"subpix_ros.nodes.{module}"],
+        [sys.executable, *(c.format(tmp=tmp_path) for c in command)],
         env=_plain_env(),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,

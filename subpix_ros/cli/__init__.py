@@ -85,7 +85,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command in ("replay", "record", "demo"):
         clean_stale_shm_segments()  # the DDS commands: segments of killed processes (runtime)
     try:
-        configure_ros_environment()  # before a subcommand creates a DDS participant (runtime)
+        # before a subcommand creates a DDS participant (runtime); the recorder writes nothing
+        # over DDS: the 1 MiB shared-memory segment, not 64 MiB
+        configure_ros_environment(large_messages=args.command != "record")
     except RuntimeSetupError as exc:
         print(f"subpix {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -336,10 +336,18 @@ def test_subpix_refuses_a_missing_profile_with_one_line():
     ]
 
 
-def _new_segments(before):
-    """Sizes of the Fast DDS shared-memory segments created since ``before`` (not port files)."""
+def _new_segments(before, pid):
+    """Sizes of the new Fast DDS segments (since ``before``; not port files) ``pid`` maps.
+
+    Mapped by that process: not another process's segment that appeared meanwhile.
+    """
+    try:
+        with open(f"/proc/{pid}/maps") as f:
+            mapped = {line.split("/dev/shm/")[1].strip() for line in f if "/dev/shm/" in line}
+    except FileNotFoundError:
+        return []
     sizes = []
-    for n in set(os.listdir("/dev/shm")) - before:
+    for n in (set(os.listdir("/dev/shm")) - before) & mapped:
         if n.startswith("fastrtps_") and not n.startswith("fastrtps_port") and "_el" not in n:
             try:
                 sizes.append(os.stat(f"/dev/shm/{n}").st_size)
@@ -377,9 +385,9 @@ def test_a_node_in_a_plain_venv_loads_the_profile(command, low, high, tmp_path):
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and not sizes:
             time.sleep(0.5)
-            sizes = _new_segments(before)
-        time.sleep(0.5)  # one participant, one segment: none of another size appears later
-        sizes = _new_segments(before)
+            sizes = _new_segments(before, p.pid)
+        time.sleep(0.5)  # one participant, one segment of its own: no second one later
+        sizes = _new_segments(before, p.pid)
         assert len(sizes) == 1 and low <= sizes[0] < high, f"segments of the new process: {sizes}"
     finally:
         p.send_signal(2)

@@ -41,6 +41,16 @@ def _preshift_window(
     return _integer_preshift(frame, iu, iv)[r0:r1, c0:c1]
 
 
+def _f64(a: np.ndarray) -> np.ndarray:
+    """Return ``a`` as float64 (a copy unless it is already).
+
+    ``cv2.sepFilter2D`` into ``CV_64F`` from an integer source rounds differently from the
+    same values in float64 on some CPUs (AVX-512: up to 6e-14), and a window of a stored
+    frame must give exactly the values of the float64 frame.
+    """
+    return a if a.dtype == np.float64 else a.astype(np.float64)
+
+
 def _lowpass_window(
     frame: np.ndarray,
     g: np.ndarray,
@@ -90,7 +100,7 @@ def _lowpass_window(
                 return whole[r0:r1, c0:c1]
             a0, a1, b0, b1 = max(r0 - r, 0), min(r1 + r, h), max(c0 - r, 0), min(c1 + r, w)
             sub = cv2.sepFilter2D(
-                frame[a0:a1, b0:b1], cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
+                _f64(frame[a0:a1, b0:b1]), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
             )
             return sub[r0 - a0 : r1 - a0, c0 - b0 : c1 - b0]
         a0, a1, b0, b1 = r0 + pre[0] - r, r1 + pre[0] + r, c0 + pre[1] - r, c1 + pre[1] + r
@@ -98,7 +108,7 @@ def _lowpass_window(
             if whole is not None:
                 return whole[a0 + r : a1 - r, b0 + r : b1 - r]
             sub = cv2.sepFilter2D(
-                frame[a0:a1, b0:b1], cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
+                _f64(frame[a0:a1, b0:b1]), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
             )
             return sub[r : r + r1 - r0, r : r + c1 - c0]
     if (
@@ -116,7 +126,7 @@ def _lowpass_window(
             sub, max(-r0, 0), max(r1 - h, 0), max(-c0, 0), max(c1 - w, 0), cv2.BORDER_REFLECT_101
         )
     low = cv2.sepFilter2D(
-        _integer_preshift(frame, *pre), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
+        _f64(_integer_preshift(frame, *pre)), cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT_101
     )
     return _integer_preshift(low, *post)[rows, cols]
 

@@ -443,7 +443,7 @@ def fastdds_profile(large_messages: bool = True) -> Path | None:
         That file in ``config/`` of the checkout (venv / editable install), else of
         ``share/subpix_ros`` next to the interpreter's prefix or on ``AMENT_PREFIX_PATH``.
     """
-    name = _PROFILE_NAME if large_messages else _SMALL_PROFILE_NAME
+    name = _profile_name(large_messages)
     candidates = [
         Path(__file__).resolve().parents[1] / "config" / name,
         Path(sys.prefix) / "share" / "subpix_ros" / "config" / name,
@@ -452,6 +452,16 @@ def fastdds_profile(large_messages: bool = True) -> Path | None:
         if prefix:
             candidates.append(Path(prefix) / "share" / "subpix_ros" / "config" / name)
     return next((c for c in candidates if c.is_file()), None)
+
+
+def _profile_name(large_messages: bool) -> str:
+    """File name of the package's profile for a process that writes images, or not."""
+    return _PROFILE_NAME if large_messages else _SMALL_PROFILE_NAME
+
+
+def _cwd_profile() -> str | None:
+    """Fast DDS's own default profile file in the working directory, if there is one."""
+    return next((n for n in _CWD_PROFILES if Path(n).is_file()), None)
 
 
 def profile_in_use(environ=None) -> str:
@@ -467,7 +477,7 @@ def profile_in_use(environ=None) -> str:
     named = next((env[v] for v in PROFILE_VARS if env.get(v)), "")
     if named:
         return Path(named).name
-    return next((n for n in _CWD_PROFILES if Path(n).is_file()), "none (Fast DDS defaults)")
+    return _cwd_profile() or "none (Fast DDS defaults)"
 
 
 def configure_ros_environment(environ=None, *, large_messages: bool = True) -> list[str]:
@@ -524,17 +534,12 @@ def configure_ros_environment(environ=None, *, large_messages: bool = True) -> l
                 f"{var}={env[var]} names no file (unset it to use subpix_ros's Fast DDS profile)"
             )
     rmw = env.get("RMW_IMPLEMENTATION", "")
-    own = (
-        chosen
-        or env.get("SKIP_DEFAULT_XML", "") not in ("", "0")
-        or any(Path(n).is_file() for n in _CWD_PROFILES)
-    )
+    own = chosen or env.get("SKIP_DEFAULT_XML", "") not in ("", "0") or _cwd_profile() is not None
     if not own and (not rmw or rmw in _FASTDDS_RMWS):
         profile = fastdds_profile(large_messages)
         if profile is None:
-            name = _PROFILE_NAME if large_messages else _SMALL_PROFILE_NAME
             raise RuntimeSetupError(
-                f"subpix_ros's Fast DDS profile {name} not found "
+                f"subpix_ros's Fast DDS profile {_profile_name(large_messages)} not found "
                 f"(reinstall the package, or set "
                 f"FASTRTPS_DEFAULT_PROFILES_FILE)"
             )

@@ -162,6 +162,8 @@ class ReconstructionNode(StageNode):
             sets_incomplete=st.sets_incomplete,
             sets_flushed=st.sets_flushed,
             sets_dropped=st.sets_dropped,
+            sets_skipped_budget=st.sets_skipped_budget,  # max_cpu_cores
+            set_cpu_s=round(st.set_cpu_s or 0.0, 3),
             frames_used=st.frames,
             memory_estimate_mb=st.memory_estimate_mb,
             memory_reduction=st.memory_reduction,

@@ -90,6 +90,16 @@ PARAMS = (
         "(config/onboard.yaml) for about 2 ms of CPU per 1080p frame; images within 1 DN",
     ),
     Spec(
+        "max_cpu_cores",
+        0.0,
+        "CPU budget of the reconstruction in cores (0: none): after a set that took c seconds "
+        "of CPU, sets whose reference comes less than c / max_cpu_cores seconds of flight "
+        "after its reference are skipped (their frames not held), counted in "
+        "sets_skipped_budget; fewer images, each as good",
+        0.0,
+        64.0,
+    ),
+    Spec(
         "release_memory",
         False,
         "after each set, drop the solve's reused buffers and hand the heap's free pages back "
@@ -227,9 +237,14 @@ class ReconstructionStage(Stage):
     STATS = ReconstructionStats
     CLOSED_KEEP = 64  # references whose set was flushed: late members do not start a new set
 
-    def __init__(self, clock=time.monotonic, **params) -> None:
+    def __init__(self, clock=time.monotonic, cpu_clock=time.thread_time, **params) -> None:
         super().__init__(**params)
         self.clock = clock
+        self.cpu_clock = cpu_clock  # CPU seconds of the solving thread (max_cpu_cores)
+        self._set_cpu_s: float | None = None  # CPU of the last set reconstructed
+        self._budget_from: tuple[int, int] | None = None  # (last set's reference, next allowed)
+        self._budget_skipped: collections.OrderedDict[int, None] = collections.OrderedDict()
+        self._told_budget = False
         self.solver_options, self.ignored = _solver_options(self.extra)
         self._told_ignored = False
         self._told_no_trim = False  # release_memory without malloc_trim: said once
@@ -252,6 +267,8 @@ class ReconstructionStage(Stage):
     def configure(self, **changes) -> None:
         """Change parameters at run time (matching tolerance, blur, solver options follow)."""
         super().configure(**changes)
+        if "max_cpu_cores" in changes:
+            self._told_budget = False  # a new budget is said again at its first skip
         self.matcher.tolerance_ns = self._tolerance_ns()
         if parse_blur_sigma(self.param("blur_sigma")) != self.blur.setting:
             self.blur = BlurCalibration(self.param("blur_sigma"), check_given=True)
@@ -264,6 +281,8 @@ class ReconstructionStage(Stage):
         self.matcher.clear()
         self._closed.clear()
         self._last_stamp_in.clear()
+        self._budget_from = None
+        self._budget_skipped.clear()
         self.stats.pending_sets = 0
 
     # ---------------------------------------------------------------- assembly
@@ -318,6 +337,9 @@ class ReconstructionStage(Stage):
         # shift); reconstruct one that still has min_frames, else say why it is dropped
         for old in sorted(k for k in self.sets if k < key):
             ready += self._close(old, "next reference")
+        if key not in self.sets and self._over_budget(key):
+            self.stats.skip("cpu_budget")  # by design (max_cpu_cores), not a drop
+            return ready
         members = self.sets.setdefault(key, [])
         if self.param("pack_members") and _fits(aligned.reference.image, aligned):
             aligned = _packed(aligned)
@@ -327,6 +349,36 @@ class ReconstructionStage(Stage):
             ready += self._close(key, "complete")
         self.stats.pending_sets = len(self.sets)
         return ready
+
+    def _over_budget(self, key: int) -> bool:
+        """Return True if the set of reference ``key`` is skipped for ``max_cpu_cores``.
+
+        The decision is taken at the set's first member and kept for its later ones.
+        """
+        if key in self._budget_skipped:
+            return True
+        cores = self.param("max_cpu_cores")
+        if not cores > 0.0 or self._budget_from is None or key >= self._budget_from[1]:
+            return False
+        self._budget_skipped[key] = None
+        while len(self._budget_skipped) > self.CLOSED_KEEP:
+            self._budget_skipped.popitem(last=False)
+        self.stats.sets_skipped_budget += 1
+        if not self._told_budget:  # said once; then counted in sets_skipped_budget
+            self._told_budget = True
+            self.warn(
+                f"max_cpu_cores {cores:g}: sets skipped to keep the reconstruction within its "
+                f"CPU budget (the last set took {self._set_cpu_s or 0.0:.2f} s of CPU: one set "
+                f"per {(self._set_cpu_s or 0.0) / cores:.1f} s of flight)"
+            )
+        return True
+
+    def _budget_after(self, key: int) -> None:
+        """Start the ``max_cpu_cores`` pause after the set of reference ``key`` (the last CPU)."""
+        cores = self.param("max_cpu_cores")
+        if cores > 0.0 and self._set_cpu_s is not None:
+            if self._budget_from is None or key >= self._budget_from[0]:
+                self._budget_from = (key, key + int(self._set_cpu_s / cores * 1e9))
 
     def _close(self, key: int, why: str) -> list[FrameSet]:
         members = self.sets.pop(key)
@@ -346,6 +398,7 @@ class ReconstructionStage(Stage):
                 f"< min_frames {self.param('min_frames')}"
             )
             return []
+        self._budget_after(key)  # with the last set's CPU until this one's is measured
         if complete:
             self.stats.sets_complete += 1
         else:
@@ -414,9 +467,12 @@ class ReconstructionStage(Stage):
         release = bool(self.param("release_memory"))
         # one set at a time uses the workspace (a concurrent call, if any, allocates its own)
         owned = not release and self._workspace_lock.acquire(blocking=False)
+        cpu0 = self.cpu_clock()
         try:
             return self._reconstruct_set(fs, self.workspace if owned else None)
         finally:
+            self._set_cpu_s = self.stats.set_cpu_s = self.cpu_clock() - cpu0
+            self._budget_after(fs.reference.stamp_ns)
             if owned:
                 self._workspace_lock.release()
             if release:

@@ -137,3 +137,67 @@ def test_packed_members_over_dds_give_the_image_of_unpacked_ones(ctx, crops):
     (want,) = out
     d = np.abs(image.astype(int) - want.image)
     assert d.max() <= 1 and (d > 0).mean() < 0.01
+
+
+def test_max_cpu_cores_skips_a_set_over_dds_and_says_so(ctx, crops):
+    """A CPU budget in the node (issue 22): the set after a measured one is skipped, loudly.
+
+    Sets of 4 frames; 0.01 cores: after the first set (a few ms to a few s of CPU) the set
+    0.5 s later is skipped and the one 1000 s later is reconstructed; the skip is a WARN on
+    /diagnostics when it happens and a count beside the next image.
+    """
+    from subpix_ros.nodes.reconstruction_node import ReconstructionNode
+
+    seq = render_sequence(crops["crop_trees"][:128, :128], 2, SHIFTS, 0.4, snr_db=40, seed=5)
+    node = ReconstructionNode(
+        parameter_overrides=[
+            Parameter("n_frames", value=4),
+            Parameter("max_cpu_cores", value=0.01),
+            Parameter("blur_sigma", value="0.4"),
+        ]
+    )
+    h = rclpy.create_node("harness")
+    got, diags = [], []
+    h.create_subscription(
+        Image, "/super_resolved", lambda r: got.append(cdr.cdr_to_image(r)), latched_qos(), raw=True
+    )
+    h.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: diags.extend(s for s in m.status if s.name == node.get_name()),
+        10,
+    )
+    feed = AlignedFeed(h)
+
+    def value(key):
+        vals = [kv.value for s in diags for kv in s.values if kv.key == key]
+        return vals[-1] if vals else None
+
+    def one_set(t0):
+        feed.reference(seq.frames[0], t0)
+        assert spin([node, h], lambda: t0 in node.inputs.refs.refs, 10)
+        for k in range(1, 4):
+            feed.frame(seq.frames[k], t0 + k * 33_333_333, t0, *SHIFTS[k])
+
+    try:
+        assert spin([node, h], lambda: feed.matched(), 10)
+        one_set(T0)
+        assert spin([node, h], lambda: len(got) == 1, 30), "no image of the first set"
+        one_set(T0 + 500_000_000)
+        assert spin(
+            [node, h], lambda: node.stage.stats.skipped_by_reason.get("cpu_budget") == 3, 10
+        )
+        assert spin(
+            [node, h],
+            lambda: any("max_cpu_cores" in s.message and s.level[0] == 1 for s in diags),
+            5,
+        ), "the skip was not reported as a warning"
+        one_set(T0 + 1000 * 10**9)
+        assert spin([node, h], lambda: len(got) == 2, 30), "no image after the pause"
+        assert spin([node, h], lambda: value("sets_skipped_budget") == "1", 5)
+    finally:
+        node.close()
+        node.destroy_node()
+        h.destroy_node()
+    assert [cdr.header_to_ns(hd) for _, hd in got] == [T0, T0 + 1000 * 10**9]
+    assert float(value("set_cpu_s")) > 0

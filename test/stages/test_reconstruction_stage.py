@@ -548,3 +548,48 @@ def test_a_member_of_another_type_drops_its_set_loudly():
     out = [sr for s, a in pairs for sr in stage.add(s, a)]
     assert out == [] and stage.stats.errors == 1
     assert "differ in size or type" in stage.stats.last_error
+
+
+class CpuClock:
+    """A CPU clock on which every reconstruction takes ``per_set`` seconds."""
+
+    def __init__(self, per_set: float) -> None:
+        self.per_set, self.t, self.calls = per_set, 0.0, 0
+
+    def __call__(self) -> float:
+        self.calls += 1
+        if self.calls % 2 == 0:  # read before and after each set
+            self.t += self.per_set
+        return self.t
+
+
+def test_max_cpu_cores_skips_sets_until_the_last_sets_cpu_is_paid_for(seq):
+    problems = []
+    # each set "takes" 0.5 s of CPU; 0.5 cores: a set per 1.0 s of flight at most
+    stage = ReconstructionStage(
+        n_frames=4, method="bicubic", max_cpu_cores=0.5, cpu_clock=CpuClock(0.5)
+    )
+    stage.on_problem = lambda level, msg: problems.append(msg)
+    images = []
+    for k in range(8):  # a reference every 0.4 s (sets of 4 at 10 Hz), 3.2 s of flight
+        _, pairs = _set(seq, t0=T0 + 4 * k * DT, n=4)
+        images += stage.add(*pairs[0])
+        assert (T0 + 4 * k * DT in stage.sets) == (k in (0, 3, 6))  # a skipped set holds nothing
+        images += [sr for s, a in pairs[1:] for sr in stage.add(s, a)]
+    # references at 0, 0.4, ..., 2.8 s: 0 taken (nothing measured yet), then one per 1.0 s
+    assert [sr.stamp_ns - T0 for sr in images] == [0, 12 * DT, 24 * DT]
+    st = stage.stats
+    assert st.sets_skipped_budget == 5 and st.skipped_by_reason == {"cpu_budget": 15}
+    assert st.set_cpu_s == pytest.approx(0.5) and st.kept == 3
+    assert sum("max_cpu_cores 0.5: sets skipped" in m for m in problems) == 1  # said once
+    assert "one set per 1.0 s of flight" in problems[0]
+
+
+def test_without_a_cpu_budget_every_set_is_reconstructed(seq):
+    stage = ReconstructionStage(n_frames=4, method="bicubic", cpu_clock=CpuClock(5.0))
+    images = []
+    for k in range(4):
+        _, pairs = _set(seq, t0=T0 + 4 * k * DT, n=4)
+        images += [sr for s, a in pairs for sr in stage.add(s, a)]
+    assert len(images) == 4 and stage.stats.sets_skipped_budget == 0 and not stage.stats.skipped
+    assert stage.stats.set_cpu_s == pytest.approx(5.0)

@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     """Process the given bags (or folders of bags) into products and reports."""
     from subpix_ros.process.batch import Progress, interrupt_on_signals, run_batch
     from subpix_ros.process.inputs import InputError, bag_name
-    from subpix_ros.process.params import check_params, load_params
+    from subpix_ros.process.params import check_params, live_only_notes, load_params
     from subpix_ros.runtime import favour_throughput
 
     favour_throughput()  # a batch job: page faults cost more than resident memory here
@@ -99,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
         check_params(params)
     except InputError as exc:
         raise CliError(str(exc)) from None
+    for line in live_only_notes(params):
+        print(f"note: {line}", file=sys.stderr)
     names: dict[str, str] = {}
     for b in args.bags:
         n = bag_name(b)

@@ -6,7 +6,13 @@ from pathlib import Path
 
 from subpix_ros.process.inputs import InputError
 
-__all__ = ["EXPECTED_SHIFT_PARAMS", "load_params", "pipeline_params", "check_params"]
+__all__ = [
+    "EXPECTED_SHIFT_PARAMS",
+    "load_params",
+    "pipeline_params",
+    "check_params",
+    "live_only_notes",
+]
 
 # The registration stage's parameters that the expected shift and frame interval use.
 EXPECTED_SHIFT_PARAMS = (
@@ -46,12 +52,29 @@ def load_params(path: str | Path | None) -> dict[str, dict]:
 
 # Parameters of the DDS transport only (QoS, queues, publication rate): meaningless in-process.
 _TRANSPORT = {"camera_reliable", "queue_size", "publish_rate_hz", "jpeg_quality"}
+# Live settings a batch job must not follow: the products would depend on the machine's speed.
+_LIVE_ONLY = {"max_cpu_cores"}
+_NODES = ("registration_node", "shift_node", "reconstruction_node", "mosaic_node")
 
 
 def pipeline_params(params: dict[str, dict]) -> dict[str, dict]:
-    """Return the stage pipeline's parameters: the four processing nodes, transport keys left out."""
-    keep = ("registration_node", "shift_node", "reconstruction_node", "mosaic_node")
-    return {n: {k: v for k, v in params.get(n, {}).items() if k not in _TRANSPORT} for n in keep}
+    """Return the four processing nodes' parameters, without transport and live-only keys.
+
+    Live-only settings: :func:`live_only_notes`.
+    """
+    drop = _TRANSPORT | _LIVE_ONLY
+    return {n: {k: v for k, v in params.get(n, {}).items() if k not in drop} for n in _NODES}
+
+
+def live_only_notes(params: dict[str, dict]) -> list[str]:
+    """Return one line per live-only setting in ``params`` that ``subpix process`` leaves out."""
+    return [
+        f"{node}.{key} = {body[key]!r} is a live setting, not used by subpix process: every set "
+        "is reconstructed, so the products do not depend on the machine's speed"
+        for node in _NODES
+        for key in sorted(_LIVE_ONLY)
+        if (body := params.get(node, {})).get(key) not in (None, 0, 0.0)
+    ]
 
 
 def check_params(params: dict[str, dict]) -> None:

@@ -95,7 +95,8 @@ PARAMS = (
         "CPU budget of the reconstruction in cores (0: none): after a set that took c seconds "
         "of CPU, sets whose reference comes less than c / max_cpu_cores seconds of flight "
         "after its reference are skipped (their frames not held), counted in "
-        "sets_skipped_budget; fewer images, each as good",
+        "sets_skipped_budget; fewer images, each as good (live only: subpix process "
+        "reconstructs every set)",
         0.0,
         64.0,
     ),

@@ -197,7 +197,7 @@ class _Collector:
         bicubic = _Bicubic(ref.image, factor, image.dtype, getattr(sr, "_bicubic", None))
         self.writer.png(f"bicubic/{stamp}.png", bicubic.get)
         members = []
-        for shift, _aligned in getattr(sr, "members", []) or []:
+        for shift in getattr(sr, "shifts", []) or []:
             members.append(
                 {
                     "stamp_ns": int(shift.stamp_ns),

@@ -118,14 +118,15 @@ class SuperResolved:
     ``image`` is ``factor`` x the reference's size, of the input's type
     (uint16 for uint16 input, else uint8); ``bicubic`` the reference
     upsampled bicubically to the same size (computed on first access);
-    ``members`` the (shift, aligned frame) pairs besides the reference.
+    ``shifts`` the shifts of the members besides the reference (their frames are
+    released once the set is solved: nothing downstream reads them).
     Output pixel grid: low-resolution pixel i of the reference covers output
     pixels factor*i .. factor*i + factor - 1.
     """
 
     image: np.ndarray
     reference: Frame
-    members: list[tuple[Shift, Aligned]]
+    shifts: list[Shift]
     method: str
     fell_back: bool
     reason: str
@@ -146,7 +147,7 @@ class SuperResolved:
     @property
     def n_frames(self) -> int:
         """Frames the image was made from, the reference included."""
-        return 1 + len(self.members)
+        return 1 + len(self.shifts)
 
     @property
     def bicubic(self) -> np.ndarray:

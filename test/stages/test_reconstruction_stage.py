@@ -1,7 +1,9 @@
 """ReconstructionStage policy without ROS: set assembly, stamp matching, flushes, time jumps."""
 
 import dataclasses
+import gc
 import itertools
+import weakref
 
 import numpy as np
 import pytest
@@ -176,8 +178,8 @@ def test_shifts_and_frames_pair_by_stamp_in_any_arrival_order(seq):
                 else stage.add_aligned(next(frames))
             )
         assert len(out) == 1, shift_slots
-        assert sorted(s.stamp_ns for s, _ in out[0].members) == [s.stamp_ns for s, _ in pairs]
-        assert all(s.reference_stamp_ns == T0 for s, _ in out[0].members)
+        assert sorted(s.stamp_ns for s in out[0].shifts) == [s.stamp_ns for s, _ in pairs]
+        assert all(s.reference_stamp_ns == T0 for s in out[0].shifts)
         images.append(out[0].image)
     assert all(np.array_equal(images[0], im) for im in images[1:])
 
@@ -593,3 +595,18 @@ def test_without_a_cpu_budget_every_set_is_reconstructed(seq):
         images += [sr for s, a in pairs for sr in stage.add(s, a)]
     assert len(images) == 4 and stage.stats.sets_skipped_budget == 0 and not stage.stats.skipped
     assert stage.stats.set_cpu_s == pytest.approx(5.0)
+
+
+def test_a_solved_sets_frames_are_released_before_its_image_is_published(seq):
+    """A node holds the FrameSet while it publishes: the members' frames must be gone by then."""
+    stage = ReconstructionStage(n_frames=4, method="bicubic")
+    alive, sets = [], []
+    for s, a in _set(seq, n=4)[1]:
+        alive.append(weakref.ref(a))
+        sets += stage.assemble(s, a)
+    del s, a
+    (fs,) = sets
+    sr = stage.reconstruct(fs)  # fs still held here, as in the node's worker
+    gc.collect()
+    assert [r() for r in alive] == [None, None, None] and fs.members == []
+    assert sr.n_frames == 4 and [s.stamp_ns for s in sr.shifts] == [T0 + k * DT for k in (1, 2, 3)]

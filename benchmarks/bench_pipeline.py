@@ -37,6 +37,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine_speed import machine_line  # noqa: E402
+
 from subpix_ros.runtime import (  # noqa: E402
     add_malloc_argument,
     allocator_line,
@@ -338,6 +341,7 @@ def main() -> None:
     add_params_argument(ap)
     add_camera_dds_argument(ap)
     args = ap.parse_args()
+    print(machine_line(), flush=True)
     if args.max_memory_mb:
         os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)
     use_params(args.params)

@@ -41,6 +41,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine_speed import machine_line  # noqa: E402
 
 from subpix_ros.core.telemetry import trajectory_straight  # noqa: E402
 from subpix_ros.io.bags import BagWriter  # noqa: E402
@@ -157,6 +159,7 @@ def main() -> None:
         help="runs of the one-flight command (default 3: its run-to-run spread is ~0.5 s)",
     )
     args = ap.parse_args()
+    print(machine_line(), flush=True)
     work = args.keep or Path(tempfile.mkdtemp(prefix="bench_process_"))
     work.mkdir(parents=True, exist_ok=True)
     try:

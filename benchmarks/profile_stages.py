@@ -33,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_pipeline import make_frames  # noqa: E402
+from machine_speed import machine_line  # noqa: E402
 
 from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 from subpix_ros.stages import Pipeline  # noqa: E402
@@ -77,6 +78,7 @@ def main() -> None:
     )
     add_malloc_argument(ap)
     args = ap.parse_args()
+    print(machine_line(), flush=True)
     print(allocator_line(args.default_malloc))
     params = load_params(args.params)
     frames = make_frames(args.frames)

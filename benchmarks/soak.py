@@ -32,7 +32,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-
 from bench_pipeline import (  # noqa: E402
     add_camera_dds_argument,
     add_params_argument,
@@ -44,6 +43,7 @@ from bench_pipeline import (  # noqa: E402
     use_camera_dds,
     use_params,
 )
+from machine_speed import machine_line  # noqa: E402
 
 from subpix_ros.runtime import add_malloc_argument, allocator_line  # noqa: E402
 
@@ -82,6 +82,7 @@ def main() -> None:
     add_params_argument(ap)
     add_camera_dds_argument(ap)
     args = ap.parse_args()
+    print(machine_line(), flush=True)
     width, height = (int(v) for v in args.size.lower().split("x"))
     if args.max_memory_mb:
         os.environ["SUBPIX_BENCH_MAX_MEMORY_MB"] = str(args.max_memory_mb)

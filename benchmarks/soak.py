@@ -231,7 +231,7 @@ def main() -> None:
         f"{rec.get('images_fell_back', '?')} fell back to bicubic (last: method "
         f"{rec.get('method', '?')}, {rec.get('fallback_reason', '') or 'no reason'}; memory "
         f"{rec.get('memory_reduction', '') or 'not reduced'}; sets skipped for max_cpu_cores "
-        f"{rec.get('sets_skipped_budget', '?')}, last set {rec.get('set_cpu_s', '?')} s of CPU)"
+        f"{rec.get('sets_skipped_budget', '?')}, last set {rec.get('set_cpu_time_s', '?')} s of CPU)"
     )
     if rec.get("images_fell_back", "0") not in ("0", "?"):
         print(

@@ -163,7 +163,7 @@ class ReconstructionNode(StageNode):
             sets_flushed=st.sets_flushed,
             sets_dropped=st.sets_dropped,
             sets_skipped_budget=st.sets_skipped_budget,  # max_cpu_cores
-            set_cpu_s=round(st.set_cpu_s or 0.0, 3),
+            set_cpu_time_s=round(st.set_cpu_time_s or 0.0, 3),
             frames_used=st.frames,
             memory_estimate_mb=st.memory_estimate_mb,
             memory_reduction=st.memory_reduction,

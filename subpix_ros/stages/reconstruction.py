@@ -463,11 +463,13 @@ class ReconstructionStage(Stage):
         """Super-resolve one set (None, with an error, when it cannot be); consumes ``fs``.
 
         ``fs.members`` is emptied: the frames are released before the image is published (the
-        image carries the members' shifts). The solve's largest arrays (frame spectra, luminance, HR spectrum) stay in
-        ``self.workspace`` for the next set: no fresh pages to map in and zero each time
-        (``stats.workspace_mb`` says how much is held). With ``release_memory`` nothing is
-        kept and the heap's free pages go back to the kernel afterwards
-        (:func:`subpix_ros.runtime.release_freed_memory`; ``stats.released_mb``).
+        image carries the members' shifts). The solve's largest arrays (frame spectra,
+        luminance, HR spectrum) stay in ``self.workspace`` for the next set: no fresh pages to
+        map in and zero each time (``stats.workspace_mb`` says how much is held). With
+        ``release_memory`` nothing is kept and the heap's free pages go back to the kernel
+        afterwards (:func:`subpix_ros.runtime.release_freed_memory`; ``stats.released_mb``).
+        The CPU of the call (``cpu_clock``) is ``stats.set_cpu_time_s``, what ``max_cpu_cores``
+        pays for.
         """
         release = bool(self.param("release_memory"))
         # one set at a time uses the workspace (a concurrent call, if any, allocates its own)
@@ -479,7 +481,7 @@ class ReconstructionStage(Stage):
             # the set is consumed: its members' frames go now, not after the image is published
             # (a set of 8 at 4K holds 133 MB packed; the caller's FrameSet outlives the solve)
             fs.members = []
-            self._set_cpu_s = self.stats.set_cpu_s = self.cpu_clock() - cpu0
+            self._set_cpu_s = self.stats.set_cpu_time_s = self.cpu_clock() - cpu0
             self._budget_after(fs.reference.stamp_ns)
             if owned:
                 self._workspace_lock.release()

@@ -128,7 +128,7 @@ class ReconstructionStats(StageStats):
     sets_flushed: int = 0
     sets_dropped: int = 0
     sets_skipped_budget: int = 0  # sets left out for max_cpu_cores (their frames: "cpu_budget")
-    set_cpu_s: float | None = None  # CPU seconds of the last set's reconstruction
+    set_cpu_time_s: float | None = None  # CPU seconds of the last set's reconstruction
     pending_sets: int = 0
     method: str = ""
     fell_back: bool | None = None

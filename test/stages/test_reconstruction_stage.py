@@ -582,7 +582,7 @@ def test_max_cpu_cores_skips_sets_until_the_last_sets_cpu_is_paid_for(seq):
     assert [sr.stamp_ns - T0 for sr in images] == [0, 12 * DT, 24 * DT]
     st = stage.stats
     assert st.sets_skipped_budget == 5 and st.skipped_by_reason == {"cpu_budget": 15}
-    assert st.set_cpu_s == pytest.approx(0.5) and st.kept == 3
+    assert st.set_cpu_time_s == pytest.approx(0.5) and st.kept == 3
     assert sum("max_cpu_cores 0.5: sets skipped" in m for m in problems) == 1  # said once
     assert "one set per 1.0 s of flight" in problems[0]
 
@@ -594,7 +594,7 @@ def test_without_a_cpu_budget_every_set_is_reconstructed(seq):
         _, pairs = _set(seq, t0=T0 + 4 * k * DT, n=4)
         images += [sr for s, a in pairs for sr in stage.add(s, a)]
     assert len(images) == 4 and stage.stats.sets_skipped_budget == 0 and not stage.stats.skipped
-    assert stage.stats.set_cpu_s == pytest.approx(5.0)
+    assert stage.stats.set_cpu_time_s == pytest.approx(5.0)
 
 
 def test_a_solved_sets_frames_are_released_before_its_image_is_published(seq):

@@ -245,6 +245,28 @@ def processed(sample_bags, tmp_path_factory):
     return out, r
 
 
+def node_diagnostics(h, node):
+    """Subscribe ``h`` to /diagnostics; return (``node``'s statuses as received, ``value(key)``).
+
+    ``value(key)`` is the latest value of ``key`` in those statuses (None before any).
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    diags = []
+    h.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: diags.extend(s for s in m.status if s.name == node.get_name()),
+        10,
+    )
+
+    def value(key):
+        vals = [kv.value for s in diags for kv in s.values if kv.key == key]
+        return vals[-1] if vals else None
+
+    return diags, value
+
+
 class AlignedFeed:
     """Stand in for the registration and shift nodes on ``h`` (an rclpy node).
 

@@ -1,8 +1,7 @@
 """reconstruction_node with max_memory_mb, fed over DDS: the set is reduced to fit, and it says so."""
 
 import rclpy
-from conftest import SET_SHIFTS, AlignedFeed, spin
-from diagnostic_msgs.msg import DiagnosticArray
+from conftest import SET_SHIFTS, AlignedFeed, node_diagnostics, spin
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 
@@ -13,6 +12,16 @@ from subpix_ros.nodes.qos import latched_qos
 
 T0 = 1_700_000_000_000_000_000
 SHIFTS = SET_SHIFTS
+
+
+def _harness():
+    """Return a harness node feeding aligned frames, its /super_resolved (image, header) list."""
+    h = rclpy.create_node("harness")
+    got = []
+    h.create_subscription(
+        Image, "/super_resolved", lambda r: got.append(cdr.cdr_to_image(r)), latched_qos(), raw=True
+    )
+    return h, got, AlignedFeed(h)
 
 
 def test_max_memory_mb_reduces_the_set_and_reports_it_in_diagnostics(ctx, crops):
@@ -31,22 +40,8 @@ def test_max_memory_mb_reduces_the_set_and_reports_it_in_diagnostics(ctx, crops)
             Parameter("max_memory_mb", value=float(budget)),
         ]
     )
-    h = rclpy.create_node("harness")
-    got, diags = [], []
-    h.create_subscription(
-        Image, "/super_resolved", lambda r: got.append(cdr.cdr_to_image(r)), latched_qos(), raw=True
-    )
-    h.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda m: diags.extend(s for s in m.status if s.name == node.get_name()),
-        10,
-    )
-    feed = AlignedFeed(h)
-
-    def value(key):
-        vals = [kv.value for s in diags for kv in s.values if kv.key == key]
-        return vals[-1] if vals else None
+    h, got, feed = _harness()
+    diags, value = node_diagnostics(h, node)
 
     try:
         assert spin([node, h], lambda: feed.matched(), 10)
@@ -99,12 +94,7 @@ def test_packed_members_over_dds_give_the_image_of_unpacked_ones(ctx, crops):
     node = ReconstructionNode(
         parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
     )
-    h = rclpy.create_node("harness")
-    got = []
-    h.create_subscription(
-        Image, "/super_resolved", lambda r: got.append(cdr.cdr_to_image(r)), latched_qos(), raw=True
-    )
-    feed = AlignedFeed(h)
+    h, got, feed = _harness()
     try:
         assert spin([node, h], lambda: feed.matched(), 10)
         feed.reference(frames[0], T0)
@@ -156,22 +146,8 @@ def test_max_cpu_cores_skips_a_set_over_dds_and_says_so(ctx, crops):
             Parameter("blur_sigma", value="0.4"),
         ]
     )
-    h = rclpy.create_node("harness")
-    got, diags = [], []
-    h.create_subscription(
-        Image, "/super_resolved", lambda r: got.append(cdr.cdr_to_image(r)), latched_qos(), raw=True
-    )
-    h.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda m: diags.extend(s for s in m.status if s.name == node.get_name()),
-        10,
-    )
-    feed = AlignedFeed(h)
-
-    def value(key):
-        vals = [kv.value for s in diags for kv in s.values if kv.key == key]
-        return vals[-1] if vals else None
+    h, got, feed = _harness()
+    diags, value = node_diagnostics(h, node)
 
     def one_set(t0):
         feed.reference(seq.frames[0], t0)

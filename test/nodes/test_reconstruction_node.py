@@ -4,8 +4,7 @@ import time
 
 import numpy as np
 import rclpy
-from conftest import SET_SHIFTS, AlignedFeed, rendered_set, spin
-from diagnostic_msgs.msg import DiagnosticArray
+from conftest import SET_SHIFTS, AlignedFeed, node_diagnostics, rendered_set, spin
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 
@@ -29,7 +28,7 @@ def test_an_incomplete_last_set_is_reconstructed_after_flush_after_s(ctx, crops)
     seq = rendered_set(crops["crop_trees"])
     node = ReconstructionNode(parameter_overrides=[Parameter("method", value="map")])
     h = rclpy.create_node("harness")
-    got, diags = [], []
+    got = []
     h.create_subscription(
         Image,
         "/super_resolved",
@@ -37,12 +36,7 @@ def test_an_incomplete_last_set_is_reconstructed_after_flush_after_s(ctx, crops)
         latched_qos(),
         raw=True,
     )
-    h.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda m: diags.extend(s for s in m.status if s.name == node.get_name()),
-        10,
-    )
+    diags, _ = node_diagnostics(h, node)
     feed = AlignedFeed(h)
     try:
         assert spin([node, h], lambda: feed.matched() and got == [], 10)

@@ -55,6 +55,7 @@ __all__ = [
     "RuntimeSetupError",
     "remove_stale_shm_segments",
     "clean_stale_shm_segments",
+    "ProcessLoad",
 ]
 
 #: glibc's ``mallopt`` parameter numbers (malloc.h).
@@ -192,6 +193,52 @@ def _rss_bytes() -> int | None:
     except (OSError, ValueError, IndexError):
         return None
     return pages * os.sysconf("SC_PAGE_SIZE")
+
+
+def _status_mb(keys: tuple[str, ...], path: str = "/proc/self/status") -> dict[str, float]:
+    """Return the named ``kB`` fields of a /proc status file in MB (empty without /proc)."""
+    try:
+        lines = Path(path).read_text().splitlines()
+    except OSError:
+        return {}
+    out = {}
+    for line in lines:
+        key, _, rest = line.partition(":")
+        if key in keys and rest.split():
+            out[key] = int(rest.split()[0]) / 1024
+    return out
+
+
+class ProcessLoad:
+    """The load of the process as a node reports it: CPU in cores since the last reading, RSS.
+
+    ``values()`` gives ``process_cpu_cores`` (CPU seconds of every thread per second of wall
+    time since the previous call; the first call counts from construction),
+    ``process_rss_mb`` (VmRSS) and ``process_rss_peak_mb`` (VmHWM, the kernel's high-water
+    mark since the process started), read from /proc/self/status (RSS keys absent without
+    /proc). In a process with several nodes each reports the same process.
+    """
+
+    def __init__(self, clock=time.monotonic, cpu=time.process_time) -> None:
+        self.clock, self.cpu = clock, cpu
+        self._last = (clock(), cpu())
+
+    def cores(self) -> float:
+        """CPU cores used since the previous call (0 when no wall time has passed)."""
+        now = (self.clock(), self.cpu())
+        wall, used = now[0] - self._last[0], now[1] - self._last[1]
+        self._last = now
+        return used / wall if wall > 0 else 0.0
+
+    def values(self) -> dict[str, str]:
+        """Return the /diagnostics key/values (strings)."""
+        out = {"process_cpu_cores": f"{self.cores():.2f}"}
+        mem = _status_mb(("VmRSS", "VmHWM"))
+        if "VmRSS" in mem:
+            out["process_rss_mb"] = f"{mem['VmRSS']:.0f}"
+        if "VmHWM" in mem:
+            out["process_rss_peak_mb"] = f"{mem['VmHWM']:.0f}"
+        return out
 
 
 def favour_memory() -> bool:

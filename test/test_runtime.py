@@ -597,3 +597,30 @@ def test_memory_profile_returns_a_freed_frame_sized_block_the_reuse_profile_keep
     assert name == (profile or "reuse")
     assert int(mapped_mib) < 40, "a frame-sized block from the heap, not mapped: " + r.stdout
     assert (int(freed_mib) >= 30) if returned else (int(freed_mib) < 10), r.stdout
+
+
+def test_process_load_gives_the_cpu_in_cores_and_the_resident_memory():
+    import resource
+    import time
+
+    import numpy as np
+
+    from subpix_ros.runtime import ProcessLoad
+
+    load = ProcessLoad()
+    load.cores()  # from now on
+    stop = time.monotonic() + 0.5
+    while time.monotonic() < stop:  # one core busy
+        pass
+    busy = load.cores()
+    assert 0.6 <= busy <= 1.4, busy
+    time.sleep(0.3)
+    assert load.cores() < 0.3  # asleep
+    block = np.ones(64 << 20, np.uint8)  # 64 MB resident
+    v = load.values()
+    assert set(v) == {"process_cpu_cores", "process_rss_mb", "process_rss_peak_mb"}
+    rss, peak = float(v["process_rss_mb"]), float(v["process_rss_peak_mb"])
+    assert rss >= 64 and peak >= rss - 1
+    # the peak is the kernel's, as getrusage counts it (kB on Linux)
+    assert abs(peak - resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024) < 16
+    del block

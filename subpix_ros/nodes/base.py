@@ -25,7 +25,7 @@ from subpix_ros.nodes.params import Param, declare_params
 from subpix_ros.nodes.qos import qos_event_callbacks
 from subpix_ros.nodes.run import executor_kind
 from subpix_ros.nodes.worker import DropOldestWorker
-from subpix_ros.runtime import profile_in_use
+from subpix_ros.runtime import ProcessLoad, profile_in_use
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
 
@@ -91,6 +91,8 @@ class StageNode(Node):
         self.diag.set(opencv_threads=cv2.getNumThreads())
         # and the Fast DDS profile (its shared-memory segment: 64 MiB or 1 MiB of RSS)
         self.diag.set(fastdds_profile=profile_in_use())
+        # the process's CPU (cores) and resident memory, for an onboard budget
+        self.diag.add_values(ProcessLoad().values)
         try:  # the process's executor (nodes/run.py), shown beside it
             self.diag.set(executor=executor_kind())
         except ValueError:

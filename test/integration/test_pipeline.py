@@ -234,6 +234,12 @@ def test_separate_processes_shift_and_superres(separate, sample_bags):
     others = [p for name, p in profiles.items() if "shift" not in name]
     assert shift == ["fastdds_profile_small.xml"], profiles
     assert others and set(others) == {"fastdds_profile.xml"}, profiles
+    # each node process reports its own load (CPU in cores, resident memory's peak)
+    load = {
+        name: (float(v["process_cpu_cores"]), float(v["process_rss_peak_mb"]))
+        for name, v in separate.diag.items()
+    }
+    assert all(cores >= 0 and peak > 50 for cores, peak in load.values()), load
 
 
 def _set_members(est, refs, ref):

@@ -44,6 +44,7 @@ from subpix_ros.runtime import (  # noqa: E402
     add_malloc_argument,
     allocator_line,
     configure_ros_environment,
+    proc_status_mb,
 )
 
 STEP = (0.41, 0.27)
@@ -178,16 +179,7 @@ def rss_parts_mb(pid: int) -> dict[str, float]:
     samples taken now and then miss (the kernel counts resident pages per thread in batches,
     so a sample may read a few MB above it). Empty once the process is gone.
     """
-    out = {}
-    try:
-        lines = Path(f"/proc/{pid}/status").read_text().splitlines()
-    except OSError:
-        return out
-    for line in lines:
-        key = line.split(":")[0]
-        if key in ("VmRSS", "VmHWM", "RssAnon", "RssFile", "RssShmem"):
-            out[key] = int(line.split()[1]) / 1024
-    return out
+    return proc_status_mb(("VmRSS", "VmHWM", "RssAnon", "RssFile", "RssShmem"), pid)
 
 
 def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: float) -> dict:

@@ -56,6 +56,7 @@ __all__ = [
     "remove_stale_shm_segments",
     "clean_stale_shm_segments",
     "ProcessLoad",
+    "proc_status_mb",
 ]
 
 #: glibc's ``mallopt`` parameter numbers (malloc.h).
@@ -195,10 +196,13 @@ def _rss_bytes() -> int | None:
     return pages * os.sysconf("SC_PAGE_SIZE")
 
 
-def _status_mb(keys: tuple[str, ...], path: str = "/proc/self/status") -> dict[str, float]:
-    """Return the named ``kB`` fields of a /proc status file in MB (empty without /proc)."""
+def proc_status_mb(keys: tuple[str, ...], pid: int | str = "self") -> dict[str, float]:
+    """Return the named ``kB`` fields of ``/proc/<pid>/status`` in MB (e.g. VmRSS, VmHWM).
+
+    Empty when the file cannot be read (no /proc, or the process is gone).
+    """
     try:
-        lines = Path(path).read_text().splitlines()
+        lines = Path(f"/proc/{pid}/status").read_text().splitlines()
     except OSError:
         return {}
     out = {}
@@ -233,7 +237,7 @@ class ProcessLoad:
     def values(self) -> dict[str, str]:
         """Return the /diagnostics key/values (strings)."""
         out = {"process_cpu_cores": f"{self.cores():.2f}"}
-        mem = _status_mb(("VmRSS", "VmHWM"))
+        mem = proc_status_mb(("VmRSS", "VmHWM"))
         if "VmRSS" in mem:
             out["process_rss_mb"] = f"{mem['VmRSS']:.0f}"
         if "VmHWM" in mem:

@@ -126,12 +126,19 @@ def main() -> None:
     sr_sub = FollowingSubscription(  # noqa: F841 (kept alive)
         node, Image, "/super_resolved", lambda r: srs.__setitem__(0, srs[0] + 1), raw=True
     )
-    node.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda m: diag.update({s.name: {kv.key: kv.value for kv in s.values} for s in m.status}),
-        50,
-    )
+    loads: list[tuple[float, float]] = []  # (when, the pipeline's own process_cpu_cores)
+
+    def on_diagnostics(m):
+        diag.update({s.name: {kv.key: kv.value for kv in s.values} for s in m.status})
+        for s in m.status:
+            if s.name.endswith("registration_node"):
+                loads.extend(
+                    (time.monotonic(), float(kv.value))
+                    for kv in s.values
+                    if kv.key == "process_cpu_cores"
+                )
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 50)
     mem: list[tuple[float, float]] = []
     peak: dict[str, float] = {}  # the RSS parts at the largest sample
     try:
@@ -224,6 +231,15 @@ def main() -> None:
             + ", ".join(f"{v:.0f}" for v in floors[:, 1])
         )
     print(f"pipeline process CPU {cpu / args.frames:.3f} s per frame in")
+    reg_diag = next((d for n, d in diag.items() if n.endswith("registration_node")), {})
+    during = [v for t, v in loads if t0 + 1.0 <= t <= t0 + wall]  # statuses of the run itself
+    print(
+        f"the pipeline's own /diagnostics: process_cpu_cores mean "
+        f"{np.mean(during) if during else float('nan'):.3f} over the {len(during)} statuses of "
+        f"the run (here: {cpu / wall:.3f} cores, its CPU with the 15 s tail over the run's "
+        f"wall time), process_rss_peak_mb "
+        f"{reg_diag.get('process_rss_peak_mb', '?')} (VmHWM read here: {hwm:.0f})"
+    )
     rec = next((d for n, d in diag.items() if n.endswith("reconstruction_node")), {})
     print(
         f"super-resolved images: {rec.get('images_made', '?')} made, "

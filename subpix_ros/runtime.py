@@ -173,7 +173,7 @@ def release_freed_memory() -> float | None:
     Returns
     -------
     float or None
-        The resident memory released (MB, from ``/proc/self/statm``; 0 if it did not fall);
+        The resident memory released (MB, from VmRSS in ``/proc/self/status``; 0 if it did not fall);
         None where there is no glibc ``malloc_trim``.
     """
     fn = _glibc_function("malloc_trim", [ctypes.c_size_t])
@@ -189,11 +189,8 @@ def release_freed_memory() -> float | None:
 
 def _rss_bytes() -> int | None:
     """Return this process's resident set size in bytes, or None (no /proc)."""
-    try:
-        pages = int(Path("/proc/self/statm").read_text().split()[1])
-    except (OSError, ValueError, IndexError):
-        return None
-    return pages * os.sysconf("SC_PAGE_SIZE")
+    rss = proc_status_mb(("VmRSS",)).get("VmRSS")
+    return None if rss is None else int(rss * 2**20)
 
 
 def proc_status_mb(keys: tuple[str, ...], pid: int | str = "self") -> dict[str, float]:

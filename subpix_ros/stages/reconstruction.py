@@ -245,7 +245,6 @@ class ReconstructionStage(Stage):
         super().__init__(**params)
         self.clock = clock
         self.cpu_clock = cpu_clock  # CPU seconds of the solving thread (max_cpu_cores)
-        self._set_cpu_s: float | None = None  # CPU of the last set reconstructed
         self._budget_from: tuple[int, int] | None = None  # (last set's reference, next allowed)
         self._budget_skipped: collections.OrderedDict[int, None] = collections.OrderedDict()
         self._told_budget = False
@@ -370,19 +369,21 @@ class ReconstructionStage(Stage):
         self.stats.sets_skipped_budget += 1
         if not self._told_budget:  # said once; then counted in sets_skipped_budget
             self._told_budget = True
+            last = self.stats.set_cpu_time_s or 0.0
             self.warn(
                 f"max_cpu_cores {cores:g}: sets skipped to keep the reconstruction within its "
-                f"CPU budget (the last set took {self._set_cpu_s or 0.0:.2f} s of CPU: one set "
-                f"per {(self._set_cpu_s or 0.0) / cores:.1f} s of flight)"
+                f"CPU budget (the last set took {last:.2f} s of CPU: one set "
+                f"per {last / cores:.1f} s of flight)"
             )
         return True
 
     def _budget_after(self, key: int) -> None:
         """Start the ``max_cpu_cores`` pause after the set of reference ``key`` (the last CPU)."""
         cores = self.param("max_cpu_cores")
-        if cores > 0.0 and self._set_cpu_s is not None:
+        last = self.stats.set_cpu_time_s
+        if cores > 0.0 and last is not None:
             if self._budget_from is None or key >= self._budget_from[0]:
-                self._budget_from = (key, key + int(self._set_cpu_s / cores * 1e9))
+                self._budget_from = (key, key + int(last / cores * 1e9))
 
     def _close(self, key: int, why: str) -> list[FrameSet]:
         members = self.sets.pop(key)
@@ -481,7 +482,7 @@ class ReconstructionStage(Stage):
             # the set is consumed: its members' frames go now, not after the image is published
             # (a set of 8 at 4K holds 133 MB packed; the caller's FrameSet outlives the solve)
             fs.members = []
-            self._set_cpu_s = self.stats.set_cpu_time_s = self.cpu_clock() - cpu0
+            self.stats.set_cpu_time_s = self.cpu_clock() - cpu0
             self._budget_after(fs.reference.stamp_ns)
             if owned:
                 self._workspace_lock.release()

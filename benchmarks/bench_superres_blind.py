@@ -34,7 +34,14 @@ prior=P)``; each further prior Q adds the columns ``told:Q`` and ``auto:Q`` (Q's
 in the same run, on the same frames, and a summary of Q against P (cells where auto >= CG + 1
 dB, min gain, change in told and auto). The timing then reconstructs with every prior given.
 
-Run: ``python benchmarks/bench_superres_blind.py [--quick] [--json out.json]
+Over a flight (``--flight``, issue 17): a camera's blur does not change from set to set, and
+``auto`` keeps an edge estimate for the sets after it (``BlurCalibration``). The column
+``flight`` reconstructs each "none" scene with the blur the calibration holds after an earlier
+set of the same flight showed the cell's roof: that set rendered with the same camera (blur,
+fill factor, SNR, JPEG) and its own noise, measured, then this set given to the calibration
+(which measures it too and keeps the roof's estimate when it shows no edge of its own).
+
+Run: ``python benchmarks/bench_superres_blind.py [--quick] [--json out.json] [--flight]
 [--only quality|timing] [--motion] [--snr DB] [--max-blur PX] [--scene none|edge]
 [--cg-lambda L] [--scene-blur G] [--prior powerlaw,rolloff]``.
 """
@@ -115,8 +122,11 @@ def quality(
     cg_lambda=None,
     scene_blur: float = 0.0,
     priors: tuple = (None,),
+    flight: bool = False,
 ) -> None:
     """Print the table; ``only``: (snr, max blur, scene) filters (None: all), same seeds.
+
+    ``flight``: add the column ``flight`` to the "none" scenes (see the module's docstring).
 
     ``cg_lambda``: CG's weight for every factor (default: tuned on each factor's first cell).
     ``scene_blur``: a Gaussian of this std (HR px) applied to each crop before rendering: a
@@ -147,6 +157,7 @@ def quality(
             for t in ("none", "edge")
         )
         + "".join(f" | told:{q[0]} auto:{q[0]}" for q in priors[1:])
+        + (f" | {'flight':>6s} {'est':>5s}" if flight else "")
         + " | s"
     )
     print(hdr)
@@ -158,6 +169,7 @@ def quality(
         p = cell["p"]
         t0 = time.perf_counter()
         line = []
+        tail = ""
         for j, (crop, roof) in enumerate(scenes_for(k)):
             if scene_only is not None and roof != (scene_only == "edge"):
                 line.append(" " * 54)
@@ -227,6 +239,11 @@ def quality(
                 lam=lam[p],
                 n_frames=len(frames),
             )
+            if flight and not roof:
+                est_f = flight_blur(crops, k, cell, ff, frames, sh)
+                rec["flight"] = gain(fl, reconstruct(frames, sh, p, blur_sigma=est_f, **kw).image)
+                rec["flight_est"] = est_f.sigma
+                tail = f" | {rec['flight']:+6.2f} {est_f.sigma:5.2f}"
             for q in priors[1:]:  # the same frames with each further prior
                 kq = dict(kw, prior=q)
                 rec[f"told:{q}"] = gain(
@@ -247,14 +264,75 @@ def quality(
         print(
             f"{p:1d} {cell['layout']:6s} {cell['snr']:3d} {cell['blur']:4.1f} {extra:9s} | "
             + " | ".join(line)
+            + tail
             + f" | {time.perf_counter() - t0:4.1f}",
             flush=True,
         )
     summarise(rows, label_auto)
+    if flight:
+        summarise_flight(rows)
     for q in priors[1:]:
         compare_priors(rows, priors[0] or "default", q)
     if json_out:
         Path(json_out).write_text(json.dumps(rows, indent=1))
+
+
+def flight_blur(crops, k: int, cell: dict, ff: float, frames, sh):
+    """Return the blur ``auto`` holds for this set after an earlier set with the roof.
+
+    The earlier set: cell k's roof scene rendered by the same camera (blur, fill ``ff``, SNR,
+    JPEG) with its own noise seed and shifts; both sets go through one ``BlurCalibration``.
+    """
+    from subpix_ros.core.blur import BlurCalibration
+
+    p = cell["p"]
+    n_hr = (LR[p] + 2 * MARGIN) * p
+    off = ((768 - n_hr) // 2,) * 2
+    crop, roof = scenes_for(k)[1]
+    earlier = degrade(
+        scene_crop(crops[crop], p, LR[p], MARGIN, off),
+        p,
+        shift_layout(cell["layout"], p, seed=300 + k),
+        cell["blur"],
+        fill_factor=ff,
+        snr_db=cell["snr"],
+        jpeg_quality=cell["jpeg"],
+        roof=roof,
+        seed=k * 7 + 5,
+        margin=MARGIN,
+    )
+    e_sh = est_shifts(earlier.frames)
+    keep = np.isfinite(e_sh).all(axis=1)
+    cal = BlurCalibration("auto")
+    mono = [np.asarray(f, np.float32) for f, ok in zip(earlier.frames, keep) if ok]
+    cal.update(mono, e_sh[keep])
+    return cal.update([np.asarray(f, np.float32) for f in frames], sh)
+
+
+def summarise_flight(rows) -> None:
+    """Print the "none" scenes reconstructed with the blur held from an earlier roof set."""
+    r = [x for x in rows if "flight" in x]
+    if not r:
+        return
+    f = np.array([x["flight"] for x in r])
+    cg = np.array([x["cg"] for x in r])
+    told = np.array([x["told"] for x in r])
+    auto = np.array([x["auto"] for x in r])
+    err = np.array([x["flight_est"] - x["blur"] for x in r])
+    print(
+        f"\nOver a flight (--flight), {len(r)} scenes without an edge, the blur held from an "
+        "earlier set with a roof:"
+    )
+    print(
+        f"  flight: min gain over bicubic {f.min():+.2f} dB (below bicubic: {(f < 0).sum()}); "
+        f"flight >= CG + 1 dB in {(f - cg >= 1.0).sum()} of {f.size} (the set alone, auto: "
+        f"{(auto - cg >= 1.0).sum()}); told - flight median {np.median(told - f):+.2f}, max "
+        f"{(told - f).max():+.2f} dB; flight - auto median {np.median(f - auto):+.2f} dB"
+    )
+    print(
+        f"  blur held: error min {err.min():+.3f} max {err.max():+.3f} px; above the truth by "
+        f"> 0.05 px: {(err > 0.05).sum()} of {err.size}"
+    )
 
 
 def compare_priors(rows, base: str, q: str) -> None:
@@ -306,6 +384,7 @@ def motion_quality(quick: bool, json_out: str | None) -> None:
         p, d = cell["p"], cell["d"]
         t0 = time.perf_counter()
         line = []
+        tail = ""
         for j, (crop, roof) in enumerate(scenes_for(k)):
             n_hr = (LR[p] + 2 * MARGIN) * p
             sc = scene_crop(crops[crop], p, LR[p], MARGIN, ((768 - n_hr) // 2,) * 2)
@@ -350,6 +429,7 @@ def motion_quality(quick: bool, json_out: str | None) -> None:
         print(
             f"{p:1d} {cell['layout']:6s} ({d[0]:4.2f},{d[1]:4.2f}) | "
             + " | ".join(line)
+            + tail
             + f" | {time.perf_counter() - t0:4.1f}",
             flush=True,
         )
@@ -526,6 +606,12 @@ def main() -> None:
         help="image prior(s), comma-separated (e.g. powerlaw,rolloff): the first for told and "
         "auto, the others compared with it on the same frames (default: the code's default)",
     )
+    ap.add_argument(
+        "--flight",
+        action="store_true",
+        help="add the 'flight' column: scenes without an edge reconstructed with the blur held "
+        "from an earlier set of the same flight with a roof in view",
+    )
     args = ap.parse_args()
     priors = (None,) if args.prior is None else tuple(args.prior.split(","))
     print(
@@ -543,6 +629,7 @@ def main() -> None:
             args.cg_lambda,
             args.scene_blur,
             priors,
+            args.flight,
         )
     if args.only in (None, "timing"):
         timing(args.repeats, priors)

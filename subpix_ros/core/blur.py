@@ -434,7 +434,10 @@ class BlurCalibration:
     setting : str or float, optional
         A ``blur_sigma`` setting (:func:`parse_blur_sigma`).
     refresh_sets : int, optional
-        With ``"auto"``, measure on the first set and then every ``refresh_sets``-th set.
+        Once an edge has been measured, measure again every ``refresh_sets``-th set.
+    search_sets : int, optional
+        Until then (no edge measured yet in the flight), measure every ``search_sets``-th
+        set: the first set is always measured.
     check_given : bool, optional
         With a number, measure on the same schedule too and replace the number by the
         measurement when it is clearly lower (:func:`check_given_blur`); default False (the
@@ -443,25 +446,37 @@ class BlurCalibration:
     Notes
     -----
     With a number every set gets it (source "parameter"). With ``"auto"``,
-    :func:`estimate_blur` runs on the first set and then on every ``refresh_sets``-th set
-    (the calibration can cost as much as a set's reconstruction); an edge estimate stays in
-    use until a later set gives a new one (a set without edges in view does not discard
-    it); until the first edge estimate the fallback is used.
+    :func:`estimate_blur` runs on the first set, then on every ``search_sets``-th set until
+    a set shows a usable edge (the flight may reach a road or a roof only later), and from
+    then on every ``refresh_sets``-th set (the calibration can cost a sizeable part of a
+    set's reconstruction). An edge estimate stays in use until a later set gives a new one
+    (a set without edges in view does not discard it); until the first edge estimate the
+    fallback is used. A given number checked against the edges (``check_given``) follows
+    the same schedule.
     """
 
-    def __init__(self, setting="auto", refresh_sets: int = 10, check_given: bool = False) -> None:
+    def __init__(
+        self,
+        setting="auto",
+        refresh_sets: int = 10,
+        check_given: bool = False,
+        search_sets: int = 1,
+    ) -> None:
         self.setting = parse_blur_sigma(setting)
         self.refresh_sets = max(1, int(refresh_sets))
+        self.search_sets = max(1, int(search_sets))
         self.check_given = bool(check_given)
         self.current: BlurEstimate | None = None
-        self._sets = 0
+        self.edges_seen = False  # whether any measurement so far found a usable edge
+        self._since = 0  # sets since the last measurement
 
     @property
     def due(self) -> bool:
         """Whether the next :meth:`update` measures the frames (else they are not looked at)."""
-        return (self.setting == "auto" or self.check_given) and (
-            self.current is None or self._sets % self.refresh_sets == 0
-        )
+        if self.setting != "auto" and not self.check_given:
+            return False
+        every = self.refresh_sets if self.edges_seen else self.search_sets
+        return self.current is None or self._since >= every
 
     def update(
         self,
@@ -495,19 +510,14 @@ class BlurCalibration:
             if self.current is None:
                 self.current = BlurEstimate(float(self.setting), "parameter", reason="given")
             return self.current
-        if self.setting != "auto":  # a given number, checked against the edges when due
-            due = self.due
-            self._sets += 1
-            if due:
-                measured = estimate_blur(
-                    frames, shifts, masks=masks, motion_blur=motion_blur, boxes=boxes
-                )
-                self.current = check_given_blur(float(self.setting), measured)
+        if not self.due:
+            self._since += 1
             return self.current
-        due = self.due
-        self._sets += 1
-        if due:
-            new = estimate_blur(frames, shifts, masks=masks, motion_blur=motion_blur, boxes=boxes)
-            if new.source == "edges" or self.current is None or self.current.source != "edges":
-                self.current = new
+        self._since = 1
+        new = estimate_blur(frames, shifts, masks=masks, motion_blur=motion_blur, boxes=boxes)
+        self.edges_seen = self.edges_seen or new.source == "edges"
+        if self.setting != "auto":  # a given number, checked against the edges
+            self.current = check_given_blur(float(self.setting), new)
+        elif new.source == "edges" or self.current is None or self.current.source != "edges":
+            self.current = new
         return self.current

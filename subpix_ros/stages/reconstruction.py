@@ -111,10 +111,21 @@ PARAMS = (
         "blur_sigma",
         "auto",
         "optics blur std of the model, input px: 'auto' (measured on straight edges in the "
-        "frames, refreshed every 10 sets, biased low; a low fallback when none is in view) or a "
+        "frames, looked for every blur_search_sets sets until one is found, then refreshed "
+        "every 10 sets, biased low; a low fallback until an edge is seen) or a "
         f"number in 0..{BLUR_SIGMA_MAX:g} (a lab calibration; replaced, with a warning, by the "
         "edges' measurement where that is lower by more than max(0.1 px, 3 standard errors))",
         validate=_blur_setting_error,
+    ),
+    Spec(
+        "blur_search_sets",
+        1,
+        "while no straight edge has been measured in the flight (the fallback blur in use), "
+        "look for edges in every this many sets (1: every set; each look costs about an eighth "
+        "of a set's reconstruction at 1080p, config/onboard.yaml looks every 10th); once one "
+        "is found, every 10 sets",
+        1,
+        1000,
     ),
     Spec(
         "exposure_s",
@@ -251,8 +262,7 @@ class ReconstructionStage(Stage):
         self.solver_options, self.ignored = _solver_options(self.extra)
         self._told_ignored = False
         self._told_no_trim = False  # release_memory without malloc_trim: said once
-        # measured once, refreshed every 10 sets
-        self.blur = BlurCalibration(self.param("blur_sigma"), check_given=True)
+        self.blur = self._blur_calibration()
         self._blur_warned = None  # the overriding estimate last warned about
         self.sets: dict[int, list[tuple[Shift, Aligned]]] = {}
         self.matcher = ShiftFrameMatcher(self._tolerance_ns())
@@ -262,6 +272,14 @@ class ReconstructionStage(Stage):
         self.workspace = Workspace()
         self._workspace_lock = threading.Lock()
         self._last_stamp_in: dict[int, int] = {}  # reference -> its newest member's stamp
+
+    def _blur_calibration(self) -> BlurCalibration:
+        """Return a new flight blur calibration for ``blur_sigma`` (a number checked on edges)."""
+        return BlurCalibration(
+            self.param("blur_sigma"),
+            check_given=True,
+            search_sets=self.param("blur_search_sets"),
+        )
 
     def _tolerance_ns(self) -> int:
         """Return ``time_tolerance_s`` in ns."""
@@ -274,7 +292,8 @@ class ReconstructionStage(Stage):
             self._told_budget = False  # a new budget is said again at its first skip
         self.matcher.tolerance_ns = self._tolerance_ns()
         if parse_blur_sigma(self.param("blur_sigma")) != self.blur.setting:
-            self.blur = BlurCalibration(self.param("blur_sigma"), check_given=True)
+            self.blur = self._blur_calibration()
+        self.blur.search_sets = self.param("blur_search_sets")
         self.solver_options, self.ignored = _solver_options(self.extra)
 
     def reset(self) -> None:
@@ -515,7 +534,7 @@ class ReconstructionStage(Stage):
         if any(not _fits(ref.image, a) for _, a in members):
             self.error("frames of one set differ in size or type: set dropped")
             return None
-        # luminance only for a set the calibration measures (the first, then every 10th)
+        # luminance only for a set the calibration measures (BlurCalibration.due)
         mono = []
         if self.blur.due:  # frame 0 whole (the edge search); the others where the edges are
             mono = [colour_luminance(frames[0])] + [

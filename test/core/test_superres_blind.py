@@ -213,14 +213,14 @@ def test_parse_blur_sigma():
 def test_calibration_kept_across_sets_and_refreshed(crops):
     with_edge = flight(crops, "crop_road", 2, 0.5, roof=True, seed=4)
     without = flight(crops, "crop_rows", 2, 0.5, roof=False, seed=4)
-    cal = BlurCalibration("auto", refresh_sets=2)
+    cal = BlurCalibration("auto", refresh_sets=2, search_sets=2)
     first = cal.update(without.frames, without.shifts)
-    assert first.source == "fallback"
+    assert first.source == "fallback" and not cal.edges_seen
     assert cal.update(with_edge.frames, with_edge.shifts) is first  # not due: set 2 of 2
     e = cal.update(
         with_edge.frames, with_edge.shifts
     )  # due: an edge estimate replaces the fallback
-    assert e.source == "edges" and abs(e.sigma - 0.5) <= 0.05
+    assert e.source == "edges" and abs(e.sigma - 0.5) <= 0.05 and cal.edges_seen
     cal.update(without.frames, without.shifts)
     assert (
         cal.update(without.frames, without.shifts) is e
@@ -229,14 +229,31 @@ def test_calibration_kept_across_sets_and_refreshed(crops):
     assert fixed.update(without.frames).sigma == 0.3 and fixed.current.source == "parameter"
 
 
-def test_calibration_says_when_it_measures_so_frames_are_prepared_only_then(crops):
+def test_calibration_looks_for_edges_at_every_set_until_it_finds_one(crops):
+    """The default search: the first set with a roof in view is measured, not the 10th."""
+    with_edge = flight(crops, "crop_road", 2, 0.5, roof=True, seed=4)
     without = flight(crops, "crop_rows", 2, 0.5, roof=False, seed=4)
-    cal = BlurCalibration("auto", refresh_sets=3)
+    cal = BlurCalibration("auto")
+    got = [cal.update(without.frames, without.shifts).source for _ in range(3)]
+    got.append(cal.update(with_edge.frames, with_edge.shifts).source)
+    assert got == ["fallback"] * 3 + ["edges"]
     dues = []
-    for _ in range(7):
+    for _ in range(11):  # then every 10th set, edges in view or not
         dues.append(cal.due)
         cal.update(without.frames if dues[-1] else [], without.shifts)
-    assert dues == [True, False, False, True, False, False, True]
+    assert dues == [False] * 9 + [True, False]
+    assert cal.current.source == "edges"  # a set without edges does not discard it
+
+
+def test_calibration_says_when_it_measures_so_frames_are_prepared_only_then(crops):
+    without = flight(crops, "crop_rows", 2, 0.5, roof=False, seed=4)
+    for search, want in ((3, [True, False, False, True, False, False, True]), (1, [True] * 7)):
+        cal = BlurCalibration("auto", refresh_sets=5, search_sets=search)
+        dues = []
+        for _ in range(7):
+            dues.append(cal.due)
+            cal.update(without.frames if dues[-1] else [], without.shifts)
+        assert dues == want, search
     assert not BlurCalibration("0.3").due
 
 

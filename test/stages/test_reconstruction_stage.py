@@ -386,17 +386,23 @@ def test_motion_blur_fit_uses_stamps_and_the_alignment():
         ReconstructionStage(exposure_s=0.5)  # beyond 0.1 s
 
 
-def test_a_given_blur_the_edges_contradict_is_replaced_with_a_warning():
-    """blur_sigma "0.7" on frames of a true 0.3 px with a roof in view: measured, warned, used."""
+def _degraded_set(crop, roof, t0, blur=0.5):
+    """Return a flight of 8 independent-model frames from ``t0`` and its (Shift, Aligned)."""
     from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
 
-    sc = scene_crop(load_crop("crop_road"), 2, 128, 8, (240, 240))
-    fl = degrade(sc, 2, shift_layout("random", 2, seed=3), 0.3, roof=True, seed=4, margin=8)
-    ref = Frame(T0, fl.frames[0])
+    sc = scene_crop(load_crop(crop), 2, 128, 8, (240, 240))
+    fl = degrade(sc, 2, shift_layout("random", 2, seed=3), blur, roof=roof, seed=4, margin=8)
+    ref = Frame(t0, fl.frames[0])
     pairs = []
     for k in range(1, 8):
-        a = Aligned(T0 + k * DT, fl.frames[k], np.ones((128, 128), bool), ref, np.eye(3))
-        pairs.append((Shift(T0 + k * DT, -1, *map(float, fl.shifts[k]), 0.0, 0.01, 0.01), a))
+        a = Aligned(t0 + k * DT, fl.frames[k], np.ones((128, 128), bool), ref, np.eye(3))
+        pairs.append((Shift(t0 + k * DT, -1, *map(float, fl.shifts[k]), 0.0, 0.01, 0.01), a))
+    return fl, pairs
+
+
+def test_a_given_blur_the_edges_contradict_is_replaced_with_a_warning():
+    """blur_sigma "0.7" on frames of a true 0.3 px with a roof in view: measured, warned, used."""
+    fl, pairs = _degraded_set("crop_road", True, T0, blur=0.3)
     problems = []
     stage = ReconstructionStage(n_frames=8, blur_sigma="0.7")
     stage.on_problem = lambda level, msg: problems.append((level, msg))
@@ -405,6 +411,22 @@ def test_a_given_blur_the_edges_contradict_is_replaced_with_a_warning():
     assert any(lvl == "warn" and "over-deconvolve" in m for lvl, m in problems), problems
     p_sr, p_bic = gain_over_bicubic(sr.image, fl.frames[0], fl.truth, 2, border=8)
     assert p_sr - p_bic > 3.0
+
+
+@pytest.mark.parametrize("search_sets", [1, 10])
+def test_auto_blur_picks_up_the_first_edge_the_flight_reaches(search_sets):
+    """A set without edges, then one with a roof: measured at once (default), or 10 sets on."""
+    stage = ReconstructionStage(n_frames=8, blur_sigma="auto", blur_search_sets=search_sets)
+    flight = [("crop_rows", False), ("crop_road", True)]
+    got = []
+    for k, (crop, roof) in enumerate(flight):
+        for s, a in _degraded_set(crop, roof, T0 + 10 * k * DT)[1]:
+            got += [(sr.blur_source, sr.blur_sigma) for sr in stage.add(s, a)]
+    assert [src for src, _ in got] == ["fallback", "edges" if search_sets == 1 else "fallback"]
+    if search_sets == 1:
+        assert 0.4 <= got[1][1] <= 0.55, got  # true 0.5 px, biased low
+    stage.configure(blur_search_sets=1)  # the schedule follows a run-time change
+    assert stage.blur.search_sets == 1 and stage.blur.due == (search_sets == 10)
 
 
 def test_release_memory_trims_the_heap_after_each_set_and_leaves_the_image_alone(seq):

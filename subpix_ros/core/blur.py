@@ -207,7 +207,7 @@ def estimate_blur(
     motion = (0.0, 0.0) if motion_blur is None else (float(motion_blur[0]), float(motion_blur[1]))
     per_edge, why = _measure_edges(arrs, sh, rois, noise, masks, motion, boxes)
     if not per_edge:
-        common = max(set(why), key=why.count) if why else "no straight edge found"
+        common = max(why, key=why.count) if why else "no straight edge found"  # ties: first
         return BlurEstimate(
             fallback,
             "fallback",

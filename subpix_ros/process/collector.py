@@ -214,6 +214,7 @@ class _Collector:
             "reason": str(getattr(sr, "reason", "") or ""),
             "blur_sigma": getattr(sr, "blur_sigma", None),
             "blur_source": getattr(sr, "blur_source", None),
+            "blur_reason": str(getattr(getattr(sr, "result", None), "blur_reason", "") or ""),
             "superres": f"superres/{stamp}.png",
             "bicubic": f"bicubic/{stamp}.png",
             "shape": list(image.shape),

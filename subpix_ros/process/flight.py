@@ -506,6 +506,7 @@ class _FlightRun:
             f"{frames['skipped']} skipped, {frames['dropped']} dropped, "
             f"{frames['shifts']} shifts, {len(collector.sets) - len(fell)} super-resolved"
             + (f" and {len(fell)} bicubic fallbacks" if fell else "")
+            + _blur_words(summary["blur"])
         )
         problems = self.problems
         if problems:
@@ -525,6 +526,18 @@ class _FlightRun:
         )
         res.__dict__["_crops"] = self.collector.crops
         return res
+
+
+def _blur_words(blur: dict) -> str:
+    """Say the optics blur of the flight's sets in a few words for its one line ('' if none)."""
+    edges, used, n = blur.get("edges_px"), blur.get("used_px"), blur.get("sets_by_source", {})
+    if edges is not None:
+        return f" (optics blur {edges:.3f} px from edges)"
+    if used is None:
+        return ""
+    if n.get("fallback"):
+        return f" (optics blur: fallback {used[0]:.2f} px, no straight edge)"
+    return f" (optics blur {used[0]:.3f} px given)"
 
 
 def _as_json(data: Any) -> Any:

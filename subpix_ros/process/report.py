@@ -141,6 +141,7 @@ def _header(summary: dict, timing: dict) -> list[str]:
                     f"{fr.get('skipped', 0)} skipped, {fr.get('dropped', 0)} dropped; "
                     f"{fr.get('shifts', 0)} shifts",
                 ],
+                ["optics blur", (summary.get("blur") or {}).get("note") or "-"],
                 [
                     "processing time",
                     f"{_num(timing.get('wall_s'), '{:.2f}')} s wall "

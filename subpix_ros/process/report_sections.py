@@ -259,6 +259,12 @@ def _section_sets(
             + "</h3>"
         )
         out.append(head)
+        if s.get("blur_sigma") is not None:
+            out.append(
+                f"<p>Optics blur {s['blur_sigma']:.3f} px ({_esc(s.get('blur_source'))}"
+                + (f": {_esc(s.get('blur_reason'))}" if s.get("blur_reason") else "")
+                + ").</p>"
+            )
         if "psnr_sr_db" in s:
             out.append(
                 f"<p>Against the rendered truth: PSNR super-resolved {s['psnr_sr_db']:.2f} dB, "

@@ -36,6 +36,53 @@ def _input_problems(flight: Flight) -> list[str]:
     return problems
 
 
+def blur_summary(sets: list[dict]) -> dict:
+    """Summarise the optics blur the flight's sets were reconstructed with.
+
+    Parameters
+    ----------
+    sets : list of dict
+        ``summary.json``'s sets (``blur_sigma`` in input px, ``blur_source``, ``blur_reason``).
+
+    Returns
+    -------
+    dict
+        ``sets_by_source`` (sets per source: ``edges``, ``fallback``, ``parameter``),
+        ``edges_px`` (the last blur measured on straight edges, input px, or None),
+        ``used_px`` ([least, largest] used, or None) and ``note``: one sentence for the
+        operator, saying where the blur came from and, when it was measured, that it can be
+        given as ``blur_sigma`` for this camera's flights without straight edges.
+    """
+    solved = [st for st in sets if st.get("blur_sigma") is not None]
+    by_source = Counter(str(st.get("blur_source")) for st in solved)
+    edges = [st for st in solved if st.get("blur_source") == "edges"]
+    used = sorted(float(st["blur_sigma"]) for st in solved)
+    measured = float(edges[-1]["blur_sigma"]) if edges else None
+    if not solved:
+        note = "no set was reconstructed with an optics model"
+    elif measured is not None:
+        note = (
+            f"measured on straight edges ({len(edges)} of {len(solved)} sets): "
+            f"{measured:.3f} px, biased low; for this camera's flights without straight edges "
+            f"give blur_sigma: {measured:.3f} (it is checked against any edges they have)"
+        )
+    elif by_source.get("fallback"):
+        note = (
+            f"no usable straight edge in this flight: {by_source['fallback']} of "
+            f"{len(solved)} sets used the fallback {used[0]:.2f} px, safe but a smaller gain "
+            "where the camera is blurrier; a blur measured on another flight of this camera "
+            "(its report's optics blur line) or a lab calibration can be given as blur_sigma"
+        )
+    else:
+        note = f"given as blur_sigma: {used[0]:.3f} px ({solved[-1].get('blur_reason') or 'given'})"
+    return {
+        "sets_by_source": dict(sorted(by_source.items())),
+        "edges_px": measured,
+        "used_px": [used[0], used[-1]] if used else None,
+        "note": note,
+    }
+
+
 def _stage_stats(run: _FlightRun) -> dict:
     """Each stage's statistics as ``summary.json`` has them (no timing keys)."""
     return {
@@ -87,6 +134,7 @@ def _summary(run: _FlightRun, mosaic_info: dict) -> dict:
         },
         "references": collector.references,
         "sets": collector.sets,
+        "blur": blur_summary(collector.sets),
         "mosaic": mosaic_info,
         "stages": stage_stats,
         "warnings": {

@@ -110,6 +110,14 @@ def test_sample_flight_products(processed, sample_bags):
         bic = cv2.imread(str(d / st["bicubic"]), cv2.IMREAD_UNCHANGED)
         assert sr.dtype == np.uint8 and sr.shape == bic.shape == (896, 896, 3)
         assert st["gain_db"] > 3.0, st  # PSNR against truth_hr.png, beside the bicubic reference
+        assert st["blur_source"] == "fallback" and st["blur_reason"].startswith("no usable edge")
+    # a field crop without a straight edge: said per set, for the flight, and in its line
+    assert s["blur"]["sets_by_source"] == {"fallback": len(s["sets"])}
+    assert s["blur"]["note"].startswith("no usable straight edge in this flight")
+    assert "optics blur: fallback 0.20 px, no straight edge" in r.stdout
+    html = (d / "report.html").read_text()
+    assert "Optics blur 0.200 px (fallback: no usable edge" in html
+    assert "<td>optics blur</td><td>no usable straight edge" in html
     assert (out / "seneca" / "mosaic.png").is_file()
     mos = _summary(out / "seneca")["mosaic"]
     assert mos["written"] and len(mos["footprints"]) == 9

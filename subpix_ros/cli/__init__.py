@@ -35,6 +35,7 @@ MODULES = (
     "mosaic",
     "superres",
     "mtf",
+    "blur",
 )
 
 

@@ -48,6 +48,7 @@ __all__ = [
     "spectral_cap",
     "BlurCalibration",
     "check_given_blur",
+    "pool_estimates",
 ]
 
 BLUR_SIGMA_MAX = 3.0  # largest blur (input px) accepted as a setting
@@ -424,6 +425,67 @@ def check_given_blur(given: float, measured: BlurEstimate) -> BlurEstimate:
             reason=f"given (edges measure {measured.raw:.3f} +- {unc:.3f} px: consistent)",
         )
     return BlurEstimate(float(given), "parameter", reason="given")
+
+
+def pool_estimates(estimates: Sequence[BlurEstimate]) -> BlurEstimate:
+    """Pool blur estimates of independent frames (other scenes, other moments) into one.
+
+    Parameters
+    ----------
+    estimates : sequence of BlurEstimate
+        :func:`estimate_blur` of each frame (or set); only those of source "edges" count.
+
+    Returns
+    -------
+    BlurEstimate
+        Source "edges": ``sigma = max(0, r - u)`` with the pooled ``raw`` r and
+        ``uncertainty`` u (input px), ``n_edges`` the pooled estimates' edges,
+        ``fill_factor`` the largest of theirs; "fallback" (:data:`FALLBACK_SIGMA`) when no
+        estimate has edges.
+
+    Notes
+    -----
+    The camera's blur is one number; a scene's edges are never sharper than the camera
+    makes them, so the lowest raw value ``r_lo`` (uncertainty ``u_lo``) bounds it. As
+    :func:`_pool_edges` does for the edges of one set: the estimates with
+    ``r_i <= r_lo + 2 hypot(u_i, u_lo)`` are averaged with weights ``w_i = 1 / u_i^2``,
+    ``r = min(sum w_i r_i / sum w_i, r_lo + 2 u_lo)``, and ``u`` is the larger of
+    ``1 / sqrt(sum w_i)`` and the weighted spread over ``sqrt(n)``. The result is biased
+    low by one ``u``, as every edge estimate is (over-estimating the blur costs far more
+    than under-estimating it).
+    """
+    usable = [
+        e
+        for e in estimates
+        if e.source == "edges" and np.isfinite(e.raw) and np.isfinite(e.uncertainty)
+    ]
+    if not usable:
+        return BlurEstimate(
+            FALLBACK_SIGMA,
+            "fallback",
+            reason=f"no usable edge in {len(estimates)} frames; fallback {FALLBACK_SIGMA:.2f} px",
+        )
+    r = np.array([e.raw for e in usable])
+    u = np.maximum(np.array([e.uncertainty for e in usable]), 0.005)
+    lo = int(np.argmin(r))
+    group = r <= r[lo] + 2.0 * np.hypot(u, u[lo])
+    rg, ug = r[group], u[group]
+    w = 1.0 / ug**2
+    mean = float(np.sum(w * rg) / w.sum())
+    spread = float(np.sqrt(np.sum(w * (rg - mean) ** 2) / w.sum()))
+    unc = max(float(1.0 / np.sqrt(w.sum())), spread / np.sqrt(rg.size) if rg.size > 1 else 0.0)
+    raw = min(mean, float(r[lo] + 2.0 * u[lo]))
+    pooled = [e for e, g in zip(usable, group) if g]
+    return BlurEstimate(
+        max(0.0, raw - unc),
+        "edges",
+        uncertainty=unc,
+        raw=raw,
+        n_edges=sum(e.n_edges for e in pooled),
+        reason=f"{len(pooled)} of {len(estimates)} frames' edge estimates pooled "
+        f"({raw:.3f} +- {unc:.3f} px), minus one standard error",
+        fill_factor=max(e.fill_factor for e in pooled),
+    )
 
 
 class BlurCalibration:

@@ -14,7 +14,13 @@ import pytest
 from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
 from benchmarks.flight_eval import est_shifts as _est_shifts
 from benchmarks.flight_eval import gain
-from subpix_ros.core.blur import BlurCalibration, BlurEstimate, estimate_blur, parse_blur_sigma
+from subpix_ros.core.blur import (
+    BlurCalibration,
+    BlurEstimate,
+    estimate_blur,
+    parse_blur_sigma,
+    pool_estimates,
+)
 from subpix_ros.core.blur_edges import edge_misfit, edge_sigma
 from subpix_ros.core.mtf import gaussian_pixel_mtf
 from subpix_ros.core.superres import reconstruct
@@ -349,3 +355,32 @@ def test_a_given_blur_clearly_above_the_edges_is_replaced_and_said(crops):
     assert check_given_blur(0.7, estimate_blur(plain.frames, plain.shifts)).sigma == 0.7
     # and without the check (the default) the frames are not looked at
     assert BlurCalibration("0.7").update([], None).sigma == 0.7
+
+
+# ------------------------------------------------------------------ pooling independent frames
+
+
+def _edges(raw, unc, n=2, fill=1.0):
+    return BlurEstimate(max(0.0, raw - unc), "edges", unc, raw, n, "", fill)
+
+
+def test_pooled_frames_follow_the_sharpest_consistent_estimates():
+    # 0.50 +- 0.02 and 0.52 +- 0.02 agree; 0.90 (soft scene edges) is left out
+    p = pool_estimates([_edges(0.50, 0.02), _edges(0.90, 0.02), _edges(0.52, 0.02, fill=0.9)])
+    assert p.source == "edges" and p.n_edges == 4 and p.fill_factor == 1.0  # the widest
+    assert p.raw == pytest.approx(0.51) and p.uncertainty == pytest.approx(0.02 / np.sqrt(2))
+    assert p.sigma == pytest.approx(0.51 - 0.02 / np.sqrt(2))  # biased low by one error
+    assert "2 of 3 frames" in p.reason
+    # a widely scattered group: the spread over sqrt(n) is the error, not the weights alone
+    q = pool_estimates([_edges(0.40, 0.05), _edges(0.50, 0.05)])
+    assert q.raw == pytest.approx(0.45) and q.uncertainty == pytest.approx(0.05 / np.sqrt(2))
+    assert pool_estimates([_edges(0.5, 0.02, fill=0.9)] * 2).fill_factor == 0.9
+    one = pool_estimates([_edges(0.3, 0.01)])
+    assert one.raw == pytest.approx(0.3) and one.sigma == pytest.approx(0.29)
+
+
+def test_pooling_frames_without_edges_is_the_fallback_and_says_so():
+    fb = BlurEstimate(0.2, "fallback", reason="no usable edge")
+    p = pool_estimates([fb, fb])
+    assert p.source == "fallback" and p.sigma == 0.2 and "2 frames" in p.reason
+    assert pool_estimates([]).source == "fallback"

@@ -70,8 +70,8 @@ def blur_summary(sets: list[dict]) -> dict:
         note = (
             f"no usable straight edge in this flight: {by_source['fallback']} of "
             f"{len(solved)} sets used the fallback {used[0]:.2f} px, safe but a smaller gain "
-            "where the camera is blurrier; a blur measured on another flight of this camera "
-            "(its report's optics blur line) or a lab calibration can be given as blur_sigma"
+            "where the camera is blurrier; a blur measured once (subpix blur on photographs "
+            "of a slanted-edge target or on a flight over roofs) can be given as blur_sigma"
         )
     else:
         note = f"given as blur_sigma: {used[0]:.3f} px ({solved[-1].get('blur_reason') or 'given'})"

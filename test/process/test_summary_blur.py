@@ -21,7 +21,7 @@ def test_a_flight_without_edges_says_it_used_the_fallback_and_what_to_do():
     b = blur_summary([_set(0.2, "fallback", "no usable edge"), _set(0.2, "fallback")])
     assert b["edges_px"] is None and b["sets_by_source"] == {"fallback": 2}
     assert b["note"].startswith("no usable straight edge in this flight: 2 of 2 sets")
-    assert "lab calibration" in b["note"]
+    assert "subpix blur" in b["note"]
     assert _blur_words(b) == " (optics blur: fallback 0.20 px, no straight edge)"
 
 

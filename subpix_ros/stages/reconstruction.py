@@ -113,8 +113,9 @@ PARAMS = (
         "optics blur std of the model, input px: 'auto' (measured on straight edges in the "
         "frames, looked for every blur_search_sets sets until one is found, then refreshed "
         "every 10 sets, biased low; a low fallback until an edge is seen) or a "
-        f"number in 0..{BLUR_SIGMA_MAX:g} (a calibration, e.g. from subpix blur; replaced, with a warning, by the "
-        "edges' measurement where that is lower by more than max(0.1 px, 3 standard errors))",
+        f"number in 0..{BLUR_SIGMA_MAX:g} (a calibration, e.g. from subpix blur; replaced, "
+        "with a warning, by the edges' measurement where that is lower by more than "
+        "max(0.1 px, 3 standard errors))",
         validate=_blur_setting_error,
     ),
     Spec(

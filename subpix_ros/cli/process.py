@@ -40,10 +40,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("-o", "--out", required=True, metavar="OUTDIR", help="output folder")
     parser.add_argument(
         "--params",
-        default=None,
+        action="append",
+        default=[],
         metavar="FILE.yaml",
-        help="stage parameters (config/*.yaml layout: node: ros__parameters: ...); default: the "
-        "nodes' defaults",
+        help="stage parameters (config/*.yaml layout: node: ros__parameters: ...); repeatable, "
+        "a later file's values over an earlier one's (e.g. --params config/bench.yaml "
+        "--params blur.yaml); default: the nodes' defaults",
     )
     parser.add_argument(
         "--jobs", type=int, default=1, metavar="N", help="bags processed in parallel (default 1)"
@@ -87,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     """Process the given bags (or folders of bags) into products and reports."""
     from subpix_ros.process.batch import Progress, interrupt_on_signals, run_batch
     from subpix_ros.process.inputs import InputError, bag_name
-    from subpix_ros.process.params import check_params, live_only_notes, load_params
+    from subpix_ros.process.params import check_params, live_only_notes, load_params_files
     from subpix_ros.runtime import favour_throughput
 
     favour_throughput()  # a batch job: page faults cost more than resident memory here
@@ -95,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     if args.jobs < 1:
         raise CliError(f"--jobs must be >= 1, got {args.jobs}")
     try:
-        params = load_params(args.params)
+        params = load_params_files(args.params)
         check_params(params)
     except InputError as exc:
         raise CliError(str(exc)) from None

@@ -21,6 +21,7 @@ _EXPORTS = {
     "run_batch": "batch",
     "interrupt_on_signals": "batch",
     "load_params": "params",
+    "load_params_files": "params",
     "check_params": "params",
     "pipeline_params": "params",
     "ProductWriter": "products",

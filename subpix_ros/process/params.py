@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 from subpix_ros.process.inputs import InputError
 
 __all__ = [
     "EXPECTED_SHIFT_PARAMS",
     "load_params",
+    "load_params_files",
     "pipeline_params",
     "check_params",
     "live_only_notes",
@@ -47,6 +49,19 @@ def load_params(path: str | Path | None) -> dict[str, dict]:
         if not isinstance(body, dict):
             raise InputError(f"parameters {path}: {node} is not a mapping")
         out[str(node).lstrip("/")] = dict(body)
+    return out
+
+
+def load_params_files(paths: Sequence[str | Path]) -> dict[str, dict]:
+    """Stage parameters by node name from several files, each on top of the ones before.
+
+    As several ``--params-file`` of a ROS node: a later file's value of a node's parameter
+    replaces an earlier one's; the others stay (:func:`load_params` reads each).
+    """
+    out: dict[str, dict] = {}
+    for path in paths:
+        for node, body in load_params(path).items():
+            out.setdefault(node, {}).update(body)
     return out
 
 

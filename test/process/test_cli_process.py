@@ -646,3 +646,29 @@ def test_sets_that_fell_back_are_said_in_the_line_and_not_counted_as_super_resol
     line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith("subpixel: "))
     assert f"0 super-resolved and {n} bicubic fallbacks" in line, line
     assert f"{n} of {n} sets fell back to bicubic (bicubic upscale of the reference" in line, line
+
+
+def test_a_measured_blur_given_in_a_second_params_file_is_used_and_said(
+    processed, sample_bags, tmp_path
+):
+    """The `subpix blur` route: its parameter file after the flight's own, as with --params-file.
+
+    The sample flight is rendered with 0.4 px and shows no straight edge: ``auto`` keeps the
+    fallback (0.2 px); told 0.4 by a second file, every set uses it and gains more.
+    """
+    blur = tmp_path / "blur.yaml"  # the layout `subpix blur --yaml` writes
+    blur.write_text('reconstruction_node:\n  ros__parameters:\n    blur_sigma: "0.400"\n')
+    out = tmp_path / "out"
+    r = _run(str(sample_bags / "subpixel"), "-o", str(out), "--params", DEMO, "--params", str(blur))
+    assert r.returncode == 0, r.stderr
+    s = _summary(out / "subpixel")
+    rec = s["parameters"]["reconstruction_node"]
+    assert rec["blur_sigma"] == "0.400" and rec["n_frames"] == 8  # demo.yaml's stay
+    assert s["blur"]["note"].startswith("given as blur_sigma: 0.400 px")
+    assert "(optics blur 0.400 px given)" in r.stdout
+    auto = _summary(processed[0] / "subpixel")
+    assert {st["blur_source"] for st in auto["sets"]} == {"fallback"}
+    assert [st["blur_source"] for st in s["sets"]] == ["parameter"] * len(auto["sets"])
+    given_gain = np.median([st["gain_db"] for st in s["sets"]])
+    auto_gain = np.median([st["gain_db"] for st in auto["sets"]])
+    assert given_gain > auto_gain + 2.0, (given_gain, auto_gain)

@@ -3,6 +3,7 @@
 import subprocess
 
 import cv2
+import numpy as np
 import pytest
 import yaml
 from conftest import subpix_cmd
@@ -49,6 +50,9 @@ def test_images_give_a_low_biased_blur_and_a_parameter_file(images, tmp_path):
     assert [ln.split(":")[0] for ln in lines[:3]] == [p.name for p in images]  # one per image
     assert "no usable edge" in lines[2]  # the crop without a roof
     assert "camera blur: blur_sigma" in r.stdout and "2 of 3 frames" in r.stdout
+    assert (
+        " px of 128x128 frames " in r.stdout and "# subpix blur, 128x128 frames" in out.read_text()
+    )
     value = yaml.safe_load(out.read_text())["reconstruction_node"]["ros__parameters"]["blur_sigma"]
     sigma = parse_blur_sigma(value)
     assert TRUE_BLUR - 0.15 <= sigma <= TRUE_BLUR + 0.02, sigma  # never much above the truth
@@ -69,12 +73,18 @@ def test_a_bag_is_sampled_across_its_frames(tmp_path):
     assert TRUE_BLUR - 0.15 <= sigma <= TRUE_BLUR + 0.02, sigma
 
 
-def test_no_edge_anywhere_is_a_one_line_error_that_says_what_to_photograph(sample_bags, tmp_path):
+def test_no_edge_anywhere_is_a_one_line_error_that_says_what_to_photograph(
+    sample_bags, images, tmp_path
+):
     r = _run(str(sample_bags / "subpixel"))  # a field crop without a straight edge
     assert r.returncode != 0
     err = r.stderr.strip().splitlines()
     assert len(err) == 1 and "no usable straight edge in 12 frames" in err[0]
     assert "slanted" not in err[0] and "tilted 5-10 deg" in err[0]
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((64, 80), np.uint8))
+    r = _run(str(images[0]), str(small))  # pixels of another size: another blur in px
+    assert r.returncode != 0 and "small.png is 80x64, the frames before it 128x128" in r.stderr
     text = tmp_path / "notes.txt"
     text.write_text("not an image")
     for args, msg in (

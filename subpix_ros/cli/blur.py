@@ -33,7 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Measure the optics blur (Gaussian std, input px) on straight edges in "
         "images or in a flight bag's camera frames, pool the frames' estimates (biased low) "
         "and print the blur_sigma to give the reconstruction for this camera's flights "
-        "without straight edges.",
+        "without straight edges. The blur is in pixels of the frames measured: measure at the "
+        "resolution and focus the flight's camera topic delivers.",
     )
     parser.add_argument(
         "inputs",
@@ -123,7 +124,15 @@ def run(args: argparse.Namespace) -> int:
     if args.max_frames < 1:
         raise CliError("--max-frames must be >= 1")
     estimates = []
+    size = None
     for label, frame in _frames(args):
+        this = f"{frame.shape[1]}x{frame.shape[0]}"
+        if size is not None and this != size:
+            raise CliError(
+                f"{label} is {this}, the frames before it {size}: a blur in pixels holds for one "
+                "resolution; measure at the one the flight's camera topic delivers"
+            )
+        size = this
         e = estimate_blur([frame])
         estimates.append(e)
         print(
@@ -136,12 +145,13 @@ def run(args: argparse.Namespace) -> int:
         )
     fill = f", pixel fill {pooled.fill_factor:.2f}" if pooled.fill_factor < 1.0 else ""
     print(
-        f"camera blur: blur_sigma {pooled.sigma:.3f} px ({pooled.reason}{fill}); give it to "
-        "the reconstruction for this camera's flights without straight edges"
+        f"camera blur: blur_sigma {pooled.sigma:.3f} px of {size} frames ({pooled.reason}{fill}); "
+        "give it to the reconstruction for this camera's flights without straight edges, at "
+        "this resolution"
     )
     if args.yaml:
         text = (
-            f"# subpix blur: {pooled.reason}\n"
+            f"# subpix blur, {size} frames: {pooled.reason}\n"
             "reconstruction_node:\n"
             "  ros__parameters:\n"
             f'    blur_sigma: "{pooled.sigma:.3f}"\n'

@@ -22,6 +22,9 @@ def test_demo_runs_to_its_flight_report(sample_bags, tmp_path):
     assert shifts and int(shifts.group(1)) >= 18 and float(shifts.group(2)) < 0.01, r.stdout
     gains = [float(g) for g in re.findall(r"([+-][0-9.]+) dB \(", r.stdout)]
     assert gains and min(gains) > 1.0, r.stdout
+    # the field flight shows no straight edge: the blur used, and where a measured one comes from
+    assert "optics blur used: 0.200 px (fallback: no usable edge" in r.stdout, r.stdout
+    assert "measure the camera once with `subpix blur`" in r.stdout, r.stdout
     report = re.search(r"flight report: (\S+)", r.stdout)
     assert report, r.stdout
     html = open(report.group(1)).read()

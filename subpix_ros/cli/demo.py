@@ -234,6 +234,11 @@ def _summary_text(summary: dict, inp: _Inputs, n_sr: int) -> str:
             f"  optics blur used: {b['sigma_px']:.3f} px ({b['source']}: {b['reason']}); "
             f"the flight was rendered with {b['rendered_px']} px"
         )
+        if b["source"] == "fallback":
+            lines.append(
+                "  (no straight edge in this flight: measure the camera once with `subpix blur` "
+                "and give the result as blur_sigma; see the README's blur section)"
+            )
     lines.append(f"  seneca strip: 9 frames in, mosaic {summary.get('mosaic_px', 'not produced')}")
     lines.append(
         "  time per stage (median), subpixel flight (ms, 448x448 in): "

@@ -284,6 +284,18 @@ def _measure_edges(
     return per_edge, why
 
 
+def _consistent_with_lowest(vals: np.ndarray, unc: np.ndarray) -> np.ndarray:
+    """Return which values lie within ``2 hypot(u_i, u_lo)`` of the lowest one (bool array)."""
+    lo = int(np.argmin(vals))
+    return vals <= vals[lo] + 2.0 * np.hypot(unc, unc[lo])
+
+
+def _weighted_mean_spread(vals: np.ndarray, wts: np.ndarray) -> tuple[float, float]:
+    """Return the weighted mean of ``vals`` and their weighted standard deviation about it."""
+    mean = float(np.sum(wts * vals) / wts.sum())
+    return mean, float(np.sqrt(np.sum(wts * (vals - mean) ** 2) / wts.sum()))
+
+
 def _pool_edges(
     per_edge: list[tuple[float, float, float, list, float]],
     cap: float,
@@ -327,8 +339,7 @@ def _pool_edges(
     edges = [e for e, k in zip(per_edge, keep) if k]
     vals, ses, misfits = vals[keep], ses[keep], misfits[keep]
     unc_edge = np.hypot(ses, misfits)  # frames' scatter and the model misfit
-    lo = int(np.argmin(vals))
-    group = vals <= vals[lo] + 2.0 * np.hypot(unc_edge, unc_edge[lo])
+    group = _consistent_with_lowest(vals, unc_edge)
     fill = 1.0
     if fit_fill:
         fill = max(e[2] for e, g in zip(edges, group) if g)
@@ -341,8 +352,7 @@ def _pool_edges(
         unc_edge = np.hypot(ses, misfits)
     v, s, u = vals[group], ses[group], unc_edge[group]
     wts = 1.0 / u**2
-    raw = float(np.sum(wts * v) / wts.sum())
-    spread = float(np.sqrt(np.sum(wts * (v - raw) ** 2) / wts.sum()))
+    raw, spread = _weighted_mean_spread(v, wts)
     unc = float(
         max(
             np.sqrt(np.sum(wts**2 * s**2)) / wts.sum(),
@@ -467,13 +477,12 @@ def pool_estimates(estimates: Sequence[BlurEstimate]) -> BlurEstimate:
         )
     r = np.array([e.raw for e in usable])
     u = np.maximum(np.array([e.uncertainty for e in usable]), 0.005)
-    lo = int(np.argmin(r))
-    group = r <= r[lo] + 2.0 * np.hypot(u, u[lo])
+    group = _consistent_with_lowest(r, u)
     rg, ug = r[group], u[group]
     w = 1.0 / ug**2
-    mean = float(np.sum(w * rg) / w.sum())
-    spread = float(np.sqrt(np.sum(w * (rg - mean) ** 2) / w.sum()))
+    mean, spread = _weighted_mean_spread(rg, w)
     unc = max(float(1.0 / np.sqrt(w.sum())), spread / np.sqrt(rg.size) if rg.size > 1 else 0.0)
+    lo = int(np.argmin(r))
     raw = min(mean, float(r[lo] + 2.0 * u[lo]))
     pooled = [e for e, g in zip(usable, group) if g]
     return BlurEstimate(

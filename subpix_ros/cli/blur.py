@@ -43,12 +43,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="image files, or a rosbag2 bag (directory, .mcap or .db3)",
     )
     parser.add_argument(
-        "--camera-topic", default=None, help="a bag's image topic (default: picked as by process)"
+        "--camera-topic",
+        default=None,
+        metavar="T",
+        help="a bag's image topic (default: picked as by process)",
     )
     parser.add_argument(
         "--max-frames",
         type=int,
         default=20,
+        metavar="N",
         help="frames measured per bag, spread evenly over it (default 20)",
     )
     parser.add_argument(

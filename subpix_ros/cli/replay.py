@@ -46,6 +46,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "discovered would miss the first messages",
     )
     parser.add_argument(
+        "--wait-count",
+        type=int,
+        default=1,
+        metavar="N",
+        help="with --wait-for: wait until each of those topics has N subscribers (e.g. the "
+        "camera read by the registration, mosaic and monitor nodes: 3), so that none misses "
+        "the first messages while still being discovered (default 1)",
+    )
+    parser.add_argument(
         "--no-wait", action="store_true", help="start at once, matched subscribers or not"
     )
     parser.add_argument(
@@ -87,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.ack_timeout >= 0:
         raise CliError(f"--ack-timeout must be >= 0, got {args.ack_timeout}")
+    if args.wait_count < 1 or (args.wait_count > 1 and not args.wait_for):
+        raise CliError(f"--wait-count {args.wait_count}: needs --wait-for and N >= 1")
     remap = {}
     for r in args.remap:
         if ":=" not in r:
@@ -113,9 +124,13 @@ def run(args: argparse.Namespace) -> int:
             ]
             if unknown:
                 raise CliError(f"--wait-for topic(s) not replayed: {', '.join(unknown)}")
-            if args.wait_for and not player.wait_for_subscribers(args.wait_for, args.wait_timeout):
+            if args.wait_for and not player.wait_for_subscribers(
+                args.wait_for, args.wait_timeout, args.wait_count
+            ):
+                few = "no" if args.wait_count == 1 else f"fewer than {args.wait_count}"
                 raise CliError(
-                    f"no subscriber on {', '.join(args.wait_for)} within {args.wait_timeout:.0f} s"
+                    f"{few} subscribers on {', '.join(args.wait_for)} within "
+                    f"{args.wait_timeout:.0f} s"
                 )
             waits = not args.wait_for and not args.no_wait
             if waits and not player.wait_for_any_subscriber(args.wait_timeout):

@@ -146,12 +146,16 @@ class Player:
                 return False
         return True
 
-    def wait_for_subscribers(self, topics: Sequence[str], timeout_s: float = 10.0) -> bool:
-        """Block until every topic in ``topics`` has a matched subscriber."""
+    def wait_for_subscribers(
+        self, topics: Sequence[str], timeout_s: float = 10.0, count: int = 1
+    ) -> bool:
+        """Block until every topic in ``topics`` has ``count`` matched subscribers (or more)."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline and not self._stop.is_set():
             pubs = {**self.publishers, "/clock": self._clock_pub}
-            if all(pubs[t] is not None and pubs[t].get_subscription_count() > 0 for t in topics):
+            if all(
+                pubs[t] is not None and pubs[t].get_subscription_count() >= count for t in topics
+            ):
                 return True
             time.sleep(0.05)
         return False

@@ -462,3 +462,53 @@ def test_replay_without_subscriber_goes_ahead_after_the_wait(sample_bags):
     assert r.returncode == 0, r.stderr
     assert "no subscriber on any replayed topic within 1 s: replaying anyway" in r.stderr
     assert "replayed 24 messages" in r.stdout
+
+
+def test_replay_waits_until_the_topic_has_as_many_readers_as_asked(sample_bags, rclpy_node):
+    """--wait-count N: a second reader still being discovered does not miss the first frames.
+
+    The camera of a live pipeline has several readers (registration, mosaic, monitor); with
+    --wait-for alone the replay starts when the first is matched.
+    """
+    import rclpy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image
+
+    bag = sample_bags / "subpixel"
+    n = sum(1 for _ in read_messages(bag, ["/camera/image_raw"]))
+    topic = f"/count_{os.getpid()}_{time.monotonic_ns() % 1_000_000}/image"
+    base = ["replay", str(bag), "--topics", "/camera/image_raw"]
+    base += ["--remap", f"/camera/image_raw:={topic}", "--wait-for", "/camera/image_raw"]
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    got: list[list] = [[], []]
+    rclpy_node.create_subscription(Image, topic, got[0].append, qos, raw=True)
+    r = subprocess.run(
+        subpix_cmd(*base, "--wait-count", "3", "--wait-timeout", "3"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode != 0, r.stderr
+    assert "fewer than 3 subscribers on /camera/image_raw within 3 s" in r.stderr
+    proc = subprocess.Popen(
+        subpix_cmd(*base, "--wait-count", "2", "--wait-timeout", "60"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 4.0  # one reader only: the replay holds its first frame
+        while time.monotonic() < deadline:
+            rclpy.spin_once(rclpy_node, timeout_sec=0.05)
+        assert proc.poll() is None and got[0] == [], proc.communicate()
+        rclpy_node.create_subscription(Image, topic, got[1].append, qos, raw=True)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and min(map(len, got)) < n:
+            rclpy.spin_once(rclpy_node, timeout_sec=0.05)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert [len(g) for g in got] == [n, n]  # the late reader has every frame too
+    r = subprocess.run(subpix_cmd(*base[:4], "--wait-count", "2"), capture_output=True, text=True)
+    assert r.returncode != 0 and "--wait-count 2: needs --wait-for" in r.stderr

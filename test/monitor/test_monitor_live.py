@@ -48,8 +48,13 @@ def _spin(node, until, timeout, procs=()):
     return until()
 
 
-def _replay_cmd(sample_bags):
-    """`subpix replay` of the subpixel flight at half speed, once the camera has a reader."""
+def _replay_cmd(sample_bags, readers=1):
+    """`subpix replay` of the subpixel flight at half speed, once the camera has its readers.
+
+    With the nodes in separate processes, registration, mosaic and monitor each read the
+    camera: with one matched, the registration could still be in discovery and miss the
+    first frames (seen in a CI run: 14 of 21 shifts), hence ``readers`` 3 there.
+    """
     return subpix_cmd(
         "replay",
         str(sample_bags / "subpixel"),
@@ -57,6 +62,8 @@ def _replay_cmd(sample_bags):
         "0.5",
         "--wait-for",
         "/camera/image_raw",
+        "--wait-count",
+        str(readers),
         "--wait-timeout",
         "60",
     )
@@ -136,7 +143,7 @@ def test_monitor_serves_the_flight(flight, sample_bags):
 
     assert _spin(node, lambda: node.count_publishers("/shift") > 0, 30, procs)
     _spin(node, lambda: False, 1.0, procs)
-    replay = subprocess.Popen(_replay_cmd(sample_bags))
+    replay = subprocess.Popen(_replay_cmd(sample_bags, readers=3))
     assert _spin(node, lambda: replay.poll() is not None, 120, procs) and replay.returncode == 0
     _spin(node, lambda: len(shifts) >= 21 and len(a.messages("/shift")) >= len(shifts), 30, procs)
 

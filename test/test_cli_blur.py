@@ -85,6 +85,17 @@ def test_no_edge_anywhere_is_a_one_line_error_that_says_what_to_photograph(
     cv2.imwrite(str(small), np.zeros((64, 80), np.uint8))
     r = _run(str(images[0]), str(small))  # pixels of another size: another blur in px
     assert r.returncode != 0 and "small.png is 80x64, the frames before it 128x128" in r.stderr
+    junk = tmp_path / "junk_frames"
+    with BagWriter(junk) as w:  # image messages that do not decode
+        for k in range(3):
+            w.write(
+                "/camera/image_raw",
+                "sensor_msgs/msg/Image",
+                k + 1,
+                b"\x00\x01\x00\x00" + b"\x07" * 20,
+            )
+    r = _run(str(junk))
+    assert r.returncode != 0 and "no frame could be decoded" in r.stderr, r.stderr
     text = tmp_path / "notes.txt"
     text.write_text("not an image")
     for args, msg in (

@@ -142,6 +142,8 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"{label}: " + (f"{e.sigma:.3f} px ({e.reason})" if e.source == "edges" else e.reason)
         )
+    if not estimates:  # a bag whose camera frames all failed to decode
+        raise CliError("no frame could be decoded: nothing measured")
     pooled = pool_estimates(estimates)
     if pooled.source != "edges":
         raise CliError(

@@ -40,7 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         nargs="+",
         default=[],
         metavar="TOPIC",
-        help="before starting, wait until these topics have a subscriber (error if "
+        help="before starting, wait until these topics (the bag's names or their --remap "
+        "names) have a subscriber (error if "
         "not within --wait-timeout); without it, wait until any replayed topic has "
         "one (replay anyway after --wait-timeout), since a subscriber still being "
         "discovered would miss the first messages",
@@ -117,15 +118,17 @@ def run(args: argparse.Namespace) -> int:
                 skip_corrupt=args.skip_corrupt,
             )
             signal.signal(signal.SIGTERM, lambda *_: player.stop())
+            published_as = {dst: src for src, dst in remap.items()}  # a remapped name is fine too
+            wait_for = [published_as.get(t, t) for t in args.wait_for]
             unknown = [
                 t
-                for t in args.wait_for
-                if t not in player.publishers and not (t == "/clock" and args.clock)
+                for t, b in zip(args.wait_for, wait_for)
+                if b not in player.publishers and not (b == "/clock" and args.clock)
             ]
             if unknown:
                 raise CliError(f"--wait-for topic(s) not replayed: {', '.join(unknown)}")
-            if args.wait_for and not player.wait_for_subscribers(
-                args.wait_for, args.wait_timeout, args.wait_count
+            if wait_for and not player.wait_for_subscribers(
+                wait_for, args.wait_timeout, args.wait_count
             ):
                 few = "no" if args.wait_count == 1 else f"fewer than {args.wait_count}"
                 raise CliError(

@@ -478,7 +478,7 @@ def test_replay_waits_until_the_topic_has_as_many_readers_as_asked(sample_bags, 
     n = sum(1 for _ in read_messages(bag, ["/camera/image_raw"]))
     topic = f"/count_{os.getpid()}_{time.monotonic_ns() % 1_000_000}/image"
     base = ["replay", str(bag), "--topics", "/camera/image_raw"]
-    base += ["--remap", f"/camera/image_raw:={topic}", "--wait-for", "/camera/image_raw"]
+    base += ["--remap", f"/camera/image_raw:={topic}", "--wait-for", topic]  # the name it has
     qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
     got: list[list] = [[], []]
     rclpy_node.create_subscription(Image, topic, got[0].append, qos, raw=True)
@@ -489,7 +489,7 @@ def test_replay_waits_until_the_topic_has_as_many_readers_as_asked(sample_bags, 
         timeout=60,
     )
     assert r.returncode != 0, r.stderr
-    assert "fewer than 3 subscribers on /camera/image_raw within 3 s" in r.stderr
+    assert f"fewer than 3 subscribers on {topic} within 3 s" in r.stderr
     proc = subprocess.Popen(
         subpix_cmd(*base, "--wait-count", "2", "--wait-timeout", "60"),
         stdout=subprocess.PIPE,

@@ -110,6 +110,35 @@ def scenes_for(k: int):
     return [(CROP_NAMES[k % n], False), (CROP_NAMES[(k + 1) % n], True)]
 
 
+def render(
+    hr, roof: bool, cell: dict, ff: float, layout_seed: int, noise_seed: int, scene_blur=0.0
+):
+    """Render one scene of a cell by the independent model: the cell's camera, fill ``ff``.
+
+    ``hr``: the crop (its centre is used); ``scene_blur``: a Gaussian (HR px) applied to the
+    scene first (a scene soft in itself); the shifts from ``layout_seed``, the noise from
+    ``noise_seed``.
+    """
+    p = cell["p"]
+    n_hr = (LR[p] + 2 * MARGIN) * p
+    off = ((768 - n_hr) // 2,) * 2
+    sc = scene_crop(hr, p, LR[p], MARGIN, off)
+    if scene_blur > 0:
+        sc = cv2.GaussianBlur(sc, (0, 0), scene_blur, borderType=cv2.BORDER_REFLECT)
+    return degrade(
+        sc,
+        p,
+        shift_layout(cell["layout"], p, seed=layout_seed),
+        cell["blur"],
+        fill_factor=ff,
+        snr_db=cell["snr"],
+        jpeg_quality=cell["jpeg"],
+        roof=roof,
+        seed=noise_seed,
+        margin=MARGIN,
+    )
+
+
 def prior_kw(prior: str | None) -> dict:
     """``reconstruct``'s keyword for an image prior (none: the code's default, any version)."""
     return {} if prior is None else {"prior": prior}
@@ -175,24 +204,7 @@ def quality(
                 line.append(" " * 54)
                 continue
             ff = FILLS[(k + j) % len(FILLS)]
-            n_hr = (LR[p] + 2 * MARGIN) * p
-            off = ((768 - n_hr) // 2,) * 2
-            sc = scene_crop(crops[crop], p, LR[p], MARGIN, off)
-            if scene_blur > 0:
-                sc = cv2.GaussianBlur(sc, (0, 0), scene_blur, borderType=cv2.BORDER_REFLECT)
-            shifts = shift_layout(cell["layout"], p, seed=100 + k)
-            fl = degrade(
-                sc,
-                p,
-                shifts,
-                cell["blur"],
-                fill_factor=ff,
-                snr_db=cell["snr"],
-                jpeg_quality=cell["jpeg"],
-                roof=roof,
-                seed=k * 7 + j,
-                margin=MARGIN,
-            )
+            fl = render(crops[crop], roof, cell, ff, 100 + k, k * 7 + j, scene_blur)
             sh = est_shifts(fl.frames)
             kw = {}
             if cell["err"]:
@@ -285,22 +297,8 @@ def flight_blur(crops, k: int, cell: dict, ff: float, frames, sh):
     """
     from subpix_ros.core.blur import BlurCalibration
 
-    p = cell["p"]
-    n_hr = (LR[p] + 2 * MARGIN) * p
-    off = ((768 - n_hr) // 2,) * 2
     crop, roof = scenes_for(k)[1]
-    earlier = degrade(
-        scene_crop(crops[crop], p, LR[p], MARGIN, off),
-        p,
-        shift_layout(cell["layout"], p, seed=300 + k),
-        cell["blur"],
-        fill_factor=ff,
-        snr_db=cell["snr"],
-        jpeg_quality=cell["jpeg"],
-        roof=roof,
-        seed=k * 7 + 5,
-        margin=MARGIN,
-    )
+    earlier = render(crops[crop], roof, cell, ff, 300 + k, k * 7 + 5)
     e_sh = est_shifts(earlier.frames)
     keep = np.isfinite(e_sh).all(axis=1)
     cal = BlurCalibration("auto")

@@ -100,6 +100,20 @@ def rendered_set(crop, seed=5):
     return render_sequence(crop[:256, :256], 2, SET_SHIFTS, 0.4, snr_db=40, seed=seed)
 
 
+def degraded_flight(crop_name, roof, blur, shift_seed, noise_seed):
+    """Render 8 frames of a real crop by the independent degradation model (not core.render).
+
+    Factor 2, 128 x 128 px frames of the crop at (240, 240), random shifts (``shift_seed``),
+    Gaussian optics of ``blur`` LR px, full pixel, 40 dB (noise ``noise_seed``); ``roof``
+    draws a sharp-edged roof in the middle.
+    """
+    from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
+
+    sc = scene_crop(load_crop(crop_name), 2, 128, 8, (240, 240))
+    shifts = shift_layout("random", 2, seed=shift_seed)
+    return degrade(sc, 2, shifts, blur, roof=roof, seed=noise_seed, margin=8)
+
+
 def scene_frames(offsets, w=960, h=720):
     """Return frames of a real Seneca scene whose content moves by ``offsets[k]``.
 

@@ -6,11 +6,9 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from conftest import subpix_cmd
+from conftest import degraded_flight, subpix_cmd
 
-from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
 from subpix_ros.core.blur import parse_blur_sigma
-from subpix_ros.data import load_crop
 from subpix_ros.io.bags import BagWriter
 from subpix_ros.nodes.payloads import image_cdr
 from subpix_ros.stages import ReconstructionStage
@@ -24,9 +22,7 @@ def _run(*args):
 
 def _frames(crop, roof, seed):
     """Frames of the independent degradation model, true blur ``TRUE_BLUR``, 40 dB."""
-    sc = scene_crop(load_crop(crop), 2, 128, 8, (240, 240))
-    shifts = shift_layout("random", 2, seed=seed)
-    return degrade(sc, 2, shifts, TRUE_BLUR, roof=roof, seed=seed, margin=8).frames
+    return degraded_flight(crop, roof, TRUE_BLUR, shift_seed=seed, noise_seed=seed).frames
 
 
 @pytest.fixture(scope="module")

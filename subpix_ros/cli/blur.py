@@ -14,10 +14,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import cv2
-import numpy as np
-
 from subpix_ros.cli import CliError
+from subpix_ros.cli._images import luma, read_image
 
 TARGET_HINT = (
     "photograph a straight dark/bright edge tilted 5-10 deg from the image axes (e.g. a black "
@@ -65,21 +63,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-def _mono(image: np.ndarray) -> np.ndarray:
-    """Return an image's luminance as float32 (colour taken as BGR)."""
-    if image.ndim == 3:
-        from subpix_ros.core.luminance import luminance
-
-        return np.asarray(luminance(image[..., :3], "bgr"), dtype=np.float32)
-    return np.asarray(image, dtype=np.float32)
-
-
 def _image_frames(path: Path):
     """Yield ``(label, mono frame)`` of one image file."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise CliError(f"cannot read {path}: not an image OpenCV can decode")
-    yield path.name, _mono(img)
+    yield path.name, luma(read_image(path))
 
 
 def _bag_frames(path: Path, camera_topic: str | None, max_frames: int):
@@ -103,7 +89,7 @@ def _bag_frames(path: Path, camera_topic: str | None, max_frames: int):
             if kind != "frame":
                 continue
             if k % step == 0:
-                yield f"{path.name} @ {item.stamp_ns * 1e-9:.3f} s", _mono(item.image)
+                yield f"{path.name} @ {item.stamp_ns * 1e-9:.3f} s", luma(item.image)
             k += 1
     except BagError as exc:
         raise CliError(f"{path}: {exc}") from None

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import cv2
 import numpy as np
 
 from subpix_ros.cli import CliError
+from subpix_ros.cli._images import luma, read_image
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -96,15 +96,9 @@ def run(args: argparse.Namespace) -> int:
     """Measure the slanted-edge MTF in the given region, print it and plot it when asked."""
     from subpix_ros.core.mtf import slanted_edge_mtf
 
-    if not Path(args.image).is_file():
-        raise CliError(f"cannot read {args.image}: no such file")
-    img = cv2.imread(args.image, cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise CliError(f"cannot read {args.image}: not an image OpenCV can decode")
+    img = read_image(args.image)
     if img.ndim == 3:
-        from subpix_ros.core.luminance import luminance
-
-        img = luminance(img[..., :3], "bgr")
+        img = luma(img)
     roi = _parse_roi(args.roi) if args.roi else None
     if args.pixel_um is not None and not args.pixel_um > 0:
         raise CliError("--pixel-um must be > 0")

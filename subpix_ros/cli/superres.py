@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from subpix_ros.cli import CliError
+from subpix_ros.cli._images import luma, read_image
 
 HELP = """Super-resolve FRAME... (first frame = reference) by METHODS.md B.
 
@@ -98,25 +99,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-def _read(path: str) -> np.ndarray:
-    if not Path(path).is_file():
-        raise CliError(f"cannot read {path}: no such file")
-    img = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise CliError(f"cannot read {path}: not an image OpenCV can decode")
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = img[..., :3]
-    return img
-
-
-def _luma(img: np.ndarray) -> np.ndarray:
-    if img.ndim == 2:
-        return img.astype(np.float64)
-    from subpix_ros.core.luminance import luminance
-
-    return luminance(img, "bgr")
-
-
 def _shifts_from_file(path: str, n: int) -> np.ndarray:
     try:
         data = json.loads(Path(path).read_text())
@@ -180,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
     ext = Path(args.output).suffix.lower()
     if ext not in (".png", ".npy", ".tif", ".tiff"):
         raise CliError(f"unsupported output type {ext or '(none)'}: use .png, .tif/.tiff or .npy")
-    imgs = [_read(f) for f in args.frames]
+    imgs = [read_image(f) for f in args.frames]
     if len({i.shape for i in imgs}) != 1:
         raise CliError(
             "frames differ in size: "
@@ -188,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
         )
     cov = None
     if args.shifts == "auto":
-        shifts, cov, keep = _auto_shifts([_luma(i) for i in imgs])
+        shifts, cov, keep = _auto_shifts([luma(i) for i in imgs])
         if len(keep) < 2:
             raise CliError("no frame could be registered to the first one")
         imgs = [imgs[k] for k in keep]

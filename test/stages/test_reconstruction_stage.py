@@ -7,7 +7,7 @@ import weakref
 
 import numpy as np
 import pytest
-from conftest import SET_SHIFTS, rendered_set
+from conftest import SET_SHIFTS, degraded_flight, rendered_set
 
 from subpix_ros.core.evaluate import gain_over_bicubic
 from subpix_ros.core.superres import estimate_peak_mb
@@ -388,10 +388,7 @@ def test_motion_blur_fit_uses_stamps_and_the_alignment():
 
 def _degraded_set(crop, roof, t0, blur=0.5):
     """Return a flight of 8 independent-model frames from ``t0`` and its (Shift, Aligned)."""
-    from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
-
-    sc = scene_crop(load_crop(crop), 2, 128, 8, (240, 240))
-    fl = degrade(sc, 2, shift_layout("random", 2, seed=3), blur, roof=roof, seed=4, margin=8)
+    fl = degraded_flight(crop, roof, blur, shift_seed=3, noise_seed=4)
     ref = Frame(t0, fl.frames[0])
     pairs = []
     for k in range(1, 8):

@@ -52,6 +52,7 @@ import argparse
 import inspect
 import json
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -248,6 +249,7 @@ def quality(
                 source=src,
                 auto_method=auto.method,
                 auto_reason=auto.reason,
+                blur_reason=str(getattr(auto, "blur_reason", "")),
                 lam=lam[p],
                 n_frames=len(frames),
             )
@@ -511,6 +513,29 @@ def summarise(rows, label_auto):
             print(
                 f"    source {src}: {s.sum()} scene-cells, error median {np.median(err[s]):+.3f} px"
             )
+        stated_uncertainty(rows)
+
+
+def stated_uncertainty(rows) -> None:
+    """Print how often the edge estimate's stated ``+-`` covers its error (full-fill cells).
+
+    The pooled value before its low bias and its uncertainty are read from ``blur_reason``
+    (``(raw +- u px``); only cells rendered with the full pixel (fill 1.0) and measured with
+    it, where the truth in the model's terms is the rendered blur itself.
+    """
+    z = []
+    for r in rows:
+        m = re.search(r"\(([0-9.]+) \+- ([0-9.]+) px", r.get("blur_reason", ""))
+        if m and r["source"] == "edges" and r["fill"] == 1.0 and r["est_fill"] == 1.0:
+            raw, unc = float(m.group(1)), float(m.group(2))
+            z.append((raw - r["blur"]) / max(unc, 1e-9))
+    if z:
+        z = np.abs(np.array(z))
+        print(
+            f"  stated uncertainty, edge estimates of full-fill cells: |raw - truth| > 2 u in "
+            f"{(z > 2).sum()} of {z.size}, > 3 u in {(z > 3).sum()} (median |z| "
+            f"{np.median(z):.2f})"
+        )
 
 
 def timing(repeats: int, priors: tuple = (None,)) -> None:

@@ -13,8 +13,8 @@ motion the blur commutes with the shifts, so the frames alone cannot tell it
   (:data:`FALLBACK_SIGMA`), because over-estimating the blur costs far more
   than under-estimating it.
 
-Every estimate is biased low on purpose: the pooled edge value minus its
-standard error. :func:`resolve_blur` turns a ``blur_sigma`` setting into a
+Every estimate is biased low on purpose: the pooled edge value minus the
+standard error of the frames' scatter. :func:`resolve_blur` turns a ``blur_sigma`` setting into a
 :class:`BlurEstimate` saying which source gave the value.
 """
 
@@ -70,7 +70,8 @@ class BlurEstimate:
     source : str
         "edges", "fallback", "parameter" (or "unused" when the method has no blur).
     uncertainty : float
-        Standard error of the pooled edge value (px; NaN otherwise).
+        Standard error of the pooled edge value ``raw`` (px; NaN otherwise): the frames'
+        scatter and each edge's misfit to the edge model (texture beside the edge).
     raw : float
         The pooled edge value before the low bias (px; NaN otherwise).
     n_edges : int
@@ -81,6 +82,10 @@ class BlurEstimate:
         The pixel aperture's width (px) the edges show and ``sigma`` was fitted with
         (:func:`~subpix_ros.core.blur_edges.edge_fill`); 1.0 (the full pixel) when not
         measured.
+    bias : float
+        The low bias ``raw - sigma`` before the floor at 0 (px): the standard error of the
+        frames' scatter alone, at most ``uncertainty``; NaN: ``uncertainty`` (an estimate made
+        by hand).
     """
 
     sigma: float
@@ -90,6 +95,12 @@ class BlurEstimate:
     n_edges: int = 0
     reason: str = ""
     fill_factor: float = 1.0
+    bias: float = float("nan")
+
+    @property
+    def low_bias(self) -> float:
+        """Return ``bias``, or ``uncertainty`` where ``bias`` is NaN (px)."""
+        return self.uncertainty if np.isnan(self.bias) else self.bias
 
 
 def parse_blur_sigma(value) -> str | float:
@@ -176,8 +187,9 @@ def estimate_blur(
     Returns
     -------
     BlurEstimate
-        Source "edges" with ``sigma = max(0, raw - uncertainty)`` and the ``fill_factor`` it
-        was fitted with, or "fallback".
+        Source "edges" with ``sigma = max(0, raw - bias)`` (``bias`` the frames' standard
+        error, ``uncertainty`` that and the edges' misfit) and the ``fill_factor`` it was
+        fitted with, or "fallback".
 
     Notes
     -----
@@ -310,9 +322,10 @@ def _pool_edges(
     ``2 hypot(u, u_lo)`` of the lowest one (full-pixel fits) are averaged with weights
     ``1 / u^2``, the mean capped at the lowest edge plus ``2 u_lo`` (a scene edge is never
     sharper than the camera makes it: the sharpest edge bounds the blur within its own
-    uncertainty). The low bias is the larger of the mean's standard error from the frames'
-    scatter, ``sqrt(sum w^2 se^2) / sum w``, and the weighted spread of the group over
-    sqrt(n); the estimate is the mean minus it. The fill factor is
+    uncertainty). The mean's standard error is the larger of ``1 / sqrt(sum w)`` (each edge's
+    frames' scatter and misfit) and the weighted spread of the group over sqrt(n). The low
+    bias is the larger of its part from the frames' scatter alone, ``sqrt(sum w^2 se^2) /
+    sum w``, and the same spread term; the estimate is the mean minus it. The fill factor is
     the largest of the group's (the widest aperture: the lowest blur); when it is below 1,
     the group's edges are refitted with it in every frame and pooled the same way
     (``fit_fill`` False: the full pixel). All edges above ``cap``: the fallback; an edge
@@ -353,25 +366,23 @@ def _pool_edges(
     v, s, u = vals[group], ses[group], unc_edge[group]
     wts = 1.0 / u**2
     raw, spread = _weighted_mean_spread(v, wts)
-    unc = float(
-        max(
-            np.sqrt(np.sum(wts**2 * s**2)) / wts.sum(),
-            spread / np.sqrt(v.size) if v.size > 1 else 0.0,
-        )
-    )
+    scatter = spread / np.sqrt(v.size) if v.size > 1 else 0.0
+    unc = float(max(1.0 / np.sqrt(wts.sum()), scatter))
+    bias = float(max(np.sqrt(np.sum(wts**2 * s**2)) / wts.sum(), scatter))  # frames' scatter
     lo_g = int(np.argmin(v))
     raw = min(raw, float(v[lo_g] + 2.0 * u[lo_g]))  # at most two uncertainties above the lowest
-    sigma = max(0.0, raw - unc)
     fill_note = f", fill factor {fill:.2f}" if fill < 1.0 else ""
     return BlurEstimate(
-        sigma,
+        max(0.0, raw - bias),
         "edges",
         uncertainty=unc,
         raw=raw,
         n_edges=int(group.sum()),
         reason=f"{int(group.sum())} of {len(per_edge)} measured edges pooled "
-        f"({raw:.3f} +- {unc:.3f} px{fill_note}), minus one standard error",
+        f"({raw:.3f} +- {unc:.3f} px{fill_note}), minus the frames' standard error "
+        f"{bias:.3f} px",
         fill_factor=float(fill),
+        bias=bias,
     )
 
 
@@ -428,6 +439,7 @@ def check_given_blur(given: float, measured: BlurEstimate) -> BlurEstimate:
                 f" +- {unc:.3f} px, lower by more than {margin:.3f} px: the given value would "
                 f"over-deconvolve; measured {measured.sigma:.3f} px used ({measured.reason})",
                 fill_factor=measured.fill_factor,
+                bias=measured.bias,
             )
         return BlurEstimate(
             float(given),
@@ -448,8 +460,8 @@ def pool_estimates(estimates: Sequence[BlurEstimate]) -> BlurEstimate:
     Returns
     -------
     BlurEstimate
-        Source "edges": ``sigma = max(0, r - u)`` with the pooled ``raw`` r and
-        ``uncertainty`` u (input px), ``n_edges`` the pooled estimates' edges,
+        Source "edges": ``sigma = max(0, r - b)`` with the pooled ``raw`` r, its
+        ``uncertainty`` u and low ``bias`` b (input px), ``n_edges`` the pooled estimates' edges,
         ``fill_factor`` the largest of theirs; "fallback" (:data:`FALLBACK_SIGMA`) when no
         estimate has edges.
 
@@ -461,8 +473,9 @@ def pool_estimates(estimates: Sequence[BlurEstimate]) -> BlurEstimate:
     ``r_i <= r_lo + 2 hypot(u_i, u_lo)`` are averaged with weights ``w_i = 1 / u_i^2``,
     ``r = min(sum w_i r_i / sum w_i, r_lo + 2 u_lo)``, and ``u`` is the larger of
     ``1 / sqrt(sum w_i)`` and the weighted spread over ``sqrt(n)``. The result is biased
-    low by one ``u``, as every edge estimate is (over-estimating the blur costs far more
-    than under-estimating it).
+    low as every edge estimate is (over-estimating the blur costs far more than
+    under-estimating it): by ``b``, the larger of ``sqrt(sum w_i^2 b_i^2) / sum w_i`` (each
+    estimate's own low bias ``b_i``, :attr:`BlurEstimate.low_bias`) and the same spread term.
     """
     usable = [
         e
@@ -481,19 +494,23 @@ def pool_estimates(estimates: Sequence[BlurEstimate]) -> BlurEstimate:
     rg, ug = r[group], u[group]
     w = 1.0 / ug**2
     mean, spread = _weighted_mean_spread(rg, w)
-    unc = max(float(1.0 / np.sqrt(w.sum())), spread / np.sqrt(rg.size) if rg.size > 1 else 0.0)
+    scatter = spread / np.sqrt(rg.size) if rg.size > 1 else 0.0
+    unc = max(float(1.0 / np.sqrt(w.sum())), scatter)
+    pooled = [e for e, g in zip(usable, group) if g]
+    b = np.minimum(np.array([e.low_bias for e in pooled]), ug)
+    bias = max(float(np.sqrt(np.sum(w**2 * b**2)) / w.sum()), scatter)
     lo = int(np.argmin(r))
     raw = min(mean, float(r[lo] + 2.0 * u[lo]))
-    pooled = [e for e, g in zip(usable, group) if g]
     return BlurEstimate(
-        max(0.0, raw - unc),
+        max(0.0, raw - bias),
         "edges",
         uncertainty=unc,
         raw=raw,
         n_edges=sum(e.n_edges for e in pooled),
         reason=f"{len(pooled)} of {len(estimates)} frames' edge estimates pooled "
-        f"({raw:.3f} +- {unc:.3f} px), minus one standard error",
+        f"({raw:.3f} +- {unc:.3f} px), minus their frames' standard error {bias:.3f} px",
         fill_factor=max(e.fill_factor for e in pooled),
+        bias=bias,
     )
 
 

@@ -14,8 +14,9 @@ motion the blur commutes with the shifts, so the frames alone cannot tell it
   than under-estimating it.
 
 Every estimate is biased low on purpose: the pooled edge value minus the
-standard error of the frames' scatter. :func:`resolve_blur` turns a ``blur_sigma`` setting into a
-:class:`BlurEstimate` saying which source gave the value.
+standard error of the frames' scatter. :func:`resolve_blur` turns a
+``blur_sigma`` setting into a :class:`BlurEstimate` saying which source gave
+the value.
 """
 
 from __future__ import annotations

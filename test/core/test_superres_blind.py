@@ -392,6 +392,11 @@ def test_pooled_frames_follow_the_sharpest_consistent_estimates():
     assert pool_estimates([_edges(0.5, 0.02, fill=0.9)] * 2).fill_factor == 0.9
     one = pool_estimates([_edges(0.3, 0.01)])
     assert one.raw == pytest.approx(0.3) and one.sigma == pytest.approx(0.29)
+    # each frame's low bias (its frames' scatter) is pooled apart from its stated error
+    two = pool_estimates([BlurEstimate(0.49, "edges", 0.04, 0.5, 2, "", 1.0, 0.01)] * 2)
+    assert two.uncertainty == pytest.approx(0.04 / np.sqrt(2))
+    assert two.bias == pytest.approx(0.01 / np.sqrt(2))
+    assert two.sigma == pytest.approx(0.5 - 0.01 / np.sqrt(2))
 
 
 def test_pooling_frames_without_edges_is_the_fallback_and_says_so():

@@ -416,7 +416,8 @@ def check_given_blur(given: float, measured: BlurEstimate) -> BlurEstimate:
     BlurEstimate
         The measured estimate (source "edges", the reason saying why) when the edges measure
         a blur lower than the given one by more than ``max(GIVEN_CHECK_MIN_PX,
-        GIVEN_CHECK_SIGMAS x uncertainty)``, comparing the pooled value before its low bias
+        GIVEN_CHECK_SIGMAS x low_bias)`` (the frames' standard error,
+        :attr:`BlurEstimate.low_bias`), comparing the pooled value before its low bias
         (``raw``); else the given value (source "parameter").
 
     Notes
@@ -424,11 +425,15 @@ def check_given_blur(given: float, measured: BlurEstimate) -> BlurEstimate:
     A scene edge is never sharper than the camera makes it, so edges measuring clearly less
     than the given blur mean the given value is too high, the expensive direction: over by
     0.2 px the reconstruction can fall below bicubic (docs/design-notes.md). A higher
-    measurement is not used against the given value (scene edges may be soft).
+    measurement is not used against the given value (scene edges may be soft). The margin
+    counts the frames' scatter, not the edges' misfit to the model (in ``uncertainty``):
+    texture beside an edge mostly reads sharper, so a margin widened by it would let a given
+    value that is too high pass where edges are textured.
     """
     if measured.source == "edges" and np.isfinite(measured.raw):
         unc = measured.uncertainty if np.isfinite(measured.uncertainty) else 0.0
-        margin = max(GIVEN_CHECK_MIN_PX, GIVEN_CHECK_SIGMAS * unc)
+        scatter = measured.low_bias if np.isfinite(measured.low_bias) else 0.0
+        margin = max(GIVEN_CHECK_MIN_PX, GIVEN_CHECK_SIGMAS * scatter)
         if given - measured.raw > margin:
             return BlurEstimate(
                 measured.sigma,

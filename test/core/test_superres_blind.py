@@ -372,6 +372,17 @@ def test_a_given_blur_clearly_above_the_edges_is_replaced_and_said(crops):
     assert BlurCalibration("0.7").update([], None).sigma == 0.7
 
 
+def test_a_given_blur_is_checked_against_the_frames_scatter_not_the_textured_error():
+    # textured edges: raw 0.50 +- 0.08 px (misfit), of it 0.03 px the frames' scatter. A given
+    # 0.72 px is 0.22 px above: beyond max(0.1, 3 x 0.03), so replaced, though within 3 x 0.08
+    from subpix_ros.core.blur import check_given_blur
+
+    textured = BlurEstimate(0.47, "edges", 0.08, 0.50, 2, "", 1.0, 0.03)
+    out = check_given_blur(0.72, textured)
+    assert out.source == "edges" and out.sigma == 0.47 and "+- 0.080 px" in out.reason
+    assert check_given_blur(0.59, textured).source == "parameter"  # 0.09: within the margin
+
+
 # ------------------------------------------------------------------ pooling independent frames
 
 

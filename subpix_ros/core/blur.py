@@ -303,10 +303,22 @@ def _consistent_with_lowest(vals: np.ndarray, unc: np.ndarray) -> np.ndarray:
     return vals <= vals[lo] + 2.0 * np.hypot(unc, unc[lo])
 
 
-def _weighted_mean_spread(vals: np.ndarray, wts: np.ndarray) -> tuple[float, float]:
-    """Return the weighted mean of ``vals`` and their weighted standard deviation about it."""
+def _pooled_mean(
+    vals: np.ndarray, unc: np.ndarray, biases: np.ndarray
+) -> tuple[float, float, float]:
+    """Return ``(mean, error, low bias)`` of values pooled with weights ``w = 1 / unc^2``.
+
+    ``error = max(1 / sqrt(sum w), spread / sqrt(n))`` and ``low bias = max(sqrt(sum w^2
+    b^2) / sum w, spread / sqrt(n))``, ``spread`` the weighted standard deviation of ``vals``
+    about the mean and ``b`` each value's own low bias (at most its ``unc``).
+    """
+    wts = 1.0 / unc**2
     mean = float(np.sum(wts * vals) / wts.sum())
-    return mean, float(np.sqrt(np.sum(wts * (vals - mean) ** 2) / wts.sum()))
+    spread = float(np.sqrt(np.sum(wts * (vals - mean) ** 2) / wts.sum()))
+    scatter = spread / np.sqrt(vals.size) if vals.size > 1 else 0.0
+    error = max(float(1.0 / np.sqrt(wts.sum())), scatter)
+    bias = max(float(np.sqrt(np.sum(wts**2 * biases**2)) / wts.sum()), scatter)
+    return mean, error, bias
 
 
 def _pool_edges(
@@ -365,11 +377,7 @@ def _pool_edges(
         vals, ses = np.array([r[0] for r in refits]), np.array([r[1] for r in refits])
         unc_edge = np.hypot(ses, misfits)
     v, s, u = vals[group], ses[group], unc_edge[group]
-    wts = 1.0 / u**2
-    raw, spread = _weighted_mean_spread(v, wts)
-    scatter = spread / np.sqrt(v.size) if v.size > 1 else 0.0
-    unc = float(max(1.0 / np.sqrt(wts.sum()), scatter))
-    bias = float(max(np.sqrt(np.sum(wts**2 * s**2)) / wts.sum(), scatter))  # frames' scatter
+    raw, unc, bias = _pooled_mean(v, u, s)  # the low bias: the frames' scatter alone
     lo_g = int(np.argmin(v))
     raw = min(raw, float(v[lo_g] + 2.0 * u[lo_g]))  # at most two uncertainties above the lowest
     fill_note = f", fill factor {fill:.2f}" if fill < 1.0 else ""
@@ -498,13 +506,9 @@ def pool_estimates(estimates: Sequence[BlurEstimate]) -> BlurEstimate:
     u = np.maximum(np.array([e.uncertainty for e in usable]), 0.005)
     group = _consistent_with_lowest(r, u)
     rg, ug = r[group], u[group]
-    w = 1.0 / ug**2
-    mean, spread = _weighted_mean_spread(rg, w)
-    scatter = spread / np.sqrt(rg.size) if rg.size > 1 else 0.0
-    unc = max(float(1.0 / np.sqrt(w.sum())), scatter)
     pooled = [e for e, g in zip(usable, group) if g]
     b = np.minimum(np.array([e.low_bias for e in pooled]), ug)
-    bias = max(float(np.sqrt(np.sum(w**2 * b**2)) / w.sum()), scatter)
+    mean, unc, bias = _pooled_mean(rg, ug, b)
     lo = int(np.argmin(r))
     raw = min(mean, float(r[lo] + 2.0 * u[lo]))
     return BlurEstimate(

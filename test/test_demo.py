@@ -25,6 +25,11 @@ def test_demo_runs_to_its_flight_report(sample_bags, tmp_path):
     # the field flight shows no straight edge: the blur used, and where a measured one comes from
     assert "optics blur used: 0.200 px (fallback: no usable edge" in r.stdout, r.stdout
     assert "measure the camera once with `subpix blur`" in r.stdout, r.stdout
+    # demo.yaml's camera fits the frames: the live check over DDS says so
+    check = re.search(
+        r"telemetry vs frames \(registration node\): agrees: the frames moved ([0-9.]+)x", r.stdout
+    )
+    assert check and abs(float(check.group(1)) - 1.0) < 0.01, r.stdout
     report = re.search(r"flight report: (\S+)", r.stdout)
     assert report, r.stdout
     html = open(report.group(1)).read()

@@ -198,6 +198,9 @@ def _stage_summary(summary: dict, cap: Captured, truth: dict) -> None:
         if n in ("registration_node", "mosaic_node")
     }
     summary["dropped_frames"] = {n: cap.diag.get(n, {}).get("dropped_frames") for n in _STAGE_KEYS}
+    reg = cap.diag_subpixel.get("registration_node", {})
+    if "telemetry_check" in reg:  # METHODS eq. 1's parameters against the frames' motion
+        summary["telemetry_check"] = reg["telemetry_check"]
     rec = cap.diag_subpixel.get("reconstruction_node", {})
     if "blur_sigma" in rec:  # the blur the reconstruction used (blur_sigma: auto) and its source
         summary["blur"] = {
@@ -239,6 +242,8 @@ def _summary_text(summary: dict, inp: _Inputs, n_sr: int) -> str:
                 "  (no straight edge in this flight: measure the camera once with `subpix blur` "
                 "and give the result as blur_sigma; see the README's blur section)"
             )
+    if "telemetry_check" in summary:
+        lines.append(f"  telemetry vs frames (registration node): {summary['telemetry_check']}")
     lines.append(f"  seneca strip: 9 frames in, mosaic {summary.get('mosaic_px', 'not produced')}")
     lines.append(
         "  time per stage (median), subpixel flight (ms, 448x448 in): "

@@ -193,6 +193,10 @@ class Diagnostics:
         """Report an error (logged, throttled, held for ``hold_s``)."""
         self._report(ERROR, message)
 
+    def hold_warning(self, message: str) -> None:
+        """Keep the status at WARN for a lasting condition whose warning was logged and counted."""
+        self._hold(WARN, message)
+
     def _hold(self, level: int, message: str) -> None:
         """Keep reporting a condition already logged and counted (no new log line, no count)."""
         with self._lock:

@@ -195,8 +195,14 @@ class RegistrationNode(StageNode):
             warped=st.warped,
             rms_along_px=_na(st.rms_along_px),
             rms_cross_px=_na(st.rms_cross_px),
+            telemetry_check=st.telemetry_check or "no frame pair with telemetry yet",
+            telemetry_scale=_na(st.telemetry_scale),
+            telemetry_rotation_deg=_na(st.telemetry_rotation_deg),
         )
-        self.diag.ok()
+        if st.telemetry_agrees is False:  # lasting: the stage's warning says what to change
+            self.diag.hold_warning(f"telemetry {st.telemetry_check}")
+        else:
+            self.diag.ok()
 
 
 def _na(value):

@@ -57,6 +57,7 @@ from subpix_ros.process.tables import (
     _shape_text,
     _shift_rows,
     _telemetry_row,
+    telemetry_check,
 )
 from subpix_ros.process.timing import _Timer, _timing_record, prefetch
 from subpix_ros.process.truth import _load_truth, set_scorer
@@ -284,6 +285,7 @@ class _FlightRun:
         self.broke_off: str | None = None
         self.add_ms: list[float] = []
         self.rows: list[dict] = []  # shifts.csv's rows (write_tables)
+        self.telemetry_check = None  # the frames' shifts against the telemetry's (finish)
         self.buf: TelemetryBuffer | None = None
         self.ahead_requests: dict[str, int | None] = {}  # report section -> helper request
 
@@ -417,6 +419,7 @@ class _FlightRun:
         self.mosaic_wait()
         self.mosaic_pool.shutdown(wait=True)
         self.rows = self.write_tables()
+        self.telemetry_check = telemetry_check(collector, self.rows) if self.samples else None
         if self.ahead is not None:
             self.ahead_requests["per_frame"] = self.ahead.submit(
                 "per_frame_sections",
@@ -487,6 +490,9 @@ class _FlightRun:
                 "mosaic_section", self.writer.tmp, _as_json(mosaic_info)
             )
         summary = _summary(self, mosaic_info)
+        check = summary["telemetry"]["check"]
+        if check is not None and check["agrees"] is False:  # products made, but said loudly
+            self.problems.append(check["note"])
         if not collector.sets and flight.frames_total:
             self.problems.append("no super-resolved image: no set reached min_frames")
         fell = [st for st in collector.sets if st.get("fell_back")]

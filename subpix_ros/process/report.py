@@ -133,6 +133,7 @@ def _header(summary: dict, timing: dict) -> list[str]:
                     f"{tel.get('source')} ({tel.get('samples', 0)} samples)"
                     + (f": {tel.get('note')}" if tel.get("note") else ""),
                 ],
+                ["telemetry vs frames", (tel.get("check") or {}).get("note") or "-"],
                 ["flight time", f"{fl.get('duration_s', 0):.2f} s"],
                 [
                     "frames",

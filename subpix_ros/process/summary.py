@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections import Counter
 from typing import TYPE_CHECKING
 
+from subpix_ros.core.timing_check import TelemetryAgreement
 from subpix_ros.process.collector import _TIME_KEY, _clean, _stats_dict, reason_key
 from subpix_ros.process.inputs import Flight
 from subpix_ros.process.tables import _shape_text
@@ -83,6 +84,52 @@ def blur_summary(sets: list[dict]) -> dict:
     }
 
 
+def telemetry_check_summary(check: TelemetryAgreement | None, reg_params: dict) -> dict | None:
+    """Summarise the fit of the frames' shifts to the telemetry's (``summary.json``'s check).
+
+    Parameters
+    ----------
+    check : TelemetryAgreement or None
+        :func:`~subpix_ros.process.tables.telemetry_check` (None: the flight has no telemetry).
+    reg_params : dict
+        The registration stage's ``focal_length_mm``, ``pixel_pitch_um`` and
+        ``camera_yaw_offset_deg`` the expected shifts were made with.
+
+    Returns
+    -------
+    dict or None
+        The fit's figures, ``agrees`` (True, False or None: not enough to tell) and ``note``:
+        one sentence for the operator; when they disagree, which parameter would fit the frames
+        (the focal length in pixels ``k f / a`` they imply, e.g. the pixel pitch ``a / k``; the
+        yaw offset plus the rotation).
+    """
+    if check is None:
+        return None
+    out = {k: v for k, v in vars(check).items() if k not in ("reason",)}
+    note = check.reason
+    if check.agrees is False:
+        f_mm, a_um = float(reg_params["focal_length_mm"]), float(reg_params["pixel_pitch_um"])
+        fixes = []
+        if check.scale_off:
+            f_px = f_mm * 1e3 / a_um
+            fixes.append(
+                f"focal_length_mm {f_mm:g} and pixel_pitch_um {a_um:g} (f/a {f_px:.0f} px) or "
+                f"the height above ground do not fit these frames: they imply f/a "
+                f"{check.scale * f_px:.0f} px (e.g. pixel_pitch_um {a_um / check.scale:.3g}, as "
+                "for a stream downscaled by that factor), so the frame timing aims at another "
+                "shift than p asks"
+            )
+        if check.rotation_off:
+            yaw = float(reg_params["camera_yaw_offset_deg"])
+            fixes.append(
+                f"the camera is yawed {check.rotation_deg:+.1f} deg from camera_yaw_offset_deg "
+                f"{yaw:g} (give {yaw + check.rotation_deg:.1f})"
+            )
+        note = "telemetry " + check.reason + ": " + "; ".join(fixes)
+    out["note"] = note
+    return out
+
+
 def _stage_stats(run: _FlightRun) -> dict:
     """Each stage's statistics as ``summary.json`` has them (no timing keys)."""
     return {
@@ -113,6 +160,7 @@ def _summary(run: _FlightRun, mosaic_info: dict) -> dict:
             "source": flight.telemetry_source,
             "samples": len(run.samples),
             "note": flight.telemetry_note,
+            "check": telemetry_check_summary(run.telemetry_check, run.reg_params),
         },
         "flight": {
             "first_stamp_ns": first_ns,

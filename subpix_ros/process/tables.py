@@ -15,8 +15,10 @@ import math
 
 import numpy as np
 
+from subpix_ros.core.registration.geometry import centre_shift
 from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample
 from subpix_ros.core.timing import expected_shift_px, frame_interval
+from subpix_ros.core.timing_check import TelemetryAgreement, telemetry_agreement
 from subpix_ros.process.collector import _Collector
 from subpix_ros.process.products import rounded
 
@@ -175,17 +177,48 @@ def _total_shift(
     appears at ``H^-1 c`` in the moving frame; the aligned frame keeps ``prior`` of that
     displacement (the sub-pixel remainder), which the shift stage measures as (u, v).
     """
-    try:
-        inverse = np.linalg.inv(homography)
-    except np.linalg.LinAlgError:
+    moved = centre_shift(homography, shape)
+    if moved is None:
         return None
-    cy, cx = (shape[0] - 1) / 2.0, (shape[1] - 1) / 2.0
-    q = inverse @ np.array([cx, cy, 1.0])
-    if abs(q[2]) < 1e-12:
-        return None
-    dx, dy = q[0] / q[2] - cx, q[1] / q[2] - cy
+    dy, dx = moved
     prior_rows, prior_cols = prior if prior is not None else (0.0, 0.0)
     return round(dy - prior_rows) + u, round(dx - prior_cols) + v
+
+
+def telemetry_check(collector: _Collector, rows: list[dict]) -> TelemetryAgreement:
+    """Fit the frames' shifts to the telemetry's expected ones (METHODS eq. 1's parameters).
+
+    Parameters
+    ----------
+    collector : _Collector
+        The flight's homographies and frame shape.
+    rows : list of dict
+        ``shifts.csv``'s rows (:func:`_shift_rows`).
+
+    Returns
+    -------
+    TelemetryAgreement
+        :func:`~subpix_ros.core.timing_check.telemetry_agreement` over the rows with an expected
+        shift; measured = the total shift where the sub-pixel shift converged, else the
+        homography's displacement of the reference's centre (whole frames apart: registration
+        accuracy is enough for a scale).
+    """
+    measured, expected = [], []
+    for row in rows:
+        if row.get("u_expected_px") is None:
+            continue
+        if row.get("u_total_px") is not None:
+            got = (row["u_total_px"], row["v_total_px"])
+        else:
+            homography = collector.homographies.get(row["stamp_ns"])
+            got = None if homography is None else centre_shift(homography, collector.shape)
+        if got is not None:
+            measured.append(got)
+            expected.append((row["u_expected_px"], row["v_expected_px"]))
+    return telemetry_agreement(
+        np.array(measured, dtype=float).reshape(-1, 2),
+        np.array(expected, dtype=float).reshape(-1, 2),
+    )
 
 
 def _telemetry_row(sample: TelemetrySample) -> dict:

@@ -15,12 +15,19 @@ predicted homography (the previous frame's moved on by the last
 frame-to-frame motion: constant velocity), which skips the coarse search;
 when the prediction is wrong the core falls back to the full pipeline by
 itself (counted as ``fallbacks``).
+
+The telemetry the selection rests on is checked against the frames: each aligned frame's
+displacement and METHODS eq. 1's expectation over the same interval are fitted by a scale and
+a rotation over the last ``TELEMETRY_CHECK_PAIRS`` frames (``telemetry_*`` in the stats); a
+disagreement (a stream downscaled against ``pixel_pitch_um``, a wrong height or yaw offset)
+is a warning naming the parameters that would fit.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections import deque
 
 import numpy as np
 
@@ -28,10 +35,24 @@ from subpix_ros.core import registration as reg
 from subpix_ros.core.motion import MotionTracker
 from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample, validate_sample
 from subpix_ros.core.timing import FrameSelector, expected_shift_px
+from subpix_ros.core.timing_check import telemetry_agreement
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
 from subpix_ros.stages.stats import RegistrationStats
 from subpix_ros.stages.types import Aligned, Frame, NewReference, Skipped
+
+#: Aligned frames the live telemetry check fits (the last ones).
+TELEMETRY_CHECK_PAIRS = 50
+#: Seconds of stamps between two warnings while the telemetry disagrees with the frames.
+TELEMETRY_WARN_EVERY_S = 10.0
+#: The parameters of METHODS eq. 1's expectation: a change starts the check afresh.
+EQ1_PARAMS = (
+    "focal_length_mm",
+    "pixel_pitch_um",
+    "camera_yaw_offset_deg",
+    "telemetry_time_offset_s",
+    "min_speed_mps",
+)
 
 PARAMS = (
     Spec("p", 2.0, "target sub-pixel step between kept frames is 1/p pixel", 2.0, 16.0),
@@ -141,6 +162,9 @@ class RegistrationStage(Stage):
         self._ref_prepared: reg.ReferenceFrame | None = None
         self.motion = MotionTracker()  # constant-velocity prediction for tracking (core.motion)
         self.since_reference = 0
+        # (measured, expected) shifts of the last aligned frames: METHODS eq. 1 checked
+        self._motion_pairs: deque = deque(maxlen=TELEMETRY_CHECK_PAIRS)
+        self._next_check_warning_s = -math.inf
 
     def _make_selector(self) -> FrameSelector:
         mode = self.param("selection")
@@ -159,6 +183,8 @@ class RegistrationStage(Stage):
         super().configure(**changes)
         if any(k in self.SELECTOR_PARAMS for k in changes):
             self.selector = self._make_selector()  # takes effect from the next frame
+        if any(k in EQ1_PARAMS for k in changes):  # expectations of other parameters
+            self._forget_motion_check()
 
     def add_telemetry(self, sample: TelemetrySample) -> None:
         """Keep a telemetry sample for frame selection."""
@@ -173,6 +199,53 @@ class RegistrationStage(Stage):
         self.since_reference = 0
         self.selector.reset()
         self.telemetry = self._make_buffer()
+        self._forget_motion_check()
+
+    def _forget_motion_check(self) -> None:
+        """Start the telemetry check afresh (new parameters, a reset)."""
+        self._motion_pairs.clear()
+        self._next_check_warning_s = -math.inf
+        st = self.stats
+        st.telemetry_pairs, st.telemetry_agrees, st.telemetry_check = 0, None, ""
+        st.telemetry_scale = st.telemetry_rotation_deg = None
+
+    def _check_motion(self, frame: Frame, homography: np.ndarray) -> None:
+        """Add the aligned frame's shift and the telemetry's expected one; refit; warn if off.
+
+        The frames' shift is the homography's displacement of the reference's centre; the
+        expected one METHODS eq. 1 over the interval (the image rates at both stamps averaged),
+        as ``subpix process``'s report fits them (:func:`telemetry_agreement`). While they
+        disagree a warning names the parameters, at most every ``TELEMETRY_WARN_EVERY_S`` s of
+        stamps.
+        """
+        ref = self.reference
+        measured = reg.centre_shift(homography, ref.image.shape)
+        rate_ref, _ = self._image_rate(ref.stamp_s)
+        rate, _ = self._image_rate(frame.stamp_s)
+        if measured is None or rate_ref is None or rate is None:
+            return
+        dt = frame.stamp_s - ref.stamp_s
+        expected = (0.5 * (rate_ref[0] + rate[0]) * dt, 0.5 * (rate_ref[1] + rate[1]) * dt)
+        self._motion_pairs.append((measured, expected))
+        pairs = np.array(self._motion_pairs, dtype=np.float64)
+        check = telemetry_agreement(pairs[:, 0], pairs[:, 1])
+        st = self.stats
+        st.telemetry_pairs, st.telemetry_agrees, st.telemetry_check = (
+            check.pairs,
+            check.agrees,
+            check.reason,
+        )
+        st.telemetry_scale, st.telemetry_rotation_deg = check.scale, check.rotation_deg
+        if check.agrees is False and frame.stamp_s >= self._next_check_warning_s:
+            self._next_check_warning_s = frame.stamp_s + TELEMETRY_WARN_EVERY_S
+            f_px = self.param("focal_length_mm") * 1e3 / self.param("pixel_pitch_um")
+            self.warn(
+                f"telemetry {check.reason}: focal_length_mm / pixel_pitch_um (f/a {f_px:.0f} px), "
+                f"the height or camera_yaw_offset_deg do not fit the frames (they imply f/a "
+                f"{check.scale * f_px:.0f} px, yaw offset "
+                f"{self.param('camera_yaw_offset_deg') + check.rotation_deg:.1f} deg): the "
+                "frame selection aims at another shift than p asks"
+            )
 
     # ---------------------------------------------------------------- selection
     def _image_rate(self, stamp_s: float):
@@ -280,6 +353,7 @@ class RegistrationStage(Stage):
             box=al.box,
         )
         self.since_reference += 1
+        self._check_motion(frame, result.homography)
         ac = result.residual_along_cross()
         st = self.stats
         st.times.add(1000 * (time.monotonic() - t0))

@@ -104,6 +104,13 @@ class RegistrationStats(StageStats):
     rms_along_px: float | None = None
     rms_cross_px: float | None = None
     warped: bool | None = None
+    # METHODS eq. 1 against the frames: the last aligned frames' shifts fitted to the
+    # telemetry's expected ones (core.timing_check; None: not enough to tell yet)
+    telemetry_pairs: int = 0
+    telemetry_scale: float | None = None
+    telemetry_rotation_deg: float | None = None
+    telemetry_agrees: bool | None = None
+    telemetry_check: str = ""
 
 
 @dataclass

@@ -100,3 +100,45 @@ def test_predicted_loss_of_overlap_starts_a_new_reference_without_a_failed_searc
     finally:
         node.close()
         node.destroy_node()
+
+
+def test_telemetry_that_does_not_fit_the_frames_holds_the_status_at_warn(ctx, flight, sample_bags):
+    """The sample flight (2x downscaled Seneca frames) with the node's default 1.54 um pixels."""
+    from subpix_ros.nodes.diagnostics import OK, WARN
+    from subpix_ros.nodes.registration_node import RegistrationNode
+    from subpix_ros.process.inputs import open_flight
+
+    frames, _ = flight
+    samples = open_flight(sample_bags / "subpixel").telemetry_samples()
+    for pitch, level in ((1.54, WARN), (3.08, OK)):
+        node = RegistrationNode(
+            subscribe_inputs=False,
+            parameter_overrides=[
+                Parameter("selection", value="all"),
+                Parameter("distortion", value=False),
+                Parameter("pixel_pitch_um", value=pitch),
+            ],
+        )
+        try:
+            for sample in samples:
+                node.handle_telemetry(sample)
+            got = []
+            node.listen("aligned", got.append)
+            for f in frames:  # at the flight's own stamps, where its telemetry is
+                node.handle_frame(pl.Frame(stamp_ns=f.stamp_ns, image=f.image, frame_id="camera"))
+                deadline = time.monotonic() + 30
+                while time.monotonic() < deadline and not node.worker.idle():
+                    time.sleep(0.01)
+            assert len(got) >= 18
+            status = node.diag.snapshot()
+            kv = {x.key: x.value for x in status.values}
+            assert status.level == level.to_bytes(1, "little"), (pitch, status.message)
+            if level == WARN:
+                assert status.message.startswith("telemetry disagrees: the frames moved 0.50")
+                assert abs(float(kv["telemetry_scale"]) - 0.5) < 0.01, kv
+            else:
+                assert kv["telemetry_check"].startswith("agrees: the frames moved"), kv
+                assert abs(float(kv["telemetry_scale"]) - 1.0) < 0.01, kv
+        finally:
+            node.close()
+            node.destroy_node()

@@ -118,6 +118,11 @@ def test_sample_flight_products(processed, sample_bags):
     html = (d / "report.html").read_text()
     assert "Optics blur 0.200 px (fallback: no usable edge" in html
     assert "<td>optics blur</td><td>no usable straight edge" in html
+    # the frames moved as METHODS eq. 1 says with demo.yaml's camera (2x downscaled Seneca)
+    check = s["telemetry"]["check"]
+    assert check["agrees"] is True and abs(check["scale"] - 1.0) < 0.01, check
+    assert abs(check["rotation_deg"]) < 0.5 and check["pairs"] >= 18, check
+    assert "<td>telemetry vs frames</td><td>agrees: the frames moved 1.000x" in html
     assert (out / "seneca" / "mosaic.png").is_file()
     mos = _summary(out / "seneca")["mosaic"]
     assert mos["written"] and len(mos["footprints"]) == 9
@@ -672,3 +677,26 @@ def test_a_measured_blur_given_in_a_second_params_file_is_used_and_said(
     given_gain = np.median([st["gain_db"] for st in s["sets"]])
     auto_gain = np.median([st["gain_db"] for st in auto["sets"]])
     assert given_gain > auto_gain + 2.0, (given_gain, auto_gain)
+
+
+def test_camera_parameters_that_do_not_fit_the_frames_are_said_not_hidden(sample_bags, tmp_path):
+    """Processed without the sample camera's parameters (a stream downscaled 2x, node defaults).
+
+    METHODS eq. 1 with the defaults' 1.54 um pixels expects twice the motion the frames show:
+    the products are made, and the flight's line, ``summary.json`` and the report say which
+    pixel pitch (or focal length in pixels) would fit.
+    """
+    out = tmp_path / "out"
+    r = _run(str(sample_bags / "subpixel"), "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    s = _summary(out / "subpixel")
+    check = s["telemetry"]["check"]
+    assert check["agrees"] is False and check["scale_off"] and not check["rotation_off"], check
+    assert abs(check["scale"] - 0.5) < 0.01, check
+    assert s["status"] == "ok" and s["sets"], "products are still made"
+    assert s["problems"][0].startswith("telemetry disagrees: the frames moved 0.500x")
+    assert "pixel_pitch_um 3.08" in s["problems"][0]
+    line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith("subpixel: "))
+    assert "telemetry disagrees" in line, line
+    html = (out / "subpixel" / "report.html").read_text()
+    assert "<li class='problem'>telemetry disagrees: the frames moved 0.500x" in html

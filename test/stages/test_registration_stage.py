@@ -1,6 +1,7 @@
 """RegistrationStage without ROS: reference switching, skips, tracking fallback, time jumps."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -169,3 +170,46 @@ def test_time_jumping_back_resets_the_reference(flight):
     assert isinstance(looped, NewReference) and looped.reason == "first frame"
     assert stage.stats.resets == 1 and "time jumped back" in stage.stats.last_warning
     assert isinstance(stage.add(frames[1]), Aligned)
+
+
+def _sample_telemetry(sample_bags):
+    from subpix_ros.process.inputs import open_flight
+
+    return open_flight(sample_bags / "subpixel").telemetry_samples()
+
+
+@pytest.mark.parametrize(
+    "params, agrees",
+    [
+        (dict(pixel_pitch_um=3.08), True),  # the sample camera: Seneca's pixels, 2x downscaled
+        (dict(pixel_pitch_um=1.54), False),  # the node default: the stream's downscale missed
+        (dict(pixel_pitch_um=3.08, camera_yaw_offset_deg=30.0), False),  # camera mounted off
+    ],
+)
+def test_telemetry_that_does_not_fit_the_frames_is_a_warning(flight, sample_bags, params, agrees):
+    """METHODS eq. 1 against the aligned frames' own motion, live, on the sample flight."""
+    frames, _ = flight
+    stage = RegistrationStage(**FAST, **params)
+    for sample in _sample_telemetry(sample_bags):
+        stage.add_telemetry(sample)
+    problems = []
+    stage.on_problem = lambda level, msg: problems.append(msg)
+    _run(stage, frames)
+    st = stage.stats
+    assert st.telemetry_pairs >= 15 and st.telemetry_agrees is agrees, st.telemetry_check
+    warned = [m for m in problems if m.startswith("telemetry disagrees")]
+    if agrees:
+        assert abs(st.telemetry_scale - 1.0) < 0.01 and abs(st.telemetry_rotation_deg) < 0.5
+        assert not warned
+    else:
+        assert len(warned) == 1, problems  # once per 10 s of stamps: the flight is 2.4 s
+        if "camera_yaw_offset_deg" in params:
+            assert abs(st.telemetry_rotation_deg + 30.0) < 1.0, st.telemetry_check
+            yaw = float(re.search(r"yaw offset (-?[\d.]+) deg", warned[0]).group(1))
+            assert abs(yaw) < 1.0, warned[0]  # 30 + the rotation: the true mount, 0
+        else:
+            assert abs(st.telemetry_scale - 0.5) < 0.01, st.telemetry_check
+            f_px = float(re.search(r"they imply f/a (\d+) px", warned[0]).group(1))
+            assert abs(f_px - 4300 / 3.08) < 15, warned[0]  # the camera's f/a
+    stage.configure(pixel_pitch_um=2.0)  # other parameters: the check starts again
+    assert st.telemetry_pairs == 0 and st.telemetry_agrees is None

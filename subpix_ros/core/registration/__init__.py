@@ -57,7 +57,7 @@ from .fit import (
     undistort_points,
 )
 from .frames import ReferenceFrame, prepare_reference, to_gray32
-from .geometry import apply_h, overlap_fraction
+from .geometry import apply_h, centre_shift, overlap_fraction
 from .harris import harris_peaks, harris_points, harris_response, select_spread
 from .points import ncc_match, refine_gauss_newton, sample_bicubic, sample_linear_cv
 from .register import register
@@ -75,6 +75,7 @@ __all__ = [
     "to_gray32",
     "overlap_fraction",
     "apply_h",
+    "centre_shift",
     "Normaliser",
     "distort_points",
     "undistort_points",

@@ -34,6 +34,35 @@ def apply_h(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return out
 
 
+def centre_shift(h: np.ndarray, shape: tuple[int, ...]) -> tuple[float, float] | None:
+    """Return how far the reference's centre moved into the moving frame, ``(u, v)`` px.
+
+    Parameters
+    ----------
+    h : ndarray, shape (3, 3)
+        Homography MOVING -> REFERENCE (x, y).
+    shape : tuple of int
+        The reference frame's shape (rows, cols, ...).
+
+    Returns
+    -------
+    tuple of float or None
+        ``(u, v)`` = (rows, columns): the centre ``c`` appears at ``H^-1 c`` in the moving
+        frame (the project's shift convention: content at ``c`` in the reference is at
+        ``c + (u, v)`` in the moving frame); None for a singular homography or a point at
+        infinity.
+    """
+    try:
+        inverse = np.linalg.inv(np.asarray(h, dtype=np.float64))
+    except np.linalg.LinAlgError:
+        return None
+    cy, cx = (shape[0] - 1) / 2.0, (shape[1] - 1) / 2.0
+    q = inverse @ np.array([cx, cy, 1.0])
+    if not np.isfinite(q).all() or abs(q[2]) < 1e-12:
+        return None
+    return float(q[1] / q[2] - cy), float(q[0] / q[2] - cx)
+
+
 def overlap_fraction(
     h_mr: np.ndarray, shape_ref: tuple[int, ...], shape_mov: tuple[int, ...]
 ) -> float:

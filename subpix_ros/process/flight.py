@@ -48,7 +48,12 @@ from subpix_ros.process.inputs import Flight, InputError, bag_name, open_flight
 from subpix_ros.process.params import EXPECTED_SHIFT_PARAMS, pipeline_params
 from subpix_ros.process.previews import _MonitorFeed, _mosaic, _preview
 from subpix_ros.process.products import ProductWriter, _json_default, is_complete
-from subpix_ros.process.summary import _input_problems, _stage_stats, _summary
+from subpix_ros.process.summary import (
+    _input_problems,
+    _stage_stats,
+    _summary,
+    telemetry_coverage,
+)
 from subpix_ros.process.tables import (
     FRAME_COLUMNS,
     SHIFT_COLUMNS,
@@ -490,6 +495,14 @@ class _FlightRun:
                 "mosaic_section", self.writer.tmp, _as_json(mosaic_info)
             )
         summary = _summary(self, mosaic_info)
+        coverage = telemetry_coverage(
+            [sm.t for sm in self.samples],
+            [r.stamp_ns * 1e-9 for r in collector.frames],
+            float(self.reg_params["telemetry_time_offset_s"]),
+            float(self.reg_params["telemetry_timeout_s"]),
+        )
+        if coverage:  # telemetry read, but not at the frames' times: said, not left silent
+            self.problems.append(coverage)
         check = summary["telemetry"]["check"]
         if check is not None and check["agrees"] is False:  # products made, but said loudly
             self.problems.append(check["note"])

@@ -84,6 +84,62 @@ def blur_summary(sets: list[dict]) -> dict:
     }
 
 
+def telemetry_coverage(
+    sample_times: list[float], frame_times: list[float], offset_s: float, stale_after_s: float
+) -> str | None:
+    """Say when the telemetry's time span leaves frames uncovered (None when it covers them).
+
+    Parameters
+    ----------
+    sample_times : list of float
+        The telemetry samples' times, POSIX s.
+    frame_times : list of float
+        The frames' stamps, s.
+    offset_s : float
+        ``telemetry_time_offset_s``: a frame's telemetry time is its stamp plus this.
+    stale_after_s : float
+        ``telemetry_timeout_s``: the newest sample is held this long after it.
+
+    Returns
+    -------
+    str or None
+        One problem line when no frame, or fewer than all but ``max(2, 10 %)``, falls inside
+        ``[first sample, last sample + stale_after_s]``: both spans (UTC) and how far apart
+        they are (another clock, e.g. a camera stamping boot time against the autopilot's
+        UTC, or another flight's log).
+    """
+    if not sample_times or not frame_times:
+        return None
+    t0, t1 = min(sample_times), max(sample_times) + stale_after_s
+    ft = [t + offset_s for t in frame_times]
+    covered = sum(t0 <= t <= t1 for t in ft)
+    missed = len(ft) - covered
+    if covered and missed <= max(2, 0.1 * len(ft)):
+        return None
+    f0, f1 = min(ft), max(ft)
+    gap = t0 - f1 if t0 > f1 else (f0 - t1 if f0 > t1 else 0.0)
+    where = (
+        f"; the telemetry starts {gap:.1f} s after the last frame"
+        if t0 > f1
+        else (f"; it ends {gap:.1f} s before the first frame" if f0 > t1 else "")
+    )
+    return (
+        f"telemetry covers {covered} of {len(ft)} frames: its samples span "
+        f"{_utc(min(sample_times))} - {_utc(max(sample_times))} UTC, the frames (stamp + "
+        f"telemetry_time_offset_s {offset_s:g} s) {_utc(f0)} - {_utc(f1)}{where} (another "
+        "clock, or another flight's telemetry?); frames outside it are kept without frame "
+        "timing or an expected shift"
+    )
+
+
+def _utc(t: float) -> str:
+    """Format POSIX seconds as ``YYYY-MM-DD HH:MM:SS.s`` (UTC)."""
+    import datetime
+
+    d = datetime.datetime.fromtimestamp(t, tz=datetime.timezone.utc)
+    return d.strftime("%Y-%m-%d %H:%M:%S.") + f"{d.microsecond // 100000}"
+
+
 def telemetry_check_summary(check: TelemetryAgreement | None, reg_params: dict) -> dict | None:
     """Summarise the fit of the frames' shifts to the telemetry's (``summary.json``'s check).
 

@@ -700,3 +700,29 @@ def test_camera_parameters_that_do_not_fit_the_frames_are_said_not_hidden(sample
     assert "telemetry disagrees" in line, line
     html = (out / "subpixel" / "report.html").read_text()
     assert "<li class='problem'>telemetry disagrees: the frames moved 0.500x" in html
+
+
+def test_a_tlog_from_another_clock_is_said_not_silently_unused(sample_bags, tmp_path):
+    """Images only in the bag, the .tlog beside it an hour off (a GCS clock, another flight)."""
+    import struct
+
+    from pymavlink import mavutil
+
+    _, frames, _ = _sample(sample_bags)
+    bag = _write(tmp_path / "flight", frames)
+    log = mavutil.mavlink_connection(str(sample_bags / "subpixel.tlog"), dialect="common")
+    with open(tmp_path / "flight.tlog", "wb") as out:
+        while (msg := log.recv_match()) is not None:  # each record: >Q microseconds, the packet
+            out.write(struct.pack(">Q", int((msg._timestamp + 3600.0) * 1e6)) + msg.get_msgbuf())
+    r = _run(str(bag), "-o", str(tmp_path / "out"), "--params", DEMO)
+    assert r.returncode == 0, r.stderr
+    s = _summary(tmp_path / "out" / "flight")
+    assert s["telemetry"]["source"] == "tlog flight.tlog" and s["telemetry"]["samples"] > 20
+    problem = f"telemetry covers 0 of {len(frames)} frames"
+    assert s["problems"][0].startswith(problem), s["problems"]
+    assert "the telemetry starts 3598.2 s after the last frame" in s["problems"][0], s["problems"]
+    assert s["telemetry"]["check"]["agrees"] is None  # no expected shift to check
+    line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith("flight: "))
+    assert problem in line, line
+    html = (tmp_path / "out" / "flight" / "report.html").read_text()
+    assert f"<li class='problem'>{problem}" in html

@@ -507,14 +507,19 @@ class _FlightRun:
         if check is not None and check["agrees"] is False:  # products made, but said loudly
             self.problems.append(check["note"])
         if not collector.sets and flight.frames_total:
-            self.problems.append("no super-resolved image: no set reached min_frames")
+            self.problems.append(
+                "no super-resolved image: no set reached min_frames" + _why_no_set(collector)
+            )
         fell = [st for st in collector.sets if st.get("fell_back")]
         if fell:  # a bicubic upscale in place of a super-resolved image: said, not counted as SR
             self.problems.append(
                 f"{len(fell)} of {len(collector.sets)} sets fell back to bicubic "
                 f"({fell[0].get('reason') or 'no reason given'})"
             )
-        if self.status == "ok" and (not flight.frames_total or self.dropped or collector.errors):
+        unaligned = summary["frames"]["kept"] > 1 and not summary["frames"]["aligned"]
+        if self.status == "ok" and (
+            not flight.frames_total or self.dropped or collector.errors or unaligned
+        ):
             self.status = "partial"  # part of the input (or all of it) could not be used
         summary["status"] = self.status
         self.writer.json("summary.json", _clean(summary))
@@ -545,6 +550,25 @@ class _FlightRun:
         )
         res.__dict__["_crops"] = self.collector.crops
         return res
+
+
+def _why_no_set(collector: _Collector) -> str:
+    """Say what became of the frames when no set reached min_frames ('' without frames).
+
+    The references and why each started (grouped by :func:`reason_key`, the first full
+    reason of each kind shown), and how many frames were aligned to them: e.g. every frame
+    a new reference because every registration failed on blank frames.
+    """
+    refs = collector.references
+    aligned = sum(1 for r in collector.frames if r.status == "aligned")
+    if not refs:
+        return ""
+    kinds: Counter = Counter(reason_key(r["reason"]) for r in refs)
+    first = {}
+    for r in refs:
+        first.setdefault(reason_key(r["reason"]), r["reason"])
+    why = ", ".join(f"{n} x {first[k]}" for k, n in kinds.most_common())
+    return f" ({aligned} frames aligned to {len(refs)} references, started by: {why})"
 
 
 def _blur_words(blur: dict) -> str:

@@ -726,3 +726,31 @@ def test_a_tlog_from_another_clock_is_said_not_silently_unused(sample_bags, tmp_
     assert problem in line, line
     html = (tmp_path / "out" / "flight" / "report.html").read_text()
     assert f"<li class='problem'>{problem}" in html
+
+
+def test_a_flight_of_blank_frames_says_why_nothing_was_made(sample_bags, tmp_path):
+    """The lens cap left on: dark noise frames with the flight's telemetry.
+
+    No frame can be registered; the flight is partial (exit status 1) and its line says why no
+    set was made, not only that none was.
+    """
+    _, frames, tel = _sample(sample_bags)
+    rng = np.random.default_rng(0)
+    dark = []
+    for m in frames:
+        img, _ = cdr_to_image(m.raw)
+        noise = rng.normal(3.0, 1.0, img.shape).clip(0, 255).astype(np.uint8)
+        raw = image_to_cdr(noise, "bgr8", m.timestamp_ns, "camera")
+        dark.append(type(m)(m.topic, m.msgtype, m.timestamp_ns, raw))
+    bag = _write(tmp_path / "capped", sorted(dark + tel, key=lambda m: m.timestamp_ns))
+    r = _run(str(bag), "-o", str(tmp_path / "out"), "--params", DEMO)
+    assert r.returncode == 1, r.stdout + r.stderr
+    s = _summary(tmp_path / "out" / "capped")
+    assert s["status"] == "partial" and s["frames"]["aligned"] == 0
+    why = (
+        f"no super-resolved image: no set reached min_frames (0 frames aligned to {len(frames)} "
+        f"references, started by: {len(frames) - 1} x no texture: the reference frame is blank"
+    )
+    assert s["problems"][0].startswith(why), s["problems"]
+    line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith("capped: "))
+    assert line.startswith("capped: partial") and why in line, line

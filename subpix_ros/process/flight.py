@@ -510,6 +510,9 @@ class _FlightRun:
             self.problems.append(
                 "no super-resolved image: no set reached min_frames" + _why_no_set(collector)
             )
+        failed = _failed_shifts(self.rows)
+        if failed:  # many aligned frames without a shift: the sets lack members, said why
+            self.problems.append(failed)
         fell = [st for st in collector.sets if st.get("fell_back")]
         if fell:  # a bicubic upscale in place of a super-resolved image: said, not counted as SR
             self.problems.append(
@@ -550,6 +553,23 @@ class _FlightRun:
         )
         res.__dict__["_crops"] = self.collector.crops
         return res
+
+
+def _failed_shifts(rows: list[dict]) -> str | None:
+    """Say how many aligned frames have no sub-pixel shift, and why, when over max(2, 20 %).
+
+    A few unconverged pairs are ordinary (a frame with a moving object); more mean the sets
+    lose members (or every one) for a reason the operator should see in the flight's line.
+    """
+    bad = [r for r in rows if not r.get("converged")]
+    if len(bad) <= max(2, 0.2 * len(rows)):
+        return None
+    kinds: Counter = Counter(reason_key(r.get("reason") or "") for r in bad)
+    first: dict[str, str] = {}
+    for r in bad:
+        first.setdefault(reason_key(r.get("reason") or ""), r.get("reason") or "no reason given")
+    why = ", ".join(f"{n} x {first[k]}" for k, n in kinds.most_common(3))
+    return f"{len(bad)} of {len(rows)} aligned frames have no sub-pixel shift: {why}"
 
 
 def _why_no_set(collector: _Collector) -> str:

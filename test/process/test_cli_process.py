@@ -7,6 +7,7 @@ interruption, and bad input (no images, no telemetry, a corrupt chunk, mixed fra
 import filecmp
 import json
 import os
+import re
 import signal
 import struct
 import subprocess
@@ -124,8 +125,19 @@ def test_sample_flight_products(processed, sample_bags):
     assert abs(check["rotation_deg"]) < 0.5 and check["pairs"] >= 18, check
     assert "<td>telemetry vs frames</td><td>agrees: the frames moved 1.000x" in html
     assert (out / "seneca" / "mosaic.png").is_file()
-    mos = _summary(out / "seneca")["mosaic"]
+    sen = _summary(out / "seneca")
+    mos = sen["mosaic"]
     assert mos["written"] and len(mos["footprints"]) == 9
+    # the real strip (frames 4 s apart, for the mosaic): why no set and no shift, said
+    assert re.match(
+        r"no super-resolved image: no set reached min_frames \(\d+ frames aligned to \d+ "
+        r"references, started by: .*predicted overlap",
+        sen["problems"][0],
+    ), sen["problems"]
+    assert any(
+        re.match(r"(\d+) of \1 aligned frames have no sub-pixel shift: ", p)
+        for p in sen["problems"]
+    )
     assert "report: " in r.stdout
 
 

@@ -608,12 +608,15 @@ def test_process_load_gives_the_cpu_in_cores_and_the_resident_memory():
     from subpix_ros.runtime import ProcessLoad
 
     load = ProcessLoad()
+    w0, c0 = time.monotonic(), time.process_time()
     load.cores()  # from now on
     stop = time.monotonic() + 0.5
-    while time.monotonic() < stop:  # one core busy
+    while time.monotonic() < stop:  # one core busy (less of one on a loaded machine)
         pass
     busy = load.cores()
-    assert 0.6 <= busy <= 1.4, busy
+    # against this process's own CPU over the same wall time, whatever else the machine runs
+    own = (time.process_time() - c0) / (time.monotonic() - w0)
+    assert busy > 0.2 and abs(busy - own) < 0.1, (busy, own)
     time.sleep(0.3)
     assert load.cores() < 0.3  # asleep
     block = np.ones(64 << 20, np.uint8)  # 64 MB resident

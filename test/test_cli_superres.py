@@ -264,3 +264,33 @@ def test_superres_pixel_fill_reaches_the_model_and_bad_values_are_refused(frames
     for bad in ("0", "1.5", "-0.2"):
         with pytest.raises(CliError, match="--pixel-fill"):
             run(superres_cli, [*base, "--pixel-fill", bad, "-o", str(tmp_path / "x.npy")])
+
+
+def test_a_given_blur_is_checked_against_the_frames_edges(frames, crops, tmp_path, capsys):
+    """A lab value too high is checked against the frames' edges, and said where none is.
+
+    ``--blur-sigma 0.7`` for frames of a 0.3 px camera with a roof in view (the independent
+    model): the edges measure lower, their value is used and said; without an edge in view the
+    given value stands and the line says nothing checked it.
+    """
+    from benchmarks.degrade_independent import degrade, scene_crop, shift_layout
+    from benchmarks.flight_eval import gain as flight_gain
+
+    sc = scene_crop(crops["crop_road"], 2, 128, 8, (240, 240))
+    fl = degrade(sc, 2, shift_layout("random", 2, seed=3), 0.3, roof=True, seed=4, margin=8)
+    paths = []
+    for i, f in enumerate(fl.frames):
+        paths.append(str(tmp_path / f"roof{i}.png"))
+        cv2.imwrite(paths[-1], f)
+    out = tmp_path / "roof.npy"
+    assert run(superres_cli, ["superres", *paths, "--blur-sigma", "0.7", "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "(edges: blur_sigma 0.700 px given, but the edges measure" in text, text
+    used = float(text.split("blur_sigma=")[1].split(" px")[0])
+    assert used <= 0.35, text
+    assert flight_gain(fl, np.load(out)) > 3.0  # 0.7 px as given: below bicubic
+    d, plain, shifts, _ = frames  # a road crop without a straight edge
+    assert run(superres_cli, ["superres", *plain, "--blur-sigma", "0.4", "-o", str(out)]) == 0
+    assert "blur_sigma=0.400 px (parameter: given; not checked: no usable edge" in (
+        capsys.readouterr().out
+    )

@@ -21,6 +21,7 @@ the value.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -426,7 +427,8 @@ def check_given_blur(given: float, measured: BlurEstimate) -> BlurEstimate:
         a blur lower than the given one by more than ``max(GIVEN_CHECK_MIN_PX,
         GIVEN_CHECK_SIGMAS x low_bias)`` (the frames' standard error,
         :attr:`BlurEstimate.low_bias`), comparing the pooled value before its low bias
-        (``raw``); else the given value (source "parameter").
+        (``raw``); else the given value (source "parameter"; its reason says whether the edges
+        were consistent with it or none was usable: "given; not checked: ...").
 
     Notes
     -----
@@ -460,7 +462,9 @@ def check_given_blur(given: float, measured: BlurEstimate) -> BlurEstimate:
             "parameter",
             reason=f"given (edges measure {measured.raw:.3f} +- {unc:.3f} px: consistent)",
         )
-    return BlurEstimate(float(given), "parameter", reason="given")
+    # no usable edge: the given value stands, and says that nothing checked it
+    why = re.sub(r"; fallback [0-9.]+ px$", "", measured.reason or "nothing measured")
+    return BlurEstimate(float(given), "parameter", reason=f"given; not checked: {why}")
 
 
 def pool_estimates(estimates: Sequence[BlurEstimate]) -> BlurEstimate:

@@ -365,9 +365,12 @@ def test_a_given_blur_clearly_above_the_edges_is_replaced_and_said(crops):
     assert gain(fl, reconstruct(fl.frames, sh, 2, blur_sigma=e).image) > 3.0
     kept = BlurCalibration("0.3", check_given=True).update(fl.frames, sh)
     assert kept.source == "parameter" and kept.sigma == 0.3 and "consistent" in kept.reason
-    # no edge in view: the number stands
+    # no edge in view: the number stands, and says nothing checked it (and why)
     plain = flight(crops, "crop_rows", 2, 0.3, layout="random", seed=4)
-    assert check_given_blur(0.7, estimate_blur(plain.frames, plain.shifts)).sigma == 0.7
+    unchecked = check_given_blur(0.7, estimate_blur(plain.frames, plain.shifts))
+    assert unchecked.sigma == 0.7 and unchecked.source == "parameter"
+    assert unchecked.reason.startswith("given; not checked: no usable edge ("), unchecked.reason
+    assert "fallback" not in unchecked.reason
     # and without the check (the default) the frames are not looked at
     assert BlurCalibration("0.7").update([], None).sigma == 0.7
 

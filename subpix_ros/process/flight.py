@@ -561,34 +561,33 @@ def _failed_shifts(rows: list[dict]) -> str | None:
     A few unconverged pairs are ordinary (a frame with a moving object); more mean the sets
     lose members (or every one) for a reason the operator should see in the flight's line.
     """
-    bad = [r for r in rows if not r.get("converged")]
+    bad = [r.get("reason") or "no reason given" for r in rows if not r.get("converged")]
     if len(bad) <= max(2, 0.2 * len(rows)):
         return None
-    kinds: Counter = Counter(reason_key(r.get("reason") or "") for r in bad)
-    first: dict[str, str] = {}
-    for r in bad:
-        first.setdefault(reason_key(r.get("reason") or ""), r.get("reason") or "no reason given")
-    why = ", ".join(f"{n} x {first[k]}" for k, n in kinds.most_common(3))
-    return f"{len(bad)} of {len(rows)} aligned frames have no sub-pixel shift: {why}"
+    return f"{len(bad)} of {len(rows)} aligned frames have no sub-pixel shift: {_kinds(bad, 3)}"
 
 
 def _why_no_set(collector: _Collector) -> str:
     """Say what became of the frames when no set reached min_frames ('' without frames).
 
-    The references and why each started (grouped by :func:`reason_key`, the first full
-    reason of each kind shown), and how many frames were aligned to them: e.g. every frame
-    a new reference because every registration failed on blank frames.
+    The references and why each started, and how many frames were aligned to them: e.g. every
+    frame a new reference because every registration failed on blank frames.
     """
     refs = collector.references
     aligned = sum(1 for r in collector.frames if r.status == "aligned")
     if not refs:
         return ""
-    kinds: Counter = Counter(reason_key(r["reason"]) for r in refs)
-    first = {}
-    for r in refs:
-        first.setdefault(reason_key(r["reason"]), r["reason"])
-    why = ", ".join(f"{n} x {first[k]}" for k, n in kinds.most_common())
+    why = _kinds([r["reason"] for r in refs])
     return f" ({aligned} frames aligned to {len(refs)} references, started by: {why})"
+
+
+def _kinds(reasons: list[str], top: int | None = None) -> str:
+    """Count reasons by kind (:func:`reason_key`): ``"n x <first full reason>, ..."``, commonest first."""
+    kinds: Counter = Counter(reason_key(r) for r in reasons)
+    first: dict[str, str] = {}
+    for r in reasons:
+        first.setdefault(reason_key(r), r)
+    return ", ".join(f"{n} x {first[k]}" for k, n in kinds.most_common(top))
 
 
 def _blur_words(blur: dict) -> str:

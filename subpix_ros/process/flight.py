@@ -495,6 +495,15 @@ class _FlightRun:
                 "mosaic_section", self.writer.tmp, _as_json(mosaic_info)
             )
         summary = _summary(self, mosaic_info)
+        repeated = [
+            r for r in collector.frames if r.status == "skipped" and "duplicate_stamp" in r.reason
+        ]
+        if repeated:  # a second frame of one stamp cannot be told apart downstream: left out
+            self.problems.append(
+                f"{len(repeated)} of {self.done} frames left out: each repeats the stamp of the "
+                f"frame before it (first at {repeated[0].stamp_ns} ns); does the camera driver "
+                "stamp its images?"
+            )
         coverage = telemetry_coverage(
             [sm.t for sm in self.samples],
             [r.stamp_ns * 1e-9 for r in collector.frames],
@@ -521,7 +530,7 @@ class _FlightRun:
             )
         unaligned = summary["frames"]["kept"] > 1 and not summary["frames"]["aligned"]
         if self.status == "ok" and (
-            not flight.frames_total or self.dropped or collector.errors or unaligned
+            not flight.frames_total or self.dropped or collector.errors or unaligned or repeated
         ):
             self.status = "partial"  # part of the input (or all of it) could not be used
         summary["status"] = self.status

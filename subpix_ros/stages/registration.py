@@ -165,6 +165,7 @@ class RegistrationStage(Stage):
         # (measured, expected) shifts of the last aligned frames: METHODS eq. 1 checked
         self._motion_pairs: deque = deque(maxlen=TELEMETRY_CHECK_PAIRS)
         self._next_check_warning_s = -math.inf
+        self._previous_ns: int | None = None  # the last frame's stamp given to add
 
     def _make_selector(self) -> FrameSelector:
         mode = self.param("selection")
@@ -292,6 +293,9 @@ class RegistrationStage(Stage):
     def add(self, frame: Frame) -> Aligned | NewReference | Skipped:
         """Select, register and align one frame (see the class docstring)."""
         self.stats.frames_in += 1
+        if frame.stamp_ns == self._previous_ns:  # (a node checks the time before add)
+            return self._duplicate(frame)
+        self._previous_ns = frame.stamp_ns
         self.check_time(frame.stamp_ns)
         skipped = self._select(frame)
         if skipped is not None:
@@ -362,6 +366,22 @@ class RegistrationStage(Stage):
             (None, None) if ac is None else (float(ac[0]), float(ac[1]))
         )
         return out
+
+    def _duplicate(self, frame: Frame) -> Skipped:
+        """Leave out a frame whose stamp repeats the previous frame's, and say so.
+
+        Every output downstream (shift, homography, the sets' members) is matched by its
+        source frame's stamp; a second frame of one stamp would overwrite the first's or be
+        paired with it. A camera driver that leaves its images unstamped gives this on every
+        frame.
+        """
+        self.stats.skip("duplicate_stamp")
+        why = (
+            f"stamp {frame.stamp_ns} ns repeats the previous frame's: left out (outputs are "
+            "matched by stamp; does the camera driver stamp its images?)"
+        )
+        self.warn(f"frame {why}")
+        return Skipped(frame.stamp_ns, "duplicate_stamp", why)
 
     def quality_problem(self, result) -> str:
         """Why a registration result is not good enough to align to (empty if it is)."""

@@ -142,3 +142,37 @@ def test_telemetry_that_does_not_fit_the_frames_holds_the_status_at_warn(ctx, fl
         finally:
             node.close()
             node.destroy_node()
+
+
+def test_a_repeated_stamp_is_left_out_by_the_node_and_the_next_frame_aligned(ctx, flight):
+    """The node checks the time before the stage's add: only a true repeat is left out."""
+    from subpix_ros.nodes.diagnostics import WARN
+    from subpix_ros.nodes.registration_node import RegistrationNode
+
+    frames, _ = flight
+    node = RegistrationNode(
+        subscribe_inputs=False,
+        parameter_overrides=[
+            Parameter("selection", value="all"),
+            Parameter("distortion", value=False),
+        ],
+    )
+    try:
+        got = []
+        node.listen("aligned", got.append)
+        stamps = [frames[0].stamp_ns, frames[0].stamp_ns, frames[1].stamp_ns, frames[2].stamp_ns]
+        for stamp, f in zip(stamps, frames):
+            node.handle_frame(pl.Frame(stamp_ns=stamp, image=f.image, frame_id="camera"))
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline and not node.worker.idle():
+                time.sleep(0.01)
+        assert [a.stamp_ns for a in got] == stamps[2:]
+        assert node.stage.stats.skipped_by_reason == {"duplicate_stamp": 1}
+        status = node.diag.snapshot()
+        kv = {x.key: x.value for x in status.values}
+        assert kv["frames_skipped"] == "1"
+        assert "stamp" in status.message and "repeats the previous frame's" in status.message
+        assert status.level == WARN.to_bytes(1, "little")  # held: the frames after are ok
+    finally:
+        node.close()
+        node.destroy_node()

@@ -766,3 +766,24 @@ def test_a_flight_of_blank_frames_says_why_nothing_was_made(sample_bags, tmp_pat
     assert s["problems"][0].startswith(why), s["problems"]
     line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith("capped: "))
     assert line.startswith("capped: partial") and why in line, line
+
+
+def test_a_camera_that_does_not_stamp_its_images_is_said(sample_bags, tmp_path):
+    """Every image stamped 0 (a driver that leaves the header empty), the telemetry as recorded."""
+    _, frames, tel = _sample(sample_bags)
+    unstamped = []
+    for m in frames:
+        img, _ = cdr_to_image(m.raw)
+        raw = image_to_cdr(img, "bgr8", 0, "camera")
+        unstamped.append(type(m)(m.topic, m.msgtype, m.timestamp_ns, raw))
+    bag = _write(tmp_path / "nostamp", sorted(unstamped + tel, key=lambda m: m.timestamp_ns))
+    r = _run(str(bag), "-o", str(tmp_path / "out"), "--params", DEMO)
+    assert r.returncode == 1, r.stdout + r.stderr
+    s = _summary(tmp_path / "out" / "nostamp")
+    n = len(frames)
+    first = f"{n - 1} of {n} frames left out: each repeats the stamp of the frame before it"
+    assert s["status"] == "partial" and s["problems"][0].startswith(first), s["problems"]
+    assert s["frames"]["skipped"] == n - 1 and s["frames"]["shifts"] == 0
+    assert any(p.startswith("telemetry covers 0 of") for p in s["problems"])  # 1970 vs 2024
+    line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith("nostamp: "))
+    assert first in line, line

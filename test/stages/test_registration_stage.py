@@ -213,3 +213,21 @@ def test_telemetry_that_does_not_fit_the_frames_is_a_warning(flight, sample_bags
             assert abs(f_px - 4300 / 3.08) < 15, warned[0]  # the camera's f/a
     stage.configure(pixel_pitch_um=2.0)  # other parameters: the check starts again
     assert st.telemetry_pairs == 0 and st.telemetry_agrees is None
+
+
+def test_a_frame_repeating_the_previous_stamp_is_left_out_and_said(flight):
+    """An unstamped camera (every stamp 0) or a duplicated message: outputs are keyed by stamp."""
+    frames, _ = flight
+    stage = RegistrationStage(**FAST)
+    problems = []
+    stage.on_problem = lambda level, msg: problems.append(msg)
+    first = stage.add(frames[0])
+    again = stage.add(Frame(frames[0].stamp_ns, frames[1].image))
+    assert isinstance(first, NewReference)
+    assert isinstance(again, Skipped) and again.reason == "duplicate_stamp"
+    assert "repeats the previous frame's" in again.detail
+    assert stage.stats.skipped_by_reason == {"duplicate_stamp": 1}
+    assert problems and "does the camera driver stamp its images?" in problems[-1]
+    # the next stamp goes on as usual, against the same reference
+    assert isinstance(stage.add(frames[1]), Aligned)
+    assert stage.reference.stamp_ns == frames[0].stamp_ns and stage.stats.resets == 0

@@ -137,22 +137,6 @@ def _auto_shifts(lumas: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, list[
     return np.array(shifts), np.array(covs), keep
 
 
-def _checked_blur(given: float, frames: list, shifts, motion):
-    """Return a given ``--blur-sigma`` checked against straight edges in the frames.
-
-    As the reconstruction node does (:func:`subpix_ros.core.blur.check_given_blur`): a value
-    the edges show too high (over-deconvolving, below bicubic by 0.2 px) is replaced by their
-    measurement; without a usable edge it stands and the output line says it was not checked.
-    """
-    from subpix_ros.core.blur import check_given_blur, estimate_blur
-    from subpix_ros.core.superres.model import motion_blur_vector
-
-    measured = estimate_blur(
-        frames, np.asarray(shifts, dtype=np.float64), motion_blur=motion_blur_vector(motion)
-    )
-    return check_given_blur(given, measured)
-
-
 def _write(path: str, image: np.ndarray) -> None:
     ext = Path(path).suffix.lower()
     if ext == ".npy":
@@ -186,11 +170,12 @@ def run(args: argparse.Namespace) -> int:
             + ", ".join(f"{f}: {i.shape[1]}x{i.shape[0]}" for f, i in zip(args.frames, imgs))
         )
     cov = None
+    lumas = [luma(i) for i in imgs]
     if args.shifts == "auto":
-        shifts, cov, keep = _auto_shifts([luma(i) for i in imgs])
+        shifts, cov, keep = _auto_shifts(lumas)
         if len(keep) < 2:
             raise CliError("no frame could be registered to the first one")
-        imgs = [imgs[k] for k in keep]
+        imgs, lumas = [imgs[k] for k in keep], [lumas[k] for k in keep]
     else:
         shifts = _shifts_from_file(args.shifts, len(imgs))
     from subpix_ros.core.blur import parse_blur_sigma
@@ -211,8 +196,11 @@ def run(args: argparse.Namespace) -> int:
             ) from None
     if args.pixel_fill is not None and not 0.0 < args.pixel_fill <= 1.0:
         raise CliError(f"--pixel-fill: must be in (0, 1] (input px), got {args.pixel_fill:g}")
-    if blur != "auto" and args.method == "map":  # a lab value, checked against any edges
-        blur = _checked_blur(float(blur), [luma(i) for i in imgs], shifts, motion)
+    if blur != "auto" and args.method == "map":  # a lab value, checked as the node checks it
+        from subpix_ros.core.blur import BlurCalibration
+
+        check = BlurCalibration(blur, check_given=True)
+        blur = check.update(lumas, np.asarray(shifts, dtype=np.float64), motion_blur=motion)
     kw = dict(
         method=args.method,
         prior=args.prior,

@@ -21,7 +21,6 @@ the value.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -142,6 +141,15 @@ def parse_blur_sigma(value) -> str | float:
     return v
 
 
+#: What a fallback's reason ends with (the value used); :func:`check_given_blur` drops it.
+_FALLBACK_NOTE = "; fallback {:.2f} px"
+
+
+def _fallback(value: float, why: str) -> BlurEstimate:
+    """Return the fallback estimate, its reason ``why`` followed by :data:`_FALLBACK_NOTE`."""
+    return BlurEstimate(value, "fallback", reason=why + _FALLBACK_NOTE.format(value))
+
+
 def estimate_blur(
     frames: Sequence[np.ndarray],
     shifts: np.ndarray | None = None,
@@ -223,11 +231,7 @@ def estimate_blur(
     per_edge, why = _measure_edges(arrs, sh, rois, noise, masks, motion, boxes)
     if not per_edge:
         common = max(why, key=why.count) if why else "no straight edge found"  # ties: first
-        return BlurEstimate(
-            fallback,
-            "fallback",
-            reason=f"no usable edge ({len(rois)} candidates: {common}); fallback {fallback:.2f} px",
-        )
+        return _fallback(fallback, f"no usable edge ({len(rois)} candidates: {common})")
     return _pool_edges(per_edge, spectral_cap(arrs, noise), fallback, fit_fill)
 
 
@@ -348,20 +352,18 @@ def _pool_edges(
     vals = np.array([e[0] for e in per_edge])
     ses = np.array([e[1] for e in per_edge])
     if vals.min() > cap:
-        return BlurEstimate(
+        return _fallback(
             fallback,
-            "fallback",
-            reason=f"edges measured {vals.min():.2f} px or more, above what the frames' spectrum "
-            f"allows ({cap:.2f} px): edges soft in the scene; fallback {fallback:.2f} px",
+            f"edges measured {vals.min():.2f} px or more, above what the frames' spectrum "
+            f"allows ({cap:.2f} px): edges soft in the scene",
         )
     misfits = np.array([e[4] for e in per_edge])
     keep = (vals <= cap) & np.isfinite(misfits)  # no misfit: the model's band was too short
     if not keep.any():
-        return BlurEstimate(
+        return _fallback(
             fallback,
-            "fallback",
-            reason=f"{len(per_edge)} measured edges, none with a usable fit to the edge model "
-            f"below the frames' spectral cap ({cap:.2f} px); fallback {fallback:.2f} px",
+            f"{len(per_edge)} measured edges, none with a usable fit to the edge model "
+            f"below the frames' spectral cap ({cap:.2f} px)",
         )
     edges = [e for e, k in zip(per_edge, keep) if k]
     vals, ses, misfits = vals[keep], ses[keep], misfits[keep]
@@ -462,8 +464,10 @@ def check_given_blur(given: float, measured: BlurEstimate) -> BlurEstimate:
             "parameter",
             reason=f"given (edges measure {measured.raw:.3f} +- {unc:.3f} px: consistent)",
         )
-    # no usable edge: the given value stands, and says that nothing checked it
-    why = re.sub(r"; fallback [0-9.]+ px$", "", measured.reason or "nothing measured")
+    # no usable edge: the given value stands, and says that nothing checked it (and why)
+    why = (measured.reason or "nothing measured").removesuffix(
+        _FALLBACK_NOTE.format(measured.sigma)
+    )
     return BlurEstimate(float(given), "parameter", reason=f"given; not checked: {why}")
 
 
@@ -501,11 +505,7 @@ def pool_estimates(estimates: Sequence[BlurEstimate]) -> BlurEstimate:
         if e.source == "edges" and np.isfinite(e.raw) and np.isfinite(e.uncertainty)
     ]
     if not usable:
-        return BlurEstimate(
-            FALLBACK_SIGMA,
-            "fallback",
-            reason=f"no usable edge in {len(estimates)} frames; fallback {FALLBACK_SIGMA:.2f} px",
-        )
+        return _fallback(FALLBACK_SIGMA, f"no usable edge in {len(estimates)} frames")
     r = np.array([e.raw for e in usable])
     u = np.maximum(np.array([e.uncertainty for e in usable]), 0.005)
     group = _consistent_with_lowest(r, u)

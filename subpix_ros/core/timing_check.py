@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TelemetryAgreement", "telemetry_agreement"]
+__all__ = ["TelemetryAgreement", "telemetry_agreement", "what_would_fit"]
 
 #: A scale further than this from 1 (and beyond 3 standard errors) is a disagreement.
 SCALE_TOLERANCE = 0.10
@@ -175,6 +175,50 @@ def telemetry_agreement(measured: np.ndarray, expected: np.ndarray) -> Telemetry
         off_scale,
         off_turn,
     )
+
+
+def what_would_fit(
+    check: TelemetryAgreement,
+    focal_length_mm: float,
+    pixel_pitch_um: float,
+    camera_yaw_offset_deg: float,
+) -> str:
+    """Say which of METHODS eq. 1's parameters would fit the frames ('' unless they disagree).
+
+    Parameters
+    ----------
+    check : TelemetryAgreement
+        :func:`telemetry_agreement` of the frames against the expectation made with the
+        parameters below.
+    focal_length_mm, pixel_pitch_um, camera_yaw_offset_deg : float
+        The parameters the expected shifts were made with (mm, um, deg).
+
+    Returns
+    -------
+    str
+        For a scale off: the focal length in pixels ``f / a`` used and the one the frames
+        imply, ``k f / a`` (e.g. ``pixel_pitch_um a / k``; or the height above ground is off by
+        ``1 / k``); for a rotation off: the yaw offset that would fit, the given one plus
+        ``theta``. Joined by "; ".
+    """
+    if check.agrees is not False:
+        return ""
+    fixes = []
+    if check.scale_off:
+        f_px = focal_length_mm * 1e3 / pixel_pitch_um
+        fixes.append(
+            f"focal_length_mm {focal_length_mm:g} and pixel_pitch_um {pixel_pitch_um:g} (f/a "
+            f"{f_px:.0f} px) or the height above ground do not fit these frames: they imply f/a "
+            f"{check.scale * f_px:.0f} px (e.g. pixel_pitch_um {pixel_pitch_um / check.scale:.3g}, "
+            "as for a stream downscaled by that factor)"
+        )
+    if check.rotation_off:
+        fixes.append(
+            f"the camera is yawed {check.rotation_deg:+.1f} deg from camera_yaw_offset_deg "
+            f"{camera_yaw_offset_deg:g}: give yaw offset "
+            f"{camera_yaw_offset_deg + check.rotation_deg:.1f} deg"
+        )
+    return "; ".join(fixes) + "; so the frame timing aims at another shift than p asks"
 
 
 def _as_complex(a: np.ndarray, name: str) -> np.ndarray:

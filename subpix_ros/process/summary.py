@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections import Counter
 from typing import TYPE_CHECKING
 
-from subpix_ros.core.timing_check import TelemetryAgreement
+from subpix_ros.core.timing_check import TelemetryAgreement, what_would_fit
 from subpix_ros.process.collector import _TIME_KEY, _clean, _stats_dict, reason_key
 from subpix_ros.process.inputs import Flight
 from subpix_ros.process.tables import _shape_text
@@ -164,24 +164,13 @@ def telemetry_check_summary(check: TelemetryAgreement | None, reg_params: dict) 
     out = {k: v for k, v in vars(check).items() if k not in ("reason",)}
     note = check.reason
     if check.agrees is False:
-        f_mm, a_um = float(reg_params["focal_length_mm"]), float(reg_params["pixel_pitch_um"])
-        fixes = []
-        if check.scale_off:
-            f_px = f_mm * 1e3 / a_um
-            fixes.append(
-                f"focal_length_mm {f_mm:g} and pixel_pitch_um {a_um:g} (f/a {f_px:.0f} px) or "
-                f"the height above ground do not fit these frames: they imply f/a "
-                f"{check.scale * f_px:.0f} px (e.g. pixel_pitch_um {a_um / check.scale:.3g}, as "
-                "for a stream downscaled by that factor), so the frame timing aims at another "
-                "shift than p asks"
-            )
-        if check.rotation_off:
-            yaw = float(reg_params["camera_yaw_offset_deg"])
-            fixes.append(
-                f"the camera is yawed {check.rotation_deg:+.1f} deg from camera_yaw_offset_deg "
-                f"{yaw:g} (give {yaw + check.rotation_deg:.1f})"
-            )
-        note = "telemetry " + check.reason + ": " + "; ".join(fixes)
+        advice = what_would_fit(
+            check,
+            float(reg_params["focal_length_mm"]),
+            float(reg_params["pixel_pitch_um"]),
+            float(reg_params["camera_yaw_offset_deg"]),
+        )
+        note = f"telemetry {check.reason}: {advice}"
     out["note"] = note
     return out
 

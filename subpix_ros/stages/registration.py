@@ -35,7 +35,7 @@ from subpix_ros.core import registration as reg
 from subpix_ros.core.motion import MotionTracker
 from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample, validate_sample
 from subpix_ros.core.timing import FrameSelector, expected_shift_px
-from subpix_ros.core.timing_check import telemetry_agreement
+from subpix_ros.core.timing_check import telemetry_agreement, what_would_fit
 from subpix_ros.stages.base import Stage
 from subpix_ros.stages.params import Spec
 from subpix_ros.stages.stats import RegistrationStats
@@ -239,14 +239,13 @@ class RegistrationStage(Stage):
         st.telemetry_scale, st.telemetry_rotation_deg = check.scale, check.rotation_deg
         if check.agrees is False and frame.stamp_s >= self._next_check_warning_s:
             self._next_check_warning_s = frame.stamp_s + TELEMETRY_WARN_EVERY_S
-            f_px = self.param("focal_length_mm") * 1e3 / self.param("pixel_pitch_um")
-            self.warn(
-                f"telemetry {check.reason}: focal_length_mm / pixel_pitch_um (f/a {f_px:.0f} px), "
-                f"the height or camera_yaw_offset_deg do not fit the frames (they imply f/a "
-                f"{check.scale * f_px:.0f} px, yaw offset "
-                f"{self.param('camera_yaw_offset_deg') + check.rotation_deg:.1f} deg): the "
-                "frame selection aims at another shift than p asks"
+            advice = what_would_fit(
+                check,
+                self.param("focal_length_mm"),
+                self.param("pixel_pitch_um"),
+                self.param("camera_yaw_offset_deg"),
             )
+            self.warn(f"telemetry {check.reason}: {advice}")
 
     # ---------------------------------------------------------------- selection
     def _image_rate(self, stamp_s: float):

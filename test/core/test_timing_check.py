@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from subpix_ros.core.timing import expected_shift_px
-from subpix_ros.core.timing_check import telemetry_agreement
+from subpix_ros.core.timing_check import telemetry_agreement, what_would_fit
 
 F = 4.3e-3  # Seneca camera: f = 4.3 mm, 1.54 um pixels
 
@@ -35,6 +35,9 @@ def test_a_stream_downscaled_2x_shows_as_scale_one_half():
     assert res.rotation_deg == pytest.approx(0.0, abs=1e-6)
     assert res.pairs == 24 and res.outliers == 0
     assert res.reason.startswith("disagrees: the frames moved 0.500x")
+    advice = what_would_fit(res, 4.3, 1.54, 0.0)  # f/a 2792 px given, 1396 px in the frames
+    assert "they imply f/a 1396 px (e.g. pixel_pitch_um 3.08" in advice
+    assert "yaw" not in advice
 
 
 @pytest.mark.parametrize("offset", [-25.0, 15.0])
@@ -47,6 +50,8 @@ def test_a_camera_yawed_off_its_offset_shows_as_that_rotation(offset):
     assert res.rotation_deg == pytest.approx(offset, abs=1e-6)
     assert res.scale == pytest.approx(1.0, abs=1e-9)
     assert res.agrees is False
+    advice = what_would_fit(res, 4.3, 1.54, 5.0)
+    assert f"give yaw offset {5.0 + offset:.1f} deg" in advice and "f/a" not in advice
 
 
 def test_noisy_agreeing_flight_agrees_within_its_error():
@@ -59,6 +64,7 @@ def test_noisy_agreeing_flight_agrees_within_its_error():
     assert 0 < res.scale_se < 0.01
     assert res.rms_px == pytest.approx(0.05 * math.sqrt(2), rel=0.4)
     assert res.reason.startswith("agrees:")
+    assert what_would_fit(res, 4.3, 1.54, 0.0) == ""
 
 
 def test_a_failed_registration_is_left_out_not_fitted():

@@ -66,7 +66,7 @@ from foxglove.messages import LocationFix, Log, LogLevel
 from .budget import TokenBucket
 from .config import MonitorConfig, MonitorError, check_exposure
 from .encoding import _num, _to_bgr, _ts, _ts_json
-from .schemas import HEALTH_SCHEMA, SHIFT_SCHEMA, TELEMETRY_SCHEMA, TOPICS
+from .schemas import HEALTH_SCHEMA, LEVEL_NAMES, SHIFT_SCHEMA, TELEMETRY_SCHEMA, TOPICS
 from .sender import _Out, _Sender, _Stream
 
 __all__ = ["Monitor"]
@@ -101,6 +101,7 @@ class Monitor(_Sender):
         self._subs: dict[int, set[int]] = {}  # ws channel id -> client ids subscribed
         self._resend: set[int] = set()
         self._health: dict[str, dict] = {}
+        self._stale_said: dict[str, float] = {}  # node -> when its last status arrived
         self._levels_seen: dict[str, int] = {}
         self._track: list[tuple[float, float]] = []
         self._footprints: list[list[tuple[float, float]]] = []
@@ -373,6 +374,7 @@ class Monitor(_Sender):
         A node whose level rises to WARN or ERROR, or whose problem message changes, also
         gives a Log entry.
         """
+        now = time.monotonic()
         for st in statuses:
             name = str(st.get("name", "?"))
             level = int(st.get("level", 0))
@@ -383,9 +385,41 @@ class Monitor(_Sender):
                     "level": level,
                     "message": msg,
                     "values": dict(st.get("values", {})),
+                    "received": now,
                 }
+                was_stale = self._stale_said.pop(name, None)
+            if was_stale is not None:
+                self.on_log(0, f"reporting again after {now - was_stale:.0f} s", name=name)
             if level > 0 and (prev is None or prev["level"] < level or prev["message"] != msg):
                 self.on_log(level, msg, name=name)
+
+    def stale_nodes(self, now: float | None = None) -> dict[str, float]:
+        """Return ``{node: seconds since its last status}`` for the nodes silent beyond ``stale_after_s``.
+
+        A node that stopped (killed, crashed, its host gone) sends no /diagnostics, and its last
+        status would otherwise stay on the operator's health table as it was, often ``OK``.
+        """
+        now = time.monotonic() if now is None else now
+        limit = float(self.cfg.stale_after_s)
+        with self._lock:
+            ages = {n: now - st["received"] for n, st in self._health.items()}
+        return {n: age for n, age in ages.items() if age > limit}
+
+    def _say_stale(self, now: float) -> None:
+        """Log once when a node's status goes stale (the health table marks it STALE meanwhile)."""
+        for name, age in self.stale_nodes(now).items():
+            with self._lock:
+                if name in self._stale_said:
+                    continue
+                self._stale_said[name] = now - age
+                last = self._health[name]
+            self.on_log(
+                3,
+                f"no status for {age:.0f} s: the node stopped or its /diagnostics no longer "
+                f"arrive (its last: {LEVEL_NAMES.get(last['level'], last['level'])} "
+                f"{last['message']})",
+                name=name,
+            )
 
     def on_log(
         self, level: int | str, text: str, name: str = "subpix_ros", stamp_ns: int | None = None

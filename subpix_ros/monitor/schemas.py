@@ -58,8 +58,15 @@ HEALTH_SCHEMA = {
                 "type": "object",
                 "properties": {
                     "name": {"type": "string"},
-                    "level": {"type": "string"},
+                    "level": {
+                        "type": "string",
+                        "description": "OK, WARN, ERROR, or STALE: no status for stale_after_s",
+                    },
                     "message": {"type": "string"},
+                    "status_age_s": {
+                        "type": "number",
+                        "description": "seconds since the node's last /diagnostics status",
+                    },
                     "input_hz": {"type": "string"},
                     "output_hz": {"type": "string"},
                     "dropped": {"type": "string"},

@@ -107,7 +107,8 @@ class _Sender:
                 self._log(out.topic, out.last, recorded=False)
         if now - self._health_sent >= self.cfg.health_period_s:
             self._health_sent = now
-            self._essential("/health", self.health_message())
+            self._say_stale(now)
+            self._essential("/health", self.health_message(now))
         for stream in self.streams.values():  # encode the newest input of each stream that is due
             with self._lock:
                 item, seq = stream.item, stream.seq
@@ -262,7 +263,10 @@ class _Sender:
             "errors": list(self.errors[-3:]),
         }
 
-    def health_message(self) -> dict:
+    def health_message(self, now: float | None = None) -> dict:
+        """Return the health table: a row per node, STALE when silent beyond ``stale_after_s``."""
+        now = time.monotonic() if now is None else now
+        stale = self.stale_nodes(now)
         keys = {
             "input_hz": "input_hz",
             "output_hz": "output_hz",
@@ -275,11 +279,17 @@ class _Sender:
             nodes, values = [], {}
             for name, st in sorted(self._health.items()):
                 v = st["values"]
+                level = LEVEL_NAMES.get(st["level"], str(st["level"]))
+                message = st["message"]
+                if name in stale:
+                    message = f"no status for {stale[name]:.0f} s (its last: {level} {message})"
+                    level = "STALE"
                 nodes.append(
                     {
                         "name": name,
-                        "level": LEVEL_NAMES.get(st["level"], str(st["level"])),
-                        "message": st["message"],
+                        "level": level,
+                        "message": message,
+                        "status_age_s": round(now - st["received"], 1),
                         **{k: str(v.get(src, "")) for k, src in keys.items()},
                     }
                 )

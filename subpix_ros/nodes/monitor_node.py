@@ -100,6 +100,13 @@ _MONITOR_PARAMS = (
     Param("camera_period_s", 1.0, "the newest camera frame is sent this often (s)", 0.05, 600.0),
     Param("geo_period_s", 2.0, "track and footprints (GeoJSON) at most this often (s)", 0.1, 600.0),
     Param("health_period_s", 1.0, "health table period (s)", 0.1, 60.0),
+    Param(
+        "stale_after_s",
+        5.0,
+        "a node with no /diagnostics status for this long is shown STALE (s)",
+        1.0,
+        3600.0,
+    ),
     Param("max_footprints", 30, "frame footprints kept on the map", 0, 10000),
     Param(
         "record_mcap",
@@ -112,6 +119,9 @@ _MONITOR_PARAMS = (
 
 class MonitorNode(StageNode):
     """The flight served live to Foxglove: ROS topics in, :class:`Monitor` out."""
+
+    #: declares ``input_timeout_s``; the watch itself (camera and mosaic) is set in ``__init__``
+    MAIN_INPUTS = ("image",)
 
     PARAMS = _MONITOR_PARAMS + (
         Param(
@@ -167,10 +177,19 @@ class MonitorNode(StageNode):
         self._course: float | None = None
         self._fix: tuple[float, float] | None = None
         self._last_camera_ns = 0
+        self._stale_logged: set[str] = set()
         self._timer = self.create_timer(1.0, self._publish_own_health)
         self._shift_join = ShiftStdJoin(self._serve_shift, wait_s=self.param("shift_std_wait_s"))
         self._join_timer = self.create_timer(0.1, self._expire_shifts)
         self._subscribe(subscribe_inputs)
+        # what the operator looks at: the camera (or the frames handed over in memory) and the
+        # mosaic; silence on both is said, whatever else (telemetry, /diagnostics) still arrives
+        mosaic = "mosaic/compressed" if self.param("mosaic_compressed") else "mosaic"
+        self.diag.watch_inputs(
+            ("image", mosaic) if subscribe_inputs else (mosaic,),
+            lambda: self.param("input_timeout_s"),
+            meter="images",
+        )
 
     def _subscribe(self, stage_inputs: bool) -> None:
         """Subscribe the monitor's inputs.
@@ -272,10 +291,12 @@ class MonitorNode(StageNode):
 
     # ---------------------------------------------------------------- images
     def _on_mosaic_c(self, raw: bytes) -> None:
+        self.diag.rate("images").tick()
         img, header = cdr.cdr_to_compressed(raw)
         self.monitor.on_mosaic(img, cdr.header_to_ns(header))
 
     def _on_mosaic(self, raw: bytes) -> None:
+        self.diag.rate("images").tick()
         img, header = cdr.cdr_to_image(raw, "bgr8")
         self.monitor.on_mosaic(img.copy(), cdr.header_to_ns(header))
 
@@ -332,6 +353,7 @@ class MonitorNode(StageNode):
         return True
 
     def _on_camera(self, raw: bytes) -> None:
+        self.diag.rate("images").tick()
         if not self._camera_due():
             return
         img, header = cdr.cdr_to_image(raw)
@@ -344,6 +366,7 @@ class MonitorNode(StageNode):
     # ---------------------------------------------------- in memory (single-process pipeline)
     def handle_frame(self, frame) -> None:
         """Take a camera frame (``payloads.Frame``) handed over in memory (not written to later)."""
+        self.diag.rate("images").tick()
         if self._camera_due():
             self._serve_camera(frame.image, frame.stamp_ns)
 
@@ -454,8 +477,19 @@ class MonitorNode(StageNode):
             **{f"{k}_quality": v["quality"] for k, v in link["levels"].items()},
             **{f"{k}_sent": v["sent"] for k, v in link["levels"].items()},
         )
+        stale = {n: a for n, a in self.monitor.stale_nodes().items() if n != self.get_name()}
+        self.diag.set(stale_nodes=", ".join(sorted(stale)) or "none")
+        for name in sorted(set(stale) - self._stale_logged):
+            self.get_logger().warning(f"no /diagnostics status from {name} for {stale[name]:.0f} s")
+        self._stale_logged = set(stale)
         if self.monitor.errors:
             self.diag.warn(self.monitor.errors[-1])
+        elif stale:
+            self.diag.hold_warning(
+                "no /diagnostics status from "
+                + ", ".join(f"{n} for {a:.0f} s" for n, a in sorted(stale.items()))
+                + ": stopped, or no longer reachable"
+            )
         else:
             self.diag.ok()
 

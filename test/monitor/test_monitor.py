@@ -284,3 +284,47 @@ def test_layout_panels_use_advertised_topics():
         ):
             topic, field = path.split(".", 1)
             assert field in schema[topic]["properties"], path
+
+
+def test_a_node_that_stops_reporting_is_shown_stale_and_its_return_said():
+    """A killed node sends no /diagnostics: its last OK must not stay on the operator's table."""
+    mon = Monitor(MonitorConfig(port=0, health_period_s=0.1, stale_after_s=1.0))
+    client = _connect(mon.url)
+    try:
+        alive = {"name": "shift_node", "level": 0, "message": "ok", "values": {}}
+        gone = {"name": "registration_node", "level": 0, "message": "ok", "values": {}}
+        mon.on_diagnostics([alive, gone])
+
+        def rows():
+            msgs = client.messages("/health")
+            if not msgs:
+                return {}
+            return {n["name"]: n for n in json.loads(msgs[-1].payload)["nodes"]}
+
+        assert client.wait(lambda: rows().get("registration_node", {}).get("level") == "OK", 5)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 2.0:  # shift_node keeps reporting at 5 Hz
+            mon.on_diagnostics([alive])
+            time.sleep(0.2)
+        table = rows()
+        assert table["shift_node"]["level"] == "OK"
+        assert table["shift_node"]["status_age_s"] < 1.0
+        gone_row = table["registration_node"]
+        assert gone_row["level"] == "STALE", gone_row
+        assert gone_row["status_age_s"] >= 1.0
+        assert gone_row["message"].startswith("no status for ")
+        assert "(its last: OK ok)" in gone_row["message"]
+        assert mon.stale_nodes().keys() == {"registration_node"}
+
+        def logs():
+            return [client.decode("/log", m.payload).message for m in client.messages("/log")]
+
+        assert client.wait(lambda: any("no status for" in t for t in logs()), 3), logs()
+        assert sum("no status for" in t for t in logs()) == 1  # said once, not every period
+        mon.on_diagnostics([gone])  # restarted
+        assert client.wait(lambda: any("reporting again" in t for t in logs()), 3), logs()
+        assert client.wait(lambda: rows()["registration_node"]["level"] == "OK", 3)
+        assert mon.stale_nodes() == {}
+    finally:
+        client.close()
+        mon.close()

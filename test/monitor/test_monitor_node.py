@@ -244,3 +244,85 @@ def test_a_bicubic_fallback_is_served_as_one_not_as_super_resolved(served):
     # a reconstruction that came out as bicubic (a flat scene): the stage's word is taken
     node.handle_super_resolved(SuperResolved(fallback, frame, [], "map", False, "", 2))
     assert seen[2:] == [(T0 + 1, 2, "no plan fits 250 MB"), (T0 + 1, 2, None), (T0 + 1, 2, None)]
+
+
+def test_a_stopped_node_and_a_silent_camera_are_said_by_the_monitor():
+    """The operator's window must not sit on a dead node's last OK, nor say OK showing nothing."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from subpix_ros.nodes.monitor_node import MonitorNode
+
+    rclpy.init()
+    port = _free_port()
+    node = MonitorNode(
+        parameter_overrides=[
+            Parameter("port", value=port),
+            Parameter("stale_after_s", value=1.0),
+            Parameter("input_timeout_s", value=1.0),
+        ]
+    )
+    h = rclpy.create_node("harness")
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    ex.add_node(h)
+    client = FoxgloveClient(f"ws://127.0.0.1:{port}", topics=("/health",))
+    own = []
+    h.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: own.extend(s for s in m.status if s.name == "monitor_node"),
+        10,
+    )
+    pub = h.create_publisher(DiagnosticArray, "/diagnostics", 10)
+    cam = h.create_publisher(Image, "image", camera_qos(False, depth=1))
+
+    def report():
+        msg = DiagnosticArray()
+        msg.status = [DiagnosticStatus(level=DiagnosticStatus.OK, name="shift_node", message="ok")]
+        pub.publish(msg)
+
+    stamp = [T0]
+
+    def frame():
+        stamp[0] += 100_000_000
+        cam.publish(cdr.image_to_cdr(np.zeros((48, 64), np.uint8), "mono8", stamp[0]))
+
+    try:
+        # nothing on the camera or the mosaic: said, naming the topics
+        assert _spin(
+            ex, lambda: any(s.level == b"\x01" and "/image" in s.message for s in own), 10
+        ), [s.message for s in own[-3:]]
+        # frames arrive and shift_node reports: OK once the warning's hold (5 s) is over
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 10 and not (own and own[-1].level == b"\x00"):
+            report()
+            frame()
+            _spin(ex, lambda: False, 0.2)
+        assert own[-1].level == b"\x00", own[-1].message
+        table = {
+            n["name"]: n
+            for n in client.decode("/health", client.messages("/health")[-1].payload)["nodes"]
+        }
+        assert table["shift_node"]["level"] == "OK"
+        # shift_node stops reporting (killed); frames still arrive
+        assert _spin(
+            ex,
+            lambda: (
+                frame() or any("no /diagnostics status from shift_node" in s.message for s in own)
+            ),
+            10,
+        ), [s.message for s in own[-3:]]
+        assert own[-1].level == b"\x01"
+        assert {kv.key: kv.value for kv in own[-1].values}["stale_nodes"] == "shift_node"
+        table = {
+            n["name"]: n
+            for n in client.decode("/health", client.messages("/health")[-1].payload)["nodes"]
+        }
+        assert table["shift_node"]["level"] == "STALE"
+    finally:
+        client.close()
+        node.close()
+        ex.shutdown()
+        node.destroy_node()
+        h.destroy_node()
+        rclpy.shutdown()

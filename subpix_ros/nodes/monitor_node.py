@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 import sys
 import threading
+import time
+from typing import Any
 
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray
@@ -152,6 +154,14 @@ class MonitorNode(StageNode):
             100.0,
         ),
         Param(
+            "telemetry_timeout_s",
+            3.0,
+            "telemetry older than this (s) is not used: shifts go without expected values and no "
+            "footprint is drawn at a stale position; silence after telemetry was heard is a WARN",
+            0.2,
+            3600.0,
+        ),
+        Param(
             "camera_yaw_offset_deg",
             0.0,
             "compass angle of the image top relative to the course (deg)",
@@ -172,12 +182,11 @@ class MonitorNode(StageNode):
         self._lock = threading.Lock()
         # reference stamp -> image, for the bicubic beside the SR image
         self._refs: dict[int, object] = {}
-        self._expected: tuple[float, float] | None = None
-        self._height: float | None = None
-        self._course: float | None = None
-        self._fix: tuple[float, float] | None = None
+        # the latest telemetry, each with the time.monotonic() it arrived (used while fresh)
+        self._telemetry: dict[str, tuple[Any, float]] = {}
         self._last_camera_ns = 0
         self._stale_logged: set[str] = set()
+        self._telemetry_lost = False
         self._timer = self.create_timer(1.0, self._publish_own_health)
         self._shift_join = ShiftStdJoin(self._serve_shift, wait_s=self.param("shift_std_wait_s"))
         self._join_timer = self.create_timer(0.1, self._expire_shifts)
@@ -373,7 +382,7 @@ class MonitorNode(StageNode):
     def handle_shift(self, shift_and_frame) -> None:
         """Take the shift stage's ``(payloads.Shift, Aligned)``, with its standard errors."""
         s = shift_and_frame[0]
-        e = self._expected
+        e = self._fresh("expected")
         self.monitor.on_shift(
             s.stamp_ns, s.u, s.v, s.u_std, s.v_std, True, e[0] if e else None, e[1] if e else None
         )
@@ -384,14 +393,16 @@ class MonitorNode(StageNode):
         self._serve_sr(sr.image, sr.reference.image, sr.reference.stamp_ns, why, known=True)
 
     def _footprint(self, w: int, h: int, stamp: int) -> None:
-        if self._fix is None or self._height is None or not self._height > 0:
+        fix, height = self._fresh("fix"), self._fresh("height")
+        if fix is None or height is None or not height > 0:
             return
-        heading = (self._course or 0.0) + math.radians(self.param("camera_yaw_offset_deg"))
+        course = self._fresh("course")
+        heading = (course or 0.0) + math.radians(self.param("camera_yaw_offset_deg"))
         self.monitor.on_footprint(
             footprint_lonlat(
-                self._fix[0],
-                self._fix[1],
-                self._height,
+                fix[0],
+                fix[1],
+                height,
                 heading,
                 w,
                 h,
@@ -419,15 +430,29 @@ class MonitorNode(StageNode):
                 "shift_std_wait_s (is shift_node publishing shift/std?)"
             )
 
+    def _fresh(self, key: str) -> Any:
+        """Return the latest telemetry ``key`` unless older than ``telemetry_timeout_s``."""
+        value, t = self._telemetry.get(key, (None, -math.inf))
+        return value if time.monotonic() - t <= self.param("telemetry_timeout_s") else None
+
+    def _keep(self, key: str, value: Any) -> None:
+        self._telemetry[key] = (value, time.monotonic())
+
+    def _telemetry_silence(self) -> float | None:
+        """Seconds since the last telemetry, once some was heard (None before)."""
+        if not self._telemetry:
+            return None
+        return time.monotonic() - max(t for _, t in self._telemetry.values())
+
     def _serve_shift(self, stamp_ns: int, u: float, v: float, u_std, v_std) -> None:
         # the shift topic carries screened estimates only (shift_node's max_std_px): converged
-        e = self._expected
+        e = self._fresh("expected")
         self.monitor.on_shift(
             stamp_ns, u, v, u_std, v_std, True, e[0] if e else None, e[1] if e else None
         )
 
     def _on_expected(self, msg: Vector3Stamped) -> None:
-        self._expected = (msg.vector.x, msg.vector.y)
+        self._keep("expected", (msg.vector.x, msg.vector.y))
         self.monitor.on_telemetry(
             stamp_to_ns(msg.header.stamp), expected_u=msg.vector.x, expected_v=msg.vector.y
         )
@@ -436,15 +461,15 @@ class MonitorNode(StageNode):
         self.monitor.on_telemetry(self.get_clock().now().nanoseconds, frame_interval_s=msg.data)
 
     def _on_height(self, msg: Float64) -> None:
-        self._height = float(msg.data)
+        self._keep("height", float(msg.data))
 
     def _on_velocity(self, msg: TwistStamped) -> None:
         e, n = msg.twist.linear.x, msg.twist.linear.y  # ENU
         speed = math.hypot(e, n)
         if speed > 0.2:
-            self._course = math.atan2(e, n)
+            self._keep("course", math.atan2(e, n))
         self.monitor.on_telemetry(
-            stamp_to_ns(msg.header.stamp), speed_mps=speed, height_m=self._height
+            stamp_to_ns(msg.header.stamp), speed_mps=speed, height_m=self._fresh("height")
         )
 
     def _on_fix(self, msg: NavSatFix) -> None:
@@ -452,7 +477,7 @@ class MonitorNode(StageNode):
             math.isfinite(msg.latitude) and math.isfinite(msg.longitude)
         ):
             return
-        self._fix = (msg.latitude, msg.longitude)
+        self._keep("fix", (msg.latitude, msg.longitude))
         self.monitor.on_fix(
             msg.latitude, msg.longitude, msg.altitude, stamp_to_ns(msg.header.stamp)
         )
@@ -478,20 +503,34 @@ class MonitorNode(StageNode):
             **{f"{k}_sent": v["sent"] for k, v in link["levels"].items()},
         )
         stale = {n: a for n, a in self.monitor.stale_nodes().items() if n != self.get_name()}
+        quiet = self._telemetry_silence()
+        self.diag.set(telemetry_age_s="none heard" if quiet is None else round(quiet, 1))
+        lost = quiet is not None and quiet > self.param("telemetry_timeout_s")
         self.diag.set(stale_nodes=", ".join(sorted(stale)) or "none")
         for name in sorted(set(stale) - self._stale_logged):
             self.get_logger().warning(f"no /diagnostics status from {name} for {stale[name]:.0f} s")
         self._stale_logged = set(stale)
         if self.monitor.errors:
             self.diag.warn(self.monitor.errors[-1])
-        elif stale:
-            self.diag.hold_warning(
-                "no /diagnostics status from "
-                + ", ".join(f"{n} for {a:.0f} s" for n, a in sorted(stale.items()))
-                + ": stopped, or no longer reachable"
-            )
+        elif stale or lost:
+            said = []
+            if stale:
+                said.append(
+                    "no /diagnostics status from "
+                    + ", ".join(f"{n} for {a:.0f} s" for n, a in sorted(stale.items()))
+                    + ": stopped, or no longer reachable"
+                )
+            if lost:
+                said.append(
+                    f"no telemetry for {quiet:.0f} s (link lost?): shifts served without "
+                    "expected values, no frame footprints"
+                )
+            if lost and not self._telemetry_lost:
+                self.get_logger().warning(said[-1])
+            self.diag.hold_warning("; ".join(said))
         else:
             self.diag.ok()
+        self._telemetry_lost = lost
 
     def close(self) -> None:
         """Stop the node and the monitor's server."""

@@ -1,5 +1,6 @@
 """monitor_node in this process over real DDS and a real socket: bad input, parameters."""
 
+import contextlib
 import math
 import socket
 import time
@@ -12,7 +13,9 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CompressedImage, Image, NavSatFix
+from std_msgs.msg import Float64
 
 from subpix_ros.io import cdr
 from subpix_ros.monitor.client import FoxgloveClient
@@ -27,14 +30,16 @@ def _free_port():
         return s.getsockname()[1]
 
 
-@pytest.fixture
-def served():
+@contextlib.contextmanager
+def _monitor_node(**params):
+    """monitor_node with ``params``, a harness node, their executor and a Foxglove client."""
     from subpix_ros.nodes.monitor_node import MonitorNode
 
     rclpy.init()
     port = _free_port()
     node = MonitorNode(
-        parameter_overrides=[Parameter("port", value=port), Parameter("bandwidth_kbps", value=1.0)]
+        parameter_overrides=[Parameter("port", value=port)]
+        + [Parameter(k, value=v) for k, v in params.items()]
     )
     h = rclpy.create_node("harness")
     ex = SingleThreadedExecutor()
@@ -50,6 +55,24 @@ def served():
         node.destroy_node()
         h.destroy_node()
         rclpy.shutdown()
+
+
+@pytest.fixture
+def served():
+    with _monitor_node(bandwidth_kbps=1.0) as s:
+        yield s
+
+
+def _own_status(h):
+    """Collect monitor_node's own /diagnostics statuses as the harness receives them."""
+    own = []
+    h.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: own.extend(s for s in m.status if s.name == "monitor_node"),
+        10,
+    )
+    return own
 
 
 def _spin(ex, until, timeout):
@@ -246,64 +269,55 @@ def test_a_bicubic_fallback_is_served_as_one_not_as_super_resolved(served):
     assert seen[2:] == [(T0 + 1, 2, "no plan fits 250 MB"), (T0 + 1, 2, None), (T0 + 1, 2, None)]
 
 
-def test_a_stopped_node_and_a_silent_camera_are_said_by_the_monitor():
-    """The operator's window must not sit on a dead node's last OK, nor say OK showing nothing."""
-    from diagnostic_msgs.msg import DiagnosticStatus
-
-    from subpix_ros.nodes.monitor_node import MonitorNode
-
-    rclpy.init()
-    port = _free_port()
-    node = MonitorNode(
-        parameter_overrides=[
-            Parameter("port", value=port),
-            Parameter("stale_after_s", value=1.0),
-            Parameter("input_timeout_s", value=1.0),
-        ]
-    )
-    h = rclpy.create_node("harness")
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    ex.add_node(h)
-    client = FoxgloveClient(f"ws://127.0.0.1:{port}", topics=("/health",))
-    own = []
-    h.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda m: own.extend(s for s in m.status if s.name == "monitor_node"),
-        10,
-    )
-    pub = h.create_publisher(DiagnosticArray, "/diagnostics", 10)
+def _camera(h):
+    """Return a function that publishes the next camera frame from the harness."""
     cam = h.create_publisher(Image, "image", camera_qos(False, depth=1))
-
-    def report():
-        msg = DiagnosticArray()
-        msg.status = [DiagnosticStatus(level=DiagnosticStatus.OK, name="shift_node", message="ok")]
-        pub.publish(msg)
-
     stamp = [T0]
 
     def frame():
         stamp[0] += 100_000_000
         cam.publish(cdr.image_to_cdr(np.zeros((48, 64), np.uint8), "mono8", stamp[0]))
 
-    try:
+    return frame
+
+
+def _health_table(client):
+    msg = client.decode("/health", client.messages("/health")[-1].payload)
+    return {n["name"]: n for n in msg["nodes"]}
+
+
+def _spin_until_ok(ex, own, *feeds):
+    """Feed while spinning until monitor_node's status is OK (a warning is held for 5 s)."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 10 and not (own and own[-1].level == b"\x00"):
+        for feed in feeds:
+            feed()
+        _spin(ex, lambda: False, 0.2)
+    assert own and own[-1].level == b"\x00", own[-1].message if own else "no status"
+
+
+def test_a_stopped_node_and_a_silent_camera_are_said_by_the_monitor():
+    """The operator's window must not sit on a dead node's last OK, nor say OK showing nothing."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    with _monitor_node(stale_after_s=1.0, input_timeout_s=1.0) as (_, h, ex, client):
+        own = _own_status(h)
+        pub = h.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        frame = _camera(h)
+
+        def report():
+            msg = DiagnosticArray()
+            msg.status = [
+                DiagnosticStatus(level=DiagnosticStatus.OK, name="shift_node", message="ok")
+            ]
+            pub.publish(msg)
+
         # nothing on the camera or the mosaic: said, naming the topics
         assert _spin(
             ex, lambda: any(s.level == b"\x01" and "/image" in s.message for s in own), 10
         ), [s.message for s in own[-3:]]
-        # frames arrive and shift_node reports: OK once the warning's hold (5 s) is over
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < 10 and not (own and own[-1].level == b"\x00"):
-            report()
-            frame()
-            _spin(ex, lambda: False, 0.2)
-        assert own[-1].level == b"\x00", own[-1].message
-        table = {
-            n["name"]: n
-            for n in client.decode("/health", client.messages("/health")[-1].payload)["nodes"]
-        }
-        assert table["shift_node"]["level"] == "OK"
+        _spin_until_ok(ex, own, report, frame)  # frames arrive and shift_node reports
+        assert _health_table(client)["shift_node"]["level"] == "OK"
         # shift_node stops reporting (killed); frames still arrive
         assert _spin(
             ex,
@@ -314,15 +328,63 @@ def test_a_stopped_node_and_a_silent_camera_are_said_by_the_monitor():
         ), [s.message for s in own[-3:]]
         assert own[-1].level == b"\x01"
         assert {kv.key: kv.value for kv in own[-1].values}["stale_nodes"] == "shift_node"
-        table = {
-            n["name"]: n
-            for n in client.decode("/health", client.messages("/health")[-1].payload)["nodes"]
-        }
-        assert table["shift_node"]["level"] == "STALE"
-    finally:
-        client.close()
-        node.close()
-        ex.shutdown()
-        node.destroy_node()
-        h.destroy_node()
-        rclpy.shutdown()
+        assert _health_table(client)["shift_node"]["level"] == "STALE"
+
+
+def test_telemetry_that_stops_is_not_served_as_current_and_is_said():
+    """A lost MAVLink link: no shift compared with the old expected shift, no footprint there."""
+    with _monitor_node(telemetry_timeout_s=1.0, shift_std_wait_s=0.0, geo_period_s=0.5) as (
+        node,
+        h,
+        ex,
+        client,
+    ):
+        own = _own_status(h)
+        frame = _camera(h)
+        tel = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT)
+        expected = h.create_publisher(Vector3Stamped, "telemetry/expected_shift", tel)
+        fix = h.create_publisher(NavSatFix, "telemetry/fix", tel)
+        height = h.create_publisher(Float64, "telemetry/height", tel)
+        shift = h.create_publisher(Vector3Stamped, "shift", reliable_qos(20))
+
+        def telemetry():
+            m = Vector3Stamped()
+            m.vector.x, m.vector.y = 0.41, 0.27
+            expected.publish(m)
+            f = NavSatFix()
+            f.latitude, f.longitude, f.altitude = 42.8, -76.7, 120.0
+            f.status.status = f.status.STATUS_FIX  # Jazzy's default is STATUS_UNKNOWN
+            fix.publish(f)
+            height.publish(Float64(data=56.0))
+
+        n = [0]
+
+        def one_shift():
+            n[0] += 1
+            shift.publish(cdr.vector3_stamped_to_cdr((0.4, 0.3, 0.0), T0 + n[0]))
+
+        _spin_until_ok(ex, own, telemetry, frame)
+        assert _spin(ex, lambda: telemetry() or frame() or client.messages("/footprints"), 5)
+        one_shift()
+        assert _spin(ex, lambda: client.messages("/shift"), 10)
+        d = client.decode("/shift", client.messages("/shift")[-1].payload)
+        assert (d["expected_u"], d["expected_v"]) == (0.41, 0.27)
+        # the link is lost; the camera and the shifts go on
+        assert _spin(
+            ex,
+            lambda: frame() or any("no telemetry for" in s.message for s in own),
+            10,
+        ), [s.message for s in own[-3:]]
+        assert own[-1].level == b"\x01"
+        assert float({kv.key: kv.value for kv in own[-1].values}["telemetry_age_s"]) > 1.0
+        served = len(client.messages("/shift"))
+        one_shift()
+        assert _spin(ex, lambda: len(client.messages("/shift")) > served, 10)
+        d = client.decode("/shift", client.messages("/shift")[-1].payload)
+        assert d["expected_u"] is None and d["expected_v"] is None, d
+        _spin(ex, lambda: False, 1.0)  # the last footprint drawn while the fix was fresh goes out
+        n_fp = len(client.messages("/footprints"))
+        for _ in range(10):  # frames without a current position draw no footprint
+            frame()
+            _spin(ex, lambda: False, 0.3)
+        assert len(client.messages("/footprints")) == n_fp

@@ -187,6 +187,7 @@ class MonitorNode(StageNode):
         self._last_camera_ns = 0
         self._stale_logged: set[str] = set()
         self._telemetry_lost = False
+        self._fixes_ignored = 0
         self._timer = self.create_timer(1.0, self._publish_own_health)
         self._shift_join = ShiftStdJoin(self._serve_shift, wait_s=self.param("shift_std_wait_s"))
         self._join_timer = self.create_timer(0.1, self._expire_shifts)
@@ -473,9 +474,12 @@ class MonitorNode(StageNode):
         )
 
     def _on_fix(self, msg: NavSatFix) -> None:
-        if msg.status.status < 0 or not (
-            math.isfinite(msg.latitude) and math.isfinite(msg.longitude)
-        ):
+        finite = math.isfinite(msg.latitude) and math.isfinite(msg.longitude)
+        if msg.status.status < 0 or not finite:
+            self._fixes_ignored += 1
+            self.diag.set(fixes_ignored=self._fixes_ignored)
+            why = "not finite" if not finite else f"status {msg.status.status} (no fix)"
+            self.diag.warn(f"GNSS fix ignored ({self._fixes_ignored} so far): {why}; no map track")
             return
         self._keep("fix", (msg.latitude, msg.longitude))
         self.monitor.on_fix(

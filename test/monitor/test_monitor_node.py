@@ -147,7 +147,14 @@ def test_bad_input_is_reported_and_the_node_keeps_serving(served):
     assert all(x.level >= 4 for x in logs)  # foxglove.Log ERROR = 4
     s = client.decode("/shift", client.messages("/shift")[0].payload)
     assert (s["u"], s["v"], s["timestamp"]["nsec"]) == (0.25, -0.5, 5)
-    assert not client.messages("/fix")  # a NaN fix is not served
+    assert not client.messages("/fix")  # a NaN fix is not served, and that is said
+    assert _spin(
+        ex,
+        lambda: any(
+            {kv.key: kv.value for kv in st.values}.get("fixes_ignored") == "1" for st in diag
+        ),
+        5,
+    )
     assert _spin(ex, lambda: any(st.level[0] == 2 for st in diag), 5)
     # the node goes on: a good mosaic after the bad ones is served
     good = np.full((64, 96, 3), 120, np.uint8)

@@ -121,8 +121,7 @@ def run(args: argparse.Namespace) -> int:
         from subpix_ros.monitor import Monitor, MonitorConfig, MonitorError
 
         try:
-            monitor = Monitor(MonitorConfig(port=args.serve))
-            monitor.start()
+            monitor = Monitor(MonitorConfig(port=args.serve))  # started: bound, serving
         except (MonitorError, OSError) as exc:
             raise CliError(f"--serve: {exc}") from None
         print(f"serving the processing on {monitor.url}", file=sys.stderr, flush=True)

@@ -122,7 +122,9 @@ class Monitor(_Sender):
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
-        """Open the server (and the MCAP recording) and start the sender thread."""
+        """Open the server (and the MCAP recording) and start the sender thread (once)."""
+        if self.server is not None:
+            return  # already serving (started by the constructor): binding again would fail
         cfg = self.cfg
         self._ws_ctx = foxglove.Context()
         contexts = [self._ws_ctx]

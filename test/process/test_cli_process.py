@@ -567,9 +567,13 @@ def test_serve_shows_the_processing_live_to_a_foxglove_client(sample_bags, tmp_p
     gets the camera, the GPS fix and the shifts, the same values as the products' shifts.csv.
     """
     import re
+    import socket
 
     from subpix_ros.monitor.client import FoxgloveClient
 
+    with socket.socket() as s:  # a port the user names, as they would (0 hid a double bind)
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
     out = tmp_path / "out"
     proc = subprocess.Popen(
         process_cmd(
@@ -580,7 +584,7 @@ def test_serve_shows_the_processing_live_to_a_foxglove_client(sample_bags, tmp_p
             DEMO,
             "--quiet",
             "--serve",
-            "0",
+            str(port),
         ),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -590,7 +594,7 @@ def test_serve_shows_the_processing_live_to_a_foxglove_client(sample_bags, tmp_p
     try:
         line = proc.stderr.readline()
         m = re.search(r"ws://127\.0\.0\.1:(\d+)", line)
-        assert m, line
+        assert m and int(m.group(1)) == port, line + proc.stderr.read()
         client = FoxgloveClient(f"ws://127.0.0.1:{m.group(1)}")
         assert client.wait(lambda: client.messages("/shift"), 120), "no shift served"
         assert client.wait(lambda: client.messages("/camera") and client.messages("/fix"), 30)

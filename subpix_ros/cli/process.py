@@ -143,12 +143,24 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if monitor is not None:
             monitor.close()
-    failed = [r for r in results if r.status in ("failed", "partial")]
+    # a bag skipped as up to date keeps the status of the run that made its products
+    failed = [
+        r
+        for r in results
+        if r.status in ("failed", "partial") or r.previous_status in ("failed", "partial")
+    ]
     lines = [r.line for r in results]
     (out / "batch_summary.json").write_text(
         json.dumps(
             [
-                {"bag": r.bag, "name": r.name, "status": r.status, "line": r.line, "out": r.out}
+                {
+                    "bag": r.bag,
+                    "name": r.name,
+                    "status": r.status,
+                    "previous_status": r.previous_status,
+                    "line": r.line,
+                    "out": r.out,
+                }
                 for r in results
             ],
             indent=1,

@@ -44,10 +44,19 @@ from subpix_ros.process.collector import (
     _pipe_stats,
     reason_key,
 )
-from subpix_ros.process.inputs import Flight, InputError, bag_name, open_flight
+from subpix_ros.process.inputs import Flight, InputError, bag_name, find_tlog, open_flight
 from subpix_ros.process.params import EXPECTED_SHIFT_PARAMS, pipeline_params
 from subpix_ros.process.previews import _MonitorFeed, _mosaic, _preview
-from subpix_ros.process.products import ProductWriter, _json_default, is_complete
+from subpix_ros.process.products import (
+    INPUTS_FILE,
+    Previous,
+    ProductWriter,
+    _json_default,
+    input_files,
+    inputs_record,
+    previous_products,
+    remove_leftovers,
+)
 from subpix_ros.process.summary import (
     _input_problems,
     _stage_stats,
@@ -85,6 +94,7 @@ class BagResult:
     flight_s: float = 0.0
     wall_s: float = 0.0
     problems: list[str] = field(default_factory=list)
+    previous_status: str | None = None  # "skipped": the status of the run that made the products
 
 
 def process_bag(
@@ -137,25 +147,36 @@ def process_bag(
     name = bag_name(bag)
     out_root = Path(out_root)
     final = out_root / name
-    if is_complete(final) and not force:
-        return BagResult(
-            str(bag),
-            name,
-            "skipped",
-            f"{name}: skipped, complete products in {final} (--force redoes)",
-            str(final),
-        )
     params = params or {}
+    try:
+        files = input_files(bag, find_tlog(bag))
+    except OSError:
+        files = [bag]  # not there or unreadable: open_flight says why
+    record = inputs_record(
+        files,
+        params,
+        {"camera_topic": camera_topic, "telemetry": telemetry, "skip_corrupt": skip_corrupt},
+    )
+    prev = previous_products(final, record)
+    if prev.state == "up to date" and not force:
+        return _skipped(bag, name, final, prev)
     try:
         flight = open_flight(bag, camera_topic, telemetry)
         flight.skip_corrupt = skip_corrupt
     except (InputError, BagError) as exc:
         return BagResult(str(bag), name, "failed", f"{name}: failed: {exc}", problems=[str(exc)])
     out_root.mkdir(parents=True, exist_ok=True)
+    left = remove_leftovers(out_root, name)
     writer = ProductWriter(out_root, name)
+    writer.json(INPUTS_FILE, record)
     try:
         res = _run(flight, writer, params, progress, monitor, sections_ahead)
-        return _finish_bag(res, writer, t_wall, cpu0, force)
+        res = _finish_bag(res, writer, t_wall, cpu0, force or prev.state != "none")
+        if prev.state in ("changed", "incomplete") and not force:
+            res.line += f" (products redone: {prev.why})"
+        if left:
+            res.line += f" (removed {', '.join(left)}, left by a run that was killed)"
+        return res
     except KeyboardInterrupt:
         writer.abort()
         raise
@@ -163,6 +184,23 @@ def process_bag(
         writer.abort()
         text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
         return BagResult(str(bag), name, "failed", f"{name}: failed: {text}", problems=[text])
+
+
+def _skipped(bag: Path, name: str, final: Path, prev: Previous) -> BagResult:
+    """Return the result of a bag whose products are up to date, with the earlier status."""
+    was = prev.status or "?"
+    if prev.problem:
+        was += f": {prev.problem}"
+    return BagResult(
+        str(bag),
+        name,
+        "skipped",
+        f"{name}: skipped, products up to date in {final} (made from the same bag and "
+        f"parameters; the flight was {was}) (--force redoes)",
+        str(final),
+        previous_status=prev.status,
+        problems=[prev.problem] if prev.problem else [],
+    )
 
 
 def _finish_bag(

@@ -18,7 +18,9 @@ Products (byte-identical for the same bag and parameters):
   only, no wall-clock times);
 * ``superres/<stamp>.png`` and ``bicubic/<stamp>.png`` (same size and bit
   depth; the set's reference upsampled bicubically), ``mosaic.png``;
-* ``shifts.csv``, ``frames.csv``, ``telemetry.csv``, ``summary.json``.
+* ``shifts.csv``, ``frames.csv``, ``telemetry.csv``, ``summary.json``;
+* ``inputs.json``: what they were made from (:func:`inputs_record`), so that a re-run
+  skips only products of the same inputs (:func:`previous_products`).
 
 ``timing.json`` (processing time, stage times, memory) and ``report.html``
 (which shows them) are the only files that change between runs.
@@ -27,12 +29,14 @@ Products (byte-identical for the same bag and parameters):
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import os
 import shutil
 import threading
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -53,6 +57,17 @@ DETERMINISTIC = (
     "mosaic.json",
 )
 TIMING_FILES = ("timing.json", "report.html")
+#: What a run writes whatever the flight (the report may be missing: its failure is a problem)
+REQUIRED = (
+    "summary.json",
+    "shifts.csv",
+    "frames.csv",
+    "telemetry.csv",
+    "results.mcap",
+    "timing.json",
+    "inputs.json",
+)
+INPUTS_FILE = "inputs.json"
 
 _T = cdr.TYPESTORE.types
 _DIAG_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
@@ -79,6 +94,123 @@ def is_complete(folder: Path) -> bool:
         return True
     except (OSError, ValueError):
         return False
+
+
+def input_files(bag: str | Path, tlog: Path | None) -> list[Path]:
+    """Return the files a bag's products are made from: the bag's own files and its ``.tlog``."""
+    p = Path(bag)
+    files = sorted(f for f in p.iterdir() if f.is_file()) if p.is_dir() else [p]
+    if tlog is not None and tlog not in files:
+        files.append(tlog)
+    return files
+
+
+def inputs_record(files: Sequence[Path], params: dict, options: dict) -> dict:
+    """Return what a run's products were made from, with its fingerprint (``inputs.json``).
+
+    Parameters
+    ----------
+    files : sequence of Path
+        The input files (:func:`input_files`); each is identified by name, size and
+        modification time (as make and rsync do: the bag's contents are not read).
+    params : dict
+        The stage parameters by node, as the run uses them.
+    options : dict
+        The run's other choices that change the products (camera topic, telemetry source,
+        reading past corrupt records).
+
+    Returns
+    -------
+    dict
+        ``fingerprint`` (SHA-256 of the rest, canonical JSON), ``files``, ``params``,
+        ``options`` and the package ``version``.
+    """
+    from subpix_ros import __version__
+
+    listed = []
+    for f in files:
+        try:
+            st = f.stat()
+            listed.append({"name": f.name, "size": st.st_size, "mtime_ns": st.st_mtime_ns})
+        except OSError:
+            listed.append({"name": f.name, "size": None, "mtime_ns": None})
+    body = {"files": listed, "params": params, "options": options, "version": __version__}
+    text = json.dumps(body, sort_keys=True, default=str)
+    return {"fingerprint": hashlib.sha256(text.encode()).hexdigest(), **body}
+
+
+@dataclass
+class Previous:
+    """What an earlier run left in a bag's product folder.
+
+    ``state``: "none" (no folder), "up to date" (complete, made from the same inputs),
+    "changed" (complete, from other inputs: ``why`` names which), "incomplete" (a folder
+    without every product: ``why`` names what is missing). ``status`` and ``problem``: the
+    earlier run's flight status and first problem (complete folders only).
+    """
+
+    state: str
+    why: str = ""
+    status: str | None = None
+    problem: str | None = None
+
+
+def previous_products(folder: Path, record: dict) -> Previous:
+    """Compare the products in ``folder`` with the inputs ``record`` of the run about to start."""
+    if not folder.exists():
+        return Previous("none")
+    missing = [n for n in REQUIRED if not (folder / n).is_file()]
+    try:
+        summary = json.loads((folder / "summary.json").read_text())
+        old = json.loads((folder / INPUTS_FILE).read_text())
+    except (OSError, ValueError):
+        return Previous(
+            "incomplete", f"{', '.join(missing) or 'summary.json'} missing or unreadable"
+        )
+    if missing:
+        return Previous("incomplete", f"{', '.join(missing)} missing")
+    status = summary.get("status")
+    problems = summary.get("problems") or []
+    if old.get("fingerprint") == record["fingerprint"]:
+        return Previous("up to date", status=status, problem=problems[0] if problems else None)
+    changed = [k for k in ("params", "options", "version") if old.get(k) != record.get(k)]
+    files = {f["name"]: f for f in old.get("files", [])}
+    now = {f["name"]: f for f in record["files"]}
+    changed += [f"file {n}" for n in sorted(set(files) | set(now)) if files.get(n) != now.get(n)]
+    words = {"params": "parameters", "options": "options", "version": "subpix_ros version"}
+    what = ", ".join(words.get(c, c) for c in changed) or "inputs"
+    return Previous("changed", f"{what} changed since the last run")
+
+
+def remove_leftovers(out_root: Path, name: str) -> list[str]:
+    """Remove the temporary folders of ``name`` left by runs that were killed; return their names.
+
+    A run writes into ``.<name>.partial-<pid>`` (and moves an old folder aside as
+    ``.<name>.old-<pid>``); one whose process is gone (SIGKILL, power loss) left it behind.
+    """
+    removed = []
+    for d in sorted(Path(out_root).glob(f".{name}.partial-*")) + sorted(
+        Path(out_root).glob(f".{name}.old-*")
+    ):
+        try:
+            pid = int(d.name.rsplit("-", 1)[1])
+        except ValueError:
+            continue
+        if pid == os.getpid() or _alive(pid):
+            continue
+        shutil.rmtree(d, ignore_errors=True)
+        removed.append(d.name)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _fmt(x: Any) -> str:

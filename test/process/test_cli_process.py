@@ -8,6 +8,7 @@ import filecmp
 import json
 import os
 import re
+import shutil
 import signal
 import struct
 import subprocess
@@ -248,6 +249,47 @@ def test_deterministic_and_rerun_skips(processed, sample_bags, tmp_path):
     from subpix_ros.process import build_report
 
     assert build_report(b) == (b / "report.html").read_text()
+
+
+def test_a_rerun_redoes_what_changed_and_keeps_what_went_wrong(sample_bags, tmp_path):
+    """A re-run skips only products made from the same bag and parameters, and keeps their status.
+
+    A partial flight skipped on a re-run still exits 1 and says why; other parameters or a
+    changed bag redo the products; a folder missing a product is redone, not an error; the
+    temporary folder of a killed run is removed.
+    """
+    _, _, tel = _sample(sample_bags)
+    (tmp_path / "bags").mkdir()
+    bag = _write(tmp_path / "bags" / "no_images", tel)
+    out = tmp_path / "out"
+    args = (str(bag), "-o", str(out), "--quiet")
+    r = _run(*args)
+    assert r.returncode == 1 and _summary(out / "no_images")["status"] == "partial", r.stderr
+    # the same bag and parameters: skipped, and still the partial flight it was
+    r = _run(*args[:-1])
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "skipped, products up to date" in r.stdout and "the flight was partial" in r.stdout
+    assert "no images" in r.stdout
+    batch = json.loads((out / "batch_summary.json").read_text())
+    assert (batch[0]["status"], batch[0]["previous_status"]) == ("skipped", "partial")
+    # other parameters: redone, and said
+    r = _run(*args[:-1], "--params", DEMO)
+    assert "up to date" not in r.stdout, r.stdout
+    assert "products redone: parameters changed since the last run" in r.stdout, r.stdout
+    # a product deleted by hand: redone (it was an error: "appeared while processing")
+    (out / "no_images" / "shifts.csv").unlink()
+    r = _run(*args[:-1], "--params", DEMO)
+    assert "Error" not in r.stdout + r.stderr, r.stdout + r.stderr
+    assert "products redone: shifts.csv missing" in r.stdout, r.stdout
+    assert (out / "no_images" / "shifts.csv").is_file()
+    # a changed bag (another recording under the same name): redone
+    shutil.rmtree(bag)
+    _write(bag, tel[: len(tel) // 2])
+    leftover = out / ".no_images.partial-999999999"  # a run killed with SIGKILL left it
+    leftover.mkdir()
+    r = _run(*args[:-1], "--params", DEMO)
+    assert "products redone: file " in r.stdout and "changed since" in r.stdout, r.stdout
+    assert "removed .no_images.partial-999999999" in r.stdout and not leftover.exists()
 
 
 def _report_helpers(parent: int) -> list[int]:

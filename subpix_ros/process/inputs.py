@@ -206,8 +206,9 @@ def open_flight(
     path : str or Path
         The bag (directory, ``.mcap`` or ``.db3``).
     camera_topic : str, optional
-        None picks the bag's image topic (``/camera/image_raw`` if present, else the image topic
-        with most messages).
+        None picks the bag's image topic: ``/camera/image_raw`` if present, else the image topic
+        whose first frame is largest (a thumbnail stream may have more messages), then the one
+        with most messages.
     telemetry : str, optional
         ``"topics"`` (the bag's ``/telemetry/*``), ``"tlog"`` (the ``.tlog`` beside the bag) or
         None (topics if the bag has them, else a tlog if one exists, else none).
@@ -260,16 +261,41 @@ def _choose_camera(
         cam = camera_topic
     elif PREFERRED_CAMERA in images:
         cam = PREFERRED_CAMERA
+    elif len(images) == 1:
+        cam = next(iter(images))
     elif images:
-        cam = sorted(images, key=lambda n: (-images[n][1], n))[0]
-        if len(images) > 1:
-            note = (
-                f"camera topic {cam} chosen of {', '.join(sorted(images))} "
-                "(--camera-topic to choose)"
-            )
+        # the camera is the largest picture (a thumbnail or preview stream often has more
+        # messages), then the most frames
+        sizes = {n: _first_frame_size(p, n, images[n][0]) for n in images}
+        cam = sorted(images, key=lambda n: (-sizes[n][0] * sizes[n][1], -images[n][1], n))[0]
+        seen = ", ".join(
+            f"{n} ({'x'.join(map(str, sizes[n])) if sizes[n][0] else 'unreadable'}, "
+            f"{images[n][1]} frames)"
+            for n in sorted(images)
+        )
+        note = (
+            f"camera topic {cam} chosen, the largest frames, of {seen} (--camera-topic to choose)"
+        )
     else:
         cam = None
     return cam, note
+
+
+def _first_frame_size(p: Path, topic: str, msgtype: str) -> tuple[int, int]:
+    """Return (width, height) of the first readable frame of ``topic``, (0, 0) if none."""
+    try:
+        for m in read_messages(p, [topic]):
+            try:
+                if msgtype == IMAGE:
+                    msg = cdr.cdr_to_image_msg(m.raw)
+                    return int(msg.width), int(msg.height)
+                img, _ = cdr.cdr_to_compressed(m.raw)
+                return int(img.shape[1]), int(img.shape[0])
+            except Exception:  # noqa: BLE001 - a bad first frame: try the next
+                continue
+    except BagError:
+        pass
+    return 0, 0
 
 
 def _attach_telemetry(

@@ -232,9 +232,13 @@ def test_real_pair_forward_backward_consistent(seneca, i):
 def test_blank_frame_fails_with_reason(crops):
     res = register(np.full((300, 400), 128, np.uint8), crops["crop_rows"][:300, :400])
     assert not res.ok and res.homography is None
-    assert "blank" in res.reason
+    assert "blank" in res.reason and "float" not in res.reason
     with pytest.raises(ValueError):
         res.transfer(CORNERS)
+    # a float camera image scaled to 0..1 (32FC1) is textured, but not in DN: said as such
+    tex = crops["crop_rows"][:300, :400].astype(np.float32) / 255.0
+    res = register(tex, tex)
+    assert not res.ok and "its values lie within" in res.reason and "0..255" in res.reason
 
 
 def test_no_overlap_fails(crops):

@@ -121,9 +121,9 @@ def register(
             raise ValueError(f"track_radius must be an integer in [1, 64], got {track_radius!r}")
     ps = _Pass(*_prepare(reference, moving, prior, coarse_size, detect_size), opts, t0)
     if ps.ref.blank:
-        return ps.fail("no texture: the reference frame is blank (std < 1 DN)")
+        return ps.fail(_blank("reference", ps.ref.gray))
     if ps.mov.blank:
-        return ps.fail("no texture: the moving frame is blank (std < 1 DN)")
+        return ps.fail(_blank("moving", ps.mov.gray))
     track_failure = ""
     if prior is not None:
         res = _register_tracked(ps, prior)
@@ -365,3 +365,16 @@ def _register_tracked(ps: _Pass, prior: np.ndarray) -> RegistrationResult:
         )
     res.tracked = True
     return res
+
+
+def _blank(which: str, gray: np.ndarray) -> str:
+    """Return why a frame is blank; a frame scaled to 0..1 (a float image) is named as such."""
+    sub = gray[::2, ::2]
+    lo, hi, std = float(sub.min()), float(sub.max()), float(sub.std())
+    text = f"no texture: the {which} frame is blank (std {std:.3g} < 1 DN)"
+    if hi <= 1.0 and std > 0.0:
+        text += (
+            f"; its values lie within {lo:.3g}..{hi:.3g}: a float image scaled to 1? "
+            "frames are read in DN: publish them as 0..255 (or 16-bit)"
+        )
+    return text

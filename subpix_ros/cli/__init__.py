@@ -98,6 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"subpix {args.command}: error: {exc}", file=sys.stderr)
         return exc.code
     except KeyboardInterrupt:
+        print(f"subpix {args.command}: interrupted", file=sys.stderr)
         return 130
 
 

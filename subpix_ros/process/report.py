@@ -145,8 +145,12 @@ def _header(summary: dict, timing: dict) -> list[str]:
                 ["optics blur", (summary.get("blur") or {}).get("note") or "-"],
                 [
                     "processing time",
-                    f"{_num(timing.get('wall_s'), '{:.2f}')} s wall "
-                    f"({_num(timing.get('realtime_factor'), '{:.2f}')}x real time)",
+                    f"{_num(timing.get('wall_s'), '{:.2f}')} s wall"
+                    + (
+                        f" ({timing['realtime_factor']:.2f}x real time)"
+                        if timing.get("realtime_factor")
+                        else " (no flight time: no frames)"
+                    ),
                 ],
             ],
         )

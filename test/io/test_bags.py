@@ -54,6 +54,23 @@ def test_missing_bag(tmp_path):
         bag_topics(tmp_path / "nope")
 
 
+def test_a_folder_that_is_not_a_bag_says_what_it_holds(tmp_path):
+    """A folder of bags, or of a bare .mcap, is not a bag: the error says what to pass instead."""
+    (tmp_path / "flights").mkdir()
+    _write(tmp_path / "flights" / "a")
+    _write(tmp_path / "flights" / "b")
+    with pytest.raises(BagError, match=r"no metadata.yaml.*holds the bags a, b: pass them"):
+        bag_topics(tmp_path / "flights")
+    (tmp_path / "copied").mkdir()
+    _write(tmp_path / "copied" / "flight.mcap")
+    with pytest.raises(BagError, match=r"holds flight.mcap: pass the file"):
+        bag_topics(tmp_path / "copied")
+    assert len(bag_topics(tmp_path / "copied" / "flight.mcap")) == 2  # as the hint says
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BagError, match=r"no metadata.yaml\): \S+empty$"):
+        bag_topics(tmp_path / "empty")
+
+
 def test_missing_topic(tmp_path):
     _write(tmp_path / "b")
     with pytest.raises(BagError, match="not in bag.*/nope"):

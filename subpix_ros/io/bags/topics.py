@@ -11,12 +11,28 @@ from .records import BagCorrupt, BagError, TopicInfo, _one_line, _parse_qos
 from .sqlite import _sqlite
 
 
+def _what_it_holds(folder: Path) -> str:
+    """Return a hint for a folder that is not a bag: the bag files or bags inside it."""
+    try:
+        entries = sorted(folder.iterdir())
+    except OSError:
+        return ""
+    files = [e.name for e in entries if e.is_file() and e.suffix in (".mcap", ".db3")]
+    bags = [e.name for e in entries if e.is_dir() and (e / "metadata.yaml").is_file()]
+    if files:
+        return f"; it holds {', '.join(files[:5])}: pass the file (read without metadata.yaml)"
+    if bags:
+        more = f" and {len(bags) - 5} more" if len(bags) > 5 else ""
+        return f"; it holds the bags {', '.join(bags[:5])}{more}: pass them ({folder}/*)"
+    return ""
+
+
 def _bag_files(path: Path) -> tuple[str, list[Path], dict | None]:
     """(storage, storage files, parsed metadata.yaml or None) of a bag folder or single file."""
     if path.is_dir():
         meta_path = path / "metadata.yaml"
         if not meta_path.is_file():
-            raise BagError(f"not a rosbag2 bag (no metadata.yaml): {path}")
+            raise BagError(f"not a rosbag2 bag (no metadata.yaml): {path}{_what_it_holds(path)}")
         try:
             meta = yaml.safe_load(meta_path.read_text())["rosbag2_bagfile_information"]
             storage = meta["storage_identifier"]

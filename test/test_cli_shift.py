@@ -4,6 +4,7 @@ import json
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -76,6 +77,11 @@ def test_shift_failure_is_one_line_and_nonzero(pair_files, capsys):
     assert "not found" in capsys.readouterr().err
     assert main(["shift", pair_files["ref"], pair_files["flat"]]) != 0
     assert "differ in size" in capsys.readouterr().err
+    # an 8-bit frame against a 16-bit one: said, not a Gauss-Newton failure
+    mov16 = str(Path(pair_files["mov"]).with_name("mov16.png"))
+    cv2.imwrite(mov16, cv2.imread(pair_files["mov"], cv2.IMREAD_UNCHANGED).astype(np.uint16) * 257)
+    assert main(["shift", pair_files["refc"], mov16]) != 0
+    assert "differ in bit depth (uint8 vs uint16)" in capsys.readouterr().err
 
 
 def test_shift_as_a_process(pair_files):

@@ -46,7 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-def _read(path: str, what: str) -> np.ndarray:
+def _read(path: str, what: str) -> tuple[np.ndarray, str]:
+    """Return an image file's luminance and its sample type as stored (``uint8`` ...)."""
     if not Path(path).is_file():
         raise CliError(f"{what} file not found: {path}")
     img = cv2.imread(path, cv2.IMREAD_UNCHANGED)
@@ -56,21 +57,26 @@ def _read(path: str, what: str) -> np.ndarray:
         order = {3: "bgr", 4: "bgra"}.get(img.shape[2])
         if order is None:
             raise CliError(f"{what} image has {img.shape[2]} channels; expected 1, 3 or 4")
-        return luminance(img, order)
-    return img
+        return luminance(img, order), str(img.dtype)
+    return img, str(img.dtype)
 
 
 def run(args: argparse.Namespace) -> int:
     """Estimate and print the sub-pixel shift between the two images."""
-    ref = _read(args.reference, "reference")
-    mov = _read(args.moving, "moving")
+    ref, ref_depth = _read(args.reference, "reference")
+    mov, mov_depth = _read(args.moving, "moving")
     if ref.shape != mov.shape:
         raise CliError(
             f"images differ in size: {ref.shape[1]}x{ref.shape[0]} vs {mov.shape[1]}x{mov.shape[0]}"
         )
+    if ref_depth != mov_depth:
+        raise CliError(
+            f"images differ in bit depth ({ref_depth} vs {mov_depth}): the shift model has an "
+            "intensity offset but no gain, so both must be on one scale (convert one)"
+        )
     mask = None
     if args.mask:
-        m = _read(args.mask, "mask")
+        m, _ = _read(args.mask, "mask")
         if m.shape != ref.shape:
             raise CliError("mask size differs from the images")
         mask = m != 0

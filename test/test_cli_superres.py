@@ -224,8 +224,11 @@ def test_mtf_cli(tmp_path, capsys):
         run(mtf_cli, ["mtf", str(path), "--roi", "1,2,3"])
     flat = tmp_path / "flat.png"
     cv2.imwrite(str(flat), np.full((64, 64), 90, np.uint8))
-    with pytest.raises(CliError, match="contrast"):
+    with pytest.raises(CliError, match="contrast.*give --roi x,y,w,h around one straight edge"):
         run(mtf_cli, ["mtf", str(flat)])
+    with pytest.raises(CliError, match="contrast") as err:  # a region was given: no hint
+        run(mtf_cli, ["mtf", str(flat), "--roi", "0,0,60,60"])
+    assert "--roi" not in str(err.value)
 
 
 def test_registered_in_the_subpix_tool():

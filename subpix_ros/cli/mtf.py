@@ -106,7 +106,13 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = slanted_edge_mtf(img, roi=roi, pixel_pitch_m=pitch)
     except ValueError as exc:
-        raise CliError(str(exc)) from None
+        hint = (
+            ""
+            if roi is not None
+            else " (the whole image was measured as one edge: give --roi x,y,w,h around one straight "
+            "edge, or let `subpix blur` find the edges)"
+        )
+        raise CliError(f"{exc}{hint}") from None
     print(
         f"edge angle {result.angle_deg:+.2f} deg"
         + (" (edge near horizontal: rows/cols swapped)" if result.transposed else "")

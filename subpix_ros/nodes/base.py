@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import traceback
 from collections import defaultdict
 from typing import Any, Callable, Sequence
 
@@ -102,6 +103,7 @@ class StageNode(Node):
             self.diag.watch_inputs(self.MAIN_INPUTS, lambda: self.param("input_timeout_s"))
         self._listeners: dict[str, list[Callable[[Any], None]]] = defaultdict(list)
         self._last_stamp_ns: int | None = None
+        self._callback_errors: set[str] = set()  # logged with their traceback once each
         self.worker: DropOldestWorker | None = None
         self.stage: Stage | None = None
         self.delivery = DeliveryDelay()
@@ -138,6 +140,31 @@ class StageNode(Node):
             cb(payload)
 
     # ---------------------------------------------------------------- helpers
+    def create_subscription(self, msg_type, topic, callback, *args, **kwargs):
+        """Subscribe as :meth:`rclpy.node.Node.create_subscription`, the callback guarded.
+
+        An exception escaping a callback (a bug, an input no check foresaw) would end the
+        node's executor and the process, its /diagnostics falling silent. Here it is an ERROR
+        in /diagnostics and one log line with the traceback per distinct error; the node keeps
+        taking messages.
+        """
+        return super().create_subscription(
+            msg_type, topic, self._guarded(callback, topic), *args, **kwargs
+        )
+
+    def _guarded(self, callback: Callable[[Any], None], topic: str) -> Callable[[Any], None]:
+        def call(msg: Any) -> None:
+            try:
+                callback(msg)
+            except Exception as exc:  # noqa: BLE001 - keep the node alive, say it loudly
+                text = f"{topic} callback failed: {type(exc).__name__}: {exc}"
+                self.diag.error(text)
+                if text not in self._callback_errors and len(self._callback_errors) < 100:
+                    self._callback_errors.add(text)
+                    self.get_logger().error(f"{text}\n{traceback.format_exc()}")
+
+        return call
+
     def make_worker(self, handler: Callable[[Any], None], maxsize: int) -> DropOldestWorker:
         """Start the node's drop-oldest worker; its errors go to /diagnostics."""
 

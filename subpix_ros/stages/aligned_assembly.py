@@ -132,10 +132,11 @@ class AlignedAssembler:
     def add_reference(self, frame: Frame) -> None:
         """Take a reference frame; deliver the frames that were waiting for it."""
         self.refs.add(frame)
-        for key in [
-            k for k in self.waiting if k[0] == frame.stamp_ns
-        ]:  # its frames that came first
-            self._deliver(*self.waiting.pop(key), frame)
+        # its frames that came first, taken out before any is delivered: a delivery may reset
+        # the assembler (a node whose time jumped back clears it from the same thread)
+        mine = [self.waiting.pop(k) for k in [k for k in self.waiting if k[0] == frame.stamp_ns]]
+        for frame_and_mask in mine:
+            self._deliver(*frame_and_mask, frame)
 
     @_locked
     def add_link(self, stamp: int, ref_stamp: int) -> None:

@@ -378,3 +378,36 @@ def test_reconstruction_blur_sigma_parameter(ctx, crops):
     finally:
         node.close()
         node.destroy_node()
+
+
+def test_a_failing_callback_is_an_error_in_diagnostics_and_the_node_lives_on(ctx):
+    """An exception escaping a subscription callback ended the node's process silently.
+
+    (A looped replay made reconstruction_node's assembler raise KeyError; its /diagnostics
+    just stopped.) Now it is an ERROR naming the topic and the error, and the next message
+    is taken as usual.
+    """
+    from subpix_ros.nodes.reconstruction_node import ReconstructionNode
+
+    node = ReconstructionNode()
+    calls = []
+    real = node.stage.match_shift
+
+    def flaky(s):
+        calls.append(s.stamp_ns)
+        if len(calls) == 1:
+            raise KeyError((T0, T0 + 1))  # a bug, as the assembler's was
+        return real(s)
+
+    node.stage.match_shift = flaky
+    h = Harness(node, [("shift", Vector3Stamped, reliable_qos(20))])
+    try:
+        for k in (1, 2):
+            h.pubs["shift"].publish(cdr.vector3_stamped_to_cdr((0.25, -0.5, 0.0), T0 + k))
+        assert h.spin(lambda: len(calls) == 2 and any(s.level == b"\x02" for s in h.diag), 10), (
+            calls,
+            h.messages(),
+        )
+        assert "shift callback failed: KeyError" in h.messages()
+    finally:
+        h.close()

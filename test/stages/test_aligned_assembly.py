@@ -63,3 +63,26 @@ def test_a_lost_link_is_reported_once_a_later_link_arrives_and_bad_masks_are_ref
     assert any("never came" in p for p in problems)
     asm.add_mask(Frame(T0 + 5, np.zeros(img.shape + (3,), np.uint8)))
     assert "not mono8" in problems[-1]
+
+
+def test_a_delivery_that_resets_the_assembler_does_not_break_the_rest():
+    """A node resets the assembler from its delivery (time jumped back: a looped replay).
+
+    Two frames waiting for their reference are both delivered, though the first delivery
+    clears the assembler (it raised KeyError out of add_reference and killed the node).
+    """
+    img = load_crop("crop_rows")[:48, :64]
+    got = []
+    asm = None
+
+    def deliver(a):
+        got.append(a.stamp_ns)
+        asm.clear()  # what ReconstructionNode.reset does on a time jump, on this thread
+
+    asm = AlignedAssembler(deliver, lambda: True, print, print)
+    for s in (T0 + 1, T0 + 2):
+        asm.add_link(s, T0)
+        asm.add_frame(Frame(s, img))
+        asm.add_mask(Frame(s, np.full(img.shape, 255, np.uint8)))
+    asm.add_reference(Frame(T0, img))
+    assert got == [T0 + 1, T0 + 2]

@@ -43,9 +43,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="FILE.yaml",
-        help="stage parameters (config/*.yaml layout: node: ros__parameters: ...); repeatable, "
-        "a later file's values over an earlier one's (e.g. --params config/bench.yaml "
-        "--params blur.yaml); default: the nodes' defaults",
+        help="stage parameters (config/*.yaml layout: node: ros__parameters: ...; /** for "
+        "every node that declares the key); repeatable, a later file's values over an earlier "
+        "one's (e.g. --params config/bench.yaml --params blur.yaml); a key no node declares, "
+        "or a misspelt node name, is an error (status 2); default: the nodes' defaults",
     )
     parser.add_argument(
         "--jobs", type=int, default=1, metavar="N", help="bags processed in parallel (default 1)"
@@ -89,7 +90,12 @@ def run(args: argparse.Namespace) -> int:
     """Process the given bags (or folders of bags) into products and reports."""
     from subpix_ros.process.batch import Progress, interrupt_on_signals, run_batch
     from subpix_ros.process.inputs import InputError, bag_name
-    from subpix_ros.process.params import check_params, live_only_notes, load_params_files
+    from subpix_ros.process.params import (
+        ParamsError,
+        check_params,
+        live_only_notes,
+        load_params_files,
+    )
     from subpix_ros.runtime import favour_throughput
 
     favour_throughput()  # a batch job: page faults cost more than resident memory here
@@ -97,8 +103,12 @@ def run(args: argparse.Namespace) -> int:
     if args.jobs < 1:
         raise CliError(f"--jobs must be >= 1, got {args.jobs}")
     try:
-        params = load_params_files(args.params)
+        # a key or node that cannot apply is said before any bag (exit status 2); another
+        # program's node is ignored with a warning line
+        params = load_params_files(args.params, say=lambda line: print(line, file=sys.stderr))
         check_params(params)
+    except ParamsError as exc:
+        raise CliError(str(exc), code=2) from None
     except InputError as exc:
         raise CliError(str(exc)) from None
     for line in live_only_notes(params):

@@ -22,6 +22,7 @@ _EXPORTS = {
     "interrupt_on_signals": "batch",
     "load_params": "params",
     "load_params_files": "params",
+    "ParamsError": "params",
     "check_params": "params",
     "pipeline_params": "params",
     "ProductWriter": "products",

@@ -664,12 +664,20 @@ def set_motion_blur(fs: FrameSet, exposure_s: float) -> tuple[float, float] | No
     return (exposure_s * vel[0], exposure_s * vel[1])
 
 
-def _solver_options(extra: dict) -> tuple[dict, dict]:
-    """``(options, ignored)``: the parameters not known here that the solver takes, and the rest.
+def solver_option_names() -> frozenset[str]:
+    """Return the names of the core solver's options a ``reconstruction_node`` parameter sets.
 
-    Options the core's solver (:func:`~subpix_ros.core.superres.reconstruct` and the
-    keyword-only arguments it passes on, e.g. ``reg``, ``noise_sigma``) accepts go to it; any
-    other key (a node's own parameter) is ignored.
+    Returns
+    -------
+    frozenset of str
+        The keyword-only arguments of the core's solver
+        (:func:`~subpix_ros.core.superres.reconstruct` and the ones it passes on, e.g. ``reg``,
+        ``noise_sigma``, ``pixel_fill``), without those the stage sets itself.
+
+    Notes
+    -----
+    The stage passes such a parameter, not one of its own, to the solver; ``subpix process``
+    accepts them in a params file's ``reconstruction_node`` section for that reason.
     """
     from subpix_ros.core import superres
 
@@ -680,7 +688,16 @@ def _solver_options(extra: dict) -> tuple[dict, dict]:
             for k, arg in inspect.signature(fn).parameters.items()
             if arg.kind is inspect.Parameter.KEYWORD_ONLY
         }
-    taken -= _SET_HERE
+    return frozenset(taken - _SET_HERE)
+
+
+def _solver_options(extra: dict) -> tuple[dict, dict]:
+    """``(options, ignored)``: the parameters not known here that the solver takes, and the rest.
+
+    Options the core's solver accepts (:func:`solver_option_names`) go to it; any other key
+    (a node's own parameter) is ignored.
+    """
+    taken = solver_option_names()
     return (
         {k: v for k, v in extra.items() if k in taken},
         {k: v for k, v in extra.items() if k not in taken},

@@ -512,6 +512,56 @@ def test_missing_sources_are_one_line_errors(sample_bags, tmp_path):
     assert r.returncode == 1 and r.stderr.count("\n") == 1 and "cannot read parameters" in r.stderr
 
 
+def test_params_that_cannot_apply_stop_the_command_before_any_bag(sample_bags, tmp_path):
+    """A misspelt key or node: one line naming the file, node and key, exit status 2."""
+    cases = {
+        "key.yaml": (
+            "registration_node:\n  ros__parameters:\n    focal_lenght_mm: 9.9\n",
+            "registration_node has no parameter focal_lenght_mm (did you mean focal_length_mm?)",
+        ),
+        "node.yaml": (
+            "registraton_node:\n  ros__parameters:\n    pixel_pitch_um: 3.08\n",
+            "no node registraton_node in subpix process (did you mean registration_node?)",
+        ),
+    }
+    for name, (text, message) in cases.items():
+        cfg = tmp_path / name
+        cfg.write_text(text)
+        out = tmp_path / f"out_{cfg.stem}"
+        r = _run(
+            str(sample_bags / "subpixel"), "-o", str(out), "--params", DEMO, "--params", str(cfg)
+        )
+        assert r.returncode == 2, (r.returncode, r.stderr)
+        assert r.stderr == f"subpix process: error: parameters {cfg}: {message}\n", r.stderr
+        assert not out.exists()  # nothing processed, nothing written
+
+
+def test_wildcard_params_apply_and_another_program_s_node_is_a_warning(sample_bags, tmp_path):
+    """A shared stack file: ``/**`` sets the pixel pitch, the camera driver's section is not ours.
+
+    The sample flight needs 3.08 um pixels (the default 1.54 expects twice the motion): given
+    by ``/**`` alone, it reaches the registration stage, the telemetry agrees and
+    ``summary.json`` shows it; the foreign node is named on one warning line and the run goes on.
+    """
+    cfg = tmp_path / "stack.yaml"
+    cfg.write_text(
+        "camera_driver:\n  ros__parameters:\n    fps: 10\n"
+        "/**:\n  ros__parameters:\n    pixel_pitch_um: 3.08\n    use_sim_time: false\n"
+    )
+    out = tmp_path / "out"
+    r = _run(str(sample_bags / "subpixel"), "-o", str(out), "--params", str(cfg), "--quiet")
+    assert r.returncode == 0, r.stderr
+    warning = (
+        f"warning: parameters {cfg}: camera_driver is not a node of subpix_ros: its parameters "
+        "are ignored"
+    )
+    assert r.stderr.splitlines() == [warning], r.stderr
+    s = _summary(out / "subpixel")
+    assert s["parameters"]["registration_node"] == {"pixel_pitch_um": 3.08}
+    assert s["telemetry"]["check"]["agrees"] is True, s["telemetry"]["check"]
+    assert not any(p.startswith("telemetry disagrees") for p in s["problems"]), s["problems"]
+
+
 def test_report_command_rewrites_reports(processed, tmp_path):
     import shutil
 

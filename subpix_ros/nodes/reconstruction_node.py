@@ -84,6 +84,7 @@ class ReconstructionNode(StageNode):
         self.make_worker(self._process, self.param("queue_size"))
         self.idle_timer = self.create_timer(IDLE_CHECK_S, self._on_idle_check)
         self.inputs = None
+        self._shift_missing = False
         if subscribe_inputs:
             self.inputs = AlignedInput(self, self._frame_ready, depth=20)
             self.create_subscription(
@@ -118,6 +119,29 @@ class ReconstructionNode(StageNode):
     def _on_idle_check(self) -> None:
         with self._lock:
             self._queue(self.stage.idle_sets())
+        self.diag.set(frames_without_shift=self.stage.stats.frames_without_shift)
+        if self.inputs is not None:
+            self._check_shift_input()
+
+    def _check_shift_input(self) -> None:
+        """WARN while aligned frames arrive but nothing publishes the shifts to pair them with."""
+        meter = self.diag.rates.get("input")
+        recent = (
+            meter is not None
+            and meter.last is not None
+            and (time.monotonic() - meter.last < self.param("input_timeout_s"))
+        )
+        topic = self.resolve_topic_name("shift")
+        missing = recent and self.count_publishers(topic) == 0
+        if missing:
+            text = (
+                f"no publisher on {topic}: aligned frames arrive but no shift comes to pair them "
+                "with (is shift_node running?)"
+            )
+            if not self._shift_missing:
+                self.get_logger().warning(text)
+            self.diag.hold_warning(text)
+        self._shift_missing = missing
 
     def _queue(self, sets: list[FrameSet]) -> None:
         for fs in sets:

@@ -200,6 +200,7 @@ class ShiftFrameMatcher:
         self.tolerance_ns = tolerance_ns
         self.frames: dict[int, Aligned] = {}
         self.shifts: list[Shift] = []
+        self.frames_dropped = 0  # frames let go after KEEP newer ones, no shift having come
 
     def add_frame(self, aligned: Aligned) -> list[tuple[Shift, Aligned]]:
         """Take an aligned frame; return the (shift, frame) pairs now matched."""
@@ -226,6 +227,7 @@ class ShiftFrameMatcher:
         if len(self.frames) > self.KEEP:
             for t in sorted(self.frames)[: -self.KEEP]:
                 del self.frames[t]
+                self.frames_dropped += 1
         return pairs
 
     def clear(self) -> None:
@@ -332,7 +334,17 @@ class ReconstructionStage(Stage):
     def match_aligned(self, aligned: Aligned) -> list[tuple[Shift, Aligned]]:
         """Return the (shift, frame) pairs an aligned frame completes (``time_tolerance_s``)."""
         self._last_input_wall = self.clock()
-        return self.matcher.add_frame(aligned)
+        before = self.matcher.frames_dropped
+        pairs = self.matcher.add_frame(aligned)
+        lost = self.matcher.frames_dropped - before
+        if lost:
+            self.stats.frames_without_shift += lost
+            self.warn(
+                f"{self.stats.frames_without_shift} aligned frame(s) left without a shift so far "
+                f"(each let go after {self.matcher.KEEP} newer ones): is the shift stage running "
+                "and its shifts arriving? (it also leaves out shifts above max_std_px)"
+            )
+        return pairs
 
     def match_shift(self, shift: Shift) -> list[tuple[Shift, Aligned]]:
         """Return the (shift, frame) pairs a shift completes; a non-finite one is an error."""

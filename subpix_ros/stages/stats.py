@@ -147,6 +147,7 @@ class ReconstructionStats(StageStats):
     memory_reduction: str = ""  # what max_memory_mb gave up in the last one ("" nothing)
     memory_reduced: int = 0  # images made with a reduction
     shifts_disputed: int = 0  # given shifts replaced by the frames' own registration
+    frames_without_shift: int = 0  # aligned frames no shift came for (let go by the matcher)
     # motion blur (du, dv) LR px modelled in the last image: exposure_s x the set's image velocity
     # (None: exposure_s 0 or no velocity fitted)
     motion_blur_px: tuple[float, float] | None = None

@@ -411,3 +411,24 @@ def test_a_failing_callback_is_an_error_in_diagnostics_and_the_node_lives_on(ctx
         assert "shift callback failed: KeyError" in h.messages()
     finally:
         h.close()
+
+
+def test_reconstruction_node_says_when_no_shift_comes_for_its_frames(ctx):
+    """Aligned frames arrive, nothing publishes shift (shift_node dead): WARN, not a silent OK."""
+    from subpix_ros.nodes.reconstruction_node import ReconstructionNode
+
+    node = ReconstructionNode(parameter_overrides=[Parameter("input_timeout_s", value=2.0)])
+    h = Harness(node, [("aligned", Image, reliable_qos(20))])
+    try:
+        img = np.zeros((48, 64), np.uint8)
+        for k in range(30):
+            h.pubs["aligned"].publish(cdr.image_to_cdr(img, "mono8", T0 + k * 100_000_000))
+            h.spin(lambda: False, 0.05)
+        assert h.spin(
+            lambda: any(
+                s.level == b"\x01" and "no publisher on /shift" in s.message for s in h.diag
+            ),
+            10,
+        ), h.messages()
+    finally:
+        h.close()

@@ -194,6 +194,20 @@ def test_stamps_beyond_the_tolerance_do_not_pair_and_non_finite_shifts_are_rejec
     assert stage.add_shift(bad) == [] and stage.stats.errors == 1
 
 
+def test_aligned_frames_no_shift_comes_for_are_counted_and_said(seq):
+    """Frames whose shifts never come (the shift stage stopped) are not dropped silently."""
+    stage = ReconstructionStage(n_frames=3, method="bicubic")
+    said = []
+    stage.on_problem = lambda level, text: said.append(text)
+    ref = Frame(T0, seq.frames[0])
+    keep = 64  # the matcher holds this many frames waiting for their shifts
+    for k in range(1, keep + 4):
+        img = seq.frames[1]
+        stage.add_aligned(Aligned(T0 + k * DT, img, np.ones(img.shape, bool), ref, np.eye(3)))
+    assert stage.stats.frames_without_shift == 3 and stage.stats.frames_in == 0
+    assert said and said[-1].startswith("3 aligned frame(s) left without a shift so far")
+
+
 def test_solver_options_go_to_the_reconstruction_and_other_keys_are_ignored(seq):
     stage = ReconstructionStage(n_frames=4, method="map", queue_size=5, reg=8.0, other=1)
     assert stage.solver_options == {"reg": 8.0} and stage.ignored == {"other": 1}

@@ -515,6 +515,8 @@ class _FlightRun:
         check = summary["telemetry"]["check"]
         if check is not None and check["agrees"] is False:  # products made, but said loudly
             self.problems.append(check["note"])
+        # frames that did not move under a moving vehicle: the input, not a parameter, is bad
+        still = check is not None and bool(check.get("still"))
         if not collector.sets and flight.frames_total:
             self.problems.append(
                 "no super-resolved image: no set reached min_frames" + _why_no_set(collector)
@@ -530,7 +532,12 @@ class _FlightRun:
             )
         unaligned = summary["frames"]["kept"] > 1 and not summary["frames"]["aligned"]
         if self.status == "ok" and (
-            not flight.frames_total or self.dropped or collector.errors or unaligned or repeated
+            not flight.frames_total
+            or self.dropped
+            or collector.errors
+            or unaligned
+            or repeated
+            or still
         ):
             self.status = "partial"  # part of the input (or all of it) could not be used
         summary["status"] = self.status

@@ -714,6 +714,34 @@ def test_camera_parameters_that_do_not_fit_the_frames_are_said_not_hidden(sample
     assert "<li class='problem'>telemetry disagrees: the frames moved 0.500x" in html
 
 
+def test_a_frozen_camera_is_said_not_advised_as_a_camera_parameter(sample_bags, tmp_path):
+    """Every frame the flight's first image (a camera that froze), the telemetry as recorded."""
+    _, frames, tel = _sample(sample_bags)
+    first, _ = cdr_to_image(frames[0].raw)
+    frozen = [
+        type(m)(
+            m.topic,
+            m.msgtype,
+            m.timestamp_ns,
+            image_to_cdr(first, "bgr8", header_to_ns(cdr_to_image(m.raw)[1]), "camera"),
+        )
+        for m in frames
+    ]
+    bag = _write(tmp_path / "frozen", sorted(frozen + tel, key=lambda m: m.timestamp_ns))
+    r = _run(str(bag), "-o", str(tmp_path / "out"), "--params", DEMO)
+    assert r.returncode == 1, r.stdout + r.stderr
+    s = _summary(tmp_path / "out" / "frozen")
+    check = s["telemetry"]["check"]
+    assert check["agrees"] is False and check["still"], check
+    assert s["status"] == "partial", s["problems"]
+    problem = next(p for p in s["problems"] if p.startswith("telemetry disagrees"))
+    assert problem.startswith("telemetry disagrees: the frames did not move"), problem
+    assert "a frozen camera or repeated frames?" in problem
+    assert "yaw offset" not in problem and "f/a" not in problem
+    line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith("frozen: "))
+    assert line.startswith("frozen: partial"), line
+
+
 def test_a_tlog_from_another_clock_is_said_not_silently_unused(sample_bags, tmp_path):
     """Images only in the bag, the .tlog beside it an hour off (a GCS clock, another flight)."""
     import struct

@@ -53,6 +53,7 @@ from subpix_ros.process.summary import (
     _stage_stats,
     _summary,
     telemetry_coverage,
+    time_jumps_back,
 )
 from subpix_ros.process.tables import (
     FRAME_COLUMNS,
@@ -283,6 +284,7 @@ class _FlightRun:
         self.size: tuple | None = None
         self.first_ns: int | None = None
         self.last_ns: int | None = None
+        self.jumps_back_ns: list[int] = []  # how far each frame's stamp fell behind the last
         self.next_diag: int | None = None
         self.done = 0
         self.total = flight.frames_total
@@ -389,6 +391,8 @@ class _FlightRun:
             self._drop(rec.reason)
             return
         self.first_ns = rec.stamp_ns if self.first_ns is None else self.first_ns
+        if self.last_ns is not None and rec.stamp_ns < self.last_ns:  # the stages restart
+            self.jumps_back_ns.append(self.last_ns - rec.stamp_ns)
         self.last_ns = rec.stamp_ns
         collector.current = rec
         t0 = time.perf_counter()
@@ -504,6 +508,9 @@ class _FlightRun:
                 f"frame before it (first at {repeated[0].stamp_ns} ns); does the camera driver "
                 "stamp its images?"
             )
+        jumps = time_jumps_back(self.jumps_back_ns)
+        if jumps:  # every stage restarted at each: sets and tracking cut short
+            self.problems.append(jumps)
         coverage = telemetry_coverage(
             [sm.t for sm in self.samples],
             [r.stamp_ns * 1e-9 for r in collector.frames],
@@ -538,6 +545,7 @@ class _FlightRun:
             or unaligned
             or repeated
             or still
+            or jumps
         ):
             self.status = "partial"  # part of the input (or all of it) could not be used
         summary["status"] = self.status

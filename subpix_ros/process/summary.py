@@ -132,6 +132,29 @@ def telemetry_coverage(
     )
 
 
+def time_jumps_back(jumps_ns: list[int]) -> str | None:
+    """Say how often the frames' stamps went back in time, and what that did (None if never).
+
+    Parameters
+    ----------
+    jumps_ns : list of int
+        For each frame stamped earlier than the frame before it, by how much, ns.
+
+    Returns
+    -------
+    str or None
+        One problem line: the number of jumps, the largest, that every stage restarted at
+        each (reference, tracking, sets, telemetry, mosaic) and the likely cause.
+    """
+    if not jumps_ns:
+        return None
+    return (
+        f"{len(jumps_ns)} time jump(s) back in the frames' stamps (largest "
+        f"{max(jumps_ns) * 1e-9:.3g} s): the pipeline restarted at each (reference, sets and "
+        "mosaic begun anew); frames out of order in the bag, or a camera clock that was reset?"
+    )
+
+
 def _utc(t: float) -> str:
     """Format POSIX seconds as ``YYYY-MM-DD HH:MM:SS.s`` (UTC)."""
     import datetime

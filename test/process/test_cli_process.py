@@ -742,6 +742,33 @@ def test_a_frozen_camera_is_said_not_advised_as_a_camera_parameter(sample_bags, 
     assert line.startswith("frozen: partial"), line
 
 
+def test_frame_stamps_that_go_back_in_time_are_said(sample_bags, tmp_path):
+    """Two flights: the second half stamped 1 s earlier, and every stamp in reverse order."""
+    _, frames, tel = _sample(sample_bags)
+    stamps = [header_to_ns(cdr_to_image(m.raw)[1]) for m in frames]
+
+    def restamped(new):
+        out = []
+        for m, stamp in zip(frames, new):
+            img, _ = cdr_to_image(m.raw)
+            raw = image_to_cdr(img, "bgr8", stamp, "camera")
+            out.append(type(m)(m.topic, m.msgtype, m.timestamp_ns, raw))
+        return sorted(out + tel, key=lambda m: m.timestamp_ns)
+
+    half = len(stamps) // 2
+    jump = _write(tmp_path / "jump", restamped(stamps[:half] + [t - 10**9 for t in stamps[half:]]))
+    rev = _write(tmp_path / "reversed", restamped(stamps[::-1]))
+    r = _run(str(jump), str(rev), "-o", str(tmp_path / "out"), "--params", DEMO)
+    assert r.returncode == 1, r.stdout + r.stderr
+    for name, n, largest in (("jump", 1, "0.967 s"), ("reversed", len(stamps) - 1, "0.0333 s")):
+        s = _summary(tmp_path / "out" / name)
+        said = f"{n} time jump(s) back in the frames' stamps (largest {largest}): the pipeline"
+        assert s["status"] == "partial", (name, s["problems"])
+        assert any(p.startswith(said) for p in s["problems"]), (name, s["problems"])
+        line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith(name + ":"))
+        assert line.startswith(f"{name}: partial"), line
+
+
 def test_a_tlog_from_another_clock_is_said_not_silently_unused(sample_bags, tmp_path):
     """Images only in the bag, the .tlog beside it an hour off (a GCS clock, another flight)."""
     import struct

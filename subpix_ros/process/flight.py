@@ -53,6 +53,7 @@ from subpix_ros.process.summary import (
     _stage_stats,
     _summary,
     telemetry_coverage,
+    telemetry_unusable,
     time_jumps_back,
 )
 from subpix_ros.process.tables import (
@@ -508,6 +509,11 @@ class _FlightRun:
                 f"frame before it (first at {repeated[0].stamp_ns} ns); does the camera driver "
                 "stamp its images?"
             )
+        unusable = telemetry_unusable(self.samples)
+        if unusable:  # telemetry read but not usable: said, not passed off as none received
+            self.problems.append(unusable)
+            tel = summary["telemetry"]
+            tel["note"] = "; ".join(x for x in (tel["note"], unusable) if x)
         jumps = time_jumps_back(self.jumps_back_ns)
         if jumps:  # every stage restarted at each: sets and tracking cut short
             self.problems.append(jumps)
@@ -546,6 +552,7 @@ class _FlightRun:
             or repeated
             or still
             or jumps
+            or unusable
         ):
             self.status = "partial"  # part of the input (or all of it) could not be used
         summary["status"] = self.status

@@ -742,6 +742,53 @@ def test_a_frozen_camera_is_said_not_advised_as_a_camera_parameter(sample_bags, 
     assert line.startswith("frozen: partial"), line
 
 
+def test_telemetry_present_but_unusable_is_said_with_why(sample_bags, tmp_path):
+    """The flight's telemetry with every height -3 m or NaN, or every velocity NaN."""
+    from subpix_ros.io import cdr
+    from subpix_ros.io.telemetry_msgs import TWIST, float64_cdr
+
+    _, frames, tel = _sample(sample_bags)
+
+    def spoilt(name, topic, raw):
+        out = []
+        for m in tel:
+            if m.topic == topic:
+                m = type(m)(m.topic, m.msgtype, m.timestamp_ns, raw(m.raw))
+            out.append(m)
+        return _write(tmp_path / name, sorted(frames + out, key=lambda m: m.timestamp_ns))
+
+    def nan_velocity(raw):
+        msg = cdr.deserialize(raw, TWIST)
+        msg.twist.linear.x = msg.twist.linear.y = float("nan")
+        return cdr.serialize(msg, TWIST)
+
+    cases = {
+        "below": ("/telemetry/height", lambda raw: float64_cdr(-3.0)),
+        "nanheight": ("/telemetry/height", lambda raw: float64_cdr(float("nan"))),
+        "nanvelocity": ("/telemetry/velocity", nan_velocity),
+    }
+    bags = [str(spoilt(name, *case)) for name, case in cases.items()]
+    r = _run(*bags, "-o", str(tmp_path / "out"), "--params", DEMO)
+    assert r.returncode == 1, r.stdout + r.stderr
+    for name, what in (
+        ("below", "have height -3 m (must be > 0)"),
+        ("nanheight", "have height nan m (must be finite and > 0)"),
+        ("nanvelocity", "have velocity nan m/s (must be finite)"),
+    ):
+        s = _summary(tmp_path / "out" / name)
+        n = s["telemetry"]["samples"]  # a sample per velocity after the first height
+        assert n >= len(frames), (name, n)
+        said = f"telemetry unusable: {n} of {n} samples {what}"
+        assert s["status"] == "partial", (name, s["problems"])
+        assert s["problems"][0].startswith(said), (name, s["problems"])
+        assert said in s["telemetry"]["note"]
+        line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith(name + ":"))
+        assert line.startswith(f"{name}: partial") and said in line, line
+        html = (tmp_path / "out" / name / "report.html").read_text()
+        assert f"topics ({n} samples): {said}".replace(">", "&gt;") in html
+        assert "no telemetry received" not in json.dumps(s["warnings"])
+
+
 def test_frame_stamps_that_go_back_in_time_are_said(sample_bags, tmp_path):
     """Two flights: the second half stamped 1 s earlier, and every stamp in reverse order."""
     _, frames, tel = _sample(sample_bags)

@@ -35,7 +35,7 @@ from typing import Any, Callable
 import cv2
 
 from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample
-from subpix_ros.io.bags import BagError
+from subpix_ros.io.bags import BagError, ReadReport
 from subpix_ros.process.collector import (
     _clean,
     _Collector,
@@ -453,11 +453,10 @@ class _FlightRun:
             self.problems.append(
                 f"{len(collector.errors)} stage error(s), last: {collector.errors[-1]}"
             )
-        if self.flight.read_report.skipped_records:
+        read_on = _read_past_damage(self.flight.read_report, self.broke_off, self.done, self.total)
+        if read_on:
             self.status = "partial"
-            self.problems.append(
-                f"corrupt bag read past its damage: {self.flight.read_report.summary()}"
-            )
+            self.problems.append(read_on)
 
     def write_tables(self) -> list[dict]:
         """Write ``shifts.csv``, ``frames.csv`` and ``telemetry.csv``; return the shift rows."""
@@ -584,6 +583,37 @@ class _FlightRun:
         )
         res.__dict__["_crops"] = self.collector.crops
         return res
+
+
+def _read_past_damage(
+    report: ReadReport, broke_off: str | None, frames_read: int, frames_total: int
+) -> str | None:
+    """Say what a corrupt bag read with ``--skip-corrupt`` gave and lost (None otherwise).
+
+    Parameters
+    ----------
+    report : ReadReport
+        What the bag reader skipped.
+    broke_off : str or None
+        The error the reading stopped at (without ``--skip-corrupt``): then the break is the
+        one statement (``bag breaks off after ...``) and this says nothing.
+    frames_read, frames_total : int
+        Frames read, and the bag's count of them.
+
+    Returns
+    -------
+    str or None
+        One problem line: whether the reader went on past the damage or the storage ended at
+        it (a truncated file), what it skipped, and how many frames were read.
+    """
+    if not report.skipped_records or broke_off is not None:
+        return None
+    how = (
+        "read past its damage"
+        if report.readable_after
+        else "read up to its damage (nothing readable after it)"
+    )
+    return f"corrupt bag {how}: {report.summary()}; {frames_read} of {frames_total} frames read"
 
 
 def _failed_shifts(rows: list[dict]) -> str | None:

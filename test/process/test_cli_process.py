@@ -398,6 +398,8 @@ def test_bad_bags_get_one_line_each_and_the_rest_is_processed(sample_bags, tmp_p
     assert s["status"] == "partial" and "breaks off" in batch["corrupt"]["line"]
     assert 0 < s["frames"]["in"] < len(frames)
     assert "is corrupt at byte offset" in (out / "corrupt" / "report.html").read_text()
+    corrupt_said = [p for p in s["problems"] if "corrupt" in p]
+    assert len(corrupt_said) == 1 and "(--skip-corrupt reads on past the damage)" in corrupt_said[0]
     # --skip-corrupt: the frames after the damaged chunk are processed too, and it is said
     r = _run(
         str(bags / "corrupt.mcap"),
@@ -412,8 +414,38 @@ def test_bad_bags_get_one_line_each_and_the_rest_is_processed(sample_bags, tmp_p
     s2 = _summary(tmp_path / "out2" / "corrupt")
     assert s2["status"] == "partial" and s["frames"]["in"] < s2["frames"]["in"] < len(frames)
     assert any(
-        "corrupt bag read past its damage: skipped 1 corrupt record" in p for p in s2["problems"]
+        "corrupt bag read past its damage: skipped 1 corrupt record" in p
+        and p.endswith(f"; {s2['frames']['in']} of {len(frames)} frames read")
+        for p in s2["problems"]
     ), s2["problems"]
+
+
+def test_a_truncated_bag_is_one_statement_of_what_was_read_and_lost(sample_bags, tmp_path):
+    """The sample flight's mcap cut in half: read up to the cut, with or without --skip-corrupt.
+
+    One corrupt-bag problem either way, the frames read of the bag's count in it, and no
+    suggestion of --skip-corrupt: nothing lies past the end of a truncated file.
+    """
+    msgs, frames, _ = _sample(sample_bags)
+    bag = _write(tmp_path / "cut.mcap", msgs)
+    data = bag.read_bytes()
+    bag.write_bytes(data[: len(data) // 2])
+    said = {}
+    for extra in ((), ("--skip-corrupt",)):
+        out = tmp_path / ("out" + "".join(extra))
+        r = _run(str(bag), "-o", str(out), "--params", DEMO, "--quiet", *extra)
+        assert r.returncode == 1 and "Traceback" not in r.stderr + r.stdout
+        s = _summary(out / "cut")
+        assert s["status"] == "partial" and 0 < s["frames"]["in"] < len(frames)
+        corrupt = [p for p in s["problems"] if "corrupt" in p]
+        assert len(corrupt) == 1, s["problems"]
+        assert "--skip-corrupt" not in corrupt[0], corrupt[0]
+        said[extra] = (s["frames"]["in"], s["frames"]["total_in_bag"], corrupt[0])
+    (n, total, broke), (n_skip, _, read) = said.values()
+    assert n_skip == n  # reading on gains nothing past the end of the file
+    assert broke.startswith(f"bag breaks off after {n} of {total} frames: "), broke
+    assert read.startswith("corrupt bag read up to its damage (nothing readable after it): ")
+    assert read.endswith(f"; {n} of {total} frames read"), read
 
 
 def test_sqlite3_compressed_images_with_tlog_telemetry(sample_bags, tmp_path):

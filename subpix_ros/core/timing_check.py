@@ -35,6 +35,9 @@ ROTATION_TOLERANCE_DEG = 10.0
 MIN_PAIRS = 3
 #: Least RMS expected shift (px) over the pairs: below it the fit cannot see a scale.
 MIN_MOTION_PX = 0.5
+#: Frames whose RMS shift is below this fraction of the expected RMS did not move: a frozen
+#: camera or repeated frames, not a camera parameter off (no scale or rotation fits them).
+STILL_FRACTION = 0.1
 
 
 @dataclass(frozen=True)
@@ -61,6 +64,10 @@ class TelemetryAgreement:
         too little or too noisy to tell (``reason`` says why).
     scale_off, rotation_off : bool
         Which of the two is off (both False unless ``agrees`` is False).
+    still : bool
+        The frames did not move while the telemetry expects motion (their RMS shift below
+        ``STILL_FRACTION`` of the expected): ``agrees`` False, neither ``scale_off`` nor
+        ``rotation_off`` (no parameter would fit; a frozen camera or repeated frames).
     reason : str
         One sentence: what the fit found, or why it could not be made.
     """
@@ -76,6 +83,7 @@ class TelemetryAgreement:
     reason: str = ""
     scale_off: bool = False
     rotation_off: bool = False
+    still: bool = False
 
 
 def telemetry_agreement(measured: np.ndarray, expected: np.ndarray) -> TelemetryAgreement:
@@ -95,7 +103,9 @@ def telemetry_agreement(measured: np.ndarray, expected: np.ndarray) -> Telemetry
     TelemetryAgreement
         ``agrees=None`` with the reason when fewer than ``MIN_PAIRS`` pairs remain, the
         expected motion is below ``MIN_MOTION_PX`` RMS, or the fit's 3 standard errors exceed
-        a tolerance without the estimate doing so.
+        a tolerance without the estimate doing so; ``agrees=False`` and ``still`` when the
+        frames moved less than ``STILL_FRACTION`` of the expected RMS shift (no fit is made:
+        its scale and rotation would be noise).
 
     Raises
     ------
@@ -133,6 +143,9 @@ def telemetry_agreement(measured: np.ndarray, expected: np.ndarray) -> Telemetry
             reason=f"not checked: the expected shifts are {motion:.2f} px RMS "
             f"(at least {MIN_MOTION_PX} px needed to see a scale)",
         )
+    moved = float(np.sqrt(np.mean(np.abs(zm) ** 2)))
+    if moved < STILL_FRACTION * motion:
+        return _still(int(zm.size), moved, motion)
     c, resid = _fit(zm, ze)
     keep = np.abs(resid) <= max(5.0 * float(np.median(np.abs(resid))), 0.5)
     if keep.sum() >= MIN_PAIRS and not keep.all():
@@ -177,6 +190,33 @@ def telemetry_agreement(measured: np.ndarray, expected: np.ndarray) -> Telemetry
     )
 
 
+def _still(pairs: int, moved_px: float, expected_px: float) -> TelemetryAgreement:
+    """Return the verdict on frames that did not move while the telemetry expects motion.
+
+    Parameters
+    ----------
+    pairs : int
+        Frame pairs compared.
+    moved_px, expected_px : float
+        RMS shift the frames show and the telemetry expects over them, px.
+
+    Returns
+    -------
+    TelemetryAgreement
+        ``agrees`` False, ``still`` True, the scale ``moved_px / expected_px`` (no rotation:
+        there is no motion to measure one from).
+    """
+    return TelemetryAgreement(
+        pairs,
+        scale=moved_px / expected_px,
+        agrees=False,
+        still=True,
+        reason=f"disagrees: the frames did not move ({moved_px:.2f} px RMS against their "
+        f"references) while the telemetry expects {expected_px:.2f} px RMS, over {pairs} frame "
+        "pairs",
+    )
+
+
 def what_would_fit(
     check: TelemetryAgreement,
     focal_length_mm: float,
@@ -199,10 +239,16 @@ def what_would_fit(
         For a scale off: the focal length in pixels ``f / a`` used and the one the frames
         imply, ``k f / a`` (e.g. ``pixel_pitch_um a / k``; or the height above ground is off by
         ``1 / k``); for a rotation off: the yaw offset that would fit, the given one plus
-        ``theta``. Joined by "; ".
+        ``theta``. Joined by "; ". For frames that did not move (``still``): that no parameter
+        would fit, and what to look at instead.
     """
     if check.agrees is not False:
         return ""
+    if check.still:
+        return (
+            "a frozen camera or repeated frames? (no camera parameter would fit: check that "
+            "the camera sends new images)"
+        )
     fixes = []
     if check.scale_off:
         f_px = focal_length_mm * 1e3 / pixel_pitch_um

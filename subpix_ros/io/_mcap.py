@@ -408,6 +408,25 @@ def chunk_messages(
 Source = Iterator[tuple[int, tuple, object]]
 
 
+def readable_after(f: McapFile, offset: int) -> bool:
+    """Tell whether a chunk or an unchunked message starts after byte ``offset`` of the file.
+
+    Parameters
+    ----------
+    f : McapFile
+        The file as :func:`open_mcap` found it (its chunks and unchunked messages).
+    offset : int
+        Where a damaged record is.
+
+    Returns
+    -------
+    bool
+        True when a reader that skips the damage would still find messages after it; False
+        when the file ends at its damage (a truncated copy, a recording killed mid-chunk).
+    """
+    return any(c.offset > offset for c in f.chunks) or any(off > offset for _, off, _, _ in f.loose)
+
+
 def sources(
     f: McapFile, buf, wanted_topics: set[str] | None, on_bad: Callable[[int, str, int | None], None]
 ) -> list[Source]:

@@ -20,8 +20,6 @@ Topics and types (relative names, under the node's namespace):
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from subpix_ros.core.telemetry import (
@@ -137,9 +135,13 @@ class TelemetryFromTopics:
         self.fix: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def height(self, msg) -> None:
-        """Remember the height above ground of a ``telemetry/height`` message (None if NaN/Inf)."""
-        h = float(msg.data)
-        self.height_m = h if math.isfinite(h) else None
+        """Remember the height above ground of a ``telemetry/height`` message.
+
+        A NaN or infinite height is kept too: the samples built with it are refused where they
+        are used (:func:`~subpix_ros.core.telemetry.validate_sample`) and counted there, not
+        lost without a word as if no height had come.
+        """
+        self.height_m = float(msg.data)
 
     def imu(self, msg) -> None:
         """Remember the heading of a ``telemetry/imu`` orientation."""

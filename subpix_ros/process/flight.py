@@ -35,7 +35,7 @@ from typing import Any, Callable
 import cv2
 
 from subpix_ros.core.telemetry import TelemetryBuffer, TelemetrySample
-from subpix_ros.io.bags import BagError
+from subpix_ros.io.bags import BagError, ReadReport
 from subpix_ros.process.collector import (
     _clean,
     _Collector,
@@ -62,6 +62,8 @@ from subpix_ros.process.summary import (
     _stage_stats,
     _summary,
     telemetry_coverage,
+    telemetry_unusable,
+    time_jumps_back,
 )
 from subpix_ros.process.tables import (
     FRAME_COLUMNS,
@@ -321,6 +323,7 @@ class _FlightRun:
         self.size: tuple | None = None
         self.first_ns: int | None = None
         self.last_ns: int | None = None
+        self.jumps_back_ns: list[int] = []  # how far each frame's stamp fell behind the last
         self.next_diag: int | None = None
         self.done = 0
         self.total = flight.frames_total
@@ -427,6 +430,8 @@ class _FlightRun:
             self._drop(rec.reason)
             return
         self.first_ns = rec.stamp_ns if self.first_ns is None else self.first_ns
+        if self.last_ns is not None and rec.stamp_ns < self.last_ns:  # the stages restart
+            self.jumps_back_ns.append(self.last_ns - rec.stamp_ns)
         self.last_ns = rec.stamp_ns
         collector.current = rec
         t0 = time.perf_counter()
@@ -486,11 +491,10 @@ class _FlightRun:
             self.problems.append(
                 f"{len(collector.errors)} stage error(s), last: {collector.errors[-1]}"
             )
-        if self.flight.read_report.skipped_records:
+        read_on = _read_past_damage(self.flight.read_report, self.broke_off, self.done, self.total)
+        if read_on:
             self.status = "partial"
-            self.problems.append(
-                f"corrupt bag read past its damage: {self.flight.read_report.summary()}"
-            )
+            self.problems.append(read_on)
 
     def write_tables(self) -> list[dict]:
         """Write ``shifts.csv``, ``frames.csv`` and ``telemetry.csv``; return the shift rows."""
@@ -542,6 +546,14 @@ class _FlightRun:
                 f"frame before it (first at {repeated[0].stamp_ns} ns); does the camera driver "
                 "stamp its images?"
             )
+        unusable = telemetry_unusable(self.samples)
+        if unusable:  # telemetry read but not usable: said, not passed off as none received
+            self.problems.append(unusable)
+            tel = summary["telemetry"]
+            tel["note"] = "; ".join(x for x in (tel["note"], unusable) if x)
+        jumps = time_jumps_back(self.jumps_back_ns)
+        if jumps:  # every stage restarted at each: sets and tracking cut short
+            self.problems.append(jumps)
         coverage = telemetry_coverage(
             [sm.t for sm in self.samples],
             [r.stamp_ns * 1e-9 for r in collector.frames],
@@ -553,6 +565,8 @@ class _FlightRun:
         check = summary["telemetry"]["check"]
         if check is not None and check["agrees"] is False:  # products made, but said loudly
             self.problems.append(check["note"])
+        # frames that did not move under a moving vehicle: the input, not a parameter, is bad
+        still = check is not None and bool(check.get("still"))
         if not collector.sets and flight.frames_total:
             self.problems.append(
                 "no super-resolved image: no set reached min_frames" + _why_no_set(collector)
@@ -568,7 +582,14 @@ class _FlightRun:
             )
         unaligned = summary["frames"]["kept"] > 1 and not summary["frames"]["aligned"]
         if self.status == "ok" and (
-            not flight.frames_total or self.dropped or collector.errors or unaligned or repeated
+            not flight.frames_total
+            or self.dropped
+            or collector.errors
+            or unaligned
+            or repeated
+            or still
+            or jumps
+            or unusable
         ):
             self.status = "partial"  # part of the input (or all of it) could not be used
         summary["status"] = self.status
@@ -600,6 +621,37 @@ class _FlightRun:
         )
         res.__dict__["_crops"] = self.collector.crops
         return res
+
+
+def _read_past_damage(
+    report: ReadReport, broke_off: str | None, frames_read: int, frames_total: int
+) -> str | None:
+    """Say what a corrupt bag read with ``--skip-corrupt`` gave and lost (None otherwise).
+
+    Parameters
+    ----------
+    report : ReadReport
+        What the bag reader skipped.
+    broke_off : str or None
+        The error the reading stopped at (without ``--skip-corrupt``): then the break is the
+        one statement (``bag breaks off after ...``) and this says nothing.
+    frames_read, frames_total : int
+        Frames read, and the bag's count of them.
+
+    Returns
+    -------
+    str or None
+        One problem line: whether the reader went on past the damage or the storage ended at
+        it (a truncated file), what it skipped, and how many frames were read.
+    """
+    if not report.skipped_records or broke_off is not None:
+        return None
+    how = (
+        "read past its damage"
+        if report.readable_after
+        else "read up to its damage (nothing readable after it)"
+    )
+    return f"corrupt bag {how}: {report.summary()}; {frames_read} of {frames_total} frames read"
 
 
 def _failed_shifts(rows: list[dict]) -> str | None:

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from typing import TYPE_CHECKING
 
+import numpy as np
+
+from subpix_ros.core.telemetry import TelemetrySample, validate_sample
 from subpix_ros.core.timing_check import TelemetryAgreement, what_would_fit
 from subpix_ros.process.collector import _TIME_KEY, _clean, _stats_dict, reason_key
 from subpix_ros.process.inputs import Flight
@@ -129,6 +133,95 @@ def telemetry_coverage(
         f"telemetry_time_offset_s {offset_s:g} s) {_utc(f0)} - {_utc(f1)}{where} (another "
         "clock, or another flight's telemetry?); frames outside it are kept without frame "
         "timing or an expected shift"
+    )
+
+
+def _unusable(sample: TelemetrySample) -> tuple[str, str, float | None] | None:
+    """Say why a sample cannot time frames or give an expected shift (None if it can).
+
+    Returns
+    -------
+    tuple or None
+        The kind (``"height"``, ``"velocity"``, ``"invalid"``), what the samples of that kind
+        have (with ``{}`` for the value) and the value (None for ``"invalid"``). A hovering
+        vehicle's sample is valid (it is said as hovering by the frame selection).
+    """
+    h = sample.height_agl_m
+    if not (math.isfinite(h) and h > 0.0):
+        need = "> 0" if math.isfinite(h) else "finite and > 0"
+        return "height", f"have height {{}} m (must be {need})", h
+    speed = sample.ground_speed_mps
+    if not (math.isfinite(speed) and np.all(np.isfinite(sample.vel_ned_mps))):
+        return "velocity", "have velocity {} m/s (must be finite)", speed
+    ok, why = validate_sample(sample)
+    return None if ok else ("invalid", f"are invalid ({why})", None)
+
+
+def telemetry_unusable(samples: list[TelemetrySample]) -> str | None:
+    """Say when the telemetry was read but its samples cannot be used (None when they can).
+
+    Parameters
+    ----------
+    samples : list of TelemetrySample
+        The flight's samples as read (``telemetry.csv``'s rows), valid or not.
+
+    Returns
+    -------
+    str or None
+        One problem line when all samples, or more than ``max(2, 10 %)``, have a height that
+        is not finite and > 0, a velocity that is not finite, or fail
+        :func:`~subpix_ros.core.telemetry.validate_sample`: how many of how many, of each kind
+        (commonest first) with its value (``e.g.`` when the values differ), and what the
+        frames lack for it.
+    """
+    bad = [why for why in map(_unusable, samples) if why is not None]
+    if not bad or (len(bad) < len(samples) and len(bad) <= max(2, 0.1 * len(samples))):
+        return None
+    kinds = Counter(kind for kind, _, _ in bad)
+    parts = [_kind_text(kind, bad) for kind, _ in kinds.most_common()]
+    whole = len(bad) == len(samples)
+    counts = [kinds[kind] for kind, _ in kinds.most_common()]
+    said = f"{counts[0]} of {len(samples)} samples {parts[0]}" + "".join(
+        f", {n} {part}" for n, part in zip(counts[1:], parts[1:])
+    )
+    if whole:
+        return f"telemetry unusable: {said}: no frame timing or expected shift from it"
+    return (
+        f"telemetry partly unusable: {said}: the frames at their times have no frame timing "
+        "or expected shift"
+    )
+
+
+def _kind_text(kind: str, bad: list[tuple[str, str, float | None]]) -> str:
+    """Say what the unusable samples of one kind have, with the first value (e.g. if they differ)."""
+    same = [(text, value) for k, text, value in bad if k == kind]
+    text, value = same[0]
+    if value is None:
+        return text
+    differ = len({repr(v) for _, v in same}) > 1  # repr: NaN equals NaN
+    return text.format(f"e.g. {value:g}" if differ else f"{value:g}")
+
+
+def time_jumps_back(jumps_ns: list[int]) -> str | None:
+    """Say how often the frames' stamps went back in time, and what that did (None if never).
+
+    Parameters
+    ----------
+    jumps_ns : list of int
+        For each frame stamped earlier than the frame before it, by how much, ns.
+
+    Returns
+    -------
+    str or None
+        One problem line: the number of jumps, the largest, that every stage restarted at
+        each (reference, tracking, sets, telemetry, mosaic) and the likely cause.
+    """
+    if not jumps_ns:
+        return None
+    return (
+        f"{len(jumps_ns)} time jump(s) back in the frames' stamps (largest "
+        f"{max(jumps_ns) * 1e-9:.3g} s): the pipeline restarted at each (reference, sets and "
+        "mosaic begun anew); frames out of order in the bag, or a camera clock that was reset?"
     )
 
 

@@ -251,8 +251,8 @@ class RegistrationStage(Stage):
     def _image_rate(self, stamp_s: float):
         """Return the expected image motion (u, v) px/s at the frame's stamp, or (None, reason)."""
         sample, why = self.telemetry.at(stamp_s + self.param("telemetry_time_offset_s"))
-        if sample is None:
-            return None, f"telemetry: {why}"
+        if sample is None:  # ("telemetry stale: ...", "telemetry unusable: ..." said as they are)
+            return None, why if why.startswith("telemetry") else f"telemetry: {why}"
         ok, why = validate_sample(sample)
         if not ok:
             return None, f"telemetry: {why}"

@@ -290,6 +290,15 @@ def test_buffer_out_of_range_stale_and_gaps():
     assert TelemetryBuffer().at(5.0) == (None, "no telemetry received")
 
 
+def test_an_empty_buffer_says_every_sample_was_invalid_not_that_none_came():
+    buf = TelemetryBuffer()
+    for t in (1.0, 1.1, 1.2):
+        assert not buf.add(sample(t=t, height_agl_m=-3.0))[0]
+    _, reason = buf.at(1.1)
+    assert reason.startswith("telemetry unusable: all 3 sample(s) refused as invalid"), reason
+    assert "negative height above ground (-3.000 m)" in reason
+
+
 def test_buffer_reorders_or_rejects_late_samples_and_counts_them():
     buf = TelemetryBuffer(stale_after_s=1.0)
     buf.add(sample(t=1.0, height_agl_m=10.0))

@@ -54,6 +54,25 @@ def test_a_camera_yawed_off_its_offset_shows_as_that_rotation(offset):
     assert f"give yaw offset {5.0 + offset:.1f} deg" in advice and "f/a" not in advice
 
 
+def test_frames_that_did_not_move_are_said_not_fitted_to_a_parameter():
+    # a frozen camera: every frame the same image, registration noise of 0.005 px against the
+    # telemetry's motion; no pixel pitch or yaw offset would fit, none is given
+    expected = _flight(3.08e-6)
+    measured = np.random.default_rng(3).normal(0.0, 0.005, expected.shape)
+    res = telemetry_agreement(measured, expected)
+    assert res.agrees is False and res.still
+    assert not res.scale_off and not res.rotation_off and res.rotation_deg is None
+    assert res.scale < 0.1
+    assert res.reason.startswith("disagrees: the frames did not move (0.01 px RMS")
+    assert f"expects {np.sqrt(np.mean(np.sum(expected**2, 1))):.2f} px RMS" in res.reason
+    advice = what_would_fit(res, 4.3, 1.54, 0.0)
+    assert advice.startswith("a frozen camera or repeated frames?")
+    assert "yaw" not in advice and "f/a" not in advice and "pixel_pitch_um" not in advice
+    # slow frames (a tenth of the motion and more) are a scale, not a frozen camera
+    slow = telemetry_agreement(expected * 0.2, expected)
+    assert slow.agrees is False and not slow.still and slow.scale_off
+
+
 def test_noisy_agreeing_flight_agrees_within_its_error():
     expected = _flight(1.54e-6)
     rng = np.random.default_rng(5)

@@ -139,6 +139,35 @@ def test_mcap_truncated_reads_complete_chunks_when_asked(tmp_path):
     assert [(t.name, t.count) for t in bag_topics(bag)] == [("/cam", n0)]
 
 
+def test_skip_corrupt_is_suggested_only_where_it_reads_more(tmp_path):
+    """A damaged middle chunk or sqlite3 page has messages past it; a truncated file has none."""
+    bag = tmp_path / "b.mcap"
+    _write_ours(bag, 45)
+    (_, _, n0), (o1, l1, _), _ = _chunks(bag)
+    raw = bag.read_bytes()
+    _overwrite(bag, o1 + l1 // 2, o1 + l1 // 2 + 16)
+    with pytest.raises(BagCorrupt) as err:
+        list(read_messages(bag))
+    assert err.value.more and str(err.value).endswith("(--skip-corrupt reads on past the damage)")
+    report = ReadReport()
+    list(read_messages(bag, skip_corrupt=True, report=report))
+    assert report.readable_after
+    bag.write_bytes(raw[: o1 + l1 // 2])  # truncated inside the second chunk
+    with pytest.raises(BagCorrupt) as err:
+        list(read_messages(bag))
+    assert not err.value.more and err.value.count == n0
+    assert "--skip-corrupt" not in str(err.value), str(err.value)
+    report = ReadReport()
+    assert len(list(read_messages(bag, skip_corrupt=True, report=report))) == n0
+    assert report.skipped_records == 1 and not report.readable_after
+    db_bag = tmp_path / "db"
+    _write_ours(db_bag, 6, storage="sqlite3")
+    _middle_half(next(db_bag.glob("*.db3")))
+    with pytest.raises(BagCorrupt) as err:
+        list(read_messages(db_bag))
+    assert err.value.count > 0 and err.value.more and "--skip-corrupt" in str(err.value)
+
+
 def test_sqlite3_damaged(tmp_path):
     bag = tmp_path / "b"
     _write_ours(bag, 6, storage="sqlite3")

@@ -441,6 +441,8 @@ def test_bad_bags_get_one_line_each_and_the_rest_is_processed(sample_bags, tmp_p
     assert s["status"] == "partial" and "breaks off" in batch["corrupt"]["line"]
     assert 0 < s["frames"]["in"] < len(frames)
     assert "is corrupt at byte offset" in (out / "corrupt" / "report.html").read_text()
+    corrupt_said = [p for p in s["problems"] if "corrupt" in p]
+    assert len(corrupt_said) == 1 and "(--skip-corrupt reads on past the damage)" in corrupt_said[0]
     # --skip-corrupt: the frames after the damaged chunk are processed too, and it is said
     r = _run(
         str(bags / "corrupt.mcap"),
@@ -455,8 +457,38 @@ def test_bad_bags_get_one_line_each_and_the_rest_is_processed(sample_bags, tmp_p
     s2 = _summary(tmp_path / "out2" / "corrupt")
     assert s2["status"] == "partial" and s["frames"]["in"] < s2["frames"]["in"] < len(frames)
     assert any(
-        "corrupt bag read past its damage: skipped 1 corrupt record" in p for p in s2["problems"]
+        "corrupt bag read past its damage: skipped 1 corrupt record" in p
+        and p.endswith(f"; {s2['frames']['in']} of {len(frames)} frames read")
+        for p in s2["problems"]
     ), s2["problems"]
+
+
+def test_a_truncated_bag_is_one_statement_of_what_was_read_and_lost(sample_bags, tmp_path):
+    """The sample flight's mcap cut in half: read up to the cut, with or without --skip-corrupt.
+
+    One corrupt-bag problem either way, the frames read of the bag's count in it, and no
+    suggestion of --skip-corrupt: nothing lies past the end of a truncated file.
+    """
+    msgs, frames, _ = _sample(sample_bags)
+    bag = _write(tmp_path / "cut.mcap", msgs)
+    data = bag.read_bytes()
+    bag.write_bytes(data[: len(data) // 2])
+    said = {}
+    for extra in ((), ("--skip-corrupt",)):
+        out = tmp_path / ("out" + "".join(extra))
+        r = _run(str(bag), "-o", str(out), "--params", DEMO, "--quiet", *extra)
+        assert r.returncode == 1 and "Traceback" not in r.stderr + r.stdout
+        s = _summary(out / "cut")
+        assert s["status"] == "partial" and 0 < s["frames"]["in"] < len(frames)
+        corrupt = [p for p in s["problems"] if "corrupt" in p]
+        assert len(corrupt) == 1, s["problems"]
+        assert "--skip-corrupt" not in corrupt[0], corrupt[0]
+        said[extra] = (s["frames"]["in"], s["frames"]["total_in_bag"], corrupt[0])
+    (n, total, broke), (n_skip, _, read) = said.values()
+    assert n_skip == n  # reading on gains nothing past the end of the file
+    assert broke.startswith(f"bag breaks off after {n} of {total} frames: "), broke
+    assert read.startswith("corrupt bag read up to its damage (nothing readable after it): ")
+    assert read.endswith(f"; {n} of {total} frames read"), read
 
 
 def test_sqlite3_compressed_images_with_tlog_telemetry(sample_bags, tmp_path):
@@ -809,6 +841,108 @@ def test_camera_parameters_that_do_not_fit_the_frames_are_said_not_hidden(sample
     assert "telemetry disagrees" in line, line
     html = (out / "subpixel" / "report.html").read_text()
     assert "<li class='problem'>telemetry disagrees: the frames moved 0.500x" in html
+
+
+def test_a_frozen_camera_is_said_not_advised_as_a_camera_parameter(sample_bags, tmp_path):
+    """Every frame the flight's first image (a camera that froze), the telemetry as recorded."""
+    _, frames, tel = _sample(sample_bags)
+    first, _ = cdr_to_image(frames[0].raw)
+    frozen = [
+        type(m)(
+            m.topic,
+            m.msgtype,
+            m.timestamp_ns,
+            image_to_cdr(first, "bgr8", header_to_ns(cdr_to_image(m.raw)[1]), "camera"),
+        )
+        for m in frames
+    ]
+    bag = _write(tmp_path / "frozen", sorted(frozen + tel, key=lambda m: m.timestamp_ns))
+    r = _run(str(bag), "-o", str(tmp_path / "out"), "--params", DEMO)
+    assert r.returncode == 1, r.stdout + r.stderr
+    s = _summary(tmp_path / "out" / "frozen")
+    check = s["telemetry"]["check"]
+    assert check["agrees"] is False and check["still"], check
+    assert s["status"] == "partial", s["problems"]
+    problem = next(p for p in s["problems"] if p.startswith("telemetry disagrees"))
+    assert problem.startswith("telemetry disagrees: the frames did not move"), problem
+    assert "a frozen camera or repeated frames?" in problem
+    assert "yaw offset" not in problem and "f/a" not in problem
+    line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith("frozen: "))
+    assert line.startswith("frozen: partial"), line
+
+
+def test_telemetry_present_but_unusable_is_said_with_why(sample_bags, tmp_path):
+    """The flight's telemetry with every height -3 m or NaN, or every velocity NaN."""
+    from subpix_ros.io import cdr
+    from subpix_ros.io.telemetry_msgs import TWIST, float64_cdr
+
+    _, frames, tel = _sample(sample_bags)
+
+    def spoilt(name, topic, raw):
+        out = []
+        for m in tel:
+            if m.topic == topic:
+                m = type(m)(m.topic, m.msgtype, m.timestamp_ns, raw(m.raw))
+            out.append(m)
+        return _write(tmp_path / name, sorted(frames + out, key=lambda m: m.timestamp_ns))
+
+    def nan_velocity(raw):
+        msg = cdr.deserialize(raw, TWIST)
+        msg.twist.linear.x = msg.twist.linear.y = float("nan")
+        return cdr.serialize(msg, TWIST)
+
+    cases = {
+        "below": ("/telemetry/height", lambda raw: float64_cdr(-3.0)),
+        "nanheight": ("/telemetry/height", lambda raw: float64_cdr(float("nan"))),
+        "nanvelocity": ("/telemetry/velocity", nan_velocity),
+    }
+    bags = [str(spoilt(name, *case)) for name, case in cases.items()]
+    r = _run(*bags, "-o", str(tmp_path / "out"), "--params", DEMO)
+    assert r.returncode == 1, r.stdout + r.stderr
+    for name, what in (
+        ("below", "have height -3 m (must be > 0)"),
+        ("nanheight", "have height nan m (must be finite and > 0)"),
+        ("nanvelocity", "have velocity nan m/s (must be finite)"),
+    ):
+        s = _summary(tmp_path / "out" / name)
+        n = s["telemetry"]["samples"]  # a sample per velocity after the first height
+        assert n >= len(frames), (name, n)
+        said = f"telemetry unusable: {n} of {n} samples {what}"
+        assert s["status"] == "partial", (name, s["problems"])
+        assert s["problems"][0].startswith(said), (name, s["problems"])
+        assert said in s["telemetry"]["note"]
+        line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith(name + ":"))
+        assert line.startswith(f"{name}: partial") and said in line, line
+        html = (tmp_path / "out" / name / "report.html").read_text()
+        assert f"topics ({n} samples): {said}".replace(">", "&gt;") in html
+        assert "no telemetry received" not in json.dumps(s["warnings"])
+
+
+def test_frame_stamps_that_go_back_in_time_are_said(sample_bags, tmp_path):
+    """Two flights: the second half stamped 1 s earlier, and every stamp in reverse order."""
+    _, frames, tel = _sample(sample_bags)
+    stamps = [header_to_ns(cdr_to_image(m.raw)[1]) for m in frames]
+
+    def restamped(new):
+        out = []
+        for m, stamp in zip(frames, new):
+            img, _ = cdr_to_image(m.raw)
+            raw = image_to_cdr(img, "bgr8", stamp, "camera")
+            out.append(type(m)(m.topic, m.msgtype, m.timestamp_ns, raw))
+        return sorted(out + tel, key=lambda m: m.timestamp_ns)
+
+    half = len(stamps) // 2
+    jump = _write(tmp_path / "jump", restamped(stamps[:half] + [t - 10**9 for t in stamps[half:]]))
+    rev = _write(tmp_path / "reversed", restamped(stamps[::-1]))
+    r = _run(str(jump), str(rev), "-o", str(tmp_path / "out"), "--params", DEMO)
+    assert r.returncode == 1, r.stdout + r.stderr
+    for name, n, largest in (("jump", 1, "0.967 s"), ("reversed", len(stamps) - 1, "0.0333 s")):
+        s = _summary(tmp_path / "out" / name)
+        said = f"{n} time jump(s) back in the frames' stamps (largest {largest}): the pipeline"
+        assert s["status"] == "partial", (name, s["problems"])
+        assert any(p.startswith(said) for p in s["problems"]), (name, s["problems"])
+        line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith(name + ":"))
+        assert line.startswith(f"{name}: partial"), line
 
 
 def test_a_tlog_from_another_clock_is_said_not_silently_unused(sample_bags, tmp_path):

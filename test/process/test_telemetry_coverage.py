@@ -1,6 +1,9 @@
 """``subpix process``: telemetry that does not cover the frames' times is said (no silent gap)."""
 
-from subpix_ros.process.summary import telemetry_coverage
+import pytest
+
+from subpix_ros.core.telemetry import sample_from_enu
+from subpix_ros.process.summary import telemetry_coverage, telemetry_unusable
 
 T0 = 1_717_000_000.0  # 2024-05-29 16:26:40 UTC
 FRAMES = [T0 + 0.1 * k for k in range(20)]  # 2 s of frames
@@ -36,3 +39,36 @@ def test_nothing_to_compare_is_not_this_problem():
     # no telemetry at all is said elsewhere ("no telemetry ..."), no frames likewise
     assert telemetry_coverage([], FRAMES, 0.0, 0.5) is None
     assert telemetry_coverage([T0], [], 0.0, 0.5) is None
+
+
+def _samples(n, height=60.0, east=5.0):
+    return [sample_from_enu(T0 + 0.1 * k, (east, 2.0, 0.0), height) for k in range(n)]
+
+
+@pytest.mark.parametrize(
+    "height, east, what",
+    [
+        (-3.0, 5.0, "have height -3 m (must be > 0)"),
+        (0.0, 5.0, "have height 0 m (must be > 0)"),
+        (float("nan"), 5.0, "have height nan m (must be finite and > 0)"),
+        (60.0, float("nan"), "have velocity nan m/s (must be finite)"),
+    ],
+)
+def test_telemetry_present_but_unusable_is_said_with_why(height, east, what):
+    text = telemetry_unusable(_samples(28, height, east))
+    said = f"telemetry unusable: 28 of 28 samples {what}: no frame timing or expected shift"
+    assert text == said + " from it", text
+
+
+def test_telemetry_partly_unusable_is_said_by_kind_and_a_few_bad_samples_are_not():
+    good = _samples(20)
+    assert telemetry_unusable(good) is None
+    assert telemetry_unusable(good + _samples(2, -1.0)) is None  # max(2, 10 %): ordinary
+    text = telemetry_unusable(good + _samples(3, -1.0) + _samples(1, -2.0) + _samples(3, 60, 1e3))
+    assert text.startswith(
+        "telemetry partly unusable: 4 of 27 samples have height e.g. -1 m (must be > 0), "
+        "3 are invalid (absurd ground speed"
+    ), text
+    assert text.endswith("the frames at their times have no frame timing or expected shift")
+    hovering = _samples(20, east=0.0)  # valid: the frame selection says it hovers
+    assert telemetry_unusable([sample_from_enu(T0, (0.0, 0.0, 0.0), 60.0)] + hovering) is None

@@ -215,6 +215,24 @@ def test_telemetry_that_does_not_fit_the_frames_is_a_warning(flight, sample_bags
     assert st.telemetry_pairs == 0 and st.telemetry_agrees is None
 
 
+def test_a_frozen_camera_is_warned_as_such_not_as_a_camera_parameter(flight, sample_bags):
+    """The sample flight's telemetry, every frame the first image (a camera that froze)."""
+    frames, _ = flight
+    stage = RegistrationStage(**FAST, pixel_pitch_um=3.08)
+    for sample in _sample_telemetry(sample_bags):
+        stage.add_telemetry(sample)
+    problems = []
+    stage.on_problem = lambda level, msg: problems.append(msg)
+    _run(stage, [Frame(f.stamp_ns, frames[0].image) for f in frames])
+    st = stage.stats
+    assert st.telemetry_agrees is False, st.telemetry_check
+    warned = [m for m in problems if m.startswith("telemetry disagrees")]
+    assert len(warned) == 1, problems
+    assert warned[0].startswith("telemetry disagrees: the frames did not move"), warned[0]
+    assert "a frozen camera or repeated frames?" in warned[0]
+    assert "yaw offset" not in warned[0] and "f/a" not in warned[0]
+
+
 def test_a_frame_repeating_the_previous_stamp_is_left_out_and_said(flight):
     """An unstamped camera (every stamp 0) or a duplicated message: outputs are keyed by stamp."""
     frames, _ = flight

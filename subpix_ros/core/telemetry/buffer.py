@@ -190,6 +190,16 @@ class TelemetryBuffer:
             del self._samples[:drop]
             self.stats.evicted += drop
 
+    def _why_empty(self) -> str:
+        """Say why there is no sample: none came, or every one was refused as invalid."""
+        st = self.stats
+        if st.invalid and not st.accepted:
+            return (
+                f"telemetry unusable: all {st.invalid} sample(s) refused as invalid "
+                f"(last: {st.last_reason})"
+            )
+        return "no telemetry received"
+
     def latest(self) -> TelemetrySample | None:
         """Return the newest sample, or None when empty."""
         with self._lock:
@@ -229,13 +239,13 @@ class TelemetryBuffer:
         ``stale_after_s`` apart. After the newest sample by at most
         ``stale_after_s``: the newest sample held (re-stamped ``t``, the note
         says so; no extrapolation). Before the oldest sample, or later than
-        that: refused.
+        that: refused. An empty buffer says whether no sample came or every one was invalid.
         """
         if not math.isfinite(t):
             return None, f"non-finite query time {t}"
         with self._lock:
             if not self._samples:
-                return None, "no telemetry received"
+                return None, self._why_empty()
             t0, t1 = self._times[0], self._times[-1]
             if t < t0:
                 return None, f"time {t:.3f} is {t0 - t:.3f} s before the oldest telemetry sample"

@@ -67,16 +67,25 @@ def read_messages(
     wanted = set(topics) if topics else None
 
     def on_bad(
-        file: Path, offset: int | None, detail: str, lost: int | None, count: int | None
+        file: Path,
+        offset: int | None,
+        detail: str,
+        lost: int | None,
+        count: int | None,
+        more: bool = False,
     ) -> None:
+        """Count a damaged record (``more``: readable messages lie past it); raise unless skipping."""
         where = "" if offset is None else f" at byte offset {offset}"
         rep.skipped_records += 1
         rep.skipped_messages += lost or 0
         rep.problems.append(f"{file.name}{where}: {detail}")
+        rep.readable_after = rep.readable_after or more
         if rep.first_bad is None:
             rep.first_bad = (file, offset)
         if not skip_corrupt:
-            raise BagCorrupt(file, offset, detail, rep.messages if count is None else count)
+            raise BagCorrupt(
+                file, offset, detail, rep.messages if count is None else count, more=more
+            )
 
     if storage == "rosbags":
         yield from _rosbags_messages(p, wanted, rep)
@@ -123,14 +132,16 @@ def _read_storage(p, storage, files, meta, wanted, rep, on_bad) -> Iterator[BagM
 
     srcs = []
     for k, file in enumerate(files):
+        later_files = k < len(files) - 1
         try:
             f, buf = _mcap.open_mcap(file)
         except _mcap.Damaged as exc:
-            on_bad(file, exc.offset, exc.detail, None, None)
+            on_bad(file, exc.offset, exc.detail, None, None, later_files)
             continue
 
-        def bad(offset, detail, lost, _file=file):
-            on_bad(_file, offset, detail, lost, None)
+        def bad(offset, detail, lost, _file=file, _f=f, _later=later_files):
+            more = _later or _mcap.readable_after(_f, offset)
+            on_bad(_file, offset, detail, lost, None, more)
 
         srcs.extend(_keyed(s, k) for s in _mcap.sources(f, buf, wanted, bad))
     for t, _, payload in heapq.merge(*srcs, key=lambda x: (x[0], x[1])):

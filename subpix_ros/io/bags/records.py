@@ -70,15 +70,20 @@ class BagCorrupt(BagError):
     ``path``: the storage file; ``offset``: byte offset of the first bad record in it (None if
     the storage cannot say, e.g. rows missing from a sqlite3 table); ``count``: messages that
     could be read (mcap: delivered before the bad record; sqlite3: readable rows, checked
-    before anything is delivered); ``detail``: what failed.
+    before anything is delivered); ``detail``: what failed; ``more``: whether reading past the
+    damage (``skip_corrupt``) would deliver more than was delivered (False for a file that
+    ends at its damage, a truncated copy): only then does the message suggest it.
     """
 
-    def __init__(self, path: Path, offset: int | None, detail: str, count: int) -> None:
+    def __init__(
+        self, path: Path, offset: int | None, detail: str, count: int, more: bool = False
+    ) -> None:
         self.path, self.offset, self.detail, self.count = Path(path), offset, detail, count
+        self.more = more
         where = "" if offset is None else f" at byte offset {offset}"
+        hint = " (--skip-corrupt reads on past the damage)" if more else ""
         super().__init__(
-            f"bag {path} is corrupt{where}: {detail}; {count} message(s) could be read "
-            f"(--skip-corrupt reads what can be read)"
+            f"bag {path} is corrupt{where}: {detail}; {count} message(s) could be read{hint}"
         )
 
 
@@ -91,6 +96,9 @@ class ReadReport:
     skipped_messages: int = 0  # messages the bag's indexes say were in them (where known)
     first_bad: tuple[Path, int | None] | None = None
     problems: list[str] = field(default_factory=list)
+    #: some damaged record had readable messages after it (False: the storage ends at its
+    #: damage, e.g. a truncated mcap: reading past it gains nothing)
+    readable_after: bool = False
 
     def summary(self) -> str:
         """Describe what was skipped and why, in one line."""

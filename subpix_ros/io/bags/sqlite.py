@@ -125,6 +125,7 @@ def _damaged_rows(
         f"{detail} ({len(good)} readable row(s), {lost} unreadable or missing)",
         lost,
         len(good),
+        bool(good),  # none delivered yet: skipping the damage reads them
     )
     for ts, rid, tid in sorted(good):
         try:

@@ -9,14 +9,25 @@ from typing import Iterable, Iterator
 
 
 @contextlib.contextmanager
-def ros_node(name: str, use_sim_time: bool = False) -> Iterator[object]:
-    """Yield one node in an initialised rclpy context, torn down on exit."""
+def ros_node(name: str, use_sim_time: bool = False, rclpy_signals: bool = True) -> Iterator[object]:
+    """Yield one node in an initialised rclpy context, torn down on exit.
+
+    ``rclpy_signals`` False leaves SIGINT and SIGTERM to the command: rclpy's own handler shuts
+    the context down at once, so a command that publishes could not finish cleanly (its next
+    publish raised "publisher's context is invalid").
+    """
     import rclpy
     from rclpy.parameter import Parameter
+    from rclpy.signals import SignalHandlerOptions
 
     # Not sys.argv: rcl would read the command's own FROM:=TO arguments (subpix replay --remap)
     # as ROS 1 style remap rules for every name of the node, its /rosout logger included.
-    rclpy.init(args=[])
+    rclpy.init(
+        args=[],
+        signal_handler_options=SignalHandlerOptions.ALL
+        if rclpy_signals
+        else SignalHandlerOptions.NO,
+    )
     node = rclpy.create_node(
         name, parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)]
     )

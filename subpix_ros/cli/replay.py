@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
         src, dst = r.split(":=", 1)
         remap[src] = dst
     try:
-        with ros_node("subpix_replay") as node:
+        with ros_node("subpix_replay", rclpy_signals=False) as node:
             player = Player(
                 node,
                 args.bag,
@@ -117,7 +117,11 @@ def run(args: argparse.Namespace) -> int:
                 remap=remap,
                 skip_corrupt=args.skip_corrupt,
             )
+            # Ctrl-C or a kill: the player stops between messages and the end is acknowledged
+            # (SIGINT too: a job started with `&` inherits it ignored, and rclpy's own handler,
+            # left out here, shut the context down under the player: a traceback, exit 1)
             signal.signal(signal.SIGTERM, lambda *_: player.stop())
+            signal.signal(signal.SIGINT, lambda *_: player.stop())
             published_as = {dst: src for src, dst in remap.items()}  # a remapped name is fine too
             wait_for = [published_as.get(t, t) for t in args.wait_for]
             unknown = [

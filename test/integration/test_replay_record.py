@@ -215,6 +215,34 @@ def _damaged_bag(tmp_path, n=45):
     return bag, c.offset, counts[0], counts[2]
 
 
+def test_ctrl_c_stops_a_looped_replay_cleanly(sample_bags):
+    """Ctrl-C (SIGINT) on a looped replay: what went out said, exit 0, no traceback.
+
+    (Was: rclpy's own SIGINT handler invalidated the context under the player: RCLError
+    "publisher's context is invalid", a traceback and exit status 1.)
+    """
+    import signal
+
+    p = subprocess.Popen(
+        subpix_cmd("replay", str(sample_bags / "subpixel"), "--loop", "--rate", "0.5", "--no-wait"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # as a shell starts `subpix replay ... &`: SIGINT inherited ignored
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
+    try:
+        time.sleep(5.0)
+        assert p.poll() is None
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0 and "Traceback" not in err, err
+    assert "replayed" in out, out
+
+
 def test_replay_stops_at_a_damaged_chunk(tmp_path):
     """Issue 19 item 2: the first bad offset and the count read, one line, non-zero exit.
 

@@ -128,6 +128,7 @@ def start_layout(layout: str, env: dict) -> list[subprocess.Popen]:
     override.write_text(
         f"registration_node:\n  ros__parameters:\n    max_frames_per_reference: {SET - 1}\n"
         f"reconstruction_node:\n  ros__parameters:\n    n_frames: {SET}\n"
+        f"    min_frames: {min(SET, 4)}\n"  # at most n_frames (4: the default)
         f"    max_memory_mb: {float(env.get('SUBPIX_BENCH_MAX_MEMORY_MB') or 0.0)}\n"
     )
     params = ["--params-file", str(ROOT / "config" / "bench.yaml"), "--params-file", str(override)]

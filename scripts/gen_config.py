@@ -44,7 +44,9 @@ def render(name: str) -> str:
     for p in params:
         rng = f" [{p.min} .. {p.max}]" if p.min is not None else ""
         ch = f" (one of: {', '.join(p.choices)})" if p.choices else ""
-        lines.append(f"    # {p.description}{rng}{ch}")
+        order = f" (at most {p.at_most})" if p.at_most else ""
+        ro = " (read-only: set at start-up)" if p.read_only else ""
+        lines.append(f"    # {p.description}{rng}{ch}{order}{ro}")
         lines.append(f"    {p.name}: {_value(p.default)}")
     return "\n".join(lines) + "\n"
 
@@ -64,7 +66,10 @@ def readme_tables() -> str:
                 if p.min is not None
                 else (", ".join(p.choices) if p.choices else "")
             )
-            out.append(f"| `{p.name}` | `{_value(p.default)}` | {rng} | {p.description} |")
+            if p.at_most:
+                rng += f", at most `{p.at_most}`"
+            ro = " (read-only: set at start-up)" if p.read_only else ""
+            out.append(f"| `{p.name}` | `{_value(p.default)}` | {rng} | {p.description}{ro} |")
         out.append("")
     return "\n".join(out)
 

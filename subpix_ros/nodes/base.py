@@ -18,11 +18,13 @@ from collections import defaultdict
 from typing import Any, Callable, Sequence
 
 import cv2
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from subpix_ros.nodes.delivery import DeliveryDelay
-from subpix_ros.nodes.diagnostics import Diagnostics
-from subpix_ros.nodes.params import Param, declare_params
+from subpix_ros.nodes.diagnostics import ERROR, Diagnostics
+from subpix_ros.nodes.params import Param, declare_params, explain_rejection, short_reason
 from subpix_ros.nodes.qos import qos_event_callbacks
 from subpix_ros.nodes.run import executor_kind
 from subpix_ros.nodes.worker import DropOldestWorker
@@ -98,7 +100,12 @@ class StageNode(Node):
             self.diag.set(executor=executor_kind())
         except ValueError:
             self.diag.set(executor="invalid SUBPIX_EXECUTOR")
-        self.params = declare_params(self, self.PARAMS, self._on_param_change)
+        # parameters given at start-up and rejected: name -> "name value (what it accepts)"
+        self.rejected_at_start: dict[str, str] = {}
+        self.params = declare_params(
+            self, self.PARAMS, self._on_param_change, self._rejected_at_start
+        )
+        self._show_rejected_at_start()
         if subscribe_inputs and self.MAIN_INPUTS:
             self.diag.watch_inputs(self.MAIN_INPUTS, lambda: self.param("input_timeout_s"))
         self._listeners: dict[str, list[Callable[[Any], None]]] = defaultdict(list)
@@ -128,6 +135,44 @@ class StageNode(Node):
         self.get_logger().info(f"parameter {name} = {value!r}")
         if self.stage is not None and (name in self.stage.params or name in self.stage.extra):
             self.stage.configure(**{name: value})  # already checked against the same range
+        if name == "queue_size" and self.worker is not None:
+            self.worker.resize(value)
+        if self.rejected_at_start.pop(name, None) is not None:
+            self._show_rejected_at_start()
+
+    def _rejected_at_start(self, param: Param, value: Any, reason: str) -> None:
+        """Count a start-up rejection (logged already) for /diagnostics."""
+        self.rejected_at_start[param.name] = (
+            f"{param.name} {value!r} ({short_reason(param, value, reason)})"
+        )
+        self.diag.error(
+            f"parameter {param.name} = {value!r} rejected at start-up: {reason}", log=False
+        )
+
+    def _show_rejected_at_start(self) -> None:
+        """Hold /diagnostics at ERROR while a parameter rejected at start-up has not been set."""
+        if not self.rejected_at_start:
+            self.diag.clear_lasting("parameters")
+            return
+        self.diag.hold_lasting(
+            "parameters",
+            ERROR,
+            f"{len(self.rejected_at_start)} parameter(s) rejected at start-up, defaults used: "
+            + ", ".join(self.rejected_at_start.values()),
+        )
+
+    def set_parameters(self, parameter_list: list[Parameter]) -> list[SetParametersResult]:
+        """Set parameters (rclpy's), logging each refused change with its reason."""
+        results = super().set_parameters(parameter_list)
+        return [
+            explain_rejection(self, getattr(self, "params", {}), [change], result)
+            for change, result in zip(parameter_list, results)
+        ]
+
+    def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
+        """Set parameters together (rclpy's; the set_parameters service), logging a refusal."""
+        result = super().set_parameters_atomically(parameter_list)
+        return explain_rejection(self, getattr(self, "params", {}), parameter_list, result)
 
     # ---------------------------------------------------------------- in-process hand-off
     def listen(self, kind: str, callback: Callable[[Any], None]) -> None:

@@ -68,6 +68,7 @@ class Diagnostics:
         self._watch: tuple[tuple[str, ...], Callable[[], float], float] | None = None
         self._watch_meter = "input"
         self._episode: str | None = None  # the input problem being reported (logged when it began)
+        self._lasting: dict[str, tuple[int, str]] = {}  # held until cleared (hold_lasting)
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # Wall (steady) time, not the node's clock: with use_sim_time and no /clock (the replay
         # ended or never started) a node must still report, above all that nothing arrives.
@@ -189,9 +190,32 @@ class Diagnostics:
         """Report a warning (logged, throttled, held for ``hold_s``)."""
         self._report(WARN, message)
 
-    def error(self, message: str) -> None:
-        """Report an error (logged, throttled, held for ``hold_s``)."""
-        self._report(ERROR, message)
+    def error(self, message: str, log: bool = True) -> None:
+        """Report an error (logged, throttled, held for ``hold_s``; ``log=False``: logged already)."""
+        self._report(ERROR, message, log=log)
+
+    def hold_lasting(self, key: str, level: int, message: str) -> None:
+        """Hold the status at ``level`` with ``message`` until :meth:`clear_lasting` ``(key)``.
+
+        For a condition that lasts until someone acts (e.g. parameters rejected at start-up),
+        not ``hold_s`` seconds; :meth:`ok` does not end it. Nothing is logged or counted here.
+        """
+        with self._lock:
+            self._lasting[key] = (level, message)
+
+    def clear_lasting(self, key: str) -> None:
+        """End the lasting condition ``key`` (see :meth:`hold_lasting`), if held."""
+        with self._lock:
+            self._lasting.pop(key, None)
+
+    def _effective(self) -> tuple[int, str]:
+        """Return the level and message with the lasting conditions (caller holds the lock)."""
+        level, message = int(self._status.level), self._status.message
+        # the lasting condition's message at its level (a new problem: last_error, recent_problems)
+        for lasting_level, lasting_message in self._lasting.values():
+            if lasting_level >= level:
+                level, message = lasting_level, lasting_message
+        return level, message
 
     def hold_warning(self, message: str) -> None:
         """Keep the status at WARN for a lasting condition whose warning was logged and counted."""
@@ -231,13 +255,15 @@ class Diagnostics:
 
     @property
     def level(self) -> int:
-        """Current level (0 OK, 1 WARN, 2 ERROR)."""
-        return int(self._status.level)
+        """Current level (0 OK, 1 WARN, 2 ERROR), lasting conditions included."""
+        with self._lock:
+            return self._effective()[0]
 
     @property
     def message(self) -> str:
-        """Current status message."""
-        return self._status.message
+        """Current status message, lasting conditions included."""
+        with self._lock:
+            return self._effective()[1]
 
     def snapshot(self) -> DiagnosticStatus:
         """Build the DiagnosticStatus as of now (levels past ``hold_s`` fall back to OK)."""
@@ -249,10 +275,11 @@ class Diagnostics:
                 self._status.level = OK
                 self._status.message = "ok"
             values = dict(self._status.values)
+            level, message = self._effective()
             st = DiagnosticStatus(
-                level=bytes([self._status.level]),
+                level=bytes([level]),
                 name=self.name,
-                message=self._status.message,
+                message=message,
                 hardware_id=self.hardware_id,
             )
             values["last_error"] = self._status.last_error

@@ -136,6 +136,7 @@ class MonitorNode(StageNode):
             "camera_reliable",
             False,
             "subscribe to the camera with reliable QoS instead of SensorDataQoS",
+            read_only=True,
         ),
         Param(
             "shift_std_wait_s",

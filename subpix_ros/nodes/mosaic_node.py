@@ -32,6 +32,7 @@ class MosaicNode(StageNode):
             "camera_reliable",
             False,
             "subscribe to the camera with reliable QoS instead of SensorDataQoS",
+            read_only=True,
         ),
         Param("publish_rate_hz", 1.0, "how often the mosaic is published (Hz)", 0.01, 30.0),
         *ros_params(MosaicStage.PARAMS),

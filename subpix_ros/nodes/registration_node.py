@@ -54,6 +54,7 @@ class RegistrationNode(StageNode):
             "camera_reliable",
             False,
             "subscribe to the camera with reliable QoS instead of SensorDataQoS",
+            read_only=True,
         ),
         Param(
             "queue_size",

@@ -76,6 +76,14 @@ class DropOldestWorker:
             self._cv.notify()
         return not dropped
 
+    def resize(self, maxsize: int) -> None:
+        """Change the queue's bound at run time; the oldest items beyond it are dropped (counted)."""
+        with self._cv:
+            self.maxsize = max(1, int(maxsize))
+            while len(self._queue) > self.maxsize:
+                self._queue.popleft()
+                self.dropped += 1
+
     def clear(self) -> None:
         """Drop every queued item."""
         with self._cv:

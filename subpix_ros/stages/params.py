@@ -22,6 +22,24 @@ class Spec:
     choices: Sequence[str] | None = None
     read_only: bool = False
     validate: Callable[[Any], str | None] | None = None  # extra check: why a value is bad, or None
+    at_most: str | None = None  # the name of a parameter this one may not exceed (order_error)
+    numeric_text: bool = False  # a text parameter that takes numbers: a number is taken as text
+
+    def coerce(self, value: Any) -> Any:
+        """Return ``value`` as this parameter's type where that is what a user means.
+
+        An integer for a float parameter (``-p exposure_s:=0``) is the float; a number for a
+        text parameter that takes numbers (``numeric_text``, e.g. ``blur_sigma:=1``) is its
+        text. Anything else is returned as it is (2.5 for an integer parameter stays an error
+        for :meth:`check`).
+        """
+        if isinstance(value, bool):
+            return value
+        if isinstance(self.default, float) and isinstance(value, int):
+            return float(value)
+        if self.numeric_text and isinstance(self.default, str) and isinstance(value, (int, float)):
+            return str(value)
+        return value
 
     def check(self, value: Any) -> str | None:
         """Return why ``value`` is not acceptable, or None."""
@@ -47,6 +65,39 @@ class Spec:
         return None
 
 
+def order_error(
+    specs: Sequence[Spec], values: Mapping[str, Any], changed: str | None = None
+) -> str | None:
+    """Return why ``values`` break a rule between two parameters (``Spec.at_most``), or None.
+
+    Parameters
+    ----------
+    specs : sequence of Spec
+        The parameters; a spec with ``at_most="other"`` may not exceed ``other``.
+    values : mapping of str to value
+        The values to check (a rule whose parameters are not both in it is not checked).
+    changed : str, optional
+        The parameter being changed, if one: the reason is worded from its side.
+
+    Returns
+    -------
+    str or None
+        The reason, naming both parameters and their values, or None if the values agree.
+    """
+    for spec in specs:
+        hi = spec.at_most
+        if hi is None or spec.name not in values or hi not in values:
+            continue
+        lo_value, hi_value = values[spec.name], values[hi]
+        if lo_value <= hi_value:
+            continue
+        rule = f"{spec.name} must be at most {hi}"
+        if changed == hi:
+            return f"{hi}: {hi_value!r} is below {spec.name} {lo_value!r}; {rule}: lower {spec.name} first"
+        return f"{spec.name}: {lo_value!r} is above {hi} {hi_value!r}; {rule}"
+    return None
+
+
 # parameters of the nodes' transport (queues, QoS, publishing), not of a stage's policy
 NODE_ONLY = frozenset(
     {
@@ -65,7 +116,8 @@ def resolve(
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """``(values, extra)``: every spec's value (given or default, checked) and the unknown keys.
 
-    Raises ``ValueError`` naming the parameter for a value of the wrong type or out of range.
+    Raises ``ValueError`` naming the parameter for a value of the wrong type or out of range,
+    and naming both for two values that break a rule between them (:func:`order_error`).
     Keys in :data:`NODE_ONLY` are dropped.
     """
     values = {s.name: s.default for s in specs}
@@ -77,8 +129,13 @@ def resolve(
         if k not in known:
             extra[k] = v
             continue
-        bad = next(s for s in specs if s.name == k).check(v)
+        spec = next(s for s in specs if s.name == k)
+        v = spec.coerce(v)
+        bad = spec.check(v)
         if bad:
             raise ValueError(bad)
-        values[k] = float(v) if isinstance(values[k], float) else v
+        values[k] = v
+    bad = order_error(specs, values)
+    if bad:
+        raise ValueError(bad)
     return values, extra

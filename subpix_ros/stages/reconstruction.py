@@ -49,6 +49,7 @@ PARAMS = (
         "this many frames when the next reference starts",
         2,
         64,
+        at_most="n_frames",
     ),
     Spec("method", "map", "reconstruction method", choices=("map", "windowed", "pinv", "bicubic")),
     Spec(
@@ -117,6 +118,7 @@ PARAMS = (
         "with a warning, by the edges' measurement where that is lower by more than "
         "max(0.1 px, 3 standard errors))",
         validate=_blur_setting_error,
+        numeric_text=True,
     ),
     Spec(
         "blur_search_sets",

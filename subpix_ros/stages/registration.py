@@ -184,6 +184,8 @@ class RegistrationStage(Stage):
         super().configure(**changes)
         if any(k in self.SELECTOR_PARAMS for k in changes):
             self.selector = self._make_selector()  # takes effect from the next frame
+        if "telemetry_timeout_s" in changes:  # the samples kept stay
+            self.telemetry.stale_after_s = float(self.param("telemetry_timeout_s"))
         if any(k in EQ1_PARAMS for k in changes):  # expectations of other parameters
             self._forget_motion_check()
 

@@ -78,7 +78,8 @@ def test_looping_the_flight_resets_every_stage(flight):
 def test_an_exception_in_a_stage_is_reported_and_the_stream_goes_on(flight):
     frames, _ = flight
     pipe = Pipeline(
-        {"reconstruction_node": {"n_frames": 3, "method": "bicubic"}}, with_mosaic=False
+        {"reconstruction_node": {"n_frames": 3, "min_frames": 3, "method": "bicubic"}},
+        with_mosaic=False,
     )
     errors = []
     pipe.on("error", errors.append)

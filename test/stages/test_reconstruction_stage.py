@@ -185,7 +185,7 @@ def test_shifts_and_frames_pair_by_stamp_in_any_arrival_order(seq):
 
 
 def test_stamps_beyond_the_tolerance_do_not_pair_and_non_finite_shifts_are_rejected(seq):
-    stage = ReconstructionStage(n_frames=3, method="bicubic")
+    stage = ReconstructionStage(n_frames=3, min_frames=3, method="bicubic")
     _, pairs = _set(seq, n=3, jitter_ns=2_000_000)  # 2 ms: beyond 1 ms
     for s, a in pairs:
         assert stage.add_aligned(a) == [] and stage.add_shift(s) == []
@@ -643,3 +643,25 @@ def test_a_solved_sets_frames_are_released_before_its_image_is_published(seq):
     gc.collect()
     assert [r() for r in alive] == [None, None, None] and fs.members == []
     assert sr.n_frames == 4 and [s.stamp_ns for s in sr.shifts] == [T0 + k * DT for k in (1, 2, 3)]
+
+
+def test_min_frames_above_n_frames_is_refused_naming_both():
+    with pytest.raises(ValueError, match="min_frames: 10 is above n_frames 4"):
+        ReconstructionStage(n_frames=4, min_frames=10)
+    stage = ReconstructionStage(n_frames=3, min_frames=3)
+    with pytest.raises(ValueError, match="min_frames: 64 is above n_frames 3"):
+        stage.configure(min_frames=64)
+    with pytest.raises(ValueError, match="n_frames"):
+        stage.configure(n_frames=2)
+    assert stage.param("min_frames") == 3 and stage.param("n_frames") == 3  # unchanged
+    stage.configure(n_frames=6, min_frames=5)  # together: checked as a whole
+    assert (stage.param("n_frames"), stage.param("min_frames")) == (6, 5)
+
+
+def test_numbers_are_taken_for_a_float_and_for_blur_sigma():
+    # -p exposure_s:=0 is an integer; blur_sigma: 0.4 in a params file is a double
+    stage = ReconstructionStage(exposure_s=0, blur_sigma=0.4, n_frames=4)
+    assert stage.param("exposure_s") == 0.0 and isinstance(stage.param("exposure_s"), float)
+    assert stage.param("blur_sigma") == "0.4" and stage.blur.setting == 0.4
+    with pytest.raises(ValueError, match="expected int"):
+        ReconstructionStage(n_frames=2.5)  # not the other way round

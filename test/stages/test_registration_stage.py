@@ -249,3 +249,16 @@ def test_a_frame_repeating_the_previous_stamp_is_left_out_and_said(flight):
     # the next stamp goes on as usual, against the same reference
     assert isinstance(stage.add(frames[1]), Aligned)
     assert stage.reference.stamp_ns == frames[0].stamp_ns and stage.stats.resets == 0
+
+
+def test_telemetry_timeout_changed_at_run_time_applies_to_the_telemetry_kept():
+    # the buffer judged staleness by the timeout it was made with: a run-time change was
+    # accepted and logged but telemetry 2 s old stayed stale (and 0.5 s old stayed fresh)
+    stage = RegistrationStage(telemetry_timeout_s=1.0)
+    stage.add_telemetry(sample_from_enu(10.0, (0.0, 1.0, 0.0), 50.0))
+    assert stage.telemetry.at(12.0)[0] is None  # 2 s old: stale at 1 s
+    stage.configure(telemetry_timeout_s=5.0)
+    assert stage.telemetry.at(12.0)[0] is not None
+    stage.configure(telemetry_timeout_s=0.2)
+    sample, why = stage.telemetry.at(10.5)
+    assert sample is None and "> 0.2 s" in why

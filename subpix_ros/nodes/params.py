@@ -169,6 +169,8 @@ def _start_values(
             given.add(name)
     for param in spec.values():
         lo, hi = param.name, param.at_most
+        if hi in given and lo not in given and values[lo] > values[hi]:
+            values[lo] = values[hi]  # the default follows the given value (stages.params)
         while hi in spec and values[lo] > values[hi]:
             culprit = lo if lo in given else hi
             if culprit not in given:  # the defaults themselves (a declaration error)

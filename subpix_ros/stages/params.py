@@ -117,7 +117,8 @@ def resolve(
     """``(values, extra)``: every spec's value (given or default, checked) and the unknown keys.
 
     Raises ``ValueError`` naming the parameter for a value of the wrong type or out of range,
-    and naming both for two values that break a rule between them (:func:`order_error`).
+    and naming both for two given values that break a rule between them (:func:`order_error`;
+    a default that would break it follows the given value instead).
     Keys in :data:`NODE_ONLY` are dropped.
     """
     values = {s.name: s.default for s in specs}
@@ -135,7 +136,26 @@ def resolve(
         if bad:
             raise ValueError(bad)
         values[k] = v
+    _defaults_follow(specs, values, {k for k in given if k in known})
     bad = order_error(specs, values)
     if bad:
         raise ValueError(bad)
     return values, extra
+
+
+def _defaults_follow(specs: Sequence[Spec], values: dict[str, Any], given: set[str]) -> None:
+    """Lower a default that exceeds the given value it may not exceed (``Spec.at_most``).
+
+    ``n_frames: 3`` alone is a set of 3 frames, not an error against the default
+    ``min_frames`` 4: the default follows the value the user gave (3). Two given values that
+    break the rule are left for :func:`order_error`.
+    """
+    for spec in specs:
+        hi = spec.at_most
+        if (
+            hi in values
+            and spec.name not in given
+            and hi in given
+            and values[spec.name] > values[hi]
+        ):
+            values[spec.name] = values[hi]

@@ -656,6 +656,9 @@ def test_min_frames_above_n_frames_is_refused_naming_both():
     assert stage.param("min_frames") == 3 and stage.param("n_frames") == 3  # unchanged
     stage.configure(n_frames=6, min_frames=5)  # together: checked as a whole
     assert (stage.param("n_frames"), stage.param("min_frames")) == (6, 5)
+    # n_frames alone below the default min_frames (4): a set of 3, the default follows it
+    stage = ReconstructionStage(n_frames=3)
+    assert (stage.param("n_frames"), stage.param("min_frames")) == (3, 3)
 
 
 def test_numbers_are_taken_for_a_float_and_for_blur_sigma():

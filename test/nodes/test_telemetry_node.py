@@ -174,3 +174,147 @@ def test_bad_connection_parameter_is_reported_and_node_keeps_running(
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def _level(status) -> int:
+    """DiagnosticStatus level as an int (rclpy gives the byte field as bytes)."""
+    lv = status.level
+    return lv[0] if isinstance(lv, (bytes, bytearray)) else int(lv)
+
+
+def _packets(n=200, lat=41.035308, lon=-83.3062512, height=58.4):
+    t0 = time.time()
+    samples = [
+        TelemetrySample(
+            t=t0 + 0.1 * k,
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_msl_m=288.4,
+            height_agl_m=height,
+            vel_ned_mps=(4.0, 7.0, -0.5),
+            ground_speed_mps=math.hypot(4, 7),
+            course_rad=math.atan2(7, 4),
+            roll_rad=0.0,
+            pitch_rad=0.0,
+            yaw_rad=math.atan2(7, 4),
+        )
+        for k in range(n)
+    ]
+    return [p for _, p in encode_samples(samples, boot_time=t0)]
+
+
+def test_missing_serial_device_stays_error_and_is_opened_when_plugged_in(rclpy_node):
+    """A serial device absent at start: ERROR for as long as it is (past the 5-s hold), retried.
+
+    The "USB autopilot" appears later as a symlink to a pseudo-terminal, and MAVLink bytes
+    written to the pty's master side come out as /telemetry/fix.
+    """
+    import os
+    import tty
+    import uuid
+
+    device = f"/dev/shm/subpix-test-tty-{uuid.uuid4().hex[:8]}"
+    proc = _start(f"connection:={device}", "open_retry_s:=0.3")
+    sink = Sink(rclpy_node)
+    master = slave = None
+    try:
+        assert spin(
+            rclpy_node, lambda: any("serial device not found" in s.message for s in sink.diag), 20
+        ), [s.message for s in sink.diag]
+        first = next(i for i, s in enumerate(sink.diag) if "serial device not found" in s.message)
+        spin(rclpy_node, lambda: False, 6.5)  # past Diagnostics.hold_s (5 s)
+        held = sink.diag[first:]
+        assert len(held) >= 5 and all(_level(s) == 2 for s in held), [
+            (_level(s), s.message) for s in held
+        ]
+        assert all("cannot open MAVLink connection" in s.message for s in held)
+        # plugged in
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        os.symlink(os.ttyname(slave), device)
+        packets, i = _packets(), 0
+
+        def fix_arrived():
+            nonlocal i
+            for _ in range(8):
+                try:
+                    os.write(master, packets[i % len(packets)])
+                    os.read(master, 65536)  # anything the node wrote (nothing expected)
+                except BlockingIOError:
+                    pass
+                i += 1
+            return len(sink.fix) >= 3
+
+        assert spin(rclpy_node, fix_arrived, 15), proc.stdout.read()
+        assert sink.fix[-1].latitude == pytest.approx(41.035308, abs=1e-7)
+        assert "opened" in proc.stdout.read()
+        assert proc.poll() is None
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        for fd in (master, slave):
+            if fd is not None:
+                os.close(fd)
+        if os.path.lexists(device):
+            os.unlink(device)
+
+
+def test_udp_link_without_any_autopilot_warns_naming_the_port(rclpy_node):
+    port = _free_udp_port()
+    url = f"udpin:127.0.0.1:{port}"
+    proc = _start(f"connection:={url}", "input_timeout_s:=1.0")
+    sink = Sink(rclpy_node)
+    sender = MavlinkSender(f"udpout:127.0.0.1:{port}")
+    try:
+        expect = f"no MAVLink message received on {url} for over 1 s"
+        assert spin(
+            rclpy_node, lambda: any(expect in s.message and _level(s) == 1 for s in sink.diag), 15
+        ), [s.message for s in sink.diag]
+        assert "is the autopilot sending to this port?" in sink.diag[-1].message
+        # the autopilot starts sending: the telemetry flows and the warning goes
+        packets, i = _packets(), 0
+
+        def sending():
+            nonlocal i
+            for _ in range(8):
+                sender.send(packets[i % len(packets)])
+                i += 1
+            return len(sink.fix) >= 3
+
+        assert spin(rclpy_node, sending, 10)
+        n = len(sink.diag)
+        assert spin(rclpy_node, lambda: sending() and len(sink.diag) >= n + 2, 5)
+        values = {kv.key: kv.value for kv in sink.diag[-1].values}
+        assert values["input_silent_s"] == "0" and int(values["input_total"]) > 0, values
+    finally:
+        sender.close()
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_mavros_source_without_mavros_warns_naming_its_topics(rclpy_node):
+    import uuid
+
+    ns = f"/mavros_{uuid.uuid4().hex[:8]}"  # topics nothing publishes on
+    proc = _start(
+        "source:=mavros",
+        "input_timeout_s:=1.0",
+        f"mavros_fix_topic:={ns}/global_position/global",
+        f"mavros_velocity_topic:={ns}/local_position/velocity_local",
+        f"mavros_height_topic:={ns}/global_position/rel_alt",
+    )
+    sink = Sink(rclpy_node)
+    try:
+        assert spin(
+            rclpy_node,
+            lambda: any("no mavros telemetry" in s.message and _level(s) == 1 for s in sink.diag),
+            15,
+        ), [s.message for s in sink.diag]
+        msg = next(s.message for s in sink.diag if "no mavros telemetry" in s.message)
+        for topic in ("local_position/velocity_local", "global_position/global", "rel_alt"):
+            assert f"{topic}: no publisher" in msg, msg
+        assert "is mavros running?" in msg
+    finally:
+        proc.terminate()
+        proc.wait(10)

@@ -39,6 +39,9 @@ class MavlinkReader:
     on_sample, on_status : callable, optional
         Called with each TelemetrySample / LinkEvent on the reader thread; exceptions they
         raise are counted, not propagated.
+    on_packet : callable, optional
+        Called with the message type of every MAVLink frame parsed with a good CRC (any
+        system), on the reader thread: a link's liveness, whatever the frames hold.
     rate : float, optional
         Tlog replay speed (None: as fast as possible, 1.0: real time).
     attitude_max_age_s, vfr_max_age_s : float
@@ -83,6 +86,7 @@ class MavlinkReader:
         link_timeout_s: float = 2.0,
         on_sample: Callable[[TelemetrySample], None] | None = None,
         on_status: Callable[[LinkEvent], None] | None = None,
+        on_packet: Callable[[str], None] | None = None,
         rate: float | None = None,
         attitude_max_age_s: float = 0.5,
         vfr_max_age_s: float = 1.0,
@@ -102,6 +106,7 @@ class MavlinkReader:
         self.link_timeout_s = float(link_timeout_s)
         self.on_sample = on_sample
         self.on_status = on_status
+        self.on_packet = on_packet
         self.rate = rate
         self.attitude_max_age_ms = attitude_max_age_s * 1000.0
         self.vfr_max_age_s = vfr_max_age_s
@@ -361,6 +366,7 @@ class MavlinkReader:
                 self._stats.mavlink2 += 1
             if msg.get_msgId() < 0 or mtype.startswith("UNKNOWN"):
                 self._stats.unknown_messages += 1
+        self._call("on_packet", self.on_packet, mtype)
         sysid = msg.get_srcSystem()
         if self._target is None and self._is_vehicle(msg):
             self._target = sysid

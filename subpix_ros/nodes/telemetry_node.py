@@ -17,6 +17,7 @@ pixels per camera frame at ``camera_rate_hz``; z = image speed, px/s).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 from pathlib import Path
@@ -137,6 +138,7 @@ class TelemetryNode(StageNode):
         self._open_problem: str | None = None  # why the MAVLink connection is not open
         self._open_may_pass = False  # and whether trying again may open it
         self._open_retry = None
+        self._no_fix: str | None = None  # the no-fix warning while there is no fix
         if self.param("source") == "mavlink":
             self._start_mavlink()
         else:
@@ -295,7 +297,7 @@ class TelemetryNode(StageNode):
             alt_msl_m=fix.altitude,
             heading_rad=heading,
         )
-        self.handle_sample(s)
+        self.handle_sample(dataclasses.replace(s, fix_status=int(fix.status.status)))
 
     def _on_link(self, event) -> None:
         text = f"MAVLink link {event.state}: {event.reason}"
@@ -307,11 +309,28 @@ class TelemetryNode(StageNode):
 
     # ---------------------------------------------------------------- output
     def handle_sample(self, s: TelemetrySample) -> None:
-        """Publish one telemetry sample (reader thread or mavros callback)."""
+        """Publish one telemetry sample (reader thread or mavros callback).
+
+        A sample without a GNSS fix (:attr:`TelemetrySample.has_fix`) publishes only
+        ``telemetry/fix`` (status STATUS_NO_FIX) and ``telemetry/imu``: its velocity and
+        relative altitude are the autopilot's estimate without GNSS (ArduPilot sends 0 for
+        both, and a height above a home that was never set), so neither they nor a frame
+        interval or expected shift from them are published, nor handed to the in-process
+        stages, which then go on as without telemetry.
+        """
         ok, why = validate_sample(s)
         if not ok:
             self.diag.warn(f"telemetry sample rejected: {why}")
             return
+        if not s.has_fix:
+            self._publish_no_fix(s)
+            return
+        if self._no_fix is not None:
+            self.get_logger().info(
+                f"GNSS fix again (status {s.navsat_status}) after: {self._no_fix}"
+            )
+            self._no_fix = None
+        self.diag.set(gnss_status=s.navsat_status)
         f_m, a_m, p = (
             self.param("focal_length_mm") * 1e-3,
             self.param("pixel_pitch_um") * 1e-6,
@@ -356,6 +375,33 @@ class TelemetryNode(StageNode):
         )
         if not iv.ok:
             self.diag.warn(f"no frame interval: {iv.reason}")
+
+    def _publish_no_fix(self, s: TelemetrySample) -> None:
+        """Publish the fix (STATUS_NO_FIX) and attitude of ``s``; WARN while there is no fix."""
+        stamp = int(round(s.t * 1e9))
+        with self._lock:
+            self.pubs["fix"].publish(tm.fix_cdr(s, stamp))
+            if s.has_attitude:
+                self.pubs["imu"].publish(tm.imu_cdr(s, stamp))
+        gps = self.reader.gps_raw if self.reader is not None else None
+        if gps is not None:
+            sats = "satellites unknown" if gps[1] == 255 else f"{gps[1]} satellites"
+            why = f"fix_type {gps[0]}, {sats}"
+            if gps[0] > 1:  # a fix, but no position from the autopilot yet
+                why = f"GLOBAL_POSITION_INT lat and lon 0; {why}"
+        elif self.reader is not None:
+            why = "no GPS_RAW_INT; GLOBAL_POSITION_INT lat and lon 0"
+        else:
+            why = f"mavros NavSatFix status {s.navsat_status}"
+        message = (
+            f"GNSS: no fix ({why}): no velocity, height, frame interval or expected shift published"
+        )
+        if message != self._no_fix:
+            self.diag.warn(message)  # logged and counted once per episode
+        else:
+            self.diag.hold_warning(message)
+        self._no_fix = message
+        self.diag.set(gnss_status=s.navsat_status)
 
     def _report(self) -> None:
         if self._open_problem is not None:

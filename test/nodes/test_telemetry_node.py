@@ -10,7 +10,7 @@ import pytest
 from conftest import logged_popen, spin
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistStamped
-from sensor_msgs.msg import Imu, NavSatFix
+from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 from std_msgs.msg import Float64
 
 from subpix_ros.core.telemetry import TelemetrySample
@@ -315,6 +315,151 @@ def test_mavros_source_without_mavros_warns_naming_its_topics(rclpy_node):
         for topic in ("local_position/velocity_local", "global_position/global", "rel_alt"):
             assert f"{topic}: no publisher" in msg, msg
         assert "is mavros running?" in msg
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+class _Autopilot:
+    """Real MAVLink 2 frames, like ArduPilot's, with or without a GNSS fix."""
+
+    def __init__(self):
+        from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+        self.mav2 = mav2
+        self.enc = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.boot_ms = 1000
+
+    def frames(self, fix_type: int, sats: int) -> bytes:
+        m, fix = self.mav2, fix_type >= 2
+        self.boot_ms += 100
+        lat, lon = (410353080, -833062512) if fix else (0, 0)
+        msgs = [
+            m.MAVLink_heartbeat_message(
+                m.MAV_TYPE_QUADROTOR, m.MAV_AUTOPILOT_ARDUPILOTMEGA, 209, 4, 4, 3
+            ),
+            m.MAVLink_gps_raw_int_message(0, fix_type, lat, lon, 150000, 80, 120, 500, 9000, sats),
+            # without a fix ArduPilot sends lat/lon 0, relative_alt 0 and velocity 0
+            m.MAVLink_global_position_int_message(
+                self.boot_ms,
+                lat,
+                lon,
+                288400,
+                58400 if fix else 0,
+                400 if fix else 0,
+                700 if fix else 0,
+                0,
+                6000,
+            ),
+            m.MAVLink_attitude_message(self.boot_ms, 0.0, 0.0, 1.05, 0, 0, 0),
+        ]
+        return b"".join(msg.pack(self.enc) for msg in msgs)
+
+
+def test_gnss_without_fix_is_published_as_no_fix_and_nothing_made_up(rclpy_node):
+    from geometry_msgs.msg import Vector3Stamped
+
+    port = _free_udp_port()
+    proc = _start(f"connection:=udpin:127.0.0.1:{port}")
+    sink = Sink(rclpy_node)
+    shifts = []
+    rclpy_node.create_subscription(
+        Vector3Stamped, "/telemetry/expected_shift", shifts.append, reliable_qos(100)
+    )
+    sender = MavlinkSender(f"udpout:127.0.0.1:{port}")
+    ap = _Autopilot()
+    try:
+        # no fix: fix_type 0, no satellites, position 0
+        warned = lambda: any(  # noqa: E731
+            "GNSS: no fix (fix_type 0, 0 satellites)" in s.message and _level(s) == 1
+            for s in sink.diag
+        )
+        assert spin(
+            rclpy_node,
+            lambda: sender.send(ap.frames(0, 0)) or (len(sink.fix) >= 5 and warned()),
+            15,
+        ), ([s.message for s in sink.diag], len(sink.fix))
+        assert {f.status.status for f in sink.fix} == {NavSatStatus.STATUS_NO_FIX}
+        assert sink.imu  # attitude is not GNSS: still published
+        assert not sink.vel and not sink.height and not sink.interval and not shifts
+        # an RTK fix: the fix says so, and velocity, height and the shift are published again
+        assert spin(
+            rclpy_node,
+            lambda: (
+                sender.send(ap.frames(6, 20))
+                or (
+                    len(sink.vel) >= 3
+                    and sink.fix[-1].status.status == NavSatStatus.STATUS_GBAS_FIX
+                )
+            ),
+            10,
+        )
+        assert sink.fix[-1].latitude == pytest.approx(41.035308, abs=1e-7)
+        assert sink.height[-1].data == pytest.approx(58.4) and shifts
+        assert spin(
+            rclpy_node,
+            lambda: (
+                sender.send(ap.frames(4, 20))
+                or (sink.fix[-1].status.status == NavSatStatus.STATUS_SBAS_FIX)
+            ),
+            5,
+        )
+    finally:
+        sender.close()
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_mavros_fix_status_is_kept_and_no_fix_publishes_no_velocity(rclpy_node):
+    import uuid
+
+    ns = f"/mavros_{uuid.uuid4().hex[:8]}"
+    proc = _start(
+        "source:=mavros",
+        f"mavros_fix_topic:={ns}/global",
+        f"mavros_velocity_topic:={ns}/velocity_local",
+        f"mavros_height_topic:={ns}/rel_alt",
+        f"mavros_imu_topic:={ns}/imu",
+    )
+    sink = Sink(rclpy_node)
+    q = reliable_qos(20)
+    pub_fix = rclpy_node.create_publisher(NavSatFix, f"{ns}/global", q)
+    pub_h = rclpy_node.create_publisher(Float64, f"{ns}/rel_alt", q)
+    pub_v = rclpy_node.create_publisher(TwistStamped, f"{ns}/velocity_local", q)
+
+    def send(status: int, lat: float) -> None:
+        fix = NavSatFix(latitude=lat, longitude=-83.3 if lat else 0.0, altitude=288.4)
+        fix.status.status = status
+        pub_fix.publish(fix)
+        pub_h.publish(Float64(data=58.4))
+        v = TwistStamped()
+        v.header.stamp = rclpy_node.get_clock().now().to_msg()
+        v.twist.linear.x, v.twist.linear.y = 7.0, 4.0
+        pub_v.publish(v)
+
+    try:
+        no_fix = NavSatStatus.STATUS_NO_FIX
+        assert spin(
+            rclpy_node,
+            lambda: (
+                send(no_fix, 0.0)
+                or (
+                    len(sink.fix) >= 3
+                    and any(
+                        "GNSS: no fix (mavros NavSatFix status -1)" in s.message for s in sink.diag
+                    )
+                )
+            ),
+            15,
+        ), [s.message for s in sink.diag]
+        assert {f.status.status for f in sink.fix} == {no_fix}
+        assert not sink.vel and not sink.height
+        sbas = NavSatStatus.STATUS_SBAS_FIX
+        assert spin(
+            rclpy_node,
+            lambda: send(sbas, 41.0) or (len(sink.vel) >= 3 and sink.fix[-1].status.status == sbas),
+            10,
+        )
     finally:
         proc.terminate()
         proc.wait(10)

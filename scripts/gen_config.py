@@ -64,7 +64,8 @@ def readme_tables() -> str:
                 if p.min is not None
                 else (", ".join(p.choices) if p.choices else "")
             )
-            out.append(f"| `{p.name}` | `{_value(p.default)}` | {rng} | {p.description} |")
+            ro = " (read-only: set at start-up)" if p.read_only else ""
+            out.append(f"| `{p.name}` | `{_value(p.default)}` | {rng} | {p.description}{ro} |")
         out.append("")
     return "\n".join(out)
 

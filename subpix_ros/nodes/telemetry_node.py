@@ -46,15 +46,31 @@ class TelemetryNode(StageNode):
     """MAVLink (or mavros) telemetry in, the telemetry topics and expected shift out."""
 
     PARAMS = (
-        Param("source", "mavlink", "telemetry source", choices=("mavlink", "mavros")),
+        Param(
+            "source",
+            "mavlink",
+            "telemetry source",
+            choices=("mavlink", "mavros"),
+            read_only=True,
+        ),
         Param(
             "connection",
             "udpin:127.0.0.1:14550",
             "pymavlink connection: udpin:/udpout:/tcp:HOST:PORT, serial device, or .tlog",
+            read_only=True,
         ),
-        Param("baud", 57600, "serial baud rate", 1200, 4000000),
-        Param("system_id", 0, "MAVLink system id to follow (0: the first vehicle seen)", 0, 255),
-        Param("link_timeout_s", 2.0, "no message for this long: link lost", 0.1, 60.0),
+        Param("baud", 57600, "serial baud rate", 1200, 4000000, read_only=True),
+        Param(
+            "system_id",
+            0,
+            "MAVLink system id to follow (0: the first vehicle seen)",
+            0,
+            255,
+            read_only=True,
+        ),
+        Param(
+            "link_timeout_s", 2.0, "no message for this long: link lost", 0.1, 60.0, read_only=True
+        ),
         Param(
             "input_timeout_s",
             5.0,
@@ -72,13 +88,21 @@ class TelemetryNode(StageNode):
             60.0,
             read_only=True,
         ),
-        Param("tlog_rate", 1.0, "tlog replay speed (0: as fast as possible)", 0.0, 1000.0),
+        Param(
+            "tlog_rate",
+            1.0,
+            "tlog replay speed (0: as fast as possible)",
+            0.0,
+            1000.0,
+            read_only=True,
+        ),
         Param(
             "tlog_start_delay_s",
             1.0,
             "tlog replay starts this long after start-up (subscribers connect)",
             0.0,
             60.0,
+            read_only=True,
         ),
         Param("focal_length_mm", 4.3, "camera focal length (mm)", 0.1, 2000.0),
         Param("pixel_pitch_um", 1.54, "detector pixel pitch (um)", 0.1, 100.0),
@@ -105,19 +129,24 @@ class TelemetryNode(StageNode):
             180.0,
         ),
         Param(
-            "mavros_fix_topic", "/mavros/global_position/global", "mavros source: NavSatFix topic"
+            "mavros_fix_topic",
+            "/mavros/global_position/global",
+            "mavros source: NavSatFix topic",
+            read_only=True,
         ),
         Param(
             "mavros_velocity_topic",
             "/mavros/local_position/velocity_local",
             "mavros source: TwistStamped (ENU)",
+            read_only=True,
         ),
         Param(
             "mavros_height_topic",
             "/mavros/global_position/rel_alt",
             "mavros source: Float64 relative altitude",
+            read_only=True,
         ),
-        Param("mavros_imu_topic", "/mavros/imu/data", "mavros source: Imu"),
+        Param("mavros_imu_topic", "/mavros/imu/data", "mavros source: Imu", read_only=True),
     )
 
     def __init__(self, *, name: str = "telemetry_node", **kw) -> None:
@@ -144,6 +173,11 @@ class TelemetryNode(StageNode):
         else:
             self._start_mavros()
         self.create_timer(1.0, self._report)
+
+    def _on_param_change(self, name: str, value) -> None:
+        super()._on_param_change(name, value)
+        if name == "p":  # the latched detector angle (eq. 2) follows p
+            self.pub_angle.publish(Float64(data=detector_angle(value)))
 
     # ---------------------------------------------------------------- sources
     def _start_mavlink(self) -> None:

@@ -463,3 +463,43 @@ def test_mavros_fix_status_is_kept_and_no_fix_publishes_no_velocity(rclpy_node):
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_p_changed_at_run_time_republishes_the_detector_angle_and_links_are_read_only(
+    rclpy_node,
+):
+    import rclpy
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    from subpix_ros.core.timing import detector_angle
+    from subpix_ros.nodes.qos import latched_qos
+
+    port = _free_udp_port()
+    proc = _start(f"connection:=udpin:127.0.0.1:{port}", "p:=4.0")
+    angles = []
+    rclpy_node.create_subscription(
+        Float64, "/telemetry/detector_angle", lambda m: angles.append(m.data), latched_qos()
+    )
+    client = rclpy_node.create_client(SetParameters, "/telemetry_node/set_parameters")
+
+    def set_param(name, **value):
+        req = SetParameters.Request(
+            parameters=[Parameter(name=name, value=ParameterValue(**value))]
+        )
+        future = client.call_async(req)
+        rclpy.spin_until_future_complete(rclpy_node, future, timeout_sec=10)
+        return future.result().results[0]
+
+    try:
+        assert spin(rclpy_node, lambda: angles and client.service_is_ready(), 20), angles
+        assert angles[-1] == pytest.approx(detector_angle(4.0)) == pytest.approx(0.32175, abs=1e-5)
+        assert set_param("p", type=ParameterType.PARAMETER_DOUBLE, double_value=8.0).successful
+        assert spin(rclpy_node, lambda: angles[-1] == pytest.approx(0.14190, abs=1e-5), 5), angles
+        for name in ("connection", "source"):
+            r = set_param(name, type=ParameterType.PARAMETER_STRING, string_value="mavros")
+            assert not r.successful and "read-only" in r.reason, (name, r)
+        assert proc.poll() is None
+    finally:
+        proc.terminate()
+        proc.wait(10)

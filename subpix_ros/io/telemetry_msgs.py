@@ -8,7 +8,8 @@ Topics and types (relative names, under the node's namespace):
 
 ========================  ==============================  =========================================
 ``telemetry/fix``         sensor_msgs/NavSatFix           lat/lon (deg), altitude (m, MSL as MAVLink
-                                                          GLOBAL_POSITION_INT gives it)
+                                                          GLOBAL_POSITION_INT gives it), status:
+                                                          the GNSS fix (STATUS_NO_FIX without one)
 ``telemetry/velocity``    geometry_msgs/TwistStamped      ground velocity, ENU (x east, y north,
                                                           z up; REP-103), frame_id ``map``
 ``telemetry/height``      std_msgs/Float64                height above ground (m)
@@ -53,8 +54,12 @@ def _unknown_cov() -> np.ndarray:
 
 
 def fix_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "gps") -> bytes:
-    """Serialize ``s`` as a sensor_msgs/NavSatFix (CDR; position covariance unknown)."""
-    status = T["sensor_msgs/msg/NavSatStatus"](status=0, service=1)
+    """Serialize ``s`` as a sensor_msgs/NavSatFix (CDR; position covariance unknown).
+
+    The status is the sample's :attr:`~TelemetrySample.navsat_status` (STATUS_NO_FIX for a
+    sample without a GNSS fix); the service is GPS.
+    """
+    status = T["sensor_msgs/msg/NavSatStatus"](status=s.navsat_status, service=1)
     msg = T[FIX](
         header=make_header(stamp_ns, frame_id),
         status=status,

@@ -67,6 +67,7 @@ class Diagnostics:
         self._durations: dict[str, collections.deque[float]] = {}
         self._watch: tuple[tuple[str, ...], Callable[[], float], float] | None = None
         self._watch_meter = "input"
+        self._watch_describe: Callable[[float, bool], str | None] | None = None
         self._episode: str | None = None  # the input problem being reported (logged when it began)
         self._lasting: dict[str, tuple[int, str]] = {}  # held until cleared (hold_lasting)
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -80,22 +81,45 @@ class Diagnostics:
         return self.rates.setdefault(name, RateMeter())
 
     def watch_inputs(
-        self, topics: Sequence[str], timeout_s: Callable[[], float], meter: str = "input"
+        self,
+        topics: Sequence[str],
+        timeout_s: Callable[[], float],
+        meter: str = "input",
+        describe: Callable[[float, bool], str | None] | None = None,
     ) -> None:
         """Report a silent main input: WARN when nothing ticked ``meter`` for ``timeout_s()`` s.
 
-        ``topics`` (relative names are resolved with the node's remappings) are one input, e.g.
-        a camera's ``image`` and ``image/compressed``. Checked at every publication (1 Hz, wall
-        time): with no publisher on any of them for the timeout the status says
-        ``no publisher on /x``; with publishers but nothing received it names them with their
-        QoS (reliability, durability), as the ROS graph reports them. The status stays WARN
-        while the silence lasts; the log has one line when it begins and one when messages
-        arrive again.
+        Parameters
+        ----------
+        topics : sequence of str
+            One input (relative names are resolved with the node's remappings), e.g. a
+            camera's ``image`` and ``image/compressed``.
+        timeout_s : callable
+            Returns the silence (s) after which the input is reported.
+        meter : str
+            The rate meter that the input ticks.
+        describe : callable, optional
+            ``describe(limit, heard)`` returns the problem to report for a silence of over
+            ``limit`` s (``heard``: something arrived before), or None if the silence is not
+            a problem now; for an input that is not a ROS topic (a MAVLink link). Keep the
+            text the same while the silence lasts: a new text is a new episode (logged).
+            Default: the ROS graph's view of ``topics``.
+
+        Notes
+        -----
+        Checked at every publication (1 Hz, wall time): with no publisher on any of the
+        topics for the timeout the status says ``no publisher on /x``; with publishers but
+        nothing received it names them with their QoS (reliability, durability), as the ROS
+        graph reports them. The status stays WARN while the silence lasts; the log has one
+        line when it begins and one when messages arrive again. The silence is counted from
+        this call until the first message.
         """
         self._watch = (tuple(topics), timeout_s, time.monotonic())
         self._watch_meter = meter
+        self._watch_describe = describe
 
-    def _publishers(self, topic: str) -> list[str]:
+    def publishers(self, topic: str) -> list[str]:
+        """Return the publishers of ``topic`` as ``/ns/node (reliability, durability)``, sorted."""
         out = []
         for info in self.node.get_publishers_info_by_topic(topic):
             qos = info.qos_profile
@@ -106,7 +130,7 @@ class Diagnostics:
     def _input_problem(self, silent: float, limit: float, heard: bool) -> str:
         topics = self._watch[0]
         names = [self.node.resolve_topic_name(t) for t in topics]
-        seen = {t: self._publishers(t) for t in names}
+        seen = {t: self.publishers(t) for t in names}
         if not any(seen.values()):
             return f"no publisher on {' or '.join(names)}"
         what = "; ".join(f"{t}: {len(p)} publisher(s) {', '.join(p)}" for t, p in seen.items() if p)
@@ -125,7 +149,10 @@ class Diagnostics:
         limit = float(timeout_s())
         problem = None
         if silent >= limit:
-            problem = self._input_problem(silent, limit, last is not None)
+            if self._watch_describe is not None:
+                problem = self._watch_describe(limit, last is not None)
+            else:
+                problem = self._input_problem(silent, limit, last is not None)
             self.set(input_silent_s=round(silent, 1))
         else:
             self.set(input_silent_s=0.0)
@@ -220,6 +247,10 @@ class Diagnostics:
     def hold_warning(self, message: str) -> None:
         """Keep the status at WARN for a lasting condition whose warning was logged and counted."""
         self._hold(WARN, message)
+
+    def hold_error(self, message: str) -> None:
+        """Keep the status at ERROR for a lasting condition whose error was logged and counted."""
+        self._hold(ERROR, message)
 
     def _hold(self, level: int, message: str) -> None:
         """Keep reporting a condition already logged and counted (no new log line, no count)."""

@@ -17,6 +17,7 @@ pixels per camera frame at ``camera_rate_hz``; z = image speed, px/s).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 from pathlib import Path
@@ -45,22 +46,63 @@ class TelemetryNode(StageNode):
     """MAVLink (or mavros) telemetry in, the telemetry topics and expected shift out."""
 
     PARAMS = (
-        Param("source", "mavlink", "telemetry source", choices=("mavlink", "mavros")),
+        Param(
+            "source",
+            "mavlink",
+            "telemetry source",
+            choices=("mavlink", "mavros"),
+            read_only=True,
+        ),
         Param(
             "connection",
             "udpin:127.0.0.1:14550",
             "pymavlink connection: udpin:/udpout:/tcp:HOST:PORT, serial device, or .tlog",
+            read_only=True,
         ),
-        Param("baud", 57600, "serial baud rate", 1200, 4000000),
-        Param("system_id", 0, "MAVLink system id to follow (0: the first vehicle seen)", 0, 255),
-        Param("link_timeout_s", 2.0, "no message for this long: link lost", 0.1, 60.0),
-        Param("tlog_rate", 1.0, "tlog replay speed (0: as fast as possible)", 0.0, 1000.0),
+        Param("baud", 57600, "serial baud rate", 1200, 4000000, read_only=True),
+        Param(
+            "system_id",
+            0,
+            "MAVLink system id to follow (0: the first vehicle seen)",
+            0,
+            255,
+            read_only=True,
+        ),
+        Param(
+            "link_timeout_s", 2.0, "no message for this long: link lost", 0.1, 60.0, read_only=True
+        ),
+        Param(
+            "input_timeout_s",
+            5.0,
+            "no MAVLink message (mavros: no telemetry) for this long: diagnostics WARN naming "
+            "the connection (mavros: its topics and their publishers)",
+            0.5,
+            3600.0,
+        ),
+        Param(
+            "open_retry_s",
+            2.0,
+            "a connection that cannot be opened (serial device absent, port in use) is tried "
+            "again this often (s); the status stays ERROR meanwhile",
+            0.1,
+            60.0,
+            read_only=True,
+        ),
+        Param(
+            "tlog_rate",
+            1.0,
+            "tlog replay speed (0: as fast as possible)",
+            0.0,
+            1000.0,
+            read_only=True,
+        ),
         Param(
             "tlog_start_delay_s",
             1.0,
             "tlog replay starts this long after start-up (subscribers connect)",
             0.0,
             60.0,
+            read_only=True,
         ),
         Param("focal_length_mm", 4.3, "camera focal length (mm)", 0.1, 2000.0),
         Param("pixel_pitch_um", 1.54, "detector pixel pitch (um)", 0.1, 100.0),
@@ -87,19 +129,24 @@ class TelemetryNode(StageNode):
             180.0,
         ),
         Param(
-            "mavros_fix_topic", "/mavros/global_position/global", "mavros source: NavSatFix topic"
+            "mavros_fix_topic",
+            "/mavros/global_position/global",
+            "mavros source: NavSatFix topic",
+            read_only=True,
         ),
         Param(
             "mavros_velocity_topic",
             "/mavros/local_position/velocity_local",
             "mavros source: TwistStamped (ENU)",
+            read_only=True,
         ),
         Param(
             "mavros_height_topic",
             "/mavros/global_position/rel_alt",
             "mavros source: Float64 relative altitude",
+            read_only=True,
         ),
-        Param("mavros_imu_topic", "/mavros/imu/data", "mavros source: Imu"),
+        Param("mavros_imu_topic", "/mavros/imu/data", "mavros source: Imu", read_only=True),
     )
 
     def __init__(self, *, name: str = "telemetry_node", **kw) -> None:
@@ -116,71 +163,156 @@ class TelemetryNode(StageNode):
         self.reader = None
         self._lock = threading.Lock()
         self._mavros: dict[str, object] = {}
+        self._mavros_counts = {"fix": 0, "h": 0, "imu": 0, "velocity": 0}
+        self._open_problem: str | None = None  # why the MAVLink connection is not open
+        self._open_may_pass = False  # and whether trying again may open it
+        self._open_retry = None
+        self._no_fix: str | None = None  # the no-fix warning while there is no fix
         if self.param("source") == "mavlink":
             self._start_mavlink()
         else:
             self._start_mavros()
         self.create_timer(1.0, self._report)
 
+    def _on_param_change(self, name: str, value) -> None:
+        super()._on_param_change(name, value)
+        if name == "p":  # the latched detector angle (eq. 2) follows p
+            self.pub_angle.publish(Float64(data=detector_angle(value)))
+
     # ---------------------------------------------------------------- sources
     def _start_mavlink(self) -> None:
+        if not self._open_mavlink() and self._open_may_pass:
+            self._open_retry = self.create_timer(self.param("open_retry_s"), self._retry_open)
+
+    def _open_mavlink(self) -> bool:
+        """Open the MAVLink connection; True if open (or opening later: a delayed tlog).
+
+        A failure is an ERROR held while it lasts (``_open_problem``, :meth:`_report`); one
+        that may pass (a serial device not plugged in yet, a port in use: OSError) is tried
+        again by :meth:`_retry_open`, a malformed URL is not.
+        """
         from subpix_ros.io.mavlink import MavlinkReader
 
         url = self.param("connection")
-        if url.endswith(".tlog") and not Path(url).is_file():
-            self.diag.error(f"tlog file not found: {url}")
-            return
+        is_log = url.endswith(".tlog")
         try:
-            rate = self.param("tlog_rate") if url.endswith(".tlog") else None
-            self.reader = MavlinkReader(
+            if is_log and not Path(url).is_file():
+                raise FileNotFoundError(f"tlog file not found: {url}")
+            reader = MavlinkReader(
                 url,
                 baud=self.param("baud"),
                 system_id=self.param("system_id") or None,
                 link_timeout_s=self.param("link_timeout_s"),
                 on_sample=self.handle_sample,
                 on_status=self._on_link,
-                rate=rate or None,
+                on_packet=lambda _mtype: self.diag.rate("input").tick(),
+                rate=(self.param("tlog_rate") or None) if is_log else None,
             )
-            if url.endswith(".tlog") and self.param("tlog_start_delay_s") > 0:
+            if is_log and self.param("tlog_start_delay_s") > 0:
                 self._delay = self.create_timer(
                     self.param("tlog_start_delay_s"), self._start_reader
                 )
             else:
-                self.reader.start()
-        except (ValueError, OSError) as exc:
-            self.diag.error(f"cannot open MAVLink connection {url!r}: {exc}")
-            self.reader = None
+                reader.start()
+                self._watch_mavlink(url)
+        except (ValueError, OSError, RuntimeError) as exc:
+            text = str(exc) if str(exc).startswith("tlog file not found") else None
+            problem = text or f"cannot open MAVLink connection {url!r}: {exc}"
+            if problem != self._open_problem:  # logged and counted once per problem
+                self.diag.error(problem)
+            else:
+                self.diag.hold_error(problem)
+            self._open_problem = problem
+            self._open_may_pass = isinstance(exc, OSError)
+            self.diag.set(link="not open")
+            return False
+        if self._open_problem is not None:
+            self.get_logger().info(f"MAVLink connection {url!r} opened")
+        self._open_problem = None
+        self.reader = reader
+        return True
+
+    def _retry_open(self) -> None:
+        if self._open_mavlink():
+            self._open_retry.cancel()
+
+    def _watch_mavlink(self, url: str) -> None:
+        """Watch the link for silence from now on (the connection is open)."""
+
+        def describe(limit: float, heard: bool) -> str:
+            reader = self.reader
+            if reader is not None and reader.link_state == "end_of_log":
+                return f"telemetry log {url} ended: no more telemetry"
+            st = reader.stats if reader is not None else None
+            bad = (
+                f"; {st.garbage_bytes} bytes and {st.bad_crc} frames that are not valid MAVLink "
+                "arrived (wrong baud rate or protocol?)"
+                if st is not None and (st.garbage_bytes or st.bad_crc)
+                else ""
+            )
+            since = " since the last one" if heard else ""
+            ask = {
+                "serial": "is the autopilot connected, and sending at this baud rate?",
+                "udpin": "is the autopilot sending to this port?",
+                "udpout": "is the autopilot listening there?",
+            }.get(reader.spec.kind if reader is not None else "", "is the autopilot sending?")
+            return (
+                f"no MAVLink message received on {url} for over {limit:g} s{since} "
+                f"(input_timeout_s){bad}: {ask}"
+            )
+
+        self.diag.watch_inputs((), lambda: self.param("input_timeout_s"), describe=describe)
 
     def _start_reader(self) -> None:
         self._delay.cancel()
         self.reader.start()
+        self._watch_mavlink(self.param("connection"))
 
     def _start_mavros(self) -> None:
         q = reliable_qos(20)
-        self.create_subscription(
-            NavSatFix,
-            self.param("mavros_fix_topic"),
-            lambda m: self._mavros.__setitem__("fix", m),
-            q,
-        )
-        self.create_subscription(
-            Float64,
-            self.param("mavros_height_topic"),
-            lambda m: self._mavros.__setitem__("h", m.data),
-            q,
-        )
-        self.create_subscription(
-            Imu, self.param("mavros_imu_topic"), lambda m: self._mavros.__setitem__("imu", m), q
-        )
-        self.create_subscription(
-            TwistStamped, self.param("mavros_velocity_topic"), self._on_mavros_velocity, q
-        )
+        topics = {
+            "velocity": self.param("mavros_velocity_topic"),
+            "fix": self.param("mavros_fix_topic"),
+            "h": self.param("mavros_height_topic"),
+            "imu": self.param("mavros_imu_topic"),
+        }
+
+        def keep(key: str, value) -> None:
+            self._mavros[key] = value
+            self._mavros_counts[key] += 1
+
+        self.create_subscription(NavSatFix, topics["fix"], lambda m: keep("fix", m), q)
+        self.create_subscription(Float64, topics["h"], lambda m: keep("h", m.data), q)
+        self.create_subscription(Imu, topics["imu"], lambda m: keep("imu", m), q)
+        self.create_subscription(TwistStamped, topics["velocity"], self._on_mavros_velocity, q)
+
+        def describe(limit: float, heard: bool) -> str:
+            """Each topic a sample needs: its publishers, or nothing received on it."""
+            parts = []
+            for key in ("velocity", "fix", "h"):
+                name = self.resolve_topic_name(topics[key])
+                pubs = self.diag.publishers(name)
+                if not pubs:
+                    parts.append(f"{name}: no publisher")
+                elif not self._mavros_counts[key]:
+                    parts.append(f"{name}: nothing received from {', '.join(pubs)}")
+            waiting = "; ".join(parts) or "every topic received, no sample since"
+            since = " since the last one" if heard else ""
+            none = all(p.endswith(": no publisher") for p in parts) and len(parts) == 3
+            return (
+                f"no mavros telemetry for over {limit:g} s{since} (input_timeout_s): {waiting}"
+                + (" (is mavros running?)" if none else "")
+            )
+
+        self.diag.watch_inputs((), lambda: self.param("input_timeout_s"), describe=describe)
 
     def _on_mavros_velocity(self, msg: TwistStamped) -> None:
+        self._mavros_counts["velocity"] += 1
         fix, h = self._mavros.get("fix"), self._mavros.get("h")
         if fix is None or h is None:
             self.diag.warn("mavros: waiting for fix and rel_alt before publishing")
             return
+        self.diag.rate("input").tick()
         imu = self._mavros.get("imu")
         heading = (
             None
@@ -199,7 +331,7 @@ class TelemetryNode(StageNode):
             alt_msl_m=fix.altitude,
             heading_rad=heading,
         )
-        self.handle_sample(s)
+        self.handle_sample(dataclasses.replace(s, fix_status=int(fix.status.status)))
 
     def _on_link(self, event) -> None:
         text = f"MAVLink link {event.state}: {event.reason}"
@@ -211,11 +343,28 @@ class TelemetryNode(StageNode):
 
     # ---------------------------------------------------------------- output
     def handle_sample(self, s: TelemetrySample) -> None:
-        """Publish one telemetry sample (reader thread or mavros callback)."""
+        """Publish one telemetry sample (reader thread or mavros callback).
+
+        A sample without a GNSS fix (:attr:`TelemetrySample.has_fix`) publishes only
+        ``telemetry/fix`` (status STATUS_NO_FIX) and ``telemetry/imu``: its velocity and
+        relative altitude are the autopilot's estimate without GNSS (ArduPilot sends 0 for
+        both, and a height above a home that was never set), so neither they nor a frame
+        interval or expected shift from them are published, nor handed to the in-process
+        stages, which then go on as without telemetry.
+        """
         ok, why = validate_sample(s)
         if not ok:
             self.diag.warn(f"telemetry sample rejected: {why}")
             return
+        if not s.has_fix:
+            self._publish_no_fix(s)
+            return
+        if self._no_fix is not None:
+            self.get_logger().info(
+                f"GNSS fix again (status {s.navsat_status}) after: {self._no_fix}"
+            )
+            self._no_fix = None
+        self.diag.set(gnss_status=s.navsat_status)
         f_m, a_m, p = (
             self.param("focal_length_mm") * 1e-3,
             self.param("pixel_pitch_um") * 1e-6,
@@ -261,7 +410,36 @@ class TelemetryNode(StageNode):
         if not iv.ok:
             self.diag.warn(f"no frame interval: {iv.reason}")
 
+    def _publish_no_fix(self, s: TelemetrySample) -> None:
+        """Publish the fix (STATUS_NO_FIX) and attitude of ``s``; WARN while there is no fix."""
+        stamp = int(round(s.t * 1e9))
+        with self._lock:
+            self.pubs["fix"].publish(tm.fix_cdr(s, stamp))
+            if s.has_attitude:
+                self.pubs["imu"].publish(tm.imu_cdr(s, stamp))
+        gps = self.reader.gps_raw if self.reader is not None else None
+        if gps is not None:
+            sats = "satellites unknown" if gps[1] == 255 else f"{gps[1]} satellites"
+            why = f"fix_type {gps[0]}, {sats}"
+            if gps[0] > 1:  # a fix, but no position from the autopilot yet
+                why = f"GLOBAL_POSITION_INT lat and lon 0; {why}"
+        elif self.reader is not None:
+            why = "no GPS_RAW_INT; GLOBAL_POSITION_INT lat and lon 0"
+        else:
+            why = f"mavros NavSatFix status {s.navsat_status}"
+        message = (
+            f"GNSS: no fix ({why}): no velocity, height, frame interval or expected shift published"
+        )
+        if message != self._no_fix:
+            self.diag.warn(message)  # logged and counted once per episode
+        else:
+            self.diag.hold_warning(message)
+        self._no_fix = message
+        self.diag.set(gnss_status=s.navsat_status)
+
     def _report(self) -> None:
+        if self._open_problem is not None:
+            self.diag.hold_error(self._open_problem)  # ERROR for as long as it is not open
         if self.reader is None:
             return
         st = self.reader.stats

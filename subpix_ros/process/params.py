@@ -86,6 +86,8 @@ _OTHER_NODES = {
         "mavros_velocity_topic",
         "mavros_height_topic",
         "mavros_imu_topic",
+        "open_retry_s",
+        "input_timeout_s",
     ),
     "monitor_node": (
         "host",

@@ -134,7 +134,43 @@ def test_heartbeat_rate_and_encoding_errors():
         encode_samples([make(0)], boot_time=T0 + 5)
 
 
+def gps_raw(fix_type, sats=12, lat=410353080, lon=-833062512, system_id=1):
+    """One GPS_RAW_INT packet (MAVLink 2) from ``system_id``."""
+    enc = mav2.MAVLink(None, srcSystem=system_id, srcComponent=1)
+    msg = mav2.MAVLink_gps_raw_int_message(0, fix_type, lat, lon, 150000, 80, 120, 500, 9000, sats)
+    return msg.pack(enc)
+
+
 # --------------------------------------------------------------------------- UDP
+def test_udp_fix_status_follows_gps_raw_int_fix_type(udp):
+    """GPS_RAW_INT.fix_type gives each sample's NavSatStatus; lat = lon = 0 is no fix."""
+    col, reader, sender = udp()
+    sender.send(packets([make(0.0)], heartbeat_hz=1.0))  # no GPS_RAW_INT yet: a fix
+    expected = [None]
+    for k, (fix_type, status) in enumerate(
+        [(0, -1), (1, -1), (2, 0), (3, 0), (4, 1), (5, 2), (6, 2), (7, 0), (8, 0)], start=1
+    ):
+        sender.send(gps_raw(fix_type))
+        sender.send(packets([make(0.1 * k)]))
+        expected.append(status)
+    # an autopilot without a position: lat and lon exactly 0, whatever GPS_RAW_INT says
+    sender.send(packets([make(1.0, lat_deg=0.0, lon_deg=0.0)]))
+    expected.append(-1)
+    assert wait_until(lambda: len(col.samples) == len(expected)), len(col.samples)
+    assert [s.fix_status for s in col.samples] == expected
+    assert [s.has_fix for s in col.samples] == [x is None or x >= 0 for x in expected]
+    assert col.samples[0].navsat_status == 0 and reader.gps_raw == (8, 12)  # the latest
+
+
+def test_udp_no_gps_raw_int_and_zero_position_is_no_fix(udp):
+    col, reader, sender = udp()
+    sender.send(packets([make(0.0, lat_deg=0.0, lon_deg=0.0)], heartbeat_hz=1.0))
+    assert wait_until(lambda: len(col.samples) == 1)
+    s = col.samples[0]
+    assert s.fix_status == -1 and s.navsat_status == -1 and not s.has_fix
+    assert reader.gps_raw is None
+
+
 def test_udp_sample_matches_hand_computed_values(udp):
     col, reader, sender = udp()
     sender.send(packets([make(0.0)], heartbeat_hz=1.0))

@@ -10,7 +10,7 @@ import pytest
 from conftest import logged_popen, spin
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistStamped
-from sensor_msgs.msg import Imu, NavSatFix
+from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 from std_msgs.msg import Float64
 
 from subpix_ros.core.telemetry import TelemetrySample
@@ -170,6 +170,335 @@ def test_bad_connection_parameter_is_reported_and_node_keeps_running(
             ),
             20.0,
         )
+        assert proc.poll() is None
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def _level(status) -> int:
+    """DiagnosticStatus level as an int (rclpy gives the byte field as bytes)."""
+    lv = status.level
+    return lv[0] if isinstance(lv, (bytes, bytearray)) else int(lv)
+
+
+def _packets(n=200, lat=41.035308, lon=-83.3062512, height=58.4):
+    t0 = time.time()
+    samples = [
+        TelemetrySample(
+            t=t0 + 0.1 * k,
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_msl_m=288.4,
+            height_agl_m=height,
+            vel_ned_mps=(4.0, 7.0, -0.5),
+            ground_speed_mps=math.hypot(4, 7),
+            course_rad=math.atan2(7, 4),
+            roll_rad=0.0,
+            pitch_rad=0.0,
+            yaw_rad=math.atan2(7, 4),
+        )
+        for k in range(n)
+    ]
+    return [p for _, p in encode_samples(samples, boot_time=t0)]
+
+
+def test_missing_serial_device_stays_error_and_is_opened_when_plugged_in(rclpy_node):
+    """A serial device absent at start: ERROR for as long as it is (past the 5-s hold), retried.
+
+    The "USB autopilot" appears later as a symlink to a pseudo-terminal, and MAVLink bytes
+    written to the pty's master side come out as /telemetry/fix.
+    """
+    import os
+    import tty
+    import uuid
+
+    device = f"/dev/shm/subpix-test-tty-{uuid.uuid4().hex[:8]}"
+    proc = _start(f"connection:={device}", "open_retry_s:=0.3")
+    sink = Sink(rclpy_node)
+    master = slave = None
+    try:
+        assert spin(
+            rclpy_node, lambda: any("serial device not found" in s.message for s in sink.diag), 20
+        ), [s.message for s in sink.diag]
+        first = next(i for i, s in enumerate(sink.diag) if "serial device not found" in s.message)
+        spin(rclpy_node, lambda: False, 6.5)  # past Diagnostics.hold_s (5 s)
+        held = sink.diag[first:]
+        assert len(held) >= 5 and all(_level(s) == 2 for s in held), [
+            (_level(s), s.message) for s in held
+        ]
+        assert all("cannot open MAVLink connection" in s.message for s in held)
+        # plugged in
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        os.symlink(os.ttyname(slave), device)
+        packets, i = _packets(), 0
+
+        def fix_arrived():
+            nonlocal i
+            for _ in range(8):
+                try:
+                    os.write(master, packets[i % len(packets)])
+                    os.read(master, 65536)  # anything the node wrote (nothing expected)
+                except BlockingIOError:
+                    pass
+                i += 1
+            return len(sink.fix) >= 3
+
+        assert spin(rclpy_node, fix_arrived, 15), proc.stdout.read()
+        assert sink.fix[-1].latitude == pytest.approx(41.035308, abs=1e-7)
+        assert "opened" in proc.stdout.read()
+        assert proc.poll() is None
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        for fd in (master, slave):
+            if fd is not None:
+                os.close(fd)
+        if os.path.lexists(device):
+            os.unlink(device)
+
+
+def test_udp_link_without_any_autopilot_warns_naming_the_port(rclpy_node):
+    port = _free_udp_port()
+    url = f"udpin:127.0.0.1:{port}"
+    proc = _start(f"connection:={url}", "input_timeout_s:=1.0")
+    sink = Sink(rclpy_node)
+    sender = MavlinkSender(f"udpout:127.0.0.1:{port}")
+    try:
+        expect = f"no MAVLink message received on {url} for over 1 s"
+        assert spin(
+            rclpy_node, lambda: any(expect in s.message and _level(s) == 1 for s in sink.diag), 15
+        ), [s.message for s in sink.diag]
+        assert "is the autopilot sending to this port?" in sink.diag[-1].message
+        # the autopilot starts sending: the telemetry flows and the warning goes
+        packets, i = _packets(), 0
+
+        def sending():
+            nonlocal i
+            for _ in range(8):
+                sender.send(packets[i % len(packets)])
+                i += 1
+            return len(sink.fix) >= 3
+
+        assert spin(rclpy_node, sending, 10)
+        n = len(sink.diag)
+        assert spin(rclpy_node, lambda: sending() and len(sink.diag) >= n + 2, 5)
+        values = {kv.key: kv.value for kv in sink.diag[-1].values}
+        assert values["input_silent_s"] == "0" and int(values["input_total"]) > 0, values
+    finally:
+        sender.close()
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_mavros_source_without_mavros_warns_naming_its_topics(rclpy_node):
+    import uuid
+
+    ns = f"/mavros_{uuid.uuid4().hex[:8]}"  # topics nothing publishes on
+    proc = _start(
+        "source:=mavros",
+        "input_timeout_s:=1.0",
+        f"mavros_fix_topic:={ns}/global_position/global",
+        f"mavros_velocity_topic:={ns}/local_position/velocity_local",
+        f"mavros_height_topic:={ns}/global_position/rel_alt",
+    )
+    sink = Sink(rclpy_node)
+    try:
+        assert spin(
+            rclpy_node,
+            lambda: any("no mavros telemetry" in s.message and _level(s) == 1 for s in sink.diag),
+            15,
+        ), [s.message for s in sink.diag]
+        msg = next(s.message for s in sink.diag if "no mavros telemetry" in s.message)
+        for topic in ("local_position/velocity_local", "global_position/global", "rel_alt"):
+            assert f"{topic}: no publisher" in msg, msg
+        assert "is mavros running?" in msg
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+class _Autopilot:
+    """Real MAVLink 2 frames, like ArduPilot's, with or without a GNSS fix."""
+
+    def __init__(self):
+        from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+        self.mav2 = mav2
+        self.enc = mav2.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.boot_ms = 1000
+
+    def frames(self, fix_type: int, sats: int) -> bytes:
+        m, fix = self.mav2, fix_type >= 2
+        self.boot_ms += 100
+        lat, lon = (410353080, -833062512) if fix else (0, 0)
+        msgs = [
+            m.MAVLink_heartbeat_message(
+                m.MAV_TYPE_QUADROTOR, m.MAV_AUTOPILOT_ARDUPILOTMEGA, 209, 4, 4, 3
+            ),
+            m.MAVLink_gps_raw_int_message(0, fix_type, lat, lon, 150000, 80, 120, 500, 9000, sats),
+            # without a fix ArduPilot sends lat/lon 0, relative_alt 0 and velocity 0
+            m.MAVLink_global_position_int_message(
+                self.boot_ms,
+                lat,
+                lon,
+                288400,
+                58400 if fix else 0,
+                400 if fix else 0,
+                700 if fix else 0,
+                0,
+                6000,
+            ),
+            m.MAVLink_attitude_message(self.boot_ms, 0.0, 0.0, 1.05, 0, 0, 0),
+        ]
+        return b"".join(msg.pack(self.enc) for msg in msgs)
+
+
+def test_gnss_without_fix_is_published_as_no_fix_and_nothing_made_up(rclpy_node):
+    from geometry_msgs.msg import Vector3Stamped
+
+    port = _free_udp_port()
+    proc = _start(f"connection:=udpin:127.0.0.1:{port}")
+    sink = Sink(rclpy_node)
+    shifts = []
+    rclpy_node.create_subscription(
+        Vector3Stamped, "/telemetry/expected_shift", shifts.append, reliable_qos(100)
+    )
+    sender = MavlinkSender(f"udpout:127.0.0.1:{port}")
+    ap = _Autopilot()
+    try:
+        # no fix: fix_type 0, no satellites, position 0
+        warned = lambda: any(  # noqa: E731
+            "GNSS: no fix (fix_type 0, 0 satellites)" in s.message and _level(s) == 1
+            for s in sink.diag
+        )
+        assert spin(
+            rclpy_node,
+            lambda: sender.send(ap.frames(0, 0)) or (len(sink.fix) >= 5 and warned()),
+            15,
+        ), ([s.message for s in sink.diag], len(sink.fix))
+        assert {f.status.status for f in sink.fix} == {NavSatStatus.STATUS_NO_FIX}
+        assert sink.imu  # attitude is not GNSS: still published
+        assert not sink.vel and not sink.height and not sink.interval and not shifts
+        # an RTK fix: the fix says so, and velocity, height and the shift are published again
+        assert spin(
+            rclpy_node,
+            lambda: (
+                sender.send(ap.frames(6, 20))
+                or (
+                    len(sink.vel) >= 3
+                    and sink.fix[-1].status.status == NavSatStatus.STATUS_GBAS_FIX
+                )
+            ),
+            10,
+        )
+        assert sink.fix[-1].latitude == pytest.approx(41.035308, abs=1e-7)
+        assert sink.height[-1].data == pytest.approx(58.4) and shifts
+        assert spin(
+            rclpy_node,
+            lambda: (
+                sender.send(ap.frames(4, 20))
+                or (sink.fix[-1].status.status == NavSatStatus.STATUS_SBAS_FIX)
+            ),
+            5,
+        )
+    finally:
+        sender.close()
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_mavros_fix_status_is_kept_and_no_fix_publishes_no_velocity(rclpy_node):
+    import uuid
+
+    ns = f"/mavros_{uuid.uuid4().hex[:8]}"
+    proc = _start(
+        "source:=mavros",
+        f"mavros_fix_topic:={ns}/global",
+        f"mavros_velocity_topic:={ns}/velocity_local",
+        f"mavros_height_topic:={ns}/rel_alt",
+        f"mavros_imu_topic:={ns}/imu",
+    )
+    sink = Sink(rclpy_node)
+    q = reliable_qos(20)
+    pub_fix = rclpy_node.create_publisher(NavSatFix, f"{ns}/global", q)
+    pub_h = rclpy_node.create_publisher(Float64, f"{ns}/rel_alt", q)
+    pub_v = rclpy_node.create_publisher(TwistStamped, f"{ns}/velocity_local", q)
+
+    def send(status: int, lat: float) -> None:
+        fix = NavSatFix(latitude=lat, longitude=-83.3 if lat else 0.0, altitude=288.4)
+        fix.status.status = status
+        pub_fix.publish(fix)
+        pub_h.publish(Float64(data=58.4))
+        v = TwistStamped()
+        v.header.stamp = rclpy_node.get_clock().now().to_msg()
+        v.twist.linear.x, v.twist.linear.y = 7.0, 4.0
+        pub_v.publish(v)
+
+    try:
+        no_fix = NavSatStatus.STATUS_NO_FIX
+        assert spin(
+            rclpy_node,
+            lambda: (
+                send(no_fix, 0.0)
+                or (
+                    len(sink.fix) >= 3
+                    and any(
+                        "GNSS: no fix (mavros NavSatFix status -1)" in s.message for s in sink.diag
+                    )
+                )
+            ),
+            15,
+        ), [s.message for s in sink.diag]
+        assert {f.status.status for f in sink.fix} == {no_fix}
+        assert not sink.vel and not sink.height
+        sbas = NavSatStatus.STATUS_SBAS_FIX
+        assert spin(
+            rclpy_node,
+            lambda: send(sbas, 41.0) or (len(sink.vel) >= 3 and sink.fix[-1].status.status == sbas),
+            10,
+        )
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_p_changed_at_run_time_republishes_the_detector_angle_and_links_are_read_only(
+    rclpy_node,
+):
+    import rclpy
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    from subpix_ros.core.timing import detector_angle
+    from subpix_ros.nodes.qos import latched_qos
+
+    port = _free_udp_port()
+    proc = _start(f"connection:=udpin:127.0.0.1:{port}", "p:=4.0")
+    angles = []
+    rclpy_node.create_subscription(
+        Float64, "/telemetry/detector_angle", lambda m: angles.append(m.data), latched_qos()
+    )
+    client = rclpy_node.create_client(SetParameters, "/telemetry_node/set_parameters")
+
+    def set_param(name, **value):
+        req = SetParameters.Request(
+            parameters=[Parameter(name=name, value=ParameterValue(**value))]
+        )
+        future = client.call_async(req)
+        rclpy.spin_until_future_complete(rclpy_node, future, timeout_sec=10)
+        return future.result().results[0]
+
+    try:
+        assert spin(rclpy_node, lambda: angles and client.service_is_ready(), 20), angles
+        assert angles[-1] == pytest.approx(detector_angle(4.0)) == pytest.approx(0.32175, abs=1e-5)
+        assert set_param("p", type=ParameterType.PARAMETER_DOUBLE, double_value=8.0).successful
+        assert spin(rclpy_node, lambda: angles[-1] == pytest.approx(0.14190, abs=1e-5), 5), angles
+        for name in ("connection", "source"):
+            r = set_param(name, type=ParameterType.PARAMETER_STRING, string_value="mavros")
+            assert not r.successful and "read-only" in r.reason, (name, r)
         assert proc.poll() is None
     finally:
         proc.terminate()

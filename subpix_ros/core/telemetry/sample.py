@@ -13,6 +13,10 @@ import numpy as np
 
 __all__ = [
     "TelemetrySample",
+    "NO_FIX",
+    "FIX",
+    "SBAS_FIX",
+    "GBAS_FIX",
     "ned_to_enu",
     "attitude_quaternion_enu",
     "course_from_velocity",
@@ -21,6 +25,9 @@ __all__ = [
 ]
 
 _TWO_PI = 2.0 * math.pi
+
+#: GNSS fix levels, the values of sensor_msgs/NavSatStatus ``status``.
+NO_FIX, FIX, SBAS_FIX, GBAS_FIX = -1, 0, 1, 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,6 +58,11 @@ class TelemetrySample:
         order and deduplicate), else None.
     system_id : int or None
         MAVLink system id of the source, else None.
+    fix_status : int or None
+        The GNSS fix, as sensor_msgs/NavSatStatus ``status``: :data:`NO_FIX` (-1),
+        :data:`FIX` (0), :data:`SBAS_FIX` (1, augmented: DGPS/SBAS), :data:`GBAS_FIX`
+        (2, RTK); None when the source does not say (then a fix unless latitude and
+        longitude are both exactly 0, what an autopilot without a position sends).
 
     Raises
     ------
@@ -71,6 +83,7 @@ class TelemetrySample:
     yaw_rad: float | None = 0.0
     time_boot_ms: int | None = None
     system_id: int | None = None
+    fix_status: int | None = None
 
     def __post_init__(self) -> None:
         v = np.asarray(self.vel_ned_mps, dtype=np.float64).reshape(-1)
@@ -85,6 +98,18 @@ class TelemetrySample:
     def vel_enu_mps(self) -> np.ndarray:
         """Velocity in ENU (x east, y north, z up), m/s (REP-103)."""
         return ned_to_enu(self.vel_ned_mps)
+
+    @property
+    def navsat_status(self) -> int:
+        """The NavSatStatus ``status`` of the sample's position (``fix_status``, see above)."""
+        if self.fix_status is not None:
+            return int(self.fix_status)
+        return NO_FIX if self.lat_deg == 0.0 and self.lon_deg == 0.0 else FIX
+
+    @property
+    def has_fix(self) -> bool:
+        """Whether the position is a GNSS fix (:attr:`navsat_status` >= :data:`FIX`)."""
+        return self.navsat_status >= FIX
 
     @property
     def has_attitude(self) -> bool:

@@ -15,11 +15,43 @@ from subpix_ros.core.telemetry import (
     course_from_velocity,
     validate_sample,
 )
+from subpix_ros.core.telemetry.sample import FIX, GBAS_FIX, NO_FIX, SBAS_FIX
 
 from .encode import UINT16_MAX
 from .link import LinkEvent, ReaderStats, _open, parse_url
 
-__all__ = ["MavlinkReader"]
+__all__ = ["MavlinkReader", "fix_status_from_fix_type"]
+
+
+def fix_status_from_fix_type(fix_type: int) -> int:
+    """Map MAVLink GPS_FIX_TYPE (GPS_RAW_INT.fix_type) to sensor_msgs/NavSatStatus ``status``.
+
+    Parameters
+    ----------
+    fix_type : int
+        0 no GPS, 1 no fix, 2 2D, 3 3D, 4 DGPS/SBAS, 5 RTK float, 6 RTK fixed, 7 static,
+        8 PPP.
+
+    Returns
+    -------
+    int
+        STATUS_NO_FIX (-1) for 0-1, STATUS_FIX (0) for 2-3 and 7-8, STATUS_SBAS_FIX (1) for
+        4, STATUS_GBAS_FIX (2) for RTK (5-6).
+
+    Notes
+    -----
+    mavros (``global_position`` plugin, ``handle_gps_raw_int``) keeps only two levels:
+    STATUS_FIX for fix_type > 2 and STATUS_NO_FIX otherwise, a 2D fix included; here a 2D
+    fix is a fix (its latitude and longitude are measured; the height used is
+    GLOBAL_POSITION_INT's relative_alt) and the augmented fixes say so.
+    """
+    if fix_type <= 1:
+        return NO_FIX
+    if fix_type == 4:
+        return SBAS_FIX
+    if fix_type in (5, 6):
+        return GBAS_FIX
+    return FIX
 
 
 class MavlinkReader:
@@ -39,11 +71,14 @@ class MavlinkReader:
     on_sample, on_status : callable, optional
         Called with each TelemetrySample / LinkEvent on the reader thread; exceptions they
         raise are counted, not propagated.
+    on_packet : callable, optional
+        Called with the message type of every MAVLink frame parsed with a good CRC (any
+        system), on the reader thread: a link's liveness, whatever the frames hold.
     rate : float, optional
         Tlog replay speed (None: as fast as possible, 1.0: real time).
-    attitude_max_age_s, vfr_max_age_s : float
-        How old the latest ATTITUDE (by time_boot_ms) and VFR_HUD (by receive time) may be to
-        be combined with a GLOBAL_POSITION_INT.
+    attitude_max_age_s, vfr_max_age_s, gps_max_age_s : float
+        How old the latest ATTITUDE (by time_boot_ms), VFR_HUD and GPS_RAW_INT (by receive
+        time) may be to be combined with a GLOBAL_POSITION_INT.
     reboot_threshold_s : float
         A time_boot_ms this much earlier than the last is an autopilot reboot.
     poll_s : float
@@ -60,6 +95,9 @@ class MavlinkReader:
       terrain), vel_ned = (vx, vy, vz) / 100;
     * course = atan2(vy, vx) when the horizontal speed is >= 0.1 m/s, else the heading
       (ATTITUDE yaw, else GLOBAL_POSITION_INT hdg);
+    * fix_status: STATUS_NO_FIX when lat and lon are both exactly 0 (the autopilot has no
+      global position), else :func:`fix_status_from_fix_type` of the latest GPS_RAW_INT,
+      else None (no GPS_RAW_INT: a fix);
     * time_boot_ms orders the stream: a repeated value is a duplicate, an earlier one is out
       of order (both rejected and counted), unless it is more than ``reboot_threshold_s``
       earlier (a reboot: accepted).
@@ -83,9 +121,11 @@ class MavlinkReader:
         link_timeout_s: float = 2.0,
         on_sample: Callable[[TelemetrySample], None] | None = None,
         on_status: Callable[[LinkEvent], None] | None = None,
+        on_packet: Callable[[str], None] | None = None,
         rate: float | None = None,
         attitude_max_age_s: float = 0.5,
         vfr_max_age_s: float = 1.0,
+        gps_max_age_s: float = 5.0,
         reboot_threshold_s: float = 10.0,
         poll_s: float = 0.05,
     ) -> None:
@@ -102,9 +142,11 @@ class MavlinkReader:
         self.link_timeout_s = float(link_timeout_s)
         self.on_sample = on_sample
         self.on_status = on_status
+        self.on_packet = on_packet
         self.rate = rate
         self.attitude_max_age_ms = attitude_max_age_s * 1000.0
         self.vfr_max_age_s = vfr_max_age_s
+        self.gps_max_age_s = gps_max_age_s
         self.reboot_threshold_ms = reboot_threshold_s * 1000.0
         self.poll_s = poll_s
         self._is_log = self.spec.kind == "tlog"
@@ -120,6 +162,7 @@ class MavlinkReader:
         self._last_heartbeat: float | None = None
         self._attitude = None  # (time_boot_ms, roll, pitch, yaw)
         self._vfr = None  # (t, groundspeed)
+        self._gps = None  # (t, fix_type, satellites_visible) of the latest GPS_RAW_INT
         self._last_boot_ms: int | None = None
         self._latest: TelemetrySample | None = None
         self._events: list[LinkEvent] = []
@@ -182,6 +225,12 @@ class MavlinkReader:
     def target_system(self) -> int | None:
         """System id of the vehicle being tracked (None until one is seen)."""
         return self._target
+
+    @property
+    def gps_raw(self) -> tuple[int, int] | None:
+        """(fix_type, satellites_visible) of the latest GPS_RAW_INT, or None if none came."""
+        gps = self._gps
+        return None if gps is None else (gps[1], gps[2])
 
     @property
     def latest(self) -> TelemetrySample | None:
@@ -361,6 +410,7 @@ class MavlinkReader:
                 self._stats.mavlink2 += 1
             if msg.get_msgId() < 0 or mtype.startswith("UNKNOWN"):
                 self._stats.unknown_messages += 1
+        self._call("on_packet", self.on_packet, mtype)
         sysid = msg.get_srcSystem()
         if self._target is None and self._is_vehicle(msg):
             self._target = sysid
@@ -377,6 +427,8 @@ class MavlinkReader:
             self._attitude = (msg.time_boot_ms, msg.roll, msg.pitch, msg.yaw)
         elif mtype == "VFR_HUD":
             self._vfr = (t, msg.groundspeed)
+        elif mtype == "GPS_RAW_INT":
+            self._gps = (t, int(msg.fix_type), int(msg.satellites_visible))
         elif mtype == "GLOBAL_POSITION_INT":
             self._position(msg, t, sysid)
 
@@ -423,6 +475,13 @@ class MavlinkReader:
             course = math.radians(msg.hdg / 100.0) % (2 * math.pi)
         else:
             course = course_from_velocity(vn, ve)
+        gps = self._gps
+        if msg.lat == 0 and msg.lon == 0:
+            fix_status = NO_FIX
+        elif gps is not None and 0.0 <= t - gps[0] <= self.gps_max_age_s:
+            fix_status = fix_status_from_fix_type(gps[1])
+        else:
+            fix_status = None
         sample = TelemetrySample(
             t=t,
             lat_deg=msg.lat / 1e7,
@@ -437,6 +496,7 @@ class MavlinkReader:
             yaw_rad=yaw,
             time_boot_ms=tb,
             system_id=sysid,
+            fix_status=fix_status,
         )
         ok, reason = validate_sample(sample)
         if not ok:

@@ -311,7 +311,7 @@ def test_telemetry_node_replays_the_ardupilot_sitl_log(rclpy_node):
             "-p",
             "tlog_rate:=10.0",
             "-p",
-            "tlog_start_delay_s:=3.0",
+            "tlog_start_delay_s:=5.0",  # discovery on a loaded machine (3 s lost the first 7)
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,

@@ -96,13 +96,7 @@ def test_bad_input_is_reported_and_the_node_keeps_serving(served):
         "shift": h.create_publisher(Vector3Stamped, "shift", reliable_qos(20)),
         "telemetry/fix": h.create_publisher(NavSatFix, "telemetry/fix", 10),
     }
-    diag = []
-    h.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda m: diag.extend(s for s in m.status if s.name == "monitor_node"),
-        10,
-    )
+    diag = _own_status(h)
     assert _spin(
         ex,
         lambda: (
@@ -207,13 +201,7 @@ def test_shifts_without_their_standard_errors_are_served_and_said():
 
 def _shifts_without_std_are_said(node, h, ex, client):
     pub = h.create_publisher(Vector3Stamped, "shift", reliable_qos(20))
-    diag = []
-    h.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda m: diag.extend(s for s in m.status if s.name == "monitor_node"),
-        10,
-    )
+    diag = _own_status(h)
     assert _spin(ex, lambda: pub.get_subscription_count() > 0, 10)
     msg = Vector3Stamped()
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(T0, 10**9)

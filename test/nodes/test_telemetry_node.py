@@ -63,29 +63,12 @@ def test_udp_mavlink_to_ros_topics_and_link_loss(rclpy_node):
     sink = Sink(rclpy_node)
     sender = MavlinkSender(f"udpout:127.0.0.1:{port}")
     try:
-        t0 = time.time()
-        samples = [
-            TelemetrySample(
-                t=t0 + 0.1 * k,
-                lat_deg=41.035308,
-                lon_deg=-83.3062512,
-                alt_msl_m=288.4,
-                height_agl_m=58.4,
-                vel_ned_mps=(4.0, 7.0, -0.5),
-                ground_speed_mps=math.hypot(4, 7),
-                course_rad=math.atan2(7, 4),
-                roll_rad=0.0,
-                pitch_rad=0.0,
-                yaw_rad=math.atan2(7, 4),
-            )
-            for k in range(400)
-        ]
-        packets = encode_samples(samples, boot_time=t0)
+        packets = _packets(400)
         # keep sending until the node is up and its messages arrive
         i = 0
         while not spin(rclpy_node, lambda: len(sink.interval) >= 3, 0.1) and i < len(packets):
             for _ in range(8):
-                sender.send(packets[i % len(packets)][1])
+                sender.send(packets[i % len(packets)])
                 i += 1
         assert len(sink.interval) >= 3, (
             proc.stdout.read() if proc.poll() is not None else "no messages"

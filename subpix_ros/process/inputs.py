@@ -69,7 +69,7 @@ def find_tlog(path: str | Path) -> Path | None:
 
 
 def read_tlog(path: str | Path) -> tuple[list[TelemetrySample], str]:
-    """Every accepted sample of a ``.tlog`` (read at full speed) and a note on the rejected."""
+    """Every accepted sample with a GNSS fix of a ``.tlog`` (read at full speed), and a note on the rest."""
     from subpix_ros.io.mavlink import MavlinkReader
 
     samples: list[TelemetrySample] = []
@@ -86,8 +86,14 @@ def read_tlog(path: str | Path) -> tuple[list[TelemetrySample], str]:
         notes.append(f"{st.rejected} samples rejected ({st.last_reject})")
     if st.bad_crc or st.bad_data:
         notes.append(f"{st.bad_crc} bad CRC, {st.bad_data} bad data")
-    samples.sort(key=lambda s: s.t)
-    return samples, "; ".join(notes)
+    # as telemetry_node: without a GNSS fix the velocity and height are the autopilot's guesses
+    fixed = [s for s in samples if s.has_fix]
+    if len(fixed) < len(samples):
+        notes.append(
+            f"{len(samples) - len(fixed)} of {len(samples)} samples without a GNSS fix left out"
+        )
+    fixed.sort(key=lambda s: s.t)
+    return fixed, "; ".join(notes)
 
 
 @dataclass

@@ -266,6 +266,13 @@ def test_ardupilot_tlog_parses(name, n_samples):
         assert s.height_agl_m == pytest.approx(g.relative_alt / 1000.0)
         assert s.time_boot_ms == g.time_boot_ms and s.system_id == 1
     assert st.mavlink1 == st.packets and st.mavlink2 == 0
+    from subpix_ros.process.inputs import read_tlog
+
+    kept, note = read_tlog(path)  # what subpix process takes: samples with a GNSS fix
+    if name.startswith("apm"):  # a bench log: fix_type 1, position 0, 0
+        assert kept == [] and note == "11 of 11 samples without a GNSS fix left out"
+    else:
+        assert len(kept) == n_samples and "GNSS" not in note
     if name.startswith("arducopter"):
         # in flight at the SITL home, and the packets of a changed definition counted, not fatal
         assert (

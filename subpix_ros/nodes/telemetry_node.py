@@ -151,7 +151,9 @@ class TelemetryNode(StageNode):
 
     def __init__(self, *, name: str = "telemetry_node", **kw) -> None:
         super().__init__(name, **kw)
-        q = reliable_qos(20)
+        # 100 deep: a tlog replayed at 10x gives ~40 messages/s per topic; a recorder or a
+        # subscriber that stalls for a second must not lose the unacknowledged ones (20 did)
+        q = reliable_qos(100)
         self.pubs = {
             key: self.create_publisher(_cls(t), f"telemetry/{key}", q)
             for key, t in tm.TOPICS.items()

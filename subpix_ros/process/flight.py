@@ -452,7 +452,10 @@ class _FlightRun:
         if self.next_diag is None or rec.stamp_ns >= self.next_diag:
             self.next_diag = rec.stamp_ns + DIAGNOSTICS_PERIOD_NS
             self.mosaic_wait()  # the figures as of this frame, whatever the threads' timing
-            self.writer.diagnostics(rec.stamp_ns, _diag_statuses(self.all_stats()))
+            statuses = _diag_statuses(self.all_stats())
+            self.writer.diagnostics(rec.stamp_ns, statuses)
+            if self.feed is not None:  # the live monitor's health table: the same statuses
+                self.feed.diagnostics(statuses)
 
     def finish(self) -> None:
         """End of stream: wait for the mosaic, write the tables, flush the pipeline, state what went wrong.

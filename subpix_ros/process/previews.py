@@ -40,6 +40,13 @@ class _MonitorFeed:
         why = (sr.reason or "fell back") if getattr(sr, "fell_back", False) else None
         self.monitor.on_super_resolved(_to8(sr.image), _to8(sr.bicubic), stamp, sr.factor, why)
 
+    def diagnostics(self, statuses: dict[str, tuple[int, str, dict]]) -> None:
+        """Hand the stages' statuses (``results.mcap``'s /diagnostics) to the health table."""
+        self.monitor.on_diagnostics(
+            {"name": name, "level": level, "message": message, "values": values}
+            for name, (level, message, values) in statuses.items()
+        )
+
     def telemetry(self, s: TelemetrySample) -> None:
         self.monitor.on_fix(s.lat_deg, s.lon_deg, s.alt_msl_m, int(round(s.t * 1e9)))
 

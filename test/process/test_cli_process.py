@@ -723,6 +723,15 @@ def test_serve_shows_the_processing_live_to_a_foxglove_client(sample_bags, tmp_p
         client = FoxgloveClient(f"ws://127.0.0.1:{m.group(1)}")
         assert client.wait(lambda: client.messages("/shift"), 120), "no shift served"
         assert client.wait(lambda: client.messages("/camera") and client.messages("/fix"), 30)
+
+        def health_rows():
+            msgs = client.messages("/health")
+            nodes = client.decode("/health", msgs[-1].payload)["nodes"] if msgs else []
+            return {n["name"]: n for n in nodes}
+
+        # the stages' statuses (as results.mcap's /diagnostics) fill the operator's health table
+        assert client.wait(lambda: "registration_node" in health_rows(), 30), health_rows()
+        assert {"shift_node", "reconstruction_node"} <= set(health_rows())
         served = []
         for r in client.messages("/shift"):
             d = client.decode("/shift", r.payload)

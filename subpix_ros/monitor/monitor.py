@@ -392,6 +392,10 @@ class Monitor(_Sender):
                 was_stale = self._stale_said.pop(name, None)
             if was_stale is not None:
                 self.on_log(0, f"reporting again after {now - was_stale:.0f} s", name=name)
+            old_pid = (prev or {}).get("values", {}).get("pid")
+            new_pid = st.get("values", {}).get("pid")
+            if old_pid and new_pid and old_pid != new_pid:  # a new process under the same name
+                self.on_log(1, f"restarted (process {old_pid} -> {new_pid})", name=name)
             if level > 0 and (prev is None or prev["level"] < level or prev["message"] != msg):
                 self.on_log(level, msg, name=name)
 

@@ -12,6 +12,7 @@ input subscriptions because the pipeline feeds it directly.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 import traceback
 from collections import defaultdict
@@ -94,6 +95,8 @@ class StageNode(Node):
         self.diag.set(opencv_threads=cv2.getNumThreads())
         # and the Fast DDS profile (its shared-memory segment: 64 MiB or 1 MiB of RSS)
         self.diag.set(fastdds_profile=profile_in_use())
+        # the process, so that a restart shows (the monitor says so when the pid changes)
+        self.diag.set(pid=os.getpid(), started_unix_s=round(time.time(), 1))
         # the process's CPU (cores) and resident memory, for an onboard budget
         self.diag.add_values(ProcessLoad().values)
         try:  # the process's executor (nodes/run.py), shown beside it

@@ -356,8 +356,9 @@ class MonitorNode(StageNode):
         self.monitor.on_super_resolved(sr, bic, stamp, factor, fallback)
 
     def _camera_due(self) -> bool:
-        # the camera may come at 30 Hz: take only what the monitor can send (a few per period)
-        now = self.get_clock().now().nanoseconds
+        # the camera may come at 30 Hz: take only what the monitor can send (a few per period);
+        # wall (steady) time: with use_sim_time a looped replay's clock jumps back
+        now = time.monotonic_ns()
         if now - self._last_camera_ns < 0.25e9 * self.monitor.cfg.camera_period_s:
             return False
         self._last_camera_ns = now
@@ -455,12 +456,17 @@ class MonitorNode(StageNode):
 
     def _on_expected(self, msg: Vector3Stamped) -> None:
         self._keep("expected", (msg.vector.x, msg.vector.y))
+        self._keep("stamp", stamp_to_ns(msg.header.stamp))
         self.monitor.on_telemetry(
             stamp_to_ns(msg.header.stamp), expected_u=msg.vector.x, expected_v=msg.vector.y
         )
 
     def _on_interval(self, msg: Float64) -> None:
-        self.monitor.on_telemetry(self.get_clock().now().nanoseconds, frame_interval_s=msg.data)
+        # Float64 has no stamp: the latest telemetry header's (the same time base as the rest of
+        # /telemetry: a replay's, not the wall clock), else the node's clock
+        stamp = self._fresh("stamp")
+        stamp = self.get_clock().now().nanoseconds if stamp is None else stamp
+        self.monitor.on_telemetry(stamp, frame_interval_s=msg.data)
 
     def _on_height(self, msg: Float64) -> None:
         self._keep("height", float(msg.data))
@@ -470,6 +476,7 @@ class MonitorNode(StageNode):
         speed = math.hypot(e, n)
         if speed > 0.2:
             self._keep("course", math.atan2(e, n))
+        self._keep("stamp", stamp_to_ns(msg.header.stamp))
         self.monitor.on_telemetry(
             stamp_to_ns(msg.header.stamp), speed_mps=speed, height_m=self._fresh("height")
         )
@@ -520,15 +527,15 @@ class MonitorNode(StageNode):
         elif stale or lost:
             said = []
             if stale:
-                said.append(
+                said.append(  # no ages in the text: a new text each second is a new Log entry
                     "no /diagnostics status from "
-                    + ", ".join(f"{n} for {a:.0f} s" for n, a in sorted(stale.items()))
-                    + ": stopped, or no longer reachable"
+                    + ", ".join(sorted(stale))
+                    + f" for over {self.param('stale_after_s'):g} s: stopped, or no longer reachable"
                 )
             if lost:
                 said.append(
-                    f"no telemetry for {quiet:.0f} s (link lost?): shifts served without "
-                    "expected values, no frame footprints"
+                    f"no telemetry for over {self.param('telemetry_timeout_s'):g} s (link lost?): "
+                    "shifts served without expected values, no frame footprints"
                 )
             if lost and not self._telemetry_lost:
                 self.get_logger().warning(said[-1])

@@ -292,7 +292,7 @@ def test_a_node_that_stops_reporting_is_shown_stale_and_its_return_said():
     client = _connect(mon.url)
     try:
         alive = {"name": "shift_node", "level": 0, "message": "ok", "values": {}}
-        gone = {"name": "registration_node", "level": 0, "message": "ok", "values": {}}
+        gone = {"name": "registration_node", "level": 0, "message": "ok", "values": {"pid": "100"}}
         mon.on_diagnostics([alive, gone])
 
         def rows():
@@ -321,8 +321,9 @@ def test_a_node_that_stops_reporting_is_shown_stale_and_its_return_said():
 
         assert client.wait(lambda: any("no status for" in t for t in logs()), 3), logs()
         assert sum("no status for" in t for t in logs()) == 1  # said once, not every period
-        mon.on_diagnostics([gone])  # restarted
+        mon.on_diagnostics([dict(gone, values={"pid": "200"})])  # restarted: a new process
         assert client.wait(lambda: any("reporting again" in t for t in logs()), 3), logs()
+        assert client.wait(lambda: "restarted (process 100 -> 200)" in logs(), 3), logs()
         assert client.wait(lambda: rows()["registration_node"]["level"] == "OK", 3)
         assert mon.stale_nodes() == {}
     finally:

@@ -329,6 +329,11 @@ def test_a_stopped_node_and_a_silent_camera_are_said_by_the_monitor():
         ), [s.message for s in own[-3:]]
         assert own[-1].level == b"\x01"
         assert {kv.key: kv.value for kv in own[-1].values}["stale_nodes"] == "shift_node"
+        _spin(ex, lambda: frame() or False, 2.5)  # the silence goes on: the text stays the same
+        said = {s.message for s in own if "no /diagnostics status" in s.message}
+        assert said == {
+            "no /diagnostics status from shift_node for over 1 s: stopped, or no longer reachable"
+        }, said  # (with the age in it, each second was a new Log entry for the operator)
         assert _health_table(client)["shift_node"]["level"] == "STALE"
 
 

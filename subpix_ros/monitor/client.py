@@ -152,10 +152,16 @@ def _message_class(name: str, schema_b64: str):
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if not argv:
-        print(
-            "usage: python -m subpix_ros.monitor.client ws://HOST:PORT [seconds]", file=sys.stderr
-        )
+    usage = (
+        "usage: python -m subpix_ros.monitor.client ws://HOST:PORT [seconds]\n"
+        "Connects to a subpix_ros monitor (a Foxglove WebSocket server), subscribes to every "
+        "channel for [seconds] (default 10) and prints each channel's messages and bytes/s."
+    )
+    if argv and argv[0] in ("-h", "--help"):
+        print(usage)
+        return 0
+    if not argv or not argv[0].startswith(("ws://", "wss://")):
+        print(usage, file=sys.stderr)
         return 2
     seconds = float(argv[1]) if len(argv) > 1 else 10.0
     c = FoxgloveClient(argv[0])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from typing import Callable, Sequence
 
@@ -14,6 +15,7 @@ from rclpy.executors import (
     SingleThreadedExecutor,
 )
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from ..runtime import (
     RuntimeSetupError,
@@ -59,6 +61,10 @@ def _make_executor(kind: str, threads: int | None) -> Executor:
     if kind == "multi":
         return MultiThreadedExecutor(num_threads=threads)
     return SingleThreadedExecutor()
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
 
 
 def run_nodes(
@@ -110,7 +116,13 @@ def run_nodes(
     except (RuntimeSetupError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    rclpy.init(args=args)
+    # SIGINT and SIGTERM stop the executor with KeyboardInterrupt while the context is still up,
+    # so that each node's close() can publish (the reconstruction's open set, as documented);
+    # rclpy's own handlers shut the context down first ("publisher's context is invalid"). A
+    # second signal cuts close() short.
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
     nodes: list[Node] = []
     executor = _make_executor(kind, threads)
     try:

@@ -4,6 +4,7 @@ A node killed and restarted mid-stream, a looped bag (time jumps back), and use_
 `subpix replay --clock`.
 """
 
+import signal
 import subprocess
 import sys
 import time
@@ -168,3 +169,56 @@ def test_use_sim_time_follows_replay_clock(rclpy_node, sample_bags):
         assert spin(node, lambda: any(1_716_999_000 < s < 1_717_001_000 for s in stamps), 60)
     finally:
         _stop([p for p in (shift, replay) if p is not None])
+
+
+def test_sigterm_publishes_the_open_set_before_the_node_stops(rclpy_node, sample_bags):
+    """A node stopped with SIGTERM (or Ctrl-C) still publishes its open set, as documented.
+
+    The sample flight (24 frames) in sets of 16: the second set is open when the camera stops,
+    and its idle flush is 60 s away. rclpy's own signal handler shut the context down first:
+    the set was "not published: shutting down" (and other nodes logged "publisher's context
+    is invalid").
+    """
+    from conftest import node_process
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    got = []
+    q = QoSProfile(
+        depth=10,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+    rclpy_node.create_subscription(Image, "/super_resolved", got.append, q, raw=True)
+    pipe = node_process(
+        "pipeline",
+        str(ROOT / "config" / "bench.yaml"),
+        "--params-file",
+        str(ROOT / "config" / "onboard.yaml"),
+        "-r",
+        "image:=/camera/image_raw",
+        "-p",
+        "pixel_pitch_um:=3.08",
+        "-p",
+        "flush_after_s:=60.0",
+        "-p",
+        "latch_output:=true",
+    )
+    try:
+        r = subprocess.run(
+            subpix_cmd("replay", str(sample_bags / "subpixel"), "--wait-timeout", "60"),
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert r.returncode == 0, r.stderr
+        assert spin(rclpy_node, lambda: len(got) >= 1, 60), pipe.stdout.read()
+        assert len(got) == 1  # the first set; the second is open
+        pipe.send_signal(signal.SIGTERM)
+        assert spin(rclpy_node, lambda: len(got) >= 2, 60), pipe.stdout.read()
+        pipe.wait(60)
+        log = pipe.stdout.read()
+        assert pipe.returncode == 0, log
+        assert "incomplete set of reference" in log and "not published" not in log, log
+        assert "context is invalid" not in log, log
+    finally:
+        _stop([pipe])

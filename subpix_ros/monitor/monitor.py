@@ -314,6 +314,7 @@ class Monitor(_Sender):
         eu, ev = _num(expected_u), _num(expected_v)
         msg = {
             "timestamp": _ts_json(stamp_ns),
+            "header": _header(stamp_ns),
             "u": float(u),
             "v": float(v),
             "u_std": _num(u_std),
@@ -333,7 +334,7 @@ class Monitor(_Sender):
         """
         with self._lock:
             self._telemetry.update({k: _num(v) for k, v in values.items()})
-            msg = {"timestamp": _ts_json(stamp_ns), **self._telemetry}
+            msg = {"timestamp": _ts_json(stamp_ns), "header": _header(stamp_ns), **self._telemetry}
         self._essential("/telemetry", msg)
 
     def on_fix(self, lat: float, lon: float, alt: float, stamp_ns: int) -> None:
@@ -450,3 +451,8 @@ class Monitor(_Sender):
             name=name,
         )
         self._essential("/log", msg.encode())
+
+
+def _header(stamp_ns: int) -> dict:
+    """Return a JSON ``header`` with ``stamp`` (Foxglove plots order by ``header.stamp``)."""
+    return {"stamp": _ts_json(stamp_ns), "frame_id": ""}

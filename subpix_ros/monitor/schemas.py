@@ -12,6 +12,17 @@ SHIFT_SCHEMA = {
             "type": "object",
             "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
         },
+        "header": {
+            "type": "object",
+            "description": "the same time as header.stamp, for Foxglove's header-stamp plots",
+            "properties": {
+                "stamp": {
+                    "type": "object",
+                    "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+                },
+                "frame_id": {"type": "string"},
+            },
+        },
         "u": {
             "type": "number",
             "description": "shift along rows, px (content moved from reference to frame)",
@@ -36,6 +47,17 @@ TELEMETRY_SCHEMA = {
         "timestamp": {
             "type": "object",
             "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+        },
+        "header": {
+            "type": "object",
+            "description": "the same time as header.stamp, for Foxglove's header-stamp plots",
+            "properties": {
+                "stamp": {
+                    "type": "object",
+                    "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+                },
+                "frame_id": {"type": "string"},
+            },
         },
         "frame_interval_s": {"type": ["number", "null"], "description": "METHODS eq. 1"},
         "expected_u": {"type": ["number", "null"]},

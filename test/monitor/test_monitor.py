@@ -284,6 +284,10 @@ def test_layout_panels_use_advertised_topics():
         ):
             topic, field = path.split(".", 1)
             assert field in schema[topic]["properties"], path
+        for series in cfg.get("paths", []):  # ordered by header.stamp: the messages carry one
+            if series.get("timestampMethod") == "headerStamp":
+                props = schema[series["value"].split(".")[0]]["properties"]
+                assert "stamp" in props["header"]["properties"], series
 
 
 def test_a_node_that_stops_reporting_is_shown_stale_and_its_return_said():

@@ -141,6 +141,7 @@ def test_bad_input_is_reported_and_the_node_keeps_serving(served):
     assert all(x.level >= 4 for x in logs)  # foxglove.Log ERROR = 4
     s = client.decode("/shift", client.messages("/shift")[0].payload)
     assert (s["u"], s["v"], s["timestamp"]["nsec"]) == (0.25, -0.5, 5)
+    assert s["header"]["stamp"] == s["timestamp"]  # what the layout's plot orders by
     assert not client.messages("/fix")  # a NaN fix is not served, and that is said
     assert _spin(
         ex,

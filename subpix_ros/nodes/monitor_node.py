@@ -192,6 +192,7 @@ class MonitorNode(StageNode):
         self._timer = self.create_timer(1.0, self._publish_own_health)
         self._shift_join = ShiftStdJoin(self._serve_shift, wait_s=self.param("shift_std_wait_s"))
         self._join_timer = self.create_timer(0.1, self._expire_shifts)
+        self.diag.set(shifts_without_std=0)  # shown from the start, not only once one is late
         self._subscribe(subscribe_inputs)
         # what the operator looks at: the camera (or the frames handed over in memory) and the
         # mosaic; silence on both is said, whatever else (telemetry, /diagnostics) still arrives

@@ -333,3 +333,10 @@ def test_a_node_that_stops_reporting_is_shown_stale_and_its_return_said():
     finally:
         client.close()
         mon.close()
+
+
+def test_the_client_command_answers_help_and_refuses_a_non_websocket_url(capsys):
+    from subpix_ros.monitor.client import main
+
+    assert main(["--help"]) == 0 and "ws://HOST:PORT" in capsys.readouterr().out
+    assert main(["http://127.0.0.1:8765"]) == 2 and "usage" in capsys.readouterr().err

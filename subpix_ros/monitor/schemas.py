@@ -4,6 +4,19 @@ from __future__ import annotations
 
 __all__ = ["TOPICS", "SHIFT_SCHEMA", "TELEMETRY_SCHEMA", "HEALTH_SCHEMA"]
 
+# the message's time again as a ROS-style header: Foxglove's plots order series by header.stamp
+_HEADER = {
+    "type": "object",
+    "description": "the same time as timestamp, for Foxglove's header-stamp plots",
+    "properties": {
+        "stamp": {
+            "type": "object",
+            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+        },
+        "frame_id": {"type": "string"},
+    },
+}
+
 SHIFT_SCHEMA = {
     "title": "subpix.Shift",
     "type": "object",
@@ -12,17 +25,7 @@ SHIFT_SCHEMA = {
             "type": "object",
             "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
         },
-        "header": {
-            "type": "object",
-            "description": "the same time as header.stamp, for Foxglove's header-stamp plots",
-            "properties": {
-                "stamp": {
-                    "type": "object",
-                    "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
-                },
-                "frame_id": {"type": "string"},
-            },
-        },
+        "header": _HEADER,
         "u": {
             "type": "number",
             "description": "shift along rows, px (content moved from reference to frame)",
@@ -48,17 +51,7 @@ TELEMETRY_SCHEMA = {
             "type": "object",
             "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
         },
-        "header": {
-            "type": "object",
-            "description": "the same time as header.stamp, for Foxglove's header-stamp plots",
-            "properties": {
-                "stamp": {
-                    "type": "object",
-                    "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
-                },
-                "frame_id": {"type": "string"},
-            },
-        },
+        "header": _HEADER,
         "frame_interval_s": {"type": ["number", "null"], "description": "METHODS eq. 1"},
         "expected_u": {"type": ["number", "null"]},
         "expected_v": {"type": ["number", "null"]},

@@ -85,6 +85,7 @@ class ReconstructionNode(StageNode):
         self.idle_timer = self.create_timer(IDLE_CHECK_S, self._on_idle_check)
         self.inputs = None
         self._shift_missing = False
+        self._shift_checked = 0.0  # time.monotonic() of the last check for a shift publisher
         if subscribe_inputs:
             self.inputs = AlignedInput(self, self._frame_ready, depth=20)
             self.create_subscription(
@@ -120,7 +121,9 @@ class ReconstructionNode(StageNode):
         with self._lock:
             self._queue(self.stage.idle_sets())
         self.diag.set(frames_without_shift=self.stage.stats.frames_without_shift)
-        if self.inputs is not None:
+        now = time.monotonic()
+        if self.inputs is not None and now - self._shift_checked >= 1.0:  # a graph query: 1 Hz
+            self._shift_checked = now
             self._check_shift_input()
 
     def _check_shift_input(self) -> None:

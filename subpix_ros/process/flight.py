@@ -566,7 +566,8 @@ class _FlightRun:
         if coverage:  # telemetry read, but not at the frames' times: said, not left silent
             self.problems.append(coverage)
         check = summary["telemetry"]["check"]
-        if check is not None and check["agrees"] is False:  # products made, but said loudly
+        disagrees = check is not None and check["agrees"] is False
+        if disagrees:  # products made, but the telemetry (or the camera's parameters) is wrong
             self.problems.append(check["note"])
         # frames that did not move under a moving vehicle: the input, not a parameter, is bad
         still = check is not None and bool(check.get("still"))
@@ -593,6 +594,8 @@ class _FlightRun:
             or still
             or jumps
             or unusable
+            or coverage
+            or disagrees
         ):
             self.status = "partial"  # part of the input (or all of it) could not be used
         summary["status"] = self.status

@@ -114,11 +114,12 @@ def sample_messages(
     stamp = int(round(s.t * 1e9))
     out = [
         ("telemetry/fix", FIX, fix_cdr(s, stamp)),
-        ("telemetry/velocity", TWIST, velocity_cdr(s, stamp)),
         ("telemetry/height", FLOAT64, float64_cdr(s.height_agl_m)),
     ]
     if None not in (s.roll_rad, s.pitch_rad, s.yaw_rad):
         out.append(("telemetry/imu", IMU, imu_cdr(s, stamp)))
+    # the velocity last: a reader builds a sample on it with the height and heading before it
+    out.append(("telemetry/velocity", TWIST, velocity_cdr(s, stamp)))
     if frame_interval_s is not None:
         out.append(("telemetry/frame_interval", FLOAT64, float64_cdr(frame_interval_s)))
     return out
@@ -131,22 +132,33 @@ class TelemetryFromTopics:
 
     ``telemetry/height`` (Float64), ``telemetry/imu`` (Imu orientation, ENU) and
     ``telemetry/fix`` (NavSatFix) are remembered; each ``telemetry/velocity``
-    (TwistStamped, ENU) gives a sample once a height has come, else None.
+    (TwistStamped, ENU) gives a sample with them. A velocity that comes before any height (the
+    order of separate topics is not guaranteed; bags recorded before the telemetry node sent
+    the height first have it the other way round) is held and given as a sample by the first
+    height, so the flight's first sample is not lost.
     """
 
     def __init__(self) -> None:
         self.height_m: float | None = None
         self.heading_rad: float | None = None
         self.fix: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._waiting = None  # the newest velocity message before any height
 
-    def height(self, msg) -> None:
+    def height(self, msg) -> TelemetrySample | None:
         """Remember the height above ground of a ``telemetry/height`` message.
 
         A NaN or infinite height is kept too: the samples built with it are refused where they
         are used (:func:`~subpix_ros.core.telemetry.validate_sample`) and counted there, not
         lost without a word as if no height had come.
+
+        Returns
+        -------
+        TelemetrySample or None
+            The sample of a velocity that came before the first height, else None.
         """
         self.height_m = float(msg.data)
+        waiting, self._waiting = self._waiting, None
+        return None if waiting is None else self.velocity(waiting)
 
     def imu(self, msg) -> None:
         """Remember the heading of a ``telemetry/imu`` orientation."""
@@ -158,8 +170,9 @@ class TelemetryFromTopics:
         self.fix = (float(msg.latitude), float(msg.longitude), float(msg.altitude))
 
     def velocity(self, msg) -> TelemetrySample | None:
-        """Build a sample from a ``telemetry/velocity`` message, or None before any height."""
+        """Build a sample from a ``telemetry/velocity`` message (None before any height: held)."""
         if self.height_m is None:
+            self._waiting = msg
             return None
         v = msg.twist.linear
         lat, lon, alt = self.fix

@@ -100,7 +100,7 @@ class RegistrationNode(StageNode):
             )
             tq = reliable_qos(50)
             self.create_subscription(TwistStamped, "telemetry/velocity", self._on_velocity, tq)
-            self.create_subscription(Float64, "telemetry/height", self.topics_telemetry.height, tq)
+            self.create_subscription(Float64, "telemetry/height", self._on_height, tq)
             self.create_subscription(Imu, "telemetry/imu", self.topics_telemetry.imu, tq)
 
     # the stage's state and counters, by their former names
@@ -146,6 +146,11 @@ class RegistrationNode(StageNode):
 
     def _on_velocity(self, msg: TwistStamped) -> None:
         sample = self.topics_telemetry.velocity(msg)
+        if sample is not None:
+            self.handle_telemetry(sample)
+
+    def _on_height(self, msg: Float64) -> None:
+        sample = self.topics_telemetry.height(msg)  # a velocity held for the first height
         if sample is not None:
             self.handle_telemetry(sample)
 

@@ -359,8 +359,8 @@ def test_sample_without_attitude_has_no_imu_message_but_the_rest():
     topics = [t for t, _, _ in tm.sample_messages(bare[0], 0.5)]
     assert topics == [
         "telemetry/fix",
-        "telemetry/velocity",
         "telemetry/height",
+        "telemetry/velocity",
         "telemetry/frame_interval",
     ]
     assert "telemetry/imu" in [t for t, _, _ in tm.sample_messages(samples[0], 0.5)]

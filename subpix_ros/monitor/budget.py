@@ -107,12 +107,15 @@ class ByteMeter:
         self._sum = 0
         self.total = 0
         self.messages = 0
+        self.first: float | None = None  # when the first bytes were counted
         self._lock = threading.Lock()
 
     def add(self, n: int, now: float | None = None) -> None:
         """Count ``n`` bytes sent at ``now``."""
         now = time.monotonic() if now is None else now
         with self._lock:
+            if self.first is None:
+                self.first = now
             self._events.append((now, n))
             self._sum += n
             self.total += n
@@ -122,6 +125,11 @@ class ByteMeter:
     def _trim(self, now: float) -> None:
         while self._events and now - self._events[0][0] > self.window_s:
             self._sum -= self._events.popleft()[1]
+
+    def full(self, now: float | None = None) -> bool:
+        """Return True once the meter has counted for a whole window (its rate is not partial)."""
+        now = time.monotonic() if now is None else now
+        return self.first is not None and now - self.first >= self.window_s
 
     def rate(self, now: float | None = None) -> float:
         """Return the bytes per second over the window."""

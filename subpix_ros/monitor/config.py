@@ -34,8 +34,10 @@ class MonitorConfig:
     camera_period_s: float = 1.0
     geo_period_s: float = 2.0
     health_period_s: float = 1.0
+    values_period_s: float = 5.0
     stale_after_s: float = 5.0
     max_footprints: int = 30
+    track_tolerance_m: float = 2.0
     record_mcap: str = ""
     name: str = "subpix_ros monitor"
 

@@ -19,16 +19,24 @@ topic                     schema                               sent
 ``/shift``                JSON subpix.Shift                    every shift (never throttled)
 ``/telemetry``            JSON subpix.Telemetry                every sample (never throttled)
 ``/fix``                  foxglove.LocationFix                 every fix (never throttled)
-``/footprints``           foxglove.GeoJSON                     track + footprints, geo_period_s
-``/health``               JSON subpix.Health                   every health_period_s (always)
+``/footprints``           foxglove.GeoJSON                     track + footprints, geo_period_s (*)
+``/health``               JSON subpix.Health                   every health_period_s (*)
+``/health/values``        JSON subpix.HealthValues             every values_period_s (*)
 ``/log``                  foxglove.Log                         warnings and errors (never throttled)
 ========================  ===================================  ==========================
 
 Link budget (priority order). The monitor counts the bytes each channel puts
 on the wire (frame bytes x clients subscribed). Health, log, shifts, telemetry,
-fixes and the footprints (at most every ``geo_period_s``) always go and are
-charged to a token bucket of ``bandwidth_kbps`` (at most ``burst_s`` seconds
-saved up). Images wait for the bucket in strict priority: the mosaic, then the
+fixes and the map always go and are charged to a token bucket of
+``bandwidth_kbps`` (at most ``burst_s`` seconds saved up). (*) On a small link the
+periodic ones come less often instead: each takes at most its share of the budget
+(:data:`~subpix_ros.monitor.schemas.ESSENTIAL_SHARES`: /health 10 %, /health/values
+/footprints and /telemetry 5 %, its latest figures coalesced); the health
+table's rows (each node's level, message, age) are in every /health message, the
+nodes' other keys on /health/values, the track is thinned to ``track_tolerance_m``.
+When the essentials alone still take more than the budget (measured over 10 s), the
+monitor says so once in /log, :meth:`Monitor.budget_problem` returns the text and
+``link.over_budget`` carries it. Images wait for the bucket in strict priority: the mosaic, then the
 super-resolved / bicubic pair, then the camera frame; a lower one goes only when no higher one
 waits, or when it has waited four of its periods (at least 4 s). Each image
 stream is sized to its share of what the essentials leave (mosaic 0.45,
@@ -63,10 +71,17 @@ import numpy as np
 from foxglove.channels import CompressedImageChannel, GeoJsonChannel, LocationFixChannel, LogChannel
 from foxglove.messages import LocationFix, Log, LogLevel
 
-from .budget import TokenBucket
+from .budget import ByteMeter, TokenBucket
 from .config import MonitorConfig, MonitorError, check_exposure
 from .encoding import _num, _to_bgr, _ts, _ts_json
-from .schemas import HEALTH_SCHEMA, LEVEL_NAMES, SHIFT_SCHEMA, TELEMETRY_SCHEMA, TOPICS
+from .schemas import (
+    HEALTH_SCHEMA,
+    HEALTH_VALUES_SCHEMA,
+    LEVEL_NAMES,
+    SHIFT_SCHEMA,
+    TELEMETRY_SCHEMA,
+    TOPICS,
+)
 from .sender import _Out, _Sender, _Stream
 
 __all__ = ["Monitor"]
@@ -106,9 +121,14 @@ class Monitor(_Sender):
         self._track: list[tuple[float, float]] = []
         self._footprints: list[list[tuple[float, float]]] = []
         self._geo_dirty = False
-        self._geo_sent = -1e9
-        self._health_sent = -1e9
+        self._health_checked = -1e9
+        # topic -> monotonic time its next periodic message may go (sender.ESSENTIAL_SHARES)
+        self._due: dict[str, float] = {}
         self._telemetry: dict[str, float | None] = {}
+        self._telemetry_pending: dict | None = None
+        self._essential_meter = ByteMeter(window_s=10.0)
+        self._budget_problem: str | None = None  # said while the essentials exceed the budget
+        self._budget_problem_rate = 0.0  # the budget (bytes/s) it was said for
         self.errors: list[str] = []
         self.streams = {
             "mosaic": _Stream(("/mosaic",), 1, "mosaic_period_s", weight=0.45),
@@ -162,6 +182,7 @@ class Monitor(_Sender):
             "/fix": typed(LocationFixChannel),
             "/footprints": typed(GeoJsonChannel),
             "/health": js(HEALTH_SCHEMA),
+            "/health/values": js(HEALTH_VALUES_SCHEMA),
             "/log": typed(LogChannel),
         }
         self.outs = {t: _Out(t, makers[t], contexts) for t in TOPICS}
@@ -217,9 +238,11 @@ class Monitor(_Sender):
         self.close()
 
     def set_bandwidth_kbps(self, kbps: float) -> None:
-        """Change the link budget (kbit/s)."""
+        """Change the link budget (kbit/s); whether the essentials fit it is said again."""
         self.cfg.bandwidth_kbps = float(kbps)
         self.bucket.set_rate(kbps * 125.0)
+        with self._lock:
+            self._due.clear()  # the periodic essentials' waits follow the new budget
 
     # ---------------------------------------------------------- server listener (SDK threads)
     def on_subscribe(self, client, channel) -> None:
@@ -331,11 +354,21 @@ class Monitor(_Sender):
         """Send telemetry figures; the latest of each is repeated in every message.
 
         Keys: ``frame_interval_s``, ``expected_u``, ``expected_v``, ``height_m``, ``speed_mps``.
+        Sent at once, unless /telemetry would take more than its share of a small budget
+        (``ESSENTIAL_SHARES``): then the latest figures go when it is due (coalesced).
         """
         with self._lock:
             self._telemetry.update({k: _num(v) for k, v in values.items()})
-            msg = {"timestamp": _ts_json(stamp_ns), "header": _header(stamp_ns), **self._telemetry}
-        self._essential("/telemetry", msg)
+            self._telemetry_pending = {
+                "timestamp": _ts_json(stamp_ns),
+                "header": _header(stamp_ns),
+                **self._telemetry,
+            }
+        self._send_telemetry(time.monotonic())
+        with self._lock:
+            waiting = self._telemetry_pending is not None
+        if waiting:
+            self._wake.set()
 
     def on_fix(self, lat: float, lon: float, alt: float, stamp_ns: int) -> None:
         """Send a GNSS fix (degrees, m) as LocationFix and add it to the track."""

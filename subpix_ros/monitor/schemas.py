@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
-__all__ = ["TOPICS", "SHIFT_SCHEMA", "TELEMETRY_SCHEMA", "HEALTH_SCHEMA"]
+__all__ = [
+    "TOPICS",
+    "SHIFT_SCHEMA",
+    "TELEMETRY_SCHEMA",
+    "HEALTH_SCHEMA",
+    "HEALTH_VALUES_SCHEMA",
+    "ESSENTIAL_SHARES",
+]
 
 # the message's time again as a ROS-style header: Foxglove's plots order series by header.stamp
 _HEADER = {
@@ -89,15 +96,35 @@ HEALTH_SCHEMA = {
                     "queue_depth": {"type": "string"},
                     "last_error": {"type": "string"},
                 },
+                "required": ["name", "level", "message", "status_age_s"],
+                "description": "a column the node does not report (or reports empty) is left "
+                "out; every key of every node is on /health/values",
             },
         },
         "link": {
             "type": "object",
-            "description": "the monitor's own link budget and bytes/s per channel",
+            "description": "the monitor's own link budget, bytes/s per channel, the essentials' "
+            "kbit/s and, when they alone exceed the budget, the problem said",
+        },
+    },
+}
+HEALTH_VALUES_SCHEMA = {
+    "title": "subpix.HealthValues",
+    "type": "object",
+    "description": "every key/value of every node's latest status (the health table's detail), "
+    "complete in each message, sent every values_period_s at most",
+    "properties": {
+        "timestamp": {
+            "type": "object",
+            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
         },
         "values": {
             "type": "object",
-            "description": "every key/value of every node, '<node>/<key>'",
+            "description": "node name -> {key: value}",
+            "additionalProperties": {
+                "type": "object",
+                "additionalProperties": {"type": "string"},
+            },
         },
     },
 }
@@ -112,7 +139,25 @@ TOPICS: dict[str, str] = {
     "/fix": "foxglove.LocationFix",
     "/footprints": "foxglove.GeoJSON",
     "/health": "subpix.Health",
+    "/health/values": "subpix.HealthValues",
     "/log": "foxglove.Log",
 }
-ESSENTIAL_TOPICS = ("/shift", "/telemetry", "/fix", "/footprints", "/health", "/log")
+ESSENTIAL_TOPICS = (
+    "/shift",
+    "/telemetry",
+    "/fix",
+    "/footprints",
+    "/health",
+    "/health/values",
+    "/log",
+)
+# the most of the link budget a periodic essential takes: a message of n bytes (times the
+# clients subscribed) waits at least n / (share * budget) after the previous one, so on a small
+# link these come less often instead of starving the images
+ESSENTIAL_SHARES = {
+    "/health": 0.10,
+    "/health/values": 0.05,
+    "/footprints": 0.05,
+    "/telemetry": 0.05,
+}
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}

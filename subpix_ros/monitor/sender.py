@@ -18,7 +18,7 @@ from foxglove.messages import GeoJson
 from .budget import LEVELS, ByteMeter, wire_bytes
 from .encoding import _jpeg, _label, _shrink, _to_u8, _ts_json, sr_label
 from .geo import feature_collection
-from .schemas import ESSENTIAL_TOPICS, LEVEL_NAMES
+from .schemas import ESSENTIAL_SHARES, ESSENTIAL_TOPICS, LEVEL_NAMES
 
 
 class _Out:
@@ -72,16 +72,76 @@ class _Sender:
         out.last = payload
         if n:
             out.meter.add(n)
+            if topic in ESSENTIAL_TOPICS:
+                self._essential_meter.add(n)
             if charge:
                 self.bucket.charge(n)
         return n
 
-    def _essential(self, topic: str, msg: Any) -> None:
-        """Health, log, shifts, telemetry, fixes: never throttled (charged to the bucket)."""
+    def _essential(self, topic: str, msg: Any) -> int:
+        """Health, log, shifts, telemetry, fixes: never throttled (charged to the bucket).
+
+        Returns the bytes put on the wire (0 when it failed).
+        """
         try:
-            self._log(topic, msg)
+            return self._log(topic, msg)
         except Exception as exc:  # noqa: BLE001 - a monitor must not take its feeder down
             self._note_error(f"{topic}: {type(exc).__name__}: {exc}")
+            return 0
+
+    def _next_due(self, topic: str, period_s: float, n: int, now: float) -> float:
+        """When the next message of a periodic essential may go, after one of ``n`` wire bytes.
+
+        ``period_s`` apart, or further so that the channel takes at most its share of the
+        budget (:data:`~subpix_ros.monitor.schemas.ESSENTIAL_SHARES`). The health table still
+        goes every ``stale_after_s`` at least: the nodes' levels and stale state are what the
+        operator must see, whatever the link.
+        """
+        share = ESSENTIAL_SHARES[topic] * self.bucket.rate
+        wait = max(period_s, n / share if share > 0 else 0.0)
+        if topic == "/health":
+            wait = min(wait, max(period_s, float(self.cfg.stale_after_s)))
+        return now + wait
+
+    def _check_budget(self, now: float) -> None:
+        """Say once when the essentials alone take more than the budget (and when they fit again).
+
+        Measured over 10 s (:attr:`_essential_meter`); the figures said are the ones when the
+        problem began, so the text stays the same while it lasts.
+        """
+        if not self._essential_meter.full(now):
+            return  # the first seconds: a partial window, and the start-up messages
+        ess = self._essential_meter.rate(now)
+        budget = self.bucket.rate
+        with self._lock:
+            over, over_rate = self._budget_problem, self._budget_problem_rate
+        if ess > budget and (over is None or over_rate != budget):  # (a new budget: said anew)
+            per = sorted(
+                ((self.outs[t].meter.rate(now), t) for t in ESSENTIAL_TOPICS), reverse=True
+            )
+            top = ", ".join(f"{t} {r * 8 / 1000:.0f}" for r, t in per[:3] if r > 0)
+            text = (
+                f"link budget too small: the essentials alone (health, shifts, telemetry, fixes, "
+                f"map, log) take {ess * 8 / 1000:.0f} kbit/s ({top}) of the "
+                f"{self.cfg.bandwidth_kbps:g} kbit/s budget: no images go; raise bandwidth_kbps "
+                "or send fewer shifts"
+            )
+            with self._lock:
+                self._budget_problem, self._budget_problem_rate = text, budget
+            self.on_log(1, text)
+        elif over is not None and ess < 0.9 * budget:
+            with self._lock:
+                self._budget_problem = None
+            self.on_log(
+                0,
+                f"the essentials fit the link budget again ({ess * 8 / 1000:.0f} of "
+                f"{self.cfg.bandwidth_kbps:g} kbit/s)",
+            )
+
+    def budget_problem(self) -> str | None:
+        """Return what is said while the essentials alone exceed the budget, else None."""
+        with self._lock:
+            return self._budget_problem
 
     def _note_error(self, text: str) -> None:
         with self._lock:
@@ -105,10 +165,21 @@ class _Sender:
             out = self._by_ws_id.get(cid)
             if out is not None and out.last is not None and out.topic not in ("/shift", "/log"):
                 self._log(out.topic, out.last, recorded=False)
-        if now - self._health_sent >= self.cfg.health_period_s:
-            self._health_sent = now
+        if now - self._health_checked >= self.cfg.health_period_s:
+            self._health_checked = now
             self._say_stale(now)
-            self._essential("/health", self.health_message(now))
+            self._check_budget(now)
+        # the periodic essentials: each within its share of the budget (_next_due)
+        next_at = self._due
+        if now >= next_at.get("/health", -1.0):
+            n = self._essential("/health", self.health_message(now))
+            next_at["/health"] = self._next_due("/health", self.cfg.health_period_s, n, now)
+        if self._health and now >= next_at.get("/health/values", -1.0):
+            n = self._essential("/health/values", self.values_message())
+            next_at["/health/values"] = self._next_due(
+                "/health/values", self.cfg.values_period_s, n, now
+            )
+        self._send_telemetry(now)
         for stream in self.streams.values():  # encode the newest input of each stream that is due
             with self._lock:
                 item, seq = stream.item, stream.seq
@@ -129,12 +200,15 @@ class _Sender:
                 stream.pending = self._encode_to_fit(stream, item, now)
                 stream.pending_seq = seq
         # the track and footprints: small, rate-limited by geo_period_s, charged like the essentials
-        if self._geo_dirty and now - self._geo_sent >= self.cfg.geo_period_s:
+        if self._geo_dirty and now >= next_at.get("/footprints", -1.0):
             with self._lock:
-                text = feature_collection(self._track, self._footprints)
+                track, footprints = list(self._track), list(self._footprints)
                 self._geo_dirty = False
-            self._geo_sent = now
-            self._essential("/footprints", GeoJson(geojson=text).encode())
+            text = feature_collection(
+                track, footprints, tolerance_m=float(self.cfg.track_tolerance_m)
+            )
+            n = self._essential("/footprints", GeoJson(geojson=text).encode())
+            next_at["/footprints"] = self._next_due("/footprints", self.cfg.geo_period_s, n, now)
 
         def order(x: _Stream) -> tuple[int, int]:
             # strict priority, except that a stream kept waiting 4 periods (>= 4 s) goes first:
@@ -243,13 +317,28 @@ class _Sender:
 
     _jpeg = staticmethod(_jpeg)
 
+    def _send_telemetry(self, now: float) -> None:
+        """Send the latest telemetry if some is waiting and the channel is due (its share)."""
+        with self._lock:
+            msg = self._telemetry_pending
+            if msg is None or now < self._due.get("/telemetry", -1.0):
+                return
+            self._telemetry_pending = None
+            # set before sending: a feeder's on_telemetry meanwhile waits for its turn
+            self._due["/telemetry"] = now
+        n = self._essential("/telemetry", msg)
+        with self._lock:
+            self._due["/telemetry"] = self._next_due("/telemetry", 0.0, n, now)
+
     # ------------------------------------------------------------------ health
     def link_stats(self) -> dict:
         """Return the budget (kbit/s), bytes/s per channel, total, and each image stream's rung."""
-        per = {t: round(o.meter.rate(), 1) for t, o in self.outs.items()}
+        per = {t: round(o.meter.rate()) for t, o in self.outs.items()}
         return {
             "budget_kbps": self.cfg.bandwidth_kbps,
             "sent_kbps": round(sum(per.values()) * 8 / 1000, 1),
+            "essential_kbps": round(self._essential_meter.rate() * 8 / 1000, 1),
+            "over_budget": self.budget_problem() or "",
             "bytes_per_s": per,
             "levels": {
                 n: {
@@ -264,7 +353,11 @@ class _Sender:
         }
 
     def health_message(self, now: float | None = None) -> dict:
-        """Return the health table: a row per node, STALE when silent beyond ``stale_after_s``."""
+        """Return the health table: a row per node, STALE when silent beyond ``stale_after_s``.
+
+        Each row has what the operator reads at a glance (level, message, the status's age and
+        six columns); every key of every node goes on ``/health/values`` (:meth:`values_message`).
+        """
         now = time.monotonic() if now is None else now
         stale = self.stale_nodes(now)
         keys = {
@@ -276,7 +369,7 @@ class _Sender:
             "last_error": "last_error",
         }
         with self._lock:
-            nodes, values = [], {}
+            nodes = []
             for name, st in sorted(self._health.items()):
                 v = st["values"]
                 level = LEVEL_NAMES.get(st["level"], str(st["level"]))
@@ -290,13 +383,17 @@ class _Sender:
                         "level": level,
                         "message": message,
                         "status_age_s": round(now - st["received"], 1),
-                        **{k: str(v.get(src, "")) for k, src in keys.items()},
+                        # a column the node does not report is left out (blank in the table)
+                        **{k: str(v[src]) for k, src in keys.items() if v.get(src, "") != ""},
                     }
                 )
-                values.update({f"{name}/{k}": str(x) for k, x in v.items()})
-        return {
-            "timestamp": _ts_json(time.time_ns()),
-            "nodes": nodes,
-            "link": self.link_stats(),
-            "values": values,
-        }
+        return {"timestamp": _ts_json(time.time_ns()), "nodes": nodes, "link": self.link_stats()}
+
+    def values_message(self) -> dict:
+        """Return every key/value of every node's latest status (``/health/values``)."""
+        with self._lock:
+            values = {
+                name: {k: str(x) for k, x in st["values"].items()}
+                for name, st in sorted(self._health.items())
+            }
+        return {"timestamp": _ts_json(time.time_ns()), "values": values}

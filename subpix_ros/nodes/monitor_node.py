@@ -100,8 +100,30 @@ _MONITOR_PARAMS = (
         8192,
     ),
     Param("camera_period_s", 1.0, "the newest camera frame is sent this often (s)", 0.05, 600.0),
-    Param("geo_period_s", 2.0, "track and footprints (GeoJSON) at most this often (s)", 0.1, 600.0),
-    Param("health_period_s", 1.0, "health table period (s)", 0.1, 60.0),
+    Param(
+        "geo_period_s",
+        2.0,
+        "track and footprints (GeoJSON) at most this often (s); longer on a small link (at most "
+        "5 % of bandwidth_kbps)",
+        0.1,
+        600.0,
+    ),
+    Param(
+        "health_period_s",
+        1.0,
+        "health table period (s); longer on a small link (at most 10 % of bandwidth_kbps, "
+        "but every stale_after_s at least)",
+        0.1,
+        60.0,
+    ),
+    Param(
+        "values_period_s",
+        5.0,
+        "every key of every node's status (/health/values) at most this often (s); longer on "
+        "a small link (at most 5 % of bandwidth_kbps)",
+        0.5,
+        600.0,
+    ),
     Param(
         "stale_after_s",
         5.0,
@@ -110,6 +132,14 @@ _MONITOR_PARAMS = (
         3600.0,
     ),
     Param("max_footprints", 30, "frame footprints kept on the map", 0, 10000),
+    Param(
+        "track_tolerance_m",
+        2.0,
+        "the map's GNSS track is thinned to this tolerance (m, Douglas-Peucker; 0: evenly to "
+        "500 points)",
+        0.0,
+        1000.0,
+    ),
     Param(
         "record_mcap",
         "",
@@ -188,6 +218,7 @@ class MonitorNode(StageNode):
         self._last_camera_ns = 0
         self._stale_logged: set[str] = set()
         self._telemetry_lost = False
+        self._budget_said: str | None = None
         self._fixes_ignored = 0
         self._timer = self.create_timer(1.0, self._publish_own_health)
         self._shift_join = ShiftStdJoin(self._serve_shift, wait_s=self.param("shift_std_wait_s"))
@@ -511,6 +542,7 @@ class MonitorNode(StageNode):
         self.diag.set(
             sent_kbps=float(link["sent_kbps"]),
             budget_kbps=float(link["budget_kbps"]),
+            essential_kbps=float(link["essential_kbps"]),
             clients=link["clients"],
             **{f"{k}_quality": v["quality"] for k, v in link["levels"].items()},
             **{f"{k}_sent": v["sent"] for k, v in link["levels"].items()},
@@ -523,10 +555,16 @@ class MonitorNode(StageNode):
         for name in sorted(set(stale) - self._stale_logged):
             self.get_logger().warning(f"no /diagnostics status from {name} for {stale[name]:.0f} s")
         self._stale_logged = set(stale)
+        # the essentials alone over the budget: said once in this node's log (and in /log by
+        # the monitor), held in the status while it lasts
+        over = self.monitor.budget_problem()
+        if over and over != self._budget_said:
+            self.get_logger().warning(over)
+        self._budget_said = over
         if self.monitor.errors:
             self.diag.warn(self.monitor.errors[-1])
-        elif stale or lost:
-            said = []
+        elif stale or lost or over:
+            said = [over] if over else []
             if stale:
                 said.append(  # no ages in the text: a new text each second is a new Log entry
                     "no /diagnostics status from "

@@ -3,6 +3,7 @@
 import json
 import math
 
+import numpy as np
 import pytest
 
 from subpix_ros.monitor import (
@@ -14,7 +15,7 @@ from subpix_ros.monitor import (
     footprint_lonlat,
     wire_bytes,
 )
-from subpix_ros.monitor.geo import EARTH_RADIUS_M
+from subpix_ros.monitor.geo import EARTH_RADIUS_M, simplify_track
 
 
 def test_wire_bytes_counts_the_frame_headers():
@@ -78,10 +79,66 @@ def test_feature_collection_track_and_footprints():
     line = gj["features"][0]["geometry"]
     assert line["type"] == "LineString" and len(line["coordinates"]) == 100
     assert line["coordinates"][0] == [-76.7, 42.8] and line["coordinates"][-1] == [
-        round(-76.7 + 1999e-5, 7),
+        round(-76.7 + 1999e-5, 6),
         42.8,
     ]
-    assert [f["geometry"]["type"] for f in gj["features"][1:]] == ["Polygon", "Polygon"]
+    # the footprints: one MultiPolygon, a polygon (one closed ring) per frame
+    (fp,) = gj["features"][1:]
+    assert fp["geometry"]["type"] == "MultiPolygon"
+    assert fp["geometry"]["coordinates"] == [[[[round(x, 6), round(y, 6)] for x, y in ring]]] * 2
+    # a straight track thinned to a tolerance: its two ends
+    gj = json.loads(feature_collection(track, [], tolerance_m=2.0))
+    assert [f["properties"]["name"] for f in gj["features"]] == ["track"]
+    assert len(gj["features"][0]["geometry"]["coordinates"]) == 2
+
+
+def _survey(n, noise_m, seed=1):
+    """Return a lawnmower in metres (east, north): 300 m legs 50 m apart, a fix every 2 m."""
+    rng = np.random.default_rng(seed)
+    pts = []
+    for i in range(n):
+        k, r = divmod(2.0 * i, 350.0)
+        if r < 300:
+            e, nn = (r if k % 2 == 0 else 300 - r), 50 * k
+        else:
+            e, nn = (300 if k % 2 == 0 else 0), 50 * k + r - 300
+        pts.append((e + rng.normal(0, noise_m), nn + rng.normal(0, noise_m)))
+    return np.array(pts)
+
+
+def _lonlat(xy, lat0=42.8, lon0=-76.7):
+    return [
+        (
+            lon0 + math.degrees(e / (EARTH_RADIUS_M * math.cos(math.radians(lat0)))),
+            lat0 + math.degrees(n / EARTH_RADIUS_M),
+        )
+        for e, n in xy
+    ]
+
+
+def _distance_to_polyline(p, line):
+    a, b = line[:-1], line[1:]
+    d = b - a
+    t = np.clip(
+        np.einsum("ij,ij->i", p - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-12), 0, 1
+    )
+    return float(np.min(np.hypot(*(a + t[:, None] * d - p).T)))
+
+
+def test_simplify_track_keeps_the_turns_within_the_tolerance():
+    xy = _survey(2000, noise_m=0.5)  # 4 km: 11 legs and a half
+    track = _lonlat(xy)
+    kept = simplify_track(track, 2.0, 500)
+    assert kept[0] == track[0] and kept[-1] == track[-1]
+    assert len(kept) < 80, len(kept)  # the turns (and a few noise spikes), not 2000 fixes
+    index = {p: i for i, p in enumerate(track)}
+    line = xy[[index[p] for p in kept]]
+    worst = max(_distance_to_polyline(p, line) for p in xy)
+    assert worst <= 2.0 + 1e-6, worst  # every fix dropped lies within 2 m of the line kept
+    # too many points left: the tolerance grows until they fit, the ends kept
+    few = simplify_track(track, 0.01, 40)
+    assert len(few) <= 40 and few[0] == track[0] and few[-1] == track[-1]
+    assert simplify_track(track[:2], 2.0) == track[:2]
 
 
 @pytest.mark.parametrize("host", ["127.0.0.1", "localhost", "::1"])

@@ -18,6 +18,7 @@ from sensor_msgs.msg import CompressedImage, Image, NavSatFix
 from std_msgs.msg import Float64
 
 from subpix_ros.io import cdr
+from subpix_ros.monitor import TOPICS
 from subpix_ros.monitor.client import FoxgloveClient
 from subpix_ros.nodes.qos import camera_qos, latched_qos, output_qos, reliable_qos
 
@@ -100,7 +101,8 @@ def test_bad_input_is_reported_and_the_node_keeps_serving(served):
     assert _spin(
         ex,
         lambda: (
-            all(p.get_subscription_count() for p in pubs.values()) and len(client.channels) == 10
+            all(p.get_subscription_count() for p in pubs.values())
+            and len(client.channels) == len(TOPICS)
         ),
         10,
     )
@@ -161,7 +163,9 @@ def test_a_super_resolved_png_as_the_results_bag_holds_it_is_served(served):
     """``subpix process`` records ``/super_resolved/compressed`` (PNG): replayed, it is served."""
     node, h, ex, client = served
     pub = h.create_publisher(CompressedImage, "super_resolved/compressed", latched_qos())
-    assert _spin(ex, lambda: pub.get_subscription_count() and len(client.channels) == 10, 10)
+    assert _spin(
+        ex, lambda: pub.get_subscription_count() and len(client.channels) == len(TOPICS), 10
+    )
     sr = np.zeros((128, 160), np.uint16)
     sr[:, 80:] = 40000
     pub.publish(cdr.compressed_to_cdr(sr, T0 + 7, "sr", "png"))
@@ -176,7 +180,9 @@ def test_a_volatile_super_resolved_is_served(served):
     """
     node, h, ex, client = served
     pub = h.create_publisher(Image, "super_resolved", output_qos(False))
-    assert _spin(ex, lambda: pub.get_subscription_count() and len(client.channels) == 10, 10)
+    assert _spin(
+        ex, lambda: pub.get_subscription_count() and len(client.channels) == len(TOPICS), 10
+    )
     sr = np.zeros((128, 160), np.uint8)
     sr[:, 80:] = 200
     pub.publish(cdr.image_to_cdr(sr, "mono8", T0 + 8, "sr"))
@@ -395,3 +401,39 @@ def test_telemetry_that_stops_is_not_served_as_current_and_is_said():
             frame()
             _spin(ex, lambda: False, 0.3)
         assert len(client.messages("/footprints")) == n_fp
+
+
+def test_a_link_too_small_for_the_essentials_is_the_nodes_warning():
+    """8 kbit/s against 10 shifts a second: monitor_node's status is WARN with the figures."""
+    from rcl_interfaces.msg import Log
+
+    from benchmarks.bench_monitor_link import Flight
+
+    with _monitor_node(bandwidth_kbps=8.0) as (node, h, ex, client):
+        own = _own_status(h)
+        rosout = []
+        h.create_subscription(
+            Log, "/rosout", lambda m: rosout.append(m) if m.name == "monitor_node" else None, 50
+        )
+        frame = _camera(h)  # the camera arrives (else its silence is the warning)
+        assert _spin(ex, lambda: len(client.channels) == len(TOPICS), 10)
+        flight = Flight(node.monitor, track=200).start()
+        try:
+
+            def warned():
+                return (
+                    own and own[-1].level == b"\x01" and "link budget too small" in own[-1].message
+                )
+
+            assert _spin(ex, lambda: frame() or warned(), 30), [s.message for s in own[-3:]]
+            said = own[-1].message
+            assert "kbit/s (/shift" in said and "of the 8 kbit/s budget: no images go" in said
+            values = {kv.key: kv.value for kv in own[-1].values}
+            assert float(values["essential_kbps"]) > 8.0, values
+            _spin(ex, lambda: frame() or False, 3.0)  # it goes on: the same text, logged once
+            assert own[-1].message == said
+            assert sum("link budget too small" in m.msg for m in rosout) == 1, [
+                m.msg for m in rosout
+            ]
+        finally:
+            flight.stop()

@@ -297,3 +297,31 @@ def test_a_given_blur_is_checked_against_the_frames_edges(frames, crops, tmp_pat
     assert "blur_sigma=0.400 px (parameter: given; not checked: no usable edge" in (
         capsys.readouterr().out
     )
+
+
+def test_superres_16_bit_frames_give_a_16_bit_png(frames, tmp_path):
+    """A 16-bit flight written as .png stays 16-bit (clipped to 8 bits it was all white)."""
+    _, paths, shifts, seq = frames
+    deep = []
+    for i, p in enumerate(paths):
+        q = tmp_path / f"d{i}.png"
+        cv2.imwrite(str(q), cv2.imread(p, cv2.IMREAD_UNCHANGED).astype(np.uint16) * 257)
+        deep.append(str(q))
+    out = tmp_path / "deep.png"
+    assert run(superres_cli, ["superres", *deep, "--shifts", shifts, "-o", str(out)]) == 0
+    img = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
+    assert img.dtype == np.uint16 and img.shape == seq.truth.shape
+    assert gain(seq, img.astype(float) / 257.0) > 3.0
+
+
+def test_superres_frames_of_other_channels_or_depth_are_refused(frames, tmp_path):
+    """Grey beside colour and 8- beside 16-bit: said as such (not "differ in size" at one size)."""
+    _, paths, _, _ = frames
+    g = cv2.imread(paths[1], cv2.IMREAD_UNCHANGED)
+    colour, deep = tmp_path / "colour.png", tmp_path / "deep.png"
+    cv2.imwrite(str(colour), np.dstack([g, g, g]))
+    cv2.imwrite(str(deep), g.astype(np.uint16) * 257)
+    for other, said in ((colour, "colour 8-bit"), (deep, "grey 16-bit")):
+        with pytest.raises(CliError, match="differ in channels or bit depth") as exc:
+            run(superres_cli, ["superres", paths[0], str(other), "-o", str(tmp_path / "o.png")])
+        assert said in str(exc.value) and "grey 8-bit" in str(exc.value)

@@ -95,7 +95,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "-o",
         "--output",
         required=True,
-        help="output file: .png (8-bit, clipped), .tif/.tiff (32-bit float) or .npy (float64)",
+        help="output file: .png (8- or 16-bit as the frames, clipped), .tif/.tiff (32-bit float) "
+        "or .npy (float64)",
     )
     parser.set_defaults(func=run)
 
@@ -137,13 +138,15 @@ def _auto_shifts(lumas: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, list[
     return np.array(shifts), np.array(covs), keep
 
 
-def _write(path: str, image: np.ndarray) -> None:
+def _write(path: str, image: np.ndarray, dtype: np.dtype) -> None:
+    """Write ``image``: .npy as it is, .tif as float32, .png rounded into the frames' ``dtype``."""
     ext = Path(path).suffix.lower()
     if ext == ".npy":
         np.save(path, image)
         return
-    if ext == ".png":
-        out = np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    if ext == ".png":  # 8- or 16-bit as the frames were (a 16-bit image clipped to 8 is white)
+        kind = np.uint16 if np.dtype(dtype) == np.uint16 else np.uint8
+        out = np.clip(np.rint(image), 0, np.iinfo(kind).max).astype(kind)
     elif ext in (".tif", ".tiff"):
         out = image.astype(np.float32)
     else:
@@ -164,10 +167,18 @@ def run(args: argparse.Namespace) -> int:
     if ext not in (".png", ".npy", ".tif", ".tiff"):
         raise CliError(f"unsupported output type {ext or '(none)'}: use .png, .tif/.tiff or .npy")
     imgs = [read_image(f) for f in args.frames]
-    if len({i.shape for i in imgs}) != 1:
+    if len({i.shape[:2] for i in imgs}) != 1:
         raise CliError(
             "frames differ in size: "
             + ", ".join(f"{f}: {i.shape[1]}x{i.shape[0]}" for f, i in zip(args.frames, imgs))
+        )
+    if len({(i.ndim, i.dtype) for i in imgs}) != 1:
+        raise CliError(
+            "frames differ in channels or bit depth (all must be alike: convert them): "
+            + ", ".join(
+                f"{f}: {'colour' if i.ndim == 3 else 'grey'} {i.dtype.itemsize * 8}-bit"
+                for f, i in zip(args.frames, imgs)
+            )
         )
     cov = None
     lumas = [luma(i) for i in imgs]
@@ -215,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
         res = reconstruct_colour(imgs, shifts, args.factor, **kw)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    _write(args.output, res.image)
+    _write(args.output, res.image, imgs[0].dtype)
     note = (
         f" (fell back: {res.reason})"
         if res.fell_back

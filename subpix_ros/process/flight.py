@@ -575,6 +575,9 @@ class _FlightRun:
             self.problems.append(
                 "no super-resolved image: no set reached min_frames" + _why_no_set(collector)
             )
+        small = _sets_too_small(summary["stages"].get("reconstruction_node") or {}, collector)
+        if small:  # aligned and shifted, then let go: said, not left to a warning's count
+            self.problems.append(small)
         failed = _failed_shifts(self.rows)
         if failed:  # many aligned frames without a shift: the sets lack members, said why
             self.problems.append(failed)
@@ -670,6 +673,32 @@ def _failed_shifts(rows: list[dict]) -> str | None:
     if len(bad) <= max(2, 0.2 * len(rows)):
         return None
     return f"{len(bad)} of {len(rows)} aligned frames have no sub-pixel shift: {_kinds(bad, 3)}"
+
+
+def _sets_too_small(rec: dict, collector: _Collector) -> str:
+    """Say how many sets were too small to reconstruct and how many aligned frames went unused.
+
+    ``rec`` is the reconstruction stage's statistics (``sets_dropped``, ``dropped``); the
+    stage's warning (``set of reference ... dropped: 2 frames < min_frames 4``) gives the rule.
+    '' when no set was dropped.
+    """
+    n, frames = int(rec.get("sets_dropped") or 0), int(rec.get("dropped") or 0)
+    if not n:
+        return ""
+    rule = next(
+        (
+            w.rsplit("dropped: ", 1)[-1]
+            for w in collector.warning_examples.values()
+            if "< min_frames" in w
+        ),
+        "",
+    )
+    return (
+        f"{n} set{'s' if n > 1 else ''} too small to reconstruct ({rule or 'below min_frames'}): "
+        f"{frames} aligned frame{'s' if frames != 1 else ''} not used; a new reference before "
+        "n_frames (max_frames_per_reference, a failed registration) or the end of the flight "
+        "leaves such a set"
+    )
 
 
 def _why_no_set(collector: _Collector) -> str:

@@ -105,6 +105,8 @@ _OTHER_NODES = {
         "camera_period_s",
         "geo_period_s",
         "health_period_s",
+        "values_period_s",
+        "track_tolerance_m",
         "stale_after_s",
         "max_footprints",
         "record_mcap",

@@ -111,8 +111,9 @@ PARAMS = (
     ),
     Spec(
         "max_frames_per_reference",
-        8,
-        "aligned frames per reference frame before a new reference",
+        7,
+        "aligned frames per reference frame before a new reference (with the reference they "
+        "make one set: the reconstruction's n_frames - 1)",
         1,
         10000,
     ),

@@ -1029,3 +1029,27 @@ def test_a_camera_that_does_not_stamp_its_images_is_said(sample_bags, tmp_path):
     assert any(p.startswith("telemetry covers 0 of") for p in s["problems"])  # 1970 vs 2024
     line = next(x.strip() for x in r.stdout.splitlines() if x.strip().startswith("nostamp: "))
     assert first in line, line
+
+
+def test_sets_too_small_to_reconstruct_are_said(sample_bags, tmp_path):
+    """Sets too small to reconstruct are said in the line, ``summary.json`` and the report.
+
+    References of 8 aligned frames against sets of 8 (with the reference): one frame of each
+    reference is aligned and shifted, then let go in a set below min_frames.
+    """
+    params = tmp_path / "p.yaml"
+    params.write_text(
+        "registration_node:\n  ros__parameters:\n    pixel_pitch_um: 3.08\n"
+        "    max_frames_per_reference: 8\n"
+        "reconstruction_node:\n  ros__parameters:\n    n_frames: 8\n"
+    )
+    r = _run(str(sample_bags / "subpixel"), "-o", str(tmp_path / "out"), "--params", str(params))
+    assert r.returncode == 0, r.stdout + r.stderr  # the products are what they are: ok
+    s = _summary(tmp_path / "out" / "subpixel")
+    rec = s["stages"]["reconstruction_node"]
+    assert rec["sets_dropped"] >= 1, rec
+    said = next(p for p in s["problems"] if "too small to reconstruct" in p)
+    assert said.startswith(f"{rec['sets_dropped']} set") and "< min_frames 4" in said, said
+    assert f"{rec['dropped']} aligned frame" in said, said
+    html = (tmp_path / "out" / "subpixel" / "report.html").read_text()
+    assert "too small to reconstruct" in html

@@ -75,10 +75,38 @@ def _f(row: dict, key: str) -> float:
         return math.nan
 
 
-def _table(header: list[str], rows: list[list[Any]]) -> str:
-    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
+def _table(header: list[str] | None, rows: list[list[Any]]) -> str:
+    """Return an HTML table; ``header`` None: no header row (a two-column key/value table)."""
+    head = (
+        "" if header is None else "<tr>" + "".join(f"<th>{_esc(h)}</th>" for h in header) + "</tr>"
+    )
     body = "".join("<tr>" + "".join(f"<td>{_esc(c)}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
+    return f"<table>{head}{body}</table>"
+
+
+def _plural(n: int, word: str, many: str | None = None) -> str:
+    """Return ``"1 frame"`` / ``"2 frames"`` (``many``: the plural when not ``word + "s"``)."""
+    n = int(n)
+    return f"{n} {word if n == 1 else (many or word + 's')}"
+
+
+def _sig(x: Any, digits: int = 3) -> str:
+    """Return a number to ``digits`` significant digits, never rounded to zero (0.00034, 1.23).
+
+    Fixed-point below 1e5 (no exponent for an operator to read); n/a for None or NaN.
+    """
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return "n/a" if x is None else str(x)
+    if not math.isfinite(v):
+        return "n/a"
+    if v == 0.0:
+        return "0"
+    if abs(v) >= 1e5 or abs(v) < 1e-6:
+        return f"{v:.{digits}g}"
+    decimals = max(0, digits - 1 - math.floor(math.log10(abs(v))))
+    return f"{v:.{decimals}f}"
 
 
 def _num(x: Any, fmt: str = "{:.3g}") -> str:

@@ -404,6 +404,34 @@ def set_crop(bicubic: np.ndarray, super_resolved: np.ndarray, factor: int) -> Se
     return SetCrop(r, c, side, bicubic[win].copy(), super_resolved[win].copy())
 
 
+def edge_crop(
+    bicubic: np.ndarray, super_resolved: np.ndarray, factor: int, roi: list[int]
+) -> SetCrop:
+    """Cut the crop (same side as :func:`set_crop`'s) centred on an edge's ROI from both images.
+
+    ``roi`` is ``(x, y, w, h)`` in input px (``summary.json``'s ``edges[i].roi``); the crop
+    grows to hold the whole ROI, within the image.
+    """
+    h, w = bicubic.shape[:2]
+    x, y, rw, rh = (int(v) * factor for v in roi)
+    side = min(max(CROP_LR_PX * factor, rw, rh), h, w)
+    r = int(np.clip(y + rh // 2 - side // 2, 0, h - side))
+    c = int(np.clip(x + rw // 2 - side // 2, 0, w - side))
+    win = (slice(r, r + side), slice(c, c + side))
+    return SetCrop(r, c, side, bicubic[win].copy(), super_resolved[win].copy())
+
+
+def _contains(crop: SetCrop, roi: list[int], factor: int) -> bool:
+    """Return True if the ROI ``(x, y, w, h)`` (input px) lies within the crop (output px)."""
+    x, y, rw, rh = (int(v) * factor for v in roi)
+    return (
+        crop.col <= x
+        and x + rw <= crop.col + crop.side
+        and crop.row <= y
+        and y + rh <= crop.row + crop.side
+    )
+
+
 def _edges_text(edges: list[dict], has_truth: bool) -> str:
     """Say what the slanted-edge MTF at the reference's straight edges shows (or that none)."""
     if not edges:
@@ -414,7 +442,8 @@ def _edges_text(edges: list[dict], has_truth: bool) -> str:
     b30 = float(np.median([e["mtf30_bicubic"] for e in edges]))
     s30 = float(np.median([e["mtf30_sr"] for e in edges]))
     return (
-        f"<p>MTF at {len(edges)} straight edge(s) of the scene (slanted-edge method, median; "
+        f"<p>MTF at {_plural(len(edges), 'straight edge')} of the scene (slanted-edge method, "
+        f"{'median; ' if len(edges) > 1 else ''}"
         f"cycles per input px, the input's Nyquist is 0.5): MTF50 bicubic {b50:.3f}, "
         f"super-resolved {s50:.3f} ({s50 / b50:.2f}x); MTF30 bicubic {b30:.3f}, "
         f"super-resolved {s30:.3f}.</p>"
@@ -422,13 +451,22 @@ def _edges_text(edges: list[dict], has_truth: bool) -> str:
 
 
 def _set_crop(folder: Path, entry: dict, factor: int, crops: dict | None) -> SetCrop | None:
-    """Return the set's crop: kept by the run that made it, else cut from the PNGs on disk."""
-    if crops and entry["superres"] in crops:
-        return crops[entry["superres"]]
+    """Return the set's crop: kept by the run that made it, else cut from the PNGs on disk.
+
+    A set whose MTF comes from an edge is shown around its first edge (the crop kept by the
+    run, chosen for its detail before the edges were measured, is used only if it holds it).
+    """
+    edges = entry.get("edges") or []
+    roi = edges[0].get("roi") if edges else None
+    kept = (crops or {}).get(entry["superres"])
+    if kept is not None and (roi is None or _contains(kept, roi, factor)):
+        return kept
     sr = _read_image(folder / entry["superres"])
     bic = _read_image(folder / entry["bicubic"])
     if sr is None or bic is None or sr.shape != bic.shape:
-        return None
+        return kept
+    if roi is not None and len(roi) == 4:
+        return edge_crop(bic, sr, factor, roi)
     return set_crop(bic, sr, factor)
 
 
@@ -469,9 +507,25 @@ def _section_sets(
         if crop is None:
             out.append("<p>Images missing.</p>")
             continue
-        c, side = crop.col, crop.side
+        r, c, side = crop.row, crop.col, crop.side
         scale = max(1, round(320 / max(side, 1)))  # about 320 screen px wide
-        where = f"output px {c}..{c + side} (same crop, same scale, x{scale} on screen)"
+        where = (
+            f"output px rows {r}..{r + side}, columns {c}..{c + side} "
+            f"(same crop, same scale, x{scale} on screen)"
+        )
+        edges = s.get("edges") or []
+        box = None
+        if (
+            edges
+            and len(edges[0].get("roi") or []) == 4
+            and _contains(crop, edges[0]["roi"], factor)
+        ):
+            x, y, rw, rh = (int(v) * factor for v in edges[0]["roi"])
+            box = ((y - r) * scale, (x - c) * scale, rh * scale, rw * scale)
+            where += (
+                f"; outlined: the edge measured for the MTF (rows {y}..{y + rh}, "
+                f"columns {x}..{x + rw})"
+            )
         out.append('<div class="sets">')
         out.append(
             _pixels(
@@ -479,6 +533,7 @@ def _section_sets(
                 f"set {k + 1}: bicubic",
                 f"bicubic x{factor} of the reference; {where}",
                 scale,
+                box,
             )
         )
         label, caption = (
@@ -489,7 +544,7 @@ def _section_sets(
                 f"super-resolved x{factor} ({s.get('method')}); {where}",
             )
         )
-        out.append(_pixels(crop.super_resolved, label, caption, scale))
+        out.append(_pixels(crop.super_resolved, label, caption, scale, box))
         members = s.get("members", [])
         svg = (offsets or {}).get(offsets_key(members, factor)) or offsets_svg(members, factor)
         out.append(_svg_img(svg, f"set {k + 1}: sub-pixel offsets"))
@@ -624,7 +679,23 @@ def _section_mosaic(
     return _img(fig, "mosaic and GPS track") + "".join(parts)
 
 
+#: Fewest calls for a p99 worth showing (below, the p99 is the largest value or two).
+MIN_CALLS_P99 = 20
+
+
+def _p99(calls, p99) -> str:
+    """Return a stage's p99 (ms), or why not: too few calls to tell it from the maximum."""
+    try:
+        n = int(calls)
+    except (TypeError, ValueError):
+        n = 0
+    if n < MIN_CALLS_P99:
+        return f"n too small (< {MIN_CALLS_P99})"
+    return _num(p99, "{:.1f}")
+
+
 def _section_timing(timing: dict) -> str:
+    """Tabulate the stages' times (calls, median, p99, max, total) and the memory."""
     rows = []
     for name, st in sorted((timing.get("stages") or {}).items()):
         rows.append(
@@ -632,9 +703,22 @@ def _section_timing(timing: dict) -> str:
                 name,
                 st.get("calls"),
                 _num(st.get("median_ms"), "{:.1f}"),
-                _num(st.get("p99_ms"), "{:.1f}"),
+                _p99(st.get("calls"), st.get("p99_ms")),
                 _num(st.get("max_ms"), "{:.1f}"),
                 _num(st.get("total_s"), "{:.2f}"),
+            ]
+        )
+    # the mosaic runs on its own thread: only its stage statistics (no p99, no total)
+    mos = ((timing.get("stage_stats_ms") or {}).get("mosaic_node") or {}).get("times") or {}
+    if mos.get("n"):
+        rows.append(
+            [
+                "mosaic (own thread)",
+                mos.get("n"),
+                _num(mos.get("p50"), "{:.1f}"),
+                _p99(mos.get("n"), None) if int(mos["n"]) < MIN_CALLS_P99 else "not recorded",
+                _num(mos.get("max"), "{:.1f}"),
+                "not recorded",
             ]
         )
     fm = timing.get("frame_ms") or {}
@@ -643,14 +727,15 @@ def _section_timing(timing: dict) -> str:
             "whole frame (pipeline add)",
             timing.get("frames"),
             _num(fm.get("median"), "{:.1f}"),
-            _num(fm.get("p99"), "{:.1f}"),
+            _p99(timing.get("frames"), fm.get("p99")),
             _num(fm.get("max"), "{:.1f}"),
             "",
         ]
     )
     t = _table(["stage", "calls", "median (ms)", "p99 (ms)", "max (ms)", "total (s)"], rows)
     return t + (
-        "<p>Peak resident memory of the processing process: "
+        f"<p>p99 only from {MIN_CALLS_P99} calls on (with fewer it is the maximum). "
+        "Peak resident memory of the processing process: "
         f"{_num(timing.get('peak_rss_mb'), '{:.0f}')} MB; "
         f"CPU time {_num(timing.get('cpu_s'), '{:.1f}')} s.</p>"
     )

@@ -154,7 +154,7 @@ def _section_shifts(
             return bool(ok.any())
 
         has_meas |= points(axes[0], tot, f"{ax_label} measured (+-1 s.e.)")
-        if np.isfinite(exp).any():
+        if has_tel and np.isfinite(exp).any():  # without telemetry, no expectation to show
             has_exp = True
             axes[0].plot(
                 *_broken_line(t, exp, new_ref),
@@ -164,7 +164,8 @@ def _section_shifts(
                 alpha=0.6,
                 label=f"{ax_label} expected from telemetry (eq. 1)",
             )
-        has_res |= points(axes[1], res, f"{ax_label} measured - expected")
+        if has_tel:
+            has_res |= points(axes[1], res, f"{ax_label} measured - expected")
     if (~conv).any():
         # no value: ticks on the time axis, not a point at 0 px that would read as measured
         axes[0].plot(
@@ -194,7 +195,7 @@ def _section_shifts(
         _empty_panel(axes[1], _no_residual_why(has_tel, has_exp, has_meas, cover))
     res_u = np.array([_f(r, "u_residual_px") for r in shifts])
     res_v = np.array([_f(r, "v_residual_px") for r in shifts])
-    ok = np.isfinite(res_u) & np.isfinite(res_v)
+    ok = np.isfinite(res_u) & np.isfinite(res_v) & has_tel
     text = (
         f"<p>{int(conv.sum())} of {len(shifts)} aligned frames have a converged shift. "
         f"Shift = where the reference's content appears in the frame (rows u, columns v)."
@@ -409,12 +410,12 @@ def edge_crop(
 ) -> SetCrop:
     """Cut the crop (same side as :func:`set_crop`'s) centred on an edge's ROI from both images.
 
-    ``roi`` is ``(x, y, w, h)`` in input px (``summary.json``'s ``edges[i].roi``); the crop
-    grows to hold the whole ROI, within the image.
+    ``roi`` is ``(x, y, w, h)`` in input px (``summary.json``'s ``edges[i].roi``). The side is
+    every set's (the same scale on screen); a longer edge runs beyond it.
     """
     h, w = bicubic.shape[:2]
     x, y, rw, rh = (int(v) * factor for v in roi)
-    side = min(max(CROP_LR_PX * factor, rw, rh), h, w)
+    side = min(CROP_LR_PX * factor, h, w)
     r = int(np.clip(y + rh // 2 - side // 2, 0, h - side))
     c = int(np.clip(x + rw // 2 - side // 2, 0, w - side))
     win = (slice(r, r + side), slice(c, c + side))
@@ -430,6 +431,33 @@ def _contains(crop: SetCrop, roi: list[int], factor: int) -> bool:
         and crop.row <= y
         and y + rh <= crop.row + crop.side
     )
+
+
+def _edge_outline(
+    crop: SetCrop, edges: list[dict], factor: int, scale: int
+) -> tuple[tuple[int, int, int, int] | None, str]:
+    """Return where the first edge's ROI is on the shown crop (screen px) and a caption part.
+
+    ``(top, left, height, width)`` of the ROI's part within the crop, None when the set has no
+    edge or it lies outside the crop (the caption then says where it is).
+    """
+    if not edges or len(edges[0].get("roi") or []) != 4:
+        return None, ""
+    roi = edges[0]["roi"]
+    x, y, rw, rh = (int(v) * factor for v in roi)
+    where = f"rows {y}..{y + rh}, columns {x}..{x + rw}"
+    top, left = max(y, crop.row), max(x, crop.col)
+    bottom, right = min(y + rh, crop.row + crop.side), min(x + rw, crop.col + crop.side)
+    if bottom <= top or right <= left:
+        return None, f"; the edge measured for the MTF is elsewhere ({where})"
+    box = (
+        (top - crop.row) * scale,
+        (left - crop.col) * scale,
+        (bottom - top) * scale,
+        (right - left) * scale,
+    )
+    part = "" if _contains(crop, roi, factor) else ", in part beyond the crop"
+    return box, f"; outlined: the edge measured for the MTF ({where}{part})"
 
 
 def _edges_text(edges: list[dict], has_truth: bool) -> str:
@@ -513,19 +541,8 @@ def _section_sets(
             f"output px rows {r}..{r + side}, columns {c}..{c + side} "
             f"(same crop, same scale, x{scale} on screen)"
         )
-        edges = s.get("edges") or []
-        box = None
-        if (
-            edges
-            and len(edges[0].get("roi") or []) == 4
-            and _contains(crop, edges[0]["roi"], factor)
-        ):
-            x, y, rw, rh = (int(v) * factor for v in edges[0]["roi"])
-            box = ((y - r) * scale, (x - c) * scale, rh * scale, rw * scale)
-            where += (
-                f"; outlined: the edge measured for the MTF (rows {y}..{y + rh}, "
-                f"columns {x}..{x + rw})"
-            )
+        box, said = _edge_outline(crop, s.get("edges") or [], factor, scale)
+        where += said
         out.append('<div class="sets">')
         out.append(
             _pixels(

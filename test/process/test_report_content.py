@@ -406,3 +406,13 @@ def test_header_words_one_frame_and_real_time():
 def test_shift_residual_rms_is_never_rounded_to_zero(figures):
     html = report_sections._section_shifts(_converged_rows(), T0_NS * 1e-9, True)
     assert "RMS u 0.000100 px, v 0.000340 px over 8 frames" in html
+
+
+def test_a_long_edge_keeps_the_crops_scale_and_is_outlined_in_part():
+    img = np.zeros((600, 600), dtype=np.uint8)
+    crop = report_sections.edge_crop(img, img, 2, [20, 100, 150, 20])  # 300 output px long
+    assert crop.side == 192 and crop.bicubic.shape == (192, 192)
+    box, said = report_sections._edge_outline(crop, [{"roi": [20, 100, 150, 20]}], 2, 2)
+    assert box is not None and box[3] == 192 * 2 and "in part beyond the crop" in said
+    _, said = report_sections._edge_outline(crop, [{"roi": [250, 250, 20, 20]}], 2, 2)
+    assert "elsewhere (rows 500..540, columns 500..540)" in said

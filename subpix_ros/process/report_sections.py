@@ -319,19 +319,16 @@ def _section_registration(
     fallbacks = reg.get("fallbacks", reg.get("tracking_fallbacks"))
     n_fb = len(fb)
     total = int(fallbacks) if fallbacks is not None else n_fb
-    text = f"Tracking fallbacks: {total}"
+    text = f"Tracking fallbacks: {total}."
     if total:
-        text += (
-            f" ({n_fb} drawn: {_plural(n_fb, 'frame')} then aligned"
-            + (
-                f"; the other {total - n_fb} on {_plural(total - n_fb, 'frame')} that then "
-                "failed to register or started a new reference (not drawn)"
-                if total > n_fb
-                else ""
+        text += f" {n_fb} drawn (red dashed: frames then aligned)"
+        if total > n_fb:
+            rest = total - n_fb
+            text += (
+                f"; {rest} on {'a frame' if rest == 1 else 'frames'} that then failed to "
+                "register or started a new reference (not drawn)"
             )
-            + ")"
-        )
-    text += "."
+        text += "."
     if total and reg.get("last_tracking_fallback"):
         text += f" Last reason: {_esc(reg['last_tracking_fallback'])}."
     out.append(f"<p>{text}</p>")
@@ -660,18 +657,11 @@ def _section_mosaic(
             # as telemetry_cover: a frame within 1 s of a sample (the default staleness)
             inside = (stamps >= ts[0] - 1.0) & (stamps <= ts[-1] + 1.0)
         if inside.any():
-            during = (ts >= stamps[inside].min()) & (ts <= stamps[inside].max())
-            fe, fn = np.interp(stamps[inside], ts, e), np.interp(stamps[inside], ts, nn)
-            if during.any():
-                ax.plot(
-                    e[during],
-                    nn[during],
-                    "-",
-                    color="tab:blue",
-                    lw=3.5,
-                    label="while frames were taken",
-                )
-            ax.plot(fe, fn, "o", ms=3, color="black", label="frame positions")
+            # the stretch flown while frames were taken: the track at the frames' times
+            t_in = np.sort(stamps[inside])
+            fe, fn = np.interp(t_in, ts, e), np.interp(t_in, ts, nn)
+            ax.plot(fe, fn, "-", color="tab:orange", lw=4, label="while frames were taken")
+            ax.plot(fe, fn, "o", ms=2, color="black", label="frame positions")
             if not inside.all():
                 parts.append(
                     f"<p>{int((~inside).sum())} of {_plural(stamps.size, 'frame')} taken outside "

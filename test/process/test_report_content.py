@@ -290,7 +290,8 @@ def test_registration_lines_break_at_references_and_drops_and_fallbacks_agree(fi
     assert np.isnan(y).sum() == 2 and inliers.get_marker() == "o"
     assert all(ln.get_marker() not in (None, "", "None") for ln in bottom.get_lines()[:3])
     assert "at least 1 px" in html
-    assert "Tracking fallbacks: 3 (2 drawn" in html and "the other 1 on 1 frame" in html
+    assert "Tracking fallbacks: 3. 2 drawn" in html
+    assert "1 on a frame that then failed to register or started a new reference" in html
     assert "tracking lost: 10 of 548 tie points consistent" in html
     dashed = [ln for ln in top.get_lines() if ln.get_linestyle() == "--"]
     assert len(dashed) == 2

@@ -236,7 +236,7 @@ def _parameters(given: dict[str, dict]) -> str:
     defaults = pipeline_params({n: {s.name: s.default for s in stages[n].PARAMS} for n in stages})
     rows = []
     n_given = 0
-    for node in sorted(set(PROCESS_NODES) | set(given)):
+    for node in [*PROCESS_NODES, *sorted(set(given) - set(PROCESS_NODES))]:  # pipeline order
         mine = given.get(node) or {}
         for k in sorted(set(defaults.get(node, {})) | set(mine)):
             if k in mine:

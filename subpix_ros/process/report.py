@@ -8,15 +8,17 @@ base64 PNG (``<img src="data:image/png;base64,...">``): no file beside it,
 no script, no network; it opens from a USB stick.
 
 Sections: header (flight, camera, telemetry, frames in / kept / skipped /
-dropped by reason, processing time, problems, parameters); shift trajectory
-(measured total shift against the reference with its standard errors beside
-the shift expected from telemetry, METHODS eq. 1, and their residual);
-registration (inliers and residual along/across the baseline per frame,
-references started and why, tracking fallbacks); super-resolution per set
-(labelled crops of bicubic vs super-resolved at the same scale, PSNR where a
-rendered truth exists, the set's fractional shifts on the sub-pixel grid);
-mosaic with the frame footprints and the GPS track; stage times (median,
-p99) and memory.
+dropped by reason, each reason quoted in full from ``frames.csv``, processing time,
+problems, the parameters in effect); shift trajectory (measured total shift against the
+reference with its standard errors beside the shift expected from telemetry, METHODS eq. 1,
+and their residual; frames without a converged shift as ticks on the time axis);
+registration (inliers and residual along/across the baseline per frame, references started
+and why, tracking fallbacks); super-resolution per set (labelled crops of bicubic vs
+super-resolved at the same scale, around the set's MTF edge when it has one, PSNR where a
+rendered truth exists, the set's fractional shifts on the sub-pixel grid); mosaic with the
+frame footprints and the GPS track (the frames' stretch marked); stage times (calls,
+median, p99 from 20 calls on) and memory. A panel without data says why; legends sit
+beside the plots, never over them.
 """
 
 from __future__ import annotations

@@ -8,15 +8,17 @@ base64 PNG (``<img src="data:image/png;base64,...">``): no file beside it,
 no script, no network; it opens from a USB stick.
 
 Sections: header (flight, camera, telemetry, frames in / kept / skipped /
-dropped by reason, processing time, problems, parameters); shift trajectory
-(measured total shift against the reference with its standard errors beside
-the shift expected from telemetry, METHODS eq. 1, and their residual);
-registration (inliers and residual along/across the baseline per frame,
-references started and why, tracking fallbacks); super-resolution per set
-(labelled crops of bicubic vs super-resolved at the same scale, PSNR where a
-rendered truth exists, the set's fractional shifts on the sub-pixel grid);
-mosaic with the frame footprints and the GPS track; stage times (median,
-p99) and memory.
+dropped by reason, each reason quoted in full from ``frames.csv``, processing time,
+problems, the parameters in effect); shift trajectory (measured total shift against the
+reference with its standard errors beside the shift expected from telemetry, METHODS eq. 1,
+and their residual; frames without a converged shift as ticks on the time axis);
+registration (inliers and residual along/across the baseline per frame, references started
+and why, tracking fallbacks); super-resolution per set (labelled crops of bicubic vs
+super-resolved at the same scale, around the set's MTF edge when it has one, PSNR where a
+rendered truth exists, the set's fractional shifts on the sub-pixel grid); mosaic with the
+frame footprints and the GPS track (the frames' stretch marked); stage times (calls,
+median, p99 from 20 calls on) and memory. A panel without data says why; legends sit
+beside the plots, never over them.
 """
 
 from __future__ import annotations
@@ -24,8 +26,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from subpix_ros.process.report_html import _CSS, _esc, _num, _table
+from subpix_ros.process.report_html import _CSS, _esc, _num, _plural, _sig, _table
 from subpix_ros.process.report_sections import (
+    _read_table,
     _section_sets,
     _section_timing,
     mosaic_section,
@@ -80,7 +83,7 @@ def build_report(
         f"</title><style>{_CSS}</style></head><body>"
     ]
     h.append(f"<h1>Flight report: {_esc(summary.get('bag'))}</h1>")
-    h.extend(_header(summary, timing))
+    h.extend(_header(summary, timing, _read_table(folder, "frames.csv")))
     drawn = dict(sections or {})  # what a helper drew; the rest is drawn here, the same way
     if not (drawn.get("shifts") and drawn.get("registration")):
         drawn.update(
@@ -110,7 +113,61 @@ def build_report(
     return "".join(h)
 
 
-def _header(summary: dict, timing: dict) -> list[str]:
+def _processing_time(timing: dict, frames_in: int) -> str:
+    """Say the processing's wall time and how it compares with the flight's own duration."""
+    text = f"{_num(timing.get('wall_s'), '{:.2f}')} s wall"
+    factor = timing.get("realtime_factor")
+    if factor:
+        pace = (
+            "faster than the flight"
+            if factor >= 1.0
+            else f"slower than the flight: {1.0 / factor:.2g} s of processing per s of flight"
+        )
+        return text + f" ({_sig(factor, 2)}x real time: {pace})"
+    if frames_in == 1:
+        return text + " (no real-time factor: a 1-frame flight has zero duration)"
+    if frames_in > 1:
+        return text + " (no real-time factor: the frames span zero time)"
+    return text + " (no flight time: no frames)"
+
+
+def _frames_text(fr: dict) -> str:
+    """Say the frames in, kept (references, aligned), skipped, dropped and the shifts."""
+    return (
+        f"{fr.get('in', 0)} in, {fr.get('kept', 0)} kept "
+        f"({_plural(fr.get('references', 0), 'reference')}, "
+        f"{fr.get('aligned', 0)} aligned), "
+        f"{fr.get('skipped', 0)} skipped, {fr.get('dropped', 0)} dropped; "
+        f"{_plural(fr.get('shifts', 0), 'shift')}"
+    )
+
+
+def _reason_rows(reasons: dict, frames: list[dict], status: str) -> list[list]:
+    """Return the rows ``[reason, frames]`` of a by-reason count, each reason in full.
+
+    ``summary.json`` counts reasons of one kind together under a key with its numbers
+    masked (``bgr# image data too short: # bytes``); the text shown is the first full reason
+    of the group in ``frames.csv`` (an example; "first of n" when the numbers may differ), or
+    the one quoted in the problems, never the masked key.
+    """
+    from subpix_ros.process.collector import reason_key
+
+    first: dict[str, str] = {}
+    for r in frames:
+        if r.get("status") == status and r.get("reason"):
+            first.setdefault(reason_key(r["reason"]), r["reason"])
+    rows = []
+    for key, n in sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0])):
+        example = first.get(key) or first.get(reason_key(key))
+        if example is None:  # no row to quote: say where the numbers were, not "#"
+            example = key.replace("#", "(n)")
+        elif n > 1:
+            example = f"{example} (first of {n}; the numbers may differ)"
+        rows.append([example, n])
+    return rows
+
+
+def _header(summary: dict, timing: dict, frames: list[dict] | None = None) -> list[str]:
     """Build the flight table, problems, frames skipped/dropped by reason, and the parameters."""
     fl = summary.get("flight", {})
     fr = summary.get("frames", {})
@@ -119,7 +176,7 @@ def _header(summary: dict, timing: dict) -> list[str]:
     h = []
     h.append(
         _table(
-            ["", ""],
+            None,
             [
                 ["bag", summary.get("bag_path")],
                 ["status", summary.get("status")],
@@ -130,28 +187,18 @@ def _header(summary: dict, timing: dict) -> list[str]:
                 ],
                 [
                     "telemetry",
-                    f"{tel.get('source')} ({tel.get('samples', 0)} samples)"
+                    f"{tel.get('source')} ({_plural(tel.get('samples', 0), 'sample')})"
                     + (f": {tel.get('note')}" if tel.get("note") else ""),
                 ],
                 ["telemetry vs frames", (tel.get("check") or {}).get("note") or "-"],
-                ["flight time", f"{fl.get('duration_s', 0):.2f} s"],
                 [
-                    "frames",
-                    f"{fr.get('in', 0)} in, {fr.get('kept', 0)} kept "
-                    f"({fr.get('references', 0)} references, {fr.get('aligned', 0)} aligned), "
-                    f"{fr.get('skipped', 0)} skipped, {fr.get('dropped', 0)} dropped; "
-                    f"{fr.get('shifts', 0)} shifts",
+                    "flight time",
+                    f"{fl.get('duration_s', 0):.2f} s"
+                    + (" (one frame: no duration)" if fr.get("in") == 1 else ""),
                 ],
+                ["frames", _frames_text(fr)],
                 ["optics blur", (summary.get("blur") or {}).get("note") or "-"],
-                [
-                    "processing time",
-                    f"{_num(timing.get('wall_s'), '{:.2f}')} s wall"
-                    + (
-                        f" ({timing['realtime_factor']:.2f}x real time)"
-                        if timing.get("realtime_factor")
-                        else " (no flight time: no frames)"
-                    ),
-                ],
+                ["processing time", _processing_time(timing, int(fr.get("in") or 0))],
             ],
         )
     )
@@ -167,24 +214,54 @@ def _header(summary: dict, timing: dict) -> list[str]:
         if reasons:
             h.append(
                 f"<p>Frames {title} by reason:</p>"
-                + _table(
-                    ["reason", "frames"],
-                    sorted(([k, v] for k, v in reasons.items()), key=lambda x: -x[1]),
-                )
+                + _table(["reason (example)", "frames"], _reason_rows(reasons, frames or [], title))
             )
-    h.append(
-        "<details><summary>Parameters</summary>"
-        + _table(
-            ["stage", "parameter", "value"],
-            [
-                [n, k, json.dumps(v)]
-                for n, ps in sorted(summary.get("parameters", {}).items())
-                for k, v in sorted(ps.items())
-            ],
-        )
-        + "<p>Parameters not listed take the stage defaults.</p></details>"
-    )
+    h.append(_parameters(summary.get("parameters") or {}))
     return h
+
+
+def _parameters(given: dict[str, dict]) -> str:
+    """Show the parameters in effect: the stage defaults merged with those given (marked).
+
+    ``summary.json`` records the parameters given (``--params``); the defaults are this
+    version's stage defaults (the ones ``subpix process`` used unless it was another version).
+    """
+    from subpix_ros.process.params import PROCESS_NODES, pipeline_params
+    from subpix_ros.stages import MosaicStage, ReconstructionStage, RegistrationStage, ShiftStage
+
+    stages = {
+        "registration_node": RegistrationStage,
+        "shift_node": ShiftStage,
+        "reconstruction_node": ReconstructionStage,
+        "mosaic_node": MosaicStage,
+    }
+    defaults = pipeline_params({n: {s.name: s.default for s in stages[n].PARAMS} for n in stages})
+    rows = []
+    n_given = 0
+    for node in [*PROCESS_NODES, *sorted(set(given) - set(PROCESS_NODES))]:  # pipeline order
+        mine = given.get(node) or {}
+        for k in sorted(set(defaults.get(node, {})) | set(mine)):
+            if k in mine:
+                n_given += 1
+                d = defaults.get(node, {}).get(k)
+                note = "given" + (f" (default {json.dumps(d)})" if d is not None else "")
+                rows.append([node, k, json.dumps(mine[k]), note])
+            else:
+                rows.append([node, k, json.dumps(defaults[node][k]), "default"])
+    return (
+        f"<details><summary>Parameters in effect ({_plural(n_given, 'value')} given, "
+        "the rest the stage defaults)</summary>"
+        + _table(["stage", "parameter", "value", "from"], rows)
+        + "<p>Given: from --params (summary.json records these). Default: the stage's default "
+        f"in subpix_ros {_esc(_version())}, which made this report.</p></details>"
+    )
+
+
+def _version() -> str:
+    """Return the package's version (the one whose defaults the parameters table shows)."""
+    import subpix_ros
+
+    return str(subpix_ros.__version__)
 
 
 def write_report(

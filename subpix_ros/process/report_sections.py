@@ -18,6 +18,8 @@ from subpix_ros.process.report_html import (
     _num,
     _pixels,
     _plt,
+    _plural,
+    _sig,
     _svg_img,
     _table,
 )
@@ -25,13 +27,108 @@ from subpix_ros.process.report_html import (
 CROP_LR_PX = 96  # side of the super-resolution crops, in input pixels
 
 
-def _section_shifts(shifts: list[dict], t0: float | None, has_tel: bool) -> str:
+def _legend_outside(fig, axes) -> None:
+    """Put one legend of all the axes' labelled series at the figure's right, outside them.
+
+    It can hide no point, and every panel keeps the same width (constrained layout makes room
+    for it at the figure's edge).
+    """
+    handles, labels = [], []
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    if handles:
+        fig.legend(handles, labels, loc="outside right upper", fontsize=7)
+
+
+def _empty_panel(ax, why: str) -> None:
+    """Say in an axes without data why it has none (no meaningless value ticks)."""
+    import textwrap
+
+    ax.text(
+        0.5,
+        0.5,
+        textwrap.fill(why, 80),
+        ha="center",
+        va="center",
+        transform=ax.transAxes,
+        fontsize=9,
+        in_layout=False,  # the sentence is inside the axes: no room to make for it
+    )
+    ax.set_yticks([])
+
+
+def telemetry_cover(telemetry: list[dict], stamps_ns: list[float]) -> tuple[int, str]:
+    """Return how many frame times fall within the telemetry's time span, and the spans.
+
+    Parameters
+    ----------
+    telemetry : list of dict
+        ``telemetry.csv``'s rows (``t_s``: the sample's time on the frames' clock, s).
+    stamps_ns : list of float
+        The frames' stamps (ns).
+
+    Returns
+    -------
+    tuple of (int, str)
+        The frames within the span (+- 1 s, the telemetry's default staleness) and, for a
+        sentence, both spans in seconds from the first frame ("" without samples or frames).
+    """
+    t = np.array([_f(r, "t_s") for r in telemetry], dtype=float)
+    t = t[np.isfinite(t)]
+    f = np.array(stamps_ns, dtype=float) * 1e-9
+    f = f[np.isfinite(f)]
+    if not t.size or not f.size:
+        return 0, ""
+    inside = int(((f >= t.min() - 1.0) & (f <= t.max() + 1.0)).sum())
+    t0 = f.min()
+    spans = (
+        f"telemetry from {t.min() - t0:+.1f} to {t.max() - t0:+.1f} s, frames from 0 to "
+        f"{f.max() - t0:.1f} s, both from the first frame"
+    )
+    return inside, spans
+
+
+def _no_residual_why(has_tel: bool, has_exp: bool, has_meas: bool, cover: tuple[int, str]) -> str:
+    """Say why the residual (measured - expected) panel has no point."""
+    if not has_tel:
+        return "no telemetry: no expected shift, no residual"
+    if not has_exp:
+        if cover[1] and cover[0] == 0:
+            return f"telemetry does not cover the frames' times ({cover[1]}): no expected shift"
+        return (
+            "no expected shift at these frames (telemetry stale, below min_speed_mps or "
+            "without height above ground)"
+        )
+    if not has_meas:
+        return "no converged shift: nothing measured to compare with the expected shift"
+    return "no frame has both a converged and an expected shift"
+
+
+def _section_shifts(
+    shifts: list[dict],
+    t0: float | None,
+    has_tel: bool,
+    cover: tuple[int, str] = (0, ""),
+) -> str:
+    """Draw the shift trajectory: measured total shift, the expected one, their residual.
+
+    Frames without a converged shift have no value: they are ticks on the time axis (red),
+    never points at 0 px. A series without a point has no legend entry; a panel without data
+    says why. ``cover`` is :func:`telemetry_cover` of the shifts' frames (the reason of a
+    missing expected shift).
+    """
     plt = _plt()
     if not shifts:
         return "<p>No aligned frame: no shift to show.</p>"
     t = np.array([_f(r, "stamp_ns") for r in shifts]) * 1e-9 - (t0 or 0.0)
     conv = np.array([r.get("converged") == "1" for r in shifts])
-    fig, axes = plt.subplots(2, 1, figsize=(9, 5.6), sharex=True)
+    refs = [r.get("reference_stamp_ns") for r in shifts]
+    new_ref = np.array([k == 0 or refs[k] != refs[k - 1] for k in range(len(refs))])
+    fig, axes = plt.subplots(2, 1, figsize=(11, 5.6), sharex=True, layout="constrained")
+    has_meas = has_exp = has_res = False
     for key, colour, ax_label in (
         ("u", "tab:blue", "u (rows)"),
         ("v", "tab:orange", "v (columns)"),
@@ -39,115 +136,209 @@ def _section_shifts(shifts: list[dict], t0: float | None, has_tel: bool) -> str:
         tot = np.array([_f(r, f"{key}_total_px") for r in shifts])
         std = np.array([_f(r, f"{key}_std_px") for r in shifts])
         exp = np.array([_f(r, f"{key}_expected_px") for r in shifts])
+        res = np.array([_f(r, f"{key}_residual_px") for r in shifts])
 
-        def points(ax, values, label: str, colour=colour, std=std) -> None:
-            ax.errorbar(
-                t[conv],
-                values[conv],
-                yerr=std[conv],
-                fmt="o",
-                ms=3,
-                color=colour,
-                capsize=2,
-                label=label,
-            )
+        def points(ax, values, label: str, colour=colour, std=std) -> bool:
+            ok = conv & np.isfinite(values)
+            if ok.any():
+                ax.errorbar(
+                    t[ok],
+                    values[ok],
+                    yerr=std[ok],
+                    fmt="o",
+                    ms=3,
+                    color=colour,
+                    capsize=2,
+                    label=label,
+                )
+            return bool(ok.any())
 
-        points(axes[0], tot, f"{ax_label} measured (homography + sub-pixel, +-1 s.e.)")
-        if np.isfinite(exp).any():
+        has_meas |= points(axes[0], tot, f"{ax_label} measured (+-1 s.e.)")
+        if has_tel and np.isfinite(exp).any():  # without telemetry, no expectation to show
+            has_exp = True
             axes[0].plot(
-                t,
-                exp,
-                "-",
+                *_broken_line(t, exp, new_ref),
+                ".-",
+                ms=4,
                 color=colour,
                 alpha=0.6,
                 label=f"{ax_label} expected from telemetry (eq. 1)",
             )
-            res = np.array([_f(r, f"{key}_residual_px") for r in shifts])
-            points(axes[1], res, f"{ax_label} measured - expected")
+        if has_tel:
+            has_res |= points(axes[1], res, f"{ax_label} measured - expected")
     if (~conv).any():
+        # no value: ticks on the time axis, not a point at 0 px that would read as measured
         axes[0].plot(
-            t[~conv], np.zeros((~conv).sum()), "x", color="red", label="no converged shift"
+            t[~conv],
+            np.full((~conv).sum(), 0.0),
+            "|",
+            ms=14,
+            mew=2,
+            color="red",
+            transform=axes[0].get_xaxis_transform(),
+            clip_on=False,
+            label="frame without a converged shift (time only)",
         )
-    axes[0].set_ylabel("shift against reference (px)")
-    axes[0].legend(fontsize=7, loc="best")
+    axes[0].set_ylabel("shift against\nreference (px)")
     axes[0].grid(alpha=0.3)
+    if not has_meas and not has_exp:
+        _empty_panel(axes[0], "no converged shift and no expected shift: no value to draw")
+    elif not has_meas:
+        axes[0].set_title(
+            "no converged shift: no measured value (red ticks: the frames' times)", fontsize=8
+        )
     axes[1].set_ylabel("residual (px)")
     axes[1].set_xlabel("time since the first frame (s)")
     axes[1].grid(alpha=0.3)
-    if has_tel and axes[1].has_data():
-        axes[1].legend(fontsize=7)
-    else:
-        axes[1].text(
-            0.5,
-            0.5,
-            "no telemetry: no expected shift",
-            ha="center",
-            va="center",
-            transform=axes[1].transAxes,
-        )
-    fig.subplots_adjust(left=0.085, right=0.985, top=0.975, bottom=0.085, hspace=0.06)
+    _legend_outside(fig, axes)
+    if not has_res:
+        _empty_panel(axes[1], _no_residual_why(has_tel, has_exp, has_meas, cover))
     res_u = np.array([_f(r, "u_residual_px") for r in shifts])
     res_v = np.array([_f(r, "v_residual_px") for r in shifts])
-    ok = np.isfinite(res_u) & np.isfinite(res_v)
+    ok = np.isfinite(res_u) & np.isfinite(res_v) & has_tel
     text = (
         f"<p>{int(conv.sum())} of {len(shifts)} aligned frames have a converged shift. "
         f"Shift = where the reference's content appears in the frame (rows u, columns v)."
     )
     if ok.any():
         text += (
-            f" Residual against telemetry: RMS u {np.sqrt(np.mean(res_u[ok] ** 2)):.3f} px, "
-            f"v {np.sqrt(np.mean(res_v[ok] ** 2)):.3f} px over {int(ok.sum())} frames."
+            f" Residual against telemetry: RMS u {_sig(np.sqrt(np.mean(res_u[ok] ** 2)))} px, "
+            f"v {_sig(np.sqrt(np.mean(res_v[ok] ** 2)))} px over "
+            f"{_plural(int(ok.sum()), 'frame')}."
         )
     return text + "</p>" + _img(fig, "shift trajectory")
+
+
+def _segments(frames: list[dict], aligned: list[dict]) -> np.ndarray:
+    """Return, per aligned row, True where its line starts anew (no line drawn to it).
+
+    A line joins two aligned frames only when they share the reference and no frame was
+    dropped between them (in ``frames.csv``'s order).
+    """
+    start = np.ones(len(aligned), dtype=bool)
+    pos = {id(r): i for i, r in enumerate(aligned)}
+    prev = None
+    broken = True
+    for r in frames:
+        status = r.get("status")
+        if status == "aligned":
+            i = pos[id(r)]
+            start[i] = (
+                broken
+                or prev is None
+                or (prev.get("reference_stamp_ns") != r.get("reference_stamp_ns"))
+            )
+            prev, broken = r, False
+        elif status in ("dropped", "reference"):
+            broken = True
+    return start
+
+
+def _broken_line(t: np.ndarray, y: np.ndarray, start: np.ndarray) -> tuple:
+    """Insert NaN before each new segment's first point (matplotlib breaks the line there)."""
+    xs, ys = [], []
+    for i in range(len(t)):
+        if start[i] and i:
+            xs.append(np.nan)
+            ys.append(np.nan)
+        xs.append(t[i])
+        ys.append(y[i])
+    return np.array(xs, dtype=float), np.array(ys, dtype=float)
 
 
 def _section_registration(
     frames: list[dict], refs: list[dict], stages: dict, t0: float | None
 ) -> str:
+    """Draw the registration: inliers and residuals per aligned frame, references, fallbacks.
+
+    Lines join only frames of one reference with no frame dropped between them; every point
+    has a marker (a frame alone is seen). The tracking fallbacks are the registration stage's
+    count; those on frames that were then aligned are drawn, the others (a frame that
+    started a new reference) are said.
+    """
     plt = _plt()
     aligned = [r for r in frames if r.get("status") == "aligned"]
+    reg = stages.get("registration_node") or stages.get("registration") or {}
+    fb = [r for r in aligned if r.get("tracked") == "0"]
     out = []
     if aligned:
         t = np.array([_f(r, "stamp_ns") for r in aligned]) * 1e-9 - (t0 or 0.0)
-        fig, axes = plt.subplots(2, 1, figsize=(9, 4.8), sharex=True)
-        axes[0].plot(t, [_f(r, "inliers") for r in aligned], "o-", ms=3)
+        start = _segments(frames, aligned)
+        fig, axes = plt.subplots(2, 1, figsize=(11, 4.8), sharex=True, layout="constrained")
+        axes[0].plot(
+            *_broken_line(t, np.array([_f(r, "inliers") for r in aligned]), start), "o-", ms=3
+        )
         axes[0].set_ylabel("inlier tie points")
+        for key, style, label in (
+            ("rms_along_px", "o-", "along the baseline"),
+            ("rms_cross_px", "s-", "across the baseline"),
+        ):
+            y = np.array([_f(r, key) for r in aligned])
+            if np.isfinite(y).any():
+                axes[1].plot(*_broken_line(t, y, start), style, ms=3, label=label)
         axes[1].plot(
-            t, [_f(r, "rms_along_px") for r in aligned], "o-", ms=3, label="along the baseline"
+            *_broken_line(t, np.array([_f(r, "rms_px") for r in aligned]), start),
+            ".:",
+            ms=4,
+            color="grey",
+            label="inlier RMS",
         )
-        axes[1].plot(
-            t, [_f(r, "rms_cross_px") for r in aligned], "s-", ms=3, label="across the baseline"
-        )
-        axes[1].plot(t, [_f(r, "rms_px") for r in aligned], ":", color="grey", label="inlier RMS")
         axes[1].set_ylabel("residual (px)")
         axes[1].set_xlabel("time since the first frame (s)")
-        axes[1].legend(fontsize=7)
-        fb = [r for r in aligned if r.get("tracked") == "0"]
         for ax in axes:
             ax.grid(alpha=0.3)
-            for r in refs:
-                ax.axvline(r["stamp_ns"] * 1e-9 - (t0 or 0.0), color="green", alpha=0.35, lw=1)
-            for r in fb:
+            for k, r in enumerate(refs):
                 ax.axvline(
-                    _f(r, "stamp_ns") * 1e-9 - (t0 or 0.0), color="red", alpha=0.5, ls="--", lw=1
+                    r["stamp_ns"] * 1e-9 - (t0 or 0.0),
+                    color="green",
+                    alpha=0.35,
+                    lw=1,
+                    label="new reference" if k == 0 and ax is axes[1] else None,
                 )
-        axes[0].set_title(
-            "green: new reference, red dashed: tracking fell back to the full search", fontsize=8
-        )
-        fig.subplots_adjust(left=0.085, right=0.985, top=0.94, bottom=0.095, hspace=0.06)
+            for k, r in enumerate(fb):
+                ax.axvline(
+                    _f(r, "stamp_ns") * 1e-9 - (t0 or 0.0),
+                    color="red",
+                    alpha=0.5,
+                    ls="--",
+                    lw=1,
+                    label="tracking fell back to the full search"
+                    if k == 0 and ax is axes[1]
+                    else None,
+                )
+        _legend_outside(fig, axes)
         out.append(_img(fig, "registration quality"))
+        out.append(
+            "<p>The residual along and across the baseline (the frame's motion against its "
+            "reference) is computed only where the baseline is at least 1 px (below it has no "
+            "direction): those frames show the inlier RMS alone. Lines join only frames of one "
+            "reference with no frame dropped between them.</p>"
+        )
     else:
         out.append("<p>No frame was registered to a reference.</p>")
-    reg = stages.get("registration_node") or stages.get("registration") or {}
     fallbacks = reg.get("fallbacks", reg.get("tracking_fallbacks"))
-    n_fb = sum(1 for r in aligned if r.get("tracked") == "0")
-    out.append(f"<p>Tracking fallbacks: {_esc(fallbacks if fallbacks is not None else n_fb)}.</p>")
+    n_fb = len(fb)
+    total = int(fallbacks) if fallbacks is not None else n_fb
+    text = f"Tracking fallbacks: {total}."
+    if total:
+        text += f" {n_fb} drawn (red dashed: frames then aligned)"
+        if total > n_fb:
+            rest = total - n_fb
+            text += (
+                f"; {rest} on {'a frame' if rest == 1 else 'frames'} that then failed to "
+                "register or started a new reference (not drawn)"
+            )
+        text += "."
+    if total and reg.get("last_tracking_fallback"):
+        text += f" Last reason: {_esc(reg['last_tracking_fallback'])}."
+    out.append(f"<p>{text}</p>")
     rows = []
     for r in refs:
         ts = r["stamp_ns"] * 1e-9 - (t0 or 0.0)
         rows.append([f"{ts:.3f}", r["stamp_ns"], r.get("reason") or "?"])
     out.append(
-        f"<p>{len(refs)} reference(s) started:</p>" + _table(["t (s)", "stamp (ns)", "why"], rows)
+        f"<p>{_plural(len(refs), 'reference')} started:</p>"
+        + _table(["t (s)", "stamp (ns)", "why"], rows)
     )
     return "".join(out)
 
@@ -211,6 +402,61 @@ def set_crop(bicubic: np.ndarray, super_resolved: np.ndarray, factor: int) -> Se
     return SetCrop(r, c, side, bicubic[win].copy(), super_resolved[win].copy())
 
 
+def edge_crop(
+    bicubic: np.ndarray, super_resolved: np.ndarray, factor: int, roi: list[int]
+) -> SetCrop:
+    """Cut the crop (same side as :func:`set_crop`'s) centred on an edge's ROI from both images.
+
+    ``roi`` is ``(x, y, w, h)`` in input px (``summary.json``'s ``edges[i].roi``). The side is
+    every set's (the same scale on screen); a longer edge runs beyond it.
+    """
+    h, w = bicubic.shape[:2]
+    x, y, rw, rh = (int(v) * factor for v in roi)
+    side = min(CROP_LR_PX * factor, h, w)
+    r = int(np.clip(y + rh // 2 - side // 2, 0, h - side))
+    c = int(np.clip(x + rw // 2 - side // 2, 0, w - side))
+    win = (slice(r, r + side), slice(c, c + side))
+    return SetCrop(r, c, side, bicubic[win].copy(), super_resolved[win].copy())
+
+
+def _contains(crop: SetCrop, roi: list[int], factor: int) -> bool:
+    """Return True if the ROI ``(x, y, w, h)`` (input px) lies within the crop (output px)."""
+    x, y, rw, rh = (int(v) * factor for v in roi)
+    return (
+        crop.col <= x
+        and x + rw <= crop.col + crop.side
+        and crop.row <= y
+        and y + rh <= crop.row + crop.side
+    )
+
+
+def _edge_outline(
+    crop: SetCrop, edges: list[dict], factor: int, scale: int
+) -> tuple[tuple[int, int, int, int] | None, str]:
+    """Return where the first edge's ROI is on the shown crop (screen px) and a caption part.
+
+    ``(top, left, height, width)`` of the ROI's part within the crop, None when the set has no
+    edge or it lies outside the crop (the caption then says where it is).
+    """
+    if not edges or len(edges[0].get("roi") or []) != 4:
+        return None, ""
+    roi = edges[0]["roi"]
+    x, y, rw, rh = (int(v) * factor for v in roi)
+    where = f"rows {y}..{y + rh}, columns {x}..{x + rw}"
+    top, left = max(y, crop.row), max(x, crop.col)
+    bottom, right = min(y + rh, crop.row + crop.side), min(x + rw, crop.col + crop.side)
+    if bottom <= top or right <= left:
+        return None, f"; the edge measured for the MTF is elsewhere ({where})"
+    box = (
+        (top - crop.row) * scale,
+        (left - crop.col) * scale,
+        (bottom - top) * scale,
+        (right - left) * scale,
+    )
+    part = "" if _contains(crop, roi, factor) else ", in part beyond the crop"
+    return box, f"; outlined: the edge measured for the MTF ({where}{part})"
+
+
 def _edges_text(edges: list[dict], has_truth: bool) -> str:
     """Say what the slanted-edge MTF at the reference's straight edges shows (or that none)."""
     if not edges:
@@ -221,7 +467,8 @@ def _edges_text(edges: list[dict], has_truth: bool) -> str:
     b30 = float(np.median([e["mtf30_bicubic"] for e in edges]))
     s30 = float(np.median([e["mtf30_sr"] for e in edges]))
     return (
-        f"<p>MTF at {len(edges)} straight edge(s) of the scene (slanted-edge method, median; "
+        f"<p>MTF at {_plural(len(edges), 'straight edge')} of the scene (slanted-edge method, "
+        f"{'median; ' if len(edges) > 1 else ''}"
         f"cycles per input px, the input's Nyquist is 0.5): MTF50 bicubic {b50:.3f}, "
         f"super-resolved {s50:.3f} ({s50 / b50:.2f}x); MTF30 bicubic {b30:.3f}, "
         f"super-resolved {s30:.3f}.</p>"
@@ -229,13 +476,22 @@ def _edges_text(edges: list[dict], has_truth: bool) -> str:
 
 
 def _set_crop(folder: Path, entry: dict, factor: int, crops: dict | None) -> SetCrop | None:
-    """Return the set's crop: kept by the run that made it, else cut from the PNGs on disk."""
-    if crops and entry["superres"] in crops:
-        return crops[entry["superres"]]
+    """Return the set's crop: kept by the run that made it, else cut from the PNGs on disk.
+
+    A set whose MTF comes from an edge is shown around its first edge (the crop kept by the
+    run, chosen for its detail before the edges were measured, is used only if it holds it).
+    """
+    edges = entry.get("edges") or []
+    roi = edges[0].get("roi") if edges else None
+    kept = (crops or {}).get(entry["superres"])
+    if kept is not None and (roi is None or _contains(kept, roi, factor)):
+        return kept
     sr = _read_image(folder / entry["superres"])
     bic = _read_image(folder / entry["bicubic"])
     if sr is None or bic is None or sr.shape != bic.shape:
-        return None
+        return kept
+    if roi is not None and len(roi) == 4:
+        return edge_crop(bic, sr, factor, roi)
     return set_crop(bic, sr, factor)
 
 
@@ -276,9 +532,14 @@ def _section_sets(
         if crop is None:
             out.append("<p>Images missing.</p>")
             continue
-        c, side = crop.col, crop.side
+        r, c, side = crop.row, crop.col, crop.side
         scale = max(1, round(320 / max(side, 1)))  # about 320 screen px wide
-        where = f"output px {c}..{c + side} (same crop, same scale, x{scale} on screen)"
+        where = (
+            f"output px rows {r}..{r + side}, columns {c}..{c + side} "
+            f"(same crop, same scale, x{scale} on screen)"
+        )
+        box, said = _edge_outline(crop, s.get("edges") or [], factor, scale)
+        where += said
         out.append('<div class="sets">')
         out.append(
             _pixels(
@@ -286,6 +547,7 @@ def _section_sets(
                 f"set {k + 1}: bicubic",
                 f"bicubic x{factor} of the reference; {where}",
                 scale,
+                box,
             )
         )
         label, caption = (
@@ -296,7 +558,7 @@ def _section_sets(
                 f"super-resolved x{factor} ({s.get('method')}); {where}",
             )
         )
-        out.append(_pixels(crop.super_resolved, label, caption, scale))
+        out.append(_pixels(crop.super_resolved, label, caption, scale, box))
         members = s.get("members", [])
         svg = (offsets or {}).get(offsets_key(members, factor)) or offsets_svg(members, factor)
         out.append(_svg_img(svg, f"set {k + 1}: sub-pixel offsets"))
@@ -342,7 +604,15 @@ def _offsets_figure(plt, frac: np.ndarray, factor: int):
     return fig
 
 
-def _section_mosaic(folder: Path, mosaic: dict, telemetry: list[dict]) -> str:
+def _section_mosaic(
+    folder: Path, mosaic: dict, telemetry: list[dict], frames: list[dict] | None = None
+) -> str:
+    """Draw the mosaic with the frame footprints and the GPS track with the frames on it.
+
+    The part of the track flown while frames were taken (first to last frame) is drawn thick
+    and each frame's position (interpolated at its stamp) is a dot; when no frame falls within
+    the track's time span, the panel and a sentence say so.
+    """
     plt = _plt()
     parts = []
     img = _read_image(folder / "mosaic.png") if mosaic.get("written") else None
@@ -356,7 +626,9 @@ def _section_mosaic(folder: Path, mosaic: dict, telemetry: list[dict]) -> str:
     n = (img is not None) + bool(has_gps)
     if n == 0:
         return "<p>No mosaic and no GPS track.</p>"
-    fig, axes = plt.subplots(1, n, figsize=(5.5 * n, 4.6), squeeze=False)
+    fig, axes = plt.subplots(
+        1, n, figsize=(5.5 * n + 1.5, 4.6), squeeze=False, layout="constrained"
+    )
     axes = list(axes[0])
     if img is not None:
         ax = axes.pop(0)
@@ -365,7 +637,8 @@ def _section_mosaic(folder: Path, mosaic: dict, telemetry: list[dict]) -> str:
             p = np.array(fp + [fp[0]])
             ax.plot(p[:, 0], p[:, 1], "-", lw=0.8, color="yellow", alpha=0.8)
         ax.set_title(
-            f"mosaic with {len(mosaic.get('footprints', []))} frame footprints", fontsize=9
+            f"mosaic with {_plural(len(mosaic.get('footprints', [])), 'frame footprint')}",
+            fontsize=9,
         )
         ax.set_xticks([])
         ax.set_yticks([])
@@ -374,26 +647,62 @@ def _section_mosaic(folder: Path, mosaic: dict, telemetry: list[dict]) -> str:
 
         ok = np.isfinite(lat) & np.isfinite(lon)
         e, nn = enu_offset_m(float(lat[ok][0]), float(lon[ok][0]), lat[ok], lon[ok])
+        ts = np.array([_f(r, "t_s") for r in telemetry])[ok]
+        stamps = np.array([_f(r, "stamp_ns") for r in frames or []], dtype=float) * 1e-9
+        stamps = stamps[np.isfinite(stamps)]
         ax = axes.pop(0)
-        ax.plot(e, nn, "-", color="tab:blue")
+        ax.plot(e, nn, "-", color="tab:blue", lw=1, alpha=0.6, label="track")
+        inside = np.zeros(0, dtype=bool)
+        if stamps.size and np.isfinite(ts).all() and np.all(np.diff(ts) >= 0):
+            # as telemetry_cover: a frame within 1 s of a sample (the default staleness)
+            inside = (stamps >= ts[0] - 1.0) & (stamps <= ts[-1] + 1.0)
+        if inside.any():
+            # the stretch flown while frames were taken: the track at the frames' times
+            t_in = np.sort(stamps[inside])
+            fe, fn = np.interp(t_in, ts, e), np.interp(t_in, ts, nn)
+            ax.plot(fe, fn, "-", color="tab:orange", lw=4, label="while frames were taken")
+            ax.plot(fe, fn, "o", ms=2, color="black", label="frame positions")
+            if not inside.all():
+                parts.append(
+                    f"<p>{int((~inside).sum())} of {_plural(stamps.size, 'frame')} taken outside "
+                    "the GPS track's time span (more than 1 s from a sample): not on the track.</p>"
+                )
+        elif stamps.size:
+            _, spans = telemetry_cover(telemetry, list(stamps * 1e9))
+            why = "no frame was taken within the GPS track's time"
+            ax.set_title(why + " (no frame on the track)", fontsize=8, loc="left")
+            parts.append(f"<p>GPS track: {why} ({_esc(spans)}).</p>")
         ax.plot(e[:1], nn[:1], "go", label="start")
         ax.plot(e[-1:], nn[-1:], "rs", label="end")
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_xlabel("east (m)")
         ax.set_ylabel("north (m)")
-        ax.set_title(f"GPS track ({int(ok.sum())} samples)", fontsize=9)
-        ax.legend(fontsize=7)
+        if not ax.get_title(loc="left"):
+            ax.set_title(f"GPS track ({_plural(int(ok.sum()), 'sample')})", fontsize=9)
         ax.grid(alpha=0.3)
+        _legend_outside(fig, [ax])
     else:
         parts.append("<p>No GPS track (no telemetry position).</p>")
-    # fixed margins, not tight_layout (which draws the figure once more): the GPS panel's
-    # labels need room at the left only when it is the first panel
-    left = 0.02 if img is not None else 0.13
-    fig.subplots_adjust(left=left, right=0.99, top=0.94, bottom=0.1, wspace=0.16)
     return _img(fig, "mosaic and GPS track") + "".join(parts)
 
 
+#: Fewest calls for a p99 worth showing (below, the p99 is the largest value or two).
+MIN_CALLS_P99 = 20
+
+
+def _p99(calls, p99) -> str:
+    """Return a stage's p99 (ms), or why not: too few calls to tell it from the maximum."""
+    try:
+        n = int(calls)
+    except (TypeError, ValueError):
+        n = 0
+    if n < MIN_CALLS_P99:
+        return f"n too small (< {MIN_CALLS_P99})"
+    return _num(p99, "{:.1f}")
+
+
 def _section_timing(timing: dict) -> str:
+    """Tabulate the stages' times (calls, median, p99, max, total) and the memory."""
     rows = []
     for name, st in sorted((timing.get("stages") or {}).items()):
         rows.append(
@@ -401,9 +710,22 @@ def _section_timing(timing: dict) -> str:
                 name,
                 st.get("calls"),
                 _num(st.get("median_ms"), "{:.1f}"),
-                _num(st.get("p99_ms"), "{:.1f}"),
+                _p99(st.get("calls"), st.get("p99_ms")),
                 _num(st.get("max_ms"), "{:.1f}"),
                 _num(st.get("total_s"), "{:.2f}"),
+            ]
+        )
+    # the mosaic runs on its own thread: only its stage statistics (no p99, no total)
+    mos = ((timing.get("stage_stats_ms") or {}).get("mosaic_node") or {}).get("times") or {}
+    if mos.get("n"):
+        rows.append(
+            [
+                "mosaic (own thread)",
+                mos.get("n"),
+                _num(mos.get("p50"), "{:.1f}"),
+                _p99(mos.get("n"), None) if int(mos["n"]) < MIN_CALLS_P99 else "not recorded",
+                _num(mos.get("max"), "{:.1f}"),
+                "not recorded",
             ]
         )
     fm = timing.get("frame_ms") or {}
@@ -412,14 +734,15 @@ def _section_timing(timing: dict) -> str:
             "whole frame (pipeline add)",
             timing.get("frames"),
             _num(fm.get("median"), "{:.1f}"),
-            _num(fm.get("p99"), "{:.1f}"),
+            _p99(timing.get("frames"), fm.get("p99")),
             _num(fm.get("max"), "{:.1f}"),
             "",
         ]
     )
     t = _table(["stage", "calls", "median (ms)", "p99 (ms)", "max (ms)", "total (s)"], rows)
     return t + (
-        "<p>Peak resident memory of the processing process: "
+        f"<p>p99 only from {MIN_CALLS_P99} calls on (with fewer it is the maximum). "
+        "Peak resident memory of the processing process: "
         f"{_num(timing.get('peak_rss_mb'), '{:.0f}')} MB; "
         f"CPU time {_num(timing.get('cpu_s'), '{:.1f}')} s.</p>"
     )
@@ -455,8 +778,14 @@ def per_frame_sections(
         ``{"shifts": html, "registration": html}``.
     """
     folder = Path(folder)
+    shifts = _read_table(folder, "shifts.csv")
+    cover = (0, "")
+    if has_telemetry and shifts:
+        cover = telemetry_cover(
+            _read_table(folder, "telemetry.csv"), [_f(r, "stamp_ns") for r in shifts]
+        )
     return {
-        "shifts": _section_shifts(_read_table(folder, "shifts.csv"), t0, has_telemetry),
+        "shifts": _section_shifts(shifts, t0, has_telemetry, cover),
         "registration": _section_registration(
             _read_table(folder, "frames.csv"), references, stages, t0
         ),
@@ -469,4 +798,8 @@ def mosaic_section(folder: str | Path, mosaic: dict) -> dict[str, str]:
     ``mosaic`` is ``summary.json``'s ``mosaic``; returns ``{"mosaic": html}``.
     """
     folder = Path(folder)
-    return {"mosaic": _section_mosaic(folder, mosaic, _read_table(folder, "telemetry.csv"))}
+    return {
+        "mosaic": _section_mosaic(
+            folder, mosaic, _read_table(folder, "telemetry.csv"), _read_table(folder, "frames.csv")
+        )
+    }

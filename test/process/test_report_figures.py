@@ -32,7 +32,7 @@ def _rows(n: int) -> list[dict]:
 def test_a_long_flight_s_shift_trajectory_stays_small():
     """PNG: 2000 frames in ~0.2 MB (as SVG, 2.6 KB per frame: 5 MB)."""
     html = _section_shifts(_rows(2000), 1.0, True)
-    assert "data:image/png;base64," in html and "svg" not in html
+    assert "data:image/png;base64," in html and "data:image/svg" not in html
     assert len(html) < 400_000, len(html)
 
 

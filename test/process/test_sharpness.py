@@ -56,7 +56,7 @@ def test_the_report_states_the_edge_figures_or_why_there_are_none():
         {"mtf50_bicubic": 0.30, "mtf50_sr": 0.60, "mtf30_bicubic": 0.40, "mtf30_sr": 0.70},
     ]
     text = _edges_text(edges, has_truth=False)
-    assert "2 straight edge(s)" in text and "MTF50 bicubic 0.320" in text
+    assert "2 straight edges" in text and "MTF50 bicubic 0.320" in text
     assert "super-resolved 0.640 (2.00x)" in text
     assert "no straight edge in the reference and no ground truth" in _edges_text([], False)
     assert "no ground truth" not in _edges_text([], True)

@@ -61,6 +61,7 @@ from subpix_ros.process.summary import (
     _input_problems,
     _stage_stats,
     _summary,
+    frame_gaps,
     telemetry_coverage,
     telemetry_unusable,
     time_jumps_back,
@@ -557,6 +558,9 @@ class _FlightRun:
         jumps = time_jumps_back(self.jumps_back_ns)
         if jumps:  # every stage restarted at each: sets and tracking cut short
             self.problems.append(jumps)
+        gaps = frame_gaps([r.stamp_ns for r in collector.frames])
+        if gaps:  # frames the bag never had: said, the products are what the bag allows
+            self.problems.append(gaps)
         coverage = telemetry_coverage(
             [sm.t for sm in self.samples],
             [r.stamp_ns * 1e-9 for r in collector.frames],

@@ -216,15 +216,16 @@ def _header(summary: dict, timing: dict, frames: list[dict] | None = None) -> li
                 f"<p>Frames {title} by reason:</p>"
                 + _table(["reason (example)", "frames"], _reason_rows(reasons, frames or [], title))
             )
-    h.append(_parameters(summary.get("parameters") or {}))
+    h.append(_parameters(summary.get("parameters") or {}, summary.get("parameters_in_effect")))
     return h
 
 
-def _parameters(given: dict[str, dict]) -> str:
+def _parameters(given: dict[str, dict], in_effect: dict[str, dict] | None = None) -> str:
     """Show the parameters in effect: the stage defaults merged with those given (marked).
 
-    ``summary.json`` records the parameters given (``--params``); the defaults are this
-    version's stage defaults (the ones ``subpix process`` used unless it was another version).
+    ``summary.json`` records the parameters given (``--params``) and those the run used
+    (``parameters_in_effect``); a summary written before the latter was recorded is shown with
+    this version's stage defaults for the rest, and says so.
     """
     from subpix_ros.process.params import PROCESS_NODES, pipeline_params
     from subpix_ros.stages import MosaicStage, ReconstructionStage, RegistrationStage, ShiftStage
@@ -236,24 +237,32 @@ def _parameters(given: dict[str, dict]) -> str:
         "mosaic_node": MosaicStage,
     }
     defaults = pipeline_params({n: {s.name: s.default for s in stages[n].PARAMS} for n in stages})
+    # the values: what the run used where summary.json records it, else this version's defaults
+    used = in_effect or defaults
     rows = []
     n_given = 0
     for node in [*PROCESS_NODES, *sorted(set(given) - set(PROCESS_NODES))]:  # pipeline order
-        mine = given.get(node) or {}
-        for k in sorted(set(defaults.get(node, {})) | set(mine)):
+        mine, values = given.get(node) or {}, used.get(node, {})
+        for k in sorted(set(values) | set(mine)):
             if k in mine:
                 n_given += 1
                 d = defaults.get(node, {}).get(k)
                 note = "given" + (f" (default {json.dumps(d)})" if d is not None else "")
-                rows.append([node, k, json.dumps(mine[k]), note])
+                shown = values.get(k, mine[k]) if in_effect else mine[k]
+                rows.append([node, k, json.dumps(shown), note])
             else:
-                rows.append([node, k, json.dumps(defaults[node][k]), "default"])
+                rows.append([node, k, json.dumps(values[k]), "default"])
     return (
         f"<details><summary>Parameters in effect ({_plural(n_given, 'value')} given, "
         "the rest the stage defaults)</summary>"
         + _table(["stage", "parameter", "value", "from"], rows)
-        + "<p>Given: from --params (summary.json records these). Default: the stage's default "
-        f"in subpix_ros {_esc(_version())}, which made this report.</p></details>"
+        + (
+            "<p>Given: from --params. Default: the stage's own value in the run "
+            "(summary.json records both).</p></details>"
+            if in_effect
+            else "<p>Given: from --params (summary.json records these). Default: the stage's "
+            f"default in subpix_ros {_esc(_version())}, which made this report.</p></details>"
+        )
     )
 
 

@@ -225,6 +225,51 @@ def time_jumps_back(jumps_ns: list[int]) -> str | None:
     )
 
 
+def frame_gaps(stamps_ns: list[int], factor: float = 1.8, min_frames: int = 8) -> str | None:
+    """Say where the camera's stream has gaps: frames lost before they reached the bag.
+
+    Parameters
+    ----------
+    stamps_ns : list of int
+        Every frame's stamp in bag order (ns), frames the pipeline left out included.
+    factor : float, optional
+        An interval longer than ``factor`` times the median interval is a gap.
+    min_frames : int, optional
+        Fewer frames: nothing said (no stable median interval).
+
+    Returns
+    -------
+    str or None
+        One problem line: the number of gaps, the frames they would have held at the median
+        interval, the largest gap, and the likely cause; None without a gap.
+
+    Notes
+    -----
+    With intervals ``d_i = t_(i+1) - t_i > 0`` and ``m`` their median, a gap is ``d_i > factor
+    m`` and is counted as ``round(d_i / m) - 1`` missing frames. Intervals that go back in
+    time are :func:`time_jumps_back`'s, not counted here.
+    """
+    t = np.asarray(stamps_ns, dtype=np.float64)
+    if t.size < min_frames:
+        return None
+    d = np.diff(t)
+    d = d[d > 0]
+    if d.size < min_frames - 1:
+        return None
+    m = float(np.median(d))
+    gaps = d[d > factor * m]
+    if not gaps.size:
+        return None
+    missing = int(np.sum(np.rint(gaps / m) - 1))
+    n = gaps.size
+    return (
+        f"{n} gap{'s' if n > 1 else ''} in the camera's stream (about {missing} frame"
+        f"{'s' if missing != 1 else ''} missing at the median interval {m * 1e-9:.3g} s; largest "
+        f"{gaps.max() * 1e-9:.3g} s): frames lost before the bag (camera driver, a recorder or "
+        "link that could not keep up)?"
+    )
+
+
 def _utc(t: float) -> str:
     """Format POSIX seconds as ``YYYY-MM-DD HH:MM:SS.s`` (UTC)."""
     import datetime
@@ -274,6 +319,17 @@ def _stage_stats(run: _FlightRun) -> dict:
         k: _clean({kk: vv for kk, vv in _stats_dict(v).items() if not _TIME_KEY.search(kk)})
         for k, v in run.all_stats().items()
     }
+
+
+def _in_effect(run: _FlightRun) -> dict[str, dict]:
+    """Every stage's parameters as the run used them (the defaults and those given), by node."""
+    stages = {**run.pipe.stages(), "mosaic_node": run.mosaic}
+    out = {}
+    for name, stage in stages.items():
+        params = getattr(stage, "params", None)
+        if isinstance(params, dict):
+            out[name] = _clean({**params, **getattr(stage, "extra", {})})
+    return out
 
 
 def _summary(run: _FlightRun, mosaic_info: dict) -> dict:
@@ -327,5 +383,6 @@ def _summary(run: _FlightRun, mosaic_info: dict) -> dict:
             collector.warning_examples[k]: n for k, n in sorted(collector.warnings.items())
         },
         "parameters": _clean(run.pparams),
+        "parameters_in_effect": _in_effect(run),
         "broke_off": run.broke_off,
     }

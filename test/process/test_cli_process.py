@@ -1048,8 +1048,30 @@ def test_sets_too_small_to_reconstruct_are_said(sample_bags, tmp_path):
     s = _summary(tmp_path / "out" / "subpixel")
     rec = s["stages"]["reconstruction_node"]
     assert rec["sets_dropped"] >= 1, rec
+    used = s["parameters_in_effect"]  # the run's values, given and default, for the report
+    assert used["registration_node"]["max_frames_per_reference"] == 8
+    assert (
+        used["reconstruction_node"]["min_frames"] == 4 and "n_points" in used["registration_node"]
+    )
     said = next(p for p in s["problems"] if "too small to reconstruct" in p)
     assert said.startswith(f"{rec['sets_dropped']} set") and "< min_frames 4" in said, said
     assert f"{rec['dropped']} aligned frame" in said, said
     html = (tmp_path / "out" / "subpixel" / "report.html").read_text()
     assert "too small to reconstruct" in html
+
+
+def test_frames_lost_before_the_bag_are_said(sample_bags, tmp_path):
+    """Frames lost before the bag are named in the flight's line; the products are made.
+
+    Four frames missing from the middle of the camera's stream (a driver or recorder that could
+    not keep up).
+    """
+    _, frames, tel = _sample(sample_bags)
+    kept = frames[:10] + frames[14:]
+    bag = _write(tmp_path / "gappy", sorted(kept + tel, key=lambda m: m.timestamp_ns))
+    r = _run(str(bag), "-o", str(tmp_path / "out"), "--params", DEMO)
+    assert r.returncode == 0, r.stdout + r.stderr
+    s = _summary(tmp_path / "out" / "gappy")
+    said = next(p for p in s["problems"] if "gap" in p)
+    assert said.startswith("1 gap in the camera's stream (about 4 frames missing"), said
+    assert s["sets"], "the products are made"

@@ -358,6 +358,17 @@ def test_parameters_table_shows_the_values_in_effect_and_marks_the_given_ones():
     assert "pixel_pitch_um" in report._parameters({})
 
 
+def test_parameters_table_shows_what_the_run_recorded_not_todays_defaults():
+    """summary.json's parameters_in_effect: a report drawn by another version shows the run's."""
+    used = {"registration_node": {"p": 3.0, "max_frames_per_reference": 11, "tracking": True}}
+    html = report._parameters({"registration_node": {"p": 3.0}}, used)
+    rows = re.findall(r"<tr><td>(.*?)</td><td>(.*?)</td><td>(.*?)</td><td>(.*?)</td></tr>", html)
+    by = {(r[0], r[1]): (r[2], r[3]) for r in rows}
+    assert by[("registration_node", "max_frames_per_reference")] == ("11", "default")
+    assert by[("registration_node", "p")] == ("3.0", "given (default 2.0)")
+    assert "the stage's own value in the run" in html
+
+
 # --- 10. stage times --------------------------------------------------------------------------
 
 

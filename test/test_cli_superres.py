@@ -195,9 +195,11 @@ def test_superres_equal_shifts_reports_fallback(frames, tmp_path, capsys):
             superres_cli,
             ["superres", paths[0], paths[0], "--shifts", str(same), "-o", str(tmp_path / "o.png")],
         )
-        == 0
+        == 1
     )
-    assert "fell back" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert "fell back" in said.out and "not a super-resolved image" in said.err
+    assert (tmp_path / "o.png").is_file()  # the bicubic upscale is still written
 
 
 def test_mtf_cli(tmp_path, capsys):

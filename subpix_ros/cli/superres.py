@@ -245,4 +245,11 @@ def run(args: argparse.Namespace) -> int:
         f"{args.output}: {res.image.shape[1]}x{res.image.shape[0]} method={res.method} "
         f"noise_sigma={res.noise_sigma:.3g} DN frames={len(imgs)} {blur_note}{note}"
     )
+    if res.fell_back:  # the file holds a bicubic upscale: said, and not an exit status of success
+        print(
+            f"subpix superres: {args.output} is the first frame upscaled (bicubic), not a "
+            f"super-resolved image: {res.reason}",
+            file=sys.stderr,
+        )
+        return 1
     return 0

@@ -33,8 +33,7 @@ __all__ = [
     "spectral_cap",
 ]
 
-ALPHA_MIN = 2.0  # a scene's power spectrum falls at least as fast as |f|^-ALPHA_MIN (spectral cap)
-RING_STATISTIC = "median"  # a ring's power for the spectral cap: "mean" or "median"
+ALPHA_MIN = 1.0  # a scene's power spectrum falls at least as fast as |f|^-ALPHA_MIN (spectral cap)
 MAX_LINE_RMS = 0.35  # edge positions about the fitted line (px): straighter than this
 MAX_TEXTURE = 0.12  # RMS beside the edge / step height: flatter than this
 MIN_CONTRAST_SNR = 12.0  # step height / noise std: at least this
@@ -449,7 +448,6 @@ def spectral_cap(
     alpha_min: float = ALPHA_MIN,
     max_frames: int = 4,
     crop: int = 256,
-    ring: str = RING_STATISTIC,
 ) -> float:
     """Return the largest blur (px) the frames' power spectrum allows; ``inf`` if it says nothing.
 
@@ -463,10 +461,6 @@ def spectral_cap(
         The scene's power spectrum is taken to fall at least as ``|f|^-alpha_min``.
     max_frames, crop : int, optional
         Frames and central square used.
-    ring : {"mean", "median"}, optional
-        How a ring's power is taken: its mean, or its median divided by ``ln 2`` (the median of
-        an exponential law against its mean): a straight edge's power lies on one line through
-        the origin, which a median leaves out.
 
     Returns
     -------
@@ -479,24 +473,10 @@ def spectral_cap(
     -----
     With ``S_y(f) = G(f)^2 B(f) S_x(f) + n^2`` (G the Gaussian optics, B the squared
     pixel-box transfer ``sinc^2``), the ratio ``R_b = (S_y(f_b) - n^2) / (S_y(f_0) - n^2)``
-    of the Hann-windowed periodogram's ring levels against the band [0.06, 0.12) (centre f_0)
+    of the Hann-windowed periodogram's ring means against the band [0.06, 0.12) (centre f_0)
     bounds the blur from above if ``S_x(f_b) / S_x(f_0) <= (f_b / f_0)^-alpha_min``. Aliasing
     only raises ``R_b`` (a lower cap, the safe side). A slanted-edge value above the cap
     comes from an edge that is soft in the scene.
-
-    A ring's level is by default its median (``ring``): a long straight edge puts its power on
-    one line through the origin, ``|f|^-2`` along its normal, which the mean takes in and which
-    then loosens the cap by the very edge it is to check (a soft shadow's border raised the
-    low band's mean and passed as the camera's blur). The median reads the texture around it.
-    ``alpha_min`` 2 (natural images' power falls about as ``|f|^-2``) with the median refused
-    every soft border of a 54-cell test (real crops x a shadow of 0.3-0.7 LR px penumbra,
-    30-50 dB) where ``alpha_min`` 1 with the mean let 14 through, 1-17 dB below bicubic, and
-    changed no cell of the blind bench (docs/design-notes.md, wave 2 session 20).
-
-    References
-    ----------
-    .. [1] van der Schaaf, A., van Hateren, J. H. (1996). Modelling the power spectra of
-       natural images: statistics and information. Vision Research 36(17), 2759-2770.
     """
     h0, w0 = np.shape(frames[0])[:2]
     h, w = min(h0, crop), min(w0, crop)
@@ -515,14 +495,10 @@ def spectral_cap(
     r = np.hypot(np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :])
     edges = (0.06, 0.12, 0.2, 0.28, 0.36, 0.44)
     cen, pw = [], []
-    # a ring's median as its mean: the frames show one scene, so its periodogram follows one
-    # exponential law (median ln 2 of the mean), not the average of n independent ones
-    to_mean = 1.0 / np.log(2.0)
     for a, b in zip(edges[:-1], edges[1:]):  # rings
         sel = (r >= a) & (r < b)
         cen.append(float(r[sel].mean()))
-        level = float(ps[sel].mean()) if ring == "mean" else float(np.median(ps[sel])) * to_mean
-        pw.append(level - noise_sigma**2)
+        pw.append(float(ps[sel].mean()) - noise_sigma**2)
     if pw[0] <= 0:
         return float("inf")
     caps = []

@@ -153,38 +153,6 @@ def test_edges_without_a_finite_misfit_are_not_pooled_into_a_silent_zero():
     assert both.source == "edges" and np.isfinite(both.sigma) and 0.3 < both.sigma <= 0.4
 
 
-@pytest.mark.parametrize(
-    "crop, offset, penumbra, snr",
-    [("crop_field_edge", (240, 240), 0.5, 40), ("crop_road", (100, 400), 0.7, 50)],
-)
-def test_a_soft_shadow_over_sharp_texture_is_not_read_as_the_cameras_blur(
-    crops, crop, offset, penumbra, snr
-):
-    """A shadow's soft border across a sharply imaged real crop, the only straight edge in view.
-
-    Found by an outside trial (wave 2 session 20): the border measures sqrt(lens^2 + penumbra^2)
-    (0.54 and 0.68 px here against a camera blur of 0.1 px) and the image fell 5-17 dB below
-    bicubic. The texture holds more fine detail than that blur lets through; with each ring's
-    median power (the border's own power lies on one line of the spectrum) and the scene's power
-    taken to fall at least as |f|^-2, the frames' spectral cap refuses the border.
-    """
-    import cv2
-
-    p, lr, margin = 2, 128, 8
-    sc = scene_crop(crops[crop], p, lr, margin, offset)
-    n = sc.shape[0]
-    yy, xx = np.mgrid[0:n, 0:n].astype(np.float64)
-    border = (yy - 0.45 * n - 0.18 * (xx - n / 2) > 0).astype(np.float64)  # slanted, 10 deg
-    shade = cv2.GaussianBlur(border, (0, 0), penumbra * p)
-    fl = degrade(
-        sc * (1.0 - 0.6 * shade), p, shift_layout("random", p, seed=2), 0.1, snr_db=snr, margin=8
-    )
-    sh = est_shifts(fl.frames)
-    est = estimate_blur(fl.frames, sh)
-    assert est.source == "fallback" and "soft in the scene" in est.reason, est.reason
-    assert gain(fl, reconstruct(fl.frames, sh, p, blur_sigma="auto").image) > 3.0
-
-
 @pytest.mark.parametrize("crop", ["crop_field_edge", "crop_rows", "crop_trees", "crop_road"])
 @pytest.mark.parametrize("blur", [0.2, 0.9])
 def test_blur_never_above_truth_without_sharp_edges(crops, crop, blur):

@@ -21,7 +21,7 @@ the value.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -551,10 +551,13 @@ class BlurCalibration:
     :func:`estimate_blur` runs on the first set, then on every ``search_sets``-th set until
     a set shows a usable edge (the flight may reach a road or a roof only later), and from
     then on every ``refresh_sets``-th set (the calibration can cost a sizeable part of a
-    set's reconstruction). An edge estimate stays in use until a later set gives a new one
-    (a set without edges in view does not discard it); until the first edge estimate the
-    fallback is used. A given number checked against the edges (``check_given``) follows
-    the same schedule.
+    set's reconstruction). The blur in use is the lowest of the last ``keep_edges`` edge
+    estimates (a set without edges in view does not discard them): an edge soft in the scene
+    (a shadow's border) only ever reads above the camera's blur, so a set that shows only
+    such an edge does not replace a sharper edge measured a few refreshes before, while a
+    real change of the camera's blur is taken once ``keep_edges`` refreshes have seen it.
+    Until the first edge estimate the fallback is used. A given number checked against the
+    edges (``check_given``) follows the same schedule.
     """
 
     def __init__(
@@ -563,8 +566,11 @@ class BlurCalibration:
         refresh_sets: int = 10,
         check_given: bool = False,
         search_sets: int = 1,
+        keep_edges: int = 3,
     ) -> None:
         self.setting = parse_blur_sigma(setting)
+        self.keep_edges = max(1, int(keep_edges))
+        self._edges: list[BlurEstimate] = []  # the last keep_edges edge estimates, oldest first
         self.refresh_sets = max(1, int(refresh_sets))
         self.search_sets = max(1, int(search_sets))
         self.check_given = bool(check_given)
@@ -620,6 +626,26 @@ class BlurCalibration:
         self.edges_seen = self.edges_seen or new.source == "edges"
         if self.setting != "auto":  # a given number, checked against the edges
             self.current = check_given_blur(float(self.setting), new)
-        elif new.source == "edges" or self.current is None or self.current.source != "edges":
+        elif new.source == "edges":
+            self._edges = [*self._edges, new][-self.keep_edges :]
+            self.current = _lowest_recent(self._edges)
+        elif self.current is None or self.current.source != "edges":
             self.current = new
         return self.current
+
+
+def _lowest_recent(edges: Sequence[BlurEstimate]) -> BlurEstimate:
+    """Return the lowest of recent edge estimates, its reason saying so when it is not the newest.
+
+    A scene edge is never sharper than the camera makes it (an edge soft in the scene reads
+    higher), so of estimates a few sets apart the lowest is the camera's.
+    """
+    newest = edges[-1]
+    low = min(edges, key=lambda e: e.sigma)
+    if low is newest:
+        return newest
+    return replace(
+        low,
+        reason=f"{low.reason}; kept over the newest measurement {newest.sigma:.3f} px "
+        f"(the lowest of the last {len(edges)}: an edge soft in the scene reads higher)",
+    )

@@ -250,6 +250,32 @@ def test_calibration_kept_across_sets_and_refreshed(crops):
     assert fixed.update(without.frames).sigma == 0.3 and fixed.current.source == "parameter"
 
 
+def test_calibration_keeps_the_lowest_recent_edge_not_a_softer_newer_one(monkeypatch):
+    """A roof measured, then sets whose only edge is a shadow's soft border (reads higher).
+
+    The shadow's value does not replace the roof's until ``keep_edges`` refreshes have all
+    measured above it (then the camera's blur has changed); a lower one is taken at once.
+    """
+    import subpix_ros.core.blur as blur_mod
+
+    values = iter([0.30, 0.62, 0.60, 0.61, 0.58, 0.25])
+    monkeypatch.setattr(
+        blur_mod,
+        "estimate_blur",
+        lambda *a, **k: BlurEstimate(next(values), "edges", reason="measured"),
+    )
+    cal = BlurCalibration("auto", refresh_sets=1, keep_edges=3)
+    frames = [np.zeros((8, 8))]
+    assert cal.update(frames).sigma == 0.30  # the roof
+    kept = cal.update(frames)  # the shadow: 0.62
+    assert kept.sigma == 0.30 and "kept over the newest measurement 0.620 px" in kept.reason
+    assert cal.update(frames).sigma == 0.30  # 0.60: the roof is one of the last 3 still
+    assert cal.update(frames).sigma == 0.60  # 0.61: the roof has left the last 3
+    assert cal.update(frames).sigma == 0.58  # the newest is the lowest: taken as it is
+    low = cal.update(frames)
+    assert low.sigma == 0.25 and low.reason == "measured"
+
+
 def test_calibration_looks_for_edges_at_every_set_until_it_finds_one(crops):
     """The default search: the first set with a roof in view is measured, not the 10th."""
     with_edge = flight(crops, "crop_road", 2, 0.5, roof=True, seed=4)

@@ -62,6 +62,7 @@ from subpix_ros.process.summary import (
     _stage_stats,
     _summary,
     frame_gaps,
+    telemetry_clock,
     telemetry_coverage,
     telemetry_unusable,
     time_jumps_back,
@@ -480,6 +481,7 @@ class _FlightRun:
                 {"registration_node": _as_json(_stage_stats(self)["registration_node"])},
                 self.first_ns * 1e-9 if self.first_ns is not None else None,
                 bool(self.samples),
+                telemetry_clock({"registration_node": self.reg_params}),
             )
         try:
             self.pipe.flush()
@@ -538,7 +540,10 @@ class _FlightRun:
         self.writer.flush()  # the sets' scores are added on the products thread
         if self.ahead is not None:  # mosaic.png and telemetry.csv are written
             self.ahead_requests["mosaic"] = self.ahead.submit(
-                "mosaic_section", self.writer.tmp, _as_json(mosaic_info)
+                "mosaic_section",
+                self.writer.tmp,
+                _as_json(mosaic_info),
+                telemetry_clock({"registration_node": self.reg_params}),
             )
         summary = _summary(self, mosaic_info)
         repeated = [
@@ -579,7 +584,10 @@ class _FlightRun:
             self.problems.append(
                 "no super-resolved image: no set reached min_frames" + _why_no_set(collector)
             )
-        small = _sets_too_small(summary["stages"].get("reconstruction_node") or {}, collector)
+        small = _sets_too_small(
+            summary["stages"].get("reconstruction_node") or {},
+            summary["parameters_in_effect"].get("reconstruction_node") or {},
+        )
         if small:  # aligned and shifted, then let go: said, not left to a warning's count
             self.problems.append(small)
         failed = _failed_shifts(self.rows)
@@ -679,26 +687,23 @@ def _failed_shifts(rows: list[dict]) -> str | None:
     return f"{len(bad)} of {len(rows)} aligned frames have no sub-pixel shift: {_kinds(bad, 3)}"
 
 
-def _sets_too_small(rec: dict, collector: _Collector) -> str:
+def _sets_too_small(rec: dict, params: dict) -> str:
     """Say how many sets were too small to reconstruct and how many aligned frames went unused.
 
-    ``rec`` is the reconstruction stage's statistics (``sets_dropped``, ``dropped``); the
-    stage's warning (``set of reference ... dropped: 2 frames < min_frames 4``) gives the rule.
-    '' when no set was dropped.
+    ``rec`` is the reconstruction stage's statistics (``sets_dropped``, ``dropped``: the
+    members of those sets) and ``params`` its parameters in effect (``min_frames``). '' when no
+    set was dropped.
     """
     n, frames = int(rec.get("sets_dropped") or 0), int(rec.get("dropped") or 0)
     if not n:
         return ""
-    rule = next(
-        (
-            w.rsplit("dropped: ", 1)[-1]
-            for w in collector.warning_examples.values()
-            if "< min_frames" in w
-        ),
-        "",
+    rule = (
+        f"each < min_frames {params['min_frames']}"
+        if "min_frames" in params
+        else "below min_frames"
     )
     return (
-        f"{n} set{'s' if n > 1 else ''} too small to reconstruct ({rule or 'below min_frames'}): "
+        f"{n} set{'s' if n > 1 else ''} too small to reconstruct ({rule}): "
         f"{frames} aligned frame{'s' if frames != 1 else ''} not used; a new reference before "
         "n_frames (max_frames_per_reference, a failed registration) or the end of the flight "
         "leaves such a set"

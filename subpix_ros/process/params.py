@@ -138,6 +138,15 @@ class ParamsError(InputError):
     """A params file names a parameter or node that does not apply (exit status 2)."""
 
 
+def stage_classes() -> dict[str, type]:
+    """Return the stage class of each node of :data:`PROCESS_NODES`, in pipeline order."""
+    from subpix_ros.stages import MosaicStage, ReconstructionStage, RegistrationStage, ShiftStage
+
+    return dict(
+        zip(PROCESS_NODES, (RegistrationStage, ShiftStage, ReconstructionStage, MosaicStage))
+    )
+
+
 @functools.cache
 def declared_params(node: str) -> frozenset[str]:
     """Return the parameters ``node`` (one of :data:`PROCESS_NODES`) takes in a params file.
@@ -158,14 +167,7 @@ def declared_params(node: str) -> frozenset[str]:
     The stage's parameters come from the stage class (the node declares the same specs); the
     node-only ones from a table that test/process/test_params.py checks against the node.
     """
-    from subpix_ros.stages import MosaicStage, ReconstructionStage, RegistrationStage, ShiftStage
-
-    stage = {
-        "registration_node": RegistrationStage,
-        "shift_node": ShiftStage,
-        "reconstruction_node": ReconstructionStage,
-        "mosaic_node": MosaicStage,
-    }[node]
+    stage = stage_classes()[node]
     names = {s.name for s in stage.PARAMS} | set(_NODE_ONLY[node])
     if node == "reconstruction_node":
         from subpix_ros.stages.reconstruction import solver_option_names
@@ -483,11 +485,8 @@ def check_params(params: dict[str, dict]) -> None:
         A value of the wrong type or out of range, e.g. a ``/**`` ``method`` one of the two
         nodes that declare it does not take.
     """
-    from subpix_ros.stages import MosaicStage, ReconstructionStage, RegistrationStage, ShiftStage
-
     pp = pipeline_params(params)
-    stages = (RegistrationStage, ShiftStage, ReconstructionStage, MosaicStage)
-    for node, stage in zip(PROCESS_NODES, stages):
+    for node, stage in stage_classes().items():
         try:
             stage.from_params(pp[node])
         except (ValueError, TypeError) as exc:

@@ -34,6 +34,7 @@ from subpix_ros.process.report_sections import (
     mosaic_section,
     per_frame_sections,
 )
+from subpix_ros.process.summary import telemetry_clock
 
 __all__ = ["build_report", "write_report"]
 
@@ -85,6 +86,7 @@ def build_report(
     h.append(f"<h1>Flight report: {_esc(summary.get('bag'))}</h1>")
     h.extend(_header(summary, timing, _read_table(folder, "frames.csv")))
     drawn = dict(sections or {})  # what a helper drew; the rest is drawn here, the same way
+    clock = telemetry_clock(summary.get("parameters_in_effect") or {})
     if not (drawn.get("shifts") and drawn.get("registration")):
         drawn.update(
             per_frame_sections(
@@ -93,10 +95,11 @@ def build_report(
                 summary.get("stages", {}),
                 t0,
                 bool(tel.get("samples")),
+                clock,
             )
         )
     if not drawn.get("mosaic"):
-        drawn.update(mosaic_section(folder, summary.get("mosaic", {})))
+        drawn.update(mosaic_section(folder, summary.get("mosaic", {}), clock))
     h.append("<h2>Shift trajectory</h2>")
     h.append(drawn["shifts"])
     h.append("<h2>Registration</h2>")
@@ -227,16 +230,11 @@ def _parameters(given: dict[str, dict], in_effect: dict[str, dict] | None = None
     (``parameters_in_effect``); a summary written before the latter was recorded is shown with
     this version's stage defaults for the rest, and says so.
     """
-    from subpix_ros.process.params import PROCESS_NODES, pipeline_params
-    from subpix_ros.stages import MosaicStage, ReconstructionStage, RegistrationStage, ShiftStage
+    from subpix_ros.process.params import PROCESS_NODES, pipeline_params, stage_classes
 
-    stages = {
-        "registration_node": RegistrationStage,
-        "shift_node": ShiftStage,
-        "reconstruction_node": ReconstructionStage,
-        "mosaic_node": MosaicStage,
-    }
-    defaults = pipeline_params({n: {s.name: s.default for s in stages[n].PARAMS} for n in stages})
+    defaults = pipeline_params(
+        {n: {s.name: s.default for s in cls.PARAMS} for n, cls in stage_classes().items()}
+    )
     # the values: what the run used where summary.json records it, else this version's defaults
     used = in_effect or defaults
     rows = []

@@ -60,29 +60,38 @@ def _empty_panel(ax, why: str) -> None:
     ax.set_yticks([])
 
 
-def telemetry_cover(telemetry: list[dict], stamps_ns: list[float]) -> tuple[int, str]:
+def telemetry_cover(
+    telemetry: list[dict], stamps_ns: list[float], clock: tuple[float, float] = (0.0, 1.0)
+) -> tuple[int, str]:
     """Return how many frame times fall within the telemetry's time span, and the spans.
 
     Parameters
     ----------
     telemetry : list of dict
-        ``telemetry.csv``'s rows (``t_s``: the sample's time on the frames' clock, s).
+        ``telemetry.csv``'s rows (``t_s``: the sample's time, s).
     stamps_ns : list of float
         The frames' stamps (ns).
+    clock : (float, float), optional
+        ``telemetry_time_offset_s`` and ``telemetry_timeout_s`` of the run (the registration
+        stage's defaults if not given): the rule of :func:`~subpix_ros.process.summary.
+        frames_covered`, as the flight's problem line applies it.
 
     Returns
     -------
     tuple of (int, str)
-        The frames within the span (+- 1 s, the telemetry's default staleness) and, for a
-        sentence, both spans in seconds from the first frame ("" without samples or frames).
+        The frames within the span and, for a sentence, both spans in seconds from the first
+        frame ("" without samples or frames).
     """
+    from subpix_ros.process.summary import frames_covered  # (summary -> collector -> here)
+
     t = np.array([_f(r, "t_s") for r in telemetry], dtype=float)
     t = t[np.isfinite(t)]
     f = np.array(stamps_ns, dtype=float) * 1e-9
     f = f[np.isfinite(f)]
     if not t.size or not f.size:
         return 0, ""
-    inside = int(((f >= t.min() - 1.0) & (f <= t.max() + 1.0)).sum())
+    inside = int(frames_covered(t, f, *clock).sum())
+    f = f + clock[0]  # on the telemetry's clock
     t0 = f.min()
     spans = (
         f"telemetry from {t.min() - t0:+.1f} to {t.max() - t0:+.1f} s, frames from 0 to "
@@ -605,7 +614,11 @@ def _offsets_figure(plt, frac: np.ndarray, factor: int):
 
 
 def _section_mosaic(
-    folder: Path, mosaic: dict, telemetry: list[dict], frames: list[dict] | None = None
+    folder: Path,
+    mosaic: dict,
+    telemetry: list[dict],
+    frames: list[dict] | None = None,
+    clock: tuple[float, float] = (0.0, 1.0),
 ) -> str:
     """Draw the mosaic with the frame footprints and the GPS track with the frames on it.
 
@@ -644,18 +657,19 @@ def _section_mosaic(
         ax.set_yticks([])
     if has_gps:
         from subpix_ros.core.telemetry import enu_offset_m
+        from subpix_ros.process.summary import frames_covered
 
         ok = np.isfinite(lat) & np.isfinite(lon)
         e, nn = enu_offset_m(float(lat[ok][0]), float(lon[ok][0]), lat[ok], lon[ok])
         ts = np.array([_f(r, "t_s") for r in telemetry])[ok]
         stamps = np.array([_f(r, "stamp_ns") for r in frames or []], dtype=float) * 1e-9
-        stamps = stamps[np.isfinite(stamps)]
+        stamps = stamps[np.isfinite(stamps)] + clock[0]  # on the telemetry's clock
         ax = axes.pop(0)
         ax.plot(e, nn, "-", color="tab:blue", lw=1, alpha=0.6, label="track")
         inside = np.zeros(0, dtype=bool)
         if stamps.size and np.isfinite(ts).all() and np.all(np.diff(ts) >= 0):
-            # as telemetry_cover: a frame within 1 s of a sample (the default staleness)
-            inside = (stamps >= ts[0] - 1.0) & (stamps <= ts[-1] + 1.0)
+            # the flight's rule (summary.frames_covered), the offset already added
+            inside = frames_covered(ts, stamps, 0.0, clock[1])
         if inside.any():
             # the stretch flown while frames were taken: the track at the frames' times
             t_in = np.sort(stamps[inside])
@@ -665,10 +679,10 @@ def _section_mosaic(
             if not inside.all():
                 parts.append(
                     f"<p>{int((~inside).sum())} of {_plural(stamps.size, 'frame')} taken outside "
-                    "the GPS track's time span (more than 1 s from a sample): not on the track.</p>"
+                    "the GPS track's time span: not on the track.</p>"
                 )
         elif stamps.size:
-            _, spans = telemetry_cover(telemetry, list(stamps * 1e9))
+            _, spans = telemetry_cover(telemetry, list((stamps - clock[0]) * 1e9), clock)
             why = "no frame was taken within the GPS track's time"
             ax.set_title(why + " (no frame on the track)", fontsize=8, loc="left")
             parts.append(f"<p>GPS track: {why} ({_esc(spans)}).</p>")
@@ -755,7 +769,12 @@ def _read_table(folder: Path, name: str) -> list[dict[str, str]]:
 
 
 def per_frame_sections(
-    folder: str | Path, references: list, stages: dict, t0: float | None, has_telemetry: bool
+    folder: str | Path,
+    references: list,
+    stages: dict,
+    t0: float | None,
+    has_telemetry: bool,
+    clock: tuple[float, float] = (0.0, 1.0),
 ) -> dict[str, str]:
     """Draw the shift trajectory and registration sections from a flight's tables.
 
@@ -771,6 +790,9 @@ def per_frame_sections(
         The first frame's stamp (s): the figures' time origin.
     has_telemetry : bool
         Whether the flight has telemetry samples (the expected shift is drawn).
+    clock : (float, float), optional
+        The run's ``telemetry_time_offset_s`` and ``telemetry_timeout_s``
+        (:func:`telemetry_cover`).
 
     Returns
     -------
@@ -782,7 +804,7 @@ def per_frame_sections(
     cover = (0, "")
     if has_telemetry and shifts:
         cover = telemetry_cover(
-            _read_table(folder, "telemetry.csv"), [_f(r, "stamp_ns") for r in shifts]
+            _read_table(folder, "telemetry.csv"), [_f(r, "stamp_ns") for r in shifts], clock
         )
     return {
         "shifts": _section_shifts(shifts, t0, has_telemetry, cover),
@@ -792,14 +814,22 @@ def per_frame_sections(
     }
 
 
-def mosaic_section(folder: str | Path, mosaic: dict) -> dict[str, str]:
+def mosaic_section(
+    folder: str | Path, mosaic: dict, clock: tuple[float, float] = (0.0, 1.0)
+) -> dict[str, str]:
     """Draw the mosaic and track section from ``mosaic.png`` and ``telemetry.csv``.
 
-    ``mosaic`` is ``summary.json``'s ``mosaic``; returns ``{"mosaic": html}``.
+    ``mosaic`` is ``summary.json``'s ``mosaic`` and ``clock`` the run's
+    ``telemetry_time_offset_s`` and ``telemetry_timeout_s`` (:func:`telemetry_cover`);
+    returns ``{"mosaic": html}``.
     """
     folder = Path(folder)
     return {
         "mosaic": _section_mosaic(
-            folder, mosaic, _read_table(folder, "telemetry.csv"), _read_table(folder, "frames.csv")
+            folder,
+            mosaic,
+            _read_table(folder, "telemetry.csv"),
+            _read_table(folder, "frames.csv"),
+            clock,
         )
     }

@@ -88,6 +88,44 @@ def blur_summary(sets: list[dict]) -> dict:
     }
 
 
+def frames_covered(sample_times, frame_times, offset_s: float, stale_after_s: float) -> np.ndarray:
+    """Return which frames fall within the telemetry's time span (bool per frame).
+
+    Parameters
+    ----------
+    sample_times, frame_times : array-like of float
+        The telemetry samples' times and the frames' stamps, s.
+    offset_s : float
+        ``telemetry_time_offset_s``: a frame's telemetry time is its stamp plus this.
+    stale_after_s : float
+        ``telemetry_timeout_s``: the newest sample is held this long after it.
+
+    Notes
+    -----
+    A frame is covered when ``first sample <= stamp + offset_s <= last sample +
+    stale_after_s``: the one rule of the flight's problem line (:func:`telemetry_coverage`) and
+    of the report's panels.
+    """
+    f = np.asarray(frame_times, dtype=np.float64) + float(offset_s)
+    t = np.asarray(sample_times, dtype=np.float64)
+    t = t[np.isfinite(t)]
+    if not t.size:
+        return np.zeros(f.shape, dtype=bool)
+    return (f >= t.min()) & (f <= t.max() + float(stale_after_s))
+
+
+def telemetry_clock(params: dict) -> tuple[float, float]:
+    """Return ``(telemetry_time_offset_s, telemetry_timeout_s)`` from parameters by node.
+
+    ``params`` is ``summary.json``'s ``parameters_in_effect`` (or the run's parameters); the
+    registration stage's defaults where it holds none (a summary written before it was kept).
+    """
+    reg = params.get("registration_node") or {}
+    return float(reg.get("telemetry_time_offset_s", 0.0)), float(
+        reg.get("telemetry_timeout_s", 1.0)
+    )
+
+
 def telemetry_coverage(
     sample_times: list[float], frame_times: list[float], offset_s: float, stale_after_s: float
 ) -> str | None:
@@ -116,7 +154,7 @@ def telemetry_coverage(
         return None
     t0, t1 = min(sample_times), max(sample_times) + stale_after_s
     ft = [t + offset_s for t in frame_times]
-    covered = sum(t0 <= t <= t1 for t in ft)
+    covered = int(frames_covered(sample_times, frame_times, offset_s, stale_after_s).sum())
     missed = len(ft) - covered
     if covered and missed <= max(2, 0.1 * len(ft)):
         return None

@@ -428,3 +428,23 @@ def test_a_long_edge_keeps_the_crops_scale_and_is_outlined_in_part():
     assert box is not None and box[3] == 192 * 2 and "in part beyond the crop" in said
     _, said = report_sections._edge_outline(crop, [{"roi": [250, 250, 20, 20]}], 2, 2)
     assert "elsewhere (rows 500..540, columns 500..540)" in said
+
+
+def test_the_track_follows_the_runs_telemetry_time_offset(tmp_path, figures):
+    """The report's coverage is the flight's rule (summary.frames_covered), offset included.
+
+    Telemetry an hour after the frames, processed with ``telemetry_time_offset_s`` 3600: the
+    flight counts every frame covered, so the track marks them too.
+    """
+    shifts = _converged_rows()
+    _flight_tables(tmp_path, shifts, 3600.0)
+    html = report_sections.mosaic_section(tmp_path, {"written": False}, (3600.0, 1.0))["mosaic"]
+    labels = [ln.get_label() for ln in figures[-1].axes[0].get_lines()]
+    assert "frame positions" in labels and "no frame" not in html
+    _flight_tables(tmp_path, _converged_rows(expected=False), 3600.0)
+    n = len(figures)
+    report_sections.per_frame_sections(tmp_path, [], {}, T0_NS * 1e-9, True)
+    assert "does not cover" in _texts(figures[n].axes[1])  # without the offset: an hour apart
+    n = len(figures)
+    report_sections.per_frame_sections(tmp_path, [], {}, T0_NS * 1e-9, True, (3600.0, 1.0))
+    assert "does not cover" not in _texts(figures[n].axes[1])

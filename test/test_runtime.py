@@ -470,16 +470,33 @@ def test_a_killed_nodes_segment_is_removed_and_a_live_nodes_kept(tmp_path):
     env = dict(os.environ, ROS_DOMAIN_ID=str(200 + os.getpid() % 30), SUBPIX_KEEP_SHM="1")
     exe = str(Path(sys.executable).with_name("shift_node"))
 
+    def owned(pid: int) -> set[str]:
+        """Return the Fast DDS segments process ``pid`` owns: it holds the flock on ``<name>_el``.
+
+        (Others may map a segment to write to it; the lock is its owner's alone.)
+        """
+        holders = {}
+        for line in Path("/proc/locks").read_text().splitlines():
+            f = line.split()
+            if len(f) > 5 and f[1] == "FLOCK":
+                holders[int(f[5].rsplit(":", 1)[1])] = int(f[4])
+        out = set()
+        for n in os.listdir(shm):
+            if re.match(r"^fastrtps_[0-9a-f]{16}$", n):
+                try:
+                    if holders.get(os.stat(shm / (n + "_el")).st_ino) == pid:
+                        out.add(n)
+                except OSError:
+                    pass
+        return out
+
     def start():
-        before = set(os.listdir(shm))
         p = subprocess.Popen([exe], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
-            new = {
-                n for n in set(os.listdir(shm)) - before if re.match(r"^fastrtps_[0-9a-f]{16}$", n)
-            }
-            if new:
-                return p, new
+            own = owned(p.pid)
+            if own:
+                return p, own
             time.sleep(0.2)
         p.kill()
         raise AssertionError("the node made no shared-memory segment in 30 s")
@@ -487,6 +504,7 @@ def test_a_killed_nodes_segment_is_removed_and_a_live_nodes_kept(tmp_path):
     killed, seg_killed = start()
     live, seg_live = start()
     try:
+        seg_killed |= owned(killed.pid)  # any it made after start() returned
         killed.send_signal(signal.SIGKILL)
         killed.wait()
         assert all((shm / n).exists() for n in seg_killed)  # what a killed process leaves behind

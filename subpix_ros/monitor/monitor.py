@@ -73,7 +73,7 @@ from foxglove.messages import LocationFix, Log, LogLevel
 
 from .budget import ByteMeter, TokenBucket
 from .config import MonitorConfig, MonitorError, check_exposure
-from .encoding import _num, _to_bgr, _ts, _ts_json
+from .encoding import TELEMETRY_DIGITS, _num, _px, _sig, _to_bgr, _ts, _ts_json
 from .schemas import (
     HEALTH_SCHEMA,
     HEALTH_VALUES_SCHEMA,
@@ -333,20 +333,26 @@ class Monitor(_Sender):
             Whether the estimator converged.
         expected_u, expected_v : float, optional
             Telemetry's expectation, px; the message carries the difference too.
+
+        Notes
+        -----
+        Shifts and differences are sent to :data:`~.encoding.SHIFT_DECIMALS` decimals (px),
+        the standard errors to :data:`~.encoding.STD_DIGITS` significant digits: the link
+        carries what the estimator can tell, not float64's digits. A non-finite value is null.
         """
         eu, ev = _num(expected_u), _num(expected_v)
         msg = {
             "timestamp": _ts_json(stamp_ns),
             "header": _header(stamp_ns),
-            "u": float(u),
-            "v": float(v),
-            "u_std": _num(u_std),
-            "v_std": _num(v_std),
+            "u": _px(u),
+            "v": _px(v),
+            "u_std": _sig(u_std),
+            "v_std": _sig(v_std),
             "converged": bool(converged),
-            "expected_u": eu,
-            "expected_v": ev,
-            "du": None if eu is None else float(u) - eu,
-            "dv": None if ev is None else float(v) - ev,
+            "expected_u": _px(eu),
+            "expected_v": _px(ev),
+            "du": None if eu is None else _px(float(u) - eu),
+            "dv": None if ev is None else _px(float(v) - ev),
         }
         self._essential("/shift", msg)
 
@@ -355,10 +361,11 @@ class Monitor(_Sender):
 
         Keys: ``frame_interval_s``, ``expected_u``, ``expected_v``, ``height_m``, ``speed_mps``.
         Sent at once, unless /telemetry would take more than its share of a small budget
-        (``ESSENTIAL_SHARES``): then the latest figures go when it is due (coalesced).
+        (``ESSENTIAL_SHARES``): then the latest figures go when it is due (coalesced). Each
+        figure is sent to :data:`~.encoding.TELEMETRY_DIGITS` significant digits.
         """
         with self._lock:
-            self._telemetry.update({k: _num(v) for k, v in values.items()})
+            self._telemetry.update({k: _sig(v, TELEMETRY_DIGITS) for k, v in values.items()})
             self._telemetry_pending = {
                 "timestamp": _ts_json(stamp_ns),
                 "header": _header(stamp_ns),

@@ -340,3 +340,30 @@ def test_the_client_command_answers_help_and_refuses_a_non_websocket_url(capsys)
 
     assert main(["--help"]) == 0 and "ws://HOST:PORT" in capsys.readouterr().out
     assert main(["http://127.0.0.1:8765"]) == 2 and "usage" in capsys.readouterr().err
+
+
+def test_shift_served_rounded_and_short():
+    """A shift goes out rounded to 1e-5 px (errors to 3 digits), a NaN as null, in under 270 bytes."""
+    with Monitor(MonitorConfig(port=0)) as mon:
+        c = _connect(mon.url)
+        stamp = 1_700_000_123_456_789_012
+        mon.on_shift(
+            stamp,
+            0.41372619342803955,
+            -0.2712873459124,
+            0.0003337983861,
+            float("nan"),
+            True,
+            0.40011234567,
+            0.29912345678,
+        )
+        assert c.wait(lambda: c.messages("/shift"), 5)
+        raw = c.messages("/shift")[0].payload
+        c.close()
+    msg = json.loads(raw)
+    assert (msg["u"], msg["v"]) == (0.41373, -0.27129)
+    assert (msg["u_std"], msg["v_std"]) == (0.000334, None)
+    assert (msg["expected_u"], msg["expected_v"]) == (0.40011, 0.29912)
+    assert (msg["du"], msg["dv"]) == (0.01361, -0.57041)
+    assert msg["header"]["stamp"] == {"sec": 1_700_000_123, "nsec": 456_789_012}
+    assert len(raw) < 270  # 322 bytes with every digit of the floats

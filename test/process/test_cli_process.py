@@ -744,11 +744,11 @@ def test_serve_shows_the_processing_live_to_a_foxglove_client(sample_bags, tmp_p
             proc.kill()
     assert proc.returncode == 0, err
     rows = {int(r["stamp_ns"]): r for r in read_csv(out / "subpixel" / "shifts.csv")}
-    for stamp, u, v in served:
+    for stamp, u, v in served:  # served to 1e-5 px
         assert stamp in rows
         assert (
-            abs(float(rows[stamp]["u_px"]) - u) < 1e-6
-            and abs(float(rows[stamp]["v_px"]) - v) < 1e-6
+            abs(float(rows[stamp]["u_px"]) - u) <= 5.1e-6
+            and abs(float(rows[stamp]["v_px"]) - v) <= 5.1e-6
         )
 
 

@@ -11,9 +11,10 @@ Per frame it records what happened (``frames.csv``): a new reference (and why), 
 selection (why), dropped (why: an image that does not decode, a frame of another size than the
 flight's first, a stage error). Per aligned frame ``shifts.csv`` holds the estimated sub-pixel
 shift (u, v) and its standard errors, whether it converged, the reference, the total shift
-against the reference (the homography's whole pixels plus the estimated sub-pixel part) and the
-shift expected from telemetry over the same time (METHODS eq. 1, see
-:mod:`subpix_ros.process.tables`).
+against the reference (the homography's whole pixels plus the estimated sub-pixel part), the
+registration's displacement of the reference's centre (every frame with a homography, its
+sub-pixel shift converged or not) and the shift expected from telemetry over the same time
+(METHODS eq. 1, see :mod:`subpix_ros.process.tables`).
 
 Bad input never raises out of :func:`process_bag`: a bag that cannot be opened, has no image
 topic or no telemetry, breaks off (corrupt chunk) or has frames of mixed sizes is described by

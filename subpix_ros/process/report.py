@@ -11,7 +11,8 @@ Sections: header (flight, camera, telemetry, frames in / kept / skipped /
 dropped by reason, each reason quoted in full from ``frames.csv``, processing time,
 problems, the parameters in effect); shift trajectory (measured total shift against the
 reference with its standard errors beside the shift expected from telemetry, METHODS eq. 1,
-and their residual; frames without a converged shift as ticks on the time axis);
+and their residual; frames without a converged shift at the registration's displacement as
+hollow markers, ticks on the time axis where they have none either);
 registration (inliers and residual along/across the baseline per frame, references started
 and why, tracking fallbacks); super-resolution per set (labelled crops of bicubic vs
 super-resolved at the same scale, around the set's MTF edge when it has one, PSNR where a

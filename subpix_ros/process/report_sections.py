@@ -112,7 +112,7 @@ def _no_residual_why(has_tel: bool, has_exp: bool, has_meas: bool, cover: tuple[
             "without height above ground)"
         )
     if not has_meas:
-        return "no converged shift: nothing measured to compare with the expected shift"
+        return "no converged shift: no sub-pixel shift to compare with the expected shift"
     return "no frame has both a converged and an expected shift"
 
 
@@ -124,10 +124,11 @@ def _section_shifts(
 ) -> str:
     """Draw the shift trajectory: measured total shift, the expected one, their residual.
 
-    Frames without a converged shift have no value: they are ticks on the time axis (red),
-    never points at 0 px. A series without a point has no legend entry; a panel without data
-    says why. ``cover`` is :func:`telemetry_cover` of the shifts' frames (the reason of a
-    missing expected shift).
+    Frames without a converged shift are drawn at the registration's displacement of the
+    reference's centre (hollow markers: no sub-pixel part, no residual) where they have one;
+    frames with neither are ticks on the time axis (red), never points at 0 px. A series
+    without a point has no legend entry; a panel without data says why. ``cover`` is
+    :func:`telemetry_cover` of the shifts' frames (the reason of a missing expected shift).
     """
     plt = _plt()
     if not shifts:
@@ -136,6 +137,7 @@ def _section_shifts(
     conv = np.array([r.get("converged") == "1" for r in shifts])
     refs = [r.get("reference_stamp_ns") for r in shifts]
     new_ref = np.array([k == 0 or refs[k] != refs[k - 1] for k in range(len(refs))])
+    reg_only = ~conv & _registered(shifts)
     fig, axes = plt.subplots(2, 1, figsize=(11, 5.6), sharex=True, layout="constrained")
     has_meas = has_exp = has_res = False
     for key, colour, ax_label in (
@@ -163,6 +165,18 @@ def _section_shifts(
             return bool(ok.any())
 
         has_meas |= points(axes[0], tot, f"{ax_label} measured (+-1 s.e.)")
+        if reg_only.any():  # whole-frame motion the registration measured: hollow, no s.e.
+            axes[0].plot(
+                t[reg_only],
+                np.array([_f(r, f"{key}_registration_px") for r in shifts])[reg_only],
+                "o",
+                ms=5,
+                mfc="none",
+                mec=colour,
+                mew=1.2,
+                linestyle="none",
+                label=f"{ax_label} registration only (no sub-pixel shift)",
+            )
         if has_tel and np.isfinite(exp).any():  # without telemetry, no expectation to show
             has_exp = True
             axes[0].plot(
@@ -175,27 +189,26 @@ def _section_shifts(
             )
         if has_tel:
             has_res |= points(axes[1], res, f"{ax_label} measured - expected")
-    if (~conv).any():
+    bare = ~conv & ~reg_only
+    if bare.any():
         # no value: ticks on the time axis, not a point at 0 px that would read as measured
         axes[0].plot(
-            t[~conv],
-            np.full((~conv).sum(), 0.0),
+            t[bare],
+            np.full(bare.sum(), 0.0),
             "|",
             ms=14,
             mew=2,
             color="red",
             transform=axes[0].get_xaxis_transform(),
             clip_on=False,
-            label="frame without a converged shift (time only)",
+            label="frame without a converged shift or registration (time only)",
         )
     axes[0].set_ylabel("shift against\nreference (px)")
     axes[0].grid(alpha=0.3)
-    if not has_meas and not has_exp:
+    if not has_meas and not has_exp and not reg_only.any():
         _empty_panel(axes[0], "no converged shift and no expected shift: no value to draw")
     elif not has_meas:
-        axes[0].set_title(
-            "no converged shift: no measured value (red ticks: the frames' times)", fontsize=8
-        )
+        axes[0].set_title(_no_measured_title(bool(reg_only.any()), bool(bare.any())), fontsize=8)
     axes[1].set_ylabel("residual (px)")
     axes[1].set_xlabel("time since the first frame (s)")
     axes[1].grid(alpha=0.3)
@@ -209,6 +222,13 @@ def _section_shifts(
         f"<p>{int(conv.sum())} of {len(shifts)} aligned frames have a converged shift. "
         f"Shift = where the reference's content appears in the frame (rows u, columns v)."
     )
+    if reg_only.any():
+        text += (
+            f" {_plural(int(reg_only.sum()), 'frame')} without a converged shift "
+            f"{'is' if reg_only.sum() == 1 else 'are'} drawn at the registration's "
+            "displacement of the reference's centre (hollow markers: whole-frame motion, no "
+            "sub-pixel shift, no residual)."
+        )
     if ok.any():
         text += (
             f" Residual against telemetry: RMS u {_sig(np.sqrt(np.mean(res_u[ok] ** 2)))} px, "
@@ -216,6 +236,23 @@ def _section_shifts(
             f"{_plural(int(ok.sum()), 'frame')}."
         )
     return text + "</p>" + _img(fig, "shift trajectory")
+
+
+def _registered(shifts: list[dict]) -> np.ndarray:
+    """Return, per ``shifts.csv`` row, True where it has the registration's displacement."""
+    u = np.array([_f(r, "u_registration_px") for r in shifts], dtype=float)
+    v = np.array([_f(r, "v_registration_px") for r in shifts], dtype=float)
+    return np.isfinite(u) & np.isfinite(v)
+
+
+def _no_measured_title(registered: bool, ticks: bool) -> str:
+    """Title the shift panel of a flight where no sub-pixel shift converged."""
+    if not registered:
+        return "no converged shift: no measured value (red ticks: the frames' times)"
+    drawn = "hollow markers: the registration's displacement"
+    if ticks:
+        drawn += "; red ticks: frames without it either"
+    return f"no converged shift: no sub-pixel value ({drawn})"
 
 
 def _segments(frames: list[dict], aligned: list[dict]) -> np.ndarray:

@@ -34,6 +34,8 @@ SHIFT_COLUMNS = (
     "reason",
     "u_total_px",
     "v_total_px",
+    "u_registration_px",
+    "v_registration_px",
     "u_expected_px",
     "v_expected_px",
     "u_residual_px",
@@ -134,23 +136,26 @@ def _interval_at(buf: TelemetryBuffer, t: float, reg_params: dict) -> float | No
 
 
 def _shift_rows(collector: _Collector, buf: TelemetryBuffer, reg_params: dict) -> list[dict]:
-    """Build the rows of ``shifts.csv``: measured, total, expected shift and residual.
+    """Build the rows of ``shifts.csv``: measured, total, registration, expected shift, residual.
 
     Notes
     -----
-    The expected shift over ``dt = t_frame - t_reference`` is the mean of the image velocities
-    at both times (trapezoid) times ``dt``; residual = total - expected, from the rounded
-    values so that every process writes the same digits.
+    The registration's displacement of the reference's centre (:func:`_registration_shift`)
+    is given for every frame with a homography, its sub-pixel shift converged or not; the
+    total shift only where it converged. The expected shift over ``dt = t_frame - t_reference``
+    is the mean of the image velocities at both times (trapezoid) times ``dt``; residual =
+    total - expected, from the rounded values so that every process writes the same digits.
     """
     rows = []
     for stamp in sorted(collector.shifts):
         row = dict(collector.shifts[stamp])
         ref = row.get("reference_stamp_ns")
-        homography = collector.homographies.get(stamp)
-        prior = collector.priors.get(stamp)
-        if homography is not None and row.get("converged"):
-            total = _total_shift(homography, prior, row["u_px"], row["v_px"], collector.shape)
-            if total is not None:
+        moved = _registration_shift(collector, stamp)
+        if moved is not None:
+            row["u_registration_px"] = rounded(moved[0])
+            row["v_registration_px"] = rounded(moved[1])
+            if row.get("converged"):
+                total = _total_shift(moved, collector.priors.get(stamp), row["u_px"], row["v_px"])
                 row["u_total_px"], row["v_total_px"] = rounded(total[0]), rounded(total[1])
         if ref is not None and len(buf):
             t_ref, t = ref * 1e-9, stamp * 1e-9
@@ -166,10 +171,45 @@ def _shift_rows(collector: _Collector, buf: TelemetryBuffer, reg_params: dict) -
     return rows
 
 
+def _registration_shift(collector: _Collector, stamp: int) -> tuple[float, float] | None:
+    """Return the registration's displacement of the reference's centre in frame ``stamp``.
+
+    Parameters
+    ----------
+    collector : _Collector
+        The flight's homographies and frame shape.
+    stamp : int
+        The aligned frame's stamp, ns.
+
+    Returns
+    -------
+    tuple of float or None
+        :func:`~subpix_ros.core.registration.geometry.centre_shift` of the frame's homography
+        (rows, cols px; the sign of the total shift); None without a homography or for a
+        singular one.
+    """
+    homography = collector.homographies.get(stamp)
+    return None if homography is None else centre_shift(homography, collector.shape)
+
+
 def _total_shift(
-    homography: np.ndarray, prior, u: float, v: float, shape
-) -> tuple[float, float] | None:
+    moved: tuple[float, float], prior: tuple[float, float] | None, u: float, v: float
+) -> tuple[float, float]:
     """Return the homography's whole-pixel shift plus the estimated sub-pixel part (rows, cols).
+
+    Parameters
+    ----------
+    moved : tuple of float
+        The registration's displacement of the reference's centre (:func:`_registration_shift`).
+    prior : tuple of float or None
+        The part of ``moved`` the aligned frame keeps (None: all of it).
+    u, v : float
+        The sub-pixel shift measured on the aligned frame (rows, cols px).
+
+    Returns
+    -------
+    tuple of float
+        ``round(moved - prior) + (u, v)``.
 
     Notes
     -----
@@ -177,9 +217,6 @@ def _total_shift(
     appears at ``H^-1 c`` in the moving frame; the aligned frame keeps ``prior`` of that
     displacement (the sub-pixel remainder), which the shift stage measures as (u, v).
     """
-    moved = centre_shift(homography, shape)
-    if moved is None:
-        return None
     dy, dx = moved
     prior_rows, prior_cols = prior if prior is not None else (0.0, 0.0)
     return round(dy - prior_rows) + u, round(dx - prior_cols) + v
@@ -210,8 +247,7 @@ def telemetry_check(collector: _Collector, rows: list[dict]) -> TelemetryAgreeme
         if row.get("u_total_px") is not None:
             got = (row["u_total_px"], row["v_total_px"])
         else:
-            homography = collector.homographies.get(row["stamp_ns"])
-            got = None if homography is None else centre_shift(homography, collector.shape)
+            got = _registration_shift(collector, row["stamp_ns"])
         if got is not None:
             measured.append(got)
             expected.append((row["u_expected_px"], row["v_expected_px"]))

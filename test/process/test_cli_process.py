@@ -139,6 +139,11 @@ def test_sample_flight_products(processed, sample_bags):
         re.match(r"(\d+) of \1 aligned frames have no sub-pixel shift: ", p)
         for p in sen["problems"]
     )
+    # ... yet the registration's displacement of every aligned frame is in shifts.csv
+    sen_rows = read_csv(out / "seneca" / "shifts.csv")
+    assert sen_rows and all(row["u_total_px"] == "" for row in sen_rows)
+    assert all(float(row["u_registration_px"]) > 100 for row in sen_rows), sen_rows
+    assert all(row["v_registration_px"] != "" for row in sen_rows), sen_rows
     assert "report: " in r.stdout
 
 

@@ -118,6 +118,62 @@ def test_frames_without_a_shift_are_not_drawn_as_measured_zeros(figures):
     assert "0 of 4 aligned frames have a converged shift" in html
 
 
+def test_frames_without_a_shift_are_drawn_at_the_registrations_displacement(figures):
+    """Registration measured the motion: hollow markers there, ticks only for the rest."""
+    rows = _no_shift_rows()
+    registered = {4: (776.0185721, -30.47822581), 14: (749.304175, -109.4162714)}
+    for r in rows:
+        at = round((int(r["stamp_ns"]) - T0_NS) * 1e-9)
+        if at in registered:
+            r.update(
+                u_registration_px=str(registered[at][0]), v_registration_px=str(registered[at][1])
+            )
+    stamp = T0_NS + 44 * 10**9  # a converged frame: a measured point, not a hollow marker
+    rows.append(
+        {
+            "stamp_ns": str(stamp),
+            "reference_stamp_ns": str(stamp - 4 * 10**9),
+            "converged": "1",
+            "u_total_px": "801.4",
+            "v_total_px": "-6.3",
+            "u_std_px": "0.01",
+            "v_std_px": "0.01",
+            "u_registration_px": "801.1",
+            "v_registration_px": "-6.1",
+        }
+    )
+    html = report_sections._section_shifts(rows, T0_NS * 1e-9, True)
+    top, _ = figures[0].axes
+    for k, key in enumerate(("u (rows)", "v (columns)")):
+        label = f"{key} registration only (no sub-pixel shift)"
+        assert label in _legend_labels(figures[0])
+        (line,) = [ln for ln in top.get_lines() if ln.get_label() == label]
+        assert line.get_transform() == top.transData  # at the displacement, in px
+        assert list(line.get_xdata()) == pytest.approx([4, 14])
+        assert list(line.get_ydata()) == pytest.approx([registered[4][k], registered[14][k]])
+        assert line.get_marker() == "o" and line.get_markerfacecolor() == "none"  # hollow
+    ticks = [ln for ln in top.get_lines() if "without a converged shift" in ln.get_label()]
+    assert len(ticks) == 1 and list(ticks[0].get_xdata()) == pytest.approx([24, 34])
+    assert "1 of 5 aligned frames have a converged shift" in html
+    assert "2 frames without a converged shift are drawn at the registration's" in html
+    assert "(hollow markers: whole-frame motion, no sub-pixel shift, no residual)" in html
+
+
+def test_a_flight_where_every_shift_failed_shows_the_registrations_motion(figures):
+    """No sub-pixel shift, no telemetry: the frames' motion is still drawn, not ticks."""
+    rows = _no_shift_rows()
+    for k, r in enumerate(rows):
+        r.update(u_expected_px="", v_expected_px="")
+        r.update(u_registration_px=str(700.0 + k), v_registration_px=str(-30.0 * k))
+    report_sections._section_shifts(rows, T0_NS * 1e-9, False)
+    top, _ = figures[0].axes
+    assert "no value to draw" not in _texts(top)
+    assert "hollow markers: the registration's displacement" in _texts(top)
+    assert not [ln for ln in top.get_lines() if "without a converged shift" in ln.get_label()]
+    (u,) = [ln for ln in top.get_lines() if ln.get_label().startswith("u (rows) registration")]
+    assert list(u.get_ydata()) == pytest.approx([700.0, 701.0, 702.0, 703.0])
+
+
 def test_a_panel_without_data_says_why_and_shows_no_value_axis(figures):
     rows = [dict(r, u_expected_px="", v_expected_px="") for r in _no_shift_rows()]
     report_sections._section_shifts(rows, T0_NS * 1e-9, False)

@@ -28,7 +28,9 @@ import numpy as np
 
 from .blur_edges import (
     FILL_GRID,
+    count_lines,
     edge_fill,
+    edge_line,
     edge_sigma,
     find_edge_rois,
     measure_edge,
@@ -58,6 +60,7 @@ GIVEN_CHECK_MIN_PX = (
 )
 GIVEN_CHECK_SIGMAS = 3.0
 FALLBACK_SIGMA = 0.2  # used when no usable edge is in view (input px)
+ONE_LINE_ALPHA = 2.0  # the spectral cap's scene fall-off for edges on one straight line
 
 
 @dataclass
@@ -87,6 +90,10 @@ class BlurEstimate:
         The low bias ``raw - sigma`` before the floor at 0 (px): the standard error of the
         frames' scatter alone, at most ``uncertainty``; NaN: ``uncertainty`` (an estimate made
         by hand).
+    n_lines : int
+        Distinct straight lines the pooled edges lie on (:func:`~subpix_ros.core.blur_edges.
+        count_lines`; 0 without edges). With one, ``sigma`` passed the stricter spectral
+        cap (:func:`estimate_blur`).
     """
 
     sigma: float
@@ -97,6 +104,7 @@ class BlurEstimate:
     reason: str = ""
     fill_factor: float = 1.0
     bias: float = float("nan")
+    n_lines: int = 0
 
     @property
     def low_bias(self) -> float:
@@ -211,7 +219,12 @@ def estimate_blur(
     model (texture beside the edge reads sharper); edges above the frames' spectral cap
     (:func:`spectral_cap`) are soft in the scene and left out. The fill factor is measured
     where sharp edges show it (:func:`~subpix_ros.core.blur_edges.edge_fill`); the largest
-    of the pooled edges' is used, 1.0 where they cannot tell.
+    of the pooled edges' is used, 1.0 where they cannot tell. When the pooled edges all lie
+    on one straight line (:func:`~subpix_ros.core.blur_edges.count_lines`), nothing in the
+    scene confirms that the line is as sharp as the camera makes it (a shadow's penumbra, a
+    rounded eave read higher), so the estimate must also pass the stricter cap: each ring's
+    median power (the texture around the line, not the line's own power) and the scene
+    falling as ``|f|^-ONE_LINE_ALPHA`` (natural images' ``|f|^-2``); above it, the fallback.
     """
     from .superres import estimate_noise_sigma  # superres imports this module
 
@@ -232,7 +245,21 @@ def estimate_blur(
     if not per_edge:
         common = max(why, key=why.count) if why else "no straight edge found"  # ties: first
         return _fallback(fallback, f"no usable edge ({len(rois)} candidates: {common})")
-    return _pool_edges(per_edge, spectral_cap(arrs, noise), fallback, fit_fill)
+    est = _pool_edges(per_edge, spectral_cap(arrs, noise), fallback, fit_fill)
+    if est.source == "edges" and est.n_lines == 1:
+        strict = spectral_cap(arrs, noise, alpha_min=ONE_LINE_ALPHA, ring="median")
+        if est.raw > strict:
+            return replace(
+                _fallback(
+                    fallback,
+                    f"the only straight line measured {est.raw:.2f} px, above what the "
+                    f"texture's spectrum allows ({strict:.2f} px): an edge soft in the scene "
+                    "(e.g. a shadow's border) cannot be taken for the camera's blur",
+                ),
+                n_edges=est.n_edges,
+                n_lines=1,
+            )
+    return est
 
 
 def _median_and_se(vals: Sequence[float]) -> tuple[float, float]:
@@ -298,7 +325,7 @@ def _measure_edges(
             fill_med = float(np.median([f.fill for f in fits]))
             fill = min(g for g in FILL_GRID if g >= fill_med - 1e-9)  # on the grid, rounded up
             misfit = float(np.median([f.misfit for f in fits]))
-            per_edge.append((med, se, fill, fits, misfit))
+            per_edge.append((med, se, fill, fits, misfit, edge_line(arrs[0], (x, y, rw, rh))))
     return per_edge, why
 
 
@@ -384,6 +411,8 @@ def _pool_edges(
     lo_g = int(np.argmin(v))
     raw = min(raw, float(v[lo_g] + 2.0 * u[lo_g]))  # at most two uncertainties above the lowest
     fill_note = f", fill factor {fill:.2f}" if fill < 1.0 else ""
+    lines = [e[5] for e, g in zip(edges, group) if g and len(e) > 5]
+    n_lines = count_lines(lines) if lines else int(group.sum())
     return BlurEstimate(
         max(0.0, raw - bias),
         "edges",
@@ -395,6 +424,7 @@ def _pool_edges(
         f"{bias:.3f} px",
         fill_factor=float(fill),
         bias=bias,
+        n_lines=n_lines,
     )
 
 
@@ -453,6 +483,7 @@ def check_given_blur(given: float, measured: BlurEstimate) -> BlurEstimate:
                 uncertainty=measured.uncertainty,
                 raw=measured.raw,
                 n_edges=measured.n_edges,
+                n_lines=measured.n_lines,
                 reason=f"blur_sigma {given:.3f} px given, but the edges measure {measured.raw:.3f}"
                 f" +- {unc:.3f} px, lower by more than {margin:.3f} px: the given value would "
                 f"over-deconvolve; measured {measured.sigma:.3f} px used ({measured.reason})",
@@ -515,6 +546,7 @@ def pool_estimates(estimates: Sequence[BlurEstimate]) -> BlurEstimate:
     mean, unc, bias = _pooled_mean(rg, ug, b)
     lo = int(np.argmin(r))
     raw = min(mean, float(r[lo] + 2.0 * u[lo]))
+    n_lines = sum(e.n_lines for e in pooled)  # lines of different frames are not compared
     return BlurEstimate(
         max(0.0, raw - bias),
         "edges",
@@ -525,6 +557,7 @@ def pool_estimates(estimates: Sequence[BlurEstimate]) -> BlurEstimate:
         f"({raw:.3f} +- {unc:.3f} px), minus their frames' standard error {bias:.3f} px",
         fill_factor=max(e.fill_factor for e in pooled),
         bias=bias,
+        n_lines=n_lines,
     )
 
 

@@ -25,7 +25,9 @@ from .mtf import is_lazy_frame, slanted_edge_mtf
 
 __all__ = [
     "EdgeFit",
+    "count_lines",
     "edge_fill",
+    "edge_line",
     "edge_misfit",
     "edge_sigma",
     "find_edge_rois",
@@ -375,6 +377,93 @@ class EdgeFit(NamedTuple):
         return edge_sigma(freqs, mtf, angle_deg, motion_px=motion_px, fill=fill)
 
 
+def edge_line(frame: np.ndarray, roi: tuple[int, int, int, int]) -> tuple[float, float, float]:
+    """Return the straight line an edge ROI shows: its normal's angle and a point on it.
+
+    Parameters
+    ----------
+    frame : numpy.ndarray
+        2-D frame (the reference).
+    roi : (int, int, int, int)
+        ``(x, y, w, h)`` around the edge (:func:`find_edge_rois`).
+
+    Returns
+    -------
+    (float, float, float)
+        ``(theta, x, y)``: the normal's angle in [0, pi) (rad, from +x towards +y) and a
+        point of the line (frame px; NaN for a flat ROI).
+
+    Notes
+    -----
+    The normal is the dominant gradient orientation of the ROI, from the structure tensor
+    ``J = sum (g_x^2, g_x g_y; g_x g_y, g_y^2)``: ``theta = atan2(2 J_xy, J_xx - J_yy) / 2``;
+    the point is the centroid of the squared gradient magnitude.
+    """
+    x, y, w, h = roi
+    a = np.asarray(frame[y : y + h, x : x + w], dtype=np.float32)
+    gx = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3)
+    jxx, jyy, jxy = float(np.sum(gx * gx)), float(np.sum(gy * gy)), float(np.sum(gx * gy))
+    theta = float(0.5 * np.arctan2(2.0 * jxy, jxx - jyy) % np.pi)
+    m = gx * gx + gy * gy
+    tot = float(m.sum())
+    if tot <= 0:
+        return theta, float("nan"), float("nan")
+    cx = x + float(np.sum(m.sum(axis=0) * np.arange(w))) / tot
+    cy = y + float(np.sum(m.sum(axis=1) * np.arange(h))) / tot
+    return theta, cx, cy
+
+
+def count_lines(
+    lines: Sequence[tuple[float, float, float]],
+    max_angle_deg: float = 5.0,
+    max_offset_px: float = 3.0,
+) -> int:
+    """Return how many distinct straight lines the edges ``(theta, x, y)`` lie on (:func:`edge_line`).
+
+    Parameters
+    ----------
+    lines : sequence of (float, float, float)
+        Each edge's normal angle (rad) and a point of it (px).
+    max_angle_deg : float, optional
+        Largest difference of two normals (mod 180 degrees) on one line, and the angular
+        tolerance of the offset below.
+    max_offset_px : float, optional
+        Offset allowed between two close points.
+
+    Returns
+    -------
+    int
+        Lines found greedily in the given order (each edge against the first edge of a line);
+        an edge without a point is a line of its own.
+
+    Notes
+    -----
+    Two edges are on one line when their normals differ by at most ``max_angle_deg`` and the
+    vector ``d`` between their points is along the line: ``|d . n| <= max(max_offset_px,
+    |d| tan(max_angle_deg))`` with ``n`` the mean normal (each normal's own error, a few
+    degrees where texture lies beside the edge, moves a distant point by ``|d|`` times it).
+    """
+    tol = np.deg2rad(max_angle_deg)
+    firsts: list[tuple[float, float, float]] = []
+
+    def same(a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
+        da = (b[0] - a[0] + np.pi / 2) % np.pi - np.pi / 2  # in [-pi/2, pi/2)
+        if abs(da) > tol:
+            return False
+        t = a[0] + da / 2  # the mean normal
+        dx, dy = b[1] - a[1], b[2] - a[2]
+        off = abs(dx * np.cos(t) + dy * np.sin(t))
+        return bool(off <= max(max_offset_px, np.hypot(dx, dy) * np.tan(tol)))
+
+    for e in lines:  # edges
+        if not (np.isfinite(e[1]) and np.isfinite(e[2])) or not any(
+            np.isfinite(f[1]) and same(f, e) for f in firsts
+        ):
+            firsts.append(e)
+    return len(firsts)
+
+
 def measure_edge(
     frame: np.ndarray,
     roi: tuple[int, int, int, int],
@@ -448,6 +537,7 @@ def spectral_cap(
     alpha_min: float = ALPHA_MIN,
     max_frames: int = 4,
     crop: int = 256,
+    ring: str = "mean",
 ) -> float:
     """Return the largest blur (px) the frames' power spectrum allows; ``inf`` if it says nothing.
 
@@ -461,6 +551,11 @@ def spectral_cap(
         The scene's power spectrum is taken to fall at least as ``|f|^-alpha_min``.
     max_frames, crop : int, optional
         Frames and central square used.
+    ring : {"mean", "median"}, optional
+        A ring's power: its mean, or its median over ``ln 2`` (an exponential law's median
+        against its mean). A long straight edge puts its power on one line through the
+        origin, which the mean takes in (loosening the cap by the very edge it is to check)
+        and the median leaves out.
 
     Returns
     -------
@@ -495,10 +590,14 @@ def spectral_cap(
     r = np.hypot(np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :])
     edges = (0.06, 0.12, 0.2, 0.28, 0.36, 0.44)
     cen, pw = [], []
+    if ring not in ("mean", "median"):
+        raise ValueError(f"ring must be 'mean' or 'median', got {ring!r}")
+    to_mean = 1.0 / np.log(2.0)  # one scene's periodogram: one exponential law per bin
     for a, b in zip(edges[:-1], edges[1:]):  # rings
         sel = (r >= a) & (r < b)
         cen.append(float(r[sel].mean()))
-        pw.append(float(ps[sel].mean()) - noise_sigma**2)
+        level = float(ps[sel].mean()) if ring == "mean" else float(np.median(ps[sel])) * to_mean
+        pw.append(level - noise_sigma**2)
     if pw[0] <= 0:
         return float("inf")
     caps = []

@@ -374,7 +374,9 @@ def _pool_edges(
     the largest of the group's (the widest aperture: the lowest blur); when it is below 1,
     the group's edges are refitted with it in every frame and pooled the same way
     (``fit_fill`` False: the full pixel). All edges above ``cap``: the fallback; an edge
-    without a finite misfit (too short a band for the model) is not pooled.
+    without a finite misfit (too short a band for the model) is not pooled. ``n_lines``: the
+    distinct straight lines of the pooled edges (:func:`~subpix_ros.core.blur_edges.
+    count_lines` on each edge's sixth item, its line; without it, the pooled edges' count).
     """
     vals = np.array([e[0] for e in per_edge])
     ses = np.array([e[1] for e in per_edge])

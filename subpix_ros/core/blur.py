@@ -33,6 +33,7 @@ from .blur_edges import (
     edge_line,
     edge_sigma,
     find_edge_rois,
+    frames_periodogram,
     measure_edge,
     spectral_cap,
 )
@@ -245,9 +246,10 @@ def estimate_blur(
     if not per_edge:
         common = max(why, key=why.count) if why else "no straight edge found"  # ties: first
         return _fallback(fallback, f"no usable edge ({len(rois)} candidates: {common})")
-    est = _pool_edges(per_edge, spectral_cap(arrs, noise), fallback, fit_fill)
+    ps = frames_periodogram(arrs)  # once, for the usual cap and the stricter one
+    est = _pool_edges(per_edge, spectral_cap(arrs, noise, periodogram=ps), fallback, fit_fill)
     if est.source == "edges" and est.n_lines == 1:
-        strict = spectral_cap(arrs, noise, alpha_min=ONE_LINE_ALPHA, ring="median")
+        strict = spectral_cap(arrs, noise, alpha_min=ONE_LINE_ALPHA, ring="median", periodogram=ps)
         if est.raw > strict:
             return replace(
                 _fallback(

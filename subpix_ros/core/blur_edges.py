@@ -31,6 +31,7 @@ __all__ = [
     "edge_misfit",
     "edge_sigma",
     "find_edge_rois",
+    "frames_periodogram",
     "measure_edge",
     "spectral_cap",
 ]
@@ -531,6 +532,40 @@ def _motion_on_normal(r, motion_blur: tuple[float, float]) -> float:
     return float(abs(n[0] * motion_blur[0] + n[1] * motion_blur[1]))
 
 
+def frames_periodogram(
+    frames: Sequence[np.ndarray], max_frames: int = 4, crop: int = 256
+) -> np.ndarray:
+    """Return the mean Hann-windowed periodogram of the frames' central square (DN^2 per bin).
+
+    Parameters
+    ----------
+    frames : sequence of numpy.ndarray
+        2-D frames (or lazy luminance frames); the first ``max_frames`` are used.
+    max_frames, crop : int, optional
+        Frames and the side of the central square.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``mean_k |FFT((x_k - mean x_k) w)|^2 / sum w^2``, shape of the square (FFT order).
+    """
+    h0, w0 = np.shape(frames[0])[:2]
+    h, w = min(h0, crop), min(w0, crop)
+    win = np.outer(np.hanning(h), np.hanning(w))
+    ps = np.zeros((h, w))
+    used = frames[:max_frames]
+    rows = slice((h0 - h) // 2, (h0 - h) // 2 + h)
+    cols = slice((w0 - w) // 2, (w0 - w) // 2 + w)
+    for f in used:  # frames
+        if is_lazy_frame(f):  # the central rows only, full width (the same layout, same sums)
+            x = np.asarray(f[rows, :], dtype=np.float64)[:, cols]
+        else:
+            x = np.asarray(f, dtype=np.float64)[rows, cols]
+        ps += np.abs(np.fft.fft2((x - x.mean()) * win)) ** 2
+    ps /= len(used) * float(np.sum(win**2))
+    return ps
+
+
 def spectral_cap(
     frames: Sequence[np.ndarray],
     noise_sigma: float,
@@ -538,6 +573,7 @@ def spectral_cap(
     max_frames: int = 4,
     crop: int = 256,
     ring: str = "mean",
+    periodogram: np.ndarray | None = None,
 ) -> float:
     """Return the largest blur (px) the frames' power spectrum allows; ``inf`` if it says nothing.
 
@@ -556,6 +592,9 @@ def spectral_cap(
         against its mean). A long straight edge puts its power on one line through the
         origin, which the mean takes in (loosening the cap by the very edge it is to check)
         and the median leaves out.
+    periodogram : numpy.ndarray, optional
+        :func:`frames_periodogram` of the frames, made once for several caps (``frames``,
+        ``max_frames`` and ``crop`` are then not used).
 
     Returns
     -------
@@ -571,22 +610,17 @@ def spectral_cap(
     of the Hann-windowed periodogram's ring means against the band [0.06, 0.12) (centre f_0)
     bounds the blur from above if ``S_x(f_b) / S_x(f_0) <= (f_b / f_0)^-alpha_min``. Aliasing
     only raises ``R_b`` (a lower cap, the safe side). A slanted-edge value above the cap
-    comes from an edge that is soft in the scene.
+    comes from an edge that is soft in the scene. The ring medians with ``alpha_min`` 2
+    (natural images' ``|f|^-2`` [1]_) make the stricter cap that edges on one straight line
+    must pass (:func:`~subpix_ros.core.blur.estimate_blur`).
+
+    References
+    ----------
+    .. [1] van der Schaaf, A., van Hateren, J. H. (1996). Modelling the power spectra of
+       natural images: statistics and information. Vision Research 36(17), 2759-2770.
     """
-    h0, w0 = np.shape(frames[0])[:2]
-    h, w = min(h0, crop), min(w0, crop)
-    win = np.outer(np.hanning(h), np.hanning(w))
-    ps = np.zeros((h, w))
-    used = frames[:max_frames]
-    rows = slice((h0 - h) // 2, (h0 - h) // 2 + h)
-    cols = slice((w0 - w) // 2, (w0 - w) // 2 + w)
-    for f in used:  # frames
-        if is_lazy_frame(f):  # the central rows only, full width (the same layout, same sums)
-            x = np.asarray(f[rows, :], dtype=np.float64)[:, cols]
-        else:
-            x = np.asarray(f, dtype=np.float64)[rows, cols]
-        ps += np.abs(np.fft.fft2((x - x.mean()) * win)) ** 2
-    ps /= len(used) * float(np.sum(win**2))
+    ps = frames_periodogram(frames, max_frames, crop) if periodogram is None else periodogram
+    h, w = ps.shape
     r = np.hypot(np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :])
     edges = (0.06, 0.12, 0.2, 0.28, 0.36, 0.44)
     cen, pw = [], []

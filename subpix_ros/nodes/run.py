@@ -17,6 +17,7 @@ from rclpy.executors import (
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from ..io.participant import detach_discovery_listener
 from ..runtime import (
     RuntimeSetupError,
     clean_stale_shm_segments,
@@ -26,7 +27,7 @@ from ..runtime import (
     dump_stacks_on_sigusr1,
 )
 
-__all__ = ["run_nodes", "executor_kind", "EXECUTOR_ENV", "EXECUTORS"]
+__all__ = ["run_nodes", "shutdown_nodes", "executor_kind", "EXECUTOR_ENV", "EXECUTORS"]
 
 #: Environment variable choosing the executor of the node processes (see :func:`executor_kind`).
 EXECUTOR_ENV = "SUBPIX_EXECUTOR"
@@ -63,8 +64,25 @@ def _make_executor(kind: str, threads: int | None) -> Executor:
     return SingleThreadedExecutor()
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
+#: Seconds between the executor's checks of a stop request whose KeyboardInterrupt was lost.
+STOP_CHECK_S = 0.5
+
+
+class _StopRequest:
+    """SIGINT / SIGTERM handler: raise KeyboardInterrupt, and remember that it was asked.
+
+    Python runs a signal handler in the main thread between bytecodes. When that is inside a
+    ``__del__`` or a weakref callback (importlib's module-lock callback, when a thread imports),
+    the KeyboardInterrupt is printed as "Exception ignored in ..." and swallowed, and the
+    executor would spin on as if the signal had not come. The flag survives that.
+    """
+
+    def __init__(self) -> None:
+        self.asked = False
+
+    def __call__(self, signum, frame) -> None:
+        self.asked = True
+        raise KeyboardInterrupt
 
 
 def run_nodes(
@@ -121,24 +139,54 @@ def run_nodes(
     # rclpy's own handlers shut the context down first ("publisher's context is invalid"). A
     # second signal cuts close() short.
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, _interrupt)
-    signal.signal(signal.SIGTERM, _interrupt)
+    stop = _StopRequest()
+    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
     nodes: list[Node] = []
     executor = _make_executor(kind, threads)
     try:
         for make in factories:
             nodes.append(make())
             executor.add_node(nodes[-1])
-        executor.spin()
+        # Executor.spin() with a look at the stop request every STOP_CHECK_S: a signal whose
+        # KeyboardInterrupt Python swallowed (see _StopRequest) still stops the process
+        while not stop.asked and executor.context.ok():
+            executor.spin_once(timeout_sec=STOP_CHECK_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        for n in nodes:
-            close = getattr(n, "close", None)
-            if close is not None:
-                close()
-            n.destroy_node()
-        executor.shutdown()
-        if rclpy.ok():
-            rclpy.shutdown()
+        shutdown_nodes(nodes, executor)
     return 0
+
+
+def shutdown_nodes(nodes: Sequence[Node], executor: Executor) -> bool:
+    """Close every node, take the DDS discovery listener off, destroy the nodes, shut rclpy down.
+
+    Parameters
+    ----------
+    nodes : sequence of Node
+        The process's nodes, all in rclpy's default context; each one's ``close()`` (if it has
+        one) runs first, while every publisher is still up (the reconstruction publishes its
+        open set there).
+    executor : Executor
+        The executor they spun on.
+
+    Returns
+    -------
+    bool
+        True when the Fast DDS discovery listener was taken off before the participant went
+        (:func:`subpix_ros.io.participant.detach_discovery_listener`): without it a node process
+        stopped with Ctrl-C while a peer left could hang for good in ``destroy_node``.
+    """
+    for n in nodes:
+        close = getattr(n, "close", None)
+        if close is not None:
+            close()
+    # one participant per context: taking its listener off through any node is enough
+    detached = detach_discovery_listener(nodes[0]) if nodes else False
+    for n in nodes:
+        n.destroy_node()
+    executor.shutdown()
+    if rclpy.ok():
+        rclpy.shutdown()
+    return detached

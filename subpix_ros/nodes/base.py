@@ -69,10 +69,16 @@ CAMERA_PARAMS: tuple[Param, ...] = (
 )
 
 
+#: Seconds a node's ``close()`` lets its worker handle what is still queued (StageNode.close).
+CLOSE_DRAIN_S = 10.0
+
+
 class StageNode(Node):
     """A node around one ROS-free stage: parameters, diagnostics, worker, in-process hand-off."""
 
     PARAMS: Sequence[Param] = ()
+    #: What the worker's queue holds, as said when some is left at shutdown.
+    queued_items = "frame(s)"
     #: The topics of the node's main input (one input: any of them counts), watched for silence
     #: (Diagnostics.watch_inputs) when the node subscribes its inputs itself.
     MAIN_INPUTS: Sequence[str] = ()
@@ -289,6 +295,17 @@ class StageNode(Node):
         self.diag.latency(time.monotonic() - received)
 
     def close(self) -> None:
-        """Stop the worker (called before the node is destroyed)."""
+        """Handle what the worker still has queued, then stop it (before the node is destroyed).
+
+        The queued inputs are handled and their outputs published (the context is still up), so
+        that a node stopped as the camera stops passes its last frames on: in ``pipeline`` the
+        registration's last frames then reach the shift and reconstruction stages, whose
+        ``close()`` comes after. What is left after :data:`CLOSE_DRAIN_S` is said.
+        """
         if self.worker is not None:
-            self.worker.stop()
+            left = self.worker.stop(drain_s=CLOSE_DRAIN_S)
+            if left:
+                self.get_logger().warning(
+                    f"{left} queued {self.queued_items} not processed: shutting down "
+                    f"(still queued after {CLOSE_DRAIN_S:.0f} s)"
+                )

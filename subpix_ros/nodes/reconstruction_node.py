@@ -47,6 +47,7 @@ class ReconstructionNode(StageNode):
     """The reconstruction stage as a node: aligned frames in, super-resolved images out."""
 
     MAIN_INPUTS = ("aligned",)
+    queued_items = "set(s)"
     PARAMS = (
         *ros_params(ReconstructionStage.PARAMS),
         Param(

@@ -29,6 +29,7 @@ class ShiftNode(StageNode):
     """Sub-pixel shift of each aligned frame: :class:`ShiftStage` between ROS topics."""
 
     MAIN_INPUTS = ("aligned",)
+    queued_items = "aligned frame(s)"
     PARAMS = (
         Param(
             "queue_size",

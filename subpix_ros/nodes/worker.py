@@ -127,9 +127,29 @@ class DropOldestWorker:
         n = self.processed + self.errors
         return 1000.0 * self.cpu_s / n if n else 0.0
 
-    def stop(self, timeout: float = 2.0) -> None:
-        """Stop the worker thread (waits up to ``timeout`` s)."""
+    def stop(self, timeout: float = 2.0, drain_s: float = 0.0) -> int:
+        """Stop the worker thread; return how many queued items it left unhandled.
+
+        Parameters
+        ----------
+        timeout : float, optional
+            Seconds to wait for the thread to finish the item it is handling.
+        drain_s : float, optional
+            Seconds to let it handle what is queued first (0: what is queued is dropped).
+
+        Returns
+        -------
+        int
+            The items still queued when it stopped (dropped, not counted in ``dropped``,
+            which counts the queue's overflow).
+        """
+        deadline = time.monotonic() + max(0.0, drain_s)
         with self._cv:
+            while (self._queue or self.busy) and time.monotonic() < deadline:
+                self._cv.wait(0.02)
             self._stop = True
+            left = len(self._queue)
+            self._queue.clear()
             self._cv.notify_all()
         self._thread.join(timeout)
+        return left

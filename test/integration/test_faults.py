@@ -171,6 +171,17 @@ def test_use_sim_time_follows_replay_clock(rclpy_node, sample_bags):
         _stop([p for p in (shift, replay) if p is not None])
 
 
+def _stacks(proc) -> str:
+    """Return what a node process printed, with every thread's stack if it still runs (SIGUSR1)."""
+    alive = proc.poll() is None
+    if alive:
+        proc.send_signal(signal.SIGUSR1)
+        time.sleep(1.5)
+    return f"(process {'still running' if alive else f'exited {proc.returncode}'})\n" + (
+        proc.stdout.read()
+    )
+
+
 def test_sigterm_publishes_the_open_set_before_the_node_stops(rclpy_node, sample_bags):
     """A node stopped with SIGTERM (or Ctrl-C) still publishes its open set, as documented.
 
@@ -202,6 +213,12 @@ def test_sigterm_publishes_the_open_set_before_the_node_stops(rclpy_node, sample
         "flush_after_s:=60.0",
         "-p",
         "latch_output:=true",
+        # every frame kept on a loaded machine (a bag replay, as the README says; the workers'
+        # queues hold the whole flight), so that the sets are the 16 and 8 frames counted on
+        "-p",
+        "camera_reliable:=true",
+        "-p",
+        "queue_size:=20",
     )
     try:
         r = subprocess.run(
@@ -214,11 +231,12 @@ def test_sigterm_publishes_the_open_set_before_the_node_stops(rclpy_node, sample
         assert spin(rclpy_node, lambda: len(got) >= 1, 60), pipe.stdout.read()
         assert len(got) == 1  # the first set; the second is open
         pipe.send_signal(signal.SIGTERM)
-        assert spin(rclpy_node, lambda: len(got) >= 2, 60), pipe.stdout.read()
+        assert spin(rclpy_node, lambda: len(got) >= 2, 60), _stacks(pipe)
         pipe.wait(60)
         log = pipe.stdout.read()
         assert pipe.returncode == 0, log
         assert "incomplete set of reference" in log and "not published" not in log, log
+        assert "(8 frames, end of stream)" in log, log  # the whole open set
         assert "context is invalid" not in log, log
     finally:
         _stop([pipe])

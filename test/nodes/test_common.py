@@ -62,6 +62,34 @@ def test_worker_survives_exceptions():
     w.stop()
 
 
+def test_worker_stopped_with_a_drain_handles_what_is_queued_first():
+    """A node's close(): the frames still queued are handled, not dropped unsaid.
+
+    (Was: ``stop()`` ended the thread with the queue as it was, so a pipeline stopped as the
+    camera stopped lost its last frames and the reconstruction's open set fell below
+    ``min_frames``.)
+    """
+    seen = []
+    w = DropOldestWorker(lambda x: (time.sleep(0.05), seen.append(x)), maxsize=10)
+    for i in range(5):
+        w.put(i)
+    assert w.stop(drain_s=10.0) == 0
+    assert seen == [0, 1, 2, 3, 4] and w.dropped == 0
+
+
+def test_worker_stopped_says_how_many_it_left():
+    gate = threading.Event()
+    w = DropOldestWorker(lambda x: gate.wait(5), maxsize=10)
+    for i in range(4):
+        w.put(i)
+    time.sleep(0.1)  # the worker holds 0 at the gate
+    t = time.monotonic()
+    left = w.stop(timeout=0.1, drain_s=0.3)
+    assert left == 3 and 0.3 <= time.monotonic() - t < 2.0
+    gate.set()
+    assert w.stop() == 0  # nothing queued any more
+
+
 def test_rate_meter():
     r = RateMeter(window_s=1.0)
     for i in range(10):

@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import traceback
+from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import rclpy
@@ -27,7 +29,7 @@ from ..runtime import (
     dump_stacks_on_sigusr1,
 )
 
-__all__ = ["run_nodes", "shutdown_nodes", "executor_kind", "EXECUTOR_ENV", "EXECUTORS"]
+__all__ = ["run_nodes", "shutdown_nodes", "Shutdown", "executor_kind", "EXECUTOR_ENV", "EXECUTORS"]
 
 #: Environment variable choosing the executor of the node processes (see :func:`executor_kind`).
 EXECUTOR_ENV = "SUBPIX_EXECUTOR"
@@ -109,7 +111,8 @@ def run_nodes(
     Returns
     -------
     int
-        Exit status: 0, or 2 when the ROS / DDS environment cannot be configured or
+        Exit status: 0; 1 when a node's ``close()`` failed (said on stderr, the other nodes
+        still closed); 2 when the ROS / DDS environment cannot be configured or
         ``SUBPIX_EXECUTOR`` names no executor.
 
     Notes
@@ -155,38 +158,57 @@ def run_nodes(
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        shutdown_nodes(nodes, executor)
-    return 0
+        done = shutdown_nodes(nodes, executor)
+    return 1 if done.close_errors else 0
 
 
-def shutdown_nodes(nodes: Sequence[Node], executor: Executor) -> bool:
+@dataclass
+class Shutdown:
+    """What :func:`shutdown_nodes` did."""
+
+    #: The Fast DDS discovery listener was taken off before the participant went.
+    listener_detached: bool = False
+    #: One line per node whose ``close()`` raised (the others were still closed).
+    close_errors: list[str] = field(default_factory=list)
+
+
+def shutdown_nodes(nodes: Sequence[Node], executor: Executor) -> Shutdown:
     """Close every node, take the DDS discovery listener off, destroy the nodes, shut rclpy down.
 
     Parameters
     ----------
     nodes : sequence of Node
         The process's nodes, all in rclpy's default context; each one's ``close()`` (if it has
-        one) runs first, while every publisher is still up (the reconstruction publishes its
-        open set there).
+        one) runs first, in order, while every publisher is still up (the reconstruction
+        publishes its open set there). A ``close()`` that raises is reported on stderr with its
+        traceback and the others still run.
     executor : Executor
         The executor they spun on.
 
     Returns
     -------
-    bool
-        True when the Fast DDS discovery listener was taken off before the participant went
-        (:func:`subpix_ros.io.participant.detach_discovery_listener`): without it a node process
-        stopped with Ctrl-C while a peer left could hang for good in ``destroy_node``.
+    Shutdown
+        ``listener_detached`` True when the Fast DDS discovery listener was taken off before
+        the participant went (:func:`subpix_ros.io.participant.detach_discovery_listener`):
+        without it a node process stopped with Ctrl-C while a peer left could hang for good in
+        ``destroy_node``; ``close_errors`` one line per failed ``close()``.
     """
+    done = Shutdown()
     for n in nodes:
         close = getattr(n, "close", None)
-        if close is not None:
+        if close is None:
+            continue
+        try:
             close()
+        except Exception as exc:  # noqa: BLE001 - the other nodes' close() must still run
+            name = n.get_name()
+            done.close_errors.append(f"{name}: {type(exc).__name__}: {exc}")
+            print(f"error: {name} failed to close:\n{traceback.format_exc()}", file=sys.stderr)
     # one participant per context: taking its listener off through any node is enough
-    detached = detach_discovery_listener(nodes[0]) if nodes else False
+    done.listener_detached = detach_discovery_listener(nodes[0]) if nodes else False
     for n in nodes:
         n.destroy_node()
     executor.shutdown()
     if rclpy.ok():
         rclpy.shutdown()
-    return detached
+    return done

@@ -89,7 +89,8 @@ def test_shutting_the_nodes_down_takes_the_discovery_listener_off_first():
         executor = SingleThreadedExecutor()
         for n in nodes:
             executor.add_node(n)
-        assert shutdown_nodes(nodes, executor) is True
+        done = shutdown_nodes(nodes, executor)
+        assert done.listener_detached is True and done.close_errors == []
         assert closed == names
         assert not rclpy.ok()
     finally:
@@ -182,3 +183,33 @@ def test_a_ctrl_c_whose_keyboardinterrupt_python_swallows_still_stops_the_node()
     assert "signalled" in out, err
     assert "Exception ignored" in err and "KeyboardInterrupt" in err, err
     assert proc.returncode == 0, err
+
+
+def test_a_node_whose_close_fails_does_not_keep_the_others_from_closing(capsys):
+    """One node's ``close()`` raising: said on stderr, the next node still closes (publishes)."""
+    import rclpy
+
+    from subpix_ros.nodes.mosaic_node import MosaicNode
+    from subpix_ros.nodes.run import shutdown_nodes
+    from subpix_ros.nodes.shift_node import ShiftNode
+
+    rclpy.init()
+    try:
+        bad, good = ShiftNode(), MosaicNode()
+        closed = []
+
+        def fails():
+            raise RuntimeError("disk full")
+
+        bad.close = fails
+        good_close = good.close
+        good.close = lambda: (closed.append("mosaic"), good_close())
+        executor = SingleThreadedExecutor()
+        done = shutdown_nodes([bad, good], executor)
+        assert closed == ["mosaic"] and not rclpy.ok()
+        assert done.close_errors == ["shift_node: RuntimeError: disk full"]
+        err = capsys.readouterr().err
+        assert "shift_node failed to close" in err and "RuntimeError: disk full" in err
+    finally:
+        if rclpy.ok():
+            rclpy.shutdown()

@@ -228,7 +228,7 @@ class StageNode(Node):
         self.worker = DropOldestWorker(
             handler, maxsize=maxsize, name=f"{self.get_name()}_worker", on_error=on_error
         )
-        self.diag.attach(self.worker)
+        self.diag.attach(self.worker, self.queued_items)
         return self.worker
 
     def events(self, topic: str):

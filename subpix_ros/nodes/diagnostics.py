@@ -62,6 +62,8 @@ class Diagnostics:
         self._lock = threading.Lock()
         self.rates: dict[str, RateMeter] = {}
         self.worker: DropOldestWorker | None = None
+        self._worker_items = "frame(s)"
+        self._drops_seen = 0
         self._sources: list[Callable[[], dict[str, str]]] = []
         self._latencies: collections.deque[float] = collections.deque(maxlen=self.HISTORY)
         self._durations: dict[str, collections.deque[float]] = {}
@@ -175,9 +177,33 @@ class Diagnostics:
         """Publish the key/values ``source()`` returns, computed at each publication (1 Hz)."""
         self._sources.append(source)
 
-    def attach(self, worker: DropOldestWorker) -> None:
-        """Report the queue depth, drops and errors of ``worker``."""
+    def attach(self, worker: DropOldestWorker, items: str = "frame(s)") -> None:
+        """Report the queue depth, drops and errors of ``worker`` (its queue holds ``items``).
+
+        Drops at its queue make the status WARN (:meth:`check_drops`): a node that sheds input
+        because it cannot keep up does not say "ok".
+        """
         self.worker = worker
+        self._worker_items = items
+        self._drops_seen = worker.dropped
+
+    def check_drops(self) -> str | None:
+        """Warn when the worker dropped input since the last check; return the warning or None.
+
+        Called with each status (1 Hz). The text stays the same while it lasts (the count is
+        ``dropped_frames``), so the log says it once per ``hold_s``-long episode.
+        """
+        w = self.worker
+        if w is None or w.dropped <= self._drops_seen:
+            return None
+        self._drops_seen = w.dropped
+        problem = (
+            f"falling behind: {self._worker_items} dropped at the worker's queue "
+            f"(queue_size {w.maxsize}): the work per input takes longer than the inputs come; "
+            "dropped_frames counts them"
+        )
+        self.warn(problem)
+        return problem
 
     def latency(self, seconds: float) -> None:
         """Record one end-to-end latency (s)."""
@@ -344,6 +370,7 @@ class Diagnostics:
             self.check_inputs()
         except Exception as exc:  # noqa: BLE001 - the graph query fails during shutdown
             self.node.get_logger().debug(f"input check skipped: {exc}")
+        self.check_drops()
         msg = DiagnosticArray()
         msg.header.stamp = self.node.get_clock().now().to_msg()
         msg.status = [self.snapshot()]

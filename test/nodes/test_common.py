@@ -215,3 +215,37 @@ def test_a_published_image_keeps_one_copy_of_its_pixels():
     other = SimpleNamespace(image=np.zeros((4, 4), np.uint8), result=None)
     with pytest.raises(ValueError, match="not the image's"):
         pl.adopt_pixels(other, raw, min_bytes=0)
+
+
+def test_a_node_dropping_input_at_its_queue_says_so_in_its_status(rclpy_node):
+    """Drops at the worker's queue: WARN "falling behind", not "ok" with a counter only.
+
+    (Was: ``dropped_frames`` grew while the level stayed OK, so an onboard node shedding
+    frames because it could not keep up looked healthy in the monitor's table.)
+    """
+    from subpix_ros.nodes.diagnostics import OK, WARN, Diagnostics
+
+    diag = Diagnostics(rclpy_node, hold_s=0.2)
+    gate = threading.Event()
+    w = DropOldestWorker(lambda x: gate.wait(5), maxsize=1)
+    diag.attach(w, "aligned frame(s)")
+    try:
+        diag.publish()
+        diag.ok()
+        assert diag.level == OK
+        w.put(0)
+        time.sleep(0.1)  # the worker holds 0 at the gate
+        for i in range(1, 4):
+            w.put(i)
+        assert w.dropped == 2
+        diag.publish()
+        assert diag.level == WARN and "falling behind: aligned frame(s) dropped" in diag.message
+        values = {kv.key: kv.value for kv in diag.snapshot().values}
+        assert values["dropped_frames"] == "2"
+        time.sleep(0.3)
+        diag.publish()  # no new drop: the warning ends after hold_s
+        diag.ok()
+        assert diag.level == OK
+    finally:
+        gate.set()
+        w.stop()

@@ -112,8 +112,8 @@ def run_nodes(
     -------
     int
         Exit status: 0; 1 when a node's ``close()`` failed (said on stderr, the other nodes
-        still closed); 2 when the ROS / DDS environment cannot be configured or
-        ``SUBPIX_EXECUTOR`` names no executor.
+        still closed) or a second signal cut the closing short; 2 when the ROS / DDS
+        environment cannot be configured or ``SUBPIX_EXECUTOR`` names no executor.
 
     Notes
     -----
@@ -140,7 +140,7 @@ def run_nodes(
     # SIGINT and SIGTERM stop the executor with KeyboardInterrupt while the context is still up,
     # so that each node's close() can publish (the reconstruction's open set, as documented);
     # rclpy's own handlers shut the context down first ("publisher's context is invalid"). A
-    # second signal cuts close() short.
+    # second signal cuts the closing short (shutdown_nodes).
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = _StopRequest()
     signal.signal(signal.SIGINT, stop)
@@ -159,7 +159,7 @@ def run_nodes(
         pass
     finally:
         done = shutdown_nodes(nodes, executor)
-    return 1 if done.close_errors else 0
+    return 1 if done.close_errors or done.cut_short else 0
 
 
 @dataclass
@@ -170,6 +170,8 @@ class Shutdown:
     listener_detached: bool = False
     #: One line per node whose ``close()`` raised (the others were still closed).
     close_errors: list[str] = field(default_factory=list)
+    #: A second Ctrl-C / SIGTERM came while closing: the nodes not closed yet were not.
+    cut_short: bool = False
 
 
 def shutdown_nodes(nodes: Sequence[Node], executor: Executor) -> Shutdown:
@@ -181,7 +183,8 @@ def shutdown_nodes(nodes: Sequence[Node], executor: Executor) -> Shutdown:
         The process's nodes, all in rclpy's default context; each one's ``close()`` (if it has
         one) runs first, in order, while every publisher is still up (the reconstruction
         publishes its open set there). A ``close()`` that raises is reported on stderr with its
-        traceback and the others still run.
+        traceback and the others still run; a second Ctrl-C / SIGTERM (KeyboardInterrupt) during
+        one ends the closing there, said on stderr, and the nodes are still destroyed.
     executor : Executor
         The executor they spun on.
 
@@ -200,6 +203,14 @@ def shutdown_nodes(nodes: Sequence[Node], executor: Executor) -> Shutdown:
             continue
         try:
             close()
+        except KeyboardInterrupt:  # a second signal: the user wants out now
+            done.cut_short = True
+            print(
+                f"interrupted again while {n.get_name()} closed: closing cut short (queued "
+                "frames and open sets not handled)",
+                file=sys.stderr,
+            )
+            break
         except Exception as exc:  # noqa: BLE001 - the other nodes' close() must still run
             name = n.get_name()
             done.close_errors.append(f"{name}: {type(exc).__name__}: {exc}")

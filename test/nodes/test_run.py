@@ -213,3 +213,29 @@ def test_a_node_whose_close_fails_does_not_keep_the_others_from_closing(capsys):
     finally:
         if rclpy.ok():
             rclpy.shutdown()
+
+
+def test_a_second_ctrl_c_while_closing_cuts_the_closing_short(capsys):
+    """Ctrl-C again while a node drains: the rest is not closed, every node is still destroyed."""
+    import rclpy
+
+    from subpix_ros.nodes.mosaic_node import MosaicNode
+    from subpix_ros.nodes.run import shutdown_nodes
+    from subpix_ros.nodes.shift_node import ShiftNode
+
+    rclpy.init()
+    try:
+        first, second = ShiftNode(), MosaicNode()
+        closed = []
+
+        def interrupted():
+            raise KeyboardInterrupt  # as the handler raises it on the second signal
+
+        first.close = interrupted
+        second.close = lambda: closed.append("mosaic")
+        done = shutdown_nodes([first, second], SingleThreadedExecutor())
+        assert done.cut_short and closed == [] and not rclpy.ok()
+        assert "interrupted again while shift_node closed" in capsys.readouterr().err
+    finally:
+        if rclpy.ok():
+            rclpy.shutdown()

@@ -58,9 +58,16 @@ class MosaicNode(StageNode):
             q = camera_qos(
                 self.param("camera_reliable"), depth=30 if self.param("camera_reliable") else 5
             )
-            self.create_subscription(Image, "image", self._on_image, q, raw=True)
             self.create_subscription(
-                CompressedImage, "image/compressed", self._on_compressed, q, raw=True
+                Image, "image", self._on_image, q, raw=True, event_callbacks=self.events("image")[0]
+            )
+            self.create_subscription(
+                CompressedImage,
+                "image/compressed",
+                self._on_compressed,
+                q,
+                raw=True,
+                event_callbacks=self.events("image/compressed")[0],
             )
 
     mosaic = property(lambda self: self.stage.mosaic)

@@ -168,7 +168,14 @@ def publish_if_subscribed(publisher, make: Callable[[], Any]) -> bool:
 
 
 def qos_event_callbacks(node: Node, topic: str, diagnostics: "Diagnostics | None" = None):
-    """Subscription and publisher event callbacks that log QoS incompatibilities."""
+    """Subscription and publisher event callbacks: QoS incompatibilities and lost messages.
+
+    A QoS incompatibility is an ERROR. A message lost before the node took it (DDS's
+    SAMPLE_LOST: the subscription's history overflowed because the executor fell behind, or
+    the transport dropped it; best-effort camera frames on a loaded machine) is a WARN naming
+    the topic, counted in /diagnostics as ``messages_lost_<topic>``: without it such frames
+    were simply never seen.
+    """
 
     def incompatible(event) -> None:
         text = f"QoS incompatible on {topic}: policy id {event.last_policy_kind} ({event.total_count} total)"
@@ -176,7 +183,25 @@ def qos_event_callbacks(node: Node, topic: str, diagnostics: "Diagnostics | None
         if diagnostics is not None:
             diagnostics.error(text)
 
+    key = "messages_lost_" + topic.strip("/").replace("/", "_")
+    try:  # the name as remapped (image -> /camera/image_raw), for the operator
+        shown = node.resolve_topic_name(topic)
+    except Exception:  # noqa: BLE001 - a name rcl cannot expand: as given
+        shown = topic
+
+    def lost(event) -> None:
+        if diagnostics is None:
+            node.get_logger().warning(f"{shown}: {event.total_count} message(s) lost")
+            return
+        diagnostics.set(**{key: event.total_count})
+        diagnostics.warn(
+            f"{shown}: messages lost before this node took them ({key} counts them): its "
+            "executor fell behind or the transport dropped them"
+        )
+
     return (
-        SubscriptionEventCallbacks(incompatible_qos=incompatible, use_default_callbacks=False),
+        SubscriptionEventCallbacks(
+            incompatible_qos=incompatible, message_lost=lost, use_default_callbacks=False
+        ),
         PublisherEventCallbacks(incompatible_qos=incompatible, use_default_callbacks=False),
     )

@@ -96,7 +96,12 @@ class RegistrationNode(StageNode):
                 Image, "image", self._on_image, qos, raw=True, event_callbacks=sub_ev
             )
             self.create_subscription(
-                CompressedImage, "image/compressed", self._on_compressed, qos, raw=True
+                CompressedImage,
+                "image/compressed",
+                self._on_compressed,
+                qos,
+                raw=True,
+                event_callbacks=self.events("image/compressed")[0],
             )
             tq = reliable_qos(50)
             self.create_subscription(TwistStamped, "telemetry/velocity", self._on_velocity, tq)

@@ -64,7 +64,27 @@ def test_a_node_process_with_an_unknown_executor_refuses_to_start_with_one_line(
     assert len(lines) == 1 and "SUBPIX_EXECUTOR='fast'" in lines[0], out.stderr
 
 
-def test_shutting_the_nodes_down_takes_the_discovery_listener_off_first():
+@pytest.fixture
+def shift_and_mosaic():
+    """Yield a shift node and a mosaic node in a fresh rclpy context, as ``pipeline`` holds them.
+
+    The test hands them to ``shutdown_nodes`` (which shuts rclpy down); whatever is left is
+    shut down here.
+    """
+    import rclpy
+
+    from subpix_ros.nodes.mosaic_node import MosaicNode
+    from subpix_ros.nodes.shift_node import ShiftNode
+
+    rclpy.init()
+    try:
+        yield ShiftNode(), MosaicNode()
+    finally:
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+def test_shutting_the_nodes_down_takes_the_discovery_listener_off_first(shift_and_mosaic):
     """Every node process's teardown applies the Fast DDS work-around before destroying nodes.
 
     (Was: only ``subpix record`` / ``replay`` / ``demo`` did; a node process stopped with
@@ -74,28 +94,21 @@ def test_shutting_the_nodes_down_takes_the_discovery_listener_off_first():
     """
     import rclpy
 
-    from subpix_ros.nodes.mosaic_node import MosaicNode
     from subpix_ros.nodes.run import shutdown_nodes
-    from subpix_ros.nodes.shift_node import ShiftNode
 
-    rclpy.init()
-    try:
-        nodes = [ShiftNode(), MosaicNode()]
-        names = [n.get_name() for n in nodes]
-        closed = []
-        for n in nodes:
-            close = n.close
-            n.close = lambda close=close, n=n: (closed.append(n.get_name()), close())
-        executor = SingleThreadedExecutor()
-        for n in nodes:
-            executor.add_node(n)
-        done = shutdown_nodes(nodes, executor)
-        assert done.listener_detached is True and done.close_errors == []
-        assert closed == names
-        assert not rclpy.ok()
-    finally:
-        if rclpy.ok():
-            rclpy.shutdown()
+    nodes = list(shift_and_mosaic)
+    names = [n.get_name() for n in nodes]
+    closed = []
+    for n in nodes:
+        close = n.close
+        n.close = lambda close=close, n=n: (closed.append(n.get_name()), close())
+    executor = SingleThreadedExecutor()
+    for n in nodes:
+        executor.add_node(n)
+    done = shutdown_nodes(nodes, executor)
+    assert done.listener_detached is True and done.close_errors == []
+    assert closed == names
+    assert not rclpy.ok()
 
 
 def test_node_processes_stopped_together_by_ctrl_c_all_exit(tmp_path):
@@ -185,57 +198,42 @@ def test_a_ctrl_c_whose_keyboardinterrupt_python_swallows_still_stops_the_node()
     assert proc.returncode == 0, err
 
 
-def test_a_node_whose_close_fails_does_not_keep_the_others_from_closing(capsys):
+def test_a_node_whose_close_fails_does_not_keep_the_others_from_closing(shift_and_mosaic, capsys):
     """One node's ``close()`` raising: said on stderr, the next node still closes (publishes)."""
     import rclpy
 
-    from subpix_ros.nodes.mosaic_node import MosaicNode
     from subpix_ros.nodes.run import shutdown_nodes
-    from subpix_ros.nodes.shift_node import ShiftNode
 
-    rclpy.init()
-    try:
-        bad, good = ShiftNode(), MosaicNode()
-        closed = []
+    bad, good = shift_and_mosaic
+    closed = []
 
-        def fails():
-            raise RuntimeError("disk full")
+    def fails():
+        raise RuntimeError("disk full")
 
-        bad.close = fails
-        good_close = good.close
-        good.close = lambda: (closed.append("mosaic"), good_close())
-        executor = SingleThreadedExecutor()
-        done = shutdown_nodes([bad, good], executor)
-        assert closed == ["mosaic"] and not rclpy.ok()
-        assert done.close_errors == ["shift_node: RuntimeError: disk full"]
-        err = capsys.readouterr().err
-        assert "shift_node failed to close" in err and "RuntimeError: disk full" in err
-    finally:
-        if rclpy.ok():
-            rclpy.shutdown()
+    bad.close = fails
+    good_close = good.close
+    good.close = lambda: (closed.append("mosaic"), good_close())
+    done = shutdown_nodes([bad, good], SingleThreadedExecutor())
+    assert closed == ["mosaic"] and not rclpy.ok()
+    assert done.close_errors == ["shift_node: RuntimeError: disk full"]
+    err = capsys.readouterr().err
+    assert "shift_node failed to close" in err and "RuntimeError: disk full" in err
 
 
-def test_a_second_ctrl_c_while_closing_cuts_the_closing_short(capsys):
+def test_a_second_ctrl_c_while_closing_cuts_the_closing_short(shift_and_mosaic, capsys):
     """Ctrl-C again while a node drains: the rest is not closed, every node is still destroyed."""
     import rclpy
 
-    from subpix_ros.nodes.mosaic_node import MosaicNode
     from subpix_ros.nodes.run import shutdown_nodes
-    from subpix_ros.nodes.shift_node import ShiftNode
 
-    rclpy.init()
-    try:
-        first, second = ShiftNode(), MosaicNode()
-        closed = []
+    first, second = shift_and_mosaic
+    closed = []
 
-        def interrupted():
-            raise KeyboardInterrupt  # as the handler raises it on the second signal
+    def interrupted():
+        raise KeyboardInterrupt  # as the handler raises it on the second signal
 
-        first.close = interrupted
-        second.close = lambda: closed.append("mosaic")
-        done = shutdown_nodes([first, second], SingleThreadedExecutor())
-        assert done.cut_short and closed == [] and not rclpy.ok()
-        assert "interrupted again while shift_node closed" in capsys.readouterr().err
-    finally:
-        if rclpy.ok():
-            rclpy.shutdown()
+    first.close = interrupted
+    second.close = lambda: closed.append("mosaic")
+    done = shutdown_nodes([first, second], SingleThreadedExecutor())
+    assert done.cut_short and closed == [] and not rclpy.ok()
+    assert "interrupted again while shift_node closed" in capsys.readouterr().err

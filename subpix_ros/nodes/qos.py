@@ -171,10 +171,10 @@ def qos_event_callbacks(node: Node, topic: str, diagnostics: "Diagnostics | None
     """Subscription and publisher event callbacks: QoS incompatibilities and lost messages.
 
     A QoS incompatibility is an ERROR. A message lost before the node took it (DDS's
-    SAMPLE_LOST: the subscription's history overflowed because the executor fell behind, or
-    the transport dropped it; best-effort camera frames on a loaded machine) is a WARN naming
-    the topic, counted in /diagnostics as ``messages_lost_<topic>``: without it such frames
-    were simply never seen.
+    SAMPLE_LOST; Fast DDS 2.14 counts samples lost in transport, e.g. fragments of large
+    best-effort frames over UDP, not samples a full keep-last history replaced) is a WARN
+    naming the topic, counted in /diagnostics as ``messages_lost_<topic>``: without it such
+    frames were simply never seen.
     """
 
     def incompatible(event) -> None:
@@ -195,8 +195,9 @@ def qos_event_callbacks(node: Node, topic: str, diagnostics: "Diagnostics | None
             return
         diagnostics.set(**{key: event.total_count})
         diagnostics.warn(
-            f"{shown}: messages lost before this node took them ({key} counts them): its "
-            "executor fell behind or the transport dropped them"
+            f"{shown}: messages lost in transport before this node took them ({key} counts "
+            "them): large frames over UDP from a publisher without the package's Fast DDS "
+            "profile, or a network that drops"
         )
 
     return (

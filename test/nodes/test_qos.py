@@ -163,7 +163,9 @@ def test_camera_frames_lost_before_the_node_took_them_are_a_warning(ctx):
         assert "sent 1" in cam.stdout, cam.stdout + cam.stderr
         assert spin([node], lambda: "messages_lost_image" in _values(node), 10), _values(node)
         assert int(_values(node)["messages_lost_image"]) >= 20, _values(node)["messages_lost_image"]
-        assert node.diag.level == WARN and f"{topic}: messages lost" in node.diag.message
+        assert (
+            node.diag.level == WARN and f"{topic}: messages lost in transport" in node.diag.message
+        )
     finally:
         node.close()
         node.destroy_node()

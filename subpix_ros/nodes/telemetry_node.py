@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import threading
+import time
 from pathlib import Path
 
 from geometry_msgs.msg import TwistStamped, Vector3Stamped
@@ -40,6 +41,9 @@ from subpix_ros.nodes.params import Param
 from subpix_ros.nodes.qos import latched_qos, reliable_qos
 from subpix_ros.nodes.run import run_nodes
 from subpix_ros.nodes.stamps import stamp_to_ns
+
+#: A MAVLink link that lost more than this share of its frames over 10 s is a warning.
+LINK_LOSS_WARN = 0.2
 
 
 class TelemetryNode(StageNode):
@@ -174,6 +178,7 @@ class TelemetryNode(StageNode):
             self._start_mavlink()
         else:
             self._start_mavros()
+        self._link_loss = None  # the MAVLink link's loss meter (LinkLoss), with the reader
         self.create_timer(1.0, self._report)
 
     def _on_param_change(self, name: str, value) -> None:
@@ -445,9 +450,16 @@ class TelemetryNode(StageNode):
         if self.reader is None:
             return
         st = self.reader.stats
+        if self._link_loss is None:
+            from subpix_ros.io.mavlink import LinkLoss  # with the reader: pymavlink loaded
+
+            self._link_loss = LinkLoss(window_s=10.0)
+        loss = self._link_loss.add(time.monotonic(), st.packets, st.packets_lost)
         self.diag.set(
             link=self.reader.link_state,
             packets=st.packets,
+            packets_lost=st.packets_lost,
+            loss_percent_10s="n/a" if loss is None else round(100.0 * loss, 1),
             bad_crc=st.bad_crc,
             garbage_bytes=st.garbage_bytes,
             other_system=st.other_system,
@@ -456,6 +468,12 @@ class TelemetryNode(StageNode):
         )
         if self.reader.link_state == "lost":
             self.diag.warn("MAVLink link lost")
+        elif loss is not None and loss > LINK_LOSS_WARN:
+            self.diag.warn(
+                f"MAVLink link losing more than {100 * LINK_LOSS_WARN:.0f} % of its frames "
+                "(loss_percent_10s, from the senders' sequence numbers): telemetry samples come "
+                "late or not at all"
+            )
 
     def close(self) -> None:
         """Stop the MAVLink reader and the node's worker."""

@@ -17,6 +17,7 @@ from subpix_ros.core.telemetry import (
 from subpix_ros.data import data_root
 from subpix_ros.io.frame_metadata import trajectory_from_frames_csv
 from subpix_ros.io.mavlink import (
+    LinkLoss,
     MavlinkReader,
     MavlinkSender,
     encode_samples,
@@ -261,6 +262,31 @@ def test_udp_bad_input_is_counted_and_valid_data_survives(udp):
         "duplicate time_boot_ms": 1,
     }
     assert st.exceptions == 0 and reader.target_system == 1
+
+
+def test_udp_frames_lost_on_the_link_are_counted_from_sequence_numbers(udp):
+    """A link that loses every third frame: ``packets_lost`` counts the gaps, about a third."""
+    col, reader, sender = udp()
+    frames = [p for _, p in encode_samples([make(0.1 * k) for k in range(60)], boot_time=T0)]
+    sent = [f for i, f in enumerate(frames) if i % 3 != 2]
+    for f in sent:
+        sender.send(f)
+    assert wait_until(lambda: reader.stats.packets == len(sent)), reader.stats.packets
+    st = reader.stats
+    # each dropped frame is a gap seen at the next frame (a dropped last one is not seen)
+    assert st.packets_lost == len(frames) - len(sent) - (1 if len(frames) % 3 == 0 else 0)
+
+
+def test_link_loss_over_its_window():
+    """``LinkLoss``: lost / (received + lost) over the last window; too few frames say nothing."""
+    meter = LinkLoss(window_s=10.0, min_frames=50)
+    assert meter.add(0.0, 0, 0) is None
+    assert meter.add(1.0, 20, 5) is None  # 25 frames: too few
+    assert meter.add(2.0, 80, 20) == pytest.approx(0.2)  # since t = 0
+    for t in range(3, 13):  # a clean link from then on: 100 frames a second
+        last = meter.add(float(t), 80 + 100 * (t - 2), 20)
+    assert last == pytest.approx(0.0)  # the lossy start has left the 10-s window
+    assert meter.add(13.0, 5, 0) is None  # counters restarted (a new connection)
 
 
 def test_udp_system_id_filter_and_callback_errors(udp):

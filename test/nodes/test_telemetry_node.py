@@ -486,3 +486,38 @@ def test_p_changed_at_run_time_republishes_the_detector_angle_and_links_are_read
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_a_link_losing_frames_is_a_warning_with_its_loss(rclpy_node):
+    """Real MAVLink over UDP, every third frame lost: WARN naming the loss, the figures shown.
+
+    (Was: ``packets`` and ``bad_crc`` only; a radio link dropping a third of its frames looked
+    like a healthy one, and the telemetry samples it still made came late or not at all.)
+    """
+    port = _free_udp_port()
+    proc = _start(f"connection:=udpin:127.0.0.1:{port}")
+    sink = Sink(rclpy_node)
+    sender = MavlinkSender(f"udpout:127.0.0.1:{port}")
+    try:
+        frames = _packets(600)
+        i = 0
+
+        def warned():
+            return any("losing more than 20 %" in s.message for s in sink.diag)
+
+        deadline = time.monotonic() + 30
+        while not warned() and time.monotonic() < deadline:
+            for _ in range(10):
+                if i % 3 != 2:
+                    sender.send(frames[i % len(frames)])
+                i += 1
+            spin(rclpy_node, lambda: False, 0.05)
+        assert warned(), proc.stdout.read() if proc.poll() is not None else sink.diag[-1:]
+        values = {kv.key: kv.value for kv in sink.diag[-1].values}
+        assert int(values["packets_lost"]) > 0
+        assert 25.0 <= float(values["loss_percent_10s"]) <= 40.0, values["loss_percent_10s"]
+        assert proc.poll() is None
+    finally:
+        sender.close()
+        proc.terminate()
+        proc.wait(10)

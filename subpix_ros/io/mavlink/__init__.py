@@ -21,7 +21,7 @@ host such as ``udpin:0.0.0.0:14550`` to listen on all interfaces.
 """
 
 from .encode import DIALECT, encode_samples
-from .link import ConnectionSpec, LinkEvent, MavlinkSender, ReaderStats, parse_url
+from .link import ConnectionSpec, LinkEvent, LinkLoss, MavlinkSender, ReaderStats, parse_url
 from .reader import MavlinkReader
 from .tlog import read_tlog_packets, write_tlog
 
@@ -34,6 +34,7 @@ __all__ = [
     "ConnectionSpec",
     "LinkEvent",
     "ReaderStats",
+    "LinkLoss",
     "MavlinkReader",
     "MavlinkSender",
 ]

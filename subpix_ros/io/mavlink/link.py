@@ -13,7 +13,14 @@ from typing import Sequence
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-__all__ = ["ConnectionSpec", "parse_url", "LinkEvent", "ReaderStats", "MavlinkSender"]
+__all__ = [
+    "ConnectionSpec",
+    "parse_url",
+    "LinkEvent",
+    "ReaderStats",
+    "MavlinkSender",
+    "LinkLoss",
+]
 
 _TLOG_SUFFIXES = (".tlog", ".mavlink", ".raw")
 _HOST_RE = re.compile(r"^[A-Za-z0-9.\-]+$")
@@ -170,6 +177,7 @@ class ReaderStats:
     """Counters of a :class:`MavlinkReader` (a snapshot from :attr:`MavlinkReader.stats`)."""
 
     packets: int = 0  # MAVLink frames parsed with a good CRC
+    packets_lost: int = 0  # frames missing from the senders' sequence numbers (pymavlink's count)
     mavlink1: int = 0
     mavlink2: int = 0
     bad_crc: int = 0
@@ -189,6 +197,45 @@ class ReaderStats:
     callback_errors: int = 0
     last_error: str = ""
     last_reject: str = ""
+
+
+class LinkLoss:
+    """The share of MAVLink frames a link lost over the last ``window_s`` seconds.
+
+    Parameters
+    ----------
+    window_s : float
+        The window, s.
+    min_frames : int
+        Fewer frames than this (received and lost) in the window give no figure: a handful of
+        frames says nothing about the link.
+
+    Notes
+    -----
+    ``loss = lost / (received + lost)`` over the window, from the reader's cumulative counters
+    (:class:`ReaderStats` ``packets`` and ``packets_lost``, the gaps in the senders' sequence
+    numbers). A frame that arrives out of order counts as a gap of up to 255 frames (the
+    sequence number wraps at 256); such a link is in trouble anyway.
+    """
+
+    def __init__(self, window_s: float = 10.0, min_frames: int = 50) -> None:
+        self.window_s = float(window_s)
+        self.min_frames = int(min_frames)
+        self._history: list[tuple[float, int, int]] = []
+
+    def add(self, now: float, received: int, lost: int) -> float | None:
+        """Record the counters at ``now`` (s); return the loss over the window, or None."""
+        self._history.append((now, int(received), int(lost)))
+        while len(self._history) > 1 and now - self._history[1][0] >= self.window_s:
+            self._history.pop(0)
+        t0, r0, l0 = self._history[0]
+        d_received, d_lost = int(received) - r0, int(lost) - l0
+        if d_received < 0 or d_lost < 0:  # counters restarted (a new connection)
+            self._history = [(now, int(received), int(lost))]
+            return None
+        if d_received + d_lost < self.min_frames:
+            return None
+        return d_lost / (d_received + d_lost)
 
 
 class MavlinkSender:

@@ -214,7 +214,9 @@ class MavlinkReader:
                 **{k: v for k, v in self._stats.__dict__.items() if k != "reject_reasons"}
             )
             s.reject_reasons = dict(self._reasons)
-            return s
+        # pymavlink counts the gaps in each sender's sequence numbers as it parses (mav_loss)
+        s.packets_lost = int(getattr(self._conn, "mav_loss", 0) or 0)
+        return s
 
     @property
     def link_state(self) -> str:

@@ -381,3 +381,47 @@ def assert_lazy_reads(lazy, full, n, seed):
         assert np.array_equal(lazy[r0:r1, c0:c1], full[r0:r1, c0:c1])
     assert lazy.min() == full.min() and lazy.max() == full.max()
     assert np.array_equal(np.asarray(lazy), full)
+
+
+_BURST_CAMERA = """
+import sys, time, numpy as np, rclpy
+from sensor_msgs.msg import Image
+from subpix_ros.nodes import payloads
+from subpix_ros.nodes.qos import camera_qos
+rclpy.init()
+node = rclpy.create_node("burst_camera")
+pub = node.create_publisher(Image, sys.argv[1], camera_qos(False, depth=10))
+deadline = time.monotonic() + 20
+while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+    time.sleep(0.05)
+time.sleep(0.5)
+frame = np.random.default_rng(0).integers(0, 255, (540, 960, 3), np.uint8)
+for i in range(int(sys.argv[2])):
+    pub.publish(payloads.image_cdr(frame, (1000 + i) * 10**9, "cam"))
+    time.sleep(0.002)
+time.sleep(1.0)
+print("sent", pub.get_subscription_count(), flush=True)
+"""
+
+
+def burst_camera(topic: str, frames: int = 100):
+    """Run a best-effort camera process that sends ``frames`` 960x540 bgr8 frames in a burst.
+
+    Without the package's Fast DDS profile (as a camera driver of its own), so its 1.5 MB
+    frames go over UDP fragments, not a shared-memory segment, and a burst loses some in
+    transport. It waits (up to 20 s) for a subscriber first; stdout says "sent <subscribers>".
+    """
+    import subprocess
+
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
+    }
+    return subprocess.run(
+        [sys.executable, "-c", _BURST_CAMERA, topic, str(frames)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )

@@ -122,6 +122,14 @@ def run(args: argparse.Namespace) -> int:
             f"subpix record: warning: no publisher appeared for {missing}; not in the bag",
             file=sys.stderr,
         )
+    if rec.lost:
+        lost = ", ".join(f"{t} {n}" for t, n in sorted(rec.lost.items()))
+        print(
+            f"subpix record: warning: messages lost in transport before the recorder took them, "
+            f"not in the bag: {lost} (best-effort publishers of large messages without the "
+            "package's Fast DDS profile, or a network that drops)",
+            file=sys.stderr,
+        )
     per_topic = ", ".join(f"{t} {n}" for t, n in rec.counts.items() if t in rec.subscribed)
     print(f"recorded {rec.count} messages to {args.output} ({per_topic})")
     return 0

@@ -271,6 +271,8 @@ class Recorder:
         self.storage = storage
         self.count = 0
         self.counts: dict[str, int] = {t: 0 for t in topics}
+        #: messages DDS reported lost before the recorder took them, per topic (not in the bag)
+        self.lost: dict[str, int] = {}
         self.pending = list(dict.fromkeys(topics))
         self.subscribed: dict[str, str] = {}  # topic -> message type
         self._lock = threading.Lock()
@@ -283,6 +285,7 @@ class Recorder:
 
     def poll(self) -> list[str]:
         """Subscribe every pending topic that now has a publisher; the topics subscribed."""
+        from rclpy.event_handler import SubscriptionEventCallbacks
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
         new = []
@@ -318,13 +321,27 @@ class Recorder:
                 self.writer.add_topic(topic, msgtype, [_bag_qos(i.qos_profile) for i in infos])
             self.subs.append(
                 self.node.create_subscription(
-                    cls, topic, self._make_cb(topic, msgtype), qos, raw=True
+                    cls,
+                    topic,
+                    self._make_cb(topic, msgtype),
+                    qos,
+                    raw=True,
+                    event_callbacks=SubscriptionEventCallbacks(
+                        message_lost=self._make_lost_cb(topic), use_default_callbacks=False
+                    ),
                 )
             )
             self.subscribed[topic] = msgtype
             self.pending.remove(topic)
             new.append(topic)
         return new
+
+    def _make_lost_cb(self, topic: str):
+        def lost(event) -> None:  # DDS's SAMPLE_LOST: cumulative per subscription
+            with self._lock:
+                self.lost[topic] = int(event.total_count)
+
+        return lost
 
     def _make_cb(self, topic: str, msgtype: str):
         def cb(raw: bytes) -> None:

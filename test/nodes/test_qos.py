@@ -107,38 +107,15 @@ def test_latch_output_false_publishes_super_resolved_volatile_and_says_so_to_a_l
         h.destroy_node()
 
 
-_CAMERA = """
-import sys, time, numpy as np, rclpy
-from sensor_msgs.msg import Image
-from subpix_ros.nodes import payloads
-from subpix_ros.nodes.qos import camera_qos
-rclpy.init()
-node = rclpy.create_node("cam_pub")
-pub = node.create_publisher(Image, sys.argv[1], camera_qos(False, depth=10))
-deadline = time.monotonic() + 20
-while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-    time.sleep(0.05)
-time.sleep(0.5)
-frame = np.random.default_rng(0).integers(0, 255, (540, 960, 3), np.uint8)
-for i in range(100):
-    pub.publish(payloads.image_cdr(frame, (1000 + i) * 10**9, "cam"))
-    time.sleep(0.002)
-time.sleep(1.0)
-print("sent", pub.get_subscription_count(), flush=True)
-"""
-
-
 def test_camera_frames_lost_before_the_node_took_them_are_a_warning(ctx):
-    """Frames a best-effort camera subscription lost (its executor did not take them in time).
+    """Camera frames lost in transport before the node took them: a WARN, and counted.
 
-    (Was: never seen: the node counted only what arrived, and a loaded machine's missing frames
-    showed up later as short sets.) A camera in another process sends 40 frames while the mosaic
-    node does not spin: its subscription keeps 10; DDS reports the rest lost, and the node says
-    so with the remapped topic's name and counts them.
+    (Was: never seen: the node counted only what arrived, and the missing frames showed up
+    later as short sets.) A camera in another process, without the package's Fast DDS profile,
+    sends 100 frames of 1.5 MB in a burst over UDP while the mosaic node does not spin; DDS
+    reports the ones lost, and the node says so with the remapped topic's name.
     """
-    import os
-    import subprocess
-    import sys
+    from conftest import burst_camera
 
     from subpix_ros.nodes.diagnostics import WARN
     from subpix_ros.nodes.mosaic_node import MosaicNode
@@ -146,20 +123,7 @@ def test_camera_frames_lost_before_the_node_took_them_are_a_warning(ctx):
     topic = "/cam_" + uuid.uuid4().hex[:8]
     node = MosaicNode(cli_args=["--ros-args", "-r", f"image:={topic}"])
     try:
-        # a camera driver without the package's Fast DDS profile: its 1.5 MB frames go out
-        # over UDP fragments, not the 64 MiB shared-memory segment
-        env = {
-            k: v
-            for k, v in os.environ.items()
-            if k not in ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
-        }
-        cam = subprocess.run(
-            [sys.executable, "-c", _CAMERA, topic],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            env=env,
-        )
+        cam = burst_camera(topic)
         assert "sent 1" in cam.stdout, cam.stdout + cam.stderr
         assert spin([node], lambda: "messages_lost_image" in _values(node), 10), _values(node)
         assert int(_values(node)["messages_lost_image"]) >= 20, _values(node)["messages_lost_image"]

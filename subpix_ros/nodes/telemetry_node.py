@@ -42,9 +42,6 @@ from subpix_ros.nodes.qos import latched_qos, reliable_qos
 from subpix_ros.nodes.run import run_nodes
 from subpix_ros.nodes.stamps import stamp_to_ns
 
-#: A MAVLink link that lost more than this share of its frames over 10 s is a warning.
-LINK_LOSS_WARN = 0.2
-
 
 class TelemetryNode(StageNode):
     """MAVLink (or mavros) telemetry in, the telemetry topics and expected shift out."""
@@ -468,9 +465,9 @@ class TelemetryNode(StageNode):
         )
         if self.reader.link_state == "lost":
             self.diag.warn("MAVLink link lost")
-        elif loss is not None and loss > LINK_LOSS_WARN:
+        elif loss is not None and loss > self._link_loss.WARN_ABOVE:
             self.diag.warn(
-                f"MAVLink link losing more than {100 * LINK_LOSS_WARN:.0f} % of its frames "
+                f"MAVLink link losing more than {100 * self._link_loss.WARN_ABOVE:.0f} % of its frames "
                 "(loss_percent_10s, from the senders' sequence numbers): telemetry samples come "
                 "late or not at all"
             )

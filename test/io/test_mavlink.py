@@ -533,3 +533,18 @@ print("ok", len(got))
     )
     assert out.returncode == 0, out.stderr
     assert out.stdout.startswith("ok 361")
+
+
+def test_a_tlog_of_a_lossy_link_is_noted_by_subpix_process(tmp_path):
+    """A ``.tlog`` whose link lost a third of its frames: ``read_tlog``'s note says so."""
+    from subpix_ros.process.inputs import read_tlog
+
+    samples = [make(0.1 * k) for k in range(60)]
+    frames = encode_samples(samples, boot_time=T0)
+    kept = [(t, p) for i, (t, p) in enumerate(frames) if i % 3 != 2]
+    write_tlog(tmp_path / "lossy.tlog", packets=kept)
+    write_tlog(tmp_path / "clean.tlog", packets=frames)
+    _, note = read_tlog(tmp_path / "lossy.tlog")
+    lost = len(frames) - len(kept) - (1 if len(frames) % 3 == 0 else 0)
+    assert f"the recorded link lost {lost} of {len(kept) + lost} MAVLink frames (33 %" in note
+    assert "lost" not in read_tlog(tmp_path / "clean.tlog")[1]

@@ -218,6 +218,11 @@ class LinkLoss:
     sequence number wraps at 256); such a link is in trouble anyway.
     """
 
+    #: A link that lost more than this share of its frames is a problem (``telemetry_node``'s
+    #: warning, ``subpix process``'s note on a ``.tlog``): a judgement, telemetry radios in use
+    #: commonly lose a few per cent.
+    WARN_ABOVE = 0.2
+
     def __init__(self, window_s: float = 10.0, min_frames: int = 50) -> None:
         self.window_s = float(window_s)
         self.min_frames = int(min_frames)

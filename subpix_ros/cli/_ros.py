@@ -9,7 +9,7 @@ from typing import Iterable, Iterator
 
 from subpix_ros.io.participant import detach_discovery_listener
 
-__all__ = ["ros_node", "stop_processes", "detach_discovery_listener"]
+__all__ = ["ros_node", "stop_processes"]
 
 
 @contextlib.contextmanager

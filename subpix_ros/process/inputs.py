@@ -86,11 +86,11 @@ def read_tlog(path: str | Path) -> tuple[list[TelemetrySample], str]:
         notes.append(f"{st.rejected} samples rejected ({st.last_reject})")
     if st.bad_crc or st.bad_data:
         notes.append(f"{st.bad_crc} bad CRC, {st.bad_data} bad data")
-    sent = st.packets + st.packets_lost
-    if sent and st.packets_lost / sent > LinkLoss.WARN_ABOVE:
+    lost = LinkLoss.share(st.packets, st.packets_lost)
+    if lost > LinkLoss.WARN_ABOVE:
         notes.append(
-            f"the recorded link lost {st.packets_lost} of {sent} MAVLink frames "
-            f"({100 * st.packets_lost / sent:.0f} %, gaps in the senders' sequence numbers)"
+            f"the recorded link lost {st.packets_lost} of {st.packets + st.packets_lost} MAVLink "
+            f"frames ({100 * lost:.0f} %, gaps in the senders' sequence numbers)"
         )
     # as telemetry_node: without a GNSS fix the velocity and height are the autopilot's guesses
     fixed = [s for s in samples if s.has_fix]

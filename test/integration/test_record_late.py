@@ -3,6 +3,7 @@
 As one starts `ros2 bag record` before a flight: real processes over real DDS.
 """
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -41,7 +42,7 @@ def _replay(bag, ns, topics, wait=True):
 def _wait(proc, timeout, log, context=""):
     """Return the recorder's (stdout, stderr) once it exits; fail with its stacks if it does not.
 
-    ``log``: a recorder started by :func:`_start_recorder` (output to files, not pipes that
+    ``log``: a recorder started by :func:`_recording` (output to files, not pipes that
     nobody drains while the test sleeps). A recorder that does not finish in time is asked
     for every thread's stack (SIGUSR1), then stopped (SIGINT, then SIGKILL), and the test
     fails with what it printed.
@@ -67,10 +68,25 @@ def _wait(proc, timeout, log, context=""):
     return _read(log)
 
 
-def _start_recorder(log, *args):
-    """``subpix record ARGS`` with its stdout and stderr in files ``log``.out / ``log``.err."""
+@contextlib.contextmanager
+def _recording(log, *args):
+    """Run ``subpix record ARGS``, its stdout and stderr in files ``log``.out / ``log``.err.
+
+    Yields the process; one still running when the block ends (a failed test) is killed.
+    """
     with open(f"{log}.out", "w") as out, open(f"{log}.err", "w") as err:
-        return subprocess.Popen(subpix_cmd("record", *args), stdout=out, stderr=err, text=True)
+        rec = subprocess.Popen(subpix_cmd("record", *args), stdout=out, stderr=err, text=True)
+    try:
+        yield rec
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+
+
+def _interrupt(rec, log, sig=signal.SIGINT):
+    """Send ``sig`` to the recorder; its (stdout, stderr) once it has exited (see :func:`_wait`)."""
+    rec.send_signal(sig)
+    return _wait(rec, 20, log)
 
 
 def _read(log):
@@ -87,8 +103,7 @@ def test_recorder_waits_for_a_publisher_that_starts_late(sample_bags, tmp_path):
     total = sum(len(v) for v in original.values())
     ns, out = _ns(), tmp_path / "late.mcap"
     log = tmp_path / "rec"
-    rec = _start_recorder(log, "-o", str(out), *(ns + t for t in TOPICS), "--count", str(total))
-    try:
+    with _recording(log, "-o", str(out), *(ns + t for t in TOPICS), "--count", str(total)) as rec:
         time.sleep(12.5)
         assert rec.poll() is None, f"the recorder quit before the publisher started: {_read(log)}"
         play = _replay(bag, ns, TOPICS)
@@ -96,9 +111,6 @@ def test_recorder_waits_for_a_publisher_that_starts_late(sample_bags, tmp_path):
         rec_out, err = _wait(
             rec, 30, log, f"\n--- replay stdout\n{play.stdout}\n--- replay stderr\n{play.stderr}"
         )
-    finally:
-        if rec.poll() is None:
-            rec.kill()
     assert rec.returncode == 0, err
     assert f"recorded {total} messages" in rec_out
     assert {t: [m.raw for m in read_messages(out, [ns + t])] for t in TOPICS} == original
@@ -117,19 +129,14 @@ def test_recorder_subscribes_each_topic_when_it_appears_and_stops_cleanly_on_sig
     original = {t: [m.raw for m in read_messages(bag, [t])] for t in TOPICS}
     ns, out = _ns(), tmp_path / "two.mcap"
     log = tmp_path / "rec"
-    rec = _start_recorder(log, "-o", str(out), ns + first, ns + second, ns + "/never")
-    try:
+    with _recording(log, "-o", str(out), ns + first, ns + second, ns + "/never") as rec:
         play1 = _replay(bag, ns, [first])
         assert play1.returncode == 0, play1.stderr
         play2 = _replay(bag, ns, [second])
         assert play2.returncode == 0, play2.stderr
         time.sleep(1.0)
         assert rec.poll() is None
-        rec.send_signal(signal.SIGINT)
-        rec_out, err = _wait(rec, 20, log)
-    finally:
-        if rec.poll() is None:
-            rec.kill()
+        rec_out, err = _interrupt(rec, log)
     assert rec.returncode == 0, err
     assert f"no publisher appeared for {ns}/never" in err
     assert {t.name: t.count for t in bag_topics(out)} == {ns + t: len(original[t]) for t in TOPICS}
@@ -141,16 +148,11 @@ def test_recorder_sigterm_leaves_a_complete_bag(sample_bags, tmp_path):
     topic = TOPICS[1]
     ns, out = _ns(), tmp_path / "term.mcap"
     log = tmp_path / "rec"
-    rec = _start_recorder(log, "-o", str(out), ns + topic)
-    try:
+    with _recording(log, "-o", str(out), ns + topic) as rec:
         play = _replay(bag, ns, [topic])
         assert play.returncode == 0, play.stderr
         time.sleep(1.0)
-        rec.send_signal(signal.SIGTERM)
-        rec_out, err = _wait(rec, 20, log)
-    finally:
-        if rec.poll() is None:
-            rec.kill()
+        rec_out, err = _interrupt(rec, log, signal.SIGTERM)
     assert rec.returncode == 0, err
     assert [m.raw for m in read_messages(out)] == [m.raw for m in read_messages(bag, [topic])]
 
@@ -196,15 +198,11 @@ def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path
         pub.publish(String(data=f"state {i}"))
     out = tmp_path / "latched.mcap"
     log = tmp_path / "rec"
-    rec = _start_recorder(log, "-o", str(out), topic, "--count", "3")
-    try:
+    with _recording(log, "-o", str(out), topic, "--count", "3") as rec:
         deadline = time.monotonic() + 30
         while rec.poll() is None and time.monotonic() < deadline:
             rclpy.spin_once(rclpy_node, timeout_sec=0.05)
         rec_out, err = _wait(rec, 5, log)
-    finally:
-        if rec.poll() is None:
-            rec.kill()
     assert rec.returncode == 0, err
     from rclpy.serialization import deserialize_message
 
@@ -267,19 +265,14 @@ def test_recorder_takes_a_latched_topic_and_the_replay_keeps_it_latched(tmp_path
 def test_sigusr1_prints_the_stacks_and_the_recorder_goes_on(tmp_path):
     """``kill -USR1``: every thread's Python stack on stderr; the command keeps running."""
     log, topic = tmp_path / "rec", _ns() + "/nobody"
-    rec = _start_recorder(log, "-o", str(tmp_path / "x.mcap"), topic)
-    try:
+    with _recording(log, "-o", str(tmp_path / "x.mcap"), topic) as rec:
         deadline = time.monotonic() + 30
         while "waiting for publishers" not in _read(log)[0] and time.monotonic() < deadline:
             time.sleep(0.1)
         rec.send_signal(signal.SIGUSR1)
         time.sleep(1.0)
         assert rec.poll() is None, _read(log)
-        rec.send_signal(signal.SIGINT)
-        out, err = _wait(rec, 20, log)
-    finally:
-        if rec.poll() is None:
-            rec.kill()
+        out, err = _interrupt(rec, log)
     assert "Current thread" in err and "subpix_ros/cli/record.py" in err, err
     assert rec.returncode != 0 and f"no publisher appeared for {topic}" in err
 
@@ -293,15 +286,10 @@ def test_frames_lost_in_transport_are_said_by_the_recorder(tmp_path):
     from conftest import burst_camera
 
     topic, out, log = _ns() + "/camera", tmp_path / "lossy.mcap", tmp_path / "rec"
-    rec = _start_recorder(log, "-o", str(out), topic)
-    try:
+    with _recording(log, "-o", str(out), topic) as rec:
         cam = burst_camera(topic)
         assert "sent 1" in cam.stdout, cam.stdout + cam.stderr
-        rec.send_signal(signal.SIGINT)
-        rec_out, err = _wait(rec, 20, log)
-    finally:
-        if rec.poll() is None:
-            rec.kill()
+        rec_out, err = _interrupt(rec, log)
     assert rec.returncode == 0, err
     kept = len(list(read_messages(out)))
     assert (

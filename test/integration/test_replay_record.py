@@ -179,10 +179,11 @@ def test_the_commands_take_the_discovery_listener_off_before_their_participant_g
     (Was: a recorder stopping (--count) just as its replay left hung for good in
     ``destroy_node``, about 1 run in 100 of the round trip above: Fast DDS's
     ``set_listener(nullptr)`` with its overflowing infinite timeout, a discovery callback in
-    flight; see ``cli._ros.detach_discovery_listener``.) If an RMW or Fast DDS upgrade renames
+    flight; see ``io.participant.detach_discovery_listener``.) If an RMW or Fast DDS upgrade renames
     what it calls, it does nothing and this fails, rather than the hang coming back unseen.
     """
-    from subpix_ros.cli._ros import detach_discovery_listener, ros_node
+    from subpix_ros.cli._ros import ros_node
+    from subpix_ros.io.participant import detach_discovery_listener
 
     with ros_node("subpix_test_detach", rclpy_signals=False) as node:
         assert detach_discovery_listener(node)

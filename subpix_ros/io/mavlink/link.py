@@ -240,7 +240,13 @@ class LinkLoss:
             return None
         if d_received + d_lost < self.min_frames:
             return None
-        return d_lost / (d_received + d_lost)
+        return self.share(d_received, d_lost)
+
+    @staticmethod
+    def share(received: int, lost: int) -> float:
+        """Return ``lost / (received + lost)``, 0 when nothing was sent."""
+        sent = received + lost
+        return lost / sent if sent else 0.0
 
 
 class MavlinkSender:

@@ -4,14 +4,15 @@ from setuptools import find_packages, setup
 
 package_name = "subpix_ros"
 
+# Each node's console entry point imports its module under a Ctrl-C guard (nodes/entry.py).
 NODES = {
-    "telemetry_node": "subpix_ros.nodes.telemetry_node:main",
-    "registration_node": "subpix_ros.nodes.registration_node:main",
-    "shift_node": "subpix_ros.nodes.shift_node:main",
-    "reconstruction_node": "subpix_ros.nodes.reconstruction_node:main",
-    "mosaic_node": "subpix_ros.nodes.mosaic_node:main",
-    "pipeline": "subpix_ros.nodes.pipeline:main",
-    "monitor_node": "subpix_ros.nodes.monitor_node:main",
+    "telemetry_node": "subpix_ros.nodes.entry:telemetry_node",
+    "registration_node": "subpix_ros.nodes.entry:registration_node",
+    "shift_node": "subpix_ros.nodes.entry:shift_node",
+    "reconstruction_node": "subpix_ros.nodes.entry:reconstruction_node",
+    "mosaic_node": "subpix_ros.nodes.entry:mosaic_node",
+    "pipeline": "subpix_ros.nodes.entry:pipeline",
+    "monitor_node": "subpix_ros.nodes.entry:monitor_node",
 }
 
 setup(

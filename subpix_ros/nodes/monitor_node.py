@@ -285,6 +285,7 @@ class MonitorNode(StageNode):
                 self._guard(self._on_camera),
                 camera_qos(self.param("camera_reliable"), depth=1),
                 raw=True,
+                event_callbacks=self.events("image")[0],  # frames lost in transport: a WARN
             )
             self.create_subscription(
                 Vector3Stamped, "shift", self._guard(self._on_shift), reliable_qos(100), raw=True

@@ -107,21 +107,36 @@ def test_latch_output_false_publishes_super_resolved_volatile_and_says_so_to_a_l
         h.destroy_node()
 
 
-def test_camera_frames_lost_before_the_node_took_them_are_a_warning(ctx):
+def _mosaic_node(args):
+    from subpix_ros.nodes.mosaic_node import MosaicNode
+
+    return MosaicNode(cli_args=args)
+
+
+def _monitor_node(args):
+    from rclpy.parameter import Parameter
+
+    from subpix_ros.nodes.monitor_node import MonitorNode
+
+    return MonitorNode(cli_args=args, parameter_overrides=[Parameter("port", value=0)])
+
+
+@pytest.mark.parametrize("make", [_mosaic_node, _monitor_node], ids=["mosaic", "monitor"])
+def test_camera_frames_lost_before_the_node_took_them_are_a_warning(ctx, make):
     """Camera frames lost in transport before the node took them: a WARN, and counted.
 
     (Was: never seen: the node counted only what arrived, and the missing frames showed up
     later as short sets.) A camera in another process, without the package's Fast DDS profile,
-    sends 100 frames of 1.5 MB in a burst over UDP while the mosaic node does not spin; DDS
-    reports the ones lost, and the node says so with the remapped topic's name.
+    sends 100 frames of 1.5 MB in a burst over UDP while the node does not spin; DDS reports the
+    ones lost, and the node says so with the remapped topic's name. The mosaic node, and the
+    monitor's camera preview (was: silent there too).
     """
     from conftest import burst_camera
 
     from subpix_ros.nodes.diagnostics import WARN
-    from subpix_ros.nodes.mosaic_node import MosaicNode
 
     topic = "/cam_" + uuid.uuid4().hex[:8]
-    node = MosaicNode(cli_args=["--ros-args", "-r", f"image:={topic}"])
+    node = make(["--ros-args", "-r", f"image:={topic}"])
     try:
         cam = burst_camera(topic)
         assert "sent 1" in cam.stdout, cam.stdout + cam.stderr

@@ -82,7 +82,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     dump_stacks_on_sigusr1()  # kill -USR1 <pid>: where a hung command is (subpix_ros.runtime)
     keep_freed_memory()  # frame buffers reused, not re-faulted per frame (subpix_ros.runtime)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # said with the subcommand's usage, not the top-level one
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     if args.command in ("replay", "record", "demo"):
         clean_stale_shm_segments()  # the DDS commands: segments of killed processes (runtime)
     try:

@@ -96,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
         live_only_notes,
         load_params_files,
     )
+    from subpix_ros.process.products import BATCH_SUMMARY
     from subpix_ros.runtime import favour_throughput
 
     favour_throughput()  # a batch job: page faults cost more than resident memory here
@@ -119,11 +120,14 @@ def run(args: argparse.Namespace) -> int:
         if n in names:
             raise CliError(f"bags {names[n]} and {b} would both write {Path(args.out) / n}")
         names[n] = b
+    if not args.out.strip():
+        raise CliError("-o/--out is empty: give the output folder")
     out = Path(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise CliError(f"cannot create {out}: {exc.strerror}") from None
+    lock = _lock_out(out)  # held until the process ends  # noqa: F841
     monitor = None
     if args.serve is not None:
         if args.jobs != 1:
@@ -160,29 +164,23 @@ def run(args: argparse.Namespace) -> int:
         if r.status in ("failed", "partial") or r.previous_status in ("failed", "partial")
     ]
     lines = [r.line for r in results]
-    (out / "batch_summary.json").write_text(
-        json.dumps(
-            [
-                {
-                    "bag": r.bag,
-                    "name": r.name,
-                    "status": r.status,
-                    "previous_status": r.previous_status,
-                    "line": r.line,
-                    "out": r.out,
-                }
-                for r in results
-            ],
-            indent=1,
+    try:
+        _write_batch_summary(out, results)
+    except OSError as exc:  # a full or read-only disk: the flights' own lines still say the rest
+        print(
+            f"subpix process: cannot write {out / BATCH_SUMMARY}: {exc.strerror or exc}",
+            file=sys.stderr,
         )
-        + "\n"
-    )
+        failed = failed or list(results)
     if not args.quiet:
         print("\n".join(["summary:"] + [f"  {ln}" for ln in lines]))
         for r in results:
-            if r.out and r.status != "failed":
+            if r.out and r.status != "failed" and (Path(r.out) / "report.html").is_file():
                 print(f"  report: {Path(r.out) / 'report.html'}")
     if failed:
+        if args.quiet:  # no progress, but never a failure without its reason
+            for r in failed:
+                print(r.line, file=sys.stderr)
         print(
             f"subpix process: {len(failed)} of {len(results)} bag(s) failed or only partly usable: "
             f"{', '.join(r.name for r in failed)}",
@@ -190,3 +188,53 @@ def run(args: argparse.Namespace) -> int:
         )
         return 1
     return 0
+
+
+def _write_batch_summary(out: Path, results) -> None:
+    """Write ``OUTDIR/batch_summary.json``: one entry per bag of this run (atomically)."""
+    from subpix_ros.process.products import BATCH_SUMMARY
+
+    entries = [
+        {
+            "bag": r.bag,
+            "name": r.name,
+            "status": r.status,
+            "previous_status": r.previous_status,
+            "line": r.line,
+            "out": r.out,
+        }
+        for r in results
+    ]
+    tmp = out / f".{BATCH_SUMMARY}.tmp"
+    try:
+        tmp.write_text(json.dumps(entries, indent=1) + "\n")
+        tmp.replace(out / BATCH_SUMMARY)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _lock_out(out: Path) -> int:
+    """Take OUTDIR for this run: an advisory lock on the folder itself (no file left in it).
+
+    Returns the folder's open descriptor (the lock lasts while it is open: to the process's
+    end, a kill included). Raises :class:`CliError` when another ``subpix process`` holds it,
+    or OUTDIR cannot be written (a read-only file system): said before any bag is read.
+    """
+    import fcntl
+    import os
+
+    if not os.access(out, os.W_OK):
+        raise CliError(
+            f"cannot write in {out}: not writable (read-only file system or permissions)"
+        )
+    fd = os.open(out, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        raise CliError(
+            f"another subpix process is writing {out}: wait for it to end, or choose another "
+            "output folder (-o)"
+        ) from None
+    return fd

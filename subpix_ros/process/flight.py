@@ -161,8 +161,16 @@ def process_bag(
         files,
         params,
         {"camera_topic": camera_topic, "telemetry": telemetry, "skip_corrupt": skip_corrupt},
+        bag,
     )
-    prev = previous_products(final, record)
+    refused = _refused_folder(bag, final)
+    prev = previous_products(final, record) if refused is None else None
+    if prev is not None and prev.state == "not products":
+        refused = f"{prev.why}: not replaced; choose another output folder (-o) or move it"
+    elif prev is not None and prev.state == "other bag" and not force:
+        refused = f"{prev.why}: not replaced; choose another output folder (-o), or --force"
+    if refused is not None:
+        return BagResult(str(bag), name, "failed", f"{name}: failed: {refused}", problems=[refused])
     if prev.state == "up to date" and not force:
         return _skipped(bag, name, final, prev)
     try:
@@ -170,10 +178,14 @@ def process_bag(
         flight.skip_corrupt = skip_corrupt
     except (InputError, BagError) as exc:
         return BagResult(str(bag), name, "failed", f"{name}: failed: {exc}", problems=[str(exc)])
-    out_root.mkdir(parents=True, exist_ok=True)
-    left = remove_leftovers(out_root, name)
-    writer = ProductWriter(out_root, name)
-    writer.json(INPUTS_FILE, record)
+    try:
+        out_root.mkdir(parents=True, exist_ok=True)
+        left = remove_leftovers(out_root, name)
+        writer = ProductWriter(out_root, name)
+        writer.json(INPUTS_FILE, record)
+    except OSError as exc:  # a read-only or full disk: one line, not a traceback
+        text = f"cannot write in {out_root}: {exc.strerror or exc}"
+        return BagResult(str(bag), name, "failed", f"{name}: failed: {text}", problems=[text])
     try:
         res = _run(flight, writer, params, progress, monitor, sections_ahead)
         res = _finish_bag(res, writer, t_wall, cpu0, force or prev.state != "none")
@@ -189,6 +201,17 @@ def process_bag(
         writer.abort()
         text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
         return BagResult(str(bag), name, "failed", f"{name}: failed: {text}", problems=[text])
+
+
+def _refused_folder(bag: Path, final: Path) -> str | None:
+    """Return why the products must not go to ``final`` (the bag itself or a folder holding it)."""
+    b, f = bag.resolve(), final.resolve()
+    if b == f or f in b.parents:
+        return (
+            f"the products would replace the bag itself ({final} holds {bag}): "
+            "choose another output folder (-o)"
+        )
+    return None
 
 
 def _skipped(bag: Path, name: str, final: Path, prev: Previous) -> BagResult:
@@ -235,9 +258,28 @@ def _finish_bag(
 
         write_report(writer.tmp, crops=crops, sections=drawn)
     except Exception as exc:  # noqa: BLE001 - the products stand without the report
-        res.problems.append(f"report not written: {type(exc).__name__}: {exc}")
+        _report_failed(res, writer, f"report not written: {type(exc).__name__}: {exc}")
     res.out = str(writer.commit(force))
     return res
+
+
+def _report_failed(res: BagResult, writer: ProductWriter, problem: str) -> None:
+    """Make a flight whose report could not be written ``partial``, in its line and summary.json.
+
+    The other products stand; the folder lacks ``report.html``, so a re-run redoes it
+    (:func:`subpix_ros.process.products.previous_products`). A failure to say so (the disk
+    is full) raises: the bag has failed and nothing is moved into place.
+    """
+    res.problems.append(problem)
+    if res.status == "ok":
+        res.line = res.line.replace(f"{res.name}: ok:", f"{res.name}: partial:", 1)
+        res.status = "partial"
+    res.line += f"; {problem}"
+    path = writer.tmp / "summary.json"
+    summary = json.loads(path.read_text())
+    summary["status"] = res.status
+    summary["problems"] = list(summary.get("problems") or []) + [problem]
+    writer.json("summary.json", summary)
 
 
 def _run(

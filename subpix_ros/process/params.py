@@ -225,6 +225,10 @@ def _read_sections(path: str | Path) -> list[tuple[str, dict[str, Any]]]:
 
     try:
         data = yaml.safe_load(Path(path).read_text()) or {}
+    except UnicodeDecodeError:
+        raise InputError(
+            f"cannot read parameters {path}: not a YAML text file (not UTF-8 text)"
+        ) from None
     except (OSError, yaml.YAMLError) as exc:
         raise InputError(
             f"cannot read parameters {path}: {' '.join(str(exc).split())[:200]}"

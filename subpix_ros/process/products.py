@@ -57,7 +57,8 @@ DETERMINISTIC = (
     "mosaic.json",
 )
 TIMING_FILES = ("timing.json", "report.html")
-#: What a run writes whatever the flight (the report may be missing: its failure is a problem)
+#: What a run writes whatever the flight (a report that could not be written makes the flight
+#: partial, and its folder incomplete: a re-run redoes it)
 REQUIRED = (
     "summary.json",
     "shifts.csv",
@@ -66,8 +67,11 @@ REQUIRED = (
     "results.mcap",
     "timing.json",
     "inputs.json",
+    "report.html",
 )
 INPUTS_FILE = "inputs.json"
+#: What ``subpix process`` writes into OUTDIR itself, beside the flights' folders: never an input
+BATCH_SUMMARY = "batch_summary.json"
 
 _T = cdr.TYPESTORE.types
 _DIAG_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
@@ -97,15 +101,30 @@ def is_complete(folder: Path) -> bool:
 
 
 def input_files(bag: str | Path, tlog: Path | None) -> list[Path]:
-    """Return the files a bag's products are made from: the bag's own files and its ``.tlog``."""
+    """Return the files a bag's products are made from: the bag's own files and its ``.tlog``.
+
+    A ``batch_summary.json`` and hidden files (temporary ones) in the bag's folder are left
+    out: that is what ``subpix process`` writes there when OUTDIR is the bag's folder, not an
+    input.
+    """
     p = Path(bag)
-    files = sorted(f for f in p.iterdir() if f.is_file()) if p.is_dir() else [p]
+    files = (
+        sorted(
+            f
+            for f in p.iterdir()
+            if f.is_file() and f.name != BATCH_SUMMARY and not f.name.startswith(".")
+        )
+        if p.is_dir()
+        else [p]
+    )
     if tlog is not None and tlog not in files:
         files.append(tlog)
     return files
 
 
-def inputs_record(files: Sequence[Path], params: dict, options: dict) -> dict:
+def inputs_record(
+    files: Sequence[Path], params: dict, options: dict, bag: str | Path | None = None
+) -> dict:
     """Return what a run's products were made from, with its fingerprint (``inputs.json``).
 
     Parameters
@@ -118,12 +137,16 @@ def inputs_record(files: Sequence[Path], params: dict, options: dict) -> dict:
     options : dict
         The run's other choices that change the products (camera topic, telemetry source,
         reading past corrupt records).
+    bag : path, optional
+        The bag, recorded as its absolute path (``bag``) outside the fingerprint: a bag moved
+        elsewhere is still the same inputs, but a folder holding another bag's products is
+        told apart (:func:`previous_products`).
 
     Returns
     -------
     dict
         ``fingerprint`` (SHA-256 of the rest, canonical JSON), ``files``, ``params``,
-        ``options`` and the package ``version``.
+        ``options``, the package ``version`` and ``bag``.
     """
     from subpix_ros import __version__
 
@@ -136,17 +159,23 @@ def inputs_record(files: Sequence[Path], params: dict, options: dict) -> dict:
             listed.append({"name": f.name, "size": None, "mtime_ns": None})
     body = {"files": listed, "params": params, "options": options, "version": __version__}
     text = json.dumps(body, sort_keys=True, default=str)
-    return {"fingerprint": hashlib.sha256(text.encode()).hexdigest(), **body}
+    record = {"fingerprint": hashlib.sha256(text.encode()).hexdigest(), **body}
+    if bag is not None:
+        record["bag"] = str(Path(bag).absolute())
+    return record
 
 
 @dataclass
 class Previous:
     """What an earlier run left in a bag's product folder.
 
-    ``state``: "none" (no folder), "up to date" (complete, made from the same inputs),
-    "changed" (complete, from other inputs: ``why`` names which), "incomplete" (a folder
-    without every product: ``why`` names what is missing). ``status`` and ``problem``: the
-    earlier run's flight status and first problem (complete folders only).
+    ``state``: "none" (no folder, or an empty one), "up to date" (complete, made from the
+    same inputs), "changed" (complete, from other inputs: ``why`` names which), "incomplete"
+    (a product folder without every product: ``why`` names what is missing), "other bag"
+    (the products of another bag of the same name: ``why`` names it) or "not products" (a
+    folder that no run of ``subpix process`` made: ``why`` says what it holds). ``status``
+    and ``problem``: the earlier run's flight status and first problem (complete folders
+    only).
     """
 
     state: str
@@ -155,10 +184,30 @@ class Previous:
     problem: str | None = None
 
 
+def listed_images(summary: dict) -> list[str]:
+    """Return the image files a flight's ``summary.json`` says were written (relative paths)."""
+    names = [
+        st[k] for st in summary.get("sets") or [] for k in ("superres", "bicubic") if st.get(k)
+    ]
+    if (summary.get("mosaic") or {}).get("written"):
+        names.append("mosaic.png")
+    return names
+
+
 def previous_products(folder: Path, record: dict) -> Previous:
     """Compare the products in ``folder`` with the inputs ``record`` of the run about to start."""
     if not folder.exists():
         return Previous("none")
+    if not folder.is_dir():
+        return Previous("not products", f"{folder} is a file")
+    held = sorted(p.name for p in folder.iterdir())
+    if not held:
+        return Previous("none")
+    if "summary.json" not in held and INPUTS_FILE not in held:
+        shown = ", ".join(held[:3]) + (f" and {len(held) - 3} more" if len(held) > 3 else "")
+        return Previous(
+            "not products", f"{folder} holds files that subpix process did not write ({shown})"
+        )
     missing = [n for n in REQUIRED if not (folder / n).is_file()]
     try:
         summary = json.loads((folder / "summary.json").read_text())
@@ -167,15 +216,21 @@ def previous_products(folder: Path, record: dict) -> Previous:
         return Previous(
             "incomplete", f"{', '.join(missing) or 'summary.json'} missing or unreadable"
         )
+    files = {f["name"]: f for f in old.get("files", [])}
+    now = {f["name"]: f for f in record["files"]}
+    if old.get("bag") and record.get("bag") and old["bag"] != record["bag"] and files != now:
+        return Previous("other bag", f"{folder} holds the products of another bag, {old['bag']}")
+    missing += [n for n in listed_images(summary) if not (folder / n).is_file()]
     if missing:
-        return Previous("incomplete", f"{', '.join(missing)} missing")
+        shown = ", ".join(missing[:4]) + (
+            f" and {len(missing) - 4} more" if len(missing) > 4 else ""
+        )
+        return Previous("incomplete", f"{shown} missing")
     status = summary.get("status")
     problems = summary.get("problems") or []
     if old.get("fingerprint") == record["fingerprint"]:
         return Previous("up to date", status=status, problem=problems[0] if problems else None)
     changed = [k for k in ("params", "options", "version") if old.get(k) != record.get(k)]
-    files = {f["name"]: f for f in old.get("files", [])}
-    now = {f["name"]: f for f in record["files"]}
     changed += [f"file {n}" for n in sorted(set(files) | set(now)) if files.get(n) != now.get(n)]
     words = {"params": "parameters", "options": "options", "version": "subpix_ros version"}
     what = ", ".join(words.get(c, c) for c in changed) or "inputs"
@@ -409,6 +464,8 @@ class ProductWriter:
     def commit(self, force: bool) -> Path:
         """Rename the finished folder into place (replacing an old one only with ``force``)."""
         self.close_bag()
+        if self.final.is_dir() and not any(self.final.iterdir()):
+            self.final.rmdir()  # an empty folder (made by hand, or a mount point's stub)
         if self.final.exists():
             if not force:
                 raise FileExistsError(f"{self.final} appeared while processing (another run?)")

@@ -279,6 +279,10 @@ def write_report(
     folder = Path(folder)
     text = build_report(folder, crops, sections)
     tmp = folder / ".report.html.tmp"
-    tmp.write_text(text)
-    tmp.replace(folder / "report.html")
+    try:
+        tmp.write_text(text)
+        tmp.replace(folder / "report.html")
+    except BaseException:  # a full disk, Ctrl-C: no half-written file left beside the products
+        tmp.unlink(missing_ok=True)
+        raise
     return folder / "report.html"

@@ -56,3 +56,25 @@ def test_colcon_build_installs_executables_index_and_share(tmp_path):
         f"{n}.yaml" for n in EXECUTABLES[:5]
     }
     assert len(list((share / "data" / "seneca").glob("*.jpg"))) == 9
+
+
+def test_every_ros_package_the_code_imports_is_a_dependency():
+    """Each ROS package imported by subpix_ros is an exec_depend (rosdep installs it).
+
+    (Was: rcl_interfaces imported by every node, not declared.)
+    """
+    import re
+    import xml.etree.ElementTree as ET
+
+    deps = {e.text for e in ET.parse(ROOT / "package.xml").getroot().iter("exec_depend")}
+    imported = set()
+    for f in (ROOT / "subpix_ros").rglob("*.py"):
+        imported |= set(
+            re.findall(
+                r"^\s*(?:from|import) (rclpy|ament_index_python|rcl_interfaces|\w+_msgs)\b",
+                f.read_text(),
+                re.M,
+            )
+        )
+    assert imported >= {"rclpy", "rcl_interfaces", "sensor_msgs"}, imported
+    assert imported <= deps, imported - deps

@@ -44,7 +44,8 @@ def load_params(files: list[str]) -> dict:
     """Node parameters of config/bench.yaml, then each ``--params`` file on top."""
     out: dict = {}
     for f in [ROOT / "config" / "bench.yaml", *files]:
-        for node, body in (yaml.safe_load(Path(f).read_text()) or {}).items():
+        for key, body in (yaml.safe_load(Path(f).read_text()) or {}).items():
+            node = key.rsplit("/", 1)[-1]  # /**/registration_node: the node in any namespace
             out.setdefault(node, {}).update((body or {}).get("ros__parameters", {}))
     return out
 

@@ -794,7 +794,7 @@ def test_sets_that_fell_back_are_said_in_the_line_and_not_counted_as_super_resol
     import yaml
 
     params = yaml.safe_load(Path(DEMO).read_text())
-    rec = params.setdefault("reconstruction_node", {}).setdefault("ros__parameters", {})
+    rec = params.setdefault("/**/reconstruction_node", {}).setdefault("ros__parameters", {})
     rec["max_memory_mb"] = 1.0
     cfg = tmp_path / "tiny_budget.yaml"
     cfg.write_text(yaml.safe_dump(params))

@@ -652,6 +652,7 @@ class _FlightRun:
             or still
             or jumps
             or unusable
+            or flight.telemetry_unusable
             or coverage
             or disagrees
         ):

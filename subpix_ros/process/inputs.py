@@ -82,6 +82,11 @@ def read_tlog(path: str | Path) -> tuple[list[TelemetrySample], str]:
     reader.stop()
     st = reader.stats
     notes = []
+    if not samples and not st.rejected:  # what the log holds instead
+        notes.append(
+            f"none of its {st.packets} MAVLink frames ({st.heartbeats} HEARTBEAT) is a "
+            "GLOBAL_POSITION_INT, which a telemetry sample is made from"
+        )
     if st.rejected:
         notes.append(f"{st.rejected} samples rejected ({st.last_reject})")
     if st.bad_crc or st.bad_data:
@@ -114,6 +119,11 @@ class Flight:
     topics: dict[str, tuple[str, int]]  # topic -> (type, count)
     telemetry_source: str  # "topics", "tlog <path>", or "none"
     telemetry_note: str = ""
+    #: the namespace the bag's telemetry topics are under ("" for /telemetry/*, "/drone1" for
+    #: /drone1/telemetry/*, as a telemetry_node started with -r __ns:=/drone1 publishes them)
+    telemetry_ns: str = ""
+    #: why a telemetry source that is there (a .tlog beside the bag) gave nothing usable
+    telemetry_unusable: str = ""
     tlog_samples: list[TelemetrySample] = field(default_factory=list)
     camera_note: str = ""
     skip_corrupt: bool = False  # read past damaged chunks (counted in read_report)
@@ -135,8 +145,9 @@ class Flight:
 
         topics = [self.camera_topic] if self.camera_topic else []
         use_topics = self.telemetry_source == "topics"
+        ns = self.telemetry_ns
         if use_topics:
-            topics += [t for t in TELEMETRY_TOPICS if t in self.topics]
+            topics += [ns + t for t in TELEMETRY_TOPICS if ns + t in self.topics]
         pending = list(self.tlog_samples)
         i = 0
         rebuild = _TopicTelemetry()
@@ -164,7 +175,7 @@ class Flight:
                 yield "frame", frame
             else:
                 try:
-                    s = rebuild.add(m.topic, m.raw, m.timestamp_ns)
+                    s = rebuild.add(m.topic.removeprefix(ns), m.raw, m.timestamp_ns)
                 except Exception:  # noqa: BLE001 - a malformed telemetry message is skipped
                     rebuild.bad += 1
                     continue
@@ -182,10 +193,11 @@ class Flight:
             return list(self.tlog_samples)
         rebuild = _TopicTelemetry()
         out = []
-        tel = [t for t in TELEMETRY_TOPICS if t in self.topics]
+        ns = self.telemetry_ns
+        tel = [ns + t for t in TELEMETRY_TOPICS if ns + t in self.topics]
         for m in read_messages(self.path, tel, skip_corrupt=self.skip_corrupt):
             try:
-                s = rebuild.add(m.topic, m.raw, m.timestamp_ns)
+                s = rebuild.add(m.topic.removeprefix(ns), m.raw, m.timestamp_ns)
             except Exception:  # noqa: BLE001
                 continue
             if s is not None:
@@ -314,11 +326,19 @@ def _attach_telemetry(
     flight: Flight, p: Path, topics: dict[str, tuple[str, int]], telemetry: str | None
 ) -> None:
     """Set the flight's telemetry source: its topics, the tlog beside the bag, or none."""
-    has_topics = "/telemetry/velocity" in topics and "/telemetry/height" in topics
+    spaces = telemetry_namespaces(topics)
+    has_topics = len(spaces) == 1
+    if has_topics:
+        flight.telemetry_ns = spaces[0]
     if telemetry == "topics" or (telemetry is None and has_topics):
         if not has_topics:
-            raise InputError(f"bag {p} has no /telemetry/velocity and /telemetry/height topics")
+            raise InputError(f"bag {p}: {no_telemetry_topics(topics)}")
         flight.telemetry_source = "topics"
+        if flight.telemetry_ns:
+            flight.telemetry_note = (
+                f"read from {flight.telemetry_ns}/telemetry/* (the bag has no "
+                "/telemetry/*: a telemetry_node in a namespace)"
+            )
     elif telemetry in ("tlog", None):
         tlog = find_tlog(p)
         if tlog is None:
@@ -331,8 +351,41 @@ def _attach_telemetry(
             flight.telemetry_source = f"tlog {tlog.name}"
             if not flight.tlog_samples:
                 flight.telemetry_source = "none"
-                flight.telemetry_note = f"{tlog.name} has no usable telemetry sample" + (
+                flight.telemetry_unusable = f"{tlog.name} has no usable telemetry sample" + (
                     f" ({flight.telemetry_note})" if flight.telemetry_note else ""
                 )
+                flight.telemetry_note = ""
     else:
         raise InputError(f"unknown telemetry source {telemetry!r} (tlog or topics)")
+
+
+def telemetry_namespaces(topics: dict[str, tuple[str, int]]) -> list[str]:
+    """Return the namespaces under which the bag has the telemetry node's topics.
+
+    ``""`` for ``/telemetry/velocity`` and ``/telemetry/height`` at the root, ``"/drone1"``
+    for ``/drone1/telemetry/...``; the root first, then the others sorted.
+    """
+    found = []
+    for name in topics:
+        if name.endswith("/telemetry/velocity"):
+            ns = name.removesuffix("/telemetry/velocity")
+            if ns + "/telemetry/height" in topics:
+                found.append(ns)
+    return sorted(found, key=lambda ns: (ns != "", ns))
+
+
+def no_telemetry_topics(topics: dict[str, tuple[str, int]]) -> str:
+    """Say why the bag's topics give no telemetry, naming what it has instead."""
+    spaces = telemetry_namespaces(topics)
+    if len(spaces) > 1:
+        shown = ", ".join(f"{ns or ''}/telemetry/*" for ns in spaces)
+        return f"telemetry topics under several namespaces ({shown}): which is this camera's?"
+    mavros = sorted(t for t in topics if t.startswith("/mavros/"))
+    if mavros:
+        shown = ", ".join(mavros[:3]) + (f" and {len(mavros) - 3} more" if len(mavros) > 3 else "")
+        return (
+            f"no /telemetry/* topics, but mavros topics ({shown}): subpix process reads "
+            "telemetry_node's /telemetry/* (record them: telemetry_node source:=mavros) or the "
+            "flight's .tlog beside the bag"
+        )
+    return "no /telemetry/velocity and /telemetry/height topics"

@@ -11,7 +11,7 @@ import numpy as np
 from subpix_ros.core.telemetry import TelemetrySample, validate_sample
 from subpix_ros.core.timing_check import TelemetryAgreement, what_would_fit
 from subpix_ros.process.collector import _TIME_KEY, _clean, _stats_dict, reason_key
-from subpix_ros.process.inputs import Flight
+from subpix_ros.process.inputs import Flight, no_telemetry_topics
 from subpix_ros.process.tables import _shape_text
 
 if TYPE_CHECKING:
@@ -30,9 +30,14 @@ def _input_problems(flight: Flight) -> list[str]:
         )
     elif flight.frames_total == 0:
         problems.append(f"no images: camera topic {flight.camera_topic} has no messages")
-    if not flight.has_telemetry:
+    if flight.telemetry_unusable:  # a source that is there, but gave nothing
         problems.append(
-            "no telemetry (no /telemetry/* topics, no .tlog beside the bag"
+            f"telemetry unusable: {flight.telemetry_unusable}: every frame kept, no expected "
+            "shift, no GPS track"
+        )
+    elif not flight.has_telemetry:
+        problems.append(
+            f"no telemetry ({no_telemetry_topics(flight.topics)}; no .tlog beside the bag"
             + (f": {flight.telemetry_note}" if flight.telemetry_note else "")
             + "): every frame kept, no expected shift, no GPS track"
         )
@@ -391,7 +396,7 @@ def _summary(run: _FlightRun, mosaic_info: dict) -> dict:
         "telemetry": {
             "source": flight.telemetry_source,
             "samples": len(run.samples),
-            "note": flight.telemetry_note,
+            "note": flight.telemetry_unusable or flight.telemetry_note,
             "check": telemetry_check_summary(run.telemetry_check, run.reg_params),
         },
         "flight": {

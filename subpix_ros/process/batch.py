@@ -253,9 +253,13 @@ def _run_parallel(
     import multiprocessing as mp
     import signal
     import threading
+    from multiprocessing.managers import SyncManager
 
     ctx = mp.get_context("spawn")
-    manager = ctx.Manager()
+    # the progress queue's server process ends with this one, a kill -9 included (it then holds
+    # nothing open: multiprocessing's resource tracker ends too)
+    manager = SyncManager(ctx=ctx)
+    manager.start(initializer=die_with_parent)
     queue = manager.Queue()
     threads = max(1, (os.cpu_count() or 1) // jobs)
     stop = threading.Event()

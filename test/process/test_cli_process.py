@@ -367,6 +367,70 @@ def test_kill_with_jobs_stops_the_workers_and_removes_their_folders(sample_bags,
     assert [q.name for q in tmp_path.iterdir()] == []
 
 
+def _children(parent: int) -> list[int]:
+    """PIDs of the processes whose parent is ``parent``."""
+    out = []
+    for d in Path("/proc").iterdir():
+        try:
+            status = (d / "status").read_text() if d.name.isdigit() else ""
+        except OSError:
+            continue
+        if f"\nPPid:\t{parent}\n" in status:
+            out.append(int(d.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = next(
+            x
+            for x in Path(f"/proc/{pid}/status").read_text().splitlines()
+            if x.startswith("State:")
+        )
+    except (OSError, StopIteration):
+        return False
+    return "zombie" not in state
+
+
+def test_sigkill_with_jobs_leaves_no_process_behind(sample_bags, tmp_path):
+    """SIGKILL of `subpix process --jobs 2` leaves none of its processes behind.
+
+    Its workers, the progress queue's manager and multiprocessing's resource tracker all end
+    (was: the manager and the tracker lived on, holding the command's pipes open).
+    """
+    p = subprocess.Popen(
+        process_cmd(
+            str(sample_bags / "subpixel"),
+            str(sample_bags / "seneca"),
+            "-o",
+            str(tmp_path),
+            "--params",
+            DEMO,
+            "--jobs",
+            "2",
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert "frames" in p.stderr.readline()
+        children = _children(p.pid)
+        assert len(children) >= 3, children  # two workers, the manager, the resource tracker
+    finally:
+        p.kill()
+        p.wait(timeout=60)
+        p.stdout.close()  # not communicate(): a child left behind holds the pipes open
+        p.stderr.close()
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline and any(_alive(c) for c in children):
+        time.sleep(0.2)
+    left = {c: Path(f"/proc/{c}/cmdline").read_bytes()[:120] for c in children if _alive(c)}
+    for c in left:
+        os.kill(c, signal.SIGKILL)
+    assert left == {}
+
+
 # --------------------------------------------------------------------------- bad input
 def test_bad_bags_get_one_line_each_and_the_rest_is_processed(sample_bags, tmp_path):
     msgs, frames, tel = _sample(sample_bags)

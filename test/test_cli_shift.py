@@ -75,6 +75,9 @@ def test_shift_failure_is_one_line_and_nonzero(pair_files, capsys):
     assert rc != 0 and json.loads(cap.out)["ok"] is False and json.loads(cap.out)["u"] is None
     assert main(["shift", pair_files["ref"], "/nonexistent.png"]) != 0
     assert "not found" in capsys.readouterr().err
+    folder = str(Path(pair_files["ref"]).parent)
+    assert main(["shift", folder, pair_files["ref"]]) != 0
+    assert f"reference {folder} is a folder: give an image file" in capsys.readouterr().err
     assert main(["shift", pair_files["ref"], pair_files["flat"]]) != 0
     assert "differ in size" in capsys.readouterr().err
     # an 8-bit frame against a 16-bit one: said, not a Gauss-Newton failure

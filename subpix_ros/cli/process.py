@@ -75,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     parser.add_argument(
         "--serve",
-        type=int,
+        type=_port,
         nargs="?",
         const=8765,
         default=None,
@@ -84,6 +84,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the monitor_node's view: mosaic, SR vs bicubic, camera, shifts, GPS); --jobs 1 only",
     )
     parser.set_defaults(func=run)
+
+
+def _port(text: str) -> int:
+    """Return a TCP port number 1..65535 from the command line (argparse type)."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"port {port} is not in 1..65535")
+    return port
 
 
 def run(args: argparse.Namespace) -> int:

@@ -48,6 +48,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _read(path: str, what: str) -> tuple[np.ndarray, str]:
     """Return an image file's luminance and its sample type as stored (``uint8`` ...)."""
+    if Path(path).is_dir():
+        raise CliError(f"{what} {path} is a folder: give an image file")
     if not Path(path).is_file():
         raise CliError(f"{what} file not found: {path}")
     img = cv2.imread(path, cv2.IMREAD_UNCHANGED)

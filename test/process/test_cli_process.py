@@ -611,6 +611,8 @@ def test_missing_sources_are_one_line_errors(sample_bags, tmp_path):
         str(sample_bags / "subpixel"), "-o", str(tmp_path), "--params", str(tmp_path / "none.yaml")
     )
     assert r.returncode == 1 and r.stderr.count("\n") == 1 and "cannot read parameters" in r.stderr
+    r = _run(str(sample_bags / "subpixel"), "-o", str(tmp_path), "--serve", "99999")
+    assert r.returncode == 2 and "port 99999 is not in 1..65535" in r.stderr, r.stderr
 
 
 def test_params_that_cannot_apply_stop_the_command_before_any_bag(sample_bags, tmp_path):

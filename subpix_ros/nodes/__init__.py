@@ -14,6 +14,7 @@ _EXPORTS = {
     "Param": "params",
     "declare_params": "params",
     "camera_qos": "qos",
+    "best_effort_qos": "qos",
     "reliable_qos": "qos",
     "latched_qos": "qos",
     "output_qos": "qos",

@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "camera_qos",
+    "best_effort_qos",
     "reliable_qos",
     "latched_qos",
     "output_qos",
@@ -30,14 +31,22 @@ __all__ = [
 
 def camera_qos(reliable: bool, depth: int = 5) -> QoSProfile:
     """SensorDataQoS (best effort, volatile) by default; reliable on request."""
-    if not reliable:
-        return QoSProfile(
-            history=qos_profile_sensor_data.history,
-            depth=depth,
-            reliability=ReliabilityPolicy.BEST_EFFORT,
-            durability=DurabilityPolicy.VOLATILE,
-        )
-    return reliable_qos(depth)
+    return reliable_qos(depth) if reliable else best_effort_qos(depth)
+
+
+def best_effort_qos(depth: int = 5) -> QoSProfile:
+    """SensorDataQoS with keep-last ``depth``: best effort, volatile.
+
+    A best-effort subscription matches reliable and best-effort publishers alike, so it is the
+    one to take a driver's sensor topics with (mavros publishes with rclcpp's SensorDataQoS:
+    a reliable subscription gets nothing from it).
+    """
+    return QoSProfile(
+        history=qos_profile_sensor_data.history,
+        depth=depth,
+        reliability=ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
 
 
 def reliable_qos(depth: int = 10) -> QoSProfile:

@@ -38,7 +38,7 @@ from subpix_ros.io import cdr
 from subpix_ros.io import telemetry_msgs as tm
 from subpix_ros.nodes.base import StageNode
 from subpix_ros.nodes.params import Param
-from subpix_ros.nodes.qos import latched_qos, reliable_qos
+from subpix_ros.nodes.qos import best_effort_qos, latched_qos, reliable_qos
 from subpix_ros.nodes.run import run_nodes
 from subpix_ros.nodes.stamps import stamp_to_ns
 
@@ -273,7 +273,9 @@ class TelemetryNode(StageNode):
         self._watch_mavlink(self.param("connection"))
 
     def _start_mavros(self) -> None:
-        q = reliable_qos(20)
+        # best effort: mavros publishes these with SensorDataQoS (a reliable subscription
+        # would match no publisher of it); best effort also takes a reliable publisher's
+        q = best_effort_qos(20)
         topics = {
             "velocity": self.param("mavros_velocity_topic"),
             "fix": self.param("mavros_fix_topic"),

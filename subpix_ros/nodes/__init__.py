@@ -23,6 +23,7 @@ _EXPORTS = {
     "qos_event_callbacks": "qos",
     "stamp_to_ns": "stamps",
     "ns_to_stamp": "stamps",
+    "steady_timer": "stamps",
     "RateMeter": "worker",
     "DropOldestWorker": "worker",
     "Diagnostics": "diagnostics",

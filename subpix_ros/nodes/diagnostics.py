@@ -10,9 +10,9 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
+from .stamps import steady_timer
 from .worker import DropOldestWorker, RateMeter
 
 __all__ = ["Diagnostics", "OK", "WARN", "ERROR"]
@@ -75,8 +75,7 @@ class Diagnostics:
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # Wall (steady) time, not the node's clock: with use_sim_time and no /clock (the replay
         # ended or never started) a node must still report, above all that nothing arrives.
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.timer = node.create_timer(period_s, self.publish, clock=steady)
+        self.timer = steady_timer(node, period_s, self.publish)
 
     def rate(self, name: str) -> RateMeter:
         """Return the rate meter ``name`` (created on first use)."""

@@ -14,6 +14,8 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
+from .stamps import steady_timer
+
 if TYPE_CHECKING:
     from .diagnostics import Diagnostics
 
@@ -125,7 +127,7 @@ class FollowingSubscription:
         self.subscription = None
         self.changes = 0  # re-subscriptions after the first
         self.check()
-        self.timer = node.create_timer(period_s, self.check)
+        self.timer = steady_timer(node, period_s, self.check)  # use_sim_time: /clock may stop
 
     def wanted(self) -> DurabilityPolicy | None:
         """Transient local if every publisher offers it, volatile if one does not, None if none."""

@@ -40,7 +40,7 @@ from subpix_ros.nodes.base import StageNode
 from subpix_ros.nodes.params import Param
 from subpix_ros.nodes.qos import best_effort_qos, latched_qos, reliable_qos
 from subpix_ros.nodes.run import run_nodes
-from subpix_ros.nodes.stamps import stamp_to_ns
+from subpix_ros.nodes.stamps import stamp_to_ns, steady_timer
 
 
 class TelemetryNode(StageNode):
@@ -176,7 +176,8 @@ class TelemetryNode(StageNode):
         else:
             self._start_mavros()
         self._link_loss = None  # the MAVLink link's loss meter (LinkLoss), with the reader
-        self.create_timer(1.0, self._report)
+        # wall time, as the MAVLink link (use_sim_time: /clock may stop or never come)
+        steady_timer(self, 1.0, self._report)
 
     def _on_param_change(self, name: str, value) -> None:
         super()._on_param_change(name, value)
@@ -186,7 +187,7 @@ class TelemetryNode(StageNode):
     # ---------------------------------------------------------------- sources
     def _start_mavlink(self) -> None:
         if not self._open_mavlink() and self._open_may_pass:
-            self._open_retry = self.create_timer(self.param("open_retry_s"), self._retry_open)
+            self._open_retry = steady_timer(self, self.param("open_retry_s"), self._retry_open)
 
     def _open_mavlink(self) -> bool:
         """Open the MAVLink connection; True if open (or opening later: a delayed tlog).
@@ -213,8 +214,8 @@ class TelemetryNode(StageNode):
                 rate=(self.param("tlog_rate") or None) if is_log else None,
             )
             if is_log and self.param("tlog_start_delay_s") > 0:
-                self._delay = self.create_timer(
-                    self.param("tlog_start_delay_s"), self._start_reader
+                self._delay = steady_timer(
+                    self, self.param("tlog_start_delay_s"), self._start_reader
                 )
             else:
                 reader.start()

@@ -36,6 +36,11 @@ class _Status:
 class Diagnostics:
     """One node's DiagnosticStatus on /diagnostics (diagnostic_updater equivalent).
 
+    The status is named by the node's fully qualified name without its leading slash
+    (:attr:`name`): ``registration_node`` in the root namespace, ``drone1/registration_node``
+    in /drone1, so that the same node in two namespaces is two rows on a health table, not one
+    whose process id changes twice a second.
+
     Stages report with :meth:`set` (key/values), :meth:`stage_time` (a
     duration: the last one as ``<key>``, and the median and maximum of the
     last 200 as ``<key>_p50`` / ``<key>_max``, since one value jumps with the
@@ -55,7 +60,8 @@ class Diagnostics:
         hold_s: float = 5.0,
     ) -> None:
         self.node = node
-        self.name = f"{node.get_name()}"
+        #: The status name: the node's fully qualified name without the leading slash.
+        self.name = node.get_fully_qualified_name().lstrip("/")
         self.hardware_id = hardware_id
         self.hold_s = hold_s
         self._status = _Status()

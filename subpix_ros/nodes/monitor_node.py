@@ -323,7 +323,7 @@ class MonitorNode(StageNode):
             except Exception as exc:  # noqa: BLE001
                 text = f"{fn.__name__}: {type(exc).__name__}: {exc}"
                 self.diag.error(text)
-                self.monitor.on_log(2, text, name=self.get_name())
+                self.monitor.on_log(2, text, name=self.diag.name)
 
         return call
 
@@ -549,7 +549,7 @@ class MonitorNode(StageNode):
             **{f"{k}_quality": v["quality"] for k, v in link["levels"].items()},
             **{f"{k}_sent": v["sent"] for k, v in link["levels"].items()},
         )
-        stale = {n: a for n, a in self.monitor.stale_nodes().items() if n != self.get_name()}
+        stale = {n: a for n, a in self.monitor.stale_nodes().items() if n != self.diag.name}
         quiet = self._telemetry_silence()
         self.diag.set(telemetry_age_s="none heard" if quiet is None else round(quiet, 1))
         lost = quiet is not None and quiet > self.param("telemetry_timeout_s")

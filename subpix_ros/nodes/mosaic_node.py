@@ -57,8 +57,15 @@ class MosaicNode(StageNode):
         super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
         self.make_stage(MosaicStage)
         self._dirty = False
-        self.pub = self.create_publisher(Image, "mosaic", latched_qos())
-        self.pub_c = self.create_publisher(CompressedImage, "mosaic/compressed", latched_qos())
+        self.pub = self.create_publisher(
+            Image, "mosaic", latched_qos(), event_callbacks=self.output_events("mosaic")
+        )
+        self.pub_c = self.create_publisher(
+            CompressedImage,
+            "mosaic/compressed",
+            latched_qos(),
+            event_callbacks=self.output_events("mosaic/compressed"),
+        )
         self.make_worker(self._process, self.param("queue_size"))
         # wall time: with use_sim_time the node's clock stops with /clock (a replay that ended),
         # and the last frames' mosaic must still be published

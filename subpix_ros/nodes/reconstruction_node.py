@@ -35,7 +35,7 @@ from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.aligned_input import AlignedInput
 from subpix_ros.nodes.base import StageNode, ros_params
 from subpix_ros.nodes.params import Param
-from subpix_ros.nodes.qos import output_qos, qos_event_callbacks, reliable_qos
+from subpix_ros.nodes.qos import output_qos, reliable_qos
 from subpix_ros.nodes.run import run_nodes
 from subpix_ros.nodes.stamps import steady_timer
 from subpix_ros.stages import ReconstructionStage
@@ -80,7 +80,7 @@ class ReconstructionNode(StageNode):
             Image,
             "super_resolved",
             output_qos(self.param("latch_output")),
-            event_callbacks=qos_event_callbacks(self, "super_resolved", self.diag)[1],
+            event_callbacks=self.output_events("super_resolved"),
         )
         self.sent = 0  # images published (latch_output false: only while subscribed)
         self.make_worker(self._process, self.param("queue_size"))

@@ -156,10 +156,20 @@ class TelemetryNode(StageNode):
         # subscriber that stalls for a second must not lose the unacknowledged ones (20 did)
         q = reliable_qos(100)
         self.pubs = {
-            key: self.create_publisher(_cls(t), f"telemetry/{key}", q)
+            key: self.create_publisher(
+                _cls(t),
+                f"telemetry/{key}",
+                q,
+                event_callbacks=self.output_events(f"telemetry/{key}"),
+            )
             for key, t in tm.TOPICS.items()
         }
-        self.pub_shift = self.create_publisher(Vector3Stamped, "telemetry/expected_shift", q)
+        self.pub_shift = self.create_publisher(
+            Vector3Stamped,
+            "telemetry/expected_shift",
+            q,
+            event_callbacks=self.output_events("telemetry/expected_shift"),
+        )
         self.pub_angle = self.create_publisher(Float64, "telemetry/detector_angle", latched_qos())
         self.pub_angle.publish(Float64(data=detector_angle(self.param("p"))))
         self.samples = 0

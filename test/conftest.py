@@ -270,7 +270,7 @@ def node_diagnostics(h, node):
     h.create_subscription(
         DiagnosticArray,
         "/diagnostics",
-        lambda m: diags.extend(s for s in m.status if s.name == node.get_name()),
+        lambda m: diags.extend(s for s in m.status if s.name == node.diag.name),
         10,
     )
 

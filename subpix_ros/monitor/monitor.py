@@ -414,6 +414,10 @@ class Monitor(_Sender):
     def on_diagnostics(self, statuses: Iterable[dict]) -> None:
         """Pipeline health: dicts ``{name, level (0-3), message, values: {key: str}}``.
 
+        A row per ``name`` (the nodes' status names are their fully qualified names without
+        the leading slash, ``drone1/registration_node``: the same node in two namespaces is
+        two rows); a row whose ``pid`` value changes is said to have restarted.
+
         A node whose level rises to WARN or ERROR, or whose problem message changes, also
         gives a Log entry.
         """

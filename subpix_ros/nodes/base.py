@@ -235,6 +235,14 @@ class StageNode(Node):
         """Return QoS event callbacks for ``topic`` that report to /diagnostics."""
         return qos_event_callbacks(self, topic, self.diag)
 
+    def output_events(self, topic: str):
+        """Return the publisher event callbacks of output ``topic``.
+
+        A subscriber whose QoS does not match the publisher's (it gets nothing) is an ERROR in
+        /diagnostics naming the topic as remapped and what each side offers and requests.
+        """
+        return self.events(topic)[1]
+
     def check_time(self, stamp_ns: int) -> bool:
         """Reset the node when time jumps back (looped bag); return True if it did.
 

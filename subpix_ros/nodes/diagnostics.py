@@ -10,9 +10,9 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
+from .stamps import steady_timer
 from .worker import DropOldestWorker, RateMeter
 
 __all__ = ["Diagnostics", "OK", "WARN", "ERROR"]
@@ -36,6 +36,11 @@ class _Status:
 class Diagnostics:
     """One node's DiagnosticStatus on /diagnostics (diagnostic_updater equivalent).
 
+    The status is named by the node's fully qualified name without its leading slash
+    (:attr:`name`): ``registration_node`` in the root namespace, ``drone1/registration_node``
+    in /drone1, so that the same node in two namespaces is two rows on a health table, not one
+    whose process id changes twice a second.
+
     Stages report with :meth:`set` (key/values), :meth:`stage_time` (a
     duration: the last one as ``<key>``, and the median and maximum of the
     last 200 as ``<key>_p50`` / ``<key>_max``, since one value jumps with the
@@ -55,7 +60,8 @@ class Diagnostics:
         hold_s: float = 5.0,
     ) -> None:
         self.node = node
-        self.name = f"{node.get_name()}"
+        #: The status name: the node's fully qualified name without the leading slash.
+        self.name = node.get_fully_qualified_name().lstrip("/")
         self.hardware_id = hardware_id
         self.hold_s = hold_s
         self._status = _Status()
@@ -75,8 +81,7 @@ class Diagnostics:
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # Wall (steady) time, not the node's clock: with use_sim_time and no /clock (the replay
         # ended or never started) a node must still report, above all that nothing arrives.
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.timer = node.create_timer(period_s, self.publish, clock=steady)
+        self.timer = steady_timer(node, period_s, self.publish)
 
     def rate(self, name: str) -> RateMeter:
         """Return the rate meter ``name`` (created on first use)."""

@@ -39,7 +39,7 @@ from subpix_ros.nodes.base import StageNode
 from subpix_ros.nodes.params import Param
 from subpix_ros.nodes.qos import FollowingSubscription, camera_qos, latched_qos, reliable_qos
 from subpix_ros.nodes.run import run_nodes
-from subpix_ros.nodes.stamps import stamp_to_ns
+from subpix_ros.nodes.stamps import stamp_to_ns, steady_timer
 
 # the parameters that are the Monitor's own settings (MonitorConfig fields of the same names)
 _MONITOR_PARAMS = (
@@ -220,9 +220,10 @@ class MonitorNode(StageNode):
         self._telemetry_lost = False
         self._budget_said: str | None = None
         self._fixes_ignored = 0
-        self._timer = self.create_timer(1.0, self._publish_own_health)
+        # wall time (use_sim_time: /clock stops when a replay ends; a stale node must still be said)
+        self._timer = steady_timer(self, 1.0, self._publish_own_health)
         self._shift_join = ShiftStdJoin(self._serve_shift, wait_s=self.param("shift_std_wait_s"))
-        self._join_timer = self.create_timer(0.1, self._expire_shifts)
+        self._join_timer = steady_timer(self, 0.1, self._expire_shifts)  # the join waits wall time
         self.diag.set(shifts_without_std=0)  # shown from the start, not only once one is late
         self._subscribe(subscribe_inputs)
         # what the operator looks at: the camera (or the frames handed over in memory) and the
@@ -322,7 +323,7 @@ class MonitorNode(StageNode):
             except Exception as exc:  # noqa: BLE001
                 text = f"{fn.__name__}: {type(exc).__name__}: {exc}"
                 self.diag.error(text)
-                self.monitor.on_log(2, text, name=self.get_name())
+                self.monitor.on_log(2, text, name=self.diag.name)
 
         return call
 
@@ -548,7 +549,7 @@ class MonitorNode(StageNode):
             **{f"{k}_quality": v["quality"] for k, v in link["levels"].items()},
             **{f"{k}_sent": v["sent"] for k, v in link["levels"].items()},
         )
-        stale = {n: a for n, a in self.monitor.stale_nodes().items() if n != self.get_name()}
+        stale = {n: a for n, a in self.monitor.stale_nodes().items() if n != self.diag.name}
         quiet = self._telemetry_silence()
         self.diag.set(telemetry_age_s="none heard" if quiet is None else round(quiet, 1))
         lost = quiet is not None and quiet > self.param("telemetry_timeout_s")

@@ -20,6 +20,7 @@ from subpix_ros.nodes.base import StageNode, ros_params
 from subpix_ros.nodes.params import Param
 from subpix_ros.nodes.qos import camera_qos, latched_qos
 from subpix_ros.nodes.run import run_nodes
+from subpix_ros.nodes.stamps import steady_timer
 from subpix_ros.stages import MosaicStage
 
 
@@ -34,7 +35,13 @@ class MosaicNode(StageNode):
             "subscribe to the camera with reliable QoS instead of SensorDataQoS",
             read_only=True,
         ),
-        Param("publish_rate_hz", 1.0, "how often the mosaic is published (Hz)", 0.01, 30.0),
+        Param(
+            "publish_rate_hz",
+            1.0,
+            "how often the mosaic is published (Hz, wall time: also once /clock stops)",
+            0.01,
+            30.0,
+        ),
         *ros_params(MosaicStage.PARAMS),
         Param("jpeg_quality", 85, "JPEG quality of mosaic/compressed", 10, 100),
         Param(
@@ -50,10 +57,19 @@ class MosaicNode(StageNode):
         super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
         self.make_stage(MosaicStage)
         self._dirty = False
-        self.pub = self.create_publisher(Image, "mosaic", latched_qos())
-        self.pub_c = self.create_publisher(CompressedImage, "mosaic/compressed", latched_qos())
+        self.pub = self.create_publisher(
+            Image, "mosaic", latched_qos(), event_callbacks=self.output_events("mosaic")
+        )
+        self.pub_c = self.create_publisher(
+            CompressedImage,
+            "mosaic/compressed",
+            latched_qos(),
+            event_callbacks=self.output_events("mosaic/compressed"),
+        )
         self.make_worker(self._process, self.param("queue_size"))
-        self.timer = self.create_timer(1.0 / self.param("publish_rate_hz"), self._publish)
+        # wall time: with use_sim_time the node's clock stops with /clock (a replay that ended),
+        # and the last frames' mosaic must still be published
+        self.timer = steady_timer(self, 1.0 / self.param("publish_rate_hz"), self._publish)
         if subscribe_inputs:
             q = camera_qos(
                 self.param("camera_reliable"), depth=30 if self.param("camera_reliable") else 5
@@ -78,7 +94,8 @@ class MosaicNode(StageNode):
         super()._on_param_change(name, value)
         if name == "publish_rate_hz":
             self.timer.cancel()
-            self.timer = self.create_timer(1.0 / value, self._publish)
+            self.destroy_timer(self.timer)
+            self.timer = steady_timer(self, 1.0 / value, self._publish)
 
     def _on_image(self, raw: bytes) -> None:
         self._decode(raw, pl.frame_from_cdr)

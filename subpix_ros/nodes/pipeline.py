@@ -11,8 +11,10 @@ separate nodes) and its /diagnostics. Runs on one executor thread (``SUBPIX_EXEC
 Parameters are per stage, as for the separate nodes (node names
 ``telemetry_node``, ``registration_node``, ``shift_node``,
 ``reconstruction_node``, ``mosaic_node``), so one params file serves both
-layouts. ``--no-telemetry`` leaves the telemetry stage out (e.g. when the
-telemetry comes from a bag). ``--monitor`` adds ``monitor_node`` (live
+layouts. A node-name remap for every node (``-r __node:=NAME``) would give them all
+the same name and is refused (exit status 2); one node is renamed with its own prefix,
+``-r registration_node:__node:=reg_a``. ``--no-telemetry`` leaves the telemetry stage
+out (e.g. when the telemetry comes from a bag). ``--monitor`` adds ``monitor_node`` (live
 Foxglove view), fed the camera frames, shifts (with their standard errors)
 and super-resolved images in memory.
 """
@@ -59,9 +61,51 @@ def build(with_telemetry: bool = True, with_monitor: bool = False):
     return nodes
 
 
+#: The node-name remaps rcl knows (``__name`` is the older spelling of ``__node``).
+_NAME_REMAPS = ("__node", "__name")
+
+
+def global_name_remap(argv: Sequence[str]) -> str | None:
+    """Return the first node-name remap in ``argv`` that applies to every node, or None.
+
+    Parameters
+    ----------
+    argv : sequence of str
+        A command line; ROS arguments follow ``--ros-args`` (up to ``--``).
+
+    Returns
+    -------
+    str or None
+        The rule as given (``__node:=cam_pipe``) for a ``-r`` / ``--remap`` of ``__node`` or
+        ``__name`` without a ``node:`` prefix; None if there is none. rcl applies such a rule
+        to every node of the process: the pipeline's nodes would all take that one name.
+    """
+    in_ros = False
+    args = iter(argv)
+    for arg in args:
+        if arg == "--ros-args":
+            in_ros = True
+        elif arg == "--":
+            in_ros = False
+        elif in_ros and arg in ("-r", "--remap"):
+            rule = next(args, "")
+            if rule.split(":=", 1)[0] in _NAME_REMAPS:
+                return rule
+    return None
+
+
 def main(args: Sequence[str] | None = None) -> int:
     """Run the in-process pipeline (console entry point)."""
     argv = list(sys.argv if args is None else args)
+    rule = global_name_remap(argv)
+    if rule is not None:
+        name = rule.split(":=", 1)[1]
+        print(
+            f"pipeline: -r {rule} would give every node of the pipeline the name {name!r}; "
+            f"rename one node with its own prefix, e.g. -r registration_node:__node:={name}",
+            file=sys.stderr,
+        )
+        return 2
     with_telemetry = "--no-telemetry" not in argv
     with_monitor = "--monitor" in argv
     argv = [a for a in argv if a not in ("--no-telemetry", "--monitor")]

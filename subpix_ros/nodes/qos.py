@@ -9,16 +9,20 @@ from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
+    QoSPolicyKind,
     QoSProfile,
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
+
+from .stamps import steady_timer
 
 if TYPE_CHECKING:
     from .diagnostics import Diagnostics
 
 __all__ = [
     "camera_qos",
+    "best_effort_qos",
     "reliable_qos",
     "latched_qos",
     "output_qos",
@@ -30,14 +34,22 @@ __all__ = [
 
 def camera_qos(reliable: bool, depth: int = 5) -> QoSProfile:
     """SensorDataQoS (best effort, volatile) by default; reliable on request."""
-    if not reliable:
-        return QoSProfile(
-            history=qos_profile_sensor_data.history,
-            depth=depth,
-            reliability=ReliabilityPolicy.BEST_EFFORT,
-            durability=DurabilityPolicy.VOLATILE,
-        )
-    return reliable_qos(depth)
+    return reliable_qos(depth) if reliable else best_effort_qos(depth)
+
+
+def best_effort_qos(depth: int = 5) -> QoSProfile:
+    """SensorDataQoS with keep-last ``depth``: best effort, volatile.
+
+    A best-effort subscription matches reliable and best-effort publishers alike, so it is the
+    one to take a driver's sensor topics with (mavros publishes with rclcpp's SensorDataQoS:
+    a reliable subscription gets nothing from it).
+    """
+    return QoSProfile(
+        history=qos_profile_sensor_data.history,
+        depth=depth,
+        reliability=ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
 
 
 def reliable_qos(depth: int = 10) -> QoSProfile:
@@ -116,7 +128,7 @@ class FollowingSubscription:
         self.subscription = None
         self.changes = 0  # re-subscriptions after the first
         self.check()
-        self.timer = node.create_timer(period_s, self.check)
+        self.timer = steady_timer(node, period_s, self.check)  # use_sim_time: /clock may stop
 
     def wanted(self) -> DurabilityPolicy | None:
         """Transient local if every publisher offers it, volatile if one does not, None if none."""
@@ -170,24 +182,51 @@ def publish_if_subscribed(publisher, make: Callable[[], Any]) -> bool:
 def qos_event_callbacks(node: Node, topic: str, diagnostics: "Diagnostics | None" = None):
     """Subscription and publisher event callbacks: QoS incompatibilities and lost messages.
 
-    A QoS incompatibility is an ERROR. A message lost before the node took it (DDS's
-    SAMPLE_LOST; Fast DDS 2.14 counts samples lost in transport, e.g. fragments of large
-    best-effort frames over UDP, not samples a full keep-last history replaced) is a WARN
-    naming the topic, counted in /diagnostics as ``messages_lost_<topic>``: without it such
-    frames were simply never seen.
+    A QoS incompatibility is an ERROR, logged once by the node's logger and reported in
+    ``diagnostics`` when given, in one line: ``QoS incompatible on /cam/image_raw
+    (reliability): this node requests reliable; /camera_driver offers best_effort (1 total)``:
+    the topic as remapped, the policy's name and what each side offers or requests (read from
+    the ROS graph when it happens), counted in /diagnostics as ``qos_incompatible_<topic>``. A message lost before
+    the node took it (DDS's SAMPLE_LOST; Fast DDS 2.14 counts samples lost in transport, e.g.
+    fragments of large best-effort frames over UDP, not samples a full keep-last history
+    replaced) is a WARN naming the topic, counted in /diagnostics as
+    ``messages_lost_<topic>``: without it such frames were simply never seen.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node that subscribes or publishes ``topic``.
+    topic : str
+        The topic as the node names it (relative names are resolved with its remappings).
+    diagnostics : Diagnostics, optional
+        Where the problems are reported (None: the node's log only).
+
+    Returns
+    -------
+    tuple
+        ``(SubscriptionEventCallbacks, PublisherEventCallbacks)``.
     """
-
-    def incompatible(event) -> None:
-        text = f"QoS incompatible on {topic}: policy id {event.last_policy_kind} ({event.total_count} total)"
-        node.get_logger().error(text)
-        if diagnostics is not None:
-            diagnostics.error(text)
-
-    key = "messages_lost_" + topic.strip("/").replace("/", "_")
+    suffix = topic.strip("/").replace("/", "_")
+    key, incompatible_key = "messages_lost_" + suffix, "qos_incompatible_" + suffix
     try:  # the name as remapped (image -> /camera/image_raw), for the operator
         shown = node.resolve_topic_name(topic)
     except Exception:  # noqa: BLE001 - a name rcl cannot expand: as given
         shown = topic
+
+    def incompatible(event, publishing: bool) -> None:
+        policy = policy_name(event.last_policy_kind)
+        sides = _qos_sides(node, shown, policy, publishing)
+        text = (
+            f"QoS incompatible on {shown} ({policy})"
+            + (f": {sides}" if sides else "")
+            + f" ({event.total_count} total)"
+        )
+        # one line per event (rare: one per mismatched peer), not throttled with the node's
+        # other errors; /diagnostics does not log it again
+        node.get_logger().error(text)
+        if diagnostics is not None:
+            diagnostics.set(**{incompatible_key: event.total_count})
+            diagnostics.error(text, log=False)
 
     def lost(event) -> None:
         if diagnostics is None:
@@ -202,7 +241,82 @@ def qos_event_callbacks(node: Node, topic: str, diagnostics: "Diagnostics | None
 
     return (
         SubscriptionEventCallbacks(
-            incompatible_qos=incompatible, message_lost=lost, use_default_callbacks=False
+            incompatible_qos=lambda event: incompatible(event, False),
+            message_lost=lost,
+            use_default_callbacks=False,
         ),
-        PublisherEventCallbacks(incompatible_qos=incompatible, use_default_callbacks=False),
+        PublisherEventCallbacks(
+            incompatible_qos=lambda event: incompatible(event, True), use_default_callbacks=False
+        ),
     )
+
+
+def policy_name(kind) -> str:
+    """Return a QoS policy kind (rmw's enum, as a QoS event gives it) as ``reliability`` etc."""
+    try:
+        name = QoSPolicyKind(int(kind)).name
+    except (TypeError, ValueError):
+        name = str(kind).rsplit("POLICY_", 1)[-1]
+    return name.lower().replace("_", " ")
+
+
+def _qos_value(qos: QoSProfile, policy: str) -> str | None:
+    """Return ``qos``'s setting of ``policy`` (``reliable``, ``transient_local``, ``0.5 s``)."""
+    value = getattr(qos, policy.replace(" ", "_"), None)
+    if value is None:
+        return None
+    if hasattr(value, "nanoseconds"):  # 0 (the default) or DDS's largest: none
+        ns = value.nanoseconds
+        return "infinite" if ns <= 0 or ns >= 10**18 else f"{ns / 1e9:g} s"
+    return value.name.lower() if hasattr(value, "name") else str(value)
+
+
+#: Settings in the order DDS ranks them: an offer below the request does not match.
+_RANKED = {
+    "reliability": ("best_effort", "reliable"),
+    "durability": ("volatile", "transient_local"),
+}
+
+
+def _incompatible(offered: str, requested: str, policy: str) -> bool:
+    """Return True if ``offered`` does not satisfy ``requested`` (any difference, if unranked)."""
+    ranks = _RANKED.get(policy, ())
+    if offered in ranks and requested in ranks:
+        return ranks.index(offered) < ranks.index(requested)
+    return offered != requested
+
+
+def _qos_sides(node: Node, topic: str, policy: str, publishing: bool) -> str:
+    """Say what this node and the incompatible peers on ``topic`` offer / request of ``policy``.
+
+    From the ROS graph as it is when the incompatibility is reported ("" if it cannot say):
+    ``this node offers best_effort; /monitor requests reliable``.
+    """
+    try:
+        pubs = node.get_publishers_info_by_topic(topic)
+        subs = node.get_subscriptions_info_by_topic(topic)
+    except Exception:  # noqa: BLE001 - the graph is gone during shutdown
+        return ""
+    mine, theirs = (pubs, subs) if publishing else (subs, pubs)
+    ours, other = ("offers", "requests") if publishing else ("requests", "offers")
+    me = (node.get_name(), node.get_namespace())
+    own = {_qos_value(i.qos_profile, policy) for i in mine if (i.node_name, i.node_namespace) == me}
+    own.discard(None)
+
+    def clash(value: str) -> bool:
+        if not own:
+            return True
+        pairs = [(o, value) if publishing else (value, o) for o in own]
+        return any(_incompatible(offered, requested, policy) for offered, requested in pairs)
+
+    peers = sorted(
+        f"{i.node_namespace.rstrip('/')}/{i.node_name} {other} {value}"
+        for i in theirs
+        if (i.node_name, i.node_namespace) != me
+        and (value := _qos_value(i.qos_profile, policy)) is not None
+        and clash(value)
+    )
+    if not own and not peers:
+        return ""
+    said = [f"this node {ours} {', '.join(sorted(own))}"] if own else []
+    return "; ".join(said + peers)

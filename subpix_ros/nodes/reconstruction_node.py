@@ -35,8 +35,9 @@ from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.aligned_input import AlignedInput
 from subpix_ros.nodes.base import StageNode, ros_params
 from subpix_ros.nodes.params import Param
-from subpix_ros.nodes.qos import output_qos, qos_event_callbacks, reliable_qos
+from subpix_ros.nodes.qos import output_qos, reliable_qos
 from subpix_ros.nodes.run import run_nodes
+from subpix_ros.nodes.stamps import steady_timer
 from subpix_ros.stages import ReconstructionStage
 from subpix_ros.stages.reconstruction import FrameSet
 
@@ -79,11 +80,13 @@ class ReconstructionNode(StageNode):
             Image,
             "super_resolved",
             output_qos(self.param("latch_output")),
-            event_callbacks=qos_event_callbacks(self, "super_resolved", self.diag)[1],
+            event_callbacks=self.output_events("super_resolved"),
         )
         self.sent = 0  # images published (latch_output false: only while subscribed)
         self.make_worker(self._process, self.param("queue_size"))
-        self.idle_timer = self.create_timer(IDLE_CHECK_S, self._on_idle_check)
+        # wall time: with use_sim_time the node's clock stops with /clock (a replay that ended),
+        # and the last incomplete set must still be flushed
+        self.idle_timer = steady_timer(self, IDLE_CHECK_S, self._on_idle_check)
         self.inputs = None
         self._shift_missing = False
         self._shift_checked = 0.0  # time.monotonic() of the last check for a shift publisher

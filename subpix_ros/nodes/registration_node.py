@@ -72,12 +72,16 @@ class RegistrationNode(StageNode):
         super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
         self.make_stage(RegistrationStage)
         self.topics_telemetry = TelemetryFromTopics()  # height and heading kept for velocities
-        sub_ev, pub_ev = self.events("image")
+        q = reliable_qos(10)
         self.pub_aligned = self.create_publisher(
-            Image, "aligned", reliable_qos(10), event_callbacks=pub_ev
+            Image, "aligned", q, event_callbacks=self.output_events("aligned")
         )
-        self.pub_mask = self.create_publisher(Image, "aligned/mask", reliable_qos(10))
-        self.pub_h = self.create_publisher(Float64MultiArray, "homography", reliable_qos(10))
+        self.pub_mask = self.create_publisher(
+            Image, "aligned/mask", q, event_callbacks=self.output_events("aligned/mask")
+        )
+        self.pub_h = self.create_publisher(
+            Float64MultiArray, "homography", q, event_callbacks=self.output_events("homography")
+        )
         self.pub_ref = self.create_publisher(Image, "aligned/reference", latched_qos())
         # each aligned frame's reference, by stamp (consumers need not infer it from arrival order);
         # transient local, the last 100 kept: a consumer whose link reader matches after its frame
@@ -93,7 +97,12 @@ class RegistrationNode(StageNode):
                 self.param("camera_reliable"), depth=30 if self.param("camera_reliable") else 10
             )
             self.create_subscription(
-                Image, "image", self._on_image, qos, raw=True, event_callbacks=sub_ev
+                Image,
+                "image",
+                self._on_image,
+                qos,
+                raw=True,
+                event_callbacks=self.events("image")[0],
             )
             self.create_subscription(
                 CompressedImage,

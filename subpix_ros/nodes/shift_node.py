@@ -44,8 +44,15 @@ class ShiftNode(StageNode):
     def __init__(self, *, subscribe_inputs: bool = True, name: str = "shift_node", **kw) -> None:
         super().__init__(name, subscribe_inputs=subscribe_inputs, **kw)
         self.make_stage(ShiftStage)
-        self.pub = self.create_publisher(Vector3Stamped, "shift", reliable_qos(20))
-        self.pub_std = self.create_publisher(Vector3Stamped, "shift/std", reliable_qos(20))
+        self.pub = self.create_publisher(
+            Vector3Stamped, "shift", reliable_qos(20), event_callbacks=self.output_events("shift")
+        )
+        self.pub_std = self.create_publisher(
+            Vector3Stamped,
+            "shift/std",
+            reliable_qos(20),
+            event_callbacks=self.output_events("shift/std"),
+        )
         self.make_worker(self._process, self.param("queue_size"))
         self.inputs = AlignedInput(self, self.handle_aligned) if subscribe_inputs else None
 

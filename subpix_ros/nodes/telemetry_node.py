@@ -38,9 +38,9 @@ from subpix_ros.io import cdr
 from subpix_ros.io import telemetry_msgs as tm
 from subpix_ros.nodes.base import StageNode
 from subpix_ros.nodes.params import Param
-from subpix_ros.nodes.qos import latched_qos, reliable_qos
+from subpix_ros.nodes.qos import best_effort_qos, latched_qos, reliable_qos
 from subpix_ros.nodes.run import run_nodes
-from subpix_ros.nodes.stamps import stamp_to_ns
+from subpix_ros.nodes.stamps import stamp_to_ns, steady_timer
 
 
 class TelemetryNode(StageNode):
@@ -156,10 +156,20 @@ class TelemetryNode(StageNode):
         # subscriber that stalls for a second must not lose the unacknowledged ones (20 did)
         q = reliable_qos(100)
         self.pubs = {
-            key: self.create_publisher(_cls(t), f"telemetry/{key}", q)
+            key: self.create_publisher(
+                _cls(t),
+                f"telemetry/{key}",
+                q,
+                event_callbacks=self.output_events(f"telemetry/{key}"),
+            )
             for key, t in tm.TOPICS.items()
         }
-        self.pub_shift = self.create_publisher(Vector3Stamped, "telemetry/expected_shift", q)
+        self.pub_shift = self.create_publisher(
+            Vector3Stamped,
+            "telemetry/expected_shift",
+            q,
+            event_callbacks=self.output_events("telemetry/expected_shift"),
+        )
         self.pub_angle = self.create_publisher(Float64, "telemetry/detector_angle", latched_qos())
         self.pub_angle.publish(Float64(data=detector_angle(self.param("p"))))
         self.samples = 0
@@ -176,7 +186,8 @@ class TelemetryNode(StageNode):
         else:
             self._start_mavros()
         self._link_loss = None  # the MAVLink link's loss meter (LinkLoss), with the reader
-        self.create_timer(1.0, self._report)
+        # wall time, as the MAVLink link (use_sim_time: /clock may stop or never come)
+        steady_timer(self, 1.0, self._report)
 
     def _on_param_change(self, name: str, value) -> None:
         super()._on_param_change(name, value)
@@ -186,7 +197,7 @@ class TelemetryNode(StageNode):
     # ---------------------------------------------------------------- sources
     def _start_mavlink(self) -> None:
         if not self._open_mavlink() and self._open_may_pass:
-            self._open_retry = self.create_timer(self.param("open_retry_s"), self._retry_open)
+            self._open_retry = steady_timer(self, self.param("open_retry_s"), self._retry_open)
 
     def _open_mavlink(self) -> bool:
         """Open the MAVLink connection; True if open (or opening later: a delayed tlog).
@@ -213,8 +224,8 @@ class TelemetryNode(StageNode):
                 rate=(self.param("tlog_rate") or None) if is_log else None,
             )
             if is_log and self.param("tlog_start_delay_s") > 0:
-                self._delay = self.create_timer(
-                    self.param("tlog_start_delay_s"), self._start_reader
+                self._delay = steady_timer(
+                    self, self.param("tlog_start_delay_s"), self._start_reader
                 )
             else:
                 reader.start()
@@ -273,7 +284,9 @@ class TelemetryNode(StageNode):
         self._watch_mavlink(self.param("connection"))
 
     def _start_mavros(self) -> None:
-        q = reliable_qos(20)
+        # best effort: mavros publishes these with SensorDataQoS (a reliable subscription
+        # would match no publisher of it); best effort also takes a reliable publisher's
+        q = best_effort_qos(20)
         topics = {
             "velocity": self.param("mavros_velocity_topic"),
             "fix": self.param("mavros_fix_topic"),

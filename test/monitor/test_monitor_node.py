@@ -344,6 +344,50 @@ def test_a_stopped_node_and_a_silent_camera_are_said_by_the_monitor():
         assert _health_table(client)["shift_node"]["level"] == "STALE"
 
 
+def test_the_same_node_in_two_namespaces_is_two_rows_and_no_restart():
+    """Two shift_node processes in /droneA and /droneB: two rows on the health table, no alarm.
+
+    (Was: both reported 'shift_node', the monitor kept them in one row whose process id changed
+    at every status and said "restarted (process A -> B)" twice a second.)
+    """
+    import sys
+    import uuid
+
+    from conftest import logged_popen
+
+    tag = uuid.uuid4().hex[:6]
+    names = [f"drone{k}_{tag}/shift_node" for k in (1, 2)]
+    procs = [
+        logged_popen(
+            [sys.executable, "-m", "subpix_ros.nodes.shift_node", "--ros-args", "-r"]
+            + [f"__ns:=/{name.split('/')[0]}"]
+        )
+        for name in names
+    ]
+    with _monitor_node() as (_, _h, ex, client):
+        try:
+
+            def rows():
+                return _health_table(client) if client.messages("/health") else {}
+
+            def logs():
+                return [client.decode("/log", m.payload).message for m in client.messages("/log")]
+
+            assert _spin(ex, lambda: set(names) <= rows().keys(), 30), (
+                rows().keys(),
+                [p.stdout.read() for p in procs if p.poll() is not None],
+            )
+            _spin(ex, lambda: False, 3.0)  # three statuses of each
+            assert set(names) <= rows().keys() and "shift_node" not in rows()
+            assert not [t for t in logs() if "restarted" in t], logs()
+            assert all(p.poll() is None for p in procs)
+        finally:
+            for p in procs:
+                p.terminate()
+            for p in procs:
+                p.wait(10)
+
+
 def test_telemetry_that_stops_is_not_served_as_current_and_is_said():
     """A lost MAVLink link: no shift compared with the old expected shift, no footprint there."""
     with _monitor_node(telemetry_timeout_s=1.0, shift_std_wait_s=0.0, geo_period_s=0.5) as (

@@ -34,7 +34,7 @@ class Harness:
         self.h.create_subscription(
             DiagnosticArray,
             "/diagnostics",
-            lambda m: self.diag.extend(s for s in m.status if s.name == node.get_name()),
+            lambda m: self.diag.extend(s for s in m.status if s.name == node.diag.name),
             50,
         )
         self.h.create_subscription(

@@ -120,7 +120,7 @@ def test_silent_camera_is_reported_with_its_publishers_and_qos(ros):
 
 def test_shift_node_without_aligned_frames_warns(ros):
     proc = _start("shift_node", "-r", "__ns:=/watchns", "-p", "input_timeout_s:=1.0")
-    status = Status(ros, "shift_node")
+    status = Status(ros, "watchns/shift_node")  # the status names the namespace
     try:
         warned = lambda: status.latest is not None and status.latest[0] == WARN  # noqa: E731
         assert _spin_until(ros, warned, 30, proc), status.latest

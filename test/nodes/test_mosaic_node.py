@@ -39,3 +39,56 @@ def test_min_interval_gate_skips_by_stamp_without_drops(ctx):
     finally:
         node.close()
         node.destroy_node()
+
+
+def test_with_sim_time_the_mosaic_is_published_once_the_clock_stops(ctx):
+    """use_sim_time and a /clock that stops (a replay ended): the last frames' mosaic comes.
+
+    (Was: the publishing timer ran on the node's clock, which stops with /clock: the mosaic of
+    the frames drawn last was never published.)
+    """
+    import rclpy
+    from conftest import spin
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import Image
+
+    from subpix_ros.io import cdr
+    from subpix_ros.nodes.mosaic_node import MosaicNode
+    from subpix_ros.nodes.qos import latched_qos
+    from subpix_ros.nodes.stamps import ns_to_stamp
+
+    t0 = 1_700_000_000_000_000_000
+    paths = seneca_frame_paths()[:2]
+    imgs = [cv2.resize(cv2.imread(str(p)), (900, 675), interpolation=cv2.INTER_AREA) for p in paths]
+    node = MosaicNode(
+        subscribe_inputs=False,
+        parameter_overrides=[
+            Parameter("use_sim_time", value=True),
+            Parameter("publish_rate_hz", value=2.0),
+        ],
+    )
+    h = rclpy.create_node("harness")
+    clock = h.create_publisher(Clock, "/clock", 10)
+    got = []
+    h.create_subscription(
+        Image, "/mosaic", lambda r: got.append(cdr.cdr_to_image(r)), latched_qos(), raw=True
+    )
+
+    def tick(stamp_ns):
+        clock.publish(Clock(clock=ns_to_stamp(stamp_ns, type(Clock().clock))))
+
+    try:
+        assert spin([node, h], lambda: tick(t0) or node.get_clock().now().nanoseconds == t0, 10)
+        for k, img in enumerate(imgs):  # the replay's clock goes with its frames ...
+            tick(t0 + k * 10**9)
+            node.handle_frame(_frame(img, t0 + k * 10**9))
+        assert spin([node, h], lambda: node.worker.idle() and node.added == 2, 60)
+        stopped = node.get_clock().now().nanoseconds  # ... and stops here
+        assert spin([node, h], lambda: bool(got), 10), "no mosaic after /clock stopped"
+        assert node.get_clock().now().nanoseconds == stopped
+    finally:
+        node.close()
+        node.destroy_node()
+        h.destroy_node()
+    image, header = got[-1]
+    assert cdr.header_to_ns(header) == t0 + 10**9 and image.ndim == 3

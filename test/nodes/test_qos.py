@@ -96,7 +96,7 @@ def test_latch_output_false_publishes_super_resolved_volatile_and_says_so_to_a_l
         h.create_subscription(Image, "/super_resolved", lambda m: None, latched_qos())
         assert spin(
             [node, latched, h],
-            lambda: "QoS incompatible on super_resolved" in node.diag._status.message,
+            lambda: "QoS incompatible on /super_resolved (durability)" in node.diag.message,
             10,
         ), node.diag._status.message
         assert "QoS incompatible" not in latched.diag._status.message
@@ -104,6 +104,120 @@ def test_latch_output_false_publishes_super_resolved_volatile_and_says_so_to_a_l
         for n in (node, latched):
             n.close()
             n.destroy_node()
+        h.destroy_node()
+
+
+def _output_node(kind, args):
+    from subpix_ros.nodes.mosaic_node import MosaicNode
+    from subpix_ros.nodes.reconstruction_node import ReconstructionNode
+    from subpix_ros.nodes.registration_node import RegistrationNode
+    from subpix_ros.nodes.shift_node import ShiftNode
+
+    if kind == "super_resolved":
+        latch = [Parameter("latch_output", value=False)]
+        return ReconstructionNode(subscribe_inputs=False, cli_args=args, parameter_overrides=latch)
+    if kind in ("aligned", "homography"):
+        return RegistrationNode(subscribe_inputs=False, cli_args=args)
+    if kind.startswith("mosaic"):
+        return MosaicNode(subscribe_inputs=False, cli_args=args)
+    return ShiftNode(subscribe_inputs=False, cli_args=args)
+
+
+@pytest.mark.parametrize(
+    "topic, msg_type, qos, says",
+    [
+        ("shift", "Vector3Stamped", "latched", "durability): this node offers volatile"),
+        ("shift/std", "Vector3Stamped", "latched", "durability): this node offers volatile"),
+        ("aligned", "Image", "latched", "durability): this node offers volatile"),
+        ("homography", "Float64MultiArray", "latched", "durability): this node offers volatile"),
+        ("super_resolved", "Image", "latched", "durability): this node offers volatile"),
+        ("mosaic", "Image", "deadline", "deadline): this node offers infinite"),
+        (
+            "mosaic/compressed",
+            "CompressedImage",
+            "deadline",
+            "deadline): this node offers infinite",
+        ),
+    ],
+)
+def test_an_incompatible_subscriber_of_an_output_is_an_error_said_once_by_its_remapped_name(
+    ctx, capfd, topic, msg_type, qos, says
+):
+    """An output's subscriber whose QoS does not match: ERROR naming the topic as remapped.
+
+    With the policy's name and what each side offers and requests, logged once. (Was: the
+    main outputs but super_resolved and aligned had no publisher callbacks, so nothing in
+    /diagnostics; where there were, the line came twice, with the topic as the node names it
+    and the policy as ``rmw_qos_policy_kind_t.RMW_QOS_POLICY_RELIABILITY``.)
+    """
+    from geometry_msgs.msg import Vector3Stamped
+    from rclpy.duration import Duration
+    from sensor_msgs.msg import CompressedImage, Image
+    from std_msgs.msg import Float64MultiArray
+
+    from subpix_ros.nodes.diagnostics import ERROR
+
+    types = {
+        "Vector3Stamped": Vector3Stamped,
+        "Image": Image,
+        "CompressedImage": CompressedImage,
+        "Float64MultiArray": Float64MultiArray,
+    }
+    remapped = f"/out_{uuid.uuid4().hex[:8]}/{topic}"
+    node = _output_node(topic, ["--ros-args", "-r", f"{topic}:={remapped}"])
+    h = rclpy.create_node("harness")
+    profile = latched_qos()
+    if qos == "deadline":  # the latched outputs offer every durability: ask for a deadline
+        profile.deadline = Duration(seconds=1)
+    try:
+        h.create_subscription(types[msg_type], remapped, lambda m: None, profile)
+        expect = f"QoS incompatible on {remapped} ({says}"
+        assert spin([node, h], lambda: expect in node.diag.message, 10), node.diag.message
+        assert node.diag.level == ERROR and "/harness requests " in node.diag.message
+        assert "rmw_qos_policy_kind_t" not in node.diag.message
+        key = "qos_incompatible_" + topic.replace("/", "_")
+        assert _values(node)[key] == "1", _values(node)
+        spin([node, h], lambda: False, 0.5)
+        logged = [
+            line for line in capfd.readouterr().err.splitlines() if "QoS incompatible" in line
+        ]
+        assert len(logged) == 1 and remapped in logged[0], logged
+    finally:
+        node.close()
+        node.destroy_node()
+        h.destroy_node()
+
+
+def test_an_incompatible_camera_is_an_error_said_once_by_its_remapped_name(ctx, capfd):
+    """A best-effort camera and camera_reliable true: the remapped topic, the policy, each side."""
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import CompressedImage
+
+    from subpix_ros.nodes.diagnostics import ERROR
+    from subpix_ros.nodes.mosaic_node import MosaicNode
+
+    remapped = f"/cam_{uuid.uuid4().hex[:8]}/image_raw/compressed"
+    node = MosaicNode(
+        cli_args=["--ros-args", "-r", f"image/compressed:={remapped}"],
+        parameter_overrides=[Parameter("camera_reliable", value=True)],
+    )
+    h = rclpy.create_node("harness")
+    try:
+        h.create_publisher(CompressedImage, remapped, qos_profile_sensor_data)
+        expect = (
+            f"QoS incompatible on {remapped} (reliability): this node requests reliable; "
+            "/harness offers best_effort (1 total)"
+        )
+        assert spin([node, h], lambda: node.diag.message == expect, 10), node.diag.message
+        assert node.diag.level == ERROR
+        spin([node, h], lambda: False, 0.5)
+        logged = [
+            line for line in capfd.readouterr().err.splitlines() if "QoS incompatible" in line
+        ]
+        assert len(logged) == 1 and logged[0].endswith(expect), logged
+    finally:
+        node.close()
+        node.destroy_node()
         h.destroy_node()
 
 

@@ -154,3 +154,56 @@ def test_a_volatile_output_is_made_only_while_subscribed(ctx, crops):
     assert cdr.header_to_ns(header) == T0 + 10**9 and np.array_equal(image, made[1])
     # latch_output is the node's (QoS), not a solver option the stage would warn it ignores
     assert node.stage.ignored == {} and node.stage.stats.warnings == 0, node.stage.stats
+
+
+def test_with_sim_time_the_last_set_is_flushed_once_the_clock_stops(ctx, crops):
+    """use_sim_time and a /clock that stops (a replay ended): the last incomplete set still comes.
+
+    (Was: the idle check ran on the node's clock, which stops with /clock: the set that
+    flush_after_s should have closed "in wall time once the stream stops" never was.)
+    """
+    from rosgraph_msgs.msg import Clock
+
+    from subpix_ros.nodes.reconstruction_node import ReconstructionNode
+    from subpix_ros.nodes.stamps import ns_to_stamp
+
+    seq = rendered_set(crops["crop_trees"])
+    node = ReconstructionNode(
+        parameter_overrides=[
+            Parameter("method", value="map"),
+            Parameter("use_sim_time", value=True),
+        ]
+    )
+    h = rclpy.create_node("harness")
+    clock = h.create_publisher(Clock, "/clock", 10)
+    got = []
+    h.create_subscription(
+        Image, "/super_resolved", lambda r: got.append(cdr.cdr_to_image(r)), latched_qos(), raw=True
+    )
+    feed = AlignedFeed(h)
+
+    def tick(stamp_ns):
+        clock.publish(Clock(clock=ns_to_stamp(stamp_ns, type(Clock().clock))))
+
+    try:
+        assert spin([node, h], lambda: tick(T0) or node.get_clock().now().nanoseconds == T0, 10)
+        assert spin([node, h], lambda: feed.matched(), 10)
+        feed.reference(seq.frames[0], T0)
+        assert spin([node, h], lambda: len(node.inputs.refs.refs) == 1, 10)
+        for k in (1, 2, 3, 4, 6, 7):  # frame 5 lost: the set never completes
+            stamp = T0 + k * 33_333_333
+            tick(stamp)  # the replay's clock goes with its frames ...
+            feed.frame(seq.frames[k], stamp, T0, *SET_SHIFTS[k])
+        assert spin([node, h], lambda: len(node.sets.get(T0, ())) == 6, 10)
+        stopped = node.get_clock().now().nanoseconds  # ... and stops here
+        assert spin([node, h], lambda: bool(got), 30), (
+            "no super-resolved image after /clock stopped"
+        )
+        assert node.get_clock().now().nanoseconds == stopped  # the node's clock stood still
+    finally:
+        node.close()
+        node.destroy_node()
+        h.destroy_node()
+    image, header = got[0]
+    assert cdr.header_to_ns(header) == T0 and node.stage.stats.sets_flushed == 1
+    assert node.stage.stats.frames == 7

@@ -448,6 +448,59 @@ def test_mavros_fix_status_is_kept_and_no_fix_publishes_no_velocity(rclpy_node):
         proc.wait(10)
 
 
+def test_mavros_sensor_data_qos_publishers_reach_the_telemetry_topics(rclpy_node):
+    """Topics published as mavros 2 does, with rclcpp's SensorDataQoS (best effort), arrive.
+
+    (Was: the node subscribed reliable, which matches no best-effort publisher: nothing
+    received from a real mavros.)
+    """
+    import uuid
+
+    from rclpy.qos import qos_profile_sensor_data
+
+    ns = f"/mavros_{uuid.uuid4().hex[:8]}"
+    proc = _start(
+        "source:=mavros",
+        f"mavros_fix_topic:={ns}/global_position/global",
+        f"mavros_velocity_topic:={ns}/local_position/velocity_local",
+        f"mavros_height_topic:={ns}/global_position/rel_alt",
+        f"mavros_imu_topic:={ns}/imu/data",
+    )
+    sink = Sink(rclpy_node)
+    q = qos_profile_sensor_data  # as mavros publishes them
+    pub_fix = rclpy_node.create_publisher(NavSatFix, f"{ns}/global_position/global", q)
+    pub_h = rclpy_node.create_publisher(Float64, f"{ns}/global_position/rel_alt", q)
+    pub_v = rclpy_node.create_publisher(TwistStamped, f"{ns}/local_position/velocity_local", q)
+    pub_imu = rclpy_node.create_publisher(Imu, f"{ns}/imu/data", q)
+
+    def send() -> None:
+        fix = NavSatFix(latitude=41.035308, longitude=-83.3062512, altitude=288.4)
+        fix.status.status = NavSatStatus.STATUS_FIX
+        pub_fix.publish(fix)
+        pub_h.publish(Float64(data=58.4))
+        imu = Imu()
+        imu.orientation.w = 1.0
+        pub_imu.publish(imu)
+        v = TwistStamped()
+        v.header.stamp = rclpy_node.get_clock().now().to_msg()
+        v.twist.linear.x, v.twist.linear.y = 7.0, 4.0
+        pub_v.publish(v)
+
+    try:
+        assert spin(
+            rclpy_node, lambda: send() or (len(sink.vel) >= 3 and len(sink.height) >= 3), 20
+        ), (len(sink.fix), [s.message for s in sink.diag][-3:])
+        assert sink.fix[-1].latitude == pytest.approx(41.035308, abs=1e-7)
+        assert sink.height[-1].data == pytest.approx(58.4)
+        v = sink.vel[-1].twist.linear
+        assert (v.x, v.y) == pytest.approx((7.0, 4.0))
+        assert sink.imu  # with the mavros attitude
+        assert proc.poll() is None
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
 def test_p_changed_at_run_time_republishes_the_detector_angle_and_links_are_read_only(
     rclpy_node,
 ):

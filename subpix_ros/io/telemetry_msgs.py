@@ -21,6 +21,8 @@ Topics and types (relative names, under the node's namespace):
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from subpix_ros.core.telemetry import (
@@ -103,23 +105,38 @@ def imu_cdr(s: TelemetrySample, stamp_ns: int, frame_id: str = "base_link") -> b
     return serialize(msg, IMU)
 
 
+@dataclass(frozen=True)
+class FrameIds:
+    """The ``header.frame_id`` of each telemetry message (telemetry_node's ``*_frame_id``).
+
+    The defaults are one vehicle's names; with several vehicles on one ROS graph each node is
+    given its own (``drone1/base_link``), as TF needs.
+    """
+
+    gps: str = "gps"  #: NavSatFix
+    world: str = "map"  #: TwistStamped velocity (ENU)
+    base: str = "base_link"  #: Imu orientation (body FLU)
+    camera: str = "camera"  #: the expected shift (Vector3Stamped, px)
+
+
 def sample_messages(
-    s: TelemetrySample, frame_interval_s: float | None = None
+    s: TelemetrySample, frame_interval_s: float | None = None, frames: FrameIds = FrameIds()
 ) -> list[tuple[str, str, bytes]]:
     """(relative topic, type, CDR) of every telemetry message for one sample.
 
     A sample without attitude (no recent ATTITUDE message: ``roll_rad`` etc. None) has no
-    ``telemetry/imu`` message; the others are built as usual.
+    ``telemetry/imu`` message; the others are built as usual. ``frames``: the messages'
+    frame ids.
     """
     stamp = int(round(s.t * 1e9))
     out = [
-        ("telemetry/fix", FIX, fix_cdr(s, stamp)),
+        ("telemetry/fix", FIX, fix_cdr(s, stamp, frames.gps)),
         ("telemetry/height", FLOAT64, float64_cdr(s.height_agl_m)),
     ]
     if None not in (s.roll_rad, s.pitch_rad, s.yaw_rad):
-        out.append(("telemetry/imu", IMU, imu_cdr(s, stamp)))
+        out.append(("telemetry/imu", IMU, imu_cdr(s, stamp, frames.base)))
     # the velocity last: a reader builds a sample on it with the height and heading before it
-    out.append(("telemetry/velocity", TWIST, velocity_cdr(s, stamp)))
+    out.append(("telemetry/velocity", TWIST, velocity_cdr(s, stamp, frames.world)))
     if frame_interval_s is not None:
         out.append(("telemetry/frame_interval", FLOAT64, float64_cdr(frame_interval_s)))
     return out

@@ -148,6 +148,14 @@ class TelemetryNode(StageNode):
             read_only=True,
         ),
         Param("mavros_imu_topic", "/mavros/imu/data", "mavros source: Imu", read_only=True),
+        Param(
+            "gps_frame_id",
+            "gps",
+            "frame_id of telemetry/fix (e.g. drone1/gps with several vehicles)",
+        ),
+        Param("world_frame_id", "map", "frame_id of telemetry/velocity (ENU)"),
+        Param("base_frame_id", "base_link", "frame_id of telemetry/imu (body FLU)"),
+        Param("camera_frame_id", "camera", "frame_id of telemetry/expected_shift"),
     )
 
     def __init__(self, *, name: str = "telemetry_node", **kw) -> None:
@@ -391,7 +399,10 @@ class TelemetryNode(StageNode):
             a_m, s.height_agl_m, f_m, s.ground_speed_mps, p, math.radians(self.param("phi_deg"))
         )
         with self._lock:
-            for topic, msgtype, raw in tm.sample_messages(s, iv.interval_s if iv.ok else None):
+            frames = self._frame_ids()
+            for topic, msgtype, raw in tm.sample_messages(
+                s, iv.interval_s if iv.ok else None, frames
+            ):
                 self.pubs[topic.split("/", 1)[1]].publish(raw)
             heading = (s.yaw_rad if s.yaw_rad is not None else s.course_rad) + math.radians(
                 self.param("camera_yaw_offset_deg")
@@ -410,7 +421,7 @@ class TelemetryNode(StageNode):
                     cdr.vector3_stamped_to_cdr(
                         (u, v, math.hypot(u, v) * self.param("camera_rate_hz")),
                         int(round(s.t * 1e9)),
-                        "camera",
+                        frames.camera,
                     )
                 )
             except ValueError as exc:
@@ -427,13 +438,23 @@ class TelemetryNode(StageNode):
         if not iv.ok:
             self.diag.warn(f"no frame interval: {iv.reason}")
 
+    def _frame_ids(self) -> tm.FrameIds:
+        """Return the messages' frame ids, as the ``*_frame_id`` parameters give them now."""
+        return tm.FrameIds(
+            gps=self.param("gps_frame_id"),
+            world=self.param("world_frame_id"),
+            base=self.param("base_frame_id"),
+            camera=self.param("camera_frame_id"),
+        )
+
     def _publish_no_fix(self, s: TelemetrySample) -> None:
         """Publish the fix (STATUS_NO_FIX) and attitude of ``s``; WARN while there is no fix."""
         stamp = int(round(s.t * 1e9))
+        frames = self._frame_ids()
         with self._lock:
-            self.pubs["fix"].publish(tm.fix_cdr(s, stamp))
+            self.pubs["fix"].publish(tm.fix_cdr(s, stamp, frames.gps))
             if s.has_attitude:
-                self.pubs["imu"].publish(tm.imu_cdr(s, stamp))
+                self.pubs["imu"].publish(tm.imu_cdr(s, stamp, frames.base))
         gps = self.reader.gps_raw if self.reader is not None else None
         if gps is not None:
             sats = "satellites unknown" if gps[1] == 255 else f"{gps[1]} satellites"

@@ -25,9 +25,11 @@ def test_every_params_file_uses_declared_names_and_types():
         module, cls = target.split(":")
         declared[name] = {p.name: p for p in getattr(importlib.import_module(module), cls).PARAMS}
     for f in (ROOT / "config").glob("*.yaml"):
-        for key, body in yaml.safe_load(f.read_text()).items():
-            assert key.startswith("/**/"), f"{f.name}: {key} applies in the root namespace only"
-            node = key.removeprefix("/**/")
+        for section, body in yaml.safe_load(f.read_text()).items():
+            assert section.startswith("/**/"), (
+                f"{f.name}: {section} applies in the root namespace only"
+            )
+            node = section.removeprefix("/**/")
             for key, value in body["ros__parameters"].items():
                 p = declared[node].get(key)
                 assert p is not None, f"{f.name}: {node} has no parameter {key}"

@@ -574,3 +574,40 @@ def test_a_link_losing_frames_is_a_warning_with_its_loss(rclpy_node):
         sender.close()
         proc.terminate()
         proc.wait(10)
+
+
+def test_frame_ids_are_parameters_for_several_vehicles(rclpy_node):
+    """Each telemetry message's frame_id comes from its parameter (was fixed: gps, map, ...)."""
+    from geometry_msgs.msg import Vector3Stamped
+
+    port = _free_udp_port()
+    proc = _start(
+        f"connection:=udpin:127.0.0.1:{port}",
+        "gps_frame_id:=drone1/gps",
+        "world_frame_id:=drone1/odom",
+        "base_frame_id:=drone1/base_link",
+        "camera_frame_id:=drone1/cam_optical_frame",
+    )
+    sink = Sink(rclpy_node)
+    shifts = []
+    rclpy_node.create_subscription(
+        Vector3Stamped, "/telemetry/expected_shift", shifts.append, reliable_qos(50)
+    )
+    sender = MavlinkSender(f"udpout:127.0.0.1:{port}")
+    try:
+        packets = _packets(400)
+        i = 0
+        done = lambda: sink.imu and sink.vel and sink.fix and shifts  # noqa: E731
+        while not spin(rclpy_node, done, 0.1) and i < len(packets):
+            for _ in range(8):
+                sender.send(packets[i % len(packets)])
+                i += 1
+        assert done(), proc.stdout.read() if proc.poll() is not None else "no messages"
+        assert sink.fix[-1].header.frame_id == "drone1/gps"
+        assert sink.vel[-1].header.frame_id == "drone1/odom"
+        assert sink.imu[-1].header.frame_id == "drone1/base_link"
+        assert shifts[-1].header.frame_id == "drone1/cam_optical_frame"
+    finally:
+        sender.close()
+        proc.terminate()
+        proc.wait(10)

@@ -275,6 +275,15 @@ def run_layout(layout: str, frames: list[np.ndarray], rate: float, seconds: floa
     drops = {
         name.replace("_node", ""): d.get("dropped_frames", "?") for name, d in sorted(diag.items())
     }
+    # frames that never reached a node (its subscription's history replaced: no DDS event)
+    drops.update(
+        {
+            f"{n.replace('_node', '')} {k}": v
+            for n, d in sorted(diag.items())
+            for k, v in d.items()
+            if k.startswith("messages_missed_")
+        }
+    )
     stage_keys = (
         "frames_tracked",
         "tracking_fallbacks",

@@ -208,6 +208,15 @@ def main() -> None:
     )
     lat_ms = np.array(lat) * 1000
     drops = {n.replace("_node", ""): d.get("dropped_frames", "?") for n, d in sorted(diag.items())}
+    # frames that never reached a node (its subscription's history replaced: no DDS event)
+    drops.update(
+        {
+            f"{n.replace('_node', '')} {k}": v
+            for n, d in sorted(diag.items())
+            for k, v in d.items()
+            if k.startswith("messages_missed_")
+        }
+    )
     print(
         f"\nsoak: single-process pipeline, {width}x{height} bgr8 at {args.rate:g} Hz, {args.frames} frames in {wall:.0f} s"
         f"{'' if not args.max_memory_mb else f', max_memory_mb {args.max_memory_mb:g}'} "

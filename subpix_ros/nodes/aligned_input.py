@@ -15,7 +15,7 @@ from typing import Callable
 from sensor_msgs.msg import Image, TimeReference
 
 from subpix_ros.nodes import payloads as pl
-from subpix_ros.nodes.qos import latched_qos, reliable_qos
+from subpix_ros.nodes.qos import SequenceGaps, latched_qos, reliable_qos
 from subpix_ros.stages.aligned_assembly import AlignedAssembler, ReferenceCache, StampMatcher  # noqa: F401
 from subpix_ros.stages.aligned_assembly import bounded_put as _bounded_put  # noqa: F401
 
@@ -52,7 +52,11 @@ class AlignedInput:
             latched_qos(max(depth, 100)),
             raw=True,
         )
-        node.create_subscription(Image, "aligned", self._on_aligned, q, raw=True)
+        # aligned frames that never reached the callback (replaced in the history): counted
+        self.gaps = SequenceGaps(node, "aligned", node.diag, depth, "aligned frames")
+        self.gaps.subscription = node.create_subscription(
+            Image, "aligned", self.gaps.wrap(self._on_aligned), q, raw=True
+        )
         node.create_subscription(Image, "aligned/mask", self._on_mask, q, raw=True)
 
     refs = property(lambda self: self.assembler.refs)

@@ -12,6 +12,7 @@ input subscriptions because the pipeline feeds it directly.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import os
 import time
 import traceback
@@ -206,10 +207,12 @@ class StageNode(Node):
             msg_type, topic, self._guarded(callback, topic), *args, **kwargs
         )
 
-    def _guarded(self, callback: Callable[[Any], None], topic: str) -> Callable[[Any], None]:
-        def call(msg: Any) -> None:
+    def _guarded(self, callback: Callable[..., None], topic: str) -> Callable[..., None]:
+        """Return ``callback`` guarded, taking what it takes: (message) or (message, info)."""
+
+        def call(*msg_and_info: Any) -> None:
             try:
-                callback(msg)
+                callback(*msg_and_info)
             except Exception as exc:  # noqa: BLE001 - keep the node alive, say it loudly
                 text = f"{topic} callback failed: {type(exc).__name__}: {exc}"
                 self.diag.error(text)
@@ -217,7 +220,14 @@ class StageNode(Node):
                     self._callback_errors.add(text)
                     self.get_logger().error(f"{text}\n{traceback.format_exc()}")
 
-        return call
+        def call_with_info(msg: Any, info: Any) -> None:  # rclpy passes the info by arity
+            call(msg, info)
+
+        try:
+            inspect.signature(callback).bind(object(), object())
+            return call_with_info
+        except TypeError:
+            return lambda msg: call(msg)
 
     def make_worker(self, handler: Callable[[Any], None], maxsize: int) -> DropOldestWorker:
         """Start the node's drop-oldest worker; its errors go to /diagnostics."""

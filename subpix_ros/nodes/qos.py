@@ -29,6 +29,7 @@ __all__ = [
     "FollowingSubscription",
     "publish_if_subscribed",
     "qos_event_callbacks",
+    "SequenceGaps",
 ]
 
 
@@ -320,3 +321,79 @@ def _qos_sides(node: Node, topic: str, policy: str, publishing: bool) -> str:
         return ""
     said = [f"this node {ours} {', '.join(sorted(own))}"] if own else []
     return "; ".join(said + peers)
+
+
+class SequenceGaps:
+    """Messages of one publisher that never reached this node's callback, from DDS's sequence numbers.
+
+    Fast DDS reports a sample lost in transport (``qos_event_callbacks``: ``message_lost``), but
+    not a sample its keep-last history replaced before the node's executor took it: a node
+    that falls behind at its subscription (a burst, a loaded machine) loses frames there
+    without a word and counts only what it got. Every published message carries its writer's
+    sequence number (``publication_sequence_number`` of rclpy's message info, 1, 2, 3 ...);
+    a jump by more than one is that many messages missed, whatever the cause.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The subscribing node.
+    topic : str
+        The topic as the node names it (shown resolved, with its remappings).
+    diagnostics : Diagnostics
+        Where the count (``messages_missed_<topic>``) and a WARN naming the topic go.
+    depth : int
+        The subscription's history depth (said in the warning).
+    what : str
+        What a message is, in the warning ("camera frames").
+
+    Notes
+    -----
+    ``missed += seq - last - 1`` when ``seq > last + 1``. The numbers are one writer's: with
+    more than one publisher on the topic they interleave, and nothing is counted (the message
+    info does not say which writer sent a message). A number not above the last one is a
+    publisher that restarted (or a second one): counting starts again from it.
+    """
+
+    def __init__(
+        self, node: Node, topic: str, diagnostics: "Diagnostics", depth: int, what: str
+    ) -> None:
+        self.node, self.diagnostics, self.depth, self.what = node, diagnostics, depth, what
+        self.key = "messages_missed_" + topic.strip("/").replace("/", "_")
+        try:
+            self.shown = node.resolve_topic_name(topic)
+        except Exception:  # noqa: BLE001 - a name rcl cannot expand: as given
+            self.shown = topic
+        self.subscription = None  # set by the caller once the subscription is made
+        self.last: int | None = None
+        self.missed = 0
+
+    def wrap(self, callback: Callable[[Any], None]) -> Callable[[Any, dict], None]:
+        """Return a subscription callback taking (message, info): counts, then ``callback(message)``."""
+
+        def take(msg, info) -> None:
+            self.see(info.get("publication_sequence_number") if isinstance(info, dict) else None)
+            callback(msg)
+
+        return take
+
+    def see(self, seq: int | None) -> int:
+        """Count the messages missed before sequence number ``seq``; return how many just now."""
+        if not seq:  # an RMW that does not number its messages (0 or None)
+            return 0
+        sub = self.subscription
+        if sub is not None and sub.get_publisher_count() > 1:
+            self.last = None  # interleaved numbers of several writers: not attributable
+            return 0
+        last, self.last = self.last, int(seq)
+        if last is None or seq <= last:
+            return 0
+        gap = int(seq) - last - 1
+        if gap > 0:
+            self.missed += gap
+            self.diagnostics.set(**{self.key: self.missed})
+            self.diagnostics.warn(
+                f"{self.shown}: {self.what} missed before this node took them ({self.key} counts "
+                f"them, from the publisher's sequence numbers): lost in transport, or replaced in "
+                f"the subscription's history of {self.depth} while the node fell behind"
+            )
+        return gap

@@ -37,7 +37,13 @@ from subpix_ros.io.telemetry_msgs import TelemetryFromTopics
 from subpix_ros.nodes import payloads as pl
 from subpix_ros.nodes.base import StageNode, ros_params
 from subpix_ros.nodes.params import Param
-from subpix_ros.nodes.qos import camera_qos, latched_qos, publish_if_subscribed, reliable_qos
+from subpix_ros.nodes.qos import (
+    SequenceGaps,
+    camera_qos,
+    latched_qos,
+    publish_if_subscribed,
+    reliable_qos,
+)
 from subpix_ros.nodes.run import run_nodes
 from subpix_ros.stages import Aligned, NewReference, RegistrationStage, Skipped
 
@@ -93,21 +99,25 @@ class RegistrationNode(StageNode):
         if subscribe_inputs:
             # best effort keeps 10 frames (333 ms at 30 Hz) for the executor to take: with 5, a
             # 30 Hz burst on a loaded 2-core machine lost 35-45 % of the frames in some runs
-            qos = camera_qos(
-                self.param("camera_reliable"), depth=30 if self.param("camera_reliable") else 10
-            )
-            self.create_subscription(
+            depth = 30 if self.param("camera_reliable") else 10
+            qos = camera_qos(self.param("camera_reliable"), depth=depth)
+            # frames that never reached the callback (transport, or replaced in the history)
+            self.camera_gaps = {
+                t: SequenceGaps(self, t, self.diag, depth, "camera frames")
+                for t in ("image", "image/compressed")
+            }
+            self.camera_gaps["image"].subscription = self.create_subscription(
                 Image,
                 "image",
-                self._on_image,
+                self.camera_gaps["image"].wrap(self._on_image),
                 qos,
                 raw=True,
                 event_callbacks=self.events("image")[0],
             )
-            self.create_subscription(
+            self.camera_gaps["image/compressed"].subscription = self.create_subscription(
                 CompressedImage,
                 "image/compressed",
-                self._on_compressed,
+                self.camera_gaps["image/compressed"].wrap(self._on_compressed),
                 qos,
                 raw=True,
                 event_callbacks=self.events("image/compressed")[0],

@@ -266,3 +266,91 @@ def test_camera_frames_lost_before_the_node_took_them_are_a_warning(ctx, make):
 
 def _values(node):
     return {kv.key: kv.value for kv in node.diag.snapshot().values}
+
+
+def test_camera_frames_replaced_in_the_history_before_the_node_took_them_are_a_warning(ctx):
+    """Frames a node's keep-last history replaced while it fell behind: a WARN, and counted.
+
+    (Was: silent. Fast DDS reports no event for them: a reliable camera in a burst while the
+    node is busy, and the node counted only what it got.) Counted from the publisher's
+    sequence numbers: 5 frames taken, then 60 sent while the node does not spin; its reliable
+    history keeps 30, so about 30 are missed.
+    """
+    import numpy as np
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import Image
+
+    from subpix_ros.nodes.diagnostics import WARN
+    from subpix_ros.nodes.qos import reliable_qos
+    from subpix_ros.nodes.registration_node import RegistrationNode
+
+    topic = "/cam_" + uuid.uuid4().hex[:8]
+    node = RegistrationNode(
+        cli_args=["--ros-args", "-r", f"image:={topic}"],
+        parameter_overrides=[Parameter("camera_reliable", value=True)],
+    )
+    cam = rclpy.create_node("history_camera")
+    pub = cam.create_publisher(Image, topic, reliable_qos(100))
+    rng = np.random.default_rng(0)
+    sent = [0]
+
+    def send(n):
+        for _ in range(n):
+            sent[0] += 1
+            msg = Image(height=64, width=64, encoding="mono8", step=64)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = sent[0], 0
+            msg.data = rng.integers(0, 255, 64 * 64, dtype=np.uint8).tobytes()
+            pub.publish(msg)
+
+    try:
+        assert spin([node, cam], lambda: pub.get_subscription_count() > 0, 10)
+        send(5)
+        assert spin([node, cam], lambda: node.diag.rate("input").total >= 5, 10)
+        assert "messages_missed_image" not in _values(node)
+        send(60)  # the node does not spin meanwhile: its history of 30 overflows
+        assert spin([node, cam], lambda: node.diag.rate("input").total >= 35, 10)
+        spin([node, cam], lambda: False, 0.5)
+        missed = int(_values(node)["messages_missed_image"])
+        assert missed + node.diag.rate("input").total == 65, (missed, node.diag.rate("input").total)
+        assert missed >= 20
+        # said (the random frames' own registration warnings may come after it)
+        assert node.diag.level >= WARN
+        assert f"{topic}: camera frames missed" in _values(node)["recent_problems"]
+    finally:
+        node.close()
+        node.destroy_node()
+        cam.destroy_node()
+
+
+def test_sequence_gaps_count_missed_numbers_and_restart_with_the_publisher(ctx):
+    """The counting rule: a jump by k + 1 is k missed; a number not above the last restarts."""
+    from subpix_ros.nodes.qos import SequenceGaps
+
+    class Diag:
+        values, warnings = {}, []
+
+        def set(self, **kv):
+            self.values.update(kv)
+
+        def warn(self, text):
+            self.warnings.append(text)
+
+    node = rclpy.create_node("gaps_" + uuid.uuid4().hex[:8])
+    try:
+        diag = Diag()
+        gaps = SequenceGaps(node, "image", diag, 10, "camera frames")
+        assert [gaps.see(n) for n in (7, 8, 11, 12, 3, 4, 10, None, 0)] == [
+            0,
+            0,
+            2,
+            0,
+            0,
+            0,
+            5,
+            0,
+            0,
+        ]
+        assert gaps.missed == 7 and diag.values == {"messages_missed_image": 7}
+        assert len(diag.warnings) == 2 and "history of 10" in diag.warnings[0]
+    finally:
+        node.destroy_node()

@@ -34,3 +34,54 @@ def test_demo_runs_to_its_flight_report(sample_bags, tmp_path):
     assert report, r.stdout
     html = open(report.group(1)).read()
     assert "<img" in html and "Traceback" not in html
+
+
+def _tall_strip_collector(stamp_ns, frames_added):
+    """Return a demo collector that has heard the Seneca strip's tall (1786 x 687 px) mosaic."""
+    import numpy as np
+
+    from subpix_ros.cli import _demo_flights as demo
+
+    col = demo._Collector.__new__(demo._Collector)
+    col.mosaic = np.zeros((1786, 687, 3), np.uint8)
+    col.mosaic_stamp_ns = stamp_ns
+    col.diag = {"mosaic_node": {"frames_added": str(frames_added)}}
+    return col
+
+
+def test_seneca_flight_done_once_its_tall_mosaic_holds_every_frame(sample_bags, monkeypatch):
+    """The demo's wait for the strip ends when the mosaic holds all frames, whatever its shape."""
+    import argparse
+    import subprocess as sp
+
+    from subpix_ros.cli import _demo_flights as demo
+    from subpix_ros.io import cdr
+    from subpix_ros.io.bags import read_messages
+
+    camera = read_messages(sample_bags / "seneca", ["/camera/image_raw"])
+    sent = [cdr.header_to_ns(cdr.cdr_to_image_msg(m.raw).header) for m in camera]
+    assert len(sent) == 9
+    waited = []
+
+    def spin_until(node, cond, timeout, procs=()):
+        waited.append((timeout, cond()))
+        return waited[-1][1]
+
+    monkeypatch.setattr(demo, "_spin_until", spin_until)
+    monkeypatch.setattr(demo.subprocess, "run", lambda *a, **k: sp.CompletedProcess(a, 0))
+    monkeypatch.setattr(demo.time, "sleep", lambda s: None)
+    args = argparse.Namespace(seneca_rate=4.0, timeout=240.0)
+    col = _tall_strip_collector(sent[-1], 9)
+    demo._seneca_flight(None, col, sample_bags, args, {}, None, {})
+    assert waited[0] == (60.0, True), waited  # the 60 s wait ends at once
+
+
+def test_mosaic_complete_needs_the_last_frame_and_every_frame_added():
+    from subpix_ros.cli._demo_flights import mosaic_complete
+
+    sent = [10, 20, 30]
+    assert mosaic_complete(30, {"frames_added": "3"}, sent)
+    assert not mosaic_complete(20, {"frames_added": "3"}, sent)  # the last frame not drawn yet
+    assert not mosaic_complete(30, {"frames_added": "2"}, sent)  # the count not published yet
+    assert not mosaic_complete(None, {}, sent)
+    assert not mosaic_complete(30, {"frames_added": "3"}, [])

@@ -18,7 +18,10 @@ from typing import Any
 from subpix_ros.cli import CliError
 from subpix_ros.cli._ros import stop_processes
 
-__all__ = ["Captured", "run_flights"]
+__all__ = ["Captured", "mosaic_complete", "run_flights"]
+
+#: The camera topic of the sample flights (what ``subpix replay`` sends to the pipeline).
+CAMERA_TOPIC = "/camera/image_raw"
 
 
 class _Collector:
@@ -36,6 +39,7 @@ class _Collector:
         self.sr: list = []
         self.shifts: list = []
         self.mosaic = None
+        self.mosaic_stamp_ns: int | None = None  # the stamp of the last frame drawn into it
         self.mosaic_jpeg = 0
         self.interval = None
         self.aligned = 0
@@ -81,8 +85,9 @@ class _Collector:
     def _on_mosaic(self, raw) -> None:
         from subpix_ros.io import cdr
 
-        img, _ = cdr.cdr_to_image(raw)
+        img, header = cdr.cdr_to_image(raw)
         self.mosaic = img.copy()
+        self.mosaic_stamp_ns = cdr.header_to_ns(header)
 
     def _on_mosaic_c(self, raw) -> None:
         self.mosaic_jpeg += 1
@@ -218,23 +223,71 @@ def _subpixel_flight(
         )
 
 
+def frame_stamps(bag: Path, topic: str = CAMERA_TOPIC) -> list[int]:
+    """Return the header stamps (ns) of the camera frames of ``bag``, in the bag's order.
+
+    Parameters
+    ----------
+    bag : Path
+        A sample flight's bag folder.
+    topic : str, optional
+        Its camera topic.
+
+    Returns
+    -------
+    list of int
+        One stamp per frame, as the pipeline's nodes see it.
+    """
+    from subpix_ros.io import cdr
+    from subpix_ros.io.bags import read_messages
+
+    return [
+        cdr.header_to_ns(cdr.cdr_to_image_msg(m.raw).header) for m in read_messages(bag, [topic])
+    ]
+
+
+def mosaic_complete(mosaic_stamp_ns: int | None, mosaic_diag: dict, sent: list[int]) -> bool:
+    """Tell whether the mosaic the demo received holds every frame of the flight.
+
+    The mosaic node draws its frames in order and stamps ``/mosaic`` with the last frame
+    drawn; its /diagnostics count the frames in the canvas (``frames_added``). The mosaic is
+    complete once the one received carries the stamp of the flight's last frame and the node
+    counts every frame sent as added. Its size says nothing: the Seneca strip is a tall
+    mosaic (1786 x 687 px).
+
+    Parameters
+    ----------
+    mosaic_stamp_ns : int or None
+        The stamp of the latest ``/mosaic`` received (None before the first).
+    mosaic_diag : dict
+        The mosaic node's latest /diagnostics values (key -> str).
+    sent : list of int
+        The stamps of the frames the flight sent, in order (:func:`frame_stamps`).
+
+    Returns
+    -------
+    bool
+        True when nothing more is to come for this flight's mosaic.
+    """
+    if not sent or mosaic_stamp_ns is None:
+        return False
+    return mosaic_stamp_ns == sent[-1] and mosaic_diag.get("frames_added") == str(len(sent))
+
+
 def _seneca_flight(node, col: _Collector, bags: Path, args, env, pipeline, timings: dict):
     """Replay the real Seneca strip: the overview mosaic; return the diagnostics and the mosaic."""
     t0 = time.monotonic()
-    only_camera = ("--topics", "/camera/image_raw", "--wait-for", "/camera/image_raw")
+    sent = frame_stamps(bags / "seneca")
+    only_camera = ("--topics", CAMERA_TOPIC, "--wait-for", CAMERA_TOPIC)
     cmd = _replay_cmd(bags / "seneca", args.seneca_rate, *only_camera)
     replay = subprocess.run(cmd, env=env, timeout=args.timeout)
     if replay.returncode != 0:
         raise CliError(f"replay of the seneca flight failed (status {replay.returncode})")
 
     def mosaic_done() -> bool:
-        d = col.diag.get("mosaic_node", {})
-        return (
-            d.get("frames_added") == "9" and col.mosaic is not None and col.mosaic.shape[1] > 1000
-        )
+        return mosaic_complete(col.mosaic_stamp_ns, col.diag.get("mosaic_node", {}), sent)
 
     _spin_until(node, mosaic_done, 60.0, [pipeline])
-    time.sleep(1.5)
-    _spin_until(node, lambda: False, 1.5, [pipeline])  # let the last mosaic publication arrive
+    _spin_until(node, lambda: False, 1.2, [pipeline])  # one more /diagnostics round
     timings["seneca flight (s)"] = time.monotonic() - t0
     return dict(col.diag), col.mosaic

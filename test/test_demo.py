@@ -85,3 +85,36 @@ def test_mosaic_complete_needs_the_last_frame_and_every_frame_added():
     assert not mosaic_complete(30, {"frames_added": "2"}, sent)  # the count not published yet
     assert not mosaic_complete(None, {}, sent)
     assert not mosaic_complete(30, {"frames_added": "3"}, [])
+
+
+def test_demo_lists_the_files_it_writes(sample_bags, tmp_path, monkeypatch, capsys):
+    """The summary's "outputs in" line names each file the demo wrote, summary.txt included."""
+    import argparse
+
+    import numpy as np
+
+    from subpix_ros.cli import demo
+    from subpix_ros.cli._demo_flights import Captured
+    from subpix_ros.core.superres import bicubic_upscale
+    from subpix_ros.io import cdr
+    from subpix_ros.io.bags import read_messages
+
+    first = next(iter(read_messages(sample_bags / "subpixel", ["/camera/image_raw"])))
+    ref = cdr.cdr_to_image(first.raw)[0]
+    sr = np.dstack([bicubic_upscale(ref[..., c].astype(float), 2) for c in range(3)])
+    heard = Captured(  # what the pipeline would have published (no DDS here)
+        shifts=[],
+        srs=[(first.timestamp_ns, np.clip(sr, 0, 255).astype(np.uint8))],
+        refs=[first.timestamp_ns],
+        diag_subpixel={},
+        diag={},
+        mosaic=np.zeros((1786, 687, 3), np.uint8),
+    )
+    monkeypatch.setattr(demo, "run_flights", lambda *a: heard)
+    monkeypatch.setattr(demo, "_flight_report", lambda *a: None)
+    out = tmp_path / "demo"
+    args = argparse.Namespace(out=str(out), bags=str(sample_bags))
+    assert demo.run(args) == 0
+    listed = re.search(r"outputs in (\S+)/: (.+)", capsys.readouterr().out)
+    assert listed and listed.group(1) == str(out), listed
+    assert sorted(listed.group(2).split(", ")) == sorted(p.name for p in out.iterdir())

@@ -4,9 +4,15 @@ Nodes in separate processes over DDS, then `subpix process` of both flights with
 """
 
 import json
+import os
 import re
+import signal
 import subprocess
+import sys
+import time
+from pathlib import Path
 
+import pytest
 from conftest import subpix_cmd
 
 
@@ -52,7 +58,6 @@ def _tall_strip_collector(stamp_ns, frames_added):
 def test_seneca_flight_done_once_its_tall_mosaic_holds_every_frame(sample_bags, monkeypatch):
     """The demo's wait for the strip ends when the mosaic holds all frames, whatever its shape."""
     import argparse
-    import subprocess as sp
 
     from subpix_ros.cli import _demo_flights as demo
     from subpix_ros.io import cdr
@@ -67,13 +72,22 @@ def test_seneca_flight_done_once_its_tall_mosaic_holds_every_frame(sample_bags, 
         waited.append((timeout, cond()))
         return waited[-1][1]
 
+    class Replayed:  # `subpix replay` of the strip, done
+        returncode = 0
+
+        def __init__(self, *a, **k):
+            pass
+
+        def poll(self):
+            return 0
+
     monkeypatch.setattr(demo, "_spin_until", spin_until)
-    monkeypatch.setattr(demo.subprocess, "run", lambda *a, **k: sp.CompletedProcess(a, 0))
+    monkeypatch.setattr(demo.subprocess, "Popen", Replayed)
     monkeypatch.setattr(demo.time, "sleep", lambda s: None)
     args = argparse.Namespace(seneca_rate=4.0, timeout=240.0)
     col = _tall_strip_collector(sent[-1], 9)
-    demo._seneca_flight(None, col, sample_bags, args, {}, None, {})
-    assert waited[0] == (60.0, True), waited  # the 60 s wait ends at once
+    demo._seneca_flight(None, col, sample_bags, args, {}, [None], {})
+    assert [w for w in waited if w[0] == 60.0] == [(60.0, True)], waited  # ends at once
 
 
 def test_mosaic_complete_needs_the_last_frame_and_every_frame_added():
@@ -118,3 +132,70 @@ def test_demo_lists_the_files_it_writes(sample_bags, tmp_path, monkeypatch, caps
     listed = re.search(r"outputs in (\S+)/: (.+)", capsys.readouterr().out)
     assert listed and listed.group(1) == str(out), listed
     assert sorted(listed.group(2).split(", ")) == sorted(p.name for p in out.iterdir())
+
+
+def _children(pid: int) -> dict[int, str]:
+    """Return the child processes of ``pid``: pid -> command line."""
+    out = {}
+    for d in Path("/proc").iterdir():
+        try:
+            stat = (d / "stat").read_text()
+            if d.name.isdigit() and int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out[int(d.name)] = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, IndexError, ValueError):
+            pass
+    return out
+
+
+def _gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+@pytest.mark.parametrize("how", ["SIGTERM", "SIGHUP", "Ctrl-C"])
+def test_demo_interrupted_says_so_and_stops_its_processes(sample_bags, tmp_path, how):
+    """SIGTERM or SIGHUP to the demo, or Ctrl-C on its terminal, while it replays a flight.
+
+    One line "subpix demo: interrupted" and status 130 (no traceback of rclpy's
+    ExternalShutdownException), and the pipeline and replay it started are gone.
+    """
+    err_path = tmp_path / "stderr.txt"
+    with open(tmp_path / "stdout.txt", "w") as out, open(err_path, "w") as err:
+        demo = subprocess.Popen(
+            subpix_cmd("demo", "--out", str(tmp_path / "demo")),
+            stdout=out,
+            stderr=err,
+            start_new_session=True,  # a process group of its own, as a terminal's job
+        )
+    try:
+        deadline = time.monotonic() + 120
+        kids = {}
+        while time.monotonic() < deadline and demo.poll() is None:
+            kids = _children(demo.pid)
+            if any(" replay " in cmd for cmd in kids.values()):  # DDS up, a flight replayed
+                break
+            time.sleep(0.1)
+        assert any(" replay " in cmd for cmd in kids.values()), (kids, err_path.read_text())
+        time.sleep(1.0)  # into the replay
+        if how != "Ctrl-C":
+            os.kill(demo.pid, getattr(signal, how))
+        else:  # the terminal sends SIGINT to every process of its foreground job
+            os.killpg(demo.pid, signal.SIGINT)
+        rc = demo.wait(60)
+    finally:
+        if demo.poll() is None:
+            os.killpg(demo.pid, signal.SIGKILL)
+            demo.wait()
+        left = [pid for pid in kids if not _gone(pid)]
+        for pid in left:  # whatever failed: no pipeline left running for the later tests
+            os.kill(pid, signal.SIGKILL)
+    err_text = err_path.read_text()
+    assert rc == 130, err_text
+    assert "Traceback" not in err_text and "error" not in err_text, err_text
+    assert err_text.strip().splitlines()[-1] == "subpix demo: interrupted", err_text
+    assert err_text.count("subpix demo: interrupted") == 1, err_text
+    assert not left, (kids, err_text)

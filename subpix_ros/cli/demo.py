@@ -292,7 +292,8 @@ def run(args: argparse.Namespace) -> int:
     Returns
     -------
     int
-        0.
+        0 (``subpix demo`` exits 130 when interrupted: Ctrl-C, SIGTERM and SIGHUP raise
+        KeyboardInterrupt here).
 
     Raises
     ------
@@ -300,9 +301,17 @@ def run(args: argparse.Namespace) -> int:
         When a sample bag is missing, the pipeline does not come up, a replay
         fails, or an output was not produced.
     """
+    import signal
+
     import cv2
     import numpy as np
 
+    from subpix_ros.process.batch import interrupt_on_signals
+
+    # Ctrl-C, SIGTERM, or the terminal closed (SIGHUP: the pipeline and replays, in sessions
+    # of their own, do not get it): children stopped, "interrupted", exit status 130
+    interrupt_on_signals()
+    signal.signal(signal.SIGHUP, signal.getsignal(signal.SIGTERM))
     inp = _load_inputs(args)
     t_start = time.monotonic()
     cap = run_flights(inp.root, inp.bags, len(inp.truth["frames"]) // 8, args)

@@ -37,7 +37,45 @@ from subpix_ros.process.report_sections import (
 )
 from subpix_ros.process.summary import telemetry_clock
 
-__all__ = ["build_report", "write_report"]
+__all__ = ["ReportInputError", "build_report", "read_summary", "write_report"]
+
+
+class ReportInputError(ValueError):
+    """A flight folder whose report cannot be built: its ``summary.json`` is missing or unreadable."""
+
+
+def read_summary(folder: str | Path) -> dict:
+    """Return the ``summary.json`` of the flight in ``folder``.
+
+    Parameters
+    ----------
+    folder : str or Path
+        A processed flight's output folder.
+
+    Returns
+    -------
+    dict
+        The flight's summary.
+
+    Raises
+    ------
+    ReportInputError
+        "no summary.json", or "summary.json unreadable (<reason>)" when the file is there but
+        cannot be read or parsed (a truncated copy, say) or holds no JSON object.
+    """
+    path = Path(folder) / "summary.json"
+    try:
+        summary = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ReportInputError("no summary.json") from None
+    except OSError as exc:
+        raise ReportInputError(f"summary.json unreadable ({exc.strerror or exc})") from None
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+        raise ReportInputError(f"summary.json unreadable ({exc})") from None
+    if not isinstance(summary, dict):
+        kind = type(summary).__name__
+        raise ReportInputError(f"summary.json unreadable (a JSON {kind}, not an object)")
+    return summary
 
 
 def build_report(
@@ -65,9 +103,14 @@ def build_report(
     -------
     str
         The self-contained HTML document.
+
+    Raises
+    ------
+    ReportInputError
+        When ``summary.json`` is missing or unreadable (:func:`read_summary`).
     """
     folder = Path(folder)
-    summary = json.loads((folder / "summary.json").read_text())
+    summary = read_summary(folder)
     try:
         timing = json.loads((folder / "timing.json").read_text())
     except (OSError, ValueError):

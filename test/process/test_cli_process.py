@@ -626,6 +626,41 @@ def test_report_command_rewrites_reports(processed, tmp_path):
     assert r.returncode == 1 and r.stderr.count("\n") == 1
 
 
+def _report(folder, timeout=120):
+    return subprocess.run(
+        [sys.executable, "-m", "subpix_ros.cli", "report", str(folder)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_report_of_a_flight_whose_summary_is_corrupt_says_so(processed, tmp_path):
+    """A truncated summary.json: "unreadable (why)", not "no summary.json"; not passed over.
+
+    On a parent folder the other flights are reported, the corrupt one gets its line on
+    stderr and the exit status is 1 (was: skipped without a word, exit 0).
+    """
+    for name in ("seneca", "subpixel"):
+        shutil.copytree(processed[0] / name, tmp_path / name)
+        (tmp_path / name / "report.html").unlink()
+    corrupt = tmp_path / "seneca" / "summary.json"
+    corrupt.write_text(corrupt.read_text()[:200])  # cut short, as by a full disk or a copy
+    r = _report(tmp_path / "seneca")
+    assert r.returncode == 1, r.stderr
+    said = f"subpix report: error: cannot report {tmp_path / 'seneca'}: summary.json unreadable ("
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(said) and lines[0].endswith(")"), r.stderr
+    assert "no summary.json" not in r.stderr and "Expecting" in r.stderr, r.stderr  # json's why
+    r = _report(tmp_path)
+    assert r.returncode == 1, r.stderr
+    assert r.stdout.split() == [str(tmp_path / "subpixel" / "report.html")], r.stdout
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and f"{tmp_path / 'seneca'}: summary.json unreadable (" in lines[0]
+    assert (tmp_path / "subpixel" / "report.html").is_file()
+    assert not (tmp_path / "seneca" / "report.html").exists()
+
+
 def test_mono16_flight_gives_16_bit_products(sample_bags, tmp_path):
     """A 16-bit camera: super-resolved and bicubic PNGs stay 16-bit, the mosaic preview is 8-bit."""
     _, frames, tel = _sample(sample_bags)

@@ -2,7 +2,8 @@
 
 OUTDIR is either one flight's product folder (with summary.json) or the
 output folder of `subpix process` (each flight folder in it). A flight that
-cannot be reported (its summary.json unreadable) is said on stderr, one line
+cannot be reported (its summary.json unreadable), or whose folder lacks
+products the run wrote (the report says which), is said on stderr, one line
 each, and the exit status is 1.
 The report is one self-contained HTML file (pictures inline, no network).
 """
@@ -56,15 +57,21 @@ def run(args: argparse.Namespace) -> int:
     Returns
     -------
     int
-        0; 1 when a flight could not be reported (one line on stderr for each: its
-        ``summary.json`` unreadable, say), the others' reports still written.
+        0; 1 when a flight could not be reported (its ``summary.json`` unreadable, say) or
+        lacks products the run wrote (its report, which says so, still written): one line on
+        stderr for each; the others' reports still written.
 
     Raises
     ------
     CliError
         When OUTDIR is not a folder or holds no processed flight.
     """
-    from subpix_ros.process.report import ReportInputError, write_report
+    from subpix_ros.process.report import (
+        ReportInputError,
+        missing_products,
+        read_summary,
+        write_report,
+    )
 
     root = Path(args.outdir)
     if not root.is_dir():
@@ -78,12 +85,18 @@ def run(args: argparse.Namespace) -> int:
     for d in folders:
         try:
             print(write_report(d), flush=True)
+            missing = missing_products(d, read_summary(d))
         except ReportInputError as exc:
             why = f"cannot report {d}: {exc}"
         except (OSError, ValueError, KeyError) as exc:
             why = f"cannot write the report of {d}: {exc}"
         else:
-            continue
+            if not missing:
+                continue
+            why = (
+                f"{d}: products missing (the report says so): {', '.join(missing)}; "
+                "`subpix process --force` writes them again"
+            )
         failed += 1
         print(f"subpix report: error: {why}", file=sys.stderr, flush=True)
     return 1 if failed else 0

@@ -4,9 +4,15 @@ Nodes in separate processes over DDS, then `subpix process` of both flights with
 """
 
 import json
+import os
 import re
+import signal
 import subprocess
+import sys
+import time
+from pathlib import Path
 
+import pytest
 from conftest import subpix_cmd
 
 
@@ -34,3 +40,162 @@ def test_demo_runs_to_its_flight_report(sample_bags, tmp_path):
     assert report, r.stdout
     html = open(report.group(1)).read()
     assert "<img" in html and "Traceback" not in html
+
+
+def _tall_strip_collector(stamp_ns, frames_added):
+    """Return a demo collector that has heard the Seneca strip's tall (1786 x 687 px) mosaic."""
+    import numpy as np
+
+    from subpix_ros.cli import _demo_flights as demo
+
+    col = demo._Collector.__new__(demo._Collector)
+    col.mosaic = np.zeros((1786, 687, 3), np.uint8)
+    col.mosaic_stamp_ns = stamp_ns
+    col.diag = {"mosaic_node": {"frames_added": str(frames_added)}}
+    return col
+
+
+def test_seneca_flight_done_once_its_tall_mosaic_holds_every_frame(sample_bags, monkeypatch):
+    """The demo's wait for the strip ends when the mosaic holds all frames, whatever its shape."""
+    import argparse
+
+    from subpix_ros.cli import _demo_flights as demo
+    from subpix_ros.io import cdr
+    from subpix_ros.io.bags import read_messages
+
+    camera = read_messages(sample_bags / "seneca", ["/camera/image_raw"])
+    sent = [cdr.header_to_ns(cdr.cdr_to_image_msg(m.raw).header) for m in camera]
+    assert len(sent) == 9
+    waited = []
+
+    def spin_until(node, cond, timeout, procs=()):
+        waited.append((timeout, cond()))
+        return waited[-1][1]
+
+    class Replayed:  # `subpix replay` of the strip, done
+        returncode = 0
+
+        def __init__(self, *a, **k):
+            pass
+
+        def poll(self):
+            return 0
+
+    monkeypatch.setattr(demo, "_spin_until", spin_until)
+    monkeypatch.setattr(demo.subprocess, "Popen", Replayed)
+    monkeypatch.setattr(demo.time, "sleep", lambda s: None)
+    args = argparse.Namespace(seneca_rate=4.0, timeout=240.0)
+    col = _tall_strip_collector(sent[-1], 9)
+    demo._seneca_flight(None, col, sample_bags, args, {}, [None], {})
+    assert [w for w in waited if w[0] == 60.0] == [(60.0, True)], waited  # ends at once
+
+
+def test_mosaic_complete_needs_the_last_frame_and_every_frame_added():
+    from subpix_ros.cli._demo_flights import mosaic_complete
+
+    sent = [10, 20, 30]
+    assert mosaic_complete(30, {"frames_added": "3"}, sent)
+    assert not mosaic_complete(20, {"frames_added": "3"}, sent)  # the last frame not drawn yet
+    assert not mosaic_complete(30, {"frames_added": "2"}, sent)  # the count not published yet
+    assert not mosaic_complete(None, {}, sent)
+    assert not mosaic_complete(30, {"frames_added": "3"}, [])
+
+
+def test_demo_lists_the_files_it_writes(sample_bags, tmp_path, monkeypatch, capsys):
+    """The summary's "outputs in" line names each file the demo wrote, summary.txt included."""
+    import argparse
+
+    import numpy as np
+
+    from subpix_ros.cli import demo
+    from subpix_ros.cli._demo_flights import Captured
+    from subpix_ros.core.superres import bicubic_upscale
+    from subpix_ros.io import cdr
+    from subpix_ros.io.bags import read_messages
+
+    first = next(iter(read_messages(sample_bags / "subpixel", ["/camera/image_raw"])))
+    ref = cdr.cdr_to_image(first.raw)[0]
+    sr = np.dstack([bicubic_upscale(ref[..., c].astype(float), 2) for c in range(3)])
+    heard = Captured(  # what the pipeline would have published (no DDS here)
+        shifts=[],
+        srs=[(first.timestamp_ns, np.clip(sr, 0, 255).astype(np.uint8))],
+        refs=[first.timestamp_ns],
+        diag_subpixel={},
+        diag={},
+        mosaic=np.zeros((1786, 687, 3), np.uint8),
+    )
+    monkeypatch.setattr(demo, "run_flights", lambda *a: heard)
+    monkeypatch.setattr(demo, "_flight_report", lambda *a: None)
+    out = tmp_path / "demo"
+    args = argparse.Namespace(out=str(out), bags=str(sample_bags))
+    assert demo.run(args) == 0
+    listed = re.search(r"outputs in (\S+)/: (.+)", capsys.readouterr().out)
+    assert listed and listed.group(1) == str(out), listed
+    assert sorted(listed.group(2).split(", ")) == sorted(p.name for p in out.iterdir())
+
+
+def _children(pid: int) -> dict[int, str]:
+    """Return the child processes of ``pid``: pid -> command line."""
+    out = {}
+    for d in Path("/proc").iterdir():
+        try:
+            stat = (d / "stat").read_text()
+            if d.name.isdigit() and int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out[int(d.name)] = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, IndexError, ValueError):
+            pass
+    return out
+
+
+def _gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+@pytest.mark.parametrize("how", ["SIGTERM", "SIGHUP", "Ctrl-C"])
+def test_demo_interrupted_says_so_and_stops_its_processes(sample_bags, tmp_path, how):
+    """SIGTERM or SIGHUP to the demo, or Ctrl-C on its terminal, while it replays a flight.
+
+    One line "subpix demo: interrupted" and status 130 (no traceback of rclpy's
+    ExternalShutdownException), and the pipeline and replay it started are gone.
+    """
+    err_path = tmp_path / "stderr.txt"
+    with open(tmp_path / "stdout.txt", "w") as out, open(err_path, "w") as err:
+        demo = subprocess.Popen(
+            subpix_cmd("demo", "--out", str(tmp_path / "demo")),
+            stdout=out,
+            stderr=err,
+            start_new_session=True,  # a process group of its own, as a terminal's job
+        )
+    try:
+        deadline = time.monotonic() + 120
+        kids = {}
+        while time.monotonic() < deadline and demo.poll() is None:
+            kids = _children(demo.pid)
+            if any(" replay " in cmd for cmd in kids.values()):  # DDS up, a flight replayed
+                break
+            time.sleep(0.1)
+        assert any(" replay " in cmd for cmd in kids.values()), (kids, err_path.read_text())
+        time.sleep(1.0)  # into the replay
+        if how != "Ctrl-C":
+            os.kill(demo.pid, getattr(signal, how))
+        else:  # the terminal sends SIGINT to every process of its foreground job
+            os.killpg(demo.pid, signal.SIGINT)
+        rc = demo.wait(60)
+    finally:
+        if demo.poll() is None:
+            os.killpg(demo.pid, signal.SIGKILL)
+            demo.wait()
+        left = [pid for pid in kids if not _gone(pid)]
+        for pid in left:  # whatever failed: no pipeline left running for the later tests
+            os.kill(pid, signal.SIGKILL)
+    err_text = err_path.read_text()
+    assert rc == 130, err_text
+    assert "Traceback" not in err_text and "error" not in err_text, err_text
+    assert err_text.strip().splitlines()[-1] == "subpix demo: interrupted", err_text
+    assert err_text.count("subpix demo: interrupted") == 1, err_text
+    assert not left, (kids, err_text)

@@ -7,6 +7,7 @@ references, mosaic, /diagnostics) is collected in a :class:`Captured`.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -18,7 +19,10 @@ from typing import Any
 from subpix_ros.cli import CliError
 from subpix_ros.cli._ros import stop_processes
 
-__all__ = ["Captured", "run_flights"]
+__all__ = ["Captured", "mosaic_complete", "run_flights"]
+
+#: The camera topic of the sample flights (what ``subpix replay`` sends to the pipeline).
+CAMERA_TOPIC = "/camera/image_raw"
 
 
 class _Collector:
@@ -36,6 +40,7 @@ class _Collector:
         self.sr: list = []
         self.shifts: list = []
         self.mosaic = None
+        self.mosaic_stamp_ns: int | None = None  # the stamp of the last frame drawn into it
         self.mosaic_jpeg = 0
         self.interval = None
         self.aligned = 0
@@ -81,8 +86,9 @@ class _Collector:
     def _on_mosaic(self, raw) -> None:
         from subpix_ros.io import cdr
 
-        img, _ = cdr.cdr_to_image(raw)
+        img, header = cdr.cdr_to_image(raw)
         self.mosaic = img.copy()
+        self.mosaic_stamp_ns = cdr.header_to_ns(header)
 
     def _on_mosaic_c(self, raw) -> None:
         self.mosaic_jpeg += 1
@@ -93,6 +99,33 @@ class _Collector:
     def _on_diag(self, msg) -> None:
         for st in msg.status:
             self.diag[st.name] = {kv.key: kv.value for kv in st.values} | {"_message": st.message}
+
+
+class _SignalsDeferred:
+    """Hold SIGINT and SIGTERM while the child processes are stopped, then act on one that came.
+
+    A second Ctrl-C during :func:`~subpix_ros.cli._ros.stop_processes` would leave the
+    processes not yet waited for (or a hung one not killed); held, it raises
+    KeyboardInterrupt once they are all gone. Outside the main thread, nothing is held.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.came: list[int] = []
+        self._old: dict = {}
+
+    def __enter__(self) -> _SignalsDeferred:
+        if threading.current_thread() is threading.main_thread():
+            for sig in self.SIGNALS:
+                self._old[sig] = signal.signal(sig, lambda signum, frame: self.came.append(signum))
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+        if self.came and exc[0] is None:
+            raise KeyboardInterrupt
 
 
 def _spin_until(node, cond, timeout: float, procs=()) -> bool:
@@ -139,6 +172,29 @@ class Captured:
     timings: dict = field(default_factory=dict)
 
 
+def _start(cmd: list[str], env: dict) -> subprocess.Popen:
+    """Start one of the demo's processes (the pipeline, a replay) in a session of its own.
+
+    The demo stops them itself, once each (:func:`~subpix_ros.cli._ros.stop_processes`). In
+    the terminal's process group, Ctrl-C reached them as well, and the demo's own SIGINT came
+    second, while the pipeline was closing: a KeyboardInterrupt traceback from its
+    ``destroy_node``. The demo ends them on SIGINT, SIGTERM and SIGHUP (``subpix demo``).
+
+    Parameters
+    ----------
+    cmd : list of str
+        The command line.
+    env : dict
+        Its environment.
+
+    Returns
+    -------
+    subprocess.Popen
+        The process.
+    """
+    return subprocess.Popen(cmd, env=env, start_new_session=True)
+
+
 def _replay_cmd(bag: Path, rate: float, *extra: str) -> list[str]:
     """Return the ``subpix replay`` command line of one bag."""
     return [sys.executable, "-m", "subpix_ros.cli", "replay", str(bag), "--rate", str(rate), *extra]
@@ -167,14 +223,23 @@ def run_flights(root: Path, bags: Path, expected_sets: int, args) -> Captured:
     ------
     CliError
         When the pipeline does not come up, exits, or a replay fails.
+    KeyboardInterrupt
+        On Ctrl-C or SIGTERM (``subpix demo`` raises it for both): the pipeline and a replay
+        still running have been stopped.
+
+    Notes
+    -----
+    rclpy's own signal handlers are left out (``ros_node(rclpy_signals=False)``): they shut
+    the context down under the spinning node, and the demo ended with a traceback of
+    ``ExternalShutdownException`` (exit 1) instead of "interrupted" (130).
     """
     from subpix_ros.cli._ros import ros_node
 
     env = dict(os.environ)
-    pipeline = subprocess.Popen(_pipeline_cmd(root), env=env)
+    pipeline = _start(_pipeline_cmd(root), env)
     procs = [pipeline]
     try:
-        with ros_node("subpix_demo") as node:
+        with ros_node("subpix_demo", rclpy_signals=False) as node:
             col = _Collector(node)
             outputs = ("/aligned/reference", "/shift", "/super_resolved", "/mosaic")
             if not _spin_until(
@@ -184,11 +249,12 @@ def run_flights(root: Path, bags: Path, expected_sets: int, args) -> Captured:
             _spin_until(node, lambda: False, 1.0, [pipeline])
             captured = _subpixel_flight(node, col, bags, expected_sets, args, env, procs)
             captured.diag, captured.mosaic = _seneca_flight(
-                node, col, bags, args, env, pipeline, captured.timings
+                node, col, bags, args, env, procs, captured.timings
             )
             return captured
     finally:
-        stop_processes(procs)
+        with _SignalsDeferred():
+            stop_processes(procs)
 
 
 def _subpixel_flight(
@@ -198,7 +264,7 @@ def _subpixel_flight(
     pipeline = procs[0]
     t0 = time.monotonic()
     wait = ("--wait-for", "/camera/image_raw", "--wait-timeout", "60")
-    replay = subprocess.Popen(_replay_cmd(bags / "subpixel", args.rate, *wait), env=env)
+    replay = _start(_replay_cmd(bags / "subpixel", args.rate, *wait), env)
     procs.append(replay)
     _spin_until(node, lambda: replay.poll() is not None, args.timeout, [pipeline])
     if replay.returncode != 0:
@@ -218,23 +284,74 @@ def _subpixel_flight(
         )
 
 
-def _seneca_flight(node, col: _Collector, bags: Path, args, env, pipeline, timings: dict):
+def frame_stamps(bag: Path, topic: str = CAMERA_TOPIC) -> list[int]:
+    """Return the header stamps (ns) of the camera frames of ``bag``, in the bag's order.
+
+    Parameters
+    ----------
+    bag : Path
+        A sample flight's bag folder.
+    topic : str, optional
+        Its camera topic.
+
+    Returns
+    -------
+    list of int
+        One stamp per frame, as the pipeline's nodes see it.
+    """
+    from subpix_ros.io import cdr
+    from subpix_ros.io.bags import read_messages
+
+    return [
+        cdr.header_to_ns(cdr.cdr_to_image_msg(m.raw).header) for m in read_messages(bag, [topic])
+    ]
+
+
+def mosaic_complete(mosaic_stamp_ns: int | None, mosaic_diag: dict, sent: list[int]) -> bool:
+    """Tell whether the mosaic the demo received holds every frame of the flight.
+
+    The mosaic node draws its frames in order and stamps ``/mosaic`` with the last frame
+    drawn; its /diagnostics count the frames in the canvas (``frames_added``). The mosaic is
+    complete once the one received carries the stamp of the flight's last frame and the node
+    counts every frame sent as added. Its size says nothing: the Seneca strip is a tall
+    mosaic (1786 x 687 px).
+
+    Parameters
+    ----------
+    mosaic_stamp_ns : int or None
+        The stamp of the latest ``/mosaic`` received (None before the first).
+    mosaic_diag : dict
+        The mosaic node's latest /diagnostics values (key -> str).
+    sent : list of int
+        The stamps of the frames the flight sent, in order (:func:`frame_stamps`).
+
+    Returns
+    -------
+    bool
+        True when nothing more is to come for this flight's mosaic.
+    """
+    if not sent or mosaic_stamp_ns is None:
+        return False
+    return mosaic_stamp_ns == sent[-1] and mosaic_diag.get("frames_added") == str(len(sent))
+
+
+def _seneca_flight(node, col: _Collector, bags: Path, args, env, procs, timings: dict):
     """Replay the real Seneca strip: the overview mosaic; return the diagnostics and the mosaic."""
+    pipeline = procs[0]
     t0 = time.monotonic()
-    only_camera = ("--topics", "/camera/image_raw", "--wait-for", "/camera/image_raw")
+    sent = frame_stamps(bags / "seneca")
+    only_camera = ("--topics", CAMERA_TOPIC, "--wait-for", CAMERA_TOPIC)
     cmd = _replay_cmd(bags / "seneca", args.seneca_rate, *only_camera)
-    replay = subprocess.run(cmd, env=env, timeout=args.timeout)
+    replay = _start(cmd, env)
+    procs.append(replay)  # stopped with the pipeline if the demo is interrupted
+    _spin_until(node, lambda: replay.poll() is not None, args.timeout, [pipeline])
     if replay.returncode != 0:
         raise CliError(f"replay of the seneca flight failed (status {replay.returncode})")
 
     def mosaic_done() -> bool:
-        d = col.diag.get("mosaic_node", {})
-        return (
-            d.get("frames_added") == "9" and col.mosaic is not None and col.mosaic.shape[1] > 1000
-        )
+        return mosaic_complete(col.mosaic_stamp_ns, col.diag.get("mosaic_node", {}), sent)
 
     _spin_until(node, mosaic_done, 60.0, [pipeline])
-    time.sleep(1.5)
-    _spin_until(node, lambda: False, 1.5, [pipeline])  # let the last mosaic publication arrive
+    _spin_until(node, lambda: False, 1.2, [pipeline])  # one more /diagnostics round
     timings["seneca flight (s)"] = time.monotonic() - t0
     return dict(col.diag), col.mosaic

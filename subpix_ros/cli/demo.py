@@ -137,8 +137,11 @@ def _shift_rows(inp: _Inputs, cap: Captured) -> tuple[list[dict], list]:
     return rows, errs
 
 
-def _psnr_gains(inp: _Inputs, srs: list) -> list[dict]:
-    """Return the PSNR of each super-resolved image and of bicubic; write the first pair."""
+def _psnr_gains(inp: _Inputs, srs: list, written: list[str]) -> list[dict]:
+    """Return the PSNR of each super-resolved image and of bicubic; write the first pair.
+
+    The names of the images written are appended to ``written``.
+    """
     import cv2
     import numpy as np
 
@@ -170,6 +173,7 @@ def _psnr_gains(inp: _Inputs, srs: list) -> list[dict]:
             cv2.imwrite(str(out / "superres.png"), sr)
             cv2.imwrite(str(out / "bicubic.png"), bic)
             cv2.imwrite(str(out / "side_by_side.png"), np.hstack([bic, sr]))
+            written += ["superres.png", "bicubic.png", "side_by_side.png"]
     return gains
 
 
@@ -211,8 +215,25 @@ def _stage_summary(summary: dict, cap: Captured, truth: dict) -> None:
         }
 
 
-def _summary_text(summary: dict, inp: _Inputs, n_sr: int) -> str:
-    """Return the summary the demo prints (and writes to summary.txt)."""
+def _summary_text(summary: dict, inp: _Inputs, n_sr: int, written: list[str]) -> str:
+    """Return the summary the demo prints (and writes to summary.txt).
+
+    Parameters
+    ----------
+    summary : dict
+        What summary.json holds.
+    inp : _Inputs
+        The sample flights.
+    n_sr : int
+        Super-resolved images received.
+    written : list of str
+        The names of the files the demo writes into its output folder, listed last.
+
+    Returns
+    -------
+    str
+        The summary's lines.
+    """
     gains = summary["psnr"]
     lines = ["subpix_ros demo: bundled sample flights through the pipeline over DDS"]
     lines.append(
@@ -256,10 +277,7 @@ def _summary_text(summary: dict, inp: _Inputs, n_sr: int) -> str:
         + ", ".join(f"{n.replace('_node', '')} {v}" for n, v in summary["stage_ms_seneca"].items())
     )
     lines.append(f"  frames dropped by the queues: {summary['dropped_frames']}")
-    lines.append(
-        f"  outputs in {inp.out}/: superres.png, bicubic.png, side_by_side.png, mosaic.png, "
-        "shifts.csv, summary.json"
-    )
+    lines.append(f"  outputs in {inp.out}/: {', '.join(written)}")
     return "\n".join(lines)
 
 
@@ -274,7 +292,8 @@ def run(args: argparse.Namespace) -> int:
     Returns
     -------
     int
-        0.
+        0 (``subpix demo`` exits 130 when interrupted: Ctrl-C, SIGTERM and SIGHUP raise
+        KeyboardInterrupt here).
 
     Raises
     ------
@@ -282,9 +301,17 @@ def run(args: argparse.Namespace) -> int:
         When a sample bag is missing, the pipeline does not come up, a replay
         fails, or an output was not produced.
     """
+    import signal
+
     import cv2
     import numpy as np
 
+    from subpix_ros.process.batch import interrupt_on_signals
+
+    # Ctrl-C, SIGTERM, or the terminal closed (SIGHUP: the pipeline and replays, in sessions
+    # of their own, do not get it): children stopped, "interrupted", exit status 130
+    interrupt_on_signals()
+    signal.signal(signal.SIGHUP, signal.getsignal(signal.SIGTERM))
     inp = _load_inputs(args)
     t_start = time.monotonic()
     cap = run_flights(inp.root, inp.bags, len(inp.truth["frames"]) // 8, args)
@@ -293,23 +320,27 @@ def run(args: argparse.Namespace) -> int:
         "frames_in": {"subpixel": len(inp.frames), "seneca": 9},
         "timing_s": cap.timings,
     }
+    written: list[str] = []  # the files written into out/, in this order (the summary lists them)
     rows, errs = _shift_rows(inp, cap)
     with open(out / "shifts.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["stamp_ns"])
         w.writeheader()
         w.writerows(rows)
+    written.append("shifts.csv")
     summary["shifts_out"] = len(rows)
     if errs:
         summary["shift_rmse_px"] = float(np.sqrt(np.mean(np.asarray(errs) ** 2)))
     summary["super_resolved_out"] = len(cap.srs)
-    summary["psnr"] = _psnr_gains(inp, cap.srs)
+    summary["psnr"] = _psnr_gains(inp, cap.srs, written)
     if cap.mosaic is not None:
         cv2.imwrite(str(out / "mosaic.png"), cap.mosaic)
+        written.append("mosaic.png")
         summary["mosaic_px"] = list(cap.mosaic.shape[:2])
     _stage_summary(summary, cap, inp.truth)
     summary["elapsed_s"] = time.monotonic() - t_start
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
-    text = _summary_text(summary, inp, len(cap.srs))
+    written += ["summary.json", "summary.txt"]  # summary.txt: the text below, which lists it
+    text = _summary_text(summary, inp, len(cap.srs), written)
     (out / "summary.txt").write_text(text + "\n")
     print(text)
     _flight_report(inp.root, inp.bags, out / "flights")  # prints the report's path

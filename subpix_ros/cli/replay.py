@@ -131,8 +131,10 @@ def run(args: argparse.Namespace) -> int:
             ]
             if unknown:
                 raise CliError(f"--wait-for topic(s) not replayed: {', '.join(unknown)}")
-            if wait_for and not player.wait_for_subscribers(
-                wait_for, args.wait_timeout, args.wait_count
+            if (
+                wait_for
+                and not player.wait_for_subscribers(wait_for, args.wait_timeout, args.wait_count)
+                and not player.stopped  # stopped while waiting: nothing replayed, no error
             ):
                 few = "no" if args.wait_count == 1 else f"fewer than {args.wait_count}"
                 raise CliError(

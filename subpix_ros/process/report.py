@@ -32,12 +32,81 @@ from subpix_ros.process.report_sections import (
     _read_table,
     _section_sets,
     _section_timing,
+    missing_note,
     mosaic_section,
     per_frame_sections,
 )
 from subpix_ros.process.summary import telemetry_clock
 
-__all__ = ["build_report", "write_report"]
+__all__ = ["ReportInputError", "build_report", "missing_products", "read_summary", "write_report"]
+
+
+class ReportInputError(ValueError):
+    """A flight folder whose report cannot be built: its ``summary.json`` is missing or unreadable."""
+
+
+def read_summary(folder: str | Path) -> dict:
+    """Return the ``summary.json`` of the flight in ``folder``.
+
+    Parameters
+    ----------
+    folder : str or Path
+        A processed flight's output folder.
+
+    Returns
+    -------
+    dict
+        The flight's summary.
+
+    Raises
+    ------
+    ReportInputError
+        "no summary.json", or "summary.json unreadable (<reason>)" when the file is there but
+        cannot be read or parsed (a truncated copy, say) or holds no JSON object.
+    """
+    path = Path(folder) / "summary.json"
+    try:
+        summary = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ReportInputError("no summary.json") from None
+    except OSError as exc:
+        raise ReportInputError(f"summary.json unreadable ({exc.strerror or exc})") from None
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+        raise ReportInputError(f"summary.json unreadable ({exc})") from None
+    if not isinstance(summary, dict):
+        kind = type(summary).__name__
+        raise ReportInputError(f"summary.json unreadable (a JSON {kind}, not an object)")
+    return summary
+
+
+def missing_products(folder: str | Path, summary: dict) -> list[str]:
+    """Return the products of the run that are not in ``folder`` (moved or deleted since).
+
+    Parameters
+    ----------
+    folder : str or Path
+        A processed flight's output folder.
+    summary : dict
+        Its ``summary.json`` (:func:`read_summary`): whether the run wrote ``mosaic.png``,
+        and each set's ``superres`` and ``bicubic`` PNGs.
+
+    Returns
+    -------
+    list of str
+        The missing files, relative to ``folder``: the tables, ``results.mcap`` and
+        ``timing.json`` (:data:`~subpix_ros.process.products.REQUIRED`; ``inputs.json``,
+        which only tells the next run whether to redo the flight, is not the report's
+        business), then ``mosaic.png`` and the sets' PNGs.
+    """
+    from subpix_ros.process.products import INPUTS_FILE, REQUIRED
+
+    folder = Path(folder)
+    names = [n for n in REQUIRED if n not in ("summary.json", INPUTS_FILE)]
+    if (summary.get("mosaic") or {}).get("written"):
+        names.append("mosaic.png")
+    for entry in summary.get("sets") or []:
+        names += [entry[k] for k in ("superres", "bicubic") if entry.get(k)]
+    return [n for n in names if not (folder / n).is_file()]
 
 
 def build_report(
@@ -65,9 +134,15 @@ def build_report(
     -------
     str
         The self-contained HTML document.
+
+    Raises
+    ------
+    ReportInputError
+        When ``summary.json`` is missing or unreadable (:func:`read_summary`).
     """
     folder = Path(folder)
-    summary = json.loads((folder / "summary.json").read_text())
+    summary = read_summary(folder)
+    missing = missing_products(folder, summary)
     try:
         timing = json.loads((folder / "timing.json").read_text())
     except (OSError, ValueError):
@@ -85,7 +160,7 @@ def build_report(
         f"</title><style>{_CSS}</style></head><body>"
     ]
     h.append(f"<h1>Flight report: {_esc(summary.get('bag'))}</h1>")
-    h.extend(_header(summary, timing, _read_table(folder, "frames.csv")))
+    h.extend(_header(summary, timing, _read_table(folder, "frames.csv"), missing))
     drawn = dict(sections or {})  # what a helper drew; the rest is drawn here, the same way
     clock = telemetry_clock(summary.get("parameters_in_effect") or {})
     if not (drawn.get("shifts") and drawn.get("registration")):
@@ -112,6 +187,7 @@ def build_report(
     h.append("<h2>Mosaic and track</h2>")
     h.append(drawn["mosaic"])
     h.append("<h2>Stage times and memory</h2>")
+    h.append(missing_note([n for n in missing if n == "timing.json"], "no stage times to show"))
     h.append(_section_timing(timing))
     h.append("</body></html>\n")
     return "".join(h)
@@ -171,8 +247,14 @@ def _reason_rows(reasons: dict, frames: list[dict], status: str) -> list[list]:
     return rows
 
 
-def _header(summary: dict, timing: dict, frames: list[dict] | None = None) -> list[str]:
-    """Build the flight table, problems, frames skipped/dropped by reason, and the parameters."""
+def _header(
+    summary: dict, timing: dict, frames: list[dict] | None = None, missing: list[str] = ()
+) -> list[str]:
+    """Build the flight table, problems, frames skipped/dropped by reason, and the parameters.
+
+    ``missing``: the products no longer in the folder (:func:`missing_products`), said beside
+    the run's status and first among the problems.
+    """
     fl = summary.get("flight", {})
     fr = summary.get("frames", {})
     cam = summary.get("camera", {})
@@ -183,7 +265,16 @@ def _header(summary: dict, timing: dict, frames: list[dict] | None = None) -> li
             None,
             [
                 ["bag", summary.get("bag_path")],
-                ["status", summary.get("status")],
+                [
+                    "status",
+                    f"{summary.get('status')}"
+                    + (
+                        f" (the run's; {_plural(len(missing), 'product')} missing since: "
+                        "see Problems)"
+                        if missing
+                        else ""
+                    ),
+                ],
                 [
                     "camera",
                     f"{cam.get('topic') or 'none'} ({cam.get('type') or '-'}), "
@@ -207,6 +298,13 @@ def _header(summary: dict, timing: dict, frames: list[dict] | None = None) -> li
         )
     )
     problems = summary.get("problems") or []
+    if missing:
+        problems = [
+            f"Missing from the flight's folder (moved or deleted after the run): "
+            f"{', '.join(missing)}; the sections that show them say so. "
+            "`subpix process --force` writes them again.",
+            *problems,
+        ]
     if problems:
         h.append(
             "<h2>Problems</h2><ul>"

@@ -27,6 +27,29 @@ from subpix_ros.process.report_html import (
 CROP_LR_PX = 96  # side of the super-resolution crops, in input pixels
 
 
+def missing_note(names: list[str], what: str) -> str:
+    """Say which products are missing from the flight's folder and what is not shown for it.
+
+    Parameters
+    ----------
+    names : list of str
+        The missing files, relative to the folder.
+    what : str
+        What the section cannot show without them.
+
+    Returns
+    -------
+    str
+        One HTML paragraph (class ``problem``), or "" when nothing is missing.
+    """
+    if not names:
+        return ""
+    return (
+        f"<p class='problem'>Missing from the flight's folder (after the run): "
+        f"{_esc(', '.join(names))}: {_esc(what)}.</p>"
+    )
+
+
 def _legend_outside(fig, axes) -> None:
     """Put one legend of all the axes' labelled series at the figure's right, outside them.
 
@@ -390,12 +413,18 @@ def _section_registration(
 
 
 def _read_image(path: Path):
-    import cv2
+    """Return the image at ``path`` as stored (bit depth, channels), or None.
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
+    None when the file is not there or cannot be decoded, without OpenCV's own warning on
+    stderr (``imread`` logs one for a missing file): the report says what is missing.
+    """
+    if not path.is_file():
         return None
-    return img
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError:
+        return None
+    return cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
 
 
 def _display(img: np.ndarray) -> np.ndarray:
@@ -576,7 +605,11 @@ def _section_sets(
         out.append(_edges_text(s.get("edges") or [], "psnr_sr_db" in s))
         crop = _set_crop(folder, s, factor, crops)
         if crop is None:
-            out.append("<p>Images missing.</p>")
+            gone = [s[k] for k in ("superres", "bicubic") if not (folder / s[k]).is_file()]
+            out.append(
+                missing_note(gone, "the set's images are not shown")
+                or "<p>Images unreadable (or of different sizes).</p>"
+            )
             continue
         r, c, side = crop.row, crop.col, crop.side
         scale = max(1, round(320 / max(side, 1)))  # about 320 screen px wide
@@ -664,6 +697,12 @@ def _section_mosaic(
     the track's time span, the panel and a sentence say so.
     """
     plt = _plt()
+    gone = [
+        name
+        for name, needed in (("mosaic.png", mosaic.get("written")), ("telemetry.csv", True))
+        if needed and not (folder / name).is_file()
+    ]
+    note = missing_note(gone, "not shown")
     parts = []
     img = _read_image(folder / "mosaic.png") if mosaic.get("written") else None
     lat = np.array([_f(r, "lat_deg") for r in telemetry])
@@ -675,7 +714,7 @@ def _section_mosaic(
     )
     n = (img is not None) + bool(has_gps)
     if n == 0:
-        return "<p>No mosaic and no GPS track.</p>"
+        return note or "<p>No mosaic and no GPS track.</p>"
     fig, axes = plt.subplots(
         1, n, figsize=(5.5 * n + 1.5, 4.6), squeeze=False, layout="constrained"
     )
@@ -732,9 +771,9 @@ def _section_mosaic(
             ax.set_title(f"GPS track ({_plural(int(ok.sum()), 'sample')})", fontsize=9)
         ax.grid(alpha=0.3)
         _legend_outside(fig, [ax])
-    else:
+    elif "telemetry.csv" not in gone:
         parts.append("<p>No GPS track (no telemetry position).</p>")
-    return _img(fig, "mosaic and GPS track") + "".join(parts)
+    return note + _img(fig, "mosaic and GPS track") + "".join(parts)
 
 
 #: Fewest calls for a p99 worth showing (below, the p99 is the largest value or two).
@@ -843,11 +882,14 @@ def per_frame_sections(
         cover = telemetry_cover(
             _read_table(folder, "telemetry.csv"), [_f(r, "stamp_ns") for r in shifts], clock
         )
+    gone = [name for name in ("shifts.csv", "frames.csv") if not (folder / name).is_file()]
     return {
-        "shifts": _section_shifts(shifts, t0, has_telemetry, cover),
-        "registration": _section_registration(
-            _read_table(folder, "frames.csv"), references, stages, t0
-        ),
+        # a table deleted after the run is said, not shown as a flight without aligned frames
+        "shifts": missing_note(["shifts.csv"], "no shift to show")
+        if "shifts.csv" in gone
+        else _section_shifts(shifts, t0, has_telemetry, cover),
+        "registration": missing_note([n for n in gone if n == "frames.csv"], "no frame to show")
+        + _section_registration(_read_table(folder, "frames.csv"), references, stages, t0),
     }
 
 

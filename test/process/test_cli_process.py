@@ -692,6 +692,72 @@ def test_report_command_rewrites_reports(processed, tmp_path):
     assert r.returncode == 1 and r.stderr.count("\n") == 1
 
 
+def _report(folder, timeout=120):
+    return subprocess.run(
+        [sys.executable, "-m", "subpix_ros.cli", "report", str(folder)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_report_of_a_flight_whose_summary_is_corrupt_says_so(processed, tmp_path):
+    """A truncated summary.json: "unreadable (why)", not "no summary.json"; not passed over.
+
+    On a parent folder the other flights are reported, the corrupt one gets its line on
+    stderr and the exit status is 1 (was: skipped without a word, exit 0).
+    """
+    for name in ("seneca", "subpixel"):
+        shutil.copytree(processed[0] / name, tmp_path / name)
+        (tmp_path / name / "report.html").unlink()
+    corrupt = tmp_path / "seneca" / "summary.json"
+    corrupt.write_text(corrupt.read_text()[:200])  # cut short, as by a full disk or a copy
+    r = _report(tmp_path / "seneca")
+    assert r.returncode == 1, r.stderr
+    said = f"subpix report: error: cannot report {tmp_path / 'seneca'}: summary.json unreadable ("
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(said) and lines[0].endswith(")"), r.stderr
+    assert "no summary.json" not in r.stderr and "Expecting" in r.stderr, r.stderr  # json's why
+    r = _report(tmp_path)
+    assert r.returncode == 1, r.stderr
+    assert r.stdout.split() == [str(tmp_path / "subpixel" / "report.html")], r.stdout
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and f"{tmp_path / 'seneca'}: summary.json unreadable (" in lines[0]
+    assert (tmp_path / "subpixel" / "report.html").is_file()
+    assert not (tmp_path / "seneca" / "report.html").exists()
+
+
+def test_report_of_a_flight_with_products_deleted_says_which(processed, tmp_path):
+    """Products deleted after the run: the report's header and sections name them, stderr one line.
+
+    Was: exit 0, "status ok" and "No aligned frame: no shift to show" beside 21 aligned
+    frames, and only OpenCV's own imread warnings on stderr.
+    """
+    d = tmp_path / "subpixel"
+    shutil.copytree(processed[0] / "subpixel", d)
+    first_set = sorted((d / "superres").iterdir())[0].name
+    gone = ["shifts.csv", "results.mcap", "mosaic.png", f"superres/{first_set}"]
+    for name in gone:
+        (d / name).unlink()
+    r = _report(d)
+    assert r.returncode == 1, r.stdout + r.stderr
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and all(name in lines[0] for name in gone), r.stderr
+    assert "WARN" not in r.stderr and "imread" not in r.stderr, r.stderr
+    html = (d / "report.html").read_text()
+    header = html[: html.index("<h2>Shift trajectory</h2>")]
+    assert "missing since" in header and all(name in header for name in gone), header
+    sections = dict(re.findall(r"<h2>([^<]+)</h2>(.*?)(?=<h2>|</body>)", html, re.S))
+    assert "shifts.csv: no shift to show" in sections["Shift trajectory"]
+    assert "No aligned frame" not in html
+    assert f"superres/{first_set}: the set" in sections["Super-resolution"]
+    assert "mosaic.png: not shown" in sections["Mosaic and track"]
+    # the products all there: nothing said, exit 0
+    shutil.copytree(processed[0] / "subpixel", tmp_path / "intact" / "subpixel")
+    r = _report(tmp_path / "intact")
+    assert r.returncode == 0 and not r.stderr, r.stderr
+
+
 def test_mono16_flight_gives_16_bit_products(sample_bags, tmp_path):
     """A 16-bit camera: super-resolved and bicubic PNGs stay 16-bit, the mosaic preview is 8-bit."""
     _, frames, tel = _sample(sample_bags)

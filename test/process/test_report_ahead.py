@@ -92,7 +92,7 @@ def test_the_helper_ignores_ctrl_c_and_ends_with_its_pipe(tmp_path):
     proc = ahead._proc
     # an answer means its start-up (SIGINT ignored from there on) is done
     got = ahead.result(ahead.submit("per_frame_sections", tmp_path, [], {}, None, False))
-    assert got["shifts"].startswith("<p>No")
+    assert "no shift to show" in got["shifts"]
     proc.send_signal(signal.SIGINT)  # a terminal's Ctrl-C reaches the whole process group
     time.sleep(0.5)
     assert proc.poll() is None

@@ -88,6 +88,10 @@ _OTHER_NODES = {
         "mavros_imu_topic",
         "open_retry_s",
         "input_timeout_s",
+        "gps_frame_id",
+        "world_frame_id",
+        "base_frame_id",
+        "camera_frame_id",
     ),
     "monitor_node": (
         "host",

@@ -96,16 +96,14 @@ def missing_products(folder: str | Path, summary: dict) -> list[str]:
         The missing files, relative to ``folder``: the tables, ``results.mcap`` and
         ``timing.json`` (:data:`~subpix_ros.process.products.REQUIRED`; ``inputs.json``,
         which only tells the next run whether to redo the flight, is not the report's
-        business), then ``mosaic.png`` and the sets' PNGs.
+        business, nor the report itself, which is being written), then ``mosaic.png`` and the
+        sets' PNGs (:func:`~subpix_ros.process.products.listed_images`).
     """
-    from subpix_ros.process.products import INPUTS_FILE, REQUIRED
+    from subpix_ros.process.products import INPUTS_FILE, REQUIRED, listed_images
 
     folder = Path(folder)
-    names = [n for n in REQUIRED if n not in ("summary.json", INPUTS_FILE)]
-    if (summary.get("mosaic") or {}).get("written"):
-        names.append("mosaic.png")
-    for entry in summary.get("sets") or []:
-        names += [entry[k] for k in ("superres", "bicubic") if entry.get(k)]
+    names = [n for n in REQUIRED if n not in ("summary.json", INPUTS_FILE, "report.html")]
+    names += listed_images(summary)
     return [n for n in names if not (folder / n).is_file()]
 
 

@@ -42,16 +42,21 @@ def start(module: str, args: list[str] | None = None) -> int:
     Returns
     -------
     int
-        The node's exit status, or :data:`INTERRUPTED` when a Ctrl-C came before the node
-        took its signals over (said in one line on stderr).
+        The node's exit status, or :data:`INTERRUPTED` when a Ctrl-C came while the node
+        module was importing ("interrupted while starting"), or outside the node's own
+        handling of its signals ("interrupted"): one line on stderr.
     """
     if module not in NODE_MODULES:
         raise ValueError(f"no node module {module!r}; one of {', '.join(NODE_MODULES)}")
     try:
         main = importlib.import_module(f"subpix_ros.nodes.{module}").main
-        return main(args)
     except KeyboardInterrupt:
         print(f"{module}: interrupted while starting", file=sys.stderr, flush=True)
+        return INTERRUPTED
+    try:
+        return main(args)
+    except KeyboardInterrupt:  # before the node took its signals over, or after it gave them back
+        print(f"{module}: interrupted", file=sys.stderr, flush=True)
         return INTERRUPTED
 
 

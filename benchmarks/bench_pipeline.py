@@ -126,8 +126,10 @@ def start_layout(layout: str, env: dict) -> list[subprocess.Popen]:
     env = {k: v for k, v in env.items() if _STAND_IN_ONLY.get(k) != v}
     override = Path(tempfile.gettempdir()) / f"bench_pipeline_set{SET}_{os.getpid()}.yaml"
     override.write_text(
-        f"registration_node:\n  ros__parameters:\n    max_frames_per_reference: {SET - 1}\n"
-        f"reconstruction_node:\n  ros__parameters:\n    n_frames: {SET}\n"
+        # the shipped files' section names (/**/node): merged into their entries, so that a
+        # --params file after this one still wins (rcl orders entries by first appearance)
+        f"/**/registration_node:\n  ros__parameters:\n    max_frames_per_reference: {SET - 1}\n"
+        f"/**/reconstruction_node:\n  ros__parameters:\n    n_frames: {SET}\n"
         f"    min_frames: {min(SET, 4)}\n"  # at most n_frames (4: the default)
         f"    max_memory_mb: {float(env.get('SUBPIX_BENCH_MAX_MEMORY_MB') or 0.0)}\n"
     )

@@ -49,7 +49,9 @@ def test_images_give_a_low_biased_blur_and_a_parameter_file(images, tmp_path):
     assert (
         " px of 128x128 frames " in r.stdout and "# subpix blur, 128x128 frames" in out.read_text()
     )
-    value = yaml.safe_load(out.read_text())["reconstruction_node"]["ros__parameters"]["blur_sigma"]
+    value = yaml.safe_load(out.read_text())["/**/reconstruction_node"]["ros__parameters"][
+        "blur_sigma"
+    ]
     sigma = parse_blur_sigma(value)
     assert TRUE_BLUR - 0.15 <= sigma <= TRUE_BLUR + 0.02, sigma  # never much above the truth
     assert ReconstructionStage(blur_sigma=value).blur.setting == sigma  # the node takes it

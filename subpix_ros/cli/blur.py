@@ -144,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
     if args.yaml:
         text = (
             f"# subpix blur, {size} frames: {pooled.reason}\n"
-            "reconstruction_node:\n"
+            "/**/reconstruction_node:\n"  # the node in any namespace, as config/*.yaml
             "  ros__parameters:\n"
             f'    blur_sigma: "{pooled.sigma:.3f}"\n'
         )

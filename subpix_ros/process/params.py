@@ -1,11 +1,12 @@
 """Stage parameters for ``subpix process``: read from config/*.yaml, checked, transport keys out.
 
 A params file is read as the nodes read it with ``--params-file`` (rclpy's rules): the sections
-of every file are merged by node name in order (a later file's value of a key replaces an
-earlier one's), then each node takes the ``/**`` section's keys it declares and its own
-section over them. What cannot apply is said before any bag is processed: a key the node does
-not declare, or a node name close to one ``subpix process`` runs, is an error
-(:class:`ParamsError`); another program's node is ignored with a warning.
+of every file are merged by their name as written, each where that name first appeared (a
+later file's value of a key replaces an earlier one's), then each node takes the sections that
+match it (``/**``: the keys it declares) in that order, the last value winning. What cannot
+apply is said before any bag is processed: a key the node does not declare, or a node name
+close to one ``subpix process`` runs, is an error (:class:`ParamsError`); another program's
+node is ignored with a warning.
 """
 
 from __future__ import annotations
@@ -328,17 +329,20 @@ def load_params_files(
 
     Notes
     -----
-    rclpy's rules, so that a file gives ``subpix process`` what it gives the nodes: the
-    sections are merged by node name across files in order (a later value of a key replaces an
-    earlier one); a node then takes the ``/**`` keys it declares and its own section's over
-    them, whatever their order (a node's own section overrides ``/**``, also from an earlier
-    file). ``subpix process`` runs its nodes without a namespace and takes a namespaced section
-    (``/ns/registration_node``, ``/**/registration_node``) as the node's own. Keys every ROS 2
-    node has (``use_sim_time``, ``qos_overrides.*``) are accepted and unused.
+    rclpy's rules (Jazzy, measured against it in test/process/test_params.py), so that a file
+    gives ``subpix process`` what it gives the nodes: rcl merges the files' sections by their
+    name as written (``/**``, ``/**/registration_node``, ``registration_node``), each at the
+    place where that name first appeared, a later file's value of a key replacing an earlier
+    one; a node then takes every section that matches it in that order, the last value of a
+    key winning (so a ``/**`` key overrides the node's own section when ``/**`` first appeared
+    after it). ``subpix process`` runs its nodes without a namespace and takes a namespaced
+    section (``/ns/registration_node``, ``/**/registration_node``) as the node's own. Keys
+    every ROS 2 node has (``use_sim_time``, ``qos_overrides.*``) are accepted and unused.
     """
     say = say or (lambda line: None)
-    wild: dict[str, Any] = {}
-    own: dict[str, dict[str, Any]] = {}
+    # section name as written -> (the node it is for, or "**"; its parameters), in the order
+    # the names first appeared: rcl's merged parameter list
+    entries: dict[str, tuple[str, dict[str, Any]]] = {}
     namespaces: dict[str, tuple[str, Path | str]] = {}
     said: set[tuple[str, str]] = set()
     for path in paths:
@@ -350,7 +354,7 @@ def load_params_files(
             params = {k: v for k, v in params.items() if not _builtin(k)}
             if node in _WILDCARDS:
                 _check_wildcard(path, params, say, said)
-                wild.update(params)
+                entries.setdefault(name, ("**", {}))[1].update(params)
             elif node in PROCESS_NODES:
                 accepted = declared_params(node)
                 for key in params:
@@ -363,7 +367,7 @@ def load_params_files(
                             f"parameters {path}: {node} is given in namespace {first[0]} "
                             f"({first[1]}) and {ns}: subpix process runs one {node}, give one"
                         )
-                own.setdefault(node, {}).update(params)
+                entries.setdefault(name, (node, {}))[1].update(params)
             elif node in _OTHER_NODES:
                 other.append(node)
             else:
@@ -389,9 +393,18 @@ def load_params_files(
     out: dict[str, dict] = {}
     for node in PROCESS_NODES:
         accepted = declared_params(node)
-        mine = {k: v for k, v in wild.items() if k in accepted}
-        if node in own or mine:
-            out[node] = {**mine, **own.get(node, {})}
+        merged: dict[str, Any] = {}
+        given = False  # its own section (even empty), or a /** key it declares
+        for target, params in entries.values():
+            if target == "**":
+                mine = {k: v for k, v in params.items() if k in accepted}
+                given = given or bool(mine)
+                merged.update(mine)
+            elif target == node:
+                given = True
+                merged.update(params)
+        if given:
+            out[node] = merged
     return out
 
 

@@ -46,8 +46,8 @@ def _yaml(tmp_path, name, text):
     return path
 
 
-def test_wildcard_keys_reach_every_node_that_declares_them_and_its_own_section_wins(tmp_path):
-    """As rclpy reads them: ``/**`` first, the node's own section over it, whatever the order."""
+def test_wildcard_keys_reach_every_node_that_declares_them(tmp_path):
+    """``/**`` keys go to every node that declares them (``use_sim_time``: every node's)."""
     from subpix_ros.process.params import load_params_files
 
     wild = _yaml(
@@ -56,26 +56,50 @@ def test_wildcard_keys_reach_every_node_that_declares_them_and_its_own_section_w
         "/**:\n  ros__parameters:\n    pixel_pitch_um: 3.08\n    n_points: 120\n"
         "    use_sim_time: true\n",
     )
-    got = load_params_files([wild])
     # n_points: registration_node and mosaic_node both declare it; use_sim_time: every node's
-    assert got == {
+    assert load_params_files([wild]) == {
         "registration_node": {"pixel_pitch_um": 3.08, "n_points": 120},
         "mosaic_node": {"n_points": 120},
     }
-    own = _yaml(
-        tmp_path, "own.yaml", "registration_node:\n  ros__parameters:\n    pixel_pitch_um: 2.0\n"
-    )
-    assert load_params_files([wild, own])["registration_node"]["pixel_pitch_um"] == 2.0
-    assert load_params_files([own, wild])["registration_node"]["pixel_pitch_um"] == 2.0
-    same_file = _yaml(
-        tmp_path,
-        "same.yaml",
-        "registration_node:\n  ros__parameters:\n    pixel_pitch_um: 2.0\n"
-        "/**:\n  ros__parameters:\n    pixel_pitch_um: 3.08\n",
-    )
-    assert load_params_files([same_file])["registration_node"]["pixel_pitch_um"] == 2.0
-    later = _yaml(tmp_path, "later.yaml", "/**:\n  ros__parameters:\n    pixel_pitch_um: 5.0\n")
-    assert load_params_files([wild, later])["registration_node"]["pixel_pitch_um"] == 5.0
+
+
+def test_stacked_files_resolve_as_rclpy_resolves_them(tmp_path, ctx):
+    """Every order of own, ``/**/`` and ``/**`` sections gives what a real rclpy node takes.
+
+    rcl merges the files' sections by their name as written, each at its first appearance, and
+    the node applies the matching ones in that order: a ``/**`` that first appears after the
+    node's own section wins over it, and a later file's ``/**/node`` merged into an earlier
+    entry loses to a plain ``node`` entry between them. (The loader had said "the node's own
+    section wins whatever the order", which rclpy does not do.)
+    """
+    import itertools
+
+    import rclpy
+
+    from subpix_ros.process.params import load_params_files
+
+    files = {
+        "own": "registration_node:\n  ros__parameters:\n    pixel_pitch_um: 2.0\n",
+        "any_ns": "/**/registration_node:\n  ros__parameters:\n    pixel_pitch_um: 2.5\n",
+        "wild": "/**:\n  ros__parameters:\n    pixel_pitch_um: 3.08\n",
+        "any_ns_2": "/**/registration_node:\n  ros__parameters:\n    pixel_pitch_um: 4.0\n",
+        "both": "registration_node:\n  ros__parameters:\n    pixel_pitch_um: 5.0\n"
+        "/**:\n  ros__parameters:\n    pixel_pitch_um: 6.0\n",
+    }
+    paths = {k: _yaml(tmp_path, f"{k}.yaml", v) for k, v in files.items()}
+    orders = [list(c) for n in (1, 2, 3) for c in itertools.permutations(paths, n)]
+    for order in orders:
+        args = ["--ros-args"]
+        for k in order:
+            args += ["--params-file", str(paths[k])]
+        node = rclpy.create_node("registration_node", cli_args=args)
+        try:
+            node.declare_parameter("pixel_pitch_um", 1.54)
+            taken = node.get_parameter("pixel_pitch_um").value
+        finally:
+            node.destroy_node()
+        ours = load_params_files([paths[k] for k in order])["registration_node"]["pixel_pitch_um"]
+        assert ours == taken, (order, ours, taken)
 
 
 def test_a_namespaced_section_is_the_node_s_own(tmp_path):

@@ -337,13 +337,14 @@ def test_ctrl_c_leaves_nothing_that_looks_complete(sample_bags, tmp_path):
     assert not [q for q in tmp_path.iterdir() if q.name.startswith(".")]
 
 
-def test_kill_with_jobs_stops_the_workers_and_removes_their_folders(sample_bags, tmp_path):
-    p = subprocess.Popen(
+def _two_bags_two_jobs(sample_bags, out):
+    """Start `subpix process` of both sample flights with --jobs 2 into ``out`` (pipes)."""
+    return subprocess.Popen(
         process_cmd(
             str(sample_bags / "subpixel"),
             str(sample_bags / "seneca"),
             "-o",
-            str(tmp_path),
+            str(out),
             "--params",
             DEMO,
             "--jobs",
@@ -353,6 +354,10 @@ def test_kill_with_jobs_stops_the_workers_and_removes_their_folders(sample_bags,
         stderr=subprocess.PIPE,
         text=True,
     )
+
+
+def test_kill_with_jobs_stops_the_workers_and_removes_their_folders(sample_bags, tmp_path):
+    p = _two_bags_two_jobs(sample_bags, tmp_path)
     try:
         line = p.stderr.readline()
         assert "frames" in line, line
@@ -398,21 +403,7 @@ def test_sigkill_with_jobs_leaves_no_process_behind(sample_bags, tmp_path):
     Its workers, the progress queue's manager and multiprocessing's resource tracker all end
     (was: the manager and the tracker lived on, holding the command's pipes open).
     """
-    p = subprocess.Popen(
-        process_cmd(
-            str(sample_bags / "subpixel"),
-            str(sample_bags / "seneca"),
-            "-o",
-            str(tmp_path),
-            "--params",
-            DEMO,
-            "--jobs",
-            "2",
-        ),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    p = _two_bags_two_jobs(sample_bags, tmp_path)
     try:
         assert "frames" in p.stderr.readline()
         children = _children(p.pid)

@@ -36,6 +36,8 @@ import time
 from pathlib import Path
 
 __all__ = [
+    "DIE_WITH_PARENT_ENV",
+    "die_with_parent_if_asked",
     "keep_freed_memory",
     "favour_throughput",
     "favour_memory",
@@ -416,6 +418,25 @@ ROS_ENV_PREFIXES = (
     "CYCLONEDDS_",
     "ZENOH_",
 )
+
+
+#: Environment variable: ``1`` makes a node process or a ``subpix`` command end with the
+#: process that started it (:func:`die_with_parent_if_asked`), as ``subpix demo`` asks of its
+#: pipeline and replays: a demo killed with SIGKILL leaves none of them running.
+DIE_WITH_PARENT_ENV = "SUBPIX_DIE_WITH_PARENT"
+
+
+def die_with_parent_if_asked(environ=None) -> bool:
+    """Call :func:`die_with_parent` when ``SUBPIX_DIE_WITH_PARENT=1``; return whether it did.
+
+    The variable is taken out of the environment, so that processes this one starts do not
+    inherit the request.
+    """
+    environ = os.environ if environ is None else environ
+    if environ.pop(DIE_WITH_PARENT_ENV, "") != "1":
+        return False
+    die_with_parent()
+    return True
 
 
 def die_with_parent() -> None:

@@ -199,3 +199,40 @@ def test_demo_interrupted_says_so_and_stops_its_processes(sample_bags, tmp_path,
     assert err_text.strip().splitlines()[-1] == "subpix demo: interrupted", err_text
     assert err_text.count("subpix demo: interrupted") == 1, err_text
     assert not left, (kids, err_text)
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+def test_demo_killed_leaves_no_pipeline_or_replay_running(sample_bags, tmp_path):
+    """SIGKILL of the demo (it cannot stop anything itself): its pipeline and replay end too.
+
+    (Was: they ran on, in sessions of their own, holding the DDS domain.) The kernel sends
+    them SIGTERM when the demo dies (``SUBPIX_DIE_WITH_PARENT``), and they stop cleanly.
+    """
+    with open(tmp_path / "stderr.txt", "w") as err:
+        demo = subprocess.Popen(
+            subpix_cmd("demo", "--out", str(tmp_path / "demo")),
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            start_new_session=True,
+        )
+    kids = {}
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and demo.poll() is None:
+            kids = _children(demo.pid)
+            if any(" replay " in cmd for cmd in kids.values()):
+                break
+            time.sleep(0.1)
+        assert any(" replay " in cmd for cmd in kids.values()), kids
+        time.sleep(1.0)
+        demo.kill()
+        demo.wait(30)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not all(_gone(pid) for pid in kids):
+            time.sleep(0.2)
+        left = {pid: cmd for pid, cmd in kids.items() if not _gone(pid)}
+    finally:
+        for pid in kids:
+            if not _gone(pid):
+                os.kill(pid, signal.SIGKILL)
+    assert left == {}, left

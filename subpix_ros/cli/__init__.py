@@ -18,6 +18,7 @@ from ..runtime import (
     RuntimeSetupError,
     clean_stale_shm_segments,
     configure_ros_environment,
+    die_with_parent_if_asked,
     dump_stacks_on_sigusr1,
     keep_freed_memory,
 )
@@ -86,6 +87,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if extra:  # said with the subcommand's usage, not the top-level one
         sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+    die_with_parent_if_asked()  # SUBPIX_DIE_WITH_PARENT=1: a replay started by subpix demo
     if args.command in ("replay", "record", "demo"):
         clean_stale_shm_segments()  # the DDS commands: segments of killed processes (runtime)
     try:

@@ -192,7 +192,10 @@ def _start(cmd: list[str], env: dict) -> subprocess.Popen:
     subprocess.Popen
         The process.
     """
-    return subprocess.Popen(cmd, env=env, start_new_session=True)
+    from subpix_ros.runtime import DIE_WITH_PARENT_ENV
+
+    # and ended by the kernel if the demo dies without stopping them (SIGKILL)
+    return subprocess.Popen(cmd, env={**env, DIE_WITH_PARENT_ENV: "1"}, start_new_session=True)
 
 
 def _replay_cmd(bag: Path, rate: float, *extra: str) -> list[str]:

@@ -26,6 +26,7 @@ from ..runtime import (
     configure_allocator,
     configure_opencv_threads,
     configure_ros_environment,
+    die_with_parent_if_asked,
     dump_stacks_on_sigusr1,
 )
 
@@ -127,6 +128,7 @@ def run_nodes(
     SingleThreadedExecutor unless ``SUBPIX_EXECUTOR=multi`` (:func:`executor_kind`); each node
     shows which as ``executor`` in /diagnostics.
     """
+    die_with_parent_if_asked()  # SUBPIX_DIE_WITH_PARENT=1: started by subpix demo
     configure_allocator()
     configure_opencv_threads()
     dump_stacks_on_sigusr1()  # kill -USR1 <pid>: every thread's stack on stderr

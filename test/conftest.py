@@ -425,3 +425,25 @@ def burst_camera(topic: str, frames: int = 100):
         timeout=60,
         env=env,
     )
+
+
+def child_processes(parent: int) -> dict[int, str]:
+    """Return the processes whose parent is ``parent`` (Linux /proc): pid -> command line."""
+    out = {}
+    for d in Path("/proc").iterdir():
+        try:
+            stat = (d / "stat").read_text() if d.name.isdigit() else ""
+            if stat and int(stat.rsplit(")", 1)[1].split()[1]) == parent:
+                out[int(d.name)] = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, IndexError, ValueError):
+            pass
+    return out
+
+
+def process_alive(pid: int) -> bool:
+    """Return True while ``pid`` runs (an exited process not yet reaped, a zombie, is not)."""
+    try:
+        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"

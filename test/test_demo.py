@@ -10,10 +10,9 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
-from conftest import subpix_cmd
+from conftest import child_processes, process_alive, subpix_cmd
 
 
 def test_demo_runs_to_its_flight_report(sample_bags, tmp_path):
@@ -134,27 +133,6 @@ def test_demo_lists_the_files_it_writes(sample_bags, tmp_path, monkeypatch, caps
     assert sorted(listed.group(2).split(", ")) == sorted(p.name for p in out.iterdir())
 
 
-def _children(pid: int) -> dict[int, str]:
-    """Return the child processes of ``pid``: pid -> command line."""
-    out = {}
-    for d in Path("/proc").iterdir():
-        try:
-            stat = (d / "stat").read_text()
-            if d.name.isdigit() and int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                out[int(d.name)] = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-        except (OSError, IndexError, ValueError):
-            pass
-    return out
-
-
-def _gone(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    return False
-
-
 @pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
 @pytest.mark.parametrize("how", ["SIGTERM", "SIGHUP", "Ctrl-C"])
 def test_demo_interrupted_says_so_and_stops_its_processes(sample_bags, tmp_path, how):
@@ -175,7 +153,7 @@ def test_demo_interrupted_says_so_and_stops_its_processes(sample_bags, tmp_path,
         deadline = time.monotonic() + 120
         kids = {}
         while time.monotonic() < deadline and demo.poll() is None:
-            kids = _children(demo.pid)
+            kids = child_processes(demo.pid)
             if any(" replay " in cmd for cmd in kids.values()):  # DDS up, a flight replayed
                 break
             time.sleep(0.1)
@@ -190,7 +168,7 @@ def test_demo_interrupted_says_so_and_stops_its_processes(sample_bags, tmp_path,
         if demo.poll() is None:
             os.killpg(demo.pid, signal.SIGKILL)
             demo.wait()
-        left = [pid for pid in kids if not _gone(pid)]
+        left = [pid for pid in kids if process_alive(pid)]
         for pid in left:  # whatever failed: no pipeline left running for the later tests
             os.kill(pid, signal.SIGKILL)
     err_text = err_path.read_text()
@@ -219,7 +197,7 @@ def test_demo_killed_leaves_no_pipeline_or_replay_running(sample_bags, tmp_path)
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and demo.poll() is None:
-            kids = _children(demo.pid)
+            kids = child_processes(demo.pid)
             if any(" replay " in cmd for cmd in kids.values()):
                 break
             time.sleep(0.1)
@@ -228,11 +206,11 @@ def test_demo_killed_leaves_no_pipeline_or_replay_running(sample_bags, tmp_path)
         demo.kill()
         demo.wait(30)
         deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and not all(_gone(pid) for pid in kids):
+        while time.monotonic() < deadline and any(process_alive(pid) for pid in kids):
             time.sleep(0.2)
-        left = {pid: cmd for pid, cmd in kids.items() if not _gone(pid)}
+        left = {pid: cmd for pid, cmd in kids.items() if process_alive(pid)}
     finally:
         for pid in kids:
-            if not _gone(pid):
+            if process_alive(pid):
                 os.kill(pid, signal.SIGKILL)
     assert left == {}, left

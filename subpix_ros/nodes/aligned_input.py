@@ -54,9 +54,7 @@ class AlignedInput:
         )
         # aligned frames that never reached the callback (replaced in the history): counted
         self.gaps = SequenceGaps(node, "aligned", node.diag, depth, "aligned frames")
-        self.gaps.subscription = node.create_subscription(
-            Image, "aligned", self.gaps.wrap(self._on_aligned), q, raw=True
-        )
+        self.gaps.subscribe(Image, self._on_aligned, q)
         node.create_subscription(Image, "aligned/mask", self._on_mask, q, raw=True)
 
     refs = property(lambda self: self.assembler.refs)

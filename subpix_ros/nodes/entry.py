@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+from functools import partial
 
 __all__ = ["start", "NODE_MODULES"]
 
@@ -60,36 +61,11 @@ def start(module: str, args: list[str] | None = None) -> int:
         return INTERRUPTED
 
 
-def telemetry_node() -> int:
-    """Console entry point ``telemetry_node``."""
-    return start("telemetry_node")
-
-
-def registration_node() -> int:
-    """Console entry point ``registration_node``."""
-    return start("registration_node")
-
-
-def shift_node() -> int:
-    """Console entry point ``shift_node``."""
-    return start("shift_node")
-
-
-def reconstruction_node() -> int:
-    """Console entry point ``reconstruction_node``."""
-    return start("reconstruction_node")
-
-
-def mosaic_node() -> int:
-    """Console entry point ``mosaic_node``."""
-    return start("mosaic_node")
-
-
-def pipeline() -> int:
-    """Console entry point ``pipeline``."""
-    return start("pipeline")
-
-
-def monitor_node() -> int:
-    """Console entry point ``monitor_node``."""
-    return start("monitor_node")
+# The console entry points (setup.py): each the guarded start of its module, no argument.
+telemetry_node = partial(start, "telemetry_node")
+registration_node = partial(start, "registration_node")
+shift_node = partial(start, "shift_node")
+reconstruction_node = partial(start, "reconstruction_node")
+mosaic_node = partial(start, "mosaic_node")
+pipeline = partial(start, "pipeline")
+monitor_node = partial(start, "monitor_node")

@@ -357,15 +357,27 @@ class SequenceGaps:
     def __init__(
         self, node: Node, topic: str, diagnostics: "Diagnostics", depth: int, what: str
     ) -> None:
-        self.node, self.diagnostics, self.depth, self.what = node, diagnostics, depth, what
+        self.node, self.topic, self.depth, self.what = node, topic, depth, what
+        self.diagnostics = diagnostics
         self.key = "messages_missed_" + topic.strip("/").replace("/", "_")
         try:
             self.shown = node.resolve_topic_name(topic)
         except Exception:  # noqa: BLE001 - a name rcl cannot expand: as given
             self.shown = topic
-        self.subscription = None  # set by the caller once the subscription is made
+        self.subscription = None  # made by subscribe()
         self.last: int | None = None
         self.missed = 0
+
+    def subscribe(self, msg_type, callback: Callable[[Any], None], qos, **kwargs):
+        """Create the node's raw subscription of the topic, counted; return it.
+
+        ``callback(message)`` is called for each message; ``kwargs`` go to
+        ``create_subscription`` (``event_callbacks``).
+        """
+        self.subscription = self.node.create_subscription(
+            msg_type, self.topic, self.wrap(callback), qos, raw=True, **kwargs
+        )
+        return self.subscription
 
     def wrap(self, callback: Callable[[Any], None]) -> Callable[[Any, dict], None]:
         """Return a subscription callback taking (message, info): counts, then ``callback(message)``."""
@@ -380,20 +392,19 @@ class SequenceGaps:
         """Count the messages missed before sequence number ``seq``; return how many just now."""
         if not seq:  # an RMW that does not number its messages (0 or None)
             return 0
+        last, self.last = self.last, int(seq)
+        if last is None or seq <= last + 1:
+            return 0
+        # a jump: the graph is asked only now (not per message) whether one writer numbers them
         sub = self.subscription
         if sub is not None and sub.get_publisher_count() > 1:
-            self.last = None  # interleaved numbers of several writers: not attributable
-            return 0
-        last, self.last = self.last, int(seq)
-        if last is None or seq <= last:
-            return 0
+            return 0  # interleaved numbers of several writers: not attributable
         gap = int(seq) - last - 1
-        if gap > 0:
-            self.missed += gap
-            self.diagnostics.set(**{self.key: self.missed})
-            self.diagnostics.warn(
-                f"{self.shown}: {self.what} missed before this node took them ({self.key} counts "
-                f"them, from the publisher's sequence numbers): lost in transport, or replaced in "
-                f"the subscription's history of {self.depth} while the node fell behind"
-            )
+        self.missed += gap
+        self.diagnostics.set(**{self.key: self.missed})
+        self.diagnostics.warn(
+            f"{self.shown}: {self.what} missed before this node took them ({self.key} counts "
+            f"them, from the publisher's sequence numbers): lost in transport, or replaced in "
+            f"the subscription's history of {self.depth} while the node fell behind"
+        )
         return gap

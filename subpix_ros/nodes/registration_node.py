@@ -102,26 +102,14 @@ class RegistrationNode(StageNode):
             depth = 30 if self.param("camera_reliable") else 10
             qos = camera_qos(self.param("camera_reliable"), depth=depth)
             # frames that never reached the callback (transport, or replaced in the history)
-            self.camera_gaps = {
-                t: SequenceGaps(self, t, self.diag, depth, "camera frames")
-                for t in ("image", "image/compressed")
-            }
-            self.camera_gaps["image"].subscription = self.create_subscription(
-                Image,
-                "image",
-                self.camera_gaps["image"].wrap(self._on_image),
-                qos,
-                raw=True,
-                event_callbacks=self.events("image")[0],
-            )
-            self.camera_gaps["image/compressed"].subscription = self.create_subscription(
-                CompressedImage,
-                "image/compressed",
-                self.camera_gaps["image/compressed"].wrap(self._on_compressed),
-                qos,
-                raw=True,
-                event_callbacks=self.events("image/compressed")[0],
-            )
+            self.camera_gaps = {}
+            for msg_type, topic, callback in (
+                (Image, "image", self._on_image),
+                (CompressedImage, "image/compressed", self._on_compressed),
+            ):
+                gaps = SequenceGaps(self, topic, self.diag, depth, "camera frames")
+                gaps.subscribe(msg_type, callback, qos, event_callbacks=self.events(topic)[0])
+                self.camera_gaps[topic] = gaps
             tq = reliable_qos(50)
             self.create_subscription(TwistStamped, "telemetry/velocity", self._on_velocity, tq)
             self.create_subscription(Float64, "telemetry/height", self._on_height, tq)

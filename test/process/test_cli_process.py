@@ -18,6 +18,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from conftest import child_processes, process_alive
 
 from subpix_ros.io.bags import BagWriter, bag_topics, read_messages
 from subpix_ros.io.cdr import (
@@ -299,22 +300,11 @@ def test_a_rerun_redoes_what_changed_and_keeps_what_went_wrong(sample_bags, tmp_
 
 def _report_helpers(parent: int) -> list[int]:
     """PIDs of the report helper processes (``subpix_ros.process.report_ahead``) of ``parent``."""
-    out = []
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            cmd = (d / "cmdline").read_bytes()
-            ppid = int(
-                next(
-                    x for x in (d / "status").read_text().splitlines() if x.startswith("PPid:")
-                ).split()[1]
-            )
-        except (OSError, StopIteration, ValueError):
-            continue
-        if ppid == parent and b"subpix_ros.process.report_ahead" in cmd:
-            out.append(int(d.name))
-    return out
+    return [
+        pid
+        for pid, cmd in child_processes(parent).items()
+        if "subpix_ros.process.report_ahead" in cmd
+    ]
 
 
 def test_ctrl_c_leaves_nothing_that_looks_complete(sample_bags, tmp_path):
@@ -372,31 +362,6 @@ def test_kill_with_jobs_stops_the_workers_and_removes_their_folders(sample_bags,
     assert [q.name for q in tmp_path.iterdir()] == []
 
 
-def _children(parent: int) -> list[int]:
-    """PIDs of the processes whose parent is ``parent``."""
-    out = []
-    for d in Path("/proc").iterdir():
-        try:
-            status = (d / "status").read_text() if d.name.isdigit() else ""
-        except OSError:
-            continue
-        if f"\nPPid:\t{parent}\n" in status:
-            out.append(int(d.name))
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = next(
-            x
-            for x in Path(f"/proc/{pid}/status").read_text().splitlines()
-            if x.startswith("State:")
-        )
-    except (OSError, StopIteration):
-        return False
-    return "zombie" not in state
-
-
 def test_sigkill_with_jobs_leaves_no_process_behind(sample_bags, tmp_path):
     """SIGKILL of `subpix process --jobs 2` leaves none of its processes behind.
 
@@ -406,7 +371,7 @@ def test_sigkill_with_jobs_leaves_no_process_behind(sample_bags, tmp_path):
     p = _two_bags_two_jobs(sample_bags, tmp_path)
     try:
         assert "frames" in p.stderr.readline()
-        children = _children(p.pid)
+        children = list(child_processes(p.pid))
         assert len(children) >= 3, children  # two workers, the manager, the resource tracker
     finally:
         p.kill()
@@ -414,9 +379,9 @@ def test_sigkill_with_jobs_leaves_no_process_behind(sample_bags, tmp_path):
         p.stdout.close()  # not communicate(): a child left behind holds the pipes open
         p.stderr.close()
     deadline = time.monotonic() + 20.0
-    while time.monotonic() < deadline and any(_alive(c) for c in children):
+    while time.monotonic() < deadline and any(process_alive(c) for c in children):
         time.sleep(0.2)
-    left = {c: Path(f"/proc/{c}/cmdline").read_bytes()[:120] for c in children if _alive(c)}
+    left = {c: Path(f"/proc/{c}/cmdline").read_bytes()[:120] for c in children if process_alive(c)}
     for c in left:
         os.kill(c, signal.SIGKILL)
     assert left == {}
